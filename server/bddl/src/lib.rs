@@ -1,0 +1,1 @@
+//! LIBERO BDDL parser.
