@@ -3,6 +3,22 @@
 pub mod error;
 pub mod paths;
 
+// BDDL → MJCF composition and LIBERO's reset-time fixture placement
+pub mod compose;
+
+// Panda, OSC_POSE, stepping, faults, init states (simulation core)
+pub mod controller;
+pub mod fault;
+pub mod gripper;
+pub mod init_state;
+pub mod model_overrides;
+pub mod robot;
+pub mod simulation;
+pub mod trajectory;
+
 pub use error::SimError;
 pub use mujoco_rs;
 pub use paths::AssetPaths;
+pub use init_state::InitStates;
+pub use simulation::{ObservationSample, RobotState, Simulation, StepOutcome};
+pub use trajectory::{Trajectory, replay};
