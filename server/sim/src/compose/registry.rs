@@ -1,0 +1,138 @@
+//! LIBERO's object registry (hf-libero 0.1.4 `envs/objects/*.py`): category key → asset file, placement rotation
+//! and articulation ranges. The values are those of the Python classes (dump: `shared/reference/ref/object_registry.json`).
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
+
+/// How a placement sampler draws an object's orientation.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum Rotation {
+    /// `(min, max)` about one axis (`x`, `y` or `z`).
+    Range { range: [f64; 2], axis: char },
+    /// Per-axis ranges composed in this order (LIBERO's dict rotations, e.g. ketchup `{x: .., z: ..}`).
+    Composed(Vec<(char, [f64; 2])>),
+}
+
+/// Joint-range defaults used by `Open`/`Close`/`TurnOn`/`TurnOff` initial conditions and predicates.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct Articulation {
+    pub open: Option<[f64; 2]>,
+    pub close: Option<[f64; 2]>,
+    pub turn_on: Option<[f64; 2]>,
+    pub turn_off: Option<[f64; 2]>,
+}
+
+/// One registered category.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Category {
+    pub key: &'static str,
+    /// Path relative to the LIBERO asset root.
+    pub file: String,
+    pub rotation: Rotation,
+    /// `Some` for articulated objects (`ArticulatedObject` subclasses).
+    pub articulation: Option<Articulation>,
+    /// `BasinFaucet` is the one class that never gets a free joint.
+    pub free_joint_as_object: bool,
+    /// Sites whose visibility follows the object state (flat_stove `burner`).
+    pub vis_sites: &'static [&'static str],
+}
+
+const HOPE: &[&str] = &[
+    "alphabet_soup", "bbq_sauce", "butter", "chocolate_pudding", "cookies", "cream_cheese", "ketchup",
+    "macaroni_and_cheese", "milk", "orange_juice", "popcorn", "salad_dressing", "new_salad_dressing", "tomato_sauce",
+];
+const SCANNED: &[&str] = &["white_bowl", "akita_black_bowl", "plate", "basket", "chefmate_8_frypan", "glazed_rim_porcelain_ramekin"];
+const TURBOSQUID: &[&str] = &[
+    "wooden_tray", "white_storage_box", "wooden_shelf", "wooden_two_layer_shelf", "wine_rack", "wine_bottle",
+    "dining_set_group", "bowl_drainer", "moka_pot", "black_book", "yellow_book", "red_coffee_mug", "desk_caddy",
+    "porcelain_mug", "white_yellow_mug",
+];
+const ARTICULATED: &[&str] = &[
+    "microwave", "slide_cabinet", "window", "faucet", "basin_faucet", "short_cabinet", "short_fridge",
+    "wooden_cabinet", "white_cabinet", "flat_stove",
+];
+
+/// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.
+pub fn all_keys() -> Vec<&'static str> {
+    let mut v: Vec<&'static str> = Vec::new();
+    v.extend(HOPE);
+    v.push("rack");
+    v.extend(SCANNED);
+    v.extend(ARTICULATED);
+    v.extend(TURBOSQUID);
+    v
+}
+
+fn range(a: f64, b: f64, axis: char) -> Rotation {
+    Rotation::Range { range: [a, b], axis }
+}
+
+/// Look a category up; `None` if LIBERO does not register it (or registers it without an asset).
+pub fn category(key: &str) -> Option<Category> {
+    let half_pi = range(FRAC_PI_2, FRAC_PI_2, 'x');
+    let composed = Rotation::Composed(vec![('x', [FRAC_PI_2, FRAC_PI_2]), ('z', [FRAC_PI_2, FRAC_PI_2])]);
+    let zero = |axis| range(0.0, 0.0, axis);
+    let mk = |key: &'static str, file: String, rotation: Rotation| Category {
+        key,
+        file,
+        rotation,
+        articulation: None,
+        free_joint_as_object: true,
+        vis_sites: &[],
+    };
+    if let Some(k) = HOPE.iter().find(|k| **k == key) {
+        let rot = match *k {
+            "alphabet_soup" | "tomato_sauce" => range(FRAC_PI_2, FRAC_PI_2, 'z'),
+            "butter" | "chocolate_pudding" | "cream_cheese" | "popcorn" => zero('x'),
+            "ketchup" | "macaroni_and_cheese" | "milk" | "orange_juice" | "salad_dressing" | "new_salad_dressing" => composed,
+            _ => half_pi,
+        };
+        return Some(mk(k, format!("stable_hope_objects/{k}/{k}.xml"), rot));
+    }
+    if key == "rack" {
+        return Some(mk("rack", "stable_scanned_objects/simple_rack/simple_rack.xml".into(), zero('x')));
+    }
+    if let Some(k) = SCANNED.iter().find(|k| **k == key) {
+        return Some(mk(k, format!("stable_scanned_objects/{k}/{k}.xml"), half_pi));
+    }
+    if let Some(k) = TURBOSQUID.iter().find(|k| **k == key) {
+        let rot = match *k {
+            "white_storage_box" => zero('y'),
+            "black_book" | "yellow_book" => range(-FRAC_PI_2, -FRAC_PI_4, 'x'),
+            "red_coffee_mug" | "porcelain_mug" | "white_yellow_mug" => range(-FRAC_PI_2, -FRAC_PI_2, 'x'),
+            _ => zero('x'),
+        };
+        return Some(mk(k, format!("turbosquid_objects/{k}/{k}.xml"), rot));
+    }
+    if let Some(k) = ARTICULATED.iter().find(|k| **k == key) {
+        let mut c = mk(k, format!("articulated_objects/{k}.xml"), range(FRAC_PI_4, FRAC_PI_2, 'x'));
+        let mut a = Articulation::default();
+        match *k {
+            "microwave" => {
+                a.open = Some([-2.094, -1.3]);
+                a.close = Some([-0.005, 0.0]);
+            }
+            "short_cabinet" => {
+                a.open = Some([0.10, 0.16]);
+                a.close = Some([-0.005, 0.0]);
+            }
+            "short_fridge" => {
+                a.open = Some([2.0, 2.7]);
+                a.close = Some([-0.005, 0.0]);
+            }
+            "wooden_cabinet" | "white_cabinet" => {
+                a.open = Some([-0.16, -0.14]);
+                a.close = Some([0.0, 0.005]);
+            }
+            "flat_stove" => {
+                c.rotation = zero('y');
+                a.turn_on = Some([0.5, 2.1]);
+                a.turn_off = Some([-0.005, 0.0]);
+                c.vis_sites = &["burner"];
+            }
+            "basin_faucet" => c.free_joint_as_object = false,
+            _ => {}
+        }
+        c.articulation = Some(a);
+        return Some(c);
+    }
+    None
+}
