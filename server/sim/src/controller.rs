@@ -108,19 +108,22 @@ impl ArmStateReader {
     }
 }
 
-/// robosuite's `quat2mat` of an (x, y, z, w) quaternion, including its float32 cast: the quaternion is
-/// rounded to f32, normalised in f32, the diagonal entries are formed in f64 from f32 products and the
-/// off-diagonal ones in f32 (NumPy 1.x scalar promotion rules).
+/// robosuite's `quat2mat` of an (x, y, z, w) quaternion, including its float32 cast, as the numba-jitted
+/// function computes it (robosuite 1.4 jits it; checked against the golden `goal_ori`): the quaternion is
+/// rounded to f32, its squared norm formed as OpenBLAS' sdot does, scaled by `sqrt(2 / n)` in f64 and stored back as f32;
+/// diagonal entries are formed in f64 from f32 products, off-diagonal ones in f32.
 pub fn quat2mat_f32(q_xyzw: [f64; 4]) -> Matrix3<f64> {
     let q = [q_xyzw[3] as f32, q_xyzw[0] as f32, q_xyzw[1] as f32, q_xyzw[2] as f32];
-    // np.dot of two float32 vectors (BLAS sdot, sequential for 4 elements).
-    let n: f32 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+    // np.dot of two float32 vectors (OpenBLAS sdot): f32 products summed in f64, rounded once to f32.
+    // Verified against numpy 1.26 on 20 000 random vectors; f32 or exact-product sums miss the golden
+    // goal_ori by ~1.5e-8.
+    let n: f32 = q.iter().map(|&x| (x * x) as f64).sum::<f64>() as f32;
     if (n as f64) < 4.0 * f64::EPSILON {
         return Matrix3::identity();
     }
-    // `2.0 / n` promotes to f64; `q *= s` casts s to f32 and multiplies in f32.
-    let s = (2.0 / n as f64).sqrt() as f32;
-    let q = [q[0] * s, q[1] * s, q[2] * s, q[3] * s];
+    // `2.0 / n` and the sqrt are f64; numba's in-place `q *= s` multiplies in f64 and stores f32.
+    let s = (2.0 / n as f64).sqrt();
+    let q = q.map(|x| (x as f64 * s) as f32);
     let o = |i: usize, j: usize| q[i] * q[j];
     let d = |a: f32, b: f32| 1.0 - a as f64 - b as f64;
     Matrix3::new(

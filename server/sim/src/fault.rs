@@ -116,3 +116,17 @@ pub fn guarded<R>(f: impl FnOnce() -> R) -> Result<R, String> {
         },
     }
 }
+
+/// The MuJoCo entry points a simulation calls, re-declared with the `C-unwind` ABI: mujoco-rs declares
+/// them `extern "C"`, which tells the compiler they never unwind, and unwinding a MuJoCo error through
+/// such a call would be undefined behaviour. Same symbols, same signatures.
+pub mod ffi {
+    use mujoco_rs::mujoco_c::{mjData, mjModel, mjtNum};
+    unsafe extern "C-unwind" {
+        pub fn mj_step1(m: *const mjModel, d: *mut mjData);
+        pub fn mj_step2(m: *const mjModel, d: *mut mjData);
+        pub fn mj_forward(m: *const mjModel, d: *mut mjData);
+        pub fn mj_resetData(m: *const mjModel, d: *mut mjData);
+        pub fn mj_getState(m: *const mjModel, d: *const mjData, state: *mut mjtNum, sig: std::os::raw::c_int);
+    }
+}

@@ -13,11 +13,12 @@
 //! end-of-step kinematics (the golden files' `site_grip_xpos_end`).
 use std::sync::Arc;
 
-use mujoco_rs::mujoco_c::{mj_forward, mj_resetData, mj_step1, mj_step2, mjtWarning};
+use mujoco_rs::mujoco_c::{mjData, mjModel, mjtWarning};
 use mujoco_rs::prelude::*;
 
 use crate::SimError;
 use crate::controller::{ArmState, ArmStateReader, OscPose, Vector7};
+use crate::fault::ffi::{mj_forward, mj_resetData, mj_step1, mj_step2};
 use crate::fault::guarded;
 use crate::gripper::GripperRamp;
 use crate::robot::{ARM_INIT_QPOS_RAD, FINGER_INIT_QPOS_M, PandaIds, SUBSTEPS_PER_ACTION};
@@ -168,7 +169,7 @@ impl Simulation {
     }
 
     /// Runs one raw MuJoCo call under the fault guard.
-    fn mj(&mut self, f: unsafe extern "C" fn(*const mujoco_rs::mujoco_c::mjModel, *mut mujoco_rs::mujoco_c::mjData)) -> Result<(), SimError> {
+    fn mj(&mut self, f: unsafe extern "C-unwind" fn(*const mjModel, *mut mjData)) -> Result<(), SimError> {
         self.check_poison()?;
         let model = self.model.clone();
         let data = &mut self.data;

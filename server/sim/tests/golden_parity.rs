@@ -59,7 +59,8 @@ struct Errors {
 
 /// (b) The full controller (reset → set_init_state → 80 actions) tracks every golden step within the
 /// fair tolerances of golden/README.md: grip site max(1 mm, 10·eef_div), joints max(1e-3 rad,
-/// 10·joint_div), objects max(2 mm, 10·object_div).
+/// 10·joint_div), objects max(2 mm, 10·object_div); and, stricter, within 100× the reference's own
+/// round-off sensitivity (floor 1e-8).
 #[test]
 fn controller_replay_tracks_golden_trajectories() {
     let mut report = Vec::new();
@@ -90,6 +91,13 @@ fn controller_replay_tracks_golden_trajectories() {
             assert!(eef <= tol_eef, "{name} step {t}: grip site off by {eef:e} m (tolerance {tol_eef:e})");
             assert!(joints <= tol_joint, "{name} step {t}: joint off by {joints:e} rad (tolerance {tol_joint:e})");
             assert!(objects <= tol_obj, "{name} step {t}: object off by {objects:e} m (tolerance {tol_obj:e})");
+            // Stricter bar: within 100× the reference stack's own 1e-12-perturbation divergence (floor
+            // 1e-8), i.e. the port is as close as floating-point reassociation allows.
+            let strict = |err: f64, div: f64| err <= (100.0 * div).max(1e-8);
+            assert!(
+                strict(eef, sens.eef_div_m[t]) && strict(joints, sens.joint_div_rad[t]) && strict(objects, sens.object_div_m[t]),
+                "{name} step {t}: beyond the round-off bar (eef {eef:e}, joints {joints:e}, objects {objects:e})"
+            );
             e.eef_m = e.eef_m.max(eef);
             e.joint_rad = e.joint_rad.max(joints);
             e.object_m = e.object_m.max(objects);
@@ -104,4 +112,45 @@ fn controller_replay_tracks_golden_trajectories() {
     for line in report {
         println!("{line}");
     }
+}
+
+/// The torque law alone: given the recorded state before each substep of the instrumented step and the
+/// recorded goals, the controller reproduces the recorded torques (isolates OSC from trajectory drift).
+#[test]
+fn torque_law_reproduces_recorded_substep_torques() {
+    use libero_sim::controller::{ArmStateReader, OscPose, Vector7};
+    use libero_sim::mujoco_rs::mujoco_c::mj_forward;
+    use nalgebra::{Matrix3, Vector3};
+    let mut worst_all: f64 = 0.0;
+    for name in golden_names() {
+        let g = load_golden(&name);
+        let model = golden_model(&name, &g);
+        let sim = Simulation::new(model.clone()).expect("simulation");
+        let ids = sim.ids().clone();
+        let s6 = g.instrumented_step;
+        let mut data = SimData::new(model.clone());
+        let mut reader = ArmStateReader::new(model.ffi().nv as usize);
+        let mut worst: f64 = 0.0;
+        for k in 1..25 {
+            let nq = data.qpos().len();
+            let mut row = vec![g.steps.time[s6]];
+            row.extend_from_slice(&g.substeps_of_step6.qpos[k - 1][..nq]);
+            row.extend_from_slice(&g.substeps_of_step6.qvel[k - 1]);
+            load_state(&mut data, &row);
+            unsafe { mj_forward(model.ffi(), data.ffi_mut()) };
+            let state = reader.read(&data, &ids);
+            let mut osc = OscPose::new(state, &ids);
+            osc.initial_joint_rad = Vector7::from_column_slice(&g.init.controller_initial_joint);
+            osc.goal_pos_in_world_m = Vector3::from_column_slice(&g.steps.goal_pos[s6]);
+            let go = &g.steps.goal_ori[s6];
+            osc.goal_r_world_from_site = Matrix3::from_fn(|i, j| go[i][j]);
+            let bias = Vector7::from_fn(|i, _| data.qfrc_bias()[ids.arm_dof_adr[i]]);
+            let tau = osc.run(&bias);
+            let d = max_abs_diff(tau.as_slice(), &g.substeps_of_step6.torques[k]);
+            worst = worst.max(d);
+        }
+        println!("{name:90} torque law max |Δτ| = {worst:e} N·m");
+        worst_all = worst_all.max(worst);
+    }
+    assert!(worst_all < 1e-9, "torque law differs from the recorded torques by {worst_all:e} N·m");
 }
