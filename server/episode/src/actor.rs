@@ -1,0 +1,527 @@
+//! The episode actor: one thread owns one episode's world (simulation + renderer + evaluator), receives
+//! tool calls over a channel, enforces the protocol's order of checks and budgets (§2.11, §4.4), publishes
+//! observations and writes the private records. A fault or panic ends this episode only (INVALID, reason
+//! recorded); other episodes' threads are untouched.
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::PathBuf;
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use serde_json::{Map, Value, json};
+
+use crate::EpisodeError;
+use crate::call::{MicroAction, ToolCall, ToolError, validate_actions};
+use crate::json::{compact_sorted, utc_now_iso};
+use crate::observation::{Frame, Level, observation_id};
+use crate::publish::publish_observation;
+use crate::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, aborted_result, classify, write_result};
+use crate::tools::{MAX_AGENT_STEPS_CAP, ToolName};
+use crate::workspace::{OBSERVATION_FILE, WorkspaceLayout};
+
+/// How often an idle active episode checks its wall clock (the original polled every 0.5 s).
+pub const IDLE_POLL: Duration = Duration::from_millis(500);
+const BUDGET_SCOPE: &str = "per_episode_across_resets";
+const EXPIRY_REASON: &str = "episode_wall_time_budget_exhausted";
+
+/// The official verdict at finish (or the evaluator snapshot at expiry).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Verdict {
+    pub success: bool,
+    /// Evaluator output, private (goes to `result.json` only).
+    pub private_evaluation: Value,
+    /// Ordered-stage events for `private_stage_events.jsonl`, if the evaluator has stages.
+    pub stage_events: Vec<Value>,
+}
+
+/// What an episode runs on. Implemented by the LIBERO world (real MuJoCo simulation + renderer).
+pub trait World {
+    /// §4.2: reset, restore the init state, settle, capture the evaluator baseline.
+    fn start(&mut self) -> Result<(), EpisodeError>;
+    /// One 20 Hz control interval (§4.3).
+    fn step(&mut self, action: &MicroAction) -> Result<(), EpisodeError>;
+    /// The public frame of the current state (renders both cameras).
+    fn frame(&mut self, frame_index: u64) -> Result<Frame, EpisodeError>;
+    /// The official checker on the current state.
+    fn verdict(&mut self) -> Result<Verdict, EpisodeError>;
+}
+
+/// Everything fixed when an episode is prepared.
+#[derive(Debug, Clone)]
+pub struct EpisodeConfig {
+    pub episode_id: String,
+    /// Shown to the agent (prompt and start payload).
+    pub instruction: String,
+    pub level: Level,
+    pub max_agent_steps: u64,
+    pub max_wall_time_s: f64,
+    pub workspace: PathBuf,
+    pub run_dir: PathBuf,
+}
+
+impl EpisodeConfig {
+    /// `min(max_agent_steps, 1,000,000)`.
+    pub fn agent_step_limit(&self) -> u64 {
+        self.max_agent_steps.min(MAX_AGENT_STEPS_CAP)
+    }
+}
+
+/// Lifecycle state visible to the server (never to the agent beyond the tool results).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EpisodeState {
+    Prepared,
+    Active,
+    Finished,
+    Aborted,
+}
+
+/// A snapshot for the server's API and store.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct EpisodeStatus {
+    pub state: EpisodeState,
+    pub accepted_agent_steps: u64,
+    pub latest_observation_id: Option<String>,
+    /// Set once the episode has ended.
+    pub outcome: Option<Outcome>,
+    /// Why an aborted episode ended.
+    pub reason: Option<String>,
+}
+
+enum Command {
+    Call { name: String, arguments: Option<Map<String, Value>>, reply: mpsc::Sender<Value> },
+    Stop { reason: String, done: mpsc::Sender<()> },
+}
+
+/// The server's side of an episode: cheap to clone, usable from any thread.
+#[derive(Clone)]
+pub struct EpisodeHandle {
+    tx: mpsc::Sender<Command>,
+    status: Arc<Mutex<EpisodeStatus>>,
+    config: Arc<EpisodeConfig>,
+}
+
+impl EpisodeHandle {
+    pub fn config(&self) -> &EpisodeConfig {
+        &self.config
+    }
+
+    /// Runs one tool call to completion and returns its payload (`ok` true or false). Blocks the calling
+    /// thread (from async code, call it inside `spawn_blocking`).
+    pub fn call(&self, name: &str, arguments: Option<Map<String, Value>>) -> Value {
+        let (reply, rx) = mpsc::channel();
+        let cmd = Command::Call { name: name.to_owned(), arguments, reply };
+        if self.tx.send(cmd).is_err() {
+            return ToolError::runtime_error("the episode is no longer being served").payload();
+        }
+        rx.recv().unwrap_or_else(|_| ToolError::environment().payload())
+    }
+
+    pub fn status(&self) -> EpisodeStatus {
+        match self.status.lock() {
+            Ok(s) => s.clone(),
+            Err(poisoned) => poisoned.into_inner().clone(),
+        }
+    }
+
+    /// Ends the episode: an unfinished one is recorded as aborted with `reason`. Waits for the records.
+    pub fn stop(&self, reason: &str) {
+        let (done, rx) = mpsc::channel();
+        if self.tx.send(Command::Stop { reason: reason.to_owned(), done }).is_ok() {
+            let _ = rx.recv();
+        }
+    }
+}
+
+/// The phase without its data, for matching while `self` is borrowed mutably.
+#[derive(Clone, Copy)]
+enum PhaseKind {
+    Prepared,
+    Active,
+    Finished,
+    Aborted,
+}
+
+impl PhaseKind {
+    fn of(p: &Phase) -> Self {
+        match p {
+            Phase::Prepared => Self::Prepared,
+            Phase::Active { .. } => Self::Active,
+            Phase::Finished | Phase::Expired { .. } => Self::Finished,
+            Phase::Aborted => Self::Aborted,
+        }
+    }
+}
+
+enum Phase {
+    Prepared,
+    Active { started: Instant },
+    Finished,
+    Expired { payload: Value },
+    Aborted,
+}
+
+struct Actor<W: World> {
+    config: Arc<EpisodeConfig>,
+    world: Option<W>,
+    phase: Phase,
+    accepted: u64,
+    frame_index: u64,
+    latest_id: Option<String>,
+    log: ActionLog,
+    run: RunDir,
+    workspace: WorkspaceLayout,
+    status: Arc<Mutex<EpisodeStatus>>,
+}
+
+/// Starts an episode thread. `make_world` runs on that thread; if it fails, the episode is recorded as
+/// aborted and the error returned (nothing is served).
+pub fn spawn_episode<W, F>(config: EpisodeConfig, make_world: F) -> Result<EpisodeHandle, EpisodeError>
+where
+    W: World + 'static,
+    F: FnOnce() -> Result<W, EpisodeError> + Send + 'static,
+{
+    let run = RunDir::new(&config.run_dir);
+    std::fs::create_dir_all(&run.root)?;
+    let log = ActionLog::open(&run.actions_jsonl())?;
+    let config = Arc::new(config);
+    let status = Arc::new(Mutex::new(EpisodeStatus {
+        state: EpisodeState::Prepared,
+        accepted_agent_steps: 0,
+        latest_observation_id: None,
+        outcome: None,
+        reason: None,
+    }));
+    let (tx, rx) = mpsc::channel();
+    let (ready_tx, ready_rx) = mpsc::channel::<Result<(), EpisodeError>>();
+    let actor_config = config.clone();
+    let actor_status = status.clone();
+    std::thread::Builder::new()
+        .name(format!("episode-{}", config.episode_id))
+        .spawn(move || {
+            let world = match catch_unwind(AssertUnwindSafe(make_world)) {
+                Ok(Ok(w)) => w,
+                Ok(Err(e)) => {
+                    let _ = ready_tx.send(Err(e));
+                    return;
+                }
+                Err(p) => {
+                    let _ = ready_tx.send(Err(EpisodeError::Thread(panic_text(&p))));
+                    return;
+                }
+            };
+            let _ = ready_tx.send(Ok(()));
+            let mut actor = Actor {
+                workspace: WorkspaceLayout::new(&actor_config.workspace),
+                config: actor_config,
+                world: Some(world),
+                phase: Phase::Prepared,
+                accepted: 0,
+                frame_index: 0,
+                latest_id: None,
+                log,
+                run,
+                status: actor_status,
+            };
+            actor.run(rx);
+        })?;
+    match ready_rx.recv() {
+        Ok(Ok(())) => Ok(EpisodeHandle { tx, status, config }),
+        Ok(Err(e)) => {
+            let _ = write_result(&RunDir::new(&config.run_dir), &aborted_result(&format!("environment construction failed: {e}"), config.max_wall_time_s, None));
+            Err(e)
+        }
+        Err(_) => Err(EpisodeError::Thread("episode thread exited during construction".into())),
+    }
+}
+
+fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "panic".to_owned())
+}
+
+impl<W: World> Actor<W> {
+    fn run(&mut self, rx: mpsc::Receiver<Command>) {
+        loop {
+            let msg = match self.phase {
+                Phase::Active { started } => {
+                    let deadline = started + Duration::from_secs_f64(self.config.max_wall_time_s.max(0.0));
+                    let wait = deadline.saturating_duration_since(Instant::now()).min(IDLE_POLL);
+                    rx.recv_timeout(wait)
+                }
+                _ => rx.recv().map_err(|_| RecvTimeoutError::Disconnected),
+            };
+            match msg {
+                Ok(Command::Call { name, arguments, reply }) => {
+                    let payload = self.handle_call(&name, arguments);
+                    let _ = reply.send(payload);
+                }
+                Ok(Command::Stop { reason, done }) => {
+                    self.abort_if_unfinished(&reason);
+                    let _ = done.send(());
+                    return;
+                }
+                Err(RecvTimeoutError::Timeout) => {
+                    if self.deadline_passed() {
+                        self.expire();
+                    }
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    self.abort_if_unfinished("server_stopped_before_finish");
+                    return;
+                }
+            }
+        }
+    }
+
+    fn deadline_passed(&self) -> bool {
+        match self.phase {
+            Phase::Active { started } => started.elapsed().as_secs_f64() >= self.config.max_wall_time_s,
+            _ => false,
+        }
+    }
+
+    fn wall_time_s(&self) -> Option<f64> {
+        match self.phase {
+            Phase::Active { started } => Some(started.elapsed().as_secs_f64()),
+            _ => None,
+        }
+    }
+
+    fn handle_call(&mut self, name: &str, arguments: Option<Map<String, Value>>) -> Value {
+        let call = ToolCall::parse(name, arguments.as_ref());
+        let request = json!({
+            "tool": name,
+            "command": call.as_ref().ok().map(|c| c.tool().command()),
+            "arguments": arguments,
+            "observation_id": self.latest_id,
+        });
+        let payload = match call {
+            Err(e) => e.payload(),
+            Ok(call) => match catch_unwind(AssertUnwindSafe(|| self.dispatch(call))) {
+                Ok(Ok(payload)) => payload,
+                Ok(Err(e)) => e.payload(),
+                Err(p) => {
+                    self.abort(&format!("internal error: {}", panic_text(&p)));
+                    ToolError::environment().payload()
+                }
+            },
+        };
+        if let Err(e) = self.log.append(&request, &payload, 1) {
+            log::error!("episode {}: cannot append to actions.jsonl: {e}", self.config.episode_id);
+            self.abort(&format!("action log write failed: {e}"));
+            return ToolError::environment().payload();
+        }
+        payload
+    }
+
+    fn dispatch(&mut self, call: ToolCall) -> Result<Value, ToolError> {
+        if self.deadline_passed() {
+            self.expire();
+        }
+        if let Phase::Expired { payload } = &self.phase {
+            return Ok(payload.clone());
+        }
+        let tool = call.tool();
+        let phase = PhaseKind::of(&self.phase);
+        match (phase, call) {
+            (PhaseKind::Prepared, ToolCall::Start) => self.start(),
+            (_, ToolCall::Start) => Err(ToolError::runtime_error("start may be called exactly once")),
+            (PhaseKind::Prepared, _) => Err(ToolError::runtime_error(format!(
+                "{} requires one active episode; call start_episode first",
+                if tool == ToolName::FinishEpisode { "finish" } else { "osc_sequence" }
+            ))),
+            (PhaseKind::Finished, _) => Err(ToolError::runtime_error(
+                "the episode is already finished; finish_episode was called and no further commands are accepted",
+            )),
+            (PhaseKind::Aborted, _) => Err(ToolError::runtime_error(
+                "the episode was stopped by the server and accepts no further commands",
+            )),
+            (PhaseKind::Active, ToolCall::OscSequence { actions }) => {
+                let limit = self.config.agent_step_limit();
+                if self.accepted >= limit {
+                    return Err(ToolError::runtime_error(format!("agent step limit reached ({limit})")));
+                }
+                let actions = validate_actions(&actions)?;
+                self.execute(&actions)
+            }
+            (PhaseKind::Active, ToolCall::Finish) => self.finish(),
+        }
+    }
+
+    /// A server-side failure: recorded privately, the episode ends INVALID, the agent gets the generic error.
+    fn fault(&mut self, e: EpisodeError) -> ToolError {
+        log::error!("episode {}: {e}", self.config.episode_id);
+        self.abort(&e.to_string());
+        ToolError::environment()
+    }
+
+    /// Runs `f` on the world; a failure aborts the episode and becomes the agent's generic error.
+    fn with_world<T>(&mut self, f: impl FnOnce(&mut W) -> Result<T, EpisodeError>) -> Result<T, ToolError> {
+        let result = match self.world.as_mut() {
+            Some(w) => f(w),
+            None => Err(EpisodeError::Thread("the world was already released".into())),
+        };
+        result.map_err(|e| self.fault(e))
+    }
+
+    fn publish(&mut self) -> Result<String, ToolError> {
+        let index = self.frame_index;
+        let frame = self.with_world(|w| w.frame(index))?;
+        let (bi, private) = (self.workspace.benchmark_inputs(), self.run.private_observations());
+        let level = self.config.level;
+        publish_observation(&bi, &frame, level, Some(&private)).map_err(|e| self.fault(e.into()))?;
+        let id = observation_id(index);
+        self.latest_id = Some(id.clone());
+        Ok(id)
+    }
+
+    fn start(&mut self) -> Result<Value, ToolError> {
+        self.with_world(|w| w.start())?;
+        let id = self.publish()?;
+        // The wall clock starts after the initial observation is published (§2.7).
+        self.phase = Phase::Active { started: Instant::now() };
+        self.update_status();
+        Ok(json!({
+            "ok": true,
+            "observation_id": id,
+            "observation_file": OBSERVATION_FILE,
+            "max_agent_steps": self.config.agent_step_limit(),
+            "attempt_index": 1,
+            "reset_count": 0,
+            "remaining_resets": 0,
+            "max_wall_time_seconds": self.config.max_wall_time_s,
+            "wall_time_budget_scope": BUDGET_SCOPE,
+            "execution": {},
+            "task_instruction": self.config.instruction,
+        }))
+    }
+
+    fn execute(&mut self, actions: &[MicroAction]) -> Result<Value, ToolError> {
+        self.with_world(|w| actions.iter().try_for_each(|a| w.step(a)))?;
+        self.frame_index += 1;
+        self.accepted += 1;
+        let id = self.publish()?;
+        self.update_status();
+        Ok(json!({
+            "ok": true,
+            "observation_id": id,
+            "observation_file": OBSERVATION_FILE,
+            "execution": {
+                "command_completed": true,
+                "termination_reason": "sequence_executed",
+                "micro_step_count": actions.len(),
+                "control_steps": actions.len(),
+            },
+        }))
+    }
+
+    fn finished_payload(&self, success: bool, wall_time_s: f64) -> Value {
+        json!({
+            "ok": true,
+            "status": "finished",
+            "success": success,
+            "accepted_agent_steps": self.accepted,
+            "accepted_agent_steps_current_attempt": self.accepted,
+            "attempt_index": 1,
+            "reset_count": 0,
+            "remaining_resets": 0,
+            "max_wall_time_seconds": self.config.max_wall_time_s,
+            "wall_time_budget_scope": BUDGET_SCOPE,
+            "wall_time_seconds": wall_time_s,
+        })
+    }
+
+    fn write_final(&mut self, payload: &Value, verdict: Option<&Verdict>) -> std::io::Result<()> {
+        let mut result = payload.clone();
+        result["schema_version"] = json!(RESULT_SCHEMA);
+        result["finished_at"] = json!(utc_now_iso());
+        if let Some(v) = verdict {
+            result["private_evaluation"] = v.private_evaluation.clone();
+            if !v.stage_events.is_empty() {
+                let mut text = String::new();
+                for e in &v.stage_events {
+                    text.push_str(&compact_sorted(e));
+                    text.push('\n');
+                }
+                crate::json::write_atomic(&self.run.stage_events_jsonl(), text.as_bytes())?;
+            }
+        }
+        write_result(&self.run, &result)
+    }
+
+    fn finish(&mut self) -> Result<Value, ToolError> {
+        let wall = self.wall_time_s().unwrap_or(0.0);
+        let verdict = self.with_world(|w| w.verdict())?;
+        let payload = self.finished_payload(verdict.success, wall);
+        if let Err(e) = self.write_final(&payload, Some(&verdict)) {
+            self.abort(&format!("result.json write failed: {e}"));
+            return Err(ToolError::environment());
+        }
+        self.phase = Phase::Finished;
+        self.world = None;
+        self.update_status();
+        Ok(payload)
+    }
+
+    /// Wall-clock expiry (§4.6): finished, not successful, recorded even if no call arrives.
+    fn expire(&mut self) {
+        let wall = self.wall_time_s().unwrap_or(self.config.max_wall_time_s);
+        let verdict = self.world.as_mut().and_then(|w| w.verdict().ok());
+        let mut payload = self.finished_payload(false, wall);
+        payload["termination_reason"] = json!(EXPIRY_REASON);
+        if let Err(e) = self.write_final(&payload, verdict.as_ref()) {
+            self.abort(&format!("result.json write failed: {e}"));
+            return;
+        }
+        if let Err(e) = self.log.append(&json!({"command": "wall_time_budget_expired"}), &payload, 1) {
+            log::error!("episode {}: cannot log expiry: {e}", self.config.episode_id);
+        }
+        self.phase = Phase::Expired { payload };
+        self.world = None;
+        self.update_status();
+    }
+
+    fn abort(&mut self, reason: &str) {
+        if matches!(self.phase, Phase::Finished | Phase::Expired { .. } | Phase::Aborted) {
+            return;
+        }
+        let result = aborted_result(reason, self.config.max_wall_time_s, self.wall_time_s());
+        if let Err(e) = write_result(&self.run, &result) {
+            log::error!("episode {}: cannot write aborted result: {e}", self.config.episode_id);
+        }
+        self.phase = Phase::Aborted;
+        self.world = None;
+        if let Ok(mut s) = self.status.lock() {
+            s.reason = Some(reason.to_owned());
+        }
+        self.update_status();
+    }
+
+    fn abort_if_unfinished(&mut self, reason: &str) {
+        self.abort(reason);
+    }
+
+    fn update_status(&self) {
+        let state = match self.phase {
+            Phase::Prepared => EpisodeState::Prepared,
+            Phase::Active { .. } => EpisodeState::Active,
+            Phase::Finished | Phase::Expired { .. } => EpisodeState::Finished,
+            Phase::Aborted => EpisodeState::Aborted,
+        };
+        let outcome = match state {
+            EpisodeState::Finished | EpisodeState::Aborted => {
+                Some(classify(crate::records::read_result(&self.run).as_ref()))
+            }
+            _ => None,
+        };
+        if let Ok(mut s) = self.status.lock() {
+            s.state = state;
+            s.accepted_agent_steps = self.accepted;
+            s.latest_observation_id = self.latest_id.clone();
+            s.outcome = outcome;
+        }
+    }
+}

@@ -1,0 +1,21 @@
+//! One place where an episode's rules live: the MCP tool contract (names, schemas, messages), action
+//! validation, budgets, the episode actor thread, observation publishing into the agent's workspace and
+//! the evaluator-private records. No HTTP here: the `app` crate serves these over MCP.
+pub mod actor;
+pub mod call;
+pub mod error;
+pub mod json;
+pub mod observation;
+pub mod publish;
+pub mod readout;
+pub mod records;
+pub mod task;
+pub mod tools;
+pub mod workspace;
+
+pub use actor::{EpisodeConfig, EpisodeHandle, EpisodeState, EpisodeStatus, Verdict, World, spawn_episode};
+pub use call::{MicroAction, ToolCall, ToolError, validate_actions};
+pub use error::EpisodeError;
+pub use observation::{CameraFrame, Frame, Level, RgbImage, RobotReadout};
+pub use records::{Outcome, RunDir};
+pub use workspace::{WorkspaceContract, WorkspaceLayout};

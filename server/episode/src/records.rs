@@ -1,0 +1,185 @@
+//! Evaluator-private records in the run directory (§4.9): the append-only action log (one fsync per
+//! line, so a killed server loses nothing it answered) and `result.json`, plus the outcome rule of §4.8.
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value, json};
+
+use crate::json::{compact_sorted, utc_now_iso, write_json_file};
+
+pub const ACTION_EVENT_SCHEMA: &str = "libero.agent_action_event.v1";
+pub const RESULT_SCHEMA: &str = "libero.agent_run_result.v1";
+
+/// Files of one episode's private run directory.
+#[derive(Debug, Clone)]
+pub struct RunDir {
+    pub root: PathBuf,
+}
+
+impl RunDir {
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+    pub fn actions_jsonl(&self) -> PathBuf {
+        self.root.join("actions.jsonl")
+    }
+    pub fn result_json(&self) -> PathBuf {
+        self.root.join("result.json")
+    }
+    pub fn stage_events_jsonl(&self) -> PathBuf {
+        self.root.join("private_stage_events.jsonl")
+    }
+    pub fn private_observations(&self) -> PathBuf {
+        self.root.join("private_observations")
+    }
+    /// The episode's private configuration (task, init state, level, seed, budgets, token digest).
+    pub fn episode_record(&self) -> PathBuf {
+        self.root.join("episode_record.json")
+    }
+    pub fn agent_prompt(&self) -> PathBuf {
+        self.root.join("agent_prompt.txt")
+    }
+}
+
+/// `actions.jsonl`: every request and its response, errors included.
+pub struct ActionLog {
+    file: File,
+    next_index: u64,
+}
+
+impl ActionLog {
+    /// Opens (creating or appending to) the log; `event_index` continues after existing lines.
+    pub fn open(path: &Path) -> std::io::Result<Self> {
+        let existing = std::fs::read_to_string(path).map(|s| s.lines().count() as u64).unwrap_or(0);
+        let file = OpenOptions::new().create(true).append(true).open(path)?;
+        Ok(Self { file, next_index: existing })
+    }
+
+    /// Appends one event and fsyncs it before returning.
+    pub fn append(&mut self, request: &Value, response: &Value, attempt_index: u32) -> std::io::Result<()> {
+        let event = json!({
+            "schema_version": ACTION_EVENT_SCHEMA,
+            "event_index": self.next_index,
+            "recorded_at": utc_now_iso(),
+            "request": request,
+            "response": response,
+            "attempt_index": attempt_index,
+        });
+        let mut line = compact_sorted(&event);
+        line.push('\n');
+        self.file.write_all(line.as_bytes())?;
+        self.file.sync_data()?;
+        self.next_index += 1;
+        Ok(())
+    }
+
+    pub fn events_written(&self) -> u64 {
+        self.next_index
+    }
+}
+
+/// Writes `result.json` atomically.
+pub fn write_result(run: &RunDir, result: &Value) -> std::io::Result<()> {
+    write_json_file(&run.result_json(), result)
+}
+
+/// The aborted result of §4.7.
+pub fn aborted_result(reason: &str, max_wall_time_s: f64, wall_time_s: Option<f64>) -> Value {
+    json!({
+        "schema_version": RESULT_SCHEMA,
+        "status": "aborted",
+        "reason": reason,
+        "finished_at": utc_now_iso(),
+        "max_wall_time_seconds": max_wall_time_s,
+        "wall_time_budget_scope": "per_episode_across_resets",
+        "wall_time_seconds": wall_time_s,
+    })
+}
+
+/// Batch outcome of one episode (§4.8; the harness-level WATCHDOG_TIMEOUT/INTERRUPTED are not ours).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "SCREAMING_SNAKE_CASE")]
+pub enum Outcome {
+    Success,
+    Fail,
+    SimTimeout,
+    Invalid,
+}
+
+impl Outcome {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Outcome::Success => "SUCCESS",
+            Outcome::Fail => "FAIL",
+            Outcome::SimTimeout => "SIM_TIMEOUT",
+            Outcome::Invalid => "INVALID",
+        }
+    }
+}
+
+/// `classify()`: a missing result is INVALID.
+pub fn classify(result: Option<&Value>) -> Outcome {
+    let Some(r) = result else { return Outcome::Invalid };
+    let infra = r.get("infrastructure_error").is_some_and(|v| !v.is_null());
+    if r["status"] != "finished" || infra {
+        return Outcome::Invalid;
+    }
+    if r["success"].as_bool() == Some(true) {
+        Outcome::Success
+    } else if r["termination_reason"] == "episode_wall_time_budget_exhausted" {
+        Outcome::SimTimeout
+    } else {
+        Outcome::Fail
+    }
+}
+
+/// Reads `result.json` if present and parseable.
+pub fn read_result(run: &RunDir) -> Option<Value> {
+    let text = std::fs::read_to_string(run.result_json()).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn action_log_lines_are_sorted_compact_and_indexed_across_reopen() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("actions.jsonl");
+        let mut log = ActionLog::open(&path).unwrap();
+        log.append(&json!({"command": "start"}), &json!({"ok": true}), 1).unwrap();
+        drop(log);
+        let mut log = ActionLog::open(&path).unwrap();
+        log.append(&Value::Null, &json!({"ok": false, "error": "x"}), 1).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let lines: Vec<Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        assert_eq!(lines.len(), 2);
+        assert_eq!(lines[1]["event_index"], 1);
+        assert_eq!(lines[1]["request"], Value::Null);
+        assert!(text.lines().next().unwrap().starts_with(r#"{"attempt_index":1,"event_index":0,"#));
+    }
+
+    #[test]
+    fn outcomes_follow_the_batch_rule() {
+        let finished = |success: bool, reason: Option<&str>| {
+            let mut v = json!({"status": "finished", "success": success});
+            if let Some(r) = reason {
+                v["termination_reason"] = json!(r);
+            }
+            v
+        };
+        assert_eq!(classify(Some(&finished(true, None))), Outcome::Success);
+        assert_eq!(classify(Some(&finished(false, None))), Outcome::Fail);
+        assert_eq!(
+            classify(Some(&finished(false, Some("episode_wall_time_budget_exhausted")))),
+            Outcome::SimTimeout
+        );
+        assert_eq!(classify(Some(&aborted_result("server_stopped_before_finish", 1800.0, None))), Outcome::Invalid);
+        let mut infra = finished(true, None);
+        infra["infrastructure_error"] = json!("boom");
+        assert_eq!(classify(Some(&infra)), Outcome::Invalid);
+        assert_eq!(classify(None), Outcome::Invalid);
+    }
+}

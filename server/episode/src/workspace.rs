@@ -1,0 +1,194 @@
+//! The agent's workspace (§3.1–§3.3) and the episode prompt (§5.1). Only public files live here: the
+//! prompt, the public contract, the MCP client config and published observations.
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value, json};
+
+use crate::json::{format_g, write_atomic, write_json_file};
+use crate::tools::{MAX_MICRO_ACTIONS_PER_CALL, MCP_SERVER_KEY, ToolName};
+
+/// Workspace-relative path of the published observation file.
+pub const OBSERVATION_FILE: &str = "benchmark_inputs/current_observation/observation.json";
+
+/// Paths inside one workspace.
+#[derive(Debug, Clone)]
+pub struct WorkspaceLayout {
+    pub root: PathBuf,
+}
+
+impl WorkspaceLayout {
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+    pub fn prompt_file(&self) -> PathBuf {
+        self.root.join("TASK_PROMPT.txt")
+    }
+    pub fn private_dir(&self) -> PathBuf {
+        self.root.join(".libero")
+    }
+    pub fn episode_json(&self) -> PathBuf {
+        self.private_dir().join("episode.json")
+    }
+    pub fn mcp_json(&self) -> PathBuf {
+        self.private_dir().join("mcp.json")
+    }
+    pub fn benchmark_inputs(&self) -> PathBuf {
+        self.root.join("benchmark_inputs")
+    }
+    pub fn current_observation(&self) -> PathBuf {
+        self.benchmark_inputs().join("current_observation")
+    }
+    pub fn scratch(&self) -> PathBuf {
+        self.root.join("scratch")
+    }
+}
+
+/// What the public workspace files state about an episode.
+#[derive(Debug, Clone)]
+pub struct WorkspaceContract {
+    /// Task instruction shown to the agent (whitespace collapsed by [`normalize_instruction`]).
+    pub instruction: String,
+    pub max_agent_steps: u64,
+    pub max_wall_time_s: f64,
+    /// The episode's MCP endpoint, e.g. `http://127.0.0.1:8080/mcp/<episode_id>`.
+    pub mcp_url: String,
+    /// HTTP headers a client must send (the per-episode bearer token).
+    pub mcp_headers: BTreeMap<String, String>,
+}
+
+/// Collapses internal whitespace to single spaces (the original's instruction normalisation).
+pub fn normalize_instruction(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// The release prompt (§5.1): MCP transport, no resets, no ICL notice.
+pub fn task_prompt(instruction: &str, max_wall_time_s: f64, max_agent_steps: u64) -> String {
+    let instruction = normalize_instruction(instruction);
+    let t = format_g(max_wall_time_s);
+    format!(
+        "{instruction}\n\
+\n\
+\n\
+A LIBERO episode has been prepared for you.\n\
+\n\
+This query has an evaluator wall-clock budget of {t} seconds, shared by all reset attempts; exceeding it ends the \
+query as an official task failure.\n\
+\n\
+1. Call the `start_episode` robot tool exactly once to begin. It provides the initial observation and the \
+max_agent_steps budget.\n\
+2. Control the robot with the `osc_sequence` robot tool. Its `actions` argument is an array of 1 to \
+{MAX_MICRO_ACTIONS_PER_CALL} normalized 7D OSC_POSE micro actions, each ordered [dx, dy, dz, rx, ry, rz, gripper]. \
+Every component must lie in [-1, 1]. Each vector executes one LIBERO policy interval: translation 1.0 = 0.05 m, \
+rotation 1.0 = a 0.5 rad rotation-vector component, gripper -1 opens and +1 closes. One sequence call counts as one \
+Agent action, with at most {max_agent_steps} accepted calls.\n\
+3. Wait for each action to complete, then inspect {obs} and any referenced files before issuing another command.\n\
+4. When the task is complete, call the `finish_episode` robot tool exactly once. Only finish reports official task \
+success.\n",
+        obs = OBSERVATION_FILE,
+    )
+}
+
+/// `.libero/episode.json`, schema `libero.agent_workspace.v1` (§3.2), release values.
+pub fn episode_contract(max_wall_time_s: f64) -> Value {
+    json!({
+        "schema_version": "libero.agent_workspace.v1",
+        "episode_resumable": false,
+        "operations": ToolName::ALL.iter().map(|t| t.as_str()).collect::<Vec<_>>(),
+        "action_interface": "native_osc_sequence",
+        "control_transport": "mcp",
+        "max_native_osc_micro_steps_per_submission": MAX_MICRO_ACTIONS_PER_CALL,
+        "observation_retention": "current_only",
+        "max_resets": 0,
+        "max_attempts": 1,
+        "agent_step_budget_scope": "per_attempt",
+        "max_wall_time_seconds": max_wall_time_s,
+        "wall_time_budget_scope": "per_episode_across_resets",
+        "icl_condition": "none",
+        "expert_demo": null,
+        "experience_context": null,
+    })
+}
+
+/// `.libero/mcp.json`: the client-neutral config, here an HTTP server entry (Claude Code / Kimi style).
+pub fn mcp_config(url: &str, headers: &BTreeMap<String, String>) -> Value {
+    let mut entry = json!({"type": "http", "url": url});
+    if !headers.is_empty() {
+        entry["headers"] = json!(headers);
+    }
+    json!({"mcpServers": {MCP_SERVER_KEY: entry}})
+}
+
+/// Creates the workspace files. `root` may exist but must not already hold a prepared episode.
+pub fn create_workspace(layout: &WorkspaceLayout, contract: &WorkspaceContract) -> std::io::Result<()> {
+    fs::create_dir_all(&layout.root)?;
+    if layout.episode_json().exists() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::AlreadyExists,
+            format!("{} already holds a prepared episode", layout.root.display()),
+        ));
+    }
+    fs::create_dir_all(layout.scratch())?;
+    fs::create_dir_all(layout.benchmark_inputs())?;
+    fs::create_dir_all(layout.private_dir())?;
+    set_mode(&layout.private_dir(), 0o700)?;
+    let prompt = task_prompt(&contract.instruction, contract.max_wall_time_s, contract.max_agent_steps);
+    write_atomic(&layout.prompt_file(), prompt.as_bytes())?;
+    write_json_file(&layout.episode_json(), &episode_contract(contract.max_wall_time_s))?;
+    write_json_file(&layout.mcp_json(), &mcp_config(&contract.mcp_url, &contract.mcp_headers))?;
+    set_mode(&layout.mcp_json(), 0o600)
+}
+
+fn set_mode(path: &Path, mode: u32) -> std::io::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    fs::set_permissions(path, fs::Permissions::from_mode(mode))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn prompt_has_the_release_layout() {
+        let p = task_prompt("  put the  bowl\n on the plate ", 1800.0, 1_000_000);
+        let lines: Vec<&str> = p.lines().collect();
+        assert_eq!(lines[0], "put the bowl on the plate");
+        assert_eq!((lines[1], lines[2]), ("", ""), "two empty lines when there is no ICL notice");
+        assert_eq!(lines[3], "A LIBERO episode has been prepared for you.");
+        assert!(lines[5].contains("wall-clock budget of 1800 seconds"), "{}", lines[5]);
+        assert!(lines[7].starts_with("1. Call the `start_episode`"));
+        assert!(lines[8].starts_with("2. ") && lines[8].contains("at most 1000000 accepted calls"));
+        assert!(lines[9].starts_with("3. ") && lines[9].contains(OBSERVATION_FILE));
+        assert!(lines[10].starts_with("4. Only") || lines[10].starts_with("4. When"));
+        assert_eq!(lines.len(), 11);
+        assert!(p.ends_with(".\n"));
+    }
+
+    #[test]
+    fn workspace_files_follow_the_contract() {
+        let dir = tempfile::tempdir().unwrap();
+        let layout = WorkspaceLayout::new(dir.path().join("ws"));
+        let mut headers = BTreeMap::new();
+        headers.insert("Authorization".to_owned(), "Bearer tok".to_owned());
+        let contract = WorkspaceContract {
+            instruction: "open the drawer".into(),
+            max_agent_steps: 1_000_000,
+            max_wall_time_s: 1800.0,
+            mcp_url: "http://127.0.0.1:9/mcp/ep1".into(),
+            mcp_headers: headers,
+        };
+        create_workspace(&layout, &contract).unwrap();
+        let episode: Value = serde_json::from_str(&fs::read_to_string(layout.episode_json()).unwrap()).unwrap();
+        assert_eq!(episode["operations"], json!(["start_episode", "osc_sequence", "finish_episode"]));
+        assert_eq!(episode["max_wall_time_seconds"], json!(1800.0));
+        let mcp: Value = serde_json::from_str(&fs::read_to_string(layout.mcp_json()).unwrap()).unwrap();
+        assert_eq!(mcp["mcpServers"]["libero"]["url"], "http://127.0.0.1:9/mcp/ep1");
+        assert_eq!(mcp["mcpServers"]["libero"]["headers"]["Authorization"], "Bearer tok");
+        assert!(layout.scratch().is_dir() && layout.benchmark_inputs().is_dir());
+        assert!(!layout.current_observation().exists(), "appears only at start_episode");
+        use std::os::unix::fs::PermissionsExt;
+        assert_eq!(fs::metadata(layout.private_dir()).unwrap().permissions().mode() & 0o777, 0o700);
+        assert!(create_workspace(&layout, &contract).is_err(), "a workspace is never prepared twice");
+    }
+}
