@@ -3,7 +3,7 @@
 //!
 //! Frames: every vector and matrix here is in the MuJoCo world frame (LIBERO's robot base is unrotated).
 //! Units: metres, radians, newtons, newton-metres.
-use mujoco_rs::mujoco_c::{mj_fullM, mj_jacSite};
+use mujoco_rs::mujoco_c::mj_jacSite;
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::traits::ModelType;
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -48,12 +48,26 @@ pub struct ArmStateReader {
     nv: usize,
     jacp: Vec<f64>,
     jacr: Vec<f64>,
-    full_mass: Vec<f64>,
+    /// (index into `d.M`, arm row, arm column) of the lower-triangle entries of the arm block.
+    mass_entries: Vec<(usize, usize, usize)>,
 }
 
 impl ArmStateReader {
-    pub fn new(nv: usize) -> Self {
-        Self { nv, jacp: vec![0.0; 3 * nv], jacr: vec![0.0; 3 * nv], full_mass: vec![0.0; nv * nv] }
+    /// Buffers for `model`, and the positions of the arm block inside MuJoCo's sparse inertia `d.M`.
+    pub fn new(model: &MjModel, ids: &PandaIds) -> Self {
+        let nv = model.ffi().nv as usize;
+        let (rowadr, rownnz, colind) = (model.m_rowadr(), model.m_rownnz(), model.m_colind());
+        let arm_index = |dof: usize| ids.arm_dof_adr.iter().position(|&d| d == dof);
+        let mut mass_entries = Vec::new();
+        for (i, &row) in ids.arm_dof_adr.iter().enumerate() {
+            let start = rowadr[row] as usize;
+            for k in start..start + rownnz[row] as usize {
+                if let Some(j) = arm_index(colind[k] as usize) {
+                    mass_entries.push((k, i, j));
+                }
+            }
+        }
+        Self { nv, jacp: vec![0.0; 3 * nv], jacr: vec![0.0; 3 * nv], mass_entries }
     }
 
     /// Reads the state from `data`, whose position/velocity stages must be current (after
@@ -61,10 +75,9 @@ impl ArmStateReader {
     pub fn read<M: ModelType>(&mut self, data: &MjData<M>, ids: &PandaIds) -> ArmState {
         let model = data.model();
         let nv = self.nv;
-        // SAFETY: buffers hold 3·nv and nv² values as MuJoCo requires; the site id comes from the model.
+        // SAFETY: buffers hold 3·nv values each as MuJoCo requires; the site id comes from the model.
         unsafe {
             mj_jacSite(model.ffi(), data.ffi(), self.jacp.as_mut_ptr(), self.jacr.as_mut_ptr(), ids.grip_site as i32);
-            mj_fullM(model.ffi(), data.ffi(), self.full_mass.as_mut_ptr());
         }
         let site_pos = data.site_xpos()[ids.grip_site];
         let site_mat = data.site_xmat()[ids.grip_site];
@@ -89,9 +102,13 @@ impl ArmStateReader {
                 s.jac_pos[(r, i)] = self.jacp[r * nv + da];
                 s.jac_ori[(r, i)] = self.jacr[r * nv + da];
             }
-            for (j, &db) in ids.arm_dof_adr.iter().enumerate() {
-                s.mass[(i, j)] = self.full_mass[da * nv + db];
-            }
+        }
+        // The arm block of `mj_fullM`'s dense matrix, copied straight from the sparse `d.M` (same values;
+        // avoids densifying nv² entries every substep).
+        let sparse_mass = data.m();
+        for &(k, i, j) in &self.mass_entries {
+            s.mass[(i, j)] = sparse_mass[k];
+            s.mass[(j, i)] = sparse_mass[k];
         }
         // robosuite: np.dot(jac(3×nv), qvel(nv)). Only the arm's dofs are ancestors of the grip site, so
         // the other columns are exactly zero; sum in dof order.
@@ -159,12 +176,21 @@ pub fn orientation_error(desired: &Matrix3<f64>, current: &Matrix3<f64>) -> Vect
     e * 0.5
 }
 
-/// NumPy `linalg.pinv` of a symmetric positive semi-definite matrix: singular values equal the
-/// eigenvalues' magnitudes, those ≤ 1e-15·σ_max are dropped.
+/// NumPy `linalg.pinv` of a symmetric positive semi-definite matrix. When the matrix is safely positive
+/// definite the pseudo-inverse is the inverse, computed by Cholesky (cheap); otherwise the SVD semantics
+/// are reproduced exactly: singular values (= |eigenvalues|) ≤ 1e-15·σ_max are dropped.
 macro_rules! pinv_symmetric_fn {
     ($name:ident, $n:literal) => {
         fn $name(a: &SMatrix<f64, $n, $n>) -> SMatrix<f64, $n, $n> {
             let sym = (a + a.transpose()) * 0.5;
+            if let Some(ch) = sym.cholesky() {
+                let d = ch.l_dirty().diagonal();
+                let (lo, hi) = d.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+                // cond(A) = (hi/lo)^2 roughly; far from the 1e15 cutoff, pinv(A) = inv(A).
+                if lo > 0.0 && lo * lo > 1e-12 * hi * hi {
+                    return ch.inverse();
+                }
+            }
             let eig = nalgebra::SymmetricEigen::new(sym);
             let sigma_max = eig.eigenvalues.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let cutoff = 1e-15 * sigma_max;

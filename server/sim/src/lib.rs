@@ -7,6 +7,7 @@ pub mod paths;
 pub mod compose;
 
 // Panda, OSC_POSE, stepping, faults, init states (simulation core)
+pub mod benchmark;
 pub mod controller;
 pub mod fault;
 pub mod gripper;

@@ -131,9 +131,8 @@ impl Simulation {
         let data = guarded(|| SimData::try_new(model.clone()))
             .map_err(SimError::Fault)?
             .map_err(|e| SimError::Fault(format!("cannot allocate mjData: {e}")))?;
-        let nv = model.ffi().nv as usize;
         let nbody = model.ffi().nbody as usize;
-        let mut reader = ArmStateReader::new(nv);
+        let mut reader = ArmStateReader::new(&model, &ids);
         let initial = reader.read(&data, &ids);
         let mut sim = Self {
             controller: OscPose::new(initial, &ids),

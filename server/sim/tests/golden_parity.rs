@@ -115,7 +115,8 @@ fn controller_replay_tracks_golden_trajectories() {
 }
 
 /// The torque law alone: given the recorded state before each substep of the instrumented step and the
-/// recorded goals, the controller reproduces the recorded torques (isolates OSC from trajectory drift).
+/// recorded goals, the controller reproduces the recorded torques (isolates OSC from trajectory drift);
+/// the arm inertia block read from the sparse `d.M` equals `mj_fullM`'s bit for bit.
 #[test]
 fn torque_law_reproduces_recorded_substep_torques() {
     use libero_sim::controller::{ArmStateReader, OscPose, Vector7};
@@ -129,7 +130,9 @@ fn torque_law_reproduces_recorded_substep_torques() {
         let ids = sim.ids().clone();
         let s6 = g.instrumented_step;
         let mut data = SimData::new(model.clone());
-        let mut reader = ArmStateReader::new(model.ffi().nv as usize);
+        let mut reader = ArmStateReader::new(&model, &ids);
+        let nv = model.ffi().nv as usize;
+        let mut dense = vec![0.0; nv * nv];
         let mut worst: f64 = 0.0;
         for k in 1..25 {
             let nq = data.qpos().len();
@@ -139,6 +142,12 @@ fn torque_law_reproduces_recorded_substep_torques() {
             load_state(&mut data, &row);
             unsafe { mj_forward(model.ffi(), data.ffi_mut()) };
             let state = reader.read(&data, &ids);
+            data.full_m(&mut dense).expect("mj_fullM");
+            for (i, &a) in ids.arm_dof_adr.iter().enumerate() {
+                for (j, &b) in ids.arm_dof_adr.iter().enumerate() {
+                    assert_eq!(state.mass[(i, j)].to_bits(), dense[a * nv + b].to_bits(), "arm inertia block ≠ mj_fullM");
+                }
+            }
             let mut osc = OscPose::new(state, &ids);
             osc.initial_joint_rad = Vector7::from_column_slice(&g.init.controller_initial_joint);
             osc.goal_pos_in_world_m = Vector3::from_column_slice(&g.steps.goal_pos[s6]);
