@@ -1,0 +1,1171 @@
+//! The wgpu renderer: one per process, shared by all episodes. Models are uploaded once
+//! ([`Renderer::prepare_scene`]); a frame uploads only per-geom poses and per-camera uniforms, renders
+//! every requested camera in one submission and reads RGB, linear depth and segmentation back.
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, Weak};
+
+use bytemuck::{Pod, Zeroable};
+use glam::{Mat3, Mat4, Vec3};
+use mujoco_rs::prelude::MjModel;
+
+use crate::calib::{CameraCalibration, calibration_from_poses};
+use crate::geometry::{self, Vertex};
+use crate::scene::{FrameState, GeomKind, LightKind, SceneModel, TextureKind, Visibility};
+use crate::RenderError;
+
+const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+const ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Uniform slots are addressed with dynamic offsets; 256 is the largest alignment any backend asks.
+const DRAW_STRIDE: u64 = 256;
+const CAMERA_STRIDE: u64 = 1536;
+const MAX_LIGHTS: usize = 9;
+/// Segmentation ids of sites carry this bit so they never collide with geom ids.
+pub const SEG_SITE_FLAG: u32 = 1 << 31;
+/// Depth readback value of pixels with no surface (bit pattern of +inf).
+const NO_SURFACE_BITS: u32 = 0x7f80_0000;
+
+/// Which images a camera request wants back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Outputs {
+    pub rgb: bool,
+    pub depth: bool,
+    pub segmentation: bool,
+}
+
+impl Outputs {
+    pub const ALL: Self = Self { rgb: true, depth: true, segmentation: true };
+    pub const RGB_DEPTH: Self = Self { rgb: true, depth: true, segmentation: false };
+    pub const RGB: Self = Self { rgb: true, depth: false, segmentation: false };
+}
+
+/// A camera by MuJoCo name or id.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CameraRef {
+    Name(String),
+    Id(usize),
+}
+
+/// One image set to render.
+#[derive(Debug, Clone)]
+pub struct CameraRequest {
+    pub camera: CameraRef,
+    pub width: u32,
+    pub height: u32,
+    pub outputs: Outputs,
+}
+
+impl CameraRequest {
+    pub fn named(name: &str, width: u32, height: u32, outputs: Outputs) -> Self {
+        Self { camera: CameraRef::Name(name.to_string()), width, height, outputs }
+    }
+}
+
+/// The images of one camera; buffers are row-major with the top-left pixel first.
+#[derive(Debug, Clone)]
+pub struct CameraFrame {
+    pub camera_id: usize,
+    pub width: u32,
+    pub height: u32,
+    /// `H·W·3` bytes (empty unless requested).
+    pub rgb: Vec<u8>,
+    /// Planar depth along the optical axis in metres; pixels with no surface hold the far plane
+    /// distance and are `false` in `depth_valid` (empty unless requested).
+    pub depth_m: Vec<f32>,
+    pub depth_valid: Vec<bool>,
+    /// Private per-pixel id: `geom_id + 1` for geoms, `SEG_SITE_FLAG | (site_id + 1)` for sites,
+    /// 0 for background (empty unless requested). Never for agents.
+    pub segmentation: Vec<u32>,
+    /// K and extrinsics (OpenCV convention) at this resolution.
+    pub calibration: CameraCalibration,
+}
+
+/// Per-frame rendering options.
+#[derive(Debug, Clone, Copy)]
+pub struct RenderOptions {
+    pub visibility: Visibility,
+    /// Draw the model's skybox texture behind everything (MuJoCo default).
+    pub skybox: bool,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        Self { visibility: Visibility::ROBOSUITE, skybox: true }
+    }
+}
+
+/// A model uploaded to the GPU. Cheap to clone; keep one per compiled model.
+#[derive(Clone)]
+pub struct ModelHandle {
+    id: u64,
+    gpu: Arc<GpuModel>,
+}
+
+impl ModelHandle {
+    pub fn scene(&self) -> &Arc<SceneModel> {
+        &self.gpu.scene
+    }
+    /// Process-unique id of this upload.
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+}
+
+/// What to draw for one geom or site.
+#[derive(Clone, Copy)]
+struct Shape {
+    first_vertex: u32,
+    vertex_count: u32,
+    /// Object scale applied before the pose (unit primitives are scaled by size).
+    scale: [f32; 3],
+    /// Object coordinates are metric (meshes, capsules): texgen divides by size like MuJoCo's
+    /// "pre-scaled" geoms.
+    prescaled: bool,
+}
+
+struct GpuModel {
+    scene: Arc<SceneModel>,
+    vertices: wgpu::Buffer,
+    geom_shapes: Vec<Option<Shape>>,
+    site_shapes: Vec<Option<Shape>>,
+    /// One bind group per texture, and a last one with no texture.
+    texture_groups: Vec<wgpu::BindGroup>,
+    skybox: Option<usize>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct LightUniform {
+    pos: [f32; 4],
+    dir: [f32; 4],
+    ambient: [f32; 4],
+    diffuse: [f32; 4],
+    specular: [f32; 4],
+    spot: [f32; 4],
+    atten: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct CameraUniform {
+    view_proj: [[f32; 4]; 4],
+    view: [[f32; 4]; 4],
+    inv_view_proj: [[f32; 4]; 4],
+    eye: [f32; 4],
+    counts: [u32; 4],
+    lights: [LightUniform; MAX_LIGHTS],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DrawUniform {
+    model: [[f32; 4]; 4],
+    normal: [[f32; 4]; 3],
+    rgba: [f32; 4],
+    material: [f32; 4],
+    texgen: [f32; 4],
+    texgen2: [f32; 4],
+    misc: [u32; 4],
+}
+
+/// Render targets of one camera slot, reused across frames of the same size.
+struct Targets {
+    width: u32,
+    height: u32,
+    color: wgpu::Texture,
+    depth_lin: wgpu::Texture,
+    seg: wgpu::Texture,
+    depth: wgpu::TextureView,
+}
+
+/// Per-frame GPU buffers, grown on demand.
+struct FrameResources {
+    targets: Vec<Targets>,
+    draw_buf: Option<(wgpu::Buffer, wgpu::BindGroup, u64)>,
+    camera_buf: Option<(wgpu::Buffer, wgpu::BindGroup, u64)>,
+    readback: Option<(wgpu::Buffer, u64)>,
+}
+
+struct Inner {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    opaque: wgpu::RenderPipeline,
+    transparent: wgpu::RenderPipeline,
+    sky: wgpu::RenderPipeline,
+    camera_layout: wgpu::BindGroupLayout,
+    draw_layout: wgpu::BindGroupLayout,
+    texture_layout: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
+    dummy_2d: wgpu::TextureView,
+    dummy_cube: wgpu::TextureView,
+    frame: Mutex<FrameResources>,
+    errors: Arc<Mutex<Vec<String>>>,
+    next_model_id: AtomicU64,
+    model_cache: Mutex<HashMap<usize, (Weak<MjModel>, ModelHandle)>>,
+}
+
+/// Headless renderer. `Clone` shares the same device; `Send + Sync`.
+#[derive(Clone)]
+pub struct Renderer {
+    inner: Arc<Inner>,
+}
+
+fn pad_row(bytes: u32) -> u32 {
+    let a = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+    bytes.div_ceil(a) * a
+}
+
+impl Renderer {
+    /// Open a GPU: Vulkan first (lavapipe on CPU-only machines), GL/EGL as fallback. `WGPU_BACKEND`
+    /// (`vulkan`, `gl`) overrides the choice.
+    pub fn new() -> Result<Self, RenderError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = wgpu::Backends::VULKAN | wgpu::Backends::GL;
+        let desc = desc.with_env();
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        }))
+        .map_err(|e| RenderError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let limits = wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits());
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("libero-render"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits,
+            ..Default::default()
+        }))
+        .map_err(|e| RenderError::Device(e.to_string()))?;
+        let errors: Arc<Mutex<Vec<String>>> = Arc::default();
+        let sink = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            if let Ok(mut v) = sink.lock() {
+                v.push(e.to_string());
+            }
+        }));
+        Self::build(device, queue, info, errors)
+    }
+
+    /// Adapter name and backend, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) / Vulkan`.
+    pub fn adapter_description(&self) -> String {
+        format!("{} / {:?}", self.inner.info.name, self.inner.info.backend)
+    }
+
+    fn build(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        info: wgpu::AdapterInfo,
+        errors: Arc<Mutex<Vec<String>>>,
+    ) -> Result<Self, RenderError> {
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("libero-render shader"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("shader.wgsl").into()),
+        });
+        let uniform_entry = |size: u64| wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: true,
+                min_binding_size: wgpu::BufferSize::new(size),
+            },
+            count: None,
+        };
+        let camera_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("camera"),
+            entries: &[uniform_entry(size_of::<CameraUniform>() as u64)],
+        });
+        let draw_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("draw"),
+            entries: &[uniform_entry(size_of::<DrawUniform>() as u64)],
+        });
+        let tex_entry = |binding, dim| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                view_dimension: dim,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let texture_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("textures"),
+            entries: &[
+                tex_entry(0, wgpu::TextureViewDimension::D2),
+                tex_entry(1, wgpu::TextureViewDimension::Cube),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("libero-render"),
+            bind_group_layouts: &[Some(&camera_layout), Some(&draw_layout), Some(&texture_layout)],
+            immediate_size: 0,
+        });
+        let vertex_layout = wgpu::VertexBufferLayout {
+            array_stride: size_of::<Vertex>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2],
+        };
+        let ids = |write: bool| {
+            Some(wgpu::ColorTargetState {
+                format: ID_FORMAT,
+                blend: None,
+                write_mask: if write { wgpu::ColorWrites::ALL } else { wgpu::ColorWrites::empty() },
+            })
+        };
+        let make = |label: &str, blend: Option<wgpu::BlendState>, depth_write: bool, write_depth_lin: bool| {
+            let targets = [
+                Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL }),
+                ids(write_depth_lin),
+                ids(true),
+            ];
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(label),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(vertex_layout.clone())],
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    front_face: wgpu::FrontFace::Ccw,
+                    cull_mode: Some(wgpu::Face::Back),
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(depth_write),
+                    // Reverse Z: near = 1, far = 0, for precision over MuJoCo's wide near/far range.
+                    depth_compare: Some(wgpu::CompareFunction::Greater),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some("fs_main"),
+                    compilation_options: Default::default(),
+                    targets: &targets,
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let opaque = make("opaque", None, true, true);
+        let transparent = make("transparent", Some(wgpu::BlendState::ALPHA_BLENDING), false, false);
+        let sky_targets = [
+            Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend: None, write_mask: wgpu::ColorWrites::ALL }),
+            ids(false),
+            ids(false),
+        ];
+        let sky = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("skybox"),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState {
+                module: &shader,
+                entry_point: Some("vs_sky"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: Default::default(),
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(false),
+                depth_compare: Some(wgpu::CompareFunction::Always),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &shader,
+                entry_point: Some("fs_sky"),
+                compilation_options: Default::default(),
+                targets: &sky_targets,
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("textures"),
+            address_mode_u: wgpu::AddressMode::Repeat,
+            address_mode_v: wgpu::AddressMode::Repeat,
+            address_mode_w: wgpu::AddressMode::Repeat,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            ..Default::default()
+        });
+        let white = [255u8; 4];
+        let dummy_2d = upload_texture(&device, &queue, 1, 1, 1, &white, false);
+        let dummy_cube = upload_texture(&device, &queue, 1, 1, 6, &white.repeat(6), false);
+        Ok(Self {
+            inner: Arc::new(Inner {
+                device,
+                queue,
+                info,
+                opaque,
+                transparent,
+                sky,
+                camera_layout,
+                draw_layout,
+                texture_layout,
+                sampler,
+                dummy_2d: dummy_2d.create_view(&Default::default()),
+                dummy_cube: dummy_cube.create_view(&wgpu::TextureViewDescriptor {
+                    dimension: Some(wgpu::TextureViewDimension::Cube),
+                    ..Default::default()
+                }),
+                frame: Mutex::new(FrameResources {
+                    targets: Vec::new(),
+                    draw_buf: None,
+                    camera_buf: None,
+                    readback: None,
+                }),
+                errors,
+                next_model_id: AtomicU64::new(1),
+                model_cache: Mutex::new(HashMap::new()),
+            }),
+        })
+    }
+
+    /// Upload a compiled model, or return the upload already made for this `Arc<MjModel>`.
+    pub fn prepare_model(&self, model: &Arc<MjModel>) -> Result<ModelHandle, RenderError> {
+        let key = Arc::as_ptr(model) as usize;
+        if let Ok(cache) = self.inner.model_cache.lock()
+            && let Some((weak, handle)) = cache.get(&key)
+            && weak.upgrade().is_some_and(|m| Arc::ptr_eq(&m, model))
+        {
+            return Ok(handle.clone());
+        }
+        let handle = self.prepare_scene(Arc::new(SceneModel::from_mujoco(model)?))?;
+        if let Ok(mut cache) = self.inner.model_cache.lock() {
+            cache.retain(|_, (w, _)| w.strong_count() > 0);
+            cache.insert(key, (Arc::downgrade(model), handle.clone()));
+        }
+        Ok(handle)
+    }
+
+    /// Upload an extracted model (meshes, primitives, textures).
+    pub fn prepare_scene(&self, scene: Arc<SceneModel>) -> Result<ModelHandle, RenderError> {
+        let inner = &self.inner;
+        let mut vertices: Vec<Vertex> = Vec::new();
+        let mut push = |v: Vec<Vertex>| -> (u32, u32) {
+            let first = vertices.len() as u32;
+            let n = v.len() as u32;
+            vertices.extend(v);
+            (first, n)
+        };
+        let (ns, nt) = (scene.numslices, scene.numstacks);
+        let sphere = push(geometry::unit_sphere(ns, nt));
+        let cylinder = push(geometry::unit_cylinder(ns));
+        let cube = push(geometry::unit_box());
+        let plane = push(geometry::unit_plane(1));
+        let meshes: Vec<(u32, u32)> = scene.meshes.iter().map(|m| push(geometry::mesh_vertices(m))).collect();
+        let zfar = scene.zfar_m as f32;
+        let mut shape_of = |d: &crate::scene::DrawableDesc| -> Option<Shape> {
+            let s = d.size;
+            let unit = |(first_vertex, vertex_count): (u32, u32), scale| Shape {
+                first_vertex,
+                vertex_count,
+                scale,
+                prescaled: false,
+            };
+            match d.kind {
+                GeomKind::Sphere => Some(unit(sphere, [s[0], s[0], s[0]])),
+                GeomKind::Ellipsoid => Some(unit(sphere, s)),
+                GeomKind::Cylinder => Some(unit(cylinder, [s[0], s[0], s[1]])),
+                GeomKind::Box => Some(unit(cube, s)),
+                GeomKind::Plane => {
+                    let sx = if s[0] > 0.0 { s[0] } else { zfar };
+                    let sy = if s[1] > 0.0 { s[1] } else { zfar };
+                    Some(unit(plane, [sx, sy, 1.0]))
+                }
+                GeomKind::Capsule => {
+                    let r = push(geometry::capsule(s[0], s[1], ns, nt));
+                    Some(Shape { first_vertex: r.0, vertex_count: r.1, scale: [1.0; 3], prescaled: true })
+                }
+                GeomKind::Mesh => {
+                    let &(first_vertex, vertex_count) = meshes.get(usize::try_from(d.dataid).ok()?)?;
+                    Some(Shape { first_vertex, vertex_count, scale: [1.0; 3], prescaled: true })
+                }
+                GeomKind::HField | GeomKind::Other => None,
+            }
+        };
+        let geom_shapes: Vec<Option<Shape>> = scene.geoms.iter().map(&mut shape_of).collect();
+        let site_shapes: Vec<Option<Shape>> = scene.sites.iter().map(&mut shape_of).collect();
+        let vertex_bytes: &[u8] = bytemuck::cast_slice(&vertices);
+        let vbuf = inner.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("model vertices"),
+            size: (vertex_bytes.len() as u64).max(64),
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        inner.queue.write_buffer(&vbuf, 0, vertex_bytes);
+
+        let mut texture_groups = Vec::with_capacity(scene.textures.len() + 1);
+        for t in &scene.textures {
+            let layers = if t.kind == TextureKind::Tex2D { 1 } else { 6 };
+            let tex = upload_texture(&inner.device, &inner.queue, t.width, t.height, layers, &t.rgba8, true);
+            let group = if layers == 1 {
+                self.texture_group(&tex.create_view(&Default::default()), &inner.dummy_cube)
+            } else {
+                let cube = tex.create_view(&wgpu::TextureViewDescriptor {
+                    dimension: Some(wgpu::TextureViewDimension::Cube),
+                    ..Default::default()
+                });
+                self.texture_group(&inner.dummy_2d, &cube)
+            };
+            texture_groups.push(group);
+        }
+        texture_groups.push(self.texture_group(&inner.dummy_2d, &inner.dummy_cube));
+        let skybox = scene.textures.iter().position(|t| t.kind == TextureKind::Skybox);
+        self.take_errors()?;
+        Ok(ModelHandle {
+            id: inner.next_model_id.fetch_add(1, Ordering::Relaxed),
+            gpu: Arc::new(GpuModel { scene, vertices: vbuf, geom_shapes, site_shapes, texture_groups, skybox }),
+        })
+    }
+
+    fn texture_group(&self, v2d: &wgpu::TextureView, vcube: &wgpu::TextureView) -> wgpu::BindGroup {
+        self.inner.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("textures"),
+            layout: &self.inner.texture_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(v2d) },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(vcube) },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::Sampler(&self.inner.sampler) },
+            ],
+        })
+    }
+
+    fn take_errors(&self) -> Result<(), RenderError> {
+        let mut errs = self.inner.errors.lock().map_err(|e| RenderError::Validation(e.to_string()))?;
+        if errs.is_empty() {
+            Ok(())
+        } else {
+            let msg = errs.join("; ");
+            errs.clear();
+            Err(RenderError::Validation(msg))
+        }
+    }
+
+    /// Render the requested cameras of one frame in a single GPU submission.
+    pub fn render(
+        &self,
+        model: &ModelHandle,
+        state: &FrameState,
+        requests: &[CameraRequest],
+        options: &RenderOptions,
+    ) -> Result<Vec<CameraFrame>, RenderError> {
+        let gm = &model.gpu;
+        let scene = &gm.scene;
+        check_state(scene, state)?;
+        let cams: Vec<usize> = requests
+            .iter()
+            .map(|r| resolve_camera(scene, &r.camera))
+            .collect::<Result<_, _>>()?;
+        for r in requests {
+            if r.width == 0 || r.height == 0 || r.width > 8192 || r.height > 8192 {
+                return Err(RenderError::Request(format!("image size {}x{} out of range", r.width, r.height)));
+            }
+        }
+        let draws = collect_draws(gm, state, &options.visibility);
+        let inner = &self.inner;
+        let mut frame = inner.frame.lock().map_err(|e| RenderError::Readback(e.to_string()))?;
+
+        // Per-geom uniforms (camera independent).
+        let draw_data: Vec<u8> = {
+            let mut bytes = vec![0u8; draws.len().max(1) * DRAW_STRIDE as usize];
+            for (i, d) in draws.iter().enumerate() {
+                let u = &d.uniform;
+                let off = i * DRAW_STRIDE as usize;
+                bytes[off..off + size_of::<DrawUniform>()].copy_from_slice(bytemuck::bytes_of(u));
+            }
+            bytes
+        };
+        let (draw_buf, draw_group) =
+            ensure_uniform(&inner.device, &mut frame.draw_buf, &inner.draw_layout, draw_data.len() as u64, size_of::<DrawUniform>() as u64);
+        inner.queue.write_buffer(&draw_buf, 0, &draw_data);
+
+        // Per-camera uniforms.
+        let mut cam_bytes = vec![0u8; requests.len().max(1) * CAMERA_STRIDE as usize];
+        let mut eyes = Vec::with_capacity(requests.len());
+        for (i, (r, &cid)) in requests.iter().zip(&cams).enumerate() {
+            let (u, eye) = camera_uniform(scene, state, cid, r.width, r.height);
+            eyes.push(eye);
+            let off = i * CAMERA_STRIDE as usize;
+            cam_bytes[off..off + size_of::<CameraUniform>()].copy_from_slice(bytemuck::bytes_of(&u));
+        }
+        let (cam_buf, cam_group) =
+            ensure_uniform(&inner.device, &mut frame.camera_buf, &inner.camera_layout, cam_bytes.len() as u64, size_of::<CameraUniform>() as u64);
+        inner.queue.write_buffer(&cam_buf, 0, &cam_bytes);
+
+        // Targets per request slot.
+        while frame.targets.len() < requests.len() {
+            frame.targets.push(make_targets(&inner.device, 1, 1));
+        }
+        for (slot, r) in requests.iter().enumerate() {
+            if frame.targets[slot].width != r.width || frame.targets[slot].height != r.height {
+                frame.targets[slot] = make_targets(&inner.device, r.width, r.height);
+            }
+        }
+        // Readback layout: for each request, its requested images one after another.
+        let mut layout = Vec::with_capacity(requests.len());
+        let mut total = 0u64;
+        for r in requests {
+            let row = pad_row(r.width * 4) as u64;
+            let plane = row * r.height as u64;
+            let mut offs = [None; 3];
+            for (k, want) in [r.outputs.rgb, r.outputs.depth, r.outputs.segmentation].into_iter().enumerate() {
+                if want {
+                    offs[k] = Some(total);
+                    total += plane;
+                }
+            }
+            layout.push((row, offs));
+        }
+        let readback = match &frame.readback {
+            Some((b, size)) if *size >= total.max(4) => b.clone(),
+            _ => {
+                let size = total.max(4).next_power_of_two();
+                let b = inner.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("readback"),
+                    size,
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                frame.readback = Some((b.clone(), size));
+                b
+            }
+        };
+
+        let mut encoder = inner.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        for (slot, r) in requests.iter().enumerate() {
+            let t = &frame.targets[slot];
+            let cview = t.color.create_view(&Default::default());
+            let dview = t.depth_lin.create_view(&Default::default());
+            let sview = t.seg.create_view(&Default::default());
+            let eye = eyes[slot];
+            {
+                let clear_u = |v: u32| wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color { r: v as f64, g: 0.0, b: 0.0, a: 0.0 }),
+                    store: wgpu::StoreOp::Store,
+                };
+                let attachments = [
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: &cview,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+                    }),
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: &dview,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: clear_u(NO_SURFACE_BITS),
+                    }),
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: &sview,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: clear_u(0),
+                    }),
+                ];
+                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                    label: Some("camera"),
+                    color_attachments: &attachments,
+                    depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                        view: &t.depth,
+                        depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Discard }),
+                        stencil_ops: None,
+                    }),
+                    timestamp_writes: None,
+                    occlusion_query_set: None,
+                    multiview_mask: None,
+                });
+                let cam_off = (slot as u64 * CAMERA_STRIDE) as u32;
+                pass.set_bind_group(0, &cam_group, &[cam_off]);
+                if options.skybox
+                    && let Some(sky) = gm.skybox
+                {
+                    pass.set_pipeline(&inner.sky);
+                    pass.set_bind_group(1, &draw_group, &[0]);
+                    pass.set_bind_group(2, &gm.texture_groups[sky], &[]);
+                    pass.draw(0..3, 0..1);
+                }
+                pass.set_vertex_buffer(0, gm.vertices.slice(..));
+                pass.set_pipeline(&inner.opaque);
+                let mut transparent = Vec::new();
+                for (i, d) in draws.iter().enumerate() {
+                    if d.transparent {
+                        let p = Vec3::from(d.center);
+                        transparent.push(((p - eye).length() - d.rbound, i));
+                        continue;
+                    }
+                    draw_one(&mut pass, gm, &draw_group, i, d);
+                }
+                if !transparent.is_empty() {
+                    // MuJoCo draws transparent geoms front-to-back, then back-to-front.
+                    transparent.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    pass.set_pipeline(&inner.transparent);
+                    for &(_, i) in transparent.iter().chain(transparent.iter().rev()) {
+                        draw_one(&mut pass, gm, &draw_group, i, &draws[i]);
+                    }
+                }
+            }
+            let (row, offs) = layout[slot];
+            for (k, tex) in [&t.color, &t.depth_lin, &t.seg].into_iter().enumerate() {
+                if let Some(offset) = offs[k] {
+                    encoder.copy_texture_to_buffer(
+                        tex.as_image_copy(),
+                        wgpu::TexelCopyBufferInfo {
+                            buffer: &readback,
+                            layout: wgpu::TexelCopyBufferLayout {
+                                offset,
+                                bytes_per_row: Some(row as u32),
+                                rows_per_image: Some(r.height),
+                            },
+                        },
+                        wgpu::Extent3d { width: r.width, height: r.height, depth_or_array_layers: 1 },
+                    );
+                }
+            }
+        }
+        let idx = inner.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        readback.map_async(wgpu::MapMode::Read, 0..total.max(4), move |res| {
+            let _ = tx.send(res);
+        });
+        inner
+            .device
+            .poll(wgpu::PollType::Wait { submission_index: Some(idx), timeout: None })
+            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| RenderError::Readback(e.to_string()))?
+            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        self.take_errors()?;
+        let mut out = Vec::with_capacity(requests.len());
+        {
+            let view = readback
+                .get_mapped_range(0..total.max(4))
+                .map_err(|e| RenderError::Readback(format!("{e:?}")))?;
+            for (slot, r) in requests.iter().enumerate() {
+                let (row, offs) = layout[slot];
+                let (w, h) = (r.width as usize, r.height as usize);
+                let rows = |off: u64| (0..h).map(move |y| off as usize + y * row as usize);
+                let mut f = CameraFrame {
+                    camera_id: cams[slot],
+                    width: r.width,
+                    height: r.height,
+                    rgb: Vec::new(),
+                    depth_m: Vec::new(),
+                    depth_valid: Vec::new(),
+                    segmentation: Vec::new(),
+                    calibration: calibration(scene, state, cams[slot], r.width, r.height),
+                };
+                if let Some(off) = offs[0] {
+                    f.rgb.reserve(w * h * 3);
+                    for start in rows(off) {
+                        for px in view[start..start + 4 * w].chunks_exact(4) {
+                            f.rgb.extend_from_slice(&px[..3]);
+                        }
+                    }
+                }
+                if let Some(off) = offs[1] {
+                    f.depth_m.reserve(w * h);
+                    f.depth_valid.reserve(w * h);
+                    let far = scene.zfar_m as f32;
+                    for start in rows(off) {
+                        for px in view[start..start + 4 * w].chunks_exact(4) {
+                            let bits = u32::from_le_bytes([px[0], px[1], px[2], px[3]]);
+                            let z = f32::from_bits(bits);
+                            let valid = bits != NO_SURFACE_BITS && z.is_finite() && z > 0.0;
+                            f.depth_m.push(if valid { z } else { far });
+                            f.depth_valid.push(valid);
+                        }
+                    }
+                }
+                if let Some(off) = offs[2] {
+                    f.segmentation.reserve(w * h);
+                    for start in rows(off) {
+                        for px in view[start..start + 4 * w].chunks_exact(4) {
+                            f.segmentation.push(u32::from_le_bytes([px[0], px[1], px[2], px[3]]));
+                        }
+                    }
+                }
+                out.push(f);
+            }
+        }
+        readback.unmap();
+        Ok(out)
+    }
+}
+
+fn draw_one(pass: &mut wgpu::RenderPass<'_>, gm: &GpuModel, draw_group: &wgpu::BindGroup, i: usize, d: &Draw) {
+    pass.set_bind_group(1, draw_group, &[(i as u64 * DRAW_STRIDE) as u32]);
+    pass.set_bind_group(2, &gm.texture_groups[d.texture_group], &[]);
+    pass.draw(d.shape.first_vertex..d.shape.first_vertex + d.shape.vertex_count, 0..1);
+}
+
+fn ensure_uniform(
+    device: &wgpu::Device,
+    slot: &mut Option<(wgpu::Buffer, wgpu::BindGroup, u64)>,
+    layout: &wgpu::BindGroupLayout,
+    size: u64,
+    binding_size: u64,
+) -> (wgpu::Buffer, wgpu::BindGroup) {
+    if let Some((b, g, cap)) = slot
+        && *cap >= size
+    {
+        return (b.clone(), g.clone());
+    }
+    let cap = size.next_power_of_two().max(4096);
+    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("uniforms"),
+        size: cap,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("uniforms"),
+        layout,
+        entries: &[wgpu::BindGroupEntry {
+            binding: 0,
+            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: &buffer,
+                offset: 0,
+                size: wgpu::BufferSize::new(binding_size),
+            }),
+        }],
+    });
+    *slot = Some((buffer.clone(), group.clone(), cap));
+    (buffer, group)
+}
+
+fn make_targets(device: &wgpu::Device, width: u32, height: u32) -> Targets {
+    let tex = |format, label, usage| {
+        device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    };
+    let rt = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
+    Targets {
+        width,
+        height,
+        color: tex(COLOR_FORMAT, "color", rt),
+        depth_lin: tex(ID_FORMAT, "linear depth", rt),
+        seg: tex(ID_FORMAT, "segmentation", rt),
+        depth: tex(DEPTH_FORMAT, "depth", wgpu::TextureUsages::RENDER_ATTACHMENT).create_view(&Default::default()),
+    }
+}
+
+/// Upload RGBA8 layers with a full box-filtered mip chain (MuJoCo's textures are mipmapped).
+fn upload_texture(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    width: u32,
+    height: u32,
+    layers: u32,
+    rgba8: &[u8],
+    mipmaps: bool,
+) -> wgpu::Texture {
+    let levels = if mipmaps { 32 - width.max(height).leading_zeros() } else { 1 };
+    let tex = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("model texture"),
+        size: wgpu::Extent3d { width, height, depth_or_array_layers: layers },
+        mip_level_count: levels,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba8Unorm,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let layer_bytes = (width * height * 4) as usize;
+    for layer in 0..layers {
+        let start = layer as usize * layer_bytes;
+        let Some(src) = rgba8.get(start..start + layer_bytes) else { break };
+        let mut level_data = src.to_vec();
+        let (mut w, mut h) = (width, height);
+        for level in 0..levels {
+            queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &tex,
+                    mip_level: level,
+                    origin: wgpu::Origin3d { x: 0, y: 0, z: layer },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                &level_data,
+                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * w), rows_per_image: Some(h) },
+                wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+            );
+            if level + 1 < levels {
+                let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+                let mut next = vec![0u8; (nw * nh * 4) as usize];
+                for y in 0..nh {
+                    for x in 0..nw {
+                        for c in 0..4 {
+                            let mut acc = 0u32;
+                            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                                let sx = (2 * x + dx).min(w - 1);
+                                let sy = (2 * y + dy).min(h - 1);
+                                acc += level_data[((sy * w + sx) * 4 + c) as usize] as u32;
+                            }
+                            next[((y * nw + x) * 4 + c) as usize] = ((acc + 2) / 4) as u8;
+                        }
+                    }
+                }
+                level_data = next;
+                (w, h) = (nw, nh);
+            }
+        }
+    }
+    tex
+}
+
+/// One visible drawable of this frame.
+struct Draw {
+    shape: Shape,
+    uniform: DrawUniform,
+    transparent: bool,
+    texture_group: usize,
+    center: [f32; 3],
+    rbound: f32,
+}
+
+fn check_state(scene: &SceneModel, s: &FrameState) -> Result<(), RenderError> {
+    let checks = [
+        ("geom_xpos", s.geom_xpos.len(), scene.geoms.len()),
+        ("geom_xmat", s.geom_xmat.len(), scene.geoms.len()),
+        ("geom_rgba", s.geom_rgba.len(), scene.geoms.len()),
+        ("site_xpos", s.site_xpos.len(), scene.sites.len()),
+        ("site_xmat", s.site_xmat.len(), scene.sites.len()),
+        ("site_rgba", s.site_rgba.len(), scene.sites.len()),
+        ("cam_xpos", s.cam_xpos.len(), scene.cameras.len()),
+        ("cam_xmat", s.cam_xmat.len(), scene.cameras.len()),
+        ("light_xpos", s.light_xpos.len(), scene.lights.len()),
+        ("light_xdir", s.light_xdir.len(), scene.lights.len()),
+    ];
+    for (name, got, want) in checks {
+        if got != want {
+            return Err(RenderError::StateMismatch(format!("{name} has {got} entries, model has {want}")));
+        }
+    }
+    Ok(())
+}
+
+fn resolve_camera(scene: &SceneModel, c: &CameraRef) -> Result<usize, RenderError> {
+    match c {
+        CameraRef::Id(i) if *i < scene.cameras.len() => Ok(*i),
+        CameraRef::Id(i) => Err(RenderError::UnknownCamera(format!("id {i}"))),
+        CameraRef::Name(n) => scene.camera_id(n).ok_or_else(|| RenderError::UnknownCamera(n.clone())),
+    }
+}
+
+fn calibration(scene: &SceneModel, s: &FrameState, cam: usize, w: u32, h: u32) -> CameraCalibration {
+    let base = s.robot_base_pose.as_ref().map(|(p, r)| (p, r));
+    calibration_from_poses(scene.cameras[cam].fovy_deg, &s.cam_xpos[cam], &s.cam_xmat[cam], base, w, h)
+}
+
+fn rot3(xmat: &[f64; 9]) -> Mat3 {
+    // MuJoCo's xmat is row-major; glam is column-major.
+    Mat3::from_cols(
+        Vec3::new(xmat[0] as f32, xmat[3] as f32, xmat[6] as f32),
+        Vec3::new(xmat[1] as f32, xmat[4] as f32, xmat[7] as f32),
+        Vec3::new(xmat[2] as f32, xmat[5] as f32, xmat[8] as f32),
+    )
+}
+
+fn collect_draws(gm: &GpuModel, s: &FrameState, vis: &Visibility) -> Vec<Draw> {
+    let scene = &gm.scene;
+    let mut out = Vec::with_capacity(scene.geoms.len());
+    let no_texture = gm.texture_groups.len() - 1;
+    let mut add = |desc: &crate::scene::DrawableDesc,
+                   shape: Option<Shape>,
+                   rgba_now: [f32; 4],
+                   pos: &[f64; 3],
+                   xmat: &[f64; 9],
+                   seg: u32,
+                   is_site: bool| {
+        let Some(shape) = shape else { return };
+        let group_on = |groups: &[bool; 6]| groups[desc.group.clamp(0, 5) as usize];
+        if !group_on(if is_site { &vis.sitegroup } else { &vis.geomgroup }) {
+            return;
+        }
+        // MuJoCo's setMaterial: material colour unless the element's rgba differs from the default.
+        let mat = usize::try_from(desc.matid).ok().and_then(|m| scene.materials.get(m));
+        let mut rgba = mat.map(|m| m.rgba).unwrap_or(rgba_now);
+        if rgba_now != [0.5, 0.5, 0.5, 1.0] || mat.is_none() {
+            rgba = rgba_now;
+        }
+        // Alpha 0 is skipped by MuJoCo; negative alpha (robosuite's hidden sites) is invisible too.
+        if rgba[3] <= 0.0 {
+            return;
+        }
+        let (emission, specular, shininess) = mat.map(|m| (m.emission, m.specular, m.shininess)).unwrap_or((0.0, 0.5, 0.5));
+        let size = desc.size;
+        let mut mode = 0u32;
+        let mut texgen = [0.0f32; 4];
+        let mut texgen2 = [0.0f32; 4];
+        let mut group = no_texture;
+        if let Some(m) = mat
+            && let Some(tex) = usize::try_from(m.texid).ok().and_then(|t| scene.textures.get(t).map(|x| (t, x)))
+        {
+            group = tex.0;
+            let has_uv = desc.kind == GeomKind::Mesh
+                && usize::try_from(desc.dataid).ok().and_then(|i| scene.meshes.get(i)).is_some_and(|mm| mm.texcoords.is_some());
+            if tex.1.kind == TextureKind::Tex2D {
+                if has_uv {
+                    mode = 1;
+                } else {
+                    mode = 2;
+                    let mut scl = m.texrepeat;
+                    for k in 0..2 {
+                        if shape.prescaled && size[k] > 0.0 {
+                            scl[k] /= size[k].max(1e-15);
+                        }
+                        if m.texuniform && size[k] > 0.0 {
+                            scl[k] *= size[k];
+                        }
+                    }
+                    texgen[0] = scl[0];
+                    texgen[1] = scl[1];
+                }
+            } else {
+                mode = 3;
+                let sc = |k: usize| if m.texuniform { size[k] } else { 1.0 };
+                texgen[2] = sc(0);
+                texgen[3] = sc(1);
+                texgen2[0] = sc(2);
+            }
+        }
+        let r = rot3(xmat);
+        let t = Vec3::new(pos[0] as f32, pos[1] as f32, pos[2] as f32);
+        let scale = Vec3::from(shape.scale);
+        let model = Mat4::from_cols(
+            (r.x_axis * scale.x).extend(0.0),
+            (r.y_axis * scale.y).extend(0.0),
+            (r.z_axis * scale.z).extend(0.0),
+            t.extend(1.0),
+        );
+        let nrm = Mat3::from_cols(r.x_axis / scale.x, r.y_axis / scale.y, r.z_axis / scale.z);
+        let uniform = DrawUniform {
+            model: model.to_cols_array_2d(),
+            normal: [nrm.x_axis.extend(0.0).to_array(), nrm.y_axis.extend(0.0).to_array(), nrm.z_axis.extend(0.0).to_array()],
+            rgba,
+            material: [emission, specular, shininess * 128.0, 0.0],
+            texgen,
+            texgen2,
+            misc: [mode, seg, 0, 0],
+        };
+        let rbound = size[0].max(size[1]).max(size[2]);
+        out.push(Draw {
+            shape,
+            uniform,
+            transparent: rgba[3] < 0.995,
+            texture_group: group,
+            center: t.to_array(),
+            rbound,
+        });
+    };
+    for (i, g) in scene.geoms.iter().enumerate() {
+        add(g, gm.geom_shapes[i], s.geom_rgba[i], &s.geom_xpos[i], &s.geom_xmat[i], i as u32 + 1, false);
+    }
+    for (i, site) in scene.sites.iter().enumerate() {
+        add(site, gm.site_shapes[i], s.site_rgba[i], &s.site_xpos[i], &s.site_xmat[i], SEG_SITE_FLAG | (i as u32 + 1), true);
+    }
+    out
+}
+
+/// View/projection (reverse Z) and MuJoCo's light list (headlight first) for one camera.
+fn camera_uniform(scene: &SceneModel, s: &FrameState, cam: usize, w: u32, h: u32) -> (CameraUniform, Vec3) {
+    let r = rot3(&s.cam_xmat[cam]);
+    let p = s.cam_xpos[cam];
+    let eye = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
+    let world_from_cam = Mat4::from_cols(r.x_axis.extend(0.0), r.y_axis.extend(0.0), r.z_axis.extend(0.0), eye.extend(1.0));
+    let view = world_from_cam.inverse();
+    let fovy = (scene.cameras[cam].fovy_deg as f32).to_radians();
+    let (near, far) = (scene.znear_m as f32, scene.zfar_m as f32);
+    // Swapping near and far gives reverse Z (near → 1, far → 0).
+    let proj = Mat4::perspective_rh(fovy, w as f32 / h as f32, far, near);
+    let view_proj = proj * view;
+    let mut lights = [LightUniform::zeroed(); MAX_LIGHTS];
+    let mut n = 0usize;
+    let v4 = |a: [f32; 3]| [a[0], a[1], a[2], 1.0];
+    if scene.headlight.active {
+        // Directional light along the camera's viewing direction.
+        let toward = r.z_axis; // −forward
+        lights[0] = LightUniform {
+            pos: [toward.x, toward.y, toward.z, 0.0],
+            dir: [-toward.x, -toward.y, -toward.z, 0.0],
+            ambient: v4(scene.headlight.ambient),
+            diffuse: v4(scene.headlight.diffuse),
+            specular: v4(scene.headlight.specular),
+            spot: [-1.0, 0.0, 0.0, 0.0],
+            atten: [1.0, 0.0, 0.0, 0.0],
+        };
+        n = 1;
+    }
+    for (i, l) in scene.lights.iter().enumerate() {
+        if !l.active || n >= MAX_LIGHTS {
+            continue;
+        }
+        let d = s.light_xdir[i];
+        let lp = s.light_xpos[i];
+        let dir = Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32);
+        let u = match l.kind {
+            LightKind::Directional => LightUniform {
+                pos: [-dir.x, -dir.y, -dir.z, 0.0],
+                dir: [dir.x, dir.y, dir.z, 0.0],
+                spot: [-1.0, 0.0, 0.0, 0.0],
+                atten: [1.0, 0.0, 0.0, 0.0],
+                ambient: v4(l.ambient),
+                diffuse: v4(l.diffuse),
+                specular: v4(l.specular),
+            },
+            LightKind::Spot | LightKind::Point => LightUniform {
+                pos: [lp[0] as f32, lp[1] as f32, lp[2] as f32, 1.0],
+                dir: [dir.x, dir.y, dir.z, 0.0],
+                spot: if l.kind == LightKind::Spot && l.cutoff_deg < 180.0 {
+                    [l.cutoff_deg.to_radians().cos(), l.exponent, 1.0, 0.0]
+                } else {
+                    [-1.0, 0.0, 0.0, 0.0]
+                },
+                atten: [l.attenuation[0], l.attenuation[1], l.attenuation[2], 0.0],
+                ambient: v4(l.ambient),
+                diffuse: v4(l.diffuse),
+                specular: v4(l.specular),
+            },
+        };
+        lights[n] = u;
+        n += 1;
+    }
+    (
+        CameraUniform {
+            view_proj: view_proj.to_cols_array_2d(),
+            view: view.to_cols_array_2d(),
+            inv_view_proj: view_proj.inverse().to_cols_array_2d(),
+            eye: [eye.x, eye.y, eye.z, 1.0],
+            counts: [n as u32, 0, 0, 0],
+            lights,
+        },
+        eye,
+    )
+}
