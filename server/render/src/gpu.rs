@@ -407,8 +407,8 @@ impl Renderer {
             ..Default::default()
         });
         let white = [255u8; 4];
-        let dummy_2d = upload_texture(&device, &queue, 1, 1, 1, &white, false);
-        let dummy_cube = upload_texture(&device, &queue, 1, 1, 6, &white.repeat(6), false);
+        let dummy_2d = upload_texture(&device, &queue, 1, 1, 1, &white, false, false);
+        let dummy_cube = upload_texture(&device, &queue, 1, 1, 6, &white.repeat(6), false, false);
         Ok(Self {
             inner: Arc::new(Inner {
                 device,
@@ -516,7 +516,7 @@ impl Renderer {
         let mut texture_groups = Vec::with_capacity(scene.textures.len() + 1);
         for t in &scene.textures {
             let layers = if t.kind == TextureKind::Tex2D { 1 } else { 6 };
-            let tex = upload_texture(&inner.device, &inner.queue, t.width, t.height, layers, &t.rgba8, true);
+            let tex = upload_texture(&inner.device, &inner.queue, t.width, t.height, layers, &t.rgba8, true, t.srgb);
             let group = if layers == 1 {
                 self.texture_group(&tex.create_view(&Default::default()), &inner.dummy_cube)
             } else {
@@ -878,6 +878,7 @@ fn make_targets(device: &wgpu::Device, width: u32, height: u32) -> Targets {
 }
 
 /// Upload RGBA8 layers with a full box-filtered mip chain (MuJoCo's textures are mipmapped).
+#[allow(clippy::too_many_arguments)]
 fn upload_texture(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
@@ -886,6 +887,7 @@ fn upload_texture(
     layers: u32,
     rgba8: &[u8],
     mipmaps: bool,
+    srgb: bool,
 ) -> wgpu::Texture {
     let levels = if mipmaps { 32 - width.max(height).leading_zeros() } else { 1 };
     let tex = device.create_texture(&wgpu::TextureDescriptor {
@@ -894,7 +896,7 @@ fn upload_texture(
         mip_level_count: levels,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
-        format: wgpu::TextureFormat::Rgba8Unorm,
+        format: if srgb { wgpu::TextureFormat::Rgba8UnormSrgb } else { wgpu::TextureFormat::Rgba8Unorm },
         usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });

@@ -97,6 +97,8 @@ pub struct TextureDesc {
     pub height: u32,
     /// `layers × height × width × 4` bytes (layers = 1 for 2D, 6 for cube/skybox).
     pub rgba8: Vec<u8>,
+    /// `colorspace="sRGB"`: MuJoCo decodes such textures to linear when sampling (darker, more saturated).
+    pub srgb: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -349,6 +351,7 @@ impl SceneModel {
             let tw = arr(m.tex_width, ntex);
             let tnc = arr(m.tex_nchannel, ntex);
             let tadr = arr(m.tex_adr, ntex);
+            let tcs = arr(m.tex_colorspace, ntex);
             let data = arr(m.tex_data, m.ntexdata as usize);
             let mut out = Vec::with_capacity(ntex);
             for i in 0..ntex {
@@ -384,7 +387,8 @@ impl SceneModel {
                         )));
                     }
                 };
-                out.push(TextureDesc { kind, width: w as u32, height: face_h as u32, rgba8 });
+                let srgb = tcs.get(i) == Some(&2); // mjCOLORSPACE_SRGB
+                out.push(TextureDesc { kind, width: w as u32, height: face_h as u32, rgba8, srgb });
             }
             Ok(out)
         }
