@@ -324,11 +324,22 @@ impl SceneModel {
                     };
                     for f in 0..nf {
                         let fi = fadr[i] as usize + f;
-                        for c in 0..3 {
+                        let p = |c: usize| {
                             let v = vadr[i] as usize + face[3 * fi + c] as usize;
-                            out.positions.push([vert[3 * v], vert[3 * v + 1], vert[3 * v + 2]]);
+                            [vert[3 * v], vert[3 * v + 1], vert[3 * v + 2]]
+                        };
+                        let (a, b, cc) = (p(0), p(1), p(2));
+                        let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+                        let e2 = [cc[0] - a[0], cc[1] - a[1], cc[2] - a[2]];
+                        let fnrm = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+                        for c in 0..3 {
+                            out.positions.push(p(c));
                             let n = nadr[i] as usize + facen[3 * fi + c] as usize;
-                            out.normals.push([normal[3 * n], normal[3 * n + 1], normal[3 * n + 2]]);
+                            let sn = [normal[3 * n], normal[3 * n + 1], normal[3 * n + 2]];
+                            // A smoothed normal pointing against its face (sharp creases) would light the
+                            // face from behind; use the face normal there, which matches MuJoCo's images.
+                            let dot = sn[0] * fnrm[0] + sn[1] * fnrm[1] + sn[2] * fnrm[2];
+                            out.normals.push(if dot < 0.0 { fnrm } else { sn });
                             if let Some(tc) = out.texcoords.as_mut() {
                                 let t = tadr[i] as usize + facet[3 * fi + c] as usize;
                                 tc.push([tex[2 * t], tex[2 * t + 1]]);
