@@ -1,0 +1,134 @@
+//! `libero-agent bench render`: frames per second of both cameras × (RGB + depth) at 256×256 on a LIBERO
+//! kitchen scene, beside MuJoCo's own renderer (PyPI `mujoco`, software GL) timed on the same scene in
+//! the same run.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use libero_render::{CameraRequest, FrameState, Outputs, RenderOptions, Renderer};
+use libero_sim::mujoco_rs::prelude::*;
+use serde_json::{Value, json};
+
+/// Arguments of `bench render`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchRenderArgs {
+    /// Print only the JSON result.
+    #[arg(long)]
+    pub json: bool,
+    /// Scene (compiled MJCF with `${…}` asset placeholders); default: the kitchen scene of
+    /// `shared/reference/ref/kitchen3_stove_moka.xml`.
+    #[arg(long)]
+    pub xml: Option<PathBuf>,
+    /// Timed frames per renderer.
+    #[arg(long, default_value_t = 200)]
+    pub frames: usize,
+    #[arg(long, default_value_t = 256)]
+    pub size: u32,
+    /// Skip MuJoCo's renderer (no Python needed).
+    #[arg(long)]
+    pub no_mujoco: bool,
+}
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn default_scene() -> PathBuf {
+    repo_root().join("../shared/reference/ref/kitchen3_stove_moka.xml")
+}
+
+fn venv_python() -> PathBuf {
+    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap_or_default()).join(".cache/libero-agent"));
+    cache.join("pyenv/bin/python")
+}
+
+const CAMERAS: [&str; 2] = ["agentview", "robot0_eye_in_hand"];
+
+fn bench_ours(xml: &Path, frames: usize, size: u32) -> anyhow::Result<Value> {
+    let paths = libero_sim::AssetPaths::discover()?;
+    let text = std::fs::read_to_string(xml).with_context(|| format!("reading {}", xml.display()))?;
+    let mut model = MjModel::from_xml_string(&paths.substitute_placeholders(&text))?;
+    libero_render::scene::robosuite_hide_sites(&mut model);
+    let model = Arc::new(model);
+    let mut data = MjData::new(model.clone());
+    data.forward();
+    let t_init = Instant::now();
+    let renderer = Renderer::new()?;
+    let init_s = t_init.elapsed().as_secs_f64();
+    let t_prep = Instant::now();
+    let handle = renderer.prepare_model(&model)?;
+    let prepare_s = t_prep.elapsed().as_secs_f64();
+    let reqs: Vec<CameraRequest> = CAMERAS.iter().map(|c| CameraRequest::named(c, size, size, Outputs::RGB_DEPTH)).collect();
+    let opts = RenderOptions::default();
+    for _ in 0..5 {
+        renderer.render(&handle, &FrameState::from_mujoco(&model, &data), &reqs, &opts)?;
+    }
+    let t0 = Instant::now();
+    for _ in 0..frames {
+        // A frame includes reading the poses, as an episode does after each action.
+        let state = FrameState::from_mujoco(&model, &data);
+        let out = renderer.render(&handle, &state, &reqs, &opts)?;
+        std::hint::black_box(&out);
+    }
+    let wall = t0.elapsed().as_secs_f64();
+    Ok(json!({
+        "renderer": format!("libero-render wgpu ({})", renderer.adapter_description()),
+        "build": if cfg!(debug_assertions) { "debug" } else { "release" },
+        "frames": frames, "cameras": CAMERAS, "size": size, "outputs": "rgb+depth",
+        "wall_s": wall, "fps": frames as f64 / wall,
+        "renderer_init_s": init_s, "prepare_model_s": prepare_s,
+    }))
+}
+
+fn bench_mujoco(xml: &Path, frames: usize, size: u32) -> anyhow::Result<Value> {
+    let py = venv_python();
+    if !py.exists() {
+        bail!(
+            "{} is missing: timing MuJoCo's renderer needs the test venv; run `python3 scripts/setup.py --test` (or pass --no-mujoco)",
+            py.display()
+        );
+    }
+    let script = repo_root().join("tests/render_validation/mujoco_reference.py");
+    let mut cmd = Command::new(&py);
+    cmd.arg(&script).args(["bench", "--xml"]).arg(xml).args(["--size", &size.to_string(), "--frames", &frames.to_string()]);
+    let out = cmd.output().with_context(|| format!("running {}", script.display()))?;
+    if !out.status.success() {
+        bail!("MuJoCo renderer benchmark failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout.lines().rev().find(|l| l.trim_start().starts_with('{')).unwrap_or("");
+    serde_json::from_str(line).with_context(|| format!("parsing MuJoCo benchmark output: {stdout}"))
+}
+
+/// Run `bench render`.
+pub fn run(args: &BenchRenderArgs) -> anyhow::Result<()> {
+    let xml = args.xml.clone().unwrap_or_else(default_scene);
+    if !xml.exists() {
+        bail!("scene {} not found (pass --xml)", xml.display());
+    }
+    let ours = bench_ours(&xml, args.frames, args.size)?;
+    let mujoco = if args.no_mujoco { Value::Null } else { bench_mujoco(&xml, args.frames, args.size)? };
+    let speedup = match (ours["fps"].as_f64(), mujoco["fps"].as_f64()) {
+        (Some(a), Some(b)) if b > 0.0 => json!(a / b),
+        _ => Value::Null,
+    };
+    let result = json!({
+        "benchmark": "render",
+        "scene": xml.file_name().map(|s| s.to_string_lossy().to_string()),
+        "workload": "per frame: both cameras (agentview, robot0_eye_in_hand) x (RGB + depth)",
+        "libero_render": ours,
+        "mujoco": mujoco,
+        "speedup_vs_mujoco": speedup,
+        "goal_speedup": 3.0,
+    });
+    if args.json {
+        println!("{}", serde_json::to_string(&result)?);
+    } else {
+        println!("{}", serde_json::to_string_pretty(&result)?);
+    }
+    Ok(())
+}
