@@ -133,7 +133,8 @@ def main():
     m, d = env.sim.model._model, env.sim.data._data
     e = env.env
     out = dict(
-        bddl=os.path.abspath(a.bddl), seed=a.seed, problem=e.parsed_problem["problem_name"],
+        bddl=os.path.abspath(a.bddl), bddl_relpath=os.path.relpath(os.path.abspath(a.bddl), os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(a.bddl))))),
+        seed=a.seed, problem=e.parsed_problem["problem_name"],
         fixtures=instance_poses(env, e.fixtures_dict), objects=instance_poses(env, e.objects_dict),
         qpos=L(d.qpos), runtime_model_overrides=runtime_overrides(env),
         n_object_property_initializers=len(e.object_property_initializers),
