@@ -5,6 +5,8 @@ pub mod paths;
 
 // BDDL → MJCF composition and LIBERO's reset-time fixture placement
 pub mod compose;
+pub mod numpy_rng;
+pub mod placement;
 
 // Panda, OSC_POSE, stepping, faults, init states (simulation core)
 pub mod benchmark;
