@@ -115,6 +115,7 @@ impl ModelHandle {
 /// What to draw for one geom or site.
 #[derive(Clone, Copy)]
 struct Shape {
+    /// Range in the model's index buffer.
     first_vertex: u32,
     vertex_count: u32,
     /// Object scale applied before the pose (unit primitives are scaled by size).
@@ -122,11 +123,14 @@ struct Shape {
     /// Object coordinates are metric (meshes, capsules): texgen divides by size like MuJoCo's
     /// "pre-scaled" geoms.
     prescaled: bool,
+    /// Bounding-sphere radius in object units (scaled by `scale`), for per-camera frustum culling.
+    radius: f32,
 }
 
 struct GpuModel {
     scene: Arc<SceneModel>,
     vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
     geom_shapes: Vec<Option<Shape>>,
     site_shapes: Vec<Option<Shape>>,
     /// One bind group per texture, and a last one with no texture.
@@ -459,12 +463,21 @@ impl Renderer {
     /// Upload an extracted model (meshes, primitives, textures).
     pub fn prepare_scene(&self, scene: Arc<SceneModel>) -> Result<ModelHandle, RenderError> {
         let inner = &self.inner;
+        // Indexed with shared corners: llvmpipe's cost is dominated by vertex work on the big meshes.
         let mut vertices: Vec<Vertex> = Vec::new();
+        let mut indices: Vec<u32> = Vec::new();
+        let mut seen: HashMap<[u32; 8], u32> = HashMap::new();
         let mut push = |v: Vec<Vertex>| -> (u32, u32) {
-            let first = vertices.len() as u32;
-            let n = v.len() as u32;
-            vertices.extend(v);
-            (first, n)
+            let first = indices.len() as u32;
+            for vert in v {
+                let key: [u32; 8] = bytemuck::cast(vert);
+                let idx = *seen.entry(key).or_insert_with(|| {
+                    vertices.push(vert);
+                    vertices.len() as u32 - 1
+                });
+                indices.push(idx);
+            }
+            (first, indices.len() as u32 - first)
         };
         let (ns, nt) = (scene.numslices, scene.numstacks);
         let sphere = push(geometry::unit_sphere(ns, nt));
@@ -473,13 +486,19 @@ impl Renderer {
         let plane = push(geometry::unit_plane(1));
         let meshes: Vec<(u32, u32)> = scene.meshes.iter().map(|m| push(geometry::mesh_vertices(m))).collect();
         let zfar = scene.zfar_m as f32;
+        let mesh_radius: Vec<f32> = scene
+            .meshes
+            .iter()
+            .map(|m| m.positions.iter().map(|p| Vec3::from(*p).length()).fold(0.0, f32::max))
+            .collect();
         let mut shape_of = |d: &crate::scene::DrawableDesc| -> Option<Shape> {
             let s = d.size;
-            let unit = |(first_vertex, vertex_count): (u32, u32), scale| Shape {
+            let unit = |(first_vertex, vertex_count): (u32, u32), scale: [f32; 3]| Shape {
                 first_vertex,
                 vertex_count,
                 scale,
                 prescaled: false,
+                radius: 3f32.sqrt(),
             };
             match d.kind {
                 GeomKind::Sphere => Some(unit(sphere, [s[0], s[0], s[0]])),
@@ -493,11 +512,13 @@ impl Renderer {
                 }
                 GeomKind::Capsule => {
                     let r = push(geometry::capsule(s[0], s[1], ns, nt));
-                    Some(Shape { first_vertex: r.0, vertex_count: r.1, scale: [1.0; 3], prescaled: true })
+                    Some(Shape { first_vertex: r.0, vertex_count: r.1, scale: [1.0; 3], prescaled: true, radius: s[0] + s[1] })
                 }
                 GeomKind::Mesh => {
-                    let &(first_vertex, vertex_count) = meshes.get(usize::try_from(d.dataid).ok()?)?;
-                    Some(Shape { first_vertex, vertex_count, scale: [1.0; 3], prescaled: true })
+                    let mi = usize::try_from(d.dataid).ok()?;
+                    let &(first_vertex, vertex_count) = meshes.get(mi)?;
+                    let radius = mesh_radius.get(mi).copied().unwrap_or(f32::INFINITY);
+                    Some(Shape { first_vertex, vertex_count, scale: [1.0; 3], prescaled: true, radius })
                 }
                 GeomKind::HField | GeomKind::Other => None,
             }
@@ -512,6 +533,14 @@ impl Renderer {
             mapped_at_creation: false,
         });
         inner.queue.write_buffer(&vbuf, 0, vertex_bytes);
+        let index_bytes: &[u8] = bytemuck::cast_slice(&indices);
+        let ibuf = inner.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("model indices"),
+            size: (index_bytes.len() as u64).max(64).next_multiple_of(4),
+            usage: wgpu::BufferUsages::INDEX | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        inner.queue.write_buffer(&ibuf, 0, index_bytes);
 
         let mut texture_groups = Vec::with_capacity(scene.textures.len() + 1);
         for t in &scene.textures {
@@ -533,7 +562,7 @@ impl Renderer {
         self.take_errors()?;
         Ok(ModelHandle {
             id: inner.next_model_id.fetch_add(1, Ordering::Relaxed),
-            gpu: Arc::new(GpuModel { scene, vertices: vbuf, geom_shapes, site_shapes, texture_groups, skybox }),
+            gpu: Arc::new(GpuModel { scene, vertices: vbuf, indices: ibuf, geom_shapes, site_shapes, texture_groups, skybox }),
         })
     }
 
@@ -705,9 +734,14 @@ impl Renderer {
                     pass.draw(0..3, 0..1);
                 }
                 pass.set_vertex_buffer(0, gm.vertices.slice(..));
+                pass.set_index_buffer(gm.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.set_pipeline(&inner.opaque);
                 let mut transparent = Vec::new();
+                let frustum = cull_params(scene, state, cams[slot], r.width, r.height);
                 for (i, d) in draws.iter().enumerate() {
+                    if !in_frustum(&frustum.0, frustum.1, frustum.2, frustum.3, frustum.4, d.center, d.cull_radius) {
+                        continue;
+                    }
                     if d.transparent {
                         let p = Vec3::from(d.center);
                         transparent.push(((p - eye).length() - d.rbound, i));
@@ -815,7 +849,7 @@ impl Renderer {
 fn draw_one(pass: &mut wgpu::RenderPass<'_>, gm: &GpuModel, draw_group: &wgpu::BindGroup, i: usize, d: &Draw) {
     pass.set_bind_group(1, draw_group, &[(i as u64 * DRAW_STRIDE) as u32]);
     pass.set_bind_group(2, &gm.texture_groups[d.texture_group], &[]);
-    pass.draw(d.shape.first_vertex..d.shape.first_vertex + d.shape.vertex_count, 0..1);
+    pass.draw_indexed(d.shape.first_vertex..d.shape.first_vertex + d.shape.vertex_count, 0, 0..1);
 }
 
 fn ensure_uniform(
@@ -950,6 +984,19 @@ struct Draw {
     texture_group: usize,
     center: [f32; 3],
     rbound: f32,
+    cull_radius: f32,
+}
+
+/// Whether a bounding sphere (world) can be inside a camera's view frustum.
+fn in_frustum(view: &Mat4, tan_x: f32, tan_y: f32, near: f32, far: f32, center: [f32; 3], r: f32) -> bool {
+    let p = view.transform_point3(Vec3::from(center));
+    let z = -p.z;
+    if z + r < near || z - r > far {
+        return false;
+    }
+    let sx = (1.0 + tan_x * tan_x).sqrt();
+    let sy = (1.0 + tan_y * tan_y).sqrt();
+    (p.x.abs() - tan_x * z) / sx <= r && (p.y.abs() - tan_y * z) / sy <= r
 }
 
 fn check_state(scene: &SceneModel, s: &FrameState) -> Result<(), RenderError> {
@@ -1078,6 +1125,7 @@ fn collect_draws(gm: &GpuModel, s: &FrameState, vis: &Visibility) -> Vec<Draw> {
             misc: [mode, seg, 0, 0],
         };
         let rbound = size[0].max(size[1]).max(size[2]);
+        let cull_radius = shape.radius * scale.abs().max_element();
         out.push(Draw {
             shape,
             uniform,
@@ -1085,6 +1133,7 @@ fn collect_draws(gm: &GpuModel, s: &FrameState, vis: &Visibility) -> Vec<Draw> {
             texture_group: group,
             center: t.to_array(),
             rbound,
+            cull_radius,
         });
     };
     for (i, g) in scene.geoms.iter().enumerate() {
@@ -1094,6 +1143,17 @@ fn collect_draws(gm: &GpuModel, s: &FrameState, vis: &Visibility) -> Vec<Draw> {
         add(site, gm.site_shapes[i], s.site_rgba[i], &s.site_xpos[i], &s.site_xmat[i], SEG_SITE_FLAG | (i as u32 + 1), true);
     }
     out
+}
+
+/// View matrix, tangents of the half field of view (x, y) and clip distances of one camera.
+fn cull_params(scene: &SceneModel, s: &FrameState, cam: usize, w: u32, h: u32) -> (Mat4, f32, f32, f32, f32) {
+    let r = rot3(&s.cam_xmat[cam]);
+    let p = s.cam_xpos[cam];
+    let eye = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
+    let world_from_cam = Mat4::from_cols(r.x_axis.extend(0.0), r.y_axis.extend(0.0), r.z_axis.extend(0.0), eye.extend(1.0));
+    let tan_y = ((scene.cameras[cam].fovy_deg as f32).to_radians() / 2.0).tan();
+    let tan_x = tan_y * w as f32 / h as f32;
+    (world_from_cam.inverse(), tan_x, tan_y, scene.znear_m as f32, scene.zfar_m as f32)
 }
 
 /// View/projection (reverse Z) and MuJoCo's light list (headlight first) for one camera.
