@@ -41,21 +41,28 @@ pub fn inspect(args: &InspectArgs) -> anyhow::Result<Value> {
     let mut model = scene.compile()?;
     let placement = Placement::sample(&scene, args.seed, Some(&model))?;
     placement.apply(&mut model)?;
-    let mut data = MjData::new(&model);
     let nq = model.ffi().nq as usize;
     let nv = model.ffi().nv as usize;
     let mut init_state = Value::Null;
-    if let Some(file) = &args.init_file {
-        let states = InitStates::read(file)?;
-        let row = states.get(args.init_index)?;
-        if row.len() != 1 + nq + nv {
-            bail!("init state has {} values, this model needs 1 + nq + nv = {}", row.len(), 1 + nq + nv);
+    let row: Option<Vec<f64>> = match &args.init_file {
+        Some(file) => {
+            let states = InitStates::read(file)?;
+            let row = states.get(args.init_index)?.to_vec();
+            if row.len() != 1 + nq + nv {
+                bail!("init state has {} values, this model needs 1 + nq + nv = {}", row.len(), 1 + nq + nv);
+            }
+            // LIBERO's stove-burner toggle after set_init_state
+            update_visual_sites(&scene, &mut model, &row[1..1 + nq])?;
+            Some(row)
         }
+        None => None,
+    };
+    let mut data = MjData::new(&model);
+    if let (Some(file), Some(row)) = (&args.init_file, &row) {
         data.qpos_mut().copy_from_slice(&row[1..1 + nq]);
         data.qvel_mut().copy_from_slice(&row[1 + nq..]);
         // SAFETY: plain scalar write into the data this function owns.
         unsafe { data.ffi_mut().time = row[0] };
-        update_visual_sites(&scene, &mut model, &row[1..1 + nq])?;
         init_state = json!({"file": file, "index": args.init_index, "time": row[0]});
     } else {
         // the state LIBERO has right after reset(): robot at init_qpos, objects and articulations as sampled
