@@ -12,6 +12,8 @@ pub mod records;
 pub mod task;
 pub mod tools;
 pub mod workspace;
+#[cfg(feature = "world")]
+pub mod world;
 
 pub use actor::{EpisodeConfig, EpisodeHandle, EpisodeState, EpisodeStatus, Verdict, World, spawn_episode};
 pub use call::{MicroAction, ToolCall, ToolError, validate_actions};

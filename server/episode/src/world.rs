@@ -1,0 +1,161 @@
+//! The LIBERO world an episode runs on: the BDDL scene composed and compiled by `libero-sim`, LIBERO's
+//! seeded reset placement, the trusted init state, the real MuJoCo simulation under robosuite's OSC_POSE,
+//! and both cameras rendered by `libero-render`.
+use std::sync::Arc;
+
+use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
+use libero_sim::compose::compose_file;
+use libero_sim::mujoco_rs::prelude::MjtObjBase;
+use libero_sim::placement::Placement;
+use libero_sim::{AssetPaths, InitStates, Simulation};
+
+use crate::EpisodeError;
+use crate::actor::{Verdict, World};
+use crate::call::MicroAction;
+use crate::observation::{CameraFrame, Frame, Level, RgbImage};
+use crate::readout::{BasePose, robot_base_body, robot_readout};
+use crate::task::TaskSource;
+
+/// Release image size (square, per camera).
+pub const RESOLUTION_PX: u32 = 256;
+/// Zero actions run after restoring the init state, before the first observation (§4.2).
+pub const SETTLE_STEPS: usize = 10;
+/// robosuite camera names of the published `head` and `wrist` views.
+pub const HEAD_CAMERA: &str = "agentview";
+pub const WRIST_CAMERA: &str = "robot0_eye_in_hand";
+
+/// What to build.
+#[derive(Debug, Clone)]
+pub struct WorldSpec {
+    pub task: TaskSource,
+    pub level: Level,
+    pub seed: u64,
+    pub init_index: usize,
+    pub paths: AssetPaths,
+}
+
+pub struct LiberoWorld {
+    sim: Simulation,
+    /// `[time, qpos, qvel]` restored at start: the trusted init state, or the seeded placement's state.
+    start_row: Vec<f64>,
+    renderer: Renderer,
+    gpu_model: ModelHandle,
+    base_body: usize,
+    level: Level,
+}
+
+impl LiberoWorld {
+    /// Composes, compiles and places the scene; reads the init state; uploads the model to the renderer.
+    pub fn new(spec: &WorldSpec, renderer: Renderer) -> Result<Self, EpisodeError> {
+        let scene = compose_file(&spec.task.bddl, &spec.paths)?;
+        let mut model = scene.compile()?;
+        let seed = u32::try_from(spec.seed).map_err(|_| EpisodeError::Task("seed must fit in 32 bits".into()))?;
+        let placement = Placement::sample(&scene, seed, Some(&model))?;
+        placement.apply(&mut model)?;
+        let model = Arc::new(model);
+        let sim = Simulation::new(model.clone())?;
+        let start_row = match &spec.task.init_states {
+            Some(path) => {
+                let states = InitStates::read(path)?;
+                states.get(spec.init_index)?.to_vec()
+            }
+            None => placement_row(&sim, &placement)?,
+        };
+        let base_body = robot_base_body(&sim)?;
+        let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
+        Ok(Self { sim, start_row, renderer, gpu_model, base_body, level: spec.level })
+    }
+
+    pub fn simulation(&self) -> &Simulation {
+        &self.sim
+    }
+
+    /// Test hook: edits the `[time, qpos, qvel]` row restored at start (used to provoke a MuJoCo fault).
+    #[doc(hidden)]
+    pub fn edit_start_state(&mut self, edit: impl FnOnce(&mut [f64])) {
+        edit(&mut self.start_row);
+    }
+
+    fn render(&self) -> Result<(CameraFrame, CameraFrame), EpisodeError> {
+        let outputs = if self.level >= Level::L3 { Outputs::RGB_DEPTH } else { Outputs::RGB };
+        let requests = [
+            CameraRequest::named(HEAD_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
+            CameraRequest::named(WRIST_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
+        ];
+        let state = FrameState::from_mujoco(self.sim.model(), self.sim.data());
+        let mut frames = self
+            .renderer
+            .render(&self.gpu_model, &state, &requests, &RenderOptions::default())
+            .map_err(|e| EpisodeError::Render(e.to_string()))?
+            .into_iter()
+            .map(|f| {
+                let t = f.calibration.T_robot_base_from_camera.ok_or_else(|| {
+                    EpisodeError::Render("the model has no robot0_base body for camera extrinsics".into())
+                })?;
+                Ok(CameraFrame {
+                    image: RgbImage { width: f.width, height: f.height, rgb: f.rgb },
+                    depth_m: f.depth_m,
+                    depth_valid: f.depth_valid,
+                    intrinsic_matrix_3x3: f.calibration.K,
+                    t_robot_base_from_camera: t,
+                })
+            })
+            .collect::<Result<Vec<_>, EpisodeError>>()?;
+        if frames.len() != 2 {
+            return Err(EpisodeError::Render(format!("expected 2 camera frames, got {}", frames.len())));
+        }
+        let wrist = frames.pop().expect("length checked");
+        let head = frames.pop().expect("length checked");
+        Ok((head, wrist))
+    }
+}
+
+/// The state row of the seeded placement, for tasks without trusted init states: the objects' free joints
+/// and articulated fixture joints as LIBERO's reset writes them.
+fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, EpisodeError> {
+    let model = sim.model();
+    let adr = model.jnt_qposadr();
+    let joint = |name: &str| {
+        model
+            .name_to_id(MjtObjBase::mjOBJ_JOINT, name)
+            .map(|j| 1 + adr[j] as usize)
+            .ok_or_else(|| EpisodeError::Task(format!("model has no joint {name:?}")))
+    };
+    let mut row = sim.state_row();
+    for o in &placement.objects {
+        let a = joint(&o.joint)?;
+        row[a..a + 7].copy_from_slice(&o.qpos);
+    }
+    for (name, q) in &placement.joint_qpos {
+        row[joint(name)?] = *q;
+    }
+    Ok(row)
+}
+
+impl World for LiberoWorld {
+    fn start(&mut self) -> Result<(), EpisodeError> {
+        self.sim.set_init_state(&self.start_row)?;
+        for _ in 0..SETTLE_STEPS {
+            self.sim.step([0.0; 7])?;
+        }
+        Ok(())
+    }
+
+    fn step(&mut self, action: &MicroAction) -> Result<(), EpisodeError> {
+        self.sim.step(*action)?;
+        Ok(())
+    }
+
+    fn frame(&mut self, frame_index: u64) -> Result<Frame, EpisodeError> {
+        let base = BasePose::of(&self.sim, self.base_body);
+        let robot = robot_readout(&self.sim, &base);
+        let (head, wrist) = self.render()?;
+        Ok(Frame { frame_index, robot, head, wrist, task_reference: None })
+    }
+
+    fn verdict(&mut self) -> Result<Verdict, EpisodeError> {
+        Err(EpisodeError::Evaluator(
+            "no task evaluator or BDDL goal predicates are available in this build (server/tasks)".into(),
+        ))
+    }
+}
