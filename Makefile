@@ -7,7 +7,7 @@ setup:
 	python3 scripts/setup.py
 
 serve: setup
-	cargo run --release -p libero-agent -- serve --addr $(ADDR)
+	cargo run --release -p libero-agent --features episode-serve -- serve --addr $(ADDR)
 
 test:
 	python3 scripts/setup.py --test
