@@ -1,0 +1,91 @@
+//! `libero-agent episode prepare`: asks a running server to prepare an episode and prints its JSON
+//! (episode_id, mcp_url, mcp_headers, workspace, prompt_file, …).
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+
+use crate::serve::episodes::PrepareRequest;
+use crate::serve::http_client::{HttpUrl, request};
+
+#[derive(clap::Args, Debug)]
+pub struct EpisodeArgs {
+    #[command(subcommand)]
+    pub command: EpisodeCommand,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum EpisodeCommand {
+    /// Prepare an episode on a running server: workspace, private run directory, MCP endpoint.
+    Prepare(PrepareArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct PrepareArgs {
+    /// The server started with `libero-agent serve`.
+    #[arg(long, default_value = "http://127.0.0.1:8080")]
+    pub server: String,
+    /// Suite task (T11), stock LIBERO task (<suite>/<name>) or a .bddl path.
+    #[arg(long)]
+    pub task: String,
+    /// Observation level 1, 2 or 3.
+    #[arg(long, default_value_t = 3)]
+    pub level: u8,
+    #[arg(long, default_value_t = 100)]
+    pub seed: u64,
+    /// Index into the task's init-state file.
+    #[arg(long, default_value_t = 0)]
+    pub init_index: usize,
+    /// Workspace directory to create (default: under the server's data directory).
+    #[arg(long)]
+    pub workspace: Option<PathBuf>,
+    #[arg(long, default_value_t = 1800.0)]
+    pub wall_time_s: f64,
+    #[arg(long, default_value_t = 1_000_000)]
+    pub max_agent_steps: u64,
+}
+
+pub fn run_episode(args: EpisodeArgs) -> anyhow::Result<()> {
+    match args.command {
+        EpisodeCommand::Prepare(p) => prepare(p),
+    }
+}
+
+fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
+    let workspace = match p.workspace {
+        Some(w) if w.is_relative() => Some(std::env::current_dir()?.join(w)),
+        other => other,
+    };
+    let task = match std::path::Path::new(&p.task) {
+        t if p.task.ends_with(".bddl") && t.is_relative() && t.is_file() => {
+            std::env::current_dir()?.join(t).to_string_lossy().into_owned()
+        }
+        _ => p.task.clone(),
+    };
+    let req = PrepareRequest {
+        task,
+        level: p.level,
+        seed: p.seed,
+        init_index: p.init_index,
+        workspace,
+        wall_time_s: p.wall_time_s,
+        max_agent_steps: p.max_agent_steps,
+    };
+    let base = p.server.trim_end_matches('/');
+    let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;
+    let body = serde_json::to_vec(&req)?;
+    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
+    let resp = request("POST", &url, &headers, &body, Duration::from_secs(300))
+        .with_context(|| format!("is `libero-agent serve` running at {base}?"))?;
+    let text = String::from_utf8_lossy(&resp.body);
+    if resp.status != 201 {
+        let msg = serde_json::from_str::<serde_json::Value>(&text)
+            .ok()
+            .and_then(|v| v["error"].as_str().map(str::to_owned))
+            .unwrap_or_else(|| text.into_owned());
+        bail!("the server refused to prepare the episode (HTTP {}): {msg}", resp.status);
+    }
+    let v: serde_json::Value = serde_json::from_str(&text).context("server sent invalid JSON")?;
+    println!("{}", serde_json::to_string_pretty(&v)?);
+    Ok(())
+}

@@ -1,0 +1,131 @@
+//! `libero-agent mcp-stdio --url URL [--header K:V]`: a stdio MCP server for stdio-only harnesses that relays
+//! every JSON-RPC line to an episode's streamable-HTTP endpoint and writes the replies back, one line each.
+use std::io::{BufRead, Write};
+use std::time::Duration;
+
+use anyhow::Context;
+use serde_json::{Value, json};
+
+use crate::serve::http_client::{HttpResponse, HttpUrl, request};
+
+#[derive(clap::Args, Debug)]
+pub struct McpStdioArgs {
+    /// The episode's MCP endpoint (`mcp_url` from `episode prepare`).
+    #[arg(long)]
+    pub url: String,
+    /// Extra header, e.g. `Authorization: Bearer <token>`; repeatable.
+    #[arg(long = "header", value_name = "K:V")]
+    pub headers: Vec<String>,
+}
+
+/// JSON-RPC messages of one HTTP reply: a JSON body, or the `data:` events of an SSE stream.
+pub fn messages_of(resp: &HttpResponse) -> Vec<Value> {
+    let body = String::from_utf8_lossy(&resp.body);
+    let is_sse = resp.header("content-type").is_some_and(|c| c.starts_with("text/event-stream"));
+    if !is_sse {
+        return serde_json::from_str::<Value>(body.trim()).map(|v| vec![v]).unwrap_or_default();
+    }
+    let mut out = Vec::new();
+    for event in body.split("\n\n") {
+        let data: Vec<&str> =
+            event.lines().filter_map(|l| l.strip_prefix("data:")).map(|d| d.strip_prefix(' ').unwrap_or(d)).collect();
+        if data.is_empty() {
+            continue;
+        }
+        if let Ok(v) = serde_json::from_str::<Value>(&data.join("\n")) {
+            out.push(v);
+        }
+    }
+    out
+}
+
+pub fn run_mcp_stdio(args: McpStdioArgs) -> anyhow::Result<()> {
+    let url = HttpUrl::parse(&args.url)?;
+    let mut headers = Vec::new();
+    for h in &args.headers {
+        let (k, v) = h.split_once(':').with_context(|| format!("--header must be K:V, got {h:?}"))?;
+        headers.push((k.trim().to_owned(), v.trim().to_owned()));
+    }
+    let mut session: Option<String> = None;
+    let mut protocol: Option<String> = None;
+    let stdin = std::io::stdin();
+    let mut stdout = std::io::stdout().lock();
+    for line in stdin.lock().lines() {
+        let line = line?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let id = serde_json::from_str::<Value>(&line).ok().and_then(|v| v.get("id").cloned());
+        let mut h = headers.clone();
+        h.push(("Content-Type".into(), "application/json".into()));
+        h.push(("Accept".into(), "application/json, text/event-stream".into()));
+        if let Some(s) = &session {
+            h.push(("Mcp-Session-Id".into(), s.clone()));
+        }
+        if let Some(p) = &protocol {
+            h.push(("Mcp-Protocol-Version".into(), p.clone()));
+        }
+        let replies = match request("POST", &url, &h, line.as_bytes(), Duration::from_secs(3600)) {
+            Ok(resp) => {
+                if let Some(s) = resp.header("mcp-session-id") {
+                    session = Some(s.to_owned());
+                }
+                if resp.status == 401 {
+                    vec![error_reply(id.clone(), "the episode endpoint refused the token (HTTP 401)")]
+                } else if resp.status >= 400 {
+                    let text = String::from_utf8_lossy(&resp.body).into_owned();
+                    let mut m = messages_of(&resp);
+                    if m.is_empty() {
+                        m.push(error_reply(id.clone(), &format!("HTTP {}: {}", resp.status, text.trim())));
+                    }
+                    m
+                } else {
+                    messages_of(&resp)
+                }
+            }
+            Err(e) => vec![error_reply(id.clone(), &format!("cannot reach the episode endpoint: {e:#}"))],
+        };
+        for r in replies {
+            if let Some(v) = r.pointer("/result/protocolVersion").and_then(Value::as_str) {
+                protocol = Some(v.to_owned());
+            }
+            // Notifications have no id and get no reply; only answer what was asked.
+            if id.is_none() && r.get("id").is_some_and(Value::is_null) && r.get("error").is_some() {
+                continue;
+            }
+            writeln!(stdout, "{}", serde_json::to_string(&r)?)?;
+            stdout.flush()?;
+        }
+    }
+    if let Some(s) = session {
+        let mut h = headers.clone();
+        h.push(("Mcp-Session-Id".into(), s));
+        let _ = request("DELETE", &url, &h, b"", Duration::from_secs(5));
+    }
+    Ok(())
+}
+
+fn error_reply(id: Option<Value>, message: &str) -> Value {
+    json!({"jsonrpc": "2.0", "id": id.unwrap_or(Value::Null), "error": {"code": -32603, "message": message}})
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sse_and_json_bodies_yield_their_messages() {
+        let sse = HttpResponse {
+            status: 200,
+            headers: vec![("content-type".into(), "text/event-stream".into())],
+            body: b"data: \n\nid: 0\nretry: 3000\ndata: {\"jsonrpc\":\"2.0\",\"id\":1,\"result\":{}}\n\n".to_vec(),
+        };
+        assert_eq!(messages_of(&sse), vec![json!({"jsonrpc": "2.0", "id": 1, "result": {}})]);
+        let plain = HttpResponse {
+            status: 200,
+            headers: vec![("content-type".into(), "application/json".into())],
+            body: br#"{"jsonrpc":"2.0","id":2,"result":{}}"#.to_vec(),
+        };
+        assert_eq!(messages_of(&plain).len(), 1);
+    }
+}

@@ -1,0 +1,304 @@
+//! The server's episodes: preparing one (ids, token, private run directory, workspace, actor thread),
+//! looking one up for a request (token check), and the records' life across restarts.
+use std::collections::{BTreeMap, HashMap};
+use std::fs;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, RwLock};
+
+use anyhow::{Context, bail};
+use libero_episode::json::{utc_now_iso, write_json_file};
+use libero_episode::records::{aborted_result, read_result, write_result};
+use libero_episode::task::{TaskSource, resolve_task};
+use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
+use libero_episode::workspace::{WorkspaceContract, WorkspaceLayout, create_workspace};
+use libero_episode::world::{LiberoWorld, WorldSpec};
+use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode};
+use libero_render::Renderer;
+use libero_sim::AssetPaths;
+use rmcp::transport::streamable_http_server::session::local::LocalSessionManager;
+use rmcp::transport::streamable_http_server::{StreamableHttpServerConfig, StreamableHttpService};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+
+use super::mcp::EpisodeMcp;
+
+pub type McpService = StreamableHttpService<EpisodeMcp, LocalSessionManager>;
+
+/// Largest accepted MCP request body (the original's 1 MiB protocol limit).
+const MAX_REQUEST_BYTES: usize = 1 << 20;
+
+/// `POST /api/episodes` body and the CLI's `episode prepare` options.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PrepareRequest {
+    /// `T01`…`T30`, `<suite>/<task>` or a `.bddl` path.
+    pub task: String,
+    #[serde(default = "default_level")]
+    pub level: u8,
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    #[serde(default)]
+    pub init_index: usize,
+    /// Where to create the workspace (default: `<data>/workspaces/<episode_id>`).
+    #[serde(default)]
+    pub workspace: Option<PathBuf>,
+    #[serde(default = "default_wall_time_s")]
+    pub wall_time_s: f64,
+    #[serde(default = "default_max_agent_steps")]
+    pub max_agent_steps: u64,
+}
+
+fn default_level() -> u8 {
+    3
+}
+fn default_seed() -> u64 {
+    100
+}
+fn default_wall_time_s() -> f64 {
+    DEFAULT_WALL_TIME_S
+}
+fn default_max_agent_steps() -> u64 {
+    MAX_AGENT_STEPS_CAP
+}
+
+/// What preparing returns (printed by `episode prepare`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Prepared {
+    pub episode_id: String,
+    pub mcp_url: String,
+    /// Headers the MCP client must send (the bearer token).
+    pub mcp_headers: BTreeMap<String, String>,
+    pub workspace: PathBuf,
+    pub prompt_file: PathBuf,
+    pub mcp_config_file: PathBuf,
+    pub run_dir: PathBuf,
+    pub task: String,
+    pub instruction: String,
+    pub level: u8,
+}
+
+struct Entry {
+    token: String,
+    service: McpService,
+    handle: EpisodeHandle,
+}
+
+pub struct Episodes {
+    data: PathBuf,
+    base_url: String,
+    paths: Option<AssetPaths>,
+    map: RwLock<HashMap<String, Arc<Entry>>>,
+    /// One GPU device shared by every episode (opened at the first prepare).
+    renderer: Mutex<Option<Renderer>>,
+}
+
+fn random_hex(bytes: usize) -> std::io::Result<String> {
+    let mut buf = vec![0u8; bytes];
+    fs::File::open("/dev/urandom")?.read_exact(&mut buf)?;
+    Ok(buf.iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// Equal-time comparison, so response timing does not leak how much of a token was right.
+fn tokens_equal(a: &str, b: &str) -> bool {
+    a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+fn is_within(child: &Path, parent: &Path) -> bool {
+    child.starts_with(parent)
+}
+
+/// Absolute, lexically normalised path (the workspace may not exist yet).
+fn absolute(p: &Path) -> std::io::Result<PathBuf> {
+    let p = if p.is_absolute() { p.to_path_buf() } else { std::env::current_dir()?.join(p) };
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            std::path::Component::ParentDir => {
+                out.pop();
+            }
+            std::path::Component::CurDir => {}
+            other => out.push(other),
+        }
+    }
+    Ok(out)
+}
+
+impl Episodes {
+    pub fn new(data: PathBuf, base_url: String) -> anyhow::Result<Self> {
+        let data = absolute(&data)?;
+        fs::create_dir_all(data.join("runs"))?;
+        fs::create_dir_all(data.join("workspaces"))?;
+        let paths = match AssetPaths::discover() {
+            Ok(p) => Some(p),
+            Err(e) => {
+                eprintln!("warning: {e}; episodes cannot be prepared until the assets are set up");
+                None
+            }
+        };
+        Ok(Self { data, base_url, paths, map: RwLock::new(HashMap::new()), renderer: Mutex::new(None) })
+    }
+
+    fn renderer(&self) -> anyhow::Result<Renderer> {
+        let mut slot = self.renderer.lock().map_err(|_| anyhow::anyhow!("renderer lock poisoned"))?;
+        if let Some(r) = slot.as_ref() {
+            return Ok(r.clone());
+        }
+        let r = Renderer::new().context("cannot open a GPU for rendering")?;
+        *slot = Some(r.clone());
+        Ok(r)
+    }
+
+    pub fn runs_dir(&self) -> PathBuf {
+        self.data.join("runs")
+    }
+
+    pub fn count(&self) -> usize {
+        self.map.read().map(|m| m.len()).unwrap_or(0)
+    }
+
+    /// The episode's MCP service if `token` is its token.
+    pub fn authorize(&self, id: &str, token: Option<&str>) -> Option<McpService> {
+        let token = token?;
+        let map = self.map.read().ok()?;
+        let entry = map.get(id)?;
+        tokens_equal(&entry.token, token).then(|| entry.service.clone())
+    }
+
+    pub fn status(&self, id: &str) -> Option<EpisodeStatus> {
+        let map = self.map.read().ok()?;
+        map.get(id).map(|e| e.handle.status())
+    }
+
+    /// Records every unfinished episode as aborted with `reason` (server shutdown).
+    pub fn stop_all(&self, reason: &str) {
+        let entries: Vec<Arc<Entry>> = self.map.read().map(|m| m.values().cloned().collect()).unwrap_or_default();
+        for e in entries {
+            e.handle.stop(reason);
+        }
+    }
+
+    /// After a crash or kill: every run directory with an episode record but no result becomes an aborted
+    /// (INVALID) episode with its reason. Finished records are left untouched. Returns how many.
+    pub fn recover_interrupted(&self) -> usize {
+        let Ok(dirs) = fs::read_dir(self.runs_dir()) else { return 0 };
+        let mut n = 0;
+        for d in dirs.flatten() {
+            let run = RunDir::new(d.path());
+            if !run.episode_record().is_file() || read_result(&run).is_some() {
+                continue;
+            }
+            let max_wall = fs::read_to_string(run.episode_record())
+                .ok()
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+                .and_then(|v| v["max_wall_time_seconds"].as_f64())
+                .unwrap_or(DEFAULT_WALL_TIME_S);
+            let result = aborted_result("server_stopped_before_finish: the server exited while the episode was open", max_wall, None);
+            if write_result(&run, &result).is_ok() {
+                n += 1;
+            }
+        }
+        n
+    }
+
+    /// Prepares an episode: resolves the task, builds its world on a new episode thread, writes the private
+    /// run directory and the workspace, and registers the MCP endpoint.
+    pub fn prepare(&self, req: PrepareRequest) -> anyhow::Result<Prepared> {
+        let level = Level::from_number(req.level).with_context(|| format!("level must be 1, 2 or 3 (got {})", req.level))?;
+        if !(req.wall_time_s.is_finite() && req.wall_time_s > 0.0) {
+            bail!("wall_time_s must be a positive number of seconds");
+        }
+        if req.max_agent_steps == 0 || req.max_agent_steps > MAX_AGENT_STEPS_CAP {
+            bail!("max_agent_steps must be between 1 and {MAX_AGENT_STEPS_CAP}");
+        }
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        let task: TaskSource = resolve_task(&req.task, &paths)?;
+        let episode_id = format!("ep-{}-{}", compact_utc(), random_hex(4)?);
+        let token = random_hex(32)?;
+        let run_dir = self.runs_dir().join(&episode_id);
+        let workspace = match &req.workspace {
+            Some(w) => absolute(w)?,
+            None => self.data.join("workspaces").join(&episode_id),
+        };
+        if is_within(&workspace, &self.runs_dir()) || is_within(&self.runs_dir(), &workspace) {
+            bail!("the workspace {} must not overlap the private run directories", workspace.display());
+        }
+        if WorkspaceLayout::new(&workspace).episode_json().exists() {
+            bail!("{} already holds a prepared episode", workspace.display());
+        }
+        fs::create_dir_all(&run_dir)?;
+        let mcp_url = format!("{}/mcp/{episode_id}", self.base_url);
+        let mut headers = BTreeMap::new();
+        headers.insert("Authorization".to_owned(), format!("Bearer {token}"));
+        let record = json!({
+            "schema_version": "libero.agent_episode_record.v1",
+            "episode_id": episode_id,
+            "created_at": utc_now_iso(),
+            "task": task,
+            "level": req.level,
+            "seed": req.seed,
+            "init_state_index": req.init_index,
+            "max_agent_steps": req.max_agent_steps,
+            "max_wall_time_seconds": req.wall_time_s,
+            "workspace": workspace,
+            "mcp_url": mcp_url,
+        });
+        let run = RunDir::new(&run_dir);
+        write_json_file(&run.episode_record(), &record)?;
+        let config = EpisodeConfig {
+            episode_id: episode_id.clone(),
+            instruction: task.instruction.clone(),
+            level,
+            max_agent_steps: req.max_agent_steps,
+            max_wall_time_s: req.wall_time_s,
+            workspace: workspace.clone(),
+            run_dir: run_dir.clone(),
+        };
+        let spec = WorldSpec { task: task.clone(), level, seed: req.seed, init_index: req.init_index, paths };
+        let renderer = self.renderer()?;
+        let handle = spawn_episode(config, move || LiberoWorld::new(&spec, renderer))
+            .with_context(|| format!("cannot build the simulation for {}", task.task_ref))?;
+        let layout = WorkspaceLayout::new(&workspace);
+        let contract = WorkspaceContract {
+            instruction: task.instruction.clone(),
+            max_agent_steps: req.max_agent_steps,
+            max_wall_time_s: req.wall_time_s,
+            mcp_url: mcp_url.clone(),
+            mcp_headers: headers.clone(),
+        };
+        if let Err(e) = create_workspace(&layout, &contract) {
+            handle.stop(&format!("workspace creation failed: {e}"));
+            return Err(e).with_context(|| format!("cannot create the workspace {}", workspace.display()));
+        }
+        fs::copy(layout.prompt_file(), run.agent_prompt())?;
+        let mcp = EpisodeMcp { handle: handle.clone() };
+        let config = StreamableHttpServerConfig::default()
+            .disable_allowed_hosts() // the per-episode token is the guard; hosts vary behind proxies
+            .with_max_request_body_bytes(MAX_REQUEST_BYTES);
+        let service = StreamableHttpService::new(move || Ok(mcp.clone()), LocalSessionManager::default().into(), config);
+        let entry = Arc::new(Entry { token, service, handle });
+        self.map
+            .write()
+            .map_err(|_| anyhow::anyhow!("episode registry lock poisoned"))?
+            .insert(episode_id.clone(), entry);
+        Ok(Prepared {
+            episode_id,
+            mcp_url,
+            mcp_headers: headers,
+            prompt_file: layout.prompt_file(),
+            mcp_config_file: layout.mcp_json(),
+            workspace,
+            run_dir,
+            task: task.task_ref,
+            instruction: task.instruction,
+            level: req.level,
+        })
+    }
+}
+
+/// `YYYYMMDDTHHMMSSZ` for episode ids (sortable by creation time).
+fn compact_utc() -> String {
+    let iso = utc_now_iso(); // 2026-11-21T17:03:04.123456+00:00
+    let digits: String = iso[..19].chars().filter(|c| c.is_ascii_digit() || *c == 'T').collect();
+    format!("{digits}Z")
+}

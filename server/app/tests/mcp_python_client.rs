@@ -1,0 +1,187 @@
+//! End-to-end proof with real clients: the `libero-agent` binary serves prepared episodes and the official
+//! MCP Python SDK (PyPI `mcp`, in the test venv of `scripts/setup.py --test`) drives them over streamable HTTP
+//! and through the `mcp-stdio` relay; malformed traffic is thrown at the endpoint; a killed server's open
+//! episode is recorded as INVALID on restart.
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+use serde_json::Value;
+
+const TASK: &str = "libero_object/pick_up_the_ketchup_and_place_it_in_the_basket";
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_libero-agent")
+}
+
+fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn python() -> PathBuf {
+    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
+    let py = cache.join("pyenv/bin/python");
+    assert!(py.is_file(), "{} missing: run `python3 scripts/setup.py --test`", py.display());
+    py
+}
+
+/// A running `libero-agent serve` on a free loopback port; killed on drop.
+struct Server {
+    child: Child,
+    url: String,
+}
+
+impl Server {
+    fn start(data: &Path) -> Self {
+        let mut child = Command::new(bin())
+            .args(["serve", "--addr", "127.0.0.1:0", "--data"])
+            .arg(data)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start libero-agent serve");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("listening line");
+        let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad listening line {line:?}: {e}"));
+        Self { child, url: v["url"].as_str().expect("url").to_owned() }
+    }
+
+    fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+fn prepare(server: &Server, workspace: &Path, level: u8) -> Value {
+    let out = Command::new(bin())
+        .args(["episode", "prepare", "--server", &server.url, "--task", TASK, "--level", &level.to_string()])
+        .arg("--workspace")
+        .arg(workspace)
+        .output()
+        .expect("run episode prepare");
+    assert!(out.status.success(), "prepare failed: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("prepare prints JSON")
+}
+
+fn token(prepared: &Value) -> String {
+    prepared["mcp_headers"]["Authorization"].as_str().expect("auth header").trim_start_matches("Bearer ").to_owned()
+}
+
+fn run_client(prepared: &Value, level: u8, extra: &[&str]) -> Value {
+    let script = repo_root().join("tests/mcp/episode_client.py");
+    let fixture = repo_root().join("server/episode/tests/fixtures/tools_list.json");
+    let out = Command::new(python())
+        .arg(script)
+        .args(["--url", prepared["mcp_url"].as_str().unwrap(), "--token", &token(prepared)])
+        .args(["--workspace", prepared["workspace"].as_str().unwrap(), "--level", &level.to_string()])
+        .arg("--tools-fixture")
+        .arg(fixture)
+        .args(extra)
+        .output()
+        .expect("run the python client");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "python client failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_str(stdout.lines().last().unwrap_or("")).expect("report JSON")
+}
+
+fn workspace_files(ws: &Path) -> Vec<String> {
+    fn walk(dir: &Path, root: &Path, out: &mut Vec<String>) {
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let p = e.path();
+            out.push(p.strip_prefix(root).unwrap().to_string_lossy().into_owned());
+            if p.is_dir() {
+                walk(&p, root, out);
+            }
+        }
+    }
+    let mut v = Vec::new();
+    walk(ws, ws, &mut v);
+    v.sort();
+    v
+}
+
+#[test]
+fn python_sdk_drives_a_level3_episode_over_http_and_the_workspace_stays_public() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = Server::start(&tmp.path().join("data"));
+    let ws = tmp.path().join("ws");
+    let prepared = prepare(&server, &ws, 3);
+    for key in ["episode_id", "mcp_url", "workspace", "prompt_file"] {
+        assert!(prepared[key].is_string(), "prepare output lacks {key}: {prepared}");
+    }
+    let mcp: Value = serde_json::from_str(&std::fs::read_to_string(ws.join(".libero/mcp.json")).unwrap()).unwrap();
+    assert_eq!(mcp["mcpServers"]["libero"]["url"], prepared["mcp_url"]);
+    let report = run_client(&prepared, 3, &[]);
+    assert_eq!(report["ok"], true, "{report}");
+    // The private run directory holds the records; the workspace holds none of them.
+    let run = PathBuf::from(prepared["run_dir"].as_str().unwrap());
+    let log = std::fs::read_to_string(run.join("actions.jsonl")).unwrap();
+    assert!(log.lines().count() >= 15, "every request is logged, errors included");
+    assert!(run.join("private_observations/obs_000001/observation.json").is_file());
+    let files = workspace_files(&ws);
+    let allowed_prefixes = ["TASK_PROMPT.txt", ".libero", "benchmark_inputs", "scratch"];
+    for f in &files {
+        assert!(allowed_prefixes.iter().any(|p| f.starts_with(p)), "unexpected workspace file {f}");
+        assert!(!f.contains(".current_observation."), "staging directory left behind: {f}");
+    }
+    let obs = std::fs::read_to_string(ws.join("benchmark_inputs/current_observation/observation.json")).unwrap();
+    for private in ["segmentation", "object", "mass", "bddl", "success", "stage", "reward"] {
+        assert!(!obs.contains(private), "observation.json mentions {private}");
+    }
+}
+
+#[test]
+fn python_sdk_drives_a_level1_episode_through_the_stdio_relay() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = Server::start(&tmp.path().join("data"));
+    let prepared = prepare(&server, &tmp.path().join("ws"), 1);
+    let report = run_client(&prepared, 1, &["--stdio", bin(), "--mode", "legacy"]);
+    assert_eq!(report["ok"], true, "{report}");
+}
+
+#[test]
+fn malformed_traffic_gets_errors_and_never_stops_the_server() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = Server::start(&tmp.path().join("data"));
+    let prepared = prepare(&server, &tmp.path().join("ws"), 2);
+    let script = repo_root().join("tests/mcp/fuzz_endpoint.py");
+    let out = Command::new(python())
+        .arg(script)
+        .args(["--url", prepared["mcp_url"].as_str().unwrap(), "--token", &token(&prepared)])
+        .args(["--health", &format!("{}/api/health", server.url)])
+        .output()
+        .expect("run the fuzz client");
+    assert!(
+        out.status.success(),
+        "fuzz client failed:\n{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn a_killed_server_leaves_its_open_episode_invalid_with_a_reason_on_restart() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let mut server = Server::start(&data);
+    let prepared = prepare(&server, &tmp.path().join("ws"), 3);
+    let run = PathBuf::from(prepared["run_dir"].as_str().unwrap());
+    server.kill(); // SIGKILL: no chance to write anything
+    assert!(!run.join("result.json").exists());
+    let _restarted = Server::start(&data);
+    let result: Value = serde_json::from_str(&std::fs::read_to_string(run.join("result.json")).unwrap()).unwrap();
+    assert_eq!(result["status"], "aborted");
+    assert!(result["reason"].as_str().unwrap().starts_with("server_stopped_before_finish"));
+}
