@@ -76,41 +76,22 @@ fn posed_from_xml(xml: &Path, keyframe: Option<usize>) -> anyhow::Result<Posed> 
 }
 
 fn posed_from_bddl(bddl: &Path, init_file: Option<&Path>, init_index: usize) -> anyhow::Result<Posed> {
-    use libero_sim::compose::compose_file;
-    use libero_sim::placement::{PANDA_INIT_QPOS, Placement, update_visual_sites};
+    use libero_sim::placement::update_visual_sites;
+    use libero_sim::scene_setup::PreparedScene;
     let paths = libero_sim::AssetPaths::discover()?;
-    let scene = compose_file(bddl, &paths).with_context(|| format!("composing {}", bddl.display()))?;
-    let mut model = scene.compile()?;
-    let placement = Placement::sample(&scene, 0, Some(&model))?;
-    placement.apply(&mut model)?;
+    let prepared = PreparedScene::prepare(bddl, &paths, 0, init_file.map(|f| (f, init_index)))
+        .with_context(|| format!("setting up {}", bddl.display()))?;
+    let nq = prepared.model.ffi().nq as usize;
+    let qpos = prepared.start_qpos().to_vec();
+    let qvel = prepared.start_row[1 + nq..].to_vec();
+    let (scene, mut model) = (prepared.scene, prepared.model);
     // robosuite's reset hides robot/gripper/object sites before LIBERO toggles the stove burner.
     libero_render::scene::robosuite_hide_sites(&mut model);
-    let nq = model.ffi().nq as usize;
-    let nv = model.ffi().nv as usize;
-    let (qpos, qvel) = if let Some(file) = init_file {
-        let states = libero_sim::InitStates::read(file)?;
-        let row = states.get(init_index)?;
-        if row.len() != 1 + nq + nv {
-            bail!("init state has {} values, this model needs 1 + nq + nv = {}", row.len(), 1 + nq + nv);
-        }
-        (row[1..1 + nq].to_vec(), Some(row[1 + nq..].to_vec()))
-    } else {
-        let mut qpos = model.qpos0().to_vec();
-        for (k, v) in PANDA_INIT_QPOS.iter().enumerate() {
-            if let Some(id) = model.name_to_id(MjtObjBase::mjOBJ_JOINT, &format!("robot0_joint{}", k + 1)) {
-                qpos[model.jnt_qposadr()[id] as usize] = *v;
-            }
-        }
-        placement.write_qpos(&model, &mut qpos)?;
-        (qpos, None)
-    };
     update_visual_sites(&scene, &mut model, &qpos)?;
     let model = Arc::new(model);
     let mut data = MjData::new(model.clone());
     data.qpos_mut().copy_from_slice(&qpos);
-    if let Some(qvel) = qvel {
-        data.qvel_mut().copy_from_slice(&qvel);
-    }
+    data.qvel_mut().copy_from_slice(&qvel);
     data.forward();
     let state = FrameState::from_mujoco(&model, &data);
     Ok(Posed { model, state })

@@ -1,8 +1,9 @@
+//! The `libero-agent` binary: a thin CLI over the library crates (sim, render, episode) plus the server.
 mod bench_render;
 mod bench_sim;
-mod cmd_sim;
 mod cmd_inspect;
 mod cmd_render;
+mod cmd_sim;
 #[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
@@ -10,83 +11,56 @@ mod cmd_mcp_stdio;
 #[cfg(feature = "episode-serve")]
 mod serve;
 
-/// `sim inspect` (temporary wiring until the CLI is assembled; see cmd_inspect.rs).
-fn sim_inspect(argv: &[String]) -> anyhow::Result<()> {
-    #[derive(clap::Parser)]
-    struct Cli {
-        #[command(flatten)]
-        args: cmd_inspect::InspectArgs,
-    }
-    let cli = <Cli as clap::Parser>::parse_from(argv.iter());
-    cmd_inspect::run(&cli.args)
+use clap::{Parser, Subcommand};
+
+/// LIBERO-Agent: a benchmark server for general-purpose agents doing embodied manipulation.
+#[derive(Parser)]
+#[command(name = "libero-agent", version, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
 }
 
-/// `serve`, `episode prepare`, `mcp-stdio` (temporary wiring until the CLI is assembled).
-#[cfg(feature = "episode-serve")]
-fn episode_commands(argv: &[String]) -> Option<anyhow::Result<()>> {
-    #[derive(clap::Parser)]
-    enum Cli {
-        Serve(serve::ServeArgs),
-        Episode(cmd_episode::EpisodeArgs),
-        McpStdio(cmd_mcp_stdio::McpStdioArgs),
-    }
-    if !matches!(argv.get(1).map(String::as_str), Some("serve" | "episode" | "mcp-stdio")) {
-        return None;
-    }
-    Some(match <Cli as clap::Parser>::parse_from(argv.iter()) {
-        Cli::Serve(a) => serve::run_serve(a),
-        Cli::Episode(a) => cmd_episode::run_episode(a),
-        Cli::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
-    })
+#[derive(Subcommand)]
+enum Command {
+    /// Simulation tools: replay an action sequence, inspect a composed scene.
+    #[command(subcommand)]
+    Sim(cmd_sim::SimCommand),
+    /// Render RGB, metric depth, segmentation and calibration of a scene's cameras.
+    Render(cmd_render::RenderArgs),
+    /// Benchmarks that print JSON, each beside its peer measured in the same run.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+    /// Serve prepared episodes over MCP (streamable HTTP) and the HTTP API.
+    #[cfg(feature = "episode-serve")]
+    Serve(serve::ServeArgs),
+    /// Episodes on a running server.
+    #[cfg(feature = "episode-serve")]
+    Episode(cmd_episode::EpisodeArgs),
+    /// Relay stdio MCP to an episode's HTTP endpoint (for stdio-only agent harnesses).
+    #[cfg(feature = "episode-serve")]
+    McpStdio(cmd_mcp_stdio::McpStdioArgs),
 }
 
-/// `sim replay`, `bench sim`, `render`, `bench render` (temporary wiring until the CLI is assembled).
-fn sim_commands(argv: &[String]) -> Option<anyhow::Result<()>> {
-    #[derive(clap::Parser)]
-    enum Cli {
-        #[command(subcommand)]
-        Sim(cmd_sim::SimCommand),
-        Render(cmd_render::RenderArgs),
-        #[command(subcommand)]
-        Bench(Bench),
-    }
-    #[derive(clap::Subcommand)]
-    enum Bench {
-        Sim(bench_sim::BenchSimArgs),
-        Render(bench_render::BenchRenderArgs),
-    }
-    let (a1, a2) = (argv.get(1).map(String::as_str), argv.get(2).map(String::as_str));
-    let wanted = match a1 {
-        Some("render") => true,
-        Some("bench") => matches!(a2, Some("sim" | "render")),
-        Some("sim") => a2 != Some("inspect"),
-        _ => false,
-    };
-    if !wanted {
-        return None;
-    }
-    Some(match <Cli as clap::Parser>::parse_from(argv.iter()) {
-        Cli::Sim(c) => cmd_sim::run_sim(&c),
-        Cli::Render(a) => cmd_render::run(&a),
-        Cli::Bench(Bench::Sim(a)) => bench_sim::run(&a),
-        Cli::Bench(Bench::Render(a)) => bench_render::run(&a),
-    })
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Control steps per second of our OSC loop vs 25 raw `mj_step` calls on the same model.
+    Sim(bench_sim::BenchSimArgs),
+    /// Frames per second of both cameras (RGB + depth) vs MuJoCo's own renderer.
+    Render(bench_render::BenchRenderArgs),
 }
 
 fn main() -> anyhow::Result<()> {
-    let argv: Vec<String> = std::env::args().collect();
-    if let Some(r) = sim_commands(&argv) {
-        return r;
+    match Cli::parse().command {
+        Command::Sim(c) => cmd_sim::run_sim(&c),
+        Command::Render(a) => cmd_render::run(&a),
+        Command::Bench(BenchCommand::Sim(a)) => bench_sim::run(&a),
+        Command::Bench(BenchCommand::Render(a)) => bench_render::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Serve(a) => serve::run_serve(a),
+        #[cfg(feature = "episode-serve")]
+        Command::Episode(a) => cmd_episode::run_episode(a),
+        #[cfg(feature = "episode-serve")]
+        Command::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
     }
-    #[cfg(feature = "episode-serve")]
-    if let Some(r) = episode_commands(&argv) {
-        return r;
-    }
-    if argv.get(1).map(String::as_str) == Some("sim") && argv.get(2).map(String::as_str) == Some("inspect") {
-        return sim_inspect(&argv[2..]);
-    }
-    anyhow::bail!(
-        "usage: libero-agent <sim replay|sim inspect|render|bench sim|bench render|serve|episode prepare|mcp-stdio> ...\n\
-         (serve, episode and mcp-stdio need the `episode-serve` feature while they are integrated; `make serve` enables it)"
-    )
 }

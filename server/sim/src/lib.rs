@@ -7,6 +7,7 @@ pub mod paths;
 pub mod compose;
 pub mod numpy_rng;
 pub mod placement;
+pub mod scene_setup;
 
 // Panda, OSC_POSE, stepping, faults, init states (simulation core)
 pub mod benchmark;
