@@ -11,6 +11,7 @@ use mujoco_rs::prelude::MjModel;
 
 use crate::calib::{CameraCalibration, calibration_from_poses};
 use crate::geometry::{self, Vertex};
+use crate::lod;
 use crate::scene::{FrameState, GeomKind, LightKind, SceneModel, TextureKind, Visibility};
 use crate::RenderError;
 
@@ -87,11 +88,18 @@ pub struct RenderOptions {
     pub visibility: Visibility,
     /// Draw the model's skybox texture behind everything (MuJoCo default).
     pub skybox: bool,
+    /// Largest on-screen error, in pixels, of a simplified mesh level (see [`crate::lod`]); the distance used
+    /// is the nearest a mesh's bounding sphere can be to the camera. 0 draws every mesh exactly.
+    pub mesh_lod_pixel_error: f32,
 }
+
+/// Default LOD budget: a quarter pixel, well inside the depth and silhouette tolerances the renderer is
+/// validated to (see `server/render/tests/`).
+pub const DEFAULT_MESH_LOD_PIXEL_ERROR: f32 = 0.25;
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        Self { visibility: Visibility::ROBOSUITE, skybox: true }
+        Self { visibility: Visibility::ROBOSUITE, skybox: true, mesh_lod_pixel_error: DEFAULT_MESH_LOD_PIXEL_ERROR }
     }
 }
 
@@ -125,6 +133,71 @@ struct Shape {
     prescaled: bool,
     /// Bounding-sphere radius in object units (scaled by `scale`), for per-camera frustum culling.
     radius: f32,
+    /// Simplified levels of a mesh (fine to coarse), chosen per camera by [`RenderOptions::mesh_lod_pixel_error`].
+    lods: LodRanges,
+}
+
+/// Up to four simplified levels of one mesh inside the model's index buffer.
+#[derive(Clone, Copy, Default)]
+struct LodRanges {
+    levels: [Option<lod::LevelRange>; lod::LEVEL_ERRORS_M.len()],
+}
+
+impl LodRanges {
+    fn ranges(&self) -> impl Iterator<Item = lod::LevelRange> + '_ {
+        self.levels.iter().flatten().copied()
+    }
+}
+
+/// The model's shared vertex and index buffers as they are assembled.
+#[derive(Default)]
+struct GeometryBuilder {
+    vertices: Vec<Vertex>,
+    indices: Vec<u32>,
+    seen: HashMap<[u32; 8], u32>,
+}
+
+impl GeometryBuilder {
+    /// Appends a triangle soup, sharing identical corners; returns its index range.
+    fn push_soup(&mut self, soup: Vec<Vertex>) -> (u32, u32) {
+        let first = self.indices.len() as u32;
+        for vert in soup {
+            let key: [u32; 8] = bytemuck::cast(vert);
+            let idx = *self.seen.entry(key).or_insert_with(|| {
+                self.vertices.push(vert);
+                self.vertices.len() as u32 - 1
+            });
+            self.indices.push(idx);
+        }
+        (first, self.indices.len() as u32 - first)
+    }
+
+    /// Appends a mesh and its simplified levels (indices of the same vertices).
+    fn push_mesh(&mut self, soup: Vec<Vertex>) -> ((u32, u32), LodRanges) {
+        let exact = self.push_soup(soup);
+        let global = &self.indices[exact.0 as usize..(exact.0 + exact.1) as usize];
+        // Local numbering for the simplifier, whose work is proportional to the vertex count it is given.
+        let mut local_of: HashMap<u32, u32> = HashMap::new();
+        let mut local_vertices = Vec::new();
+        let mut global_of = Vec::new();
+        let local_indices: Vec<u32> = global
+            .iter()
+            .map(|&g| {
+                *local_of.entry(g).or_insert_with(|| {
+                    local_vertices.push(self.vertices[g as usize]);
+                    global_of.push(g);
+                    global_of.len() as u32 - 1
+                })
+            })
+            .collect();
+        let mut lods = LodRanges::default();
+        for (slot, level) in lod::simplified_levels(&local_vertices, &local_indices).into_iter().enumerate() {
+            let first_index = self.indices.len() as u32;
+            self.indices.extend(level.indices.iter().map(|&l| global_of[l as usize]));
+            lods.levels[slot] = Some(lod::LevelRange { first_index, index_count: level.indices.len() as u32, error_m: level.error_m });
+        }
+        (exact, lods)
+    }
 }
 
 struct GpuModel {
@@ -464,27 +537,13 @@ impl Renderer {
     pub fn prepare_scene(&self, scene: Arc<SceneModel>) -> Result<ModelHandle, RenderError> {
         let inner = &self.inner;
         // Indexed with shared corners: llvmpipe's cost is dominated by vertex work on the big meshes.
-        let mut vertices: Vec<Vertex> = Vec::new();
-        let mut indices: Vec<u32> = Vec::new();
-        let mut seen: HashMap<[u32; 8], u32> = HashMap::new();
-        let mut push = |v: Vec<Vertex>| -> (u32, u32) {
-            let first = indices.len() as u32;
-            for vert in v {
-                let key: [u32; 8] = bytemuck::cast(vert);
-                let idx = *seen.entry(key).or_insert_with(|| {
-                    vertices.push(vert);
-                    vertices.len() as u32 - 1
-                });
-                indices.push(idx);
-            }
-            (first, indices.len() as u32 - first)
-        };
+        let mut geo = GeometryBuilder::default();
         let (ns, nt) = (scene.numslices, scene.numstacks);
-        let sphere = push(geometry::unit_sphere(ns, nt));
-        let cylinder = push(geometry::unit_cylinder(ns));
-        let cube = push(geometry::unit_box());
-        let plane = push(geometry::unit_plane(1));
-        let meshes: Vec<(u32, u32)> = scene.meshes.iter().map(|m| push(geometry::mesh_vertices(m))).collect();
+        let sphere = geo.push_soup(geometry::unit_sphere(ns, nt));
+        let cylinder = geo.push_soup(geometry::unit_cylinder(ns));
+        let cube = geo.push_soup(geometry::unit_box());
+        let plane = geo.push_soup(geometry::unit_plane(1));
+        let meshes: Vec<((u32, u32), LodRanges)> = scene.meshes.iter().map(|m| geo.push_mesh(geometry::mesh_vertices(m))).collect();
         let zfar = scene.zfar_m as f32;
         let mesh_radius: Vec<f32> = scene
             .meshes
@@ -499,6 +558,7 @@ impl Renderer {
                 scale,
                 prescaled: false,
                 radius: 3f32.sqrt(),
+                lods: LodRanges::default(),
             };
             match d.kind {
                 GeomKind::Sphere => Some(unit(sphere, [s[0], s[0], s[0]])),
@@ -511,20 +571,28 @@ impl Renderer {
                     Some(unit(plane, [sx, sy, 1.0]))
                 }
                 GeomKind::Capsule => {
-                    let r = push(geometry::capsule(s[0], s[1], ns, nt));
-                    Some(Shape { first_vertex: r.0, vertex_count: r.1, scale: [1.0; 3], prescaled: true, radius: s[0] + s[1] })
+                    let r = geo.push_soup(geometry::capsule(s[0], s[1], ns, nt));
+                    Some(Shape {
+                        first_vertex: r.0,
+                        vertex_count: r.1,
+                        scale: [1.0; 3],
+                        prescaled: true,
+                        radius: s[0] + s[1],
+                        lods: LodRanges::default(),
+                    })
                 }
                 GeomKind::Mesh => {
                     let mi = usize::try_from(d.dataid).ok()?;
-                    let &(first_vertex, vertex_count) = meshes.get(mi)?;
+                    let &((first_vertex, vertex_count), lods) = meshes.get(mi)?;
                     let radius = mesh_radius.get(mi).copied().unwrap_or(f32::INFINITY);
-                    Some(Shape { first_vertex, vertex_count, scale: [1.0; 3], prescaled: true, radius })
+                    Some(Shape { first_vertex, vertex_count, scale: [1.0; 3], prescaled: true, radius, lods })
                 }
                 GeomKind::HField | GeomKind::Other => None,
             }
         };
         let geom_shapes: Vec<Option<Shape>> = scene.geoms.iter().map(&mut shape_of).collect();
         let site_shapes: Vec<Option<Shape>> = scene.sites.iter().map(&mut shape_of).collect();
+        let GeometryBuilder { vertices, indices, .. } = geo;
         let vertex_bytes: &[u8] = bytemuck::cast_slice(&vertices);
         let vbuf = inner.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("model vertices"),
@@ -737,24 +805,32 @@ impl Renderer {
                 pass.set_index_buffer(gm.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.set_pipeline(&inner.opaque);
                 let mut transparent = Vec::new();
+                let mut opaque = Vec::with_capacity(draws.len());
                 let frustum = cull_params(scene, state, cams[slot], r.width, r.height);
+                let lod = CameraLod::new(eye, scene.cameras[cams[slot]].fovy_deg, r.height, options.mesh_lod_pixel_error);
                 for (i, d) in draws.iter().enumerate() {
                     if !in_frustum(&frustum.0, frustum.1, frustum.2, frustum.3, frustum.4, d.center, d.cull_radius) {
                         continue;
                     }
+                    let distance_m = (Vec3::from(d.center) - eye).length();
                     if d.transparent {
-                        let p = Vec3::from(d.center);
-                        transparent.push(((p - eye).length() - d.rbound, i));
-                        continue;
+                        transparent.push((distance_m - d.rbound, i));
+                    } else {
+                        opaque.push((distance_m, i));
                     }
-                    draw_one(&mut pass, gm, &draw_group, i, d);
+                }
+                // Opaque geoms front to back: the depth test then rejects hidden fragments before shading, which
+                // is most of the work on a CPU rasteriser. Order does not change the image (depth decides).
+                opaque.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                for &(_, i) in &opaque {
+                    draw_one(&mut pass, gm, &draw_group, i, &draws[i], &lod);
                 }
                 if !transparent.is_empty() {
                     // MuJoCo draws transparent geoms front-to-back, then back-to-front.
                     transparent.sort_by(|a, b| a.0.total_cmp(&b.0));
                     pass.set_pipeline(&inner.transparent);
                     for &(_, i) in transparent.iter().chain(transparent.iter().rev()) {
-                        draw_one(&mut pass, gm, &draw_group, i, &draws[i]);
+                        draw_one(&mut pass, gm, &draw_group, i, &draws[i], &lod);
                     }
                 }
             }
@@ -846,10 +922,39 @@ impl Renderer {
     }
 }
 
-fn draw_one(pass: &mut wgpu::RenderPass<'_>, gm: &GpuModel, draw_group: &wgpu::BindGroup, i: usize, d: &Draw) {
+fn draw_one(pass: &mut wgpu::RenderPass<'_>, gm: &GpuModel, draw_group: &wgpu::BindGroup, i: usize, d: &Draw, lod: &CameraLod) {
     pass.set_bind_group(1, draw_group, &[(i as u64 * DRAW_STRIDE) as u32]);
     pass.set_bind_group(2, &gm.texture_groups[d.texture_group], &[]);
-    pass.draw_indexed(d.shape.first_vertex..d.shape.first_vertex + d.shape.vertex_count, 0, 0..1);
+    let (first, count) = lod.index_range(d);
+    pass.draw_indexed(first..first + count, 0, 0..1);
+}
+
+/// Per camera: where it is and how coarse meshes may be drawn.
+struct CameraLod {
+    eye: Vec3,
+    budget: lod::LodBudget,
+}
+
+impl CameraLod {
+    fn new(eye: Vec3, fovy_deg: f64, height_px: u32, pixel_error: f32) -> Self {
+        let focal_px = 0.5 * height_px as f32 / ((fovy_deg as f32).to_radians() / 2.0).tan();
+        Self { eye, budget: lod::LodBudget { pixel_error, focal_px } }
+    }
+
+    /// The index range to draw: the coarsest level whose error stays within budget at the nearest distance
+    /// the draw's bounding sphere allows, else the exact mesh.
+    fn index_range(&self, d: &Draw) -> (u32, u32) {
+        let exact = (d.shape.first_vertex, d.shape.vertex_count);
+        if d.shape.lods.levels[0].is_none() {
+            return exact;
+        }
+        let nearest_m = (Vec3::from(d.center) - self.eye).length() - d.cull_radius;
+        let levels: Vec<lod::LevelRange> = d.shape.lods.ranges().collect();
+        match lod::pick(&levels, self.budget.allowed_error_m(nearest_m)) {
+            Some(l) => (l.first_index, l.index_count),
+            None => exact,
+        }
+    }
 }
 
 fn ensure_uniform(

@@ -9,6 +9,7 @@ mod error;
 pub mod geometry;
 mod gpu;
 pub mod io;
+pub mod lod;
 pub mod scene;
 
 pub use calib::{CameraCalibration, camera_calibration, intrinsics};
