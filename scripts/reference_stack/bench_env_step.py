@@ -48,27 +48,31 @@ def main():
                      camera_depths=False, control_freq=20)
     env.seed(0)
     env.reset()
-    best = None
+    # Thread CPU time, as `libero_sim::benchmark` uses: other jobs on a shared machine do not count against either.
+    clock = time.thread_time
+    best = wall_best = None
     for _ in range(a.rounds):
         env.set_init_state(states[0])
-        t0 = time.perf_counter()
+        t0, w0 = clock(), time.perf_counter()
         for i in range(a.steps):
             env.step(action(i))
-        dt = time.perf_counter() - t0
+        dt, wall = clock() - t0, time.perf_counter() - w0
         best = dt if best is None else min(best, dt)
+        wall_best = wall if wall_best is None else min(wall_best, wall)
     # raw mj_step of the same compiled model, 25 per control step, ctrl held
     m, d = env.sim.model._model, env.sim.data._data
     raw_best = None
     for _ in range(a.rounds):
         env.set_init_state(states[0])
-        t0 = time.perf_counter()
+        t0 = clock()
         for _ in range(a.steps * 25):
             mujoco.mj_step(m, d)
-        dt = time.perf_counter() - t0
+        dt = clock() - t0
         raw_best = dt if raw_best is None else min(raw_best, dt)
     print(json.dumps(dict(
-        scene=f"{a.suite}/{a.task}", steps=a.steps, rounds=a.rounds,
+        scene=f"{a.suite}/{a.task}", steps=a.steps, rounds=a.rounds, clock="thread_cpu",
         env_step_per_s=a.steps / best, us_per_env_step=1e6 * best / a.steps,
+        env_step_per_s_wall=a.steps / wall_best,
         python_raw_control_equiv_per_s=a.steps / raw_best,
         versions=dict(mujoco=mujoco.__version__, numpy=np.__version__),
     )))
