@@ -130,13 +130,25 @@ impl PredicateKind {
     }
 }
 
+/// MuJoCo joint types, as far as the evaluators care.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JointKind {
+    /// 7-wide qpos; LIBERO's articulation tests cannot read it.
+    Free,
+    Ball,
+    /// qpos in metres.
+    Slide,
+    /// qpos in radians.
+    Hinge,
+}
+
 /// A joint as the predicates read it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct JointRef {
     pub name: String,
     pub qpos_adr: usize,
-    /// Free joints have a 7-wide qpos; LIBERO's articulation tests cannot read them.
-    pub free: bool,
+    pub kind: JointKind,
 }
 
 /// An object or fixture instance (LIBERO `ObjectState`).
@@ -191,7 +203,12 @@ fn joint_ref(model: &MjModel, name: &str) -> Result<JointRef, TasksError> {
     Ok(JointRef {
         name: name.to_owned(),
         qpos_adr: model.jnt_qposadr()[id] as usize,
-        free: model.jnt_type()[id] == MjtJoint::mjJNT_FREE,
+        kind: match model.jnt_type()[id] {
+            MjtJoint::mjJNT_FREE => JointKind::Free,
+            MjtJoint::mjJNT_BALL => JointKind::Ball,
+            MjtJoint::mjJNT_SLIDE => JointKind::Slide,
+            _ => JointKind::Hinge,
+        },
     })
 }
 
@@ -283,13 +300,14 @@ impl SceneIndex {
     /// robosuite `check_contact(A, B)`: some current contact pairs a contact geom of `a` with one of `b`.
     pub fn in_contact(&self, data: &SimData, a: usize, b: usize) -> bool {
         data.contact().iter().any(|c| {
-            let (o1, o2) = (self.owner(c.geom[0]), self.owner(c.geom[1]));
+            let (o1, o2) = (self.geom_owner(c.geom[0] as usize), self.geom_owner(c.geom[1] as usize));
             (o1 == Some(a) && o2 == Some(b)) || (o1 == Some(b) && o2 == Some(a))
         })
     }
 
-    fn owner(&self, geom: i32) -> Option<usize> {
-        usize::try_from(geom).ok().and_then(|g| self.geom_owner.get(g).copied().flatten())
+    /// The instance whose contact geoms include `geom`.
+    pub fn geom_owner(&self, geom: usize) -> Option<usize> {
+        self.geom_owner.get(geom).copied().flatten()
     }
 
     /// World position of an instance's root body or a region's site.
@@ -375,8 +393,8 @@ impl CompiledAtom {
                 if joints.is_empty() {
                     return Ok(()); // no joint is tested: Open/TurnOn false, Close/TurnOff true
                 }
-                if joints.iter().any(|j| j.free) {
-                    return err("articulation tests on an instance with a free joint fail in LIBERO");
+                if joints.iter().any(|j| matches!(j.kind, JointKind::Free | JointKind::Ball)) {
+                    return err("articulation tests on a free or ball joint fail in LIBERO (multi-value qpos)");
                 }
                 let test = rule.and_then(|r| self.test_of(&r));
                 if test.is_none() {
