@@ -3,6 +3,7 @@ mod bench_sim;
 mod cmd_sim;
 mod cmd_inspect;
 mod cmd_render;
+mod cmd_tasks;
 #[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
@@ -73,9 +74,26 @@ fn sim_commands(argv: &[String]) -> Option<anyhow::Result<()>> {
     })
 }
 
+/// `tasks list`, `tasks show <ID>`.
+fn tasks_commands(argv: &[String]) -> Option<anyhow::Result<()>> {
+    #[derive(clap::Parser)]
+    enum Cli {
+        #[command(subcommand)]
+        Tasks(cmd_tasks::TasksCommand),
+    }
+    if argv.get(1).map(String::as_str) != Some("tasks") {
+        return None;
+    }
+    let Cli::Tasks(cmd) = <Cli as clap::Parser>::parse_from(argv.iter());
+    Some(cmd_tasks::run(&cmd))
+}
+
 fn main() -> anyhow::Result<()> {
     let argv: Vec<String> = std::env::args().collect();
     if let Some(r) = sim_commands(&argv) {
+        return r;
+    }
+    if let Some(r) = tasks_commands(&argv) {
         return r;
     }
     #[cfg(feature = "episode-serve")]
@@ -86,7 +104,7 @@ fn main() -> anyhow::Result<()> {
         return sim_inspect(&argv[2..]);
     }
     anyhow::bail!(
-        "usage: libero-agent <sim replay|sim inspect|render|bench sim|bench render|serve|episode prepare|mcp-stdio> ...\n\
+        "usage: libero-agent <sim replay|sim inspect|render|bench sim|bench render|tasks list|tasks show|serve|episode prepare|mcp-stdio> ...\n\
          (serve, episode and mcp-stdio need the `episode-serve` feature while they are integrated; `make serve` enables it)"
     )
 }
