@@ -73,3 +73,42 @@ fn lifting_an_object_without_a_grasp_is_not_a_commitment() {
     let r = ev.finish(sim.data(), Tick::at_control_step(1, sim.time_s()));
     assert_eq!(r.first_commitment, None, "raised 10 cm but not between the finger pads");
 }
+
+/// LIBERO-Object "alphabet soup" with the can put between the finger pads, fingers squeezed onto it.
+#[test]
+fn a_can_between_both_finger_pads_and_raised_4_cm_is_the_first_commitment() {
+    let paths = AssetPaths::discover().expect("assets");
+    let (suite, task) = ("libero_object", "pick_up_the_alphabet_soup_and_place_it_in_the_basket");
+    let scene = compose_file(&paths.stock_bddl(suite, task), &paths).unwrap();
+    let mut model = scene.compile().unwrap();
+    Placement::sample(&scene, 0, Some(&model)).unwrap().apply(&mut model).unwrap();
+    let model = Arc::new(model);
+    let mut sim = Simulation::new(model.clone()).unwrap();
+    sim.set_init_state(InitStates::read(&paths.stock_init(suite, task)).unwrap().get(0).unwrap()).unwrap();
+    let goal = GoalChecker::for_scene(&scene, &model).unwrap();
+    let mut tracker = CommitmentTracker::new(goal.index(), &model).unwrap();
+    tracker.reset(goal.index(), sim.data());
+    let soup = goal.index().instance("alphabet_soup_1").unwrap();
+    let body = model.name_to_id(MjtObjBase::mjOBJ_BODY, "alphabet_soup_1_main").unwrap();
+    let soup_qpos = model.jnt_qposadr()[model.body_jntadr()[body] as usize] as usize;
+    let grip = model.name_to_id(MjtObjBase::mjOBJ_SITE, "gripper0_grip_site").unwrap();
+    let grip_pos = sim.data().site_xpos()[grip];
+    let fingers = sim.ids().finger_qpos_adr;
+    let mut row = sim.state_row();
+    // the can's origin at the grip site (≈ 1 m above the floor it stood on), fingers closed onto it
+    row[1 + soup_qpos..1 + soup_qpos + 3].copy_from_slice(&grip_pos);
+    row[1 + fingers[0]] = 0.01;
+    row[1 + fingers[1]] = -0.01;
+    sim.set_init_state(&row).unwrap();
+    assert!(tracker.grasped(goal.index(), sim.data(), soup), "both pads touch the can");
+    let c = tracker.observe(goal.index(), sim.data(), Tick::at_control_step(1, sim.time_s())).cloned().expect("commitment");
+    assert_eq!((c.kind, c.subject.as_str()), (CommitmentKind::ObjectGraspedAndLifted, "alphabet_soup_1"));
+    assert!(c.magnitude >= 0.04);
+    // only the first counts
+    assert!(tracker.observe(goal.index(), sim.data(), Tick::at_control_step(2, sim.time_s())).is_none());
+    // opened fingers: no grasp any more
+    row[1 + fingers[0]] = 0.04;
+    row[1 + fingers[1]] = -0.04;
+    sim.set_init_state(&row).unwrap();
+    assert!(!tracker.grasped(goal.index(), sim.data(), soup), "fingers wide open around a 7 cm can");
+}
