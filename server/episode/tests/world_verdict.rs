@@ -41,3 +41,21 @@ fn microwave_verdict_is_false_at_start_and_true_after_the_door_is_opened_past_th
     assert_eq!(opened.stage_events.len(), 1);
     assert_eq!(opened.stage_events[0]["stage_name"], "01_BDDL_Goal_At_Finish");
 }
+
+/// The pruned repository tasks start from the seeded placement (no trusted state) and are unsolved after settling.
+#[test]
+fn pruned_release_tasks_start_from_the_seeded_placement_unsolved() {
+    let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
+    let renderer = Renderer::new().expect("renderer");
+    for (id, atom) in [("T11", "(in alphabet_soup_1 basket_1_contain_region)"), ("T12", "(on plate_1 main_table_stove_front_region)")] {
+        let task = resolve_task(id, &paths).unwrap();
+        assert!(task.init_states.is_none(), "{id}");
+        let spec = WorldSpec { task, level: Level::L1, seed: 100, init_index: 0, paths: paths.clone() };
+        let mut world = LiberoWorld::new(&spec, renderer.clone()).unwrap();
+        world.start().unwrap();
+        let v = world.verdict().unwrap();
+        assert!(!v.success, "{id}: {}", v.private_evaluation);
+        assert_eq!(v.private_evaluation["bddl_goal"]["predicates"][0]["predicate"], atom, "{id}");
+        assert_eq!(v.private_evaluation["task_id"], id);
+    }
+}
