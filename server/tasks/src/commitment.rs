@@ -129,7 +129,7 @@ impl CommitmentTracker {
         let object = self.objects.iter().find_map(|o| {
             let lift = data.xpos()[index.instances[o.instance].body][2] - o.z0_m;
             (lift >= LIFT_COMMIT_M && self.grasped(index, data, o.instance))
-                .then(|| (CommitmentKind::ObjectGraspedAndLifted, o.instance, lift))
+                .then_some((CommitmentKind::ObjectGraspedAndLifted, o.instance, lift))
         });
         let found = object.or_else(|| {
             self.joints.iter().find_map(|j| {

@@ -64,8 +64,9 @@ impl GoalChecker {
         GoalReport { success: predicates.iter().all(|p| p.value), predicates }
     }
 
-    /// The conjunction alone (no allocation), for per-step sampling.
+    /// The conjunction alone (no allocation), for per-step sampling. Short-circuits: our atoms have no side
+    /// effects (LIBERO's only one, the stove burner flag, is cosmetic and handled by the simulation).
     pub fn holds(&self, data: &SimData) -> bool {
-        self.atoms.iter().fold(true, |acc, a| a.evaluate(&self.index, data) && acc)
+        self.atoms.iter().all(|a| a.evaluate(&self.index, data))
     }
 }

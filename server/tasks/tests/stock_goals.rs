@@ -1,6 +1,6 @@
 //! Every goal of the 130 stock LIBERO tasks binds to its composed scene: names resolve to MuJoCo bodies, sites
 //! and joints, and each articulation test has a threshold. Scenes are composed and compiled once each, on all cores.
-use std::path::PathBuf;
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use libero_sim::AssetPaths;
@@ -11,7 +11,7 @@ use libero_tasks::GoalChecker;
 const SUITES: [&str; 5] = ["libero_10", "libero_90", "libero_goal", "libero_object", "libero_spatial"];
 
 /// Binds the goal of one stock BDDL file and evaluates it once on the model's default state.
-fn bind(file: &PathBuf, paths: &AssetPaths) -> Result<Vec<String>, String> {
+fn bind(file: &Path, paths: &AssetPaths) -> Result<Vec<String>, String> {
     let scene = compose_file(file, paths).map_err(|e| e.to_string())?;
     let model = Arc::new(scene.compile().map_err(|e| e.to_string())?);
     let checker = GoalChecker::for_scene(&scene, &model).map_err(|e| e.to_string())?;
