@@ -4,6 +4,7 @@ mod bench_sim;
 mod cmd_inspect;
 mod cmd_render;
 mod cmd_sim;
+mod cmd_tasks;
 #[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
@@ -28,6 +29,9 @@ enum Command {
     Sim(cmd_sim::SimCommand),
     /// Render RGB, metric depth, segmentation and calibration of a scene's cameras.
     Render(cmd_render::RenderArgs),
+    /// The task catalog: list the suite, show one task.
+    #[command(subcommand)]
+    Tasks(cmd_tasks::TasksCommand),
     /// Benchmarks that print JSON, each beside its peer measured in the same run.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -54,6 +58,7 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Sim(c) => cmd_sim::run_sim(&c),
         Command::Render(a) => cmd_render::run(&a),
+        Command::Tasks(c) => cmd_tasks::run(&c),
         Command::Bench(BenchCommand::Sim(a)) => bench_sim::run(&a),
         Command::Bench(BenchCommand::Render(a)) => bench_render::run(&a),
         #[cfg(feature = "episode-serve")]

@@ -1,10 +1,27 @@
-//! Which task an episode runs: a stock LIBERO task (`suite/name` or a BDDL path) resolved to its BDDL file,
-//! init-state file and the instruction LIBERO's benchmark shows (derived from the file name).
+//! Which task an episode runs: a release task (`T11`…`T30`, through the catalog in `tasks/manifest.json`) or a
+//! stock LIBERO task (`suite/name` or a BDDL path), resolved to its BDDL file, init-state file, the instruction
+//! the agent sees and the evaluator that judges it.
 use std::path::{Path, PathBuf};
 
 use libero_sim::AssetPaths;
+use libero_tasks::Catalog;
+use libero_tasks::catalog::CheckerSpec;
 
 use crate::EpisodeError;
+
+/// What the catalog fixes for a release task.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SuiteTask {
+    /// `T16`.
+    pub id: String,
+    pub name: String,
+    /// Evaluator type and private parameters.
+    pub checker: CheckerSpec,
+    /// Row of the init-state file the release uses (overrides the request's index).
+    pub init_index: usize,
+    /// Placement seed fixed by the task (RoboMemArena: 100), else the episode seed is used.
+    pub placement_seed: Option<u32>,
+}
 
 /// A resolved task. Private: the BDDL path and init file never reach the workspace.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -16,16 +33,15 @@ pub struct TaskSource {
     pub init_states: Option<PathBuf>,
     /// LIBERO benchmark `language` (filename-derived, §9.3), whitespace-normalised.
     pub instruction: String,
+    /// Set for release tasks; stock tasks are judged by their BDDL goal on the final state (`bddl_terminal`).
+    pub suite: Option<SuiteTask>,
 }
 
 /// Resolves `id`: `T01`…`T30` (suite tasks), `suite/name` (stock LIBERO) or a path to a `.bddl` file.
 pub fn resolve_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeError> {
     let id = id.trim();
     if id.len() == 3 && id.starts_with(['T', 't']) && id[1..].chars().all(|c| c.is_ascii_digit()) {
-        return Err(EpisodeError::Task(format!(
-            "suite task {id} needs the task catalog (tasks/ manifest and server/tasks), which this build does not \
-have yet; use a stock LIBERO task such as libero_object/pick_up_the_ketchup_and_place_it_in_the_basket"
-        )));
+        return resolve_suite_task(id, paths);
     }
     let as_path = Path::new(id);
     if id.ends_with(".bddl") && as_path.is_file() {
@@ -48,6 +64,27 @@ have yet; use a stock LIBERO task such as libero_object/pick_up_the_ketchup_and_
         instruction: libero_bddl::language_from_filename(name),
         init_states: init.is_file().then_some(init),
         bddl,
+        suite: None,
+    })
+}
+
+/// `T11`…`T30` through the catalog; unimplemented tasks fail with the catalog's reason.
+fn resolve_suite_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeError> {
+    let catalog = Catalog::discover().map_err(|e| EpisodeError::Task(e.to_string()))?;
+    let entry = catalog.get(id).ok_or_else(|| EpisodeError::Task(format!("no release task {id}: expected T01–T30")))?;
+    let files = catalog.files(entry, paths).map_err(|e| EpisodeError::Task(e.to_string()))?;
+    Ok(TaskSource {
+        task_ref: entry.id.clone(),
+        bddl: files.bddl,
+        init_states: files.init_states,
+        instruction: entry.agent_instruction().to_owned(),
+        suite: Some(SuiteTask {
+            id: entry.id.clone(),
+            name: entry.name.clone(),
+            checker: entry.checker.clone(),
+            init_index: files.init_index,
+            placement_seed: files.placement_seed,
+        }),
     })
 }
 
@@ -61,6 +98,7 @@ fn from_bddl_path(id: &str, path: &Path, paths: &AssetPaths) -> TaskSource {
         bddl: path.to_path_buf(),
         init_states: init,
         instruction: libero_bddl::language_from_filename(&stem),
+        suite: None,
     }
 }
 
@@ -79,7 +117,21 @@ mod tests {
         assert_eq!(by_path.init_states, t.init_states);
         assert!(resolve_task("libero_90/no_such_task", &paths).is_err());
         assert!(resolve_task("../etc/passwd", &paths).is_err());
-        let err = resolve_task("T11", &paths).unwrap_err().to_string();
-        assert!(err.contains("task catalog"), "{err}");
+    }
+
+    #[test]
+    fn release_tasks_resolve_through_the_catalog_and_unimplemented_ones_say_why() {
+        let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
+        let t16 = resolve_task("T16", &paths).unwrap();
+        assert!(t16.bddl.ends_with("libero_90/KITCHEN_SCENE7_open_the_microwave.bddl"));
+        assert!(t16.init_states.as_ref().is_some_and(|p| p.is_file()));
+        assert_eq!(t16.instruction, "open the microwave");
+        let suite = t16.suite.expect("catalog entry");
+        assert_eq!((suite.id.as_str(), suite.checker.kind.as_str(), suite.init_index), ("T16", "bddl_terminal", 0));
+        let t12 = resolve_task("t12", &paths).unwrap();
+        assert!(t12.bddl.is_file() && t12.init_states.is_none(), "pruned T12 starts from the seeded placement");
+        let err = resolve_task("T13", &paths).unwrap_err().to_string();
+        assert!(err.contains("T13 (press_button) is not implemented") && err.contains("button"), "{err}");
+        assert!(resolve_task("T31", &paths).unwrap_err().to_string().contains("no release task T31"));
     }
 }

@@ -1,6 +1,7 @@
 //! The LIBERO world an episode runs on: the BDDL scene composed and compiled by `libero-sim`, LIBERO's
 //! seeded reset placement, the trusted init state, the real MuJoCo simulation under robosuite's OSC_POSE,
-//! and both cameras rendered by `libero-render`.
+//! both cameras rendered by `libero-render`, and the task's private evaluator (`libero-tasks`), reset after
+//! settling and fed every control step (and every physics substep where the evaluator samples them).
 use std::sync::Arc;
 
 use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
@@ -8,6 +9,7 @@ use libero_sim::compose::compose_file;
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, InitStates, Simulation};
+use libero_tasks::{Evaluator, Tick, build_evaluator};
 
 use crate::EpisodeError;
 use crate::actor::{Verdict, World};
@@ -42,6 +44,9 @@ pub struct LiberoWorld {
     gpu_model: ModelHandle,
     base_body: usize,
     level: Level,
+    evaluator: Box<dyn Evaluator>,
+    /// Control steps since the evaluator reset.
+    control_step: u64,
 }
 
 impl LiberoWorld {
@@ -49,21 +54,28 @@ impl LiberoWorld {
     pub fn new(spec: &WorldSpec, renderer: Renderer) -> Result<Self, EpisodeError> {
         let scene = compose_file(&spec.task.bddl, &spec.paths)?;
         let mut model = scene.compile()?;
-        let seed = u32::try_from(spec.seed).map_err(|_| EpisodeError::Task("seed must fit in 32 bits".into()))?;
+        let suite = spec.task.suite.as_ref();
+        let seed = match suite.and_then(|s| s.placement_seed) {
+            Some(fixed) => fixed,
+            None => u32::try_from(spec.seed).map_err(|_| EpisodeError::Task("seed must fit in 32 bits".into()))?,
+        };
         let placement = Placement::sample(&scene, seed, Some(&model))?;
         placement.apply(&mut model)?;
+        let evaluator = build_evaluator(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &scene, &model)
+            .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
         let model = Arc::new(model);
         let sim = Simulation::new(model.clone())?;
+        let init_index = suite.map_or(spec.init_index, |s| s.init_index);
         let start_row = match &spec.task.init_states {
             Some(path) => {
                 let states = InitStates::read(path)?;
-                states.get(spec.init_index)?.to_vec()
+                states.get(init_index)?.to_vec()
             }
             None => placement_row(&sim, &placement)?,
         };
         let base_body = robot_base_body(&sim)?;
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
-        Ok(Self { sim, start_row, renderer, gpu_model, base_body, level: spec.level })
+        Ok(Self { sim, start_row, renderer, gpu_model, base_body, level: spec.level, evaluator, control_step: 0 })
     }
 
     pub fn simulation(&self) -> &Simulation {
@@ -74,6 +86,20 @@ impl LiberoWorld {
     #[doc(hidden)]
     pub fn edit_start_state(&mut self, edit: impl FnOnce(&mut [f64])) {
         edit(&mut self.start_row);
+    }
+
+    /// Test hook: edits the current `[time, qpos, qvel]` row (LIBERO's `set_init_state`, so derived quantities are
+    /// recomputed), e.g. to put a fixture joint past its goal threshold.
+    #[doc(hidden)]
+    pub fn edit_current_state(&mut self, edit: impl FnOnce(&mut [f64])) -> Result<(), EpisodeError> {
+        let mut row = self.sim.state_row();
+        edit(&mut row);
+        self.sim.set_init_state(&row)?;
+        Ok(())
+    }
+
+    fn tick(&self, substep: Option<u32>) -> Tick {
+        Tick { control_step: self.control_step, substep, sim_time_s: self.sim.time_s() }
     }
 
     fn render(&self) -> Result<(CameraFrame, CameraFrame), EpisodeError> {
@@ -138,11 +164,24 @@ impl World for LiberoWorld {
         for _ in 0..SETTLE_STEPS {
             self.sim.step([0.0; 7])?;
         }
+        self.control_step = 0;
+        self.evaluator.reset(self.sim.data(), self.tick(None));
         Ok(())
     }
 
     fn step(&mut self, action: &MicroAction) -> Result<(), EpisodeError> {
-        self.sim.step(*action)?;
+        let step = self.control_step + 1;
+        if self.evaluator.samples_substeps() {
+            let evaluator = &mut self.evaluator;
+            self.sim.step_with(*action, |k, data| {
+                let tick = Tick { control_step: step, substep: Some(k as u32), sim_time_s: data.ffi().time };
+                evaluator.observe_substep(data, tick);
+            })?;
+        } else {
+            self.sim.step(*action)?;
+        }
+        self.control_step = step;
+        self.evaluator.observe_control_step(self.sim.data(), self.tick(None));
         Ok(())
     }
 
@@ -154,8 +193,11 @@ impl World for LiberoWorld {
     }
 
     fn verdict(&mut self) -> Result<Verdict, EpisodeError> {
-        Err(EpisodeError::Evaluator(
-            "no task evaluator or BDDL goal predicates are available in this build (server/tasks)".into(),
-        ))
+        let record = self.evaluator.finish(self.sim.data(), self.tick(None));
+        let to_json = |e: serde_json::Error| EpisodeError::Evaluator(format!("evaluation record: {e}"));
+        let stage_events =
+            record.stage_events.iter().map(serde_json::to_value).collect::<Result<Vec<_>, _>>().map_err(to_json)?;
+        let private_evaluation = serde_json::to_value(&record).map_err(to_json)?;
+        Ok(Verdict { success: record.success, private_evaluation, stage_events })
     }
 }

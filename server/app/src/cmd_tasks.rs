@@ -1,0 +1,107 @@
+//! `libero-agent tasks list|show`: the release catalog (`tasks/manifest.json`) for operators. `show` prints the
+//! private checker parameters too: this is an operator tool, never reachable by an agent.
+use anyhow::Context;
+use libero_tasks::{Catalog, TaskEntry};
+
+#[derive(Debug, clap::Subcommand)]
+pub enum TasksCommand {
+    /// All 30 release tasks as a table (or JSON).
+    List {
+        #[arg(long)]
+        json: bool,
+    },
+    /// One task (`T16`, `t16` or `16`) in full.
+    Show {
+        id: String,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+pub fn run(cmd: &TasksCommand) -> anyhow::Result<()> {
+    let catalog = Catalog::discover().context("loading the task catalog")?;
+    match cmd {
+        TasksCommand::List { json: true } => println!("{}", serde_json::to_string_pretty(catalog.tasks())?),
+        TasksCommand::List { json: false } => print!("{}", table(catalog.tasks())),
+        TasksCommand::Show { id, json } => {
+            let task = catalog.get(id).with_context(|| format!("no release task {id:?} (expected T01–T30)"))?;
+            if *json {
+                println!("{}", serde_json::to_string_pretty(task)?);
+            } else {
+                print!("{}", details(task)?);
+            }
+        }
+    }
+    Ok(())
+}
+
+fn enum_text<T: serde::Serialize>(v: &T) -> String {
+    serde_json::to_value(v).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default()
+}
+
+fn table(tasks: &[TaskEntry]) -> String {
+    let rows: Vec<[String; 8]> = tasks
+        .iter()
+        .map(|t| {
+            [
+                t.id.clone(),
+                t.name.clone(),
+                enum_text(&t.category),
+                enum_text(&t.split),
+                enum_text(&t.difficulty),
+                t.checker.kind.clone(),
+                t.stage_count.to_string(),
+                if t.implemented { "yes".into() } else { "no".into() },
+            ]
+        })
+        .collect();
+    let header = ["ID", "NAME", "CATEGORY", "SPLIT", "DIFFICULTY", "CHECKER", "K", "IMPLEMENTED"];
+    let mut widths = header.map(str::len);
+    for r in &rows {
+        for (w, c) in widths.iter_mut().zip(r) {
+            *w = (*w).max(c.len());
+        }
+    }
+    let line = |cells: Vec<&str>| {
+        let padded: Vec<String> = cells.iter().zip(widths).map(|(c, w)| format!("{c:w$}")).collect();
+        format!("{}\n", padded.join("  ").trim_end())
+    };
+    let mut out = line(header.to_vec());
+    for r in &rows {
+        out.push_str(&line(r.iter().map(String::as_str).collect()));
+    }
+    let implemented = tasks.iter().filter(|t| t.implemented).count();
+    out.push_str(&format!("{implemented} of {} tasks implemented; `tasks show <ID>` for details\n", tasks.len()));
+    out
+}
+
+fn details(t: &TaskEntry) -> anyhow::Result<String> {
+    let mut out = format!("{} {}\n", t.id, t.name);
+    let mut kv = |k: &str, v: String| out.push_str(&format!("  {k:<22}{v}\n"));
+    kv("category", format!("{} ({}), {}", enum_text(&t.category), t.group, enum_text(&t.difficulty)));
+    kv("split", enum_text(&t.split));
+    kv("capability", t.capability.clone());
+    kv("instruction", t.instruction.clone());
+    kv("agent instruction", t.agent_instruction().to_owned());
+    kv("source", format!("{} task {}", t.source.suite, t.source.task_id));
+    kv("bddl", format!("{} ({})", t.bddl.path, enum_text(&t.bddl.origin)));
+    let init_path = t.init.path.clone().unwrap_or_else(|| "-".into());
+    kv("init", format!("{} [{}] ({})", init_path, t.init.index, enum_text(&t.init.kind)));
+    if let Some(note) = &t.init.note {
+        kv("init note", note.clone());
+    }
+    kv("checker", t.checker.kind.clone());
+    kv("K", t.stage_count.to_string());
+    kv("implemented", if t.implemented { "yes".into() } else { "no".into() });
+    if let Some(why) = &t.not_implemented_reason {
+        kv("why not", why.clone());
+    }
+    if let Some(notes) = &t.notes {
+        kv("notes", notes.clone());
+    }
+    out.push_str("  checker parameters (private):\n");
+    for l in serde_json::to_string_pretty(&t.checker.params)?.lines() {
+        out.push_str(&format!("    {l}\n"));
+    }
+    Ok(out)
+}

@@ -1,0 +1,83 @@
+//! `bddl_terminal` (and `bddl_terminal_open`): success is the BDDL goal conjunction on the final state; nothing
+//! is latched (task catalog §1.3 step 5, §1.4: K = 1, completed = success). The goal is also sampled at every control
+//! step, only to record diagnostic "goal became true/false" events and the first commitment.
+use libero_sim::simulation::SimData;
+
+use crate::commitment::CommitmentTracker;
+use crate::evaluator::{
+    EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
+};
+use crate::goal::GoalChecker;
+
+pub const CHECKER: &str = "bddl_terminal";
+/// The single stage of a terminal task.
+pub const STAGE_NAME: &str = "01_BDDL_Goal_At_Finish";
+
+pub struct BddlTerminal {
+    checker: String,
+    goal: GoalChecker,
+    commitment: CommitmentTracker,
+    task_id: Option<String>,
+    control_steps: u64,
+    last_goal: Option<bool>,
+    events: Vec<PrivateEvent>,
+}
+
+impl BddlTerminal {
+    /// `checker` is the manifest's checker name (`bddl_terminal` or `bddl_terminal_open`; same rule).
+    pub fn new(checker: impl Into<String>, goal: GoalChecker, commitment: CommitmentTracker, task_id: Option<String>) -> Self {
+        Self { checker: checker.into(), goal, commitment, task_id, control_steps: 0, last_goal: None, events: Vec::new() }
+    }
+
+    fn note_goal(&mut self, data: &SimData, tick: Tick) {
+        let now = self.goal.holds(data);
+        if self.last_goal.is_some_and(|was| was != now) {
+            let kind = if now { EventKind::GoalSatisfied } else { EventKind::GoalUnsatisfied };
+            self.events.push(PrivateEvent::new(kind, tick));
+        }
+        self.last_goal = Some(now);
+    }
+}
+
+impl Evaluator for BddlTerminal {
+    fn checker(&self) -> &str {
+        &self.checker
+    }
+
+    fn reset(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps = 0;
+        self.events.clear();
+        self.last_goal = None;
+        self.commitment.reset(self.goal.index(), data);
+        self.note_goal(data, tick);
+    }
+
+    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps += 1;
+        self.note_goal(data, tick);
+        if let Some(c) = self.commitment.observe(self.goal.index(), data, tick) {
+            let event = PrivateEvent { subject: Some(c.subject.clone()), ..PrivateEvent::new(EventKind::FirstCommitment, tick) };
+            self.events.push(event);
+        }
+    }
+
+    fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord {
+        let report = self.goal.evaluate(data);
+        let mut stages = StageTracker::new(vec![StageSpec::required(STAGE_NAME)]);
+        stages.advance(tick, |_| report.success);
+        let mut record = EvaluationRecord::new(self.checker.clone());
+        stages.write_into(&mut record);
+        record.task_id = self.task_id.clone();
+        record.success = report.success;
+        record.terminal_state_success = report.success;
+        record.terminal_state_checks =
+            report.predicates.iter().map(|p| TerminalCheck { name: p.predicate.clone(), passed: p.value }).collect();
+        record.control_steps_observed = self.control_steps;
+        record.events = self.events.clone();
+        record.first_commitment = self.commitment.first().cloned();
+        record.bddl_final_goal_success = Some(report.success);
+        record.bddl_goal = Some(report);
+        record.failure_reason = (!record.success).then_some(FailureReason::TerminalStateInvalid);
+        record
+    }
+}

@@ -1,0 +1,279 @@
+//! The catalog of the 30 release tasks (`tasks/manifest.json`): loaded, validated, and resolved to files.
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use libero_sim::AssetPaths;
+use serde::{Deserialize, Serialize};
+
+use crate::TasksError;
+
+pub const MANIFEST_SCHEMA: &str = "libero_agent.task_manifest.v1";
+pub const TASK_COUNT: usize = 30;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Category {
+    Perception,
+    Manipulation,
+    LongHorizon,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Difficulty {
+    Easy,
+    Hard,
+}
+
+/// The paper's reporting subsets (five tasks each outside perception, equal weight).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Split {
+    Perception,
+    ShortHorizonEasy,
+    ShortHorizonHard,
+    LongHorizonEasy,
+    LongHorizonHard,
+}
+
+impl Split {
+    /// The task numbers of each subset (paper_results.md "Splits").
+    pub fn members(self) -> &'static [u32] {
+        match self {
+            Split::Perception => &[1, 2, 3, 4, 5, 6, 7, 8, 9, 10],
+            Split::ShortHorizonEasy => &[11, 13, 14, 15, 20],
+            Split::ShortHorizonHard => &[12, 16, 17, 18, 19],
+            Split::LongHorizonEasy => &[23, 24, 26, 27, 29],
+            Split::LongHorizonHard => &[21, 22, 25, 28, 30],
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Source {
+    pub suite: String,
+    /// Index inside the source suite.
+    pub task_id: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BddlOrigin {
+    /// hf-libero `bddl_files/<path>`.
+    Stock,
+    /// This repository's `tasks/<path>`.
+    Repository,
+    /// A file of the original release that is not available here.
+    ReleaseOnly,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BddlRef {
+    pub origin: BddlOrigin,
+    pub path: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InitKind {
+    /// hf-libero `init_files/<path>`, row `index`.
+    StockFile,
+    /// No trusted state: LIBERO's reset placement with the episode seed (or `seed` when fixed).
+    SeededPlacement,
+    /// The release's trusted state file, not available here.
+    ReleaseFileUnavailable,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InitRef {
+    pub kind: InitKind,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub path: Option<String>,
+    pub index: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u32>,
+    /// How this start differs from the release, where it does.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+/// Evaluator type and its private parameters (operator-visible only; never sent to agents).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CheckerSpec {
+    #[serde(rename = "type")]
+    pub kind: String,
+    #[serde(default)]
+    pub params: serde_json::Value,
+}
+
+impl CheckerSpec {
+    /// Whether the task is judged by the BDDL goal on the final state alone.
+    pub fn is_bddl_terminal(&self) -> bool {
+        matches!(self.kind.as_str(), "bddl_terminal" | "bddl_terminal_open")
+    }
+}
+
+/// One release task.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskEntry {
+    pub number: u32,
+    /// `T01`…`T30`.
+    pub id: String,
+    pub name: String,
+    pub category: Category,
+    /// perception / short_horizon / long_horizon.
+    pub group: String,
+    pub difficulty: Difficulty,
+    pub split: Split,
+    pub capability: String,
+    /// The release manifest's sentence.
+    pub instruction: String,
+    /// The suite registry's `language` where it differs (lower-case, filename-derived for stock LIBERO tasks).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub registry_instruction: Option<String>,
+    pub source: Source,
+    pub bddl: BddlRef,
+    pub init: InitRef,
+    pub checker: CheckerSpec,
+    /// K.
+    pub stage_count: usize,
+    /// True only when the task runs end to end in this build.
+    pub implemented: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_implemented_reason: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub notes: Option<String>,
+}
+
+impl TaskEntry {
+    /// The text the agent receives: the registry's `language` (protocol §9.3: the original release shows the
+    /// registry text, lower-case for stock LIBERO tasks), else the manifest sentence.
+    pub fn agent_instruction(&self) -> &str {
+        self.registry_instruction.as_deref().unwrap_or(&self.instruction)
+    }
+}
+
+/// Files an implemented task runs from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TaskFiles {
+    pub bddl: PathBuf,
+    /// `None` when the task starts from the seeded placement.
+    pub init_states: Option<PathBuf>,
+    pub init_index: usize,
+    /// Fixed placement seed, if the task has one (otherwise the episode seed).
+    pub placement_seed: Option<u32>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Manifest {
+    pub schema_version: String,
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    #[serde(default)]
+    pub evaluation_policy: serde_json::Value,
+    pub tasks: Vec<TaskEntry>,
+}
+
+/// The validated manifest plus the folder its repository paths are relative to.
+#[derive(Debug, Clone)]
+pub struct Catalog {
+    pub manifest: Manifest,
+    pub dir: PathBuf,
+}
+
+/// `$LIBERO_AGENT_TASKS_DIR`, else the repository's `tasks/` folder this crate was built from.
+pub fn tasks_dir() -> PathBuf {
+    std::env::var_os("LIBERO_AGENT_TASKS_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tasks"))
+}
+
+impl Catalog {
+    /// Loads and validates `<tasks_dir()>/manifest.json`.
+    pub fn discover() -> Result<Self, TasksError> {
+        Self::load(&tasks_dir())
+    }
+
+    pub fn load(dir: &Path) -> Result<Self, TasksError> {
+        let path = dir.join("manifest.json");
+        let err = |message: String| TasksError::Catalog { path: path.display().to_string(), message };
+        let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let manifest: Manifest = serde_json::from_slice(&bytes).map_err(|e| err(e.to_string()))?;
+        validate(&manifest).map_err(err)?;
+        Ok(Self { manifest, dir: dir.to_path_buf() })
+    }
+
+    pub fn tasks(&self) -> &[TaskEntry] {
+        &self.manifest.tasks
+    }
+
+    /// `T16`, `t16` or `16`.
+    pub fn get(&self, id: &str) -> Option<&TaskEntry> {
+        let digits = id.trim().trim_start_matches(['T', 't']);
+        let number: u32 = digits.parse().ok()?;
+        self.manifest.tasks.iter().find(|t| t.number == number)
+    }
+
+    /// The BDDL and init files of an implemented task; a clear error naming why otherwise.
+    pub fn files(&self, task: &TaskEntry, paths: &AssetPaths) -> Result<TaskFiles, TasksError> {
+        let fail = |message: String| TasksError::Catalog { path: task.id.clone(), message };
+        if !task.implemented {
+            let why = task.not_implemented_reason.as_deref().unwrap_or("no reason given");
+            return Err(fail(format!("{} ({}) is not implemented in this build: {why}", task.id, task.name)));
+        }
+        let bddl = match task.bddl.origin {
+            BddlOrigin::Stock => paths.libero_root.join("bddl_files").join(&task.bddl.path),
+            BddlOrigin::Repository => self.dir.join(&task.bddl.path),
+            BddlOrigin::ReleaseOnly => return Err(fail(format!("{} needs a release-only BDDL file", task.id))),
+        };
+        let init_states = match (task.init.kind, &task.init.path) {
+            (InitKind::StockFile, Some(p)) => Some(paths.libero_root.join("init_files").join(p)),
+            (InitKind::SeededPlacement, _) => None,
+            _ => return Err(fail(format!("{} has no usable init state", task.id))),
+        };
+        for p in std::iter::once(&bddl).chain(&init_states) {
+            if !p.is_file() {
+                return Err(fail(format!("{} is missing", p.display())));
+            }
+        }
+        Ok(TaskFiles { bddl, init_states, init_index: task.init.index, placement_seed: task.init.seed })
+    }
+}
+
+fn validate(m: &Manifest) -> Result<(), String> {
+    if m.schema_version != MANIFEST_SCHEMA {
+        return Err(format!("schema_version {:?}, expected {MANIFEST_SCHEMA:?}", m.schema_version));
+    }
+    if m.tasks.len() != TASK_COUNT {
+        return Err(format!("{} tasks, expected {TASK_COUNT}", m.tasks.len()));
+    }
+    let numbers: BTreeSet<u32> = m.tasks.iter().map(|t| t.number).collect();
+    if numbers != (1..=TASK_COUNT as u32).collect() {
+        return Err("task numbers must be exactly 1..=30, each once".into());
+    }
+    for t in &m.tasks {
+        let at = |msg: String| format!("{}: {msg}", t.id);
+        if t.id != format!("T{:02}", t.number) {
+            return Err(at(format!("id does not match number {}", t.number)));
+        }
+        if !t.split.members().contains(&t.number) {
+            return Err(at(format!("split {:?} does not list task {}", t.split, t.number)));
+        }
+        if t.stage_count == 0 || (t.checker.is_bddl_terminal() && t.stage_count != 1) {
+            return Err(at(format!("stage_count {} does not fit checker {}", t.stage_count, t.checker.kind)));
+        }
+        if t.implemented == t.not_implemented_reason.is_some() {
+            return Err(at("exactly the unimplemented tasks carry a not_implemented_reason".into()));
+        }
+        if t.implemented && !t.checker.is_bddl_terminal() {
+            return Err(at(format!("checker {} has no evaluator in this build", t.checker.kind)));
+        }
+    }
+    Ok(())
+}
