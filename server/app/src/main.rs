@@ -4,6 +4,8 @@ mod cmd_sim;
 mod cmd_inspect;
 mod cmd_render;
 #[cfg(feature = "episode-serve")]
+mod bench_mcp;
+#[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
 mod cmd_mcp_stdio;
@@ -29,11 +31,20 @@ fn episode_commands(argv: &[String]) -> Option<anyhow::Result<()>> {
         Serve(serve::ServeArgs),
         Episode(cmd_episode::EpisodeArgs),
         McpStdio(cmd_mcp_stdio::McpStdioArgs),
+        #[command(subcommand)]
+        Bench(Bench),
     }
-    if !matches!(argv.get(1).map(String::as_str), Some("serve" | "episode" | "mcp-stdio")) {
+    #[derive(clap::Subcommand)]
+    enum Bench {
+        Mcp(bench_mcp::BenchMcpArgs),
+    }
+    let (a1, a2) = (argv.get(1).map(String::as_str), argv.get(2).map(String::as_str));
+    let wanted = matches!(a1, Some("serve" | "episode" | "mcp-stdio")) || (a1 == Some("bench") && a2 == Some("mcp"));
+    if !wanted {
         return None;
     }
     Some(match <Cli as clap::Parser>::parse_from(argv.iter()) {
+        Cli::Bench(Bench::Mcp(a)) => bench_mcp::run(&a),
         Cli::Serve(a) => serve::run_serve(a),
         Cli::Episode(a) => cmd_episode::run_episode(a),
         Cli::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
@@ -86,7 +97,7 @@ fn main() -> anyhow::Result<()> {
         return sim_inspect(&argv[2..]);
     }
     anyhow::bail!(
-        "usage: libero-agent <sim replay|sim inspect|render|bench sim|bench render|serve|episode prepare|mcp-stdio> ...\n\
-         (serve, episode and mcp-stdio need the `episode-serve` feature while they are integrated; `make serve` enables it)"
+        "usage: libero-agent <sim replay|sim inspect|render|bench sim|bench render|bench mcp|serve|episode prepare|mcp-stdio> ...\n\
+         (serve, episode, mcp-stdio and bench mcp need the `episode-serve` feature while they are integrated; `make serve` enables it)"
     )
 }

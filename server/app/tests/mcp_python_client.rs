@@ -2,7 +2,7 @@
 //! MCP Python SDK (PyPI `mcp`, in the test venv of `scripts/setup.py --test`) drives them over streamable HTTP
 //! and through the `mcp-stdio` relay; malformed traffic is thrown at the endpoint; a killed server's open
 //! episode is recorded as INVALID on restart, in its run directory and in the episode store, while the
-//! store keeps the finished episode's row.
+//! store keeps the finished episode's row; `bench mcp` prints its JSON.
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -241,4 +241,30 @@ fn a_killed_server_leaves_its_open_episode_invalid_with_a_reason_on_restart_and_
     }
     let (status, _) = http_get_json(&format!("{}/api/episodes/ep-nonexistent", restarted.url));
     assert_eq!(status, 404);
+}
+
+#[test]
+fn bench_mcp_prints_latency_percentiles_and_overhead_for_each_concurrency() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(bin())
+        .args(["bench", "mcp", "--json", "--episodes", "1,2", "--calls", "2", "--actions", "5", "--data"])
+        .arg(tmp.path().join("data"))
+        .output()
+        .expect("run bench mcp");
+    assert!(out.status.success(), "bench mcp failed: {}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout).expect("bench mcp --json prints one JSON object");
+    assert_eq!((v["actions_per_call"].clone(), v["calls_per_episode"].clone()), (5.into(), 2.into()));
+    let reference = v["sim_plus_render"]["sim_plus_render_ms_p50"].as_f64().expect("baseline p50");
+    assert!(reference > 0.0);
+    assert!(v["sim_plus_render"]["video_render_encode_ms_per_call"].as_f64().expect("video cost") > 0.0);
+    let runs = v["mcp"].as_array().expect("mcp runs");
+    assert_eq!(runs.len(), 2);
+    for (run, n) in runs.iter().zip([1u64, 2]) {
+        assert_eq!(run["concurrent_episodes"], n);
+        assert_eq!(run["calls"], 2 * n, "every timed call of every episode is counted");
+        let (p50, p95) = (run["mcp_p50_ms"].as_f64().unwrap(), run["mcp_p95_ms"].as_f64().unwrap());
+        assert!(0.0 < p50 && p50 <= p95, "{run}");
+        let ratio = run["overhead_ratio"].as_f64().unwrap();
+        assert!((ratio - p50 / reference).abs() < 1e-9, "{run}");
+    }
 }

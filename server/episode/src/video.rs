@@ -28,9 +28,11 @@ pub const VIDEO_FPS: f64 = 20.0;
 const VIDEO_BITRATE_BPS: u32 = 1_000_000;
 /// One IDR frame per second, so a player can seek and a damaged stretch heals within a second.
 const INTRA_PERIOD_FRAMES: u32 = 20;
-/// Frames buffered between the episode thread and the encoder: one full 50-action call plus the settle
-/// steps never waits on the encoder; beyond that the episode thread waits rather than drop frames.
-pub const VIDEO_QUEUE_FRAMES: usize = 64;
+/// Frames buffered between the episode thread and the recorder: about 20 calls of 50 micro-actions, so
+/// where rendering is slow (a software renderer) the recorder catches up while the agent thinks instead
+/// of delaying replies. A pose snapshot is tens of kB, so a full queue is tens of MB. Beyond it the
+/// episode thread waits rather than drop frames.
+pub const VIDEO_QUEUE_FRAMES: usize = 1024;
 /// Suffix of the file while it is being written.
 pub const PARTIAL_SUFFIX: &str = ".partial";
 

@@ -274,11 +274,12 @@ impl Episodes {
         let spec = WorldSpec { task: task.clone(), level, seed: req.seed, init_index: req.init_index, paths };
         let renderer = self.renderer()?;
         let video = run.continuous_video();
-        let handle = spawn_episode(config, move || {
+        let make_world = move || {
             let mut world = LiberoWorld::new(&spec, renderer)?;
             world.record_video(&video)?;
             Ok(world)
-        })
+        };
+        let handle = spawn_episode(config, make_world)
             .with_context(|| format!("cannot build the simulation for {}", task.task_ref))?;
         let layout = WorkspaceLayout::new(&workspace);
         let contract = WorkspaceContract {
