@@ -6,6 +6,8 @@ mod cmd_render;
 mod cmd_sim;
 mod cmd_tasks;
 #[cfg(feature = "episode-serve")]
+mod bench_mcp;
+#[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
 mod cmd_mcp_stdio;
@@ -52,6 +54,9 @@ enum BenchCommand {
     Sim(bench_sim::BenchSimArgs),
     /// Frames per second of both cameras (RGB + depth) vs MuJoCo's own renderer.
     Render(bench_render::BenchRenderArgs),
+    /// `osc_sequence` latency over MCP for 1, 4 and 8 concurrent episodes vs simulation + one render.
+    #[cfg(feature = "episode-serve")]
+    Mcp(bench_mcp::BenchMcpArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -61,6 +66,8 @@ fn main() -> anyhow::Result<()> {
         Command::Tasks(c) => cmd_tasks::run(&c),
         Command::Bench(BenchCommand::Sim(a)) => bench_sim::run(&a),
         Command::Bench(BenchCommand::Render(a)) => bench_render::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Mcp(a)) => bench_mcp::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Serve(a) => serve::run_serve(a),
         #[cfg(feature = "episode-serve")]

@@ -1,8 +1,9 @@
 //! End-to-end proof with real clients: the `libero-agent` binary serves prepared episodes and the official
 //! MCP Python SDK (PyPI `mcp`, in the test venv of `scripts/setup.py --test`) drives them over streamable HTTP
 //! and through the `mcp-stdio` relay; malformed traffic is thrown at the endpoint; a killed server's open
-//! episode is recorded as INVALID on restart.
-use std::io::{BufRead, BufReader};
+//! episode is recorded as INVALID on restart, in its run directory and in the episode store, while the
+//! store keeps the finished episode's row; `bench mcp` prints its JSON.
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
@@ -58,6 +59,19 @@ impl Drop for Server {
     fn drop(&mut self) {
         self.kill();
     }
+}
+
+/// `GET` of a loopback JSON endpoint (status, body).
+fn http_get_json(url: &str) -> (u16, Value) {
+    let rest = url.strip_prefix("http://").expect("http url");
+    let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
+    let mut stream = std::net::TcpStream::connect(host).expect("connect");
+    write!(stream, "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
+    let mut text = String::new();
+    stream.read_to_string(&mut text).unwrap();
+    let status = text.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("status");
+    let body = &text[text.find("\r\n\r\n").expect("headers end") + 4..];
+    (status, serde_json::from_str(body).unwrap_or_else(|e| panic!("body {body:?} is not JSON: {e}")))
 }
 
 fn prepare(server: &Server, workspace: &Path, level: u8) -> Value {
@@ -130,6 +144,10 @@ fn python_sdk_drives_a_level3_episode_over_http_and_the_workspace_stays_public()
     let log = std::fs::read_to_string(run.join("actions.jsonl")).unwrap();
     assert!(log.lines().count() >= 15, "every request is logged, errors included");
     assert!(run.join("private_observations/obs_000001/observation.json").is_file());
+    // The episode has ended (finish), so its private video is complete under its final name.
+    let video = std::fs::read(run.join("continuous_video.mp4")).expect("continuous_video.mp4");
+    assert_eq!(&video[4..8], b"ftyp");
+    assert!(!run.join("continuous_video.mp4.partial").exists());
     let files = workspace_files(&ws);
     let allowed_prefixes = ["TASK_PROMPT.txt", ".libero", "benchmark_inputs", "scratch"];
     for f in &files {
@@ -172,16 +190,81 @@ fn malformed_traffic_gets_errors_and_never_stops_the_server() {
 }
 
 #[test]
-fn a_killed_server_leaves_its_open_episode_invalid_with_a_reason_on_restart() {
+fn a_killed_server_leaves_its_open_episode_invalid_with_a_reason_on_restart_and_the_store_agrees() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let mut server = Server::start(&data);
+    // One episode runs to its end before the kill...
+    let ended = prepare(&server, &tmp.path().join("ws-ended"), 1);
+    let ended_id = ended["episode_id"].as_str().unwrap().to_owned();
+    assert_eq!(run_client(&ended, 1, &[])["ok"], true);
+    let ended_run = PathBuf::from(ended["run_dir"].as_str().unwrap());
+    let ended_result: Value =
+        serde_json::from_str(&std::fs::read_to_string(ended_run.join("result.json")).unwrap()).unwrap();
+    let expected_outcome = match (ended_result["status"].as_str(), ended_result["success"].as_bool()) {
+        (Some("finished"), Some(true)) => "SUCCESS",
+        (Some("finished"), _) => "FAIL",
+        _ => "INVALID",
+    };
+    let (status, row) = http_get_json(&format!("{}/api/episodes/{ended_id}", server.url));
+    assert_eq!(status, 200, "{row}");
+    assert_eq!(row["outcome"], expected_outcome, "the store has the end before any restart: {row}");
+    assert!(row["started_at"].is_string() && row["finished_at"].is_string(), "{row}");
+    // ...one is left open.
     let prepared = prepare(&server, &tmp.path().join("ws"), 3);
+    let open_id = prepared["episode_id"].as_str().unwrap().to_owned();
+    let (_, row) = http_get_json(&format!("{}/api/episodes/{open_id}", server.url));
+    assert_eq!((row["outcome"].clone(), row["level"].clone(), row["seed"].clone()), (Value::Null, 3.into(), 100.into()));
     let run = PathBuf::from(prepared["run_dir"].as_str().unwrap());
     server.kill(); // SIGKILL: no chance to write anything
     assert!(!run.join("result.json").exists());
-    let _restarted = Server::start(&data);
+    assert!(data.join("episodes.sqlite").is_file());
+    let restarted = Server::start(&data);
     let result: Value = serde_json::from_str(&std::fs::read_to_string(run.join("result.json")).unwrap()).unwrap();
     assert_eq!(result["status"], "aborted");
     assert!(result["reason"].as_str().unwrap().starts_with("server_stopped_before_finish"));
+    let (status, list) = http_get_json(&format!("{}/api/episodes", restarted.url));
+    assert_eq!(status, 200);
+    let rows = list["episodes"].as_array().expect("episodes array");
+    assert_eq!(rows.len(), 2, "{list}");
+    let row_of = |id: &str| rows.iter().find(|r| r["id"] == id).unwrap_or_else(|| panic!("no row {id}: {list}")).clone();
+    let open_row = row_of(&open_id);
+    assert_eq!(open_row["outcome"], "INVALID");
+    assert_eq!(open_row["reason"], result["reason"], "the store gives the run directory's reason");
+    assert_eq!(open_row["task_ref"], TASK);
+    let ended_row = row_of(&ended_id);
+    assert_eq!(ended_row["outcome"], expected_outcome, "the finished row survived the kill");
+    assert_eq!(ended_row["reason"], ended_result["reason"]);
+    let text = list.to_string();
+    for secret in [token(&prepared), token(&ended), data.display().to_string()] {
+        assert!(!text.contains(&secret), "the episode list leaks {secret}");
+    }
+    let (status, _) = http_get_json(&format!("{}/api/episodes/ep-nonexistent", restarted.url));
+    assert_eq!(status, 404);
+}
+
+#[test]
+fn bench_mcp_prints_latency_percentiles_and_overhead_for_each_concurrency() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(bin())
+        .args(["bench", "mcp", "--json", "--episodes", "1,2", "--calls", "2", "--actions", "5", "--data"])
+        .arg(tmp.path().join("data"))
+        .output()
+        .expect("run bench mcp");
+    assert!(out.status.success(), "bench mcp failed: {}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout).expect("bench mcp --json prints one JSON object");
+    assert_eq!((v["actions_per_call"].clone(), v["calls_per_episode"].clone()), (5.into(), 2.into()));
+    let reference = v["sim_plus_render"]["sim_plus_render_ms_p50"].as_f64().expect("baseline p50");
+    assert!(reference > 0.0);
+    assert!(v["sim_plus_render"]["video_render_encode_ms_per_call"].as_f64().expect("video cost") > 0.0);
+    let runs = v["mcp"].as_array().expect("mcp runs");
+    assert_eq!(runs.len(), 2);
+    for (run, n) in runs.iter().zip([1u64, 2]) {
+        assert_eq!(run["concurrent_episodes"], n);
+        assert_eq!(run["calls"], 2 * n, "every timed call of every episode is counted");
+        let (p50, p95) = (run["mcp_p50_ms"].as_f64().unwrap(), run["mcp_p95_ms"].as_f64().unwrap());
+        assert!(0.0 < p50 && p50 <= p95, "{run}");
+        let ratio = run["overhead_ratio"].as_f64().unwrap();
+        assert!((ratio - p50 / reference).abs() < 1e-9, "{run}");
+    }
 }

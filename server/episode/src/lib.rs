@@ -11,6 +11,8 @@ pub mod readout;
 pub mod records;
 pub mod task;
 pub mod tools;
+#[cfg(feature = "world")]
+pub mod video;
 pub mod workspace;
 #[cfg(feature = "world")]
 pub mod world;

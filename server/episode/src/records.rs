@@ -37,6 +37,10 @@ impl RunDir {
     pub fn episode_record(&self) -> PathBuf {
         self.root.join("episode_record.json")
     }
+    /// The private video (§6.1); `continuous_video.mp4.partial` while it is being written.
+    pub fn continuous_video(&self) -> PathBuf {
+        self.root.join("continuous_video.mp4")
+    }
     pub fn agent_prompt(&self) -> PathBuf {
         self.root.join("agent_prompt.txt")
     }

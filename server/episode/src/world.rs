@@ -5,9 +5,9 @@
 use std::sync::Arc;
 
 use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
-use libero_sim::compose::compose_file;
-use libero_sim::mujoco_rs::prelude::MjtObjBase;
-use libero_sim::placement::Placement;
+use libero_sim::compose::{ComposedScene, compose_file};
+use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::placement::{Placement, update_visual_sites};
 use libero_sim::{AssetPaths, InitStates, Simulation};
 use libero_tasks::{Evaluator, Tick, build_evaluator};
 
@@ -17,6 +17,7 @@ use crate::call::MicroAction;
 use crate::observation::{CameraFrame, Frame, Level, RgbImage};
 use crate::readout::{BasePose, robot_base_body, robot_readout};
 use crate::task::TaskSource;
+use crate::video::{VideoCameras, VideoRecorder};
 
 /// Release image size (square, per camera).
 pub const RESOLUTION_PX: u32 = 256;
@@ -63,14 +64,16 @@ impl LiberoWorld {
         placement.apply(&mut model)?;
         let evaluator = build_evaluator(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &scene, &model)
             .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
+        let init_index = suite.map_or(spec.init_index, |s| s.init_index);
+        let init_row = match &spec.task.init_states {
+            Some(path) => Some(InitStates::read(path)?.get(init_index)?.to_vec()),
+            None => None,
+        };
+        observation_site_visibility(&scene, &mut model, init_row.as_deref(), &placement)?;
         let model = Arc::new(model);
         let sim = Simulation::new(model.clone())?;
-        let init_index = suite.map_or(spec.init_index, |s| s.init_index);
-        let start_row = match &spec.task.init_states {
-            Some(path) => {
-                let states = InitStates::read(path)?;
-                states.get(init_index)?.to_vec()
-            }
+        let start_row = match init_row {
+            Some(row) => row,
             None => placement_row(&sim, &placement)?,
         };
         let base_body = robot_base_body(&sim)?;
@@ -136,6 +139,31 @@ impl LiberoWorld {
     }
 }
 
+/// What robosuite's reset does to sites before the first image: hide robot, gripper and object sites in
+/// observation images, then LIBERO's `set_visualization` shows a stove burner only if its knob starts on.
+fn observation_site_visibility(
+    scene: &ComposedScene,
+    model: &mut MjModel,
+    init_row: Option<&[f64]>,
+    placement: &Placement,
+) -> Result<(), EpisodeError> {
+    libero_render::scene::robosuite_hide_sites(model);
+    let nq = model.ffi().nq as usize;
+    let qpos = match init_row {
+        Some(row) => row
+            .get(1..1 + nq)
+            .ok_or_else(|| EpisodeError::Task(format!("init state has {} values, the model needs 1 + nq = {}+", row.len(), 1 + nq)))?
+            .to_vec(),
+        None => {
+            let mut qpos = model.qpos0().to_vec();
+            placement.write_qpos(model, &mut qpos)?;
+            qpos
+        }
+    };
+    update_visual_sites(scene, model, &qpos)?;
+    Ok(())
+}
+
 /// The state row of the seeded placement, for tasks without trusted init states: the objects' free joints
 /// and articulated fixture joints as LIBERO's reset writes them.
 fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, EpisodeError> {
@@ -199,5 +227,24 @@ impl World for LiberoWorld {
             record.stage_events.iter().map(serde_json::to_value).collect::<Result<Vec<_>, _>>().map_err(to_json)?;
         let private_evaluation = serde_json::to_value(&record).map_err(to_json)?;
         Ok(Verdict { success: record.success, private_evaluation, stage_events })
+    }
+}
+
+/// The private video hook, apart from the protocol methods: the simulation reports every control step
+/// (settle steps included) to a recorder thread that renders and encodes off the reply path.
+impl LiberoWorld {
+    /// Records every later control step into `path` (§6.1). The video is finalised and renamed into
+    /// place when the world is dropped (episode finished, expired or aborted) or at [`Self::end_video`].
+    pub fn record_video(&mut self, path: &std::path::Path) -> Result<(), EpisodeError> {
+        let cameras = VideoCameras { head: HEAD_CAMERA.into(), wrist: WRIST_CAMERA.into(), size_px: RESOLUTION_PX };
+        let recorder = VideoRecorder::spawn(path, self.renderer.clone(), self.gpu_model.clone(), cameras)
+            .map_err(|e| EpisodeError::Render(e.to_string()))?;
+        self.sim.set_step_observer(Some(recorder.into_step_observer()));
+        Ok(())
+    }
+
+    /// Stops recording and finalises the video now (waits for the encoder to drain).
+    pub fn end_video(&mut self) {
+        self.sim.set_step_observer(None);
     }
 }

@@ -24,5 +24,5 @@ pub use error::SimError;
 pub use mujoco_rs;
 pub use paths::AssetPaths;
 pub use init_state::InitStates;
-pub use simulation::{ObservationSample, RobotState, Simulation, StepOutcome};
+pub use simulation::{ObservationSample, RobotState, SimData, Simulation, StepObserver, StepOutcome};
 pub use trajectory::{Trajectory, replay};

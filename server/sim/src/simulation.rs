@@ -118,7 +118,12 @@ pub struct Simulation {
     arm_torques_nm: [f64; 7],
     warnings_seen: [i32; 7],
     poisoned: Option<String>,
+    /// Called after every completed control step (the private video records each one, settle steps included).
+    step_observer: Option<StepObserver>,
 }
+
+/// A hook on every completed control step: model and data after the step's last substep.
+pub type StepObserver = Box<dyn FnMut(&MjModel, &SimData) + Send>;
 
 fn non_finite(xs: &[f64]) -> Option<usize> {
     xs.iter().position(|x| !x.is_finite())
@@ -150,6 +155,7 @@ impl Simulation {
             arm_torques_nm: [0.0; 7],
             warnings_seen: [0; 7],
             poisoned: None,
+            step_observer: None,
         };
         sim.reset()?;
         Ok(sim)
@@ -296,9 +302,20 @@ impl Simulation {
             Ok(())
         });
         match result {
-            Ok(Ok(())) => Ok(StepOutcome { time_s: self.data.ffi().time, observation_substep }),
+            Ok(Ok(())) => {
+                if let Some(observe) = self.step_observer.as_mut() {
+                    observe(&self.model, &self.data);
+                }
+                Ok(StepOutcome { time_s: self.data.ffi().time, observation_substep })
+            }
             Ok(Err(msg)) | Err(msg) => Err(self.poison(msg)),
         }
+    }
+
+    /// Installs (or with `None` removes) the hook run after every completed control step; a step that
+    /// faults is not observed.
+    pub fn set_step_observer(&mut self, observer: Option<StepObserver>) {
+        self.step_observer = observer;
     }
 
     /// Recomputes all derived quantities for the current qpos/qvel (`mj_forward`); physics-neutral.

@@ -101,3 +101,28 @@ fn bad_inputs_are_input_errors() {
     assert!(matches!(sim.step([f64::NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]), Err(SimError::Input(_))));
     sim.step([0.0; 7]).expect("still usable after input errors");
 }
+
+/// The step observer (the private video's hook) sees every completed control step, after its last
+/// substep, and never a step that faulted.
+#[test]
+fn the_step_observer_sees_each_completed_step_and_no_faulted_one() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let (mut sim, init, _) = sim_and_init();
+    sim.set_init_state(&init).expect("init state");
+    let seen = Arc::new(AtomicUsize::new(0));
+    let times = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let (s, t) = (seen.clone(), times.clone());
+    sim.set_step_observer(Some(Box::new(move |_, data| {
+        s.fetch_add(1, Ordering::SeqCst);
+        t.lock().unwrap().push(data.ffi().time);
+    })));
+    for _ in 0..3 {
+        let outcome = sim.step([0.1, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]).expect("a normal step");
+        assert_eq!(times.lock().unwrap().last().copied(), Some(outcome.time_s), "observed after the last substep");
+    }
+    assert_eq!(seen.load(Ordering::SeqCst), 3);
+    sim.inject_qvel(2, f64::NAN);
+    assert!(sim.step([0.0; 7]).is_err());
+    assert_eq!(seen.load(Ordering::SeqCst), 3, "a faulted step is not observed");
+    sim.set_step_observer(None);
+}

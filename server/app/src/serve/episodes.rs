@@ -91,6 +91,8 @@ pub struct Episodes {
     map: RwLock<HashMap<String, Arc<Entry>>>,
     /// One GPU device shared by every episode (opened at the first prepare).
     renderer: Mutex<Option<Renderer>>,
+    /// Where each MCP handler reports the episode it just served (the store sync listens).
+    calls: Option<tokio::sync::mpsc::UnboundedSender<String>>,
 }
 
 fn random_hex(bytes: usize) -> std::io::Result<String> {
@@ -136,7 +138,22 @@ impl Episodes {
                 None
             }
         };
-        Ok(Self { data, base_url, paths, map: RwLock::new(HashMap::new()), renderer: Mutex::new(None) })
+        Ok(Self { data, base_url, paths, map: RwLock::new(HashMap::new()), renderer: Mutex::new(None), calls: None })
+    }
+
+    /// Reports every served tool call's episode id on `calls`.
+    pub fn with_call_reports(mut self, calls: tokio::sync::mpsc::UnboundedSender<String>) -> Self {
+        self.calls = Some(calls);
+        self
+    }
+
+    pub fn data_dir(&self) -> &Path {
+        &self.data
+    }
+
+    /// Ids of the episodes this server process holds.
+    pub fn ids(&self) -> Vec<String> {
+        self.map.read().map(|m| m.keys().cloned().collect()).unwrap_or_default()
     }
 
     fn renderer(&self) -> anyhow::Result<Renderer> {
@@ -256,7 +273,13 @@ impl Episodes {
         };
         let spec = WorldSpec { task: task.clone(), level, seed: req.seed, init_index: req.init_index, paths };
         let renderer = self.renderer()?;
-        let handle = spawn_episode(config, move || LiberoWorld::new(&spec, renderer))
+        let video = run.continuous_video();
+        let make_world = move || {
+            let mut world = LiberoWorld::new(&spec, renderer)?;
+            world.record_video(&video)?;
+            Ok(world)
+        };
+        let handle = spawn_episode(config, make_world)
             .with_context(|| format!("cannot build the simulation for {}", task.task_ref))?;
         let layout = WorkspaceLayout::new(&workspace);
         let contract = WorkspaceContract {
@@ -271,7 +294,7 @@ impl Episodes {
             return Err(e).with_context(|| format!("cannot create the workspace {}", workspace.display()));
         }
         fs::copy(layout.prompt_file(), run.agent_prompt())?;
-        let mcp = EpisodeMcp { handle: handle.clone() };
+        let mcp = EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() };
         let config = StreamableHttpServerConfig::default()
             .disable_allowed_hosts() // the per-episode token is the guard; hosts vary behind proxies
             .with_max_request_body_bytes(MAX_REQUEST_BYTES);

@@ -1,24 +1,33 @@
 //! `libero-agent serve`: every prepared episode at its own MCP endpoint `/mcp/<episode_id>` (rmcp streamable
 //! HTTP), guarded by a per-episode bearer token checked before anything reaches rmcp; `GET /api/health`;
-//! `POST /api/episodes` to prepare an episode (the CLI's `episode prepare` and the dashboard use it).
+//! `POST /api/episodes` to prepare an episode (the CLI's `episode prepare` and the dashboard use it);
+//! `GET /api/episodes[/{id}]` from the episode store (operator-facing; no tokens, no paths).
 pub mod episodes;
 pub mod http_client;
 pub mod mcp;
+pub mod store;
 
+use std::collections::HashMap;
+use std::future::Future;
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 use anyhow::Context;
 use axum::Router;
 use axum::body::Body;
-use axum::extract::{Path, Request, State};
+use axum::extract::{Path, Query, Request, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{any, get, post};
-use serde_json::json;
+use libero_episode::json::utc_now_iso;
+use libero_episode::{EpisodeState, EpisodeStatus, RunDir};
+use serde_json::{Value, json};
+use tokio::sync::mpsc::{UnboundedReceiver, unbounded_channel};
 
 use episodes::{Episodes, PrepareRequest};
+use store::{EpisodeEnd, NewEpisode, STORE_FILE, Store};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct ServeArgs {
@@ -39,7 +48,80 @@ pub fn default_data_dir() -> PathBuf {
     home.join(".local/share/libero-agent")
 }
 
-type AppState = Arc<Episodes>;
+/// The server's shared state: the live episodes and the store that outlives them.
+pub struct App {
+    pub episodes: Arc<Episodes>,
+    pub store: Store,
+    /// The last state written to the store per episode, so only transitions cost a write.
+    synced: Mutex<HashMap<String, EpisodeState>>,
+}
+
+type AppState = Arc<App>;
+
+/// How often open episodes are checked for changes no call reports (wall-clock expiry while idle).
+const STORE_SYNC_PERIOD: Duration = Duration::from_secs(1);
+
+impl App {
+    /// Writes `id`'s transition (started, ended) to the store if its state changed since the last write.
+    pub async fn sync(&self, id: &str) {
+        let Some(status) = self.episodes.status(id) else { return };
+        let previous = self.synced.lock().ok().and_then(|m| m.get(id).copied());
+        if previous == Some(status.state) {
+            return;
+        }
+        match self.write_transition(id, previous, &status).await {
+            Ok(()) => {
+                if let Ok(mut m) = self.synced.lock() {
+                    m.insert(id.to_owned(), status.state);
+                }
+            }
+            Err(e) => eprintln!("warning: {e:#}"),
+        }
+    }
+
+    async fn write_transition(&self, id: &str, previous: Option<EpisodeState>, status: &EpisodeStatus) -> anyhow::Result<()> {
+        // The initial observation exists exactly when start_episode succeeded.
+        if status.latest_observation_id.is_some() && previous != Some(EpisodeState::Active) {
+            self.store.mark_started(id, &utc_now_iso()).await?;
+        }
+        if matches!(status.state, EpisodeState::Finished | EpisodeState::Aborted) {
+            let run = RunDir::new(self.episodes.runs_dir().join(id));
+            if let Some(end) = EpisodeEnd::from_run(&run) {
+                self.store.record_end(id, &end).await?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Syncs every episode whose last stored state is not final.
+    pub async fn sync_all(&self) {
+        let open: Vec<String> = {
+            let synced = self.synced.lock().map(|m| m.clone()).unwrap_or_default();
+            self.episodes
+                .ids()
+                .into_iter()
+                .filter(|id| !matches!(synced.get(id), Some(EpisodeState::Finished | EpisodeState::Aborted)))
+                .collect()
+        };
+        for id in open {
+            self.sync(&id).await;
+        }
+    }
+}
+
+/// Keeps the store in step: after every tool call (reported by the MCP handlers) and once a period.
+async fn store_sync(app: Arc<App>, mut calls: UnboundedReceiver<String>) {
+    let mut tick = tokio::time::interval(STORE_SYNC_PERIOD);
+    loop {
+        tokio::select! {
+            id = calls.recv() => match id {
+                Some(id) => app.sync(&id).await,
+                None => return,
+            },
+            _ = tick.tick() => app.sync_all().await,
+        }
+    }
+}
 
 /// Runs the server until SIGINT/SIGTERM; unfinished episodes are then recorded as aborted (INVALID).
 pub fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
@@ -48,27 +130,45 @@ pub fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
 }
 
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    serve_until(args, |listening| println!("{listening}"), shutdown_signal()).await
+}
+
+/// The server: binds, recovers interrupted episodes (files, then the store), reports `listening` (the
+/// JSON line `serve` prints), serves until `shutdown` yields a stop reason, then records every open
+/// episode as aborted with it.
+pub async fn serve_until(
+    args: ServeArgs,
+    listening: impl FnOnce(Value),
+    shutdown: impl Future<Output = String> + Send + 'static,
+) -> anyhow::Result<()> {
     let data = args.data.clone().unwrap_or_else(default_data_dir);
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create data directory {}", data.display()))?;
     let listener = tokio::net::TcpListener::bind(args.addr).await.with_context(|| format!("cannot bind {}", args.addr))?;
     let local = listener.local_addr()?;
     let base_url = format!("http://{local}");
-    let episodes = Arc::new(Episodes::new(data.clone(), base_url.clone())?);
+    let (calls_tx, calls_rx) = unbounded_channel();
+    let episodes = Arc::new(Episodes::new(data.clone(), base_url.clone())?.with_call_reports(calls_tx));
     let recovered = episodes.recover_interrupted();
-    let app = router(episodes.clone());
-    println!(
-        "{}",
-        json!({"event": "listening", "url": base_url, "data": data, "recovered_invalid_episodes": recovered})
-    );
-    let shutdown = {
-        let episodes = episodes.clone();
+    let store = Store::open(&episodes.data_dir().join(STORE_FILE)).await?;
+    let reconciled = store.reconcile(&episodes.runs_dir()).await?;
+    let app = Arc::new(App { episodes, store, synced: Mutex::new(HashMap::new()) });
+    let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
+    listening(json!({
+        "event": "listening", "url": base_url, "data": data,
+        "recovered_invalid_episodes": recovered, "store_rows_closed_at_start": reconciled,
+    }));
+    let stop = {
+        let app = app.clone();
         async move {
-            let reason = shutdown_signal().await;
-            let episodes = episodes.clone();
+            let reason = shutdown.await;
+            let episodes = app.episodes.clone();
             let _ = tokio::task::spawn_blocking(move || episodes.stop_all(&reason)).await;
         }
     };
-    axum::serve(listener, app).with_graceful_shutdown(shutdown).await?;
+    axum::serve(listener, router(app.clone())).with_graceful_shutdown(stop).await?;
+    sync_task.abort();
+    app.sync_all().await;
+    app.store.close().await;
     Ok(())
 }
 
@@ -90,36 +190,81 @@ async fn shutdown_signal() -> String {
 pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/api/health", get(health))
-        .route("/api/episodes", post(prepare))
+        .route("/api/episodes", post(prepare).get(list_episodes))
         .route("/api/episodes/{id}", get(episode_status))
         .route("/mcp/{id}", any(mcp_endpoint))
         .with_state(state)
 }
 
-async fn health(State(eps): State<AppState>) -> Response {
-    axum::Json(json!({"ok": true, "episodes": eps.count(), "version": env!("CARGO_PKG_VERSION")})).into_response()
+async fn health(State(app): State<AppState>) -> Response {
+    axum::Json(json!({"ok": true, "episodes": app.episodes.count(), "version": env!("CARGO_PKG_VERSION")})).into_response()
 }
 
 fn json_error(status: StatusCode, message: impl Into<String>) -> Response {
     (status, axum::Json(json!({"ok": false, "error": message.into()}))).into_response()
 }
 
-async fn prepare(State(eps): State<AppState>, body: axum::body::Bytes) -> Response {
+async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> Response {
     let req: PrepareRequest = match serde_json::from_slice(&body) {
         Ok(r) => r,
         Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("invalid prepare request: {e}")),
     };
+    let eps = app.episodes.clone();
     match tokio::task::spawn_blocking(move || eps.prepare(req)).await {
-        Ok(Ok(prepared)) => (StatusCode::CREATED, axum::Json(prepared)).into_response(),
+        Ok(Ok(prepared)) => {
+            // The run directory's record is written; the row follows it (restart reconciles a lost write).
+            match NewEpisode::from_record(&RunDir::new(&prepared.run_dir)) {
+                Some(new) => {
+                    if let Err(e) = app.store.insert_prepared(&new).await {
+                        eprintln!("warning: {e:#}");
+                    }
+                }
+                None => eprintln!("warning: episode {} has no readable episode record", prepared.episode_id),
+            }
+            (StatusCode::CREATED, axum::Json(prepared)).into_response()
+        }
         Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
         Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("prepare failed: {e}")),
     }
 }
 
-async fn episode_status(State(eps): State<AppState>, Path(id): Path<String>) -> Response {
-    match eps.status(&id) {
-        Some(s) => axum::Json(s).into_response(),
-        None => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
+/// A stored row for the API: no paths, plus the live state while this process serves the episode.
+fn episode_json(app: &App, row: &store::EpisodeRow) -> Value {
+    let mut v = row.public();
+    if let (Some(live), Some(obj)) = (app.episodes.status(&row.episode.id), v.as_object_mut()) {
+        obj.insert("state".into(), json!(live.state));
+        obj.insert("accepted_agent_steps".into(), json!(live.accepted_agent_steps));
+        obj.insert("latest_observation_id".into(), json!(live.latest_observation_id));
+    }
+    v
+}
+
+#[derive(serde::Deserialize)]
+struct ListQuery {
+    limit: Option<i64>,
+}
+
+/// Largest page of `GET /api/episodes`.
+const MAX_LIST_LIMIT: i64 = 10_000;
+
+async fn list_episodes(State(app): State<AppState>, Query(q): Query<ListQuery>) -> Response {
+    app.sync_all().await;
+    let limit = q.limit.unwrap_or(1000).clamp(1, MAX_LIST_LIMIT);
+    match app.store.list(limit).await {
+        Ok(rows) => {
+            let episodes: Vec<Value> = rows.iter().map(|r| episode_json(&app, r)).collect();
+            axum::Json(json!({"ok": true, "episodes": episodes})).into_response()
+        }
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    }
+}
+
+async fn episode_status(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    app.sync(&id).await;
+    match app.store.get(&id).await {
+        Ok(Some(row)) => axum::Json(episode_json(&app, &row)).into_response(),
+        Ok(None) => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
     }
 }
 
@@ -129,8 +274,8 @@ fn bearer(headers: &HeaderMap) -> Option<&str> {
 }
 
 /// The token check happens here, before rmcp sees any byte; unknown episode and wrong token look the same.
-async fn mcp_endpoint(State(eps): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
-    let Some(service) = eps.authorize(&id, bearer(req.headers())) else {
+async fn mcp_endpoint(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
+    let Some(service) = app.episodes.authorize(&id, bearer(req.headers())) else {
         return (
             StatusCode::UNAUTHORIZED,
             [(header::WWW_AUTHENTICATE, "Bearer")],
