@@ -214,8 +214,9 @@ impl VideoRecorder {
                 if failure.is_some() {
                     continue; // keep draining so the episode thread never blocks on a dead recorder
                 }
+                // Background: an episode's observation render never queues behind video frames.
                 let frame = renderer
-                    .render(&model, &state, &requests, &options)
+                    .render_background(&model, &state, &requests, &options)
                     .map_err(|e| VideoError::Render(e.to_string()))
                     .and_then(|views| match views.as_slice() {
                         [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize),

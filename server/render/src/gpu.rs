@@ -2,7 +2,7 @@
 //! ([`Renderer::prepare_scene`]); a frame uploads only per-geom poses and per-camera uniforms, renders
 //! every requested camera in one submission and reads RGB, linear depth and segmentation back.
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 
 use bytemuck::{Pod, Zeroable};
@@ -280,6 +280,8 @@ struct Inner {
     frame: Mutex<FrameResources>,
     errors: Arc<Mutex<Vec<String>>>,
     next_model_id: AtomicU64,
+    /// Foreground renders waiting for `frame`; background renders (the private video) let them go first.
+    foreground_waiting: AtomicUsize,
     model_cache: Mutex<HashMap<usize, (Weak<MjModel>, ModelHandle)>>,
 }
 
@@ -511,6 +513,7 @@ impl Renderer {
                 }),
                 errors,
                 next_model_id: AtomicU64::new(1),
+                foreground_waiting: AtomicUsize::new(0),
                 model_cache: Mutex::new(HashMap::new()),
             }),
         })
@@ -665,6 +668,45 @@ impl Renderer {
         requests: &[CameraRequest],
         options: &RenderOptions,
     ) -> Result<Vec<CameraFrame>, RenderError> {
+        let waiting = &self.inner.foreground_waiting;
+        waiting.fetch_add(1, Ordering::SeqCst);
+        self.render_locked(model, state, requests, options, Some(waiting))
+    }
+
+    /// [`render`](Self::render) for work nobody waits on (video frames): it yields the device to every
+    /// foreground render that is waiting, so those wait for at most one background frame.
+    pub fn render_background(
+        &self,
+        model: &ModelHandle,
+        state: &FrameState,
+        requests: &[CameraRequest],
+        options: &RenderOptions,
+    ) -> Result<Vec<CameraFrame>, RenderError> {
+        while self.inner.foreground_waiting.load(Ordering::SeqCst) > 0 {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        self.render_locked(model, state, requests, options, None)
+    }
+
+    /// Renders once `frame` is held; `waiting` (a foreground caller's count) is released on acquiring it.
+    fn render_locked(
+        &self,
+        model: &ModelHandle,
+        state: &FrameState,
+        requests: &[CameraRequest],
+        options: &RenderOptions,
+        waiting: Option<&AtomicUsize>,
+    ) -> Result<Vec<CameraFrame>, RenderError> {
+        /// Decrements the foreground count however the render ends.
+        struct Arrived<'a>(Option<&'a AtomicUsize>);
+        impl Drop for Arrived<'_> {
+            fn drop(&mut self) {
+                if let Some(w) = self.0.take() {
+                    w.fetch_sub(1, Ordering::SeqCst);
+                }
+            }
+        }
+        let mut arrived = Arrived(waiting);
         let gm = &model.gpu;
         let scene = &gm.scene;
         check_state(scene, state)?;
@@ -680,6 +722,9 @@ impl Renderer {
         let draws = collect_draws(gm, state, &options.visibility);
         let inner = &self.inner;
         let mut frame = inner.frame.lock().map_err(|e| RenderError::Readback(e.to_string()))?;
+        if let Some(w) = arrived.0.take() {
+            w.fetch_sub(1, Ordering::SeqCst);
+        }
 
         // Per-geom uniforms (camera independent).
         let draw_data: Vec<u8> = {
