@@ -257,6 +257,11 @@ impl<W: World> Actor<W> {
                 Ok(Command::Call { name, arguments, reply }) => {
                     let payload = self.handle_call(&name, arguments);
                     let _ = reply.send(payload);
+                    // The verdict is on its way; only now release the world, whose drop waits for the private
+                    // video to drain and finalise (seconds on a CPU renderer), so the agent never waits for it.
+                    if matches!(self.phase, Phase::Finished) {
+                        self.world = None;
+                    }
                 }
                 Ok(Command::Stop { reason, done }) => {
                     self.abort_if_unfinished(&reason);
@@ -461,7 +466,6 @@ impl<W: World> Actor<W> {
             return Err(ToolError::environment());
         }
         self.phase = Phase::Finished;
-        self.world = None;
         self.update_status();
         Ok(payload)
     }

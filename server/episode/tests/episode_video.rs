@@ -248,10 +248,11 @@ fn the_video_has_one_decodable_512x256_frame_per_control_step_when_the_episode_f
     assert_eq!(h.call("osc_sequence", actions(3))["ok"], true);
     // A refused call runs no control step and adds no frame.
     assert_eq!(h.call("osc_sequence", json!({"actions": [[2, 0, 0, 0, 0, 0, 0]]}).as_object().cloned())["ok"], false);
-    // finish ends the episode whatever the verdict (FAIL/SUCCESS, or INVALID while no evaluator exists);
-    // the video is complete when the reply arrives.
+    // finish ends the episode whatever the verdict; the reply comes first and the actor finalises the video
+    // right after it, before it takes the next command (so `stop` returns once the file is in place).
     let _ = h.call("finish_episode", None);
     assert_ne!(h.status().state, EpisodeState::Active);
+    h.stop("test over");
     check_video(&run, SETTLE_STEPS + 8);
 }
 
