@@ -17,7 +17,8 @@ pub fn repo_root() -> PathBuf {
 }
 
 pub fn reference_dir() -> PathBuf {
-    repo_root().join("../shared/reference/ref")
+    let beside_clone = repo_root().join("../shared/reference/ref");
+    if beside_clone.is_dir() { beside_clone } else { std::path::PathBuf::from("/work/shared/reference/ref") }
 }
 
 /// The compiled LIBERO scenes of `shared/reference/ref/` (sorted).

@@ -71,6 +71,8 @@ pub fn golden_dir() -> PathBuf {
     std::env::var_os("LIBERO_GOLDEN_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/golden"))
+        .canonicalize()
+        .unwrap_or_else(|_| PathBuf::from("/work/shared/reference/golden"))
 }
 
 /// Names `<suite>__<task>` of every `__seqA.json` golden file, sorted.
