@@ -48,6 +48,87 @@ pub struct LiberoWorld {
     evaluator: Box<dyn Evaluator>,
     /// Control steps since the evaluator reset.
     control_step: u64,
+    /// LIBERO's per-step stove-burner visibility, applied to every rendered frame.
+    toggles: VisualToggles,
+}
+
+/// LIBERO's `_post_process`: after every control step, the visual sites of a fixture that can be turned on (the
+/// stove's red burner ring) are shown iff it is on (`alpha ← 1 − alpha` when sign and state disagree). The model
+/// is shared read-only, so the world keeps the alphas and hands them to the renderer with each frame. An image
+/// shows the alphas from before the latest step's toggle, as LIBERO renders the observation first (port notes §4.3).
+struct VisualToggles {
+    fixtures: Vec<TurnOnFixture>,
+    /// `(site id, alpha)` after `set_init_state`'s toggle.
+    initial: Vec<(usize, f32)>,
+    current: Vec<(usize, f32)>,
+    shown: Vec<(usize, f32)>,
+}
+
+struct TurnOnFixture {
+    /// `qpos` addresses of its hinge/slide joints; the last one decides, as LIBERO's loop over joints does.
+    qpos_adr: Vec<usize>,
+    on_at: f64,
+    /// Indices into `current`.
+    sites: Vec<usize>,
+}
+
+impl VisualToggles {
+    fn new(scene: &ComposedScene, model: &MjModel) -> Self {
+        let mut fixtures = Vec::new();
+        let mut initial = Vec::new();
+        for inst in scene.objects.iter().chain(&scene.fixtures) {
+            let Some(on) = inst.articulation.as_ref().and_then(|a| a.turn_on) else { continue };
+            let qpos_adr = inst
+                .joints
+                .iter()
+                .filter_map(|j| model.name_to_id(MjtObjBase::mjOBJ_JOINT, j))
+                .filter(|&id| model.jnt_type()[id] != libero_sim::mujoco_rs::prelude::MjtJoint::mjJNT_FREE)
+                .map(|id| model.jnt_qposadr()[id] as usize)
+                .collect();
+            let mut sites = Vec::new();
+            for name in &inst.vis_sites {
+                if let Some(id) = model.name_to_id(MjtObjBase::mjOBJ_SITE, name) {
+                    sites.push(initial.len());
+                    initial.push((id, model.site_rgba()[id][3] as f32));
+                }
+            }
+            fixtures.push(TurnOnFixture { qpos_adr, on_at: on[0].min(on[1]), sites });
+        }
+        Self { fixtures, current: initial.clone(), shown: initial.clone(), initial }
+    }
+
+    fn reset(&mut self) {
+        self.current.clone_from(&self.initial);
+        self.shown.clone_from(&self.initial);
+    }
+
+    /// After a control step: the frame keeps the alphas it was rendered with, then the toggle runs.
+    fn after_step(&mut self, qpos: &[f64]) {
+        self.shown.clone_from(&self.current);
+        for f in &self.fixtures {
+            let Some(&adr) = f.qpos_adr.last() else { continue };
+            let on = qpos.get(adr).is_some_and(|&q| q >= f.on_at);
+            for &k in &f.sites {
+                let a = self.current[k].1;
+                if (a <= 0.0 && on) || (a > 0.0 && !on) {
+                    self.current[k].1 = 1.0 - a;
+                }
+            }
+        }
+    }
+
+    fn apply(&self, state: &mut FrameState) {
+        for &(id, alpha) in &self.shown {
+            if let Some(rgba) = state.site_rgba.get_mut(id) {
+                rgba[3] = alpha;
+            }
+        }
+    }
+
+    /// Whether any turn-on visual site is visible in the next image.
+    fn any_shown(&self) -> bool {
+        self.shown.iter().any(|&(_, a)| a > 0.0)
+    }
 }
 
 impl LiberoWorld {
@@ -78,7 +159,13 @@ impl LiberoWorld {
         };
         let base_body = robot_base_body(&sim)?;
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
-        Ok(Self { sim, start_row, renderer, gpu_model, base_body, level: spec.level, evaluator, control_step: 0 })
+        let toggles = VisualToggles::new(&scene, &model);
+        Ok(Self { sim, start_row, renderer, gpu_model, base_body, level: spec.level, evaluator, control_step: 0, toggles })
+    }
+
+    /// Whether the next image shows a turned-on fixture's visual site (the stove's burner ring).
+    pub fn burner_shown(&self) -> bool {
+        self.toggles.any_shown()
     }
 
     pub fn simulation(&self) -> &Simulation {
@@ -111,7 +198,8 @@ impl LiberoWorld {
             CameraRequest::named(HEAD_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
             CameraRequest::named(WRIST_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
         ];
-        let state = FrameState::from_mujoco(self.sim.model(), self.sim.data());
+        let mut state = FrameState::from_mujoco(self.sim.model(), self.sim.data());
+        self.toggles.apply(&mut state);
         let mut frames = self
             .renderer
             .render(&self.gpu_model, &state, &requests, &RenderOptions::default())
@@ -189,8 +277,10 @@ fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, Ep
 impl World for LiberoWorld {
     fn start(&mut self) -> Result<(), EpisodeError> {
         self.sim.set_init_state(&self.start_row)?;
+        self.toggles.reset();
         for _ in 0..SETTLE_STEPS {
             self.sim.step([0.0; 7])?;
+            self.toggles.after_step(self.sim.data().qpos());
         }
         self.control_step = 0;
         self.evaluator.reset(self.sim.data(), self.tick(None));
@@ -209,6 +299,7 @@ impl World for LiberoWorld {
             self.sim.step(*action)?;
         }
         self.control_step = step;
+        self.toggles.after_step(self.sim.data().qpos());
         self.evaluator.observe_control_step(self.sim.data(), self.tick(None));
         Ok(())
     }

@@ -59,3 +59,27 @@ fn pruned_release_tasks_start_from_the_seeded_placement_unsolved() {
         assert_eq!(v.private_evaluation["task_id"], id);
     }
 }
+
+/// LIBERO shows the stove's red burner ring after every step in which the knob is on (its `_post_process`), and
+/// the image of a step still shows the state before that step's toggle.
+#[test]
+fn the_burner_ring_appears_one_step_after_the_stove_is_turned_on() {
+    let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
+    let spec = WorldSpec { task: resolve_task("T17", &paths).unwrap(), level: Level::L1, seed: 100, init_index: 0, paths };
+    let mut world = LiberoWorld::new(&spec, Renderer::new().expect("renderer")).unwrap();
+    world.start().unwrap();
+    assert!(!world.burner_shown(), "the stove starts off");
+    let model = world.simulation().model().clone();
+    let knob = model.name_to_id(MjtObjBase::mjOBJ_JOINT, "flat_stove_1_button").expect("knob joint");
+    let adr = 1 + model.jnt_qposadr()[knob] as usize;
+    world.edit_current_state(|row| row[adr] = 1.0).unwrap();
+    let hold: MicroAction = [0.0; 7];
+    world.step(&hold).unwrap();
+    assert!(!world.burner_shown(), "the image of the step that found the knob on predates the toggle");
+    world.step(&hold).unwrap();
+    assert!(world.burner_shown(), "one step later the ring is visible");
+    world.edit_current_state(|row| row[adr] = 0.0).unwrap();
+    world.step(&hold).unwrap();
+    world.step(&hold).unwrap();
+    assert!(!world.burner_shown(), "turned off, the ring disappears again");
+}
