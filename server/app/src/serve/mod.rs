@@ -274,15 +274,34 @@ fn bearer(headers: &HeaderMap) -> Option<&str> {
 }
 
 /// The token check happens here, before rmcp sees any byte; unknown episode and wrong token look the same.
+/// Largest MCP request body read; a 50-action `osc_sequence` is a few kilobytes.
+const MAX_MCP_BODY_BYTES: usize = 4 << 20;
+
 async fn mcp_endpoint(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
     let Some(service) = app.episodes.authorize(&id, bearer(req.headers())) else {
+        // The body is not read: close the connection so a keep-alive client never reuses it mid-body.
         return (
             StatusCode::UNAUTHORIZED,
-            [(header::WWW_AUTHENTICATE, "Bearer")],
+            [(header::WWW_AUTHENTICATE, "Bearer"), (header::CONNECTION, "close")],
             axum::Json(json!({"ok": false, "error": "missing or invalid episode token"})),
         )
             .into_response();
     };
+    // Read the whole body before the MCP service sees it: the service may answer early (415, 413) without
+    // reading it, which would leave the rest on a kept-alive connection and break the client's next request.
+    let (parts, body) = req.into_parts();
+    let bytes = match axum::body::to_bytes(body, MAX_MCP_BODY_BYTES).await {
+        Ok(b) => b,
+        Err(_) => {
+            return (
+                StatusCode::PAYLOAD_TOO_LARGE,
+                [(header::CONNECTION, "close")],
+                axum::Json(json!({"ok": false, "error": format!("request body over {MAX_MCP_BODY_BYTES} bytes")})),
+            )
+                .into_response();
+        }
+    };
+    let req = Request::from_parts(parts, Body::from(bytes));
     use tower_service::Service;
     let mut service = service;
     match service.call(req).await {
