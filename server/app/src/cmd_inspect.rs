@@ -3,11 +3,12 @@
 //! masses, plus the composer's object/fixture/region tables).
 use std::path::PathBuf;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use libero_sim::compose::compose_file;
+use libero_sim::scene_setup::PreparedScene;
 use libero_sim::mujoco_rs::prelude::*;
-use libero_sim::placement::{Placement, update_visual_sites};
-use libero_sim::{AssetPaths, InitStates};
+use libero_sim::placement::update_visual_sites;
+use libero_sim::AssetPaths;
 use serde_json::{Value, json};
 
 /// Arguments of `sim inspect`.
@@ -37,44 +38,26 @@ fn name(m: &MjModel, ty: MjtObjBase, id: usize) -> Value {
 /// Compose, place and dump; returns the JSON document.
 pub fn inspect(args: &InspectArgs) -> anyhow::Result<Value> {
     let paths = AssetPaths::discover()?;
-    let scene = compose_file(&args.bddl, &paths).with_context(|| format!("composing {}", args.bddl.display()))?;
-    let mut model = scene.compile()?;
-    let placement = Placement::sample(&scene, args.seed, Some(&model))?;
-    placement.apply(&mut model)?;
-    let nq = model.ffi().nq as usize;
-    let nv = model.ffi().nv as usize;
+    let init = args.init_file.as_deref().map(|f| (f, args.init_index));
+    let prepared = PreparedScene::prepare(&args.bddl, &paths, args.seed, init)
+        .with_context(|| format!("setting up {}", args.bddl.display()))?;
+    let nq = prepared.model.ffi().nq as usize;
+    let nv = prepared.model.ffi().nv as usize;
+    let row = prepared.start_row.clone();
+    let (scene, mut model, placement) = (prepared.scene, prepared.model, prepared.placement);
     let mut init_state = Value::Null;
-    let row: Option<Vec<f64>> = match &args.init_file {
-        Some(file) => {
-            let states = InitStates::read(file)?;
-            let row = states.get(args.init_index)?.to_vec();
-            if row.len() != 1 + nq + nv {
-                bail!("init state has {} values, this model needs 1 + nq + nv = {}", row.len(), 1 + nq + nv);
-            }
-            // LIBERO's stove-burner toggle after set_init_state
-            update_visual_sites(&scene, &mut model, &row[1..1 + nq])?;
-            Some(row)
-        }
-        None => None,
-    };
-    let mut data = MjData::new(&model);
-    if let (Some(file), Some(row)) = (&args.init_file, &row) {
-        data.qpos_mut().copy_from_slice(&row[1..1 + nq]);
-        data.qvel_mut().copy_from_slice(&row[1 + nq..]);
-        // SAFETY: plain scalar write into the data this function owns.
-        unsafe { data.ffi_mut().time = row[0] };
+    if let Some(file) = &args.init_file {
+        // LIBERO's stove-burner toggle after set_init_state
+        update_visual_sites(&scene, &mut model, &row[1..1 + nq])?;
         init_state = json!({"file": file, "index": args.init_index, "time": row[0]});
-    } else {
-        // the state LIBERO has right after reset(): robot at init_qpos, objects and articulations as sampled
-        let mut qpos = model.qpos0().to_vec();
-        for (k, v) in libero_sim::placement::PANDA_INIT_QPOS.iter().enumerate() {
-            if let Some(id) = model.name_to_id(MjtObjBase::mjOBJ_JOINT, &format!("robot0_joint{}", k + 1)) {
-                qpos[model.jnt_qposadr()[id] as usize] = *v;
-            }
-        }
-        placement.write_qpos(&model, &mut qpos)?;
-        data.qpos_mut().copy_from_slice(&qpos);
     }
+    // The init row, or the state LIBERO has right after reset(): robot at init_qpos, objects and articulations
+    // as sampled.
+    let mut data = MjData::new(&model);
+    data.qpos_mut().copy_from_slice(&row[1..1 + nq]);
+    data.qvel_mut().copy_from_slice(&row[1 + nq..1 + nq + nv]);
+    // SAFETY: plain scalar write into the data this function owns.
+    unsafe { data.ffi_mut().time = row[0] };
     data.forward();
     let m = &model;
     let bodies: Vec<Value> = (0..m.ffi().nbody as usize)

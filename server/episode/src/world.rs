@@ -7,7 +7,7 @@ use std::sync::Arc;
 use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
 use libero_sim::compose::{ComposedScene, compose_file};
 use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
-use libero_sim::placement::{Placement, update_visual_sites};
+use libero_sim::placement::{Placement, TurnOnSites, update_visual_sites};
 use libero_sim::{AssetPaths, InitStates, Simulation};
 use libero_tasks::{Evaluator, Tick, build_evaluator};
 
@@ -52,49 +52,22 @@ pub struct LiberoWorld {
     toggles: VisualToggles,
 }
 
-/// LIBERO's `_post_process`: after every control step, the visual sites of a fixture that can be turned on (the
-/// stove's red burner ring) are shown iff it is on (`alpha ← 1 − alpha` when sign and state disagree). The model
-/// is shared read-only, so the world keeps the alphas and hands them to the renderer with each frame. An image
-/// shows the alphas from before the latest step's toggle, as LIBERO renders the observation first (port notes §4.3).
+/// LIBERO's `_post_process` after every control step ([`TurnOnSites`]: the stove's burner ring shows iff it is
+/// on). The model is shared read-only, so the world keeps the site colours and hands them to the renderer with
+/// each frame. An image shows the colours from before the latest step's toggle, as LIBERO renders the
+/// observation first (port notes §4.3).
 struct VisualToggles {
-    fixtures: Vec<TurnOnFixture>,
-    /// `(site id, alpha)` after `set_init_state`'s toggle.
-    initial: Vec<(usize, f32)>,
-    current: Vec<(usize, f32)>,
-    shown: Vec<(usize, f32)>,
-}
-
-struct TurnOnFixture {
-    /// `qpos` addresses of its hinge/slide joints; the last one decides, as LIBERO's loop over joints does.
-    qpos_adr: Vec<usize>,
-    on_at: f64,
-    /// Indices into `current`.
-    sites: Vec<usize>,
+    sites: TurnOnSites,
+    /// `site_rgba` after `set_init_state`'s toggle.
+    initial: Vec<[f32; 4]>,
+    current: Vec<[f32; 4]>,
+    shown: Vec<[f32; 4]>,
 }
 
 impl VisualToggles {
-    fn new(scene: &ComposedScene, model: &MjModel) -> Self {
-        let mut fixtures = Vec::new();
-        let mut initial = Vec::new();
-        for inst in scene.objects.iter().chain(&scene.fixtures) {
-            let Some(on) = inst.articulation.as_ref().and_then(|a| a.turn_on) else { continue };
-            let qpos_adr = inst
-                .joints
-                .iter()
-                .filter_map(|j| model.name_to_id(MjtObjBase::mjOBJ_JOINT, j))
-                .filter(|&id| model.jnt_type()[id] != libero_sim::mujoco_rs::prelude::MjtJoint::mjJNT_FREE)
-                .map(|id| model.jnt_qposadr()[id] as usize)
-                .collect();
-            let mut sites = Vec::new();
-            for name in &inst.vis_sites {
-                if let Some(id) = model.name_to_id(MjtObjBase::mjOBJ_SITE, name) {
-                    sites.push(initial.len());
-                    initial.push((id, model.site_rgba()[id][3] as f32));
-                }
-            }
-            fixtures.push(TurnOnFixture { qpos_adr, on_at: on[0].min(on[1]), sites });
-        }
-        Self { fixtures, current: initial.clone(), shown: initial.clone(), initial }
+    fn new(scene: &ComposedScene, model: &MjModel) -> Result<Self, EpisodeError> {
+        let initial = model.site_rgba().to_vec();
+        Ok(Self { sites: TurnOnSites::new(scene, model)?, current: initial.clone(), shown: initial.clone(), initial })
     }
 
     fn reset(&mut self) {
@@ -102,32 +75,23 @@ impl VisualToggles {
         self.shown.clone_from(&self.initial);
     }
 
-    /// After a control step: the frame keeps the alphas it was rendered with, then the toggle runs.
+    /// After a control step: the frame keeps the colours it was rendered with, then the toggle runs.
     fn after_step(&mut self, qpos: &[f64]) {
         self.shown.clone_from(&self.current);
-        for f in &self.fixtures {
-            let Some(&adr) = f.qpos_adr.last() else { continue };
-            let on = qpos.get(adr).is_some_and(|&q| q >= f.on_at);
-            for &k in &f.sites {
-                let a = self.current[k].1;
-                if (a <= 0.0 && on) || (a > 0.0 && !on) {
-                    self.current[k].1 = 1.0 - a;
-                }
-            }
-        }
+        self.sites.toggle(qpos, &mut self.current);
     }
 
     fn apply(&self, state: &mut FrameState) {
-        for &(id, alpha) in &self.shown {
-            if let Some(rgba) = state.site_rgba.get_mut(id) {
-                rgba[3] = alpha;
+        for id in self.sites.site_ids() {
+            if let (Some(rgba), Some(shown)) = (state.site_rgba.get_mut(id), self.shown.get(id)) {
+                rgba[3] = shown[3];
             }
         }
     }
 
     /// Whether any turn-on visual site is visible in the next image.
     fn any_shown(&self) -> bool {
-        self.shown.iter().any(|&(_, a)| a > 0.0)
+        self.sites.site_ids().any(|id| self.shown.get(id).is_some_and(|c| c[3] > 0.0))
     }
 }
 
@@ -159,7 +123,7 @@ impl LiberoWorld {
         };
         let base_body = robot_base_body(&sim)?;
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
-        let toggles = VisualToggles::new(&scene, &model);
+        let toggles = VisualToggles::new(&scene, &model)?;
         Ok(Self { sim, start_row, renderer, gpu_model, base_body, level: spec.level, evaluator, control_step: 0, toggles })
     }
 

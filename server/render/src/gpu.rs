@@ -137,15 +137,16 @@ struct Shape {
     lods: LodRanges,
 }
 
-/// Up to four simplified levels of one mesh inside the model's index buffer.
+/// Up to four simplified levels of one mesh inside the model's index buffer (fine to coarse).
 #[derive(Clone, Copy, Default)]
 struct LodRanges {
-    levels: [Option<lod::LevelRange>; lod::LEVEL_ERRORS_M.len()],
+    levels: [lod::LevelRange; lod::LEVEL_ERRORS_M.len()],
+    count: usize,
 }
 
 impl LodRanges {
-    fn ranges(&self) -> impl Iterator<Item = lod::LevelRange> + '_ {
-        self.levels.iter().flatten().copied()
+    fn ranges(&self) -> &[lod::LevelRange] {
+        &self.levels[..self.count]
     }
 }
 
@@ -191,10 +192,11 @@ impl GeometryBuilder {
             })
             .collect();
         let mut lods = LodRanges::default();
-        for (slot, level) in lod::simplified_levels(&local_vertices, &local_indices).into_iter().enumerate() {
+        for level in lod::simplified_levels(&local_vertices, &local_indices) {
             let first_index = self.indices.len() as u32;
             self.indices.extend(level.indices.iter().map(|&l| global_of[l as usize]));
-            lods.levels[slot] = Some(lod::LevelRange { first_index, index_count: level.indices.len() as u32, error_m: level.error_m });
+            lods.levels[lods.count] = lod::LevelRange { first_index, index_count: level.indices.len() as u32, error_m: level.error_m };
+            lods.count += 1;
         }
         (exact, lods)
     }
@@ -990,12 +992,12 @@ impl CameraLod {
     /// the draw's bounding sphere allows, else the exact mesh.
     fn index_range(&self, d: &Draw) -> (u32, u32) {
         let exact = (d.shape.first_vertex, d.shape.vertex_count);
-        if d.shape.lods.levels[0].is_none() {
+        let levels = d.shape.lods.ranges();
+        if levels.is_empty() {
             return exact;
         }
         let nearest_m = (Vec3::from(d.center) - self.eye).length() - d.cull_radius;
-        let levels: Vec<lod::LevelRange> = d.shape.lods.ranges().collect();
-        match lod::pick(&levels, self.budget.allowed_error_m(nearest_m)) {
+        match lod::pick(levels, self.budget.allowed_error_m(nearest_m)) {
             Some(l) => (l.first_index, l.index_count),
             None => exact,
         }

@@ -54,7 +54,7 @@ pub fn simplified_levels(vertices: &[Vertex], indices: &[u32]) -> Vec<Level> {
 }
 
 /// A level's place in the model's index buffer.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct LevelRange {
     pub first_index: u32,
     pub index_count: u32,

@@ -22,7 +22,7 @@ use crate::numpy_rng::NumpyRandomState;
 use crate::SimError;
 
 /// Panda arm `init_qpos` of LIBERO's MountedPanda / OnTheGroundPanda (rad).
-pub const PANDA_INIT_QPOS: [f64; 7] = [0.0, -1.61037389e-01, 0.00, -2.44459747e00, 0.00, 2.22675220e00, std::f64::consts::FRAC_PI_4];
+pub const PANDA_INIT_QPOS: [f64; 7] = crate::robot::ARM_INIT_QPOS_RAD;
 /// Panda gripper `init_qpos` (m).
 pub const GRIPPER_INIT_QPOS: [f64; 2] = [0.020833, -0.020833];
 
@@ -394,29 +394,69 @@ impl Placement {
     }
 }
 
-/// LIBERO `set_visualization` after a state change: a visual-state site (flat_stove burner) shows iff its
-/// stove is on (knob angle ≥ min turn-on range), toggling alpha ← 1 − alpha when sign and state disagree.
-pub fn update_visual_sites(scene: &ComposedScene, model: &mut MjModel, qpos: &[f64]) -> Result<(), SimError> {
-    for inst in scene.objects.iter().chain(&scene.fixtures) {
-        let Some(art) = &inst.articulation else { continue };
-        let (Some(on), false) = (art.turn_on, inst.vis_sites.is_empty()) else { continue };
-        let mut visible = false;
-        for j in &inst.joints {
-            let Some(id) = model.name_to_id(MjtObjBase::mjOBJ_JOINT, j) else { continue };
-            if model.jnt_type()[id] == MjtJoint::mjJNT_FREE {
-                continue;
-            }
-            // FlatStove.turn_on on each joint; the last evaluation decides the flag
-            visible = qpos[model.jnt_qposadr()[id] as usize] >= on[0].min(on[1]);
+/// The visual sites of fixtures that can be turned on (the stove's red burner ring) and LIBERO's rule for them
+/// (`_post_process` after every step, and `set_init_state`): `alpha ← 1 − alpha` whenever the alpha's sign
+/// disagrees with the fixture's on-state (q ≥ the lower `turn_on` bound of its last non-free joint).
+#[derive(Debug, Clone)]
+pub struct TurnOnSites {
+    fixtures: Vec<TurnOnFixture>,
+}
+
+#[derive(Debug, Clone)]
+struct TurnOnFixture {
+    /// `qpos` address of the last hinge/slide joint (LIBERO's loop over joints keeps the last evaluation).
+    qpos_adr: Option<usize>,
+    on_at: f64,
+    site_ids: Vec<usize>,
+}
+
+impl TurnOnSites {
+    pub fn new(scene: &ComposedScene, model: &MjModel) -> Result<Self, SimError> {
+        let mut fixtures = Vec::new();
+        for inst in scene.objects.iter().chain(&scene.fixtures) {
+            let Some(art) = &inst.articulation else { continue };
+            let (Some(on), false) = (art.turn_on, inst.vis_sites.is_empty()) else { continue };
+            let qpos_adr = inst
+                .joints
+                .iter()
+                .filter_map(|j| model.name_to_id(MjtObjBase::mjOBJ_JOINT, j))
+                .filter(|&id| model.jnt_type()[id] != MjtJoint::mjJNT_FREE)
+                .map(|id| model.jnt_qposadr()[id] as usize)
+                .last();
+            let site_ids = inst
+                .vis_sites
+                .iter()
+                .map(|s| model.name_to_id(MjtObjBase::mjOBJ_SITE, s).ok_or_else(|| SimError::Input(format!("model has no site `{s}`"))))
+                .collect::<Result<_, _>>()?;
+            fixtures.push(TurnOnFixture { qpos_adr, on_at: on[0].min(on[1]), site_ids });
         }
-        for s in &inst.vis_sites {
-            let id = model.name_to_id(MjtObjBase::mjOBJ_SITE, s).ok_or_else(|| SimError::Input(format!("model has no site `{s}`")))?;
-            let a = model.site_rgba()[id][3];
-            if (a <= 0.0 && visible) || (a > 0.0 && !visible) {
-                model.site_rgba_mut()[id][3] = 1.0 - a;
+        Ok(Self { fixtures })
+    }
+
+    /// Ids of every site the rule may toggle.
+    pub fn site_ids(&self) -> impl Iterator<Item = usize> + '_ {
+        self.fixtures.iter().flat_map(|f| f.site_ids.iter().copied())
+    }
+
+    /// Applies the rule for `qpos` to `site_rgba` (indexed by site id, as `MjModel::site_rgba`).
+    pub fn toggle(&self, qpos: &[f64], site_rgba: &mut [[f32; 4]]) {
+        for f in &self.fixtures {
+            let on = f.qpos_adr.is_some_and(|a| qpos[a] >= f.on_at);
+            for &id in &f.site_ids {
+                let a = site_rgba[id][3];
+                if (a <= 0.0 && on) || (a > 0.0 && !on) {
+                    site_rgba[id][3] = 1.0 - a;
+                }
             }
         }
     }
+}
+
+/// LIBERO `set_visualization` after a state change: a visual-state site (flat_stove burner) shows iff its
+/// stove is on (knob angle ≥ min turn-on range), toggling alpha ← 1 − alpha when sign and state disagree.
+pub fn update_visual_sites(scene: &ComposedScene, model: &mut MjModel, qpos: &[f64]) -> Result<(), SimError> {
+    let sites = TurnOnSites::new(scene, model)?;
+    sites.toggle(qpos, model.site_rgba_mut());
     Ok(())
 }
 
@@ -446,15 +486,20 @@ fn site_region_sample(
         let x = rng.uniform(xr[idx][0] + r, xr[idx][1] - r) + base[0] + site[0];
         let y = rng.uniform(yr[idx][0] + r, yr[idx][1] - r) + base[1] + site[1];
         let z = 0.0 + base[2] + site[2] - bottom;
-        let valid = placed.iter().all(|p| {
-            let (dx, dy) = (x - p.pos[0], y - p.pos[1]);
-            !((dx * dx + dy * dy).sqrt() <= p.radius + r && z - p.pos[2] <= p.top_z - bottom)
-        });
-        if valid {
+        if clear_of(placed, [x, y, z], r, bottom) {
             return Ok(([x, y, z], sample_rotation(rng, &obj.rotation)));
         }
     }
     Err(SimError::Input(format!("placement of `{}` failed after 5000 tries (LIBERO raises RandomizationError)", obj.name)))
+}
+
+/// robosuite's sampler collision test: a candidate is rejected when it overlaps a placed object horizontally and
+/// is not above it.
+fn clear_of(placed: &[Placed], [x, y, z]: [f64; 3], radius: f64, bottom: f64) -> bool {
+    placed.iter().all(|p| {
+        let (dx, dy) = (x - p.pos[0], y - p.pos[1]);
+        !((dx * dx + dy * dy).sqrt() <= p.radius + radius && z - p.pos[2] <= p.top_z - bottom)
+    })
 }
 
 /// `InSiteRegionRandomSampler.sample`: ranges `[(0, 0)]` (still drawn), the object at the site's xy,
@@ -473,11 +518,7 @@ fn in_site_sample(
         let x = rng.uniform(0.0, 0.0) + base[0] + site[0];
         let y = rng.uniform(0.0, 0.0) + base[1] + site[1];
         let z = 0.0 + base[2] + site[2] - bottom;
-        let valid = placed.iter().all(|p| {
-            let (dx, dy) = (x - p.pos[0], y - p.pos[1]);
-            !((dx * dx + dy * dy).sqrt() <= p.radius + r && z - p.pos[2] <= p.top_z - bottom)
-        });
-        if valid {
+        if clear_of(placed, [x, y, z], r, bottom) {
             return Ok(([x, y, z], sample_rotation(rng, &obj.rotation)));
         }
     }
