@@ -17,13 +17,12 @@ use libero_episode::{Level, MicroAction};
 use libero_render::{FrameState, Renderer};
 use serde_json::{Value, json};
 
-use crate::cmd_mcp_stdio::messages_of;
-use crate::serve::http_client::{HttpUrl, request};
+use crate::serve::episodes::PrepareRequest;
+use crate::serve::mcp_client::{McpClient, prepare_on_server};
 use crate::serve::{ServeArgs, serve_until};
 
 pub const DEFAULT_TASK: &str = "libero_90/KITCHEN_SCENE10_close_the_top_drawer_of_the_cabinet";
 /// Per-request timeout of the benchmark's client (a debug build under load can take seconds per call).
-const CALL_TIMEOUT: Duration = Duration::from_secs(600);
 
 /// Arguments of `bench mcp`.
 #[derive(Debug, Clone, clap::Args)]
@@ -70,81 +69,11 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-/// One MCP client session over streamable HTTP (what the Python SDK does in legacy mode).
-struct McpClient {
-    url: HttpUrl,
-    headers: Vec<(String, String)>,
-    next_id: u64,
-}
-
-impl McpClient {
-    fn connect(mcp_url: &str, token: &str) -> anyhow::Result<Self> {
-        let headers = vec![
-            ("Authorization".to_owned(), format!("Bearer {token}")),
-            ("Content-Type".to_owned(), "application/json".to_owned()),
-            ("Accept".to_owned(), "application/json, text/event-stream".to_owned()),
-        ];
-        let mut c = Self { url: HttpUrl::parse(mcp_url)?, headers, next_id: 1 };
-        let init = json!({"protocolVersion": "2025-06-18", "capabilities": {},
-            "clientInfo": {"name": "libero-agent-bench", "version": env!("CARGO_PKG_VERSION")}});
-        let (reply, session) = c.post("initialize", init)?;
-        if reply.get("result").is_none() {
-            bail!("initialize failed: {reply}");
-        }
-        if let Some(s) = session {
-            c.headers.push(("Mcp-Session-Id".to_owned(), s));
-        }
-        if let Some(v) = reply.pointer("/result/protocolVersion").and_then(Value::as_str) {
-            c.headers.push(("Mcp-Protocol-Version".to_owned(), v.to_owned()));
-        }
-        let note = json!({"jsonrpc": "2.0", "method": "notifications/initialized"});
-        let resp = request("POST", &c.url, &c.headers, note.to_string().as_bytes(), CALL_TIMEOUT)?;
-        if resp.status >= 400 {
-            bail!("notifications/initialized: HTTP {}", resp.status);
-        }
-        Ok(c)
-    }
-
-    fn post(&mut self, method: &str, params: Value) -> anyhow::Result<(Value, Option<String>)> {
-        let id = self.next_id;
-        self.next_id += 1;
-        let body = json!({"jsonrpc": "2.0", "id": id, "method": method, "params": params});
-        let resp = request("POST", &self.url, &self.headers, body.to_string().as_bytes(), CALL_TIMEOUT)?;
-        if resp.status >= 400 {
-            bail!("{method}: HTTP {}: {}", resp.status, String::from_utf8_lossy(&resp.body));
-        }
-        let session = resp.header("mcp-session-id").map(str::to_owned);
-        let reply = messages_of(&resp)
-            .into_iter()
-            .find(|m| m.get("id") == Some(&json!(id)))
-            .with_context(|| format!("{method}: no JSON-RPC reply with id {id}"))?;
-        Ok((reply, session))
-    }
-
-    /// `tools/call`; the tool's payload (`structuredContent`), which must say `ok: true`.
-    fn call_tool(&mut self, name: &str, arguments: Value) -> anyhow::Result<Value> {
-        let (reply, _) = self.post("tools/call", json!({"name": name, "arguments": arguments}))?;
-        let payload = reply.pointer("/result/structuredContent").cloned().with_context(|| format!("{name}: {reply}"))?;
-        if payload["ok"] != true {
-            bail!("{name} failed: {payload}");
-        }
-        Ok(payload)
-    }
-}
-
 /// Prepares one episode on the server; returns (mcp_url, token).
 fn prepare(base: &str, task: &str, level: u8, seed: u64) -> anyhow::Result<(String, String)> {
-    let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;
-    let body = json!({"task": task, "level": level, "seed": seed});
-    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
-    let resp = request("POST", &url, &headers, body.to_string().as_bytes(), CALL_TIMEOUT)?;
-    let v: Value = serde_json::from_slice(&resp.body).context("prepare reply is not JSON")?;
-    if resp.status != 201 {
-        bail!("prepare: HTTP {}: {v}", resp.status);
-    }
-    let token = v.pointer("/mcp_headers/Authorization").and_then(Value::as_str).context("no token")?;
-    let mcp_url = v["mcp_url"].as_str().context("no mcp_url")?;
-    Ok((mcp_url.to_owned(), token.trim_start_matches("Bearer ").to_owned()))
+    let req: PrepareRequest = serde_json::from_value(json!({"task": task, "level": level, "seed": seed}))?;
+    let (_, mcp_url, token) = prepare_on_server(base, &req)?;
+    Ok((mcp_url, token))
 }
 
 /// Drives `episodes` episodes concurrently (one client thread each) and returns every timed call's latency.

@@ -70,6 +70,7 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         workspace,
         wall_time_s: p.wall_time_s,
         max_agent_steps: p.max_agent_steps,
+        video: true,
     };
     let base = p.server.trim_end_matches('/');
     let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;

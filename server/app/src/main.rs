@@ -10,6 +10,8 @@ mod bench_mcp;
 #[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
+mod cmd_expert;
+#[cfg(feature = "episode-serve")]
 mod cmd_mcp_stdio;
 #[cfg(feature = "episode-serve")]
 mod serve;
@@ -43,6 +45,9 @@ enum Command {
     /// Episodes on a running server.
     #[cfg(feature = "episode-serve")]
     Episode(cmd_episode::EpisodeArgs),
+    /// Run a task's scripted privileged expert as episodes and print each result record as JSON.
+    #[cfg(feature = "episode-serve")]
+    Expert(cmd_expert::ExpertArgs),
     /// Relay stdio MCP to an episode's HTTP endpoint (for stdio-only agent harnesses).
     #[cfg(feature = "episode-serve")]
     McpStdio(cmd_mcp_stdio::McpStdioArgs),
@@ -72,6 +77,8 @@ fn main() -> anyhow::Result<()> {
         Command::Serve(a) => serve::run_serve(a),
         #[cfg(feature = "episode-serve")]
         Command::Episode(a) => cmd_episode::run_episode(a),
+        #[cfg(feature = "episode-serve")]
+        Command::Expert(a) => cmd_expert::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
     }

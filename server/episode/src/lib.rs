@@ -4,8 +4,10 @@
 pub mod actor;
 pub mod call;
 pub mod error;
+pub mod expert_run;
 pub mod json;
 pub mod observation;
+pub mod physics;
 pub mod publish;
 pub mod readout;
 pub mod records;

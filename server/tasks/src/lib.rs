@@ -5,6 +5,7 @@ pub mod catalog;
 pub mod commitment;
 pub mod error;
 pub mod evaluator;
+pub mod expert;
 pub mod factory;
 pub mod goal;
 pub mod predicates;

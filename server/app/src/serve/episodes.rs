@@ -47,6 +47,13 @@ pub struct PrepareRequest {
     pub wall_time_s: f64,
     #[serde(default = "default_max_agent_steps")]
     pub max_agent_steps: u64,
+    /// Record the private continuous video (default true; tests that only need verdicts turn it off).
+    #[serde(default = "default_video")]
+    pub video: bool,
+}
+
+fn default_video() -> bool {
+    true
 }
 
 fn default_level() -> u8 {
@@ -182,6 +189,12 @@ impl Episodes {
         tokens_equal(&entry.token, token).then(|| entry.service.clone())
     }
 
+    /// The in-process handle of an episode (for the CLI's own agents, never for requests).
+    pub fn handle(&self, id: &str) -> Option<EpisodeHandle> {
+        let map = self.map.read().ok()?;
+        map.get(id).map(|e| e.handle.clone())
+    }
+
     pub fn status(&self, id: &str) -> Option<EpisodeStatus> {
         let map = self.map.read().ok()?;
         map.get(id).map(|e| e.handle.status())
@@ -274,9 +287,12 @@ impl Episodes {
         let spec = WorldSpec { task: task.clone(), level, seed: req.seed, init_index: req.init_index, paths };
         let renderer = self.renderer()?;
         let video = run.continuous_video();
+        let record_video = req.video;
         let make_world = move || {
             let mut world = LiberoWorld::new(&spec, renderer)?;
-            world.record_video(&video)?;
+            if record_video {
+                world.record_video(&video)?;
+            }
             Ok(world)
         };
         let handle = spawn_episode(config, make_world)

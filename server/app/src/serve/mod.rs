@@ -5,6 +5,7 @@
 pub mod episodes;
 pub mod http_client;
 pub mod mcp;
+pub mod mcp_client;
 pub mod store;
 
 use std::collections::HashMap;

@@ -1,0 +1,182 @@
+//! `libero-agent expert --task T14 [--runs 3] [--behaviour solve] [--server URL]`: runs a task's scripted
+//! privileged expert as ordinary episodes (recorded like any other: action log, result, video) and prints each
+//! run's result record as one JSON object per line. With `--server`, the episodes are prepared on that server and
+//! driven over MCP, so they show in its dashboard; otherwise they run in this process under `--data`.
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use libero_episode::expert_run::{IDLE, ToolPort, run_expert, run_replica_only};
+use libero_episode::physics::WorldSpec;
+use libero_episode::records::read_result;
+use libero_episode::task::resolve_task;
+use libero_episode::{EpisodeError, Level, RunDir};
+use libero_sim::AssetPaths;
+use libero_tasks::expert;
+use serde_json::{Value, json};
+
+use crate::serve::default_data_dir;
+use crate::serve::episodes::{Episodes, PrepareRequest};
+use crate::serve::mcp_client::{McpClient, prepare_on_server};
+
+#[derive(clap::Args, Debug)]
+pub struct ExpertArgs {
+    /// Release task (`T14`, …).
+    #[arg(long)]
+    pub task: String,
+    /// How many episodes to run.
+    #[arg(long, default_value_t = 1)]
+    pub runs: u32,
+    /// `solve`, `idle` (start, then finish), or one of the task's near-miss behaviours (see `--list`).
+    #[arg(long, default_value = expert::SOLVE)]
+    pub behaviour: String,
+    /// List the tasks with experts and their behaviours, then exit.
+    #[arg(long)]
+    pub list: bool,
+    /// A running `libero-agent serve` to run the episodes on (watchable in its dashboard).
+    #[arg(long)]
+    pub server: Option<String>,
+    /// Data directory for in-process runs (default: as `serve`).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    #[arg(long, default_value_t = 1)]
+    pub level: u8,
+    #[arg(long, default_value_t = 100)]
+    pub seed: u64,
+    /// Tuning aid: run the script on a bare replica (no episode, no rendering) and print every step as JSON
+    /// (phase, action, end-effector, fingers, and the joints named by `--watch-joint`), then the record.
+    #[arg(long)]
+    pub trace: bool,
+    /// Joint whose qpos `--trace` prints (repeatable).
+    #[arg(long = "watch-joint")]
+    pub watch_joints: Vec<String>,
+    /// Do not record the private continuous video (faster; verdicts and action logs are unaffected).
+    #[arg(long)]
+    pub no_video: bool,
+    /// Upper bound on the actions one run may send.
+    #[arg(long, default_value_t = 3000)]
+    pub max_actions: u64,
+}
+
+struct McpPort(McpClient);
+
+impl ToolPort for McpPort {
+    fn call_tool(&mut self, tool: &str, arguments: Value) -> Result<Value, EpisodeError> {
+        self.0.call_tool_payload(tool, arguments).map_err(|e| EpisodeError::Task(format!("{e:#}")))
+    }
+}
+
+/// Tasks of the catalog with an expert, and their behaviours.
+fn list() -> anyhow::Result<()> {
+    let catalog = libero_tasks::Catalog::discover()?;
+    for entry in catalog.tasks() {
+        if let Some(b) = expert::behaviours(&entry.id) {
+            let all: Vec<&str> = [expert::SOLVE, IDLE].into_iter().chain(b.iter().copied()).collect();
+            let line = json!({"task": entry.id, "behaviours": all});
+            println!("{line}");
+        }
+    }
+    Ok(())
+}
+
+pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
+    if args.list {
+        return list();
+    }
+    let task_id = args.task.trim().to_ascii_uppercase();
+    if expert::behaviours(&task_id).is_none() {
+        bail!("task {task_id} has no scripted expert (see `libero-agent expert --list`)");
+    }
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let level = Level::from_number(args.level).with_context(|| format!("--level must be 1, 2 or 3 (got {})", args.level))?;
+    let paths = AssetPaths::discover().context("assets are missing; run `python3 scripts/setup.py`")?;
+    let spec = WorldSpec { task: resolve_task(&task_id, &paths)?, level, seed: args.seed, init_index: 0, paths };
+    if args.trace {
+        return trace(args, &spec, &task_id);
+    }
+    let request = PrepareRequest {
+        task: task_id.clone(),
+        level: args.level,
+        seed: args.seed,
+        init_index: 0,
+        workspace: None,
+        wall_time_s: libero_episode::tools::DEFAULT_WALL_TIME_S,
+        max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
+        video: !args.no_video,
+    };
+    let local = match &args.server {
+        Some(_) => None,
+        None => Some(Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?),
+    };
+    let mut failures = 0;
+    for run_index in 1..=args.runs {
+        let progress = |line: &str| eprintln!("[{task_id} {} run {run_index}/{}] {line}", args.behaviour, args.runs);
+        let (episode_id, outcome, record) = match (&local, &args.server) {
+            (Some(episodes), _) => {
+                let prepared = episodes.prepare(request.clone())?;
+                let mut handle = episodes.handle(&prepared.episode_id).context("prepared episode vanished")?;
+                let outcome = run_expert(&mut handle, &spec, &task_id, &args.behaviour, args.max_actions, progress);
+                handle.stop("expert run over");
+                let record = read_result(&RunDir::new(&prepared.run_dir)).and_then(|r| r.get("private_evaluation").cloned());
+                (prepared.episode_id, outcome, record)
+            }
+            (None, Some(server)) => {
+                let (episode_id, mcp_url, token) = prepare_on_server(server, &request)?;
+                let mut port = McpPort(McpClient::connect(&mcp_url, &token)?);
+                let outcome = run_expert(&mut port, &spec, &task_id, &args.behaviour, args.max_actions, progress);
+                (episode_id, outcome, None)
+            }
+            (None, None) => unreachable!("either local or remote"),
+        };
+        let run = outcome.with_context(|| format!("{task_id} run {run_index} ({episode_id})"))?;
+        let record = record.unwrap_or_else(|| run.replica_record.clone());
+        let success = record["success"].as_bool().unwrap_or(false);
+        failures += u32::from(!success && args.behaviour == expert::SOLVE);
+        let line = json!({
+            "task": task_id,
+            "behaviour": args.behaviour,
+            "run": run_index,
+            "episode_id": episode_id,
+            "success": success,
+            "completed_stage_count": record["completed_required_stage_count"],
+            "required_stage_count": record["required_stage_count"],
+            "completed_stage_names": record["completed_stage_names"],
+            "failure_reason": record["failure_reason"],
+            "first_commitment": record["first_commitment"],
+            "osc_sequence_calls": run.osc_calls,
+            "actions": run.actions,
+        });
+        println!("{line}");
+    }
+    if failures > 0 {
+        bail!("the {task_id} expert failed {failures} of {} runs", args.runs);
+    }
+    Ok(())
+}
+
+fn trace(args: &ExpertArgs, spec: &WorldSpec, task_id: &str) -> anyhow::Result<()> {
+    let mut watch: Option<Vec<(String, usize)>> = None;
+    let record = run_replica_only(spec, task_id, &args.behaviour, args.max_actions, |t, sim| {
+        let watch = watch.get_or_insert_with(|| {
+            let model = sim.model();
+            args.watch_joints
+                .iter()
+                .filter_map(|n| {
+                    let j = model.name_to_id(libero_sim::mujoco_rs::prelude::MjtObjBase::mjOBJ_JOINT, n);
+                    if j.is_none() {
+                        eprintln!("warning: no joint {n:?}");
+                    }
+                    j.map(|j| (n.clone(), model.jnt_qposadr()[j] as usize))
+                })
+                .collect()
+        });
+        let mut line = json!(t);
+        for (name, adr) in watch.iter() {
+            line[name.as_str()] = json!(sim.data().qpos()[*adr]);
+        }
+        println!("{line}");
+    })?;
+    println!("{}", json!({"record": record}));
+    Ok(())
+}

@@ -1,0 +1,157 @@
+//! The physics half of a LIBERO world, without its renderer: the BDDL scene composed and compiled, LIBERO's
+//! seeded reset placement, the start row (trusted init state or the seeded placement), the simulation and the
+//! task's private evaluator. The episode world renders on top of it; a privileged expert steps a second copy in
+//! lockstep with the episode (determinism makes the two bit-identical), so it can read simulator state while
+//! acting only through `osc_sequence`.
+use std::sync::Arc;
+
+use libero_sim::compose::{ComposedScene, compose_file};
+use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::placement::Placement;
+use libero_sim::{AssetPaths, InitStates, Simulation};
+use libero_tasks::{Evaluator, Tick, build_evaluator};
+
+use crate::EpisodeError;
+use crate::call::MicroAction;
+use crate::observation::Level;
+use crate::task::TaskSource;
+
+/// Zero actions run after restoring the init state, before the first observation (§4.2).
+pub const SETTLE_STEPS: usize = 10;
+
+/// What to build.
+#[derive(Debug, Clone)]
+pub struct WorldSpec {
+    pub task: TaskSource,
+    pub level: Level,
+    pub seed: u64,
+    pub init_index: usize,
+    pub paths: AssetPaths,
+}
+
+/// A composed, placed scene with its simulation and evaluator, ready to start.
+pub struct WorldPhysics {
+    pub scene: ComposedScene,
+    pub sim: Simulation,
+    /// `[time, qpos, qvel]` restored at start: the trusted init state, or the seeded placement's state.
+    pub start_row: Vec<f64>,
+    pub evaluator: Box<dyn Evaluator>,
+    /// Control steps since the evaluator reset.
+    pub control_step: u64,
+}
+
+impl WorldPhysics {
+    /// Composes, compiles and places the scene and reads the init state. `edit_model` may change what does not
+    /// affect physics (the renderer's site visibility) before the model is frozen; it gets the start `qpos`.
+    pub fn build(
+        spec: &WorldSpec,
+        edit_model: impl FnOnce(&ComposedScene, &mut MjModel, &[f64]) -> Result<(), EpisodeError>,
+    ) -> Result<Self, EpisodeError> {
+        let scene = compose_file(&spec.task.bddl, &spec.paths)?;
+        let mut model = scene.compile()?;
+        let suite = spec.task.suite.as_ref();
+        let seed = match suite.and_then(|s| s.placement_seed) {
+            Some(fixed) => fixed,
+            None => u32::try_from(spec.seed).map_err(|_| EpisodeError::Task("seed must fit in 32 bits".into()))?,
+        };
+        let placement = Placement::sample(&scene, seed, Some(&model))?;
+        placement.apply(&mut model)?;
+        let evaluator = build_evaluator(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &scene, &model)
+            .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
+        let init_index = suite.map_or(spec.init_index, |s| s.init_index);
+        let init_row = match &spec.task.init_states {
+            Some(path) => Some(InitStates::read(path)?.get(init_index)?.to_vec()),
+            None => None,
+        };
+        let qpos = start_qpos(&model, init_row.as_deref(), &placement)?;
+        edit_model(&scene, &mut model, &qpos)?;
+        let sim = Simulation::new(Arc::new(model))?;
+        let start_row = match init_row {
+            Some(row) => row,
+            None => placement_row(&sim, &placement)?,
+        };
+        Ok(Self { scene, sim, start_row, evaluator, control_step: 0 })
+    }
+
+    pub fn model(&self) -> &Arc<MjModel> {
+        self.sim.model()
+    }
+
+    pub fn tick(&self, substep: Option<u32>) -> Tick {
+        Tick { control_step: self.control_step, substep, sim_time_s: self.sim.time_s() }
+    }
+
+    /// §4.2: restore the start row, settle, reset the evaluator. `after_settle_step` sees every settle step.
+    pub fn start(&mut self, mut after_settle_step: impl FnMut(&Simulation)) -> Result<(), EpisodeError> {
+        self.sim.set_init_state(&self.start_row)?;
+        for _ in 0..SETTLE_STEPS {
+            self.sim.step([0.0; 7])?;
+            after_settle_step(&self.sim);
+        }
+        self.control_step = 0;
+        let tick = self.tick(None);
+        self.evaluator.reset(self.sim.data(), tick);
+        Ok(())
+    }
+
+    /// One 20 Hz control interval; the evaluator observes it (and its substeps where it samples them).
+    pub fn step(&mut self, action: &MicroAction) -> Result<(), EpisodeError> {
+        let step = self.control_step + 1;
+        if self.evaluator.samples_substeps() {
+            let evaluator = &mut self.evaluator;
+            self.sim.step_with(*action, |k, data| {
+                let tick = Tick { control_step: step, substep: Some(k as u32), sim_time_s: data.ffi().time };
+                evaluator.observe_substep(data, tick);
+            })?;
+        } else {
+            self.sim.step(*action)?;
+        }
+        self.control_step = step;
+        let tick = self.tick(None);
+        self.evaluator.observe_control_step(self.sim.data(), tick);
+        Ok(())
+    }
+
+    /// The evaluator's record on the current state.
+    pub fn evaluate(&mut self) -> libero_tasks::EvaluationRecord {
+        let tick = self.tick(None);
+        self.evaluator.finish(self.sim.data(), tick)
+    }
+}
+
+/// The `qpos` an episode starts from: the init row's, or the seeded placement written over `qpos0`.
+fn start_qpos(model: &MjModel, init_row: Option<&[f64]>, placement: &Placement) -> Result<Vec<f64>, EpisodeError> {
+    let nq = model.ffi().nq as usize;
+    match init_row {
+        Some(row) => row.get(1..1 + nq).map(<[f64]>::to_vec).ok_or_else(|| {
+            EpisodeError::Task(format!("init state has {} values, the model needs 1 + nq = {}+", row.len(), 1 + nq))
+        }),
+        None => {
+            let mut qpos = model.qpos0().to_vec();
+            placement.write_qpos(model, &mut qpos)?;
+            Ok(qpos)
+        }
+    }
+}
+
+/// The state row of the seeded placement, for tasks without trusted init states: the objects' free joints
+/// and articulated fixture joints as LIBERO's reset writes them.
+fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, EpisodeError> {
+    let model = sim.model();
+    let adr = model.jnt_qposadr();
+    let joint = |name: &str| {
+        model
+            .name_to_id(MjtObjBase::mjOBJ_JOINT, name)
+            .map(|j| 1 + adr[j] as usize)
+            .ok_or_else(|| EpisodeError::Task(format!("model has no joint {name:?}")))
+    };
+    let mut row = sim.state_row();
+    for o in &placement.objects {
+        let a = joint(&o.joint)?;
+        row[a..a + 7].copy_from_slice(&o.qpos);
+    }
+    for (name, q) in &placement.joint_qpos {
+        row[joint(name)?] = *q;
+    }
+    Ok(row)
+}
