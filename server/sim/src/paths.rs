@@ -14,6 +14,15 @@ pub struct AssetPaths {
     pub libero_root: PathBuf,
     /// `lib/` with `libmujoco.so.3.17.0` and `plugin/`.
     pub mujoco_lib: PathBuf,
+    /// The repository's own `assets/` (MJCF authored for this project: objects the LIBERO set lacks).
+    pub project_assets: PathBuf,
+}
+
+/// `$LIBERO_AGENT_ASSETS_DIR`, else the repository's `assets/` folder this crate was built from.
+pub fn project_assets_dir() -> PathBuf {
+    std::env::var_os("LIBERO_AGENT_ASSETS_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets"))
 }
 
 /// `$LIBERO_AGENT_CACHE`, else `~/.cache/libero-agent`.
@@ -33,6 +42,7 @@ impl AssetPaths {
             libero_assets: cache.join("libero-assets-0.1.0").join("assets"),
             libero_root: cache.join("hf-libero-0.1.4"),
             mujoco_lib: cache.join("mujoco-3.17.0").join("lib"),
+            project_assets: project_assets_dir(),
         };
         for p in [&paths.robosuite_assets, &paths.libero_assets, &paths.libero_root, &paths.mujoco_lib] {
             if !p.is_dir() {

@@ -308,7 +308,10 @@ fn vec3(v: &[f64]) -> [f64; 3] {
 
 /// `MujocoXMLObject(fname, name, joints, obj_type="all", duplicate_collision_geoms=False)`.
 fn load_object(name: &str, cat: &registry::Category, is_fixture: bool, paths: &AssetPaths) -> Result<LoadedObject, SimError> {
-    let file = paths.libero_assets.join(&cat.file);
+    let file = match cat.root {
+        registry::AssetRoot::Libero => paths.libero_assets.join(&cat.file),
+        registry::AssetRoot::Project => paths.project_assets.join(&cat.file),
+    };
     let mut xml = MjXml::load(&file)?;
     let prefix = format!("{name}_");
     let outer = xml

@@ -20,12 +20,22 @@ pub struct Articulation {
     pub turn_off: Option<[f64; 2]>,
 }
 
+/// Which tree a category's file is in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum AssetRoot {
+    /// The LIBERO asset set (`AssetPaths::libero_assets`).
+    Libero,
+    /// The repository's `assets/` (`AssetPaths::project_assets`): objects authored for this project.
+    Project,
+}
+
 /// One registered category.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Category {
     pub key: &'static str,
-    /// Path relative to the LIBERO asset root.
+    /// Path relative to `root`.
     pub file: String,
+    pub root: AssetRoot,
     pub rotation: Rotation,
     /// `Some` for articulated objects (`ArticulatedObject` subclasses).
     pub articulation: Option<Articulation>,
@@ -49,6 +59,12 @@ const ARTICULATED: &[&str] = &[
     "microwave", "slide_cabinet", "window", "faucet", "basin_faucet", "short_cabinet", "short_fridge",
     "wooden_cabinet", "white_cabinet", "flat_stove",
 ];
+
+/// Categories authored for this project in `assets/` (objects the LIBERO set lacks): key, file under
+/// `assets/`, and the fixed rotation about z the placement sampler gives movable instances (0 for all of the
+/// release's repository-owned objects, task catalog §2.3). Each file follows LIBERO's object layout: an outer body
+/// holding a body named `object`, with `bottom_site`, `top_site` and `horizontal_radius_site`.
+const PROJECT: &[(&str, &str, f64)] = &[];
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.
 pub fn all_keys() -> Vec<&'static str> {
@@ -74,10 +90,14 @@ pub fn category(key: &str) -> Option<Category> {
         key,
         file,
         rotation,
+        root: AssetRoot::Libero,
         articulation: None,
         free_joint_as_object: true,
         vis_sites: &[],
     };
+    if let Some(&(k, file, rotation_z)) = PROJECT.iter().find(|(k, _, _)| *k == key) {
+        return Some(Category { root: AssetRoot::Project, ..mk(k, file.to_owned(), range(rotation_z, rotation_z, 'z')) });
+    }
     if let Some(k) = HOPE.iter().find(|k| **k == key) {
         let rot = match *k {
             "alphabet_soup" | "tomato_sauce" => range(FRAC_PI_2, FRAC_PI_2, 'z'),
