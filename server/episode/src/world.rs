@@ -121,6 +121,11 @@ impl LiberoWorld {
         let sim = &self.physics.sim;
         let mut state = FrameState::from_mujoco(sim.model(), sim.data());
         self.toggles.apply(&mut state);
+        for (geom, rgba) in self.physics.evaluator.geom_rgba_overrides() {
+            if let Some(slot) = state.geom_rgba.get_mut(geom) {
+                *slot = rgba;
+            }
+        }
         let mut frames = self
             .renderer
             .render(&self.gpu_model, &state, &requests, &RenderOptions::default())

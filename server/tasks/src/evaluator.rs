@@ -306,6 +306,12 @@ pub trait Evaluator: Send {
     fn observe_substep(&mut self, _data: &SimData, _tick: Tick) {}
     /// Judges the final state (terminal checks) together with the history observed so far.
     fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord;
+    /// Visible feedback the original evaluators gave by editing `geom_rgba` (a pressed button's cap turns green, a
+    /// wiped spill marker vanishes): `(geom id, rgba)` to draw instead of the model's colour. The model is shared
+    /// read-only, so the episode applies these to each rendered frame.
+    fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {
+        Vec::new()
+    }
 }
 
 pub use crate::commitment::{Commitment, CommitmentKind, CommitmentTracker};
