@@ -6,8 +6,10 @@ use std::process::Command;
 
 use serde_json::Value;
 
+mod common;
+
 fn bin() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_libero-agent"));
+    let mut c = Command::new(common::bin());
     c.env("XDG_RUNTIME_DIR", std::env::temp_dir());
     c
 }
@@ -97,4 +99,21 @@ fn unknown_tasks_and_behaviours_are_refused_clearly() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no expert behaviour \"dance\"") && err.contains("push_half"), "{err}");
+}
+
+/// With `--server`, expert runs are ordinary episodes of that server: prepared over its API, driven over MCP, and in
+/// its store with their outcome (so the dashboard shows them).
+#[test]
+fn expert_runs_on_a_running_server_are_recorded_there() {
+    let data = tempfile::tempdir().unwrap();
+    let server = common::Server::start(data.path());
+    let out = bin().args(["expert", "--task", "T14", "--server", &server.url]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let line: Value = serde_json::from_slice(&out.stdout).expect("one JSON record");
+    assert_eq!(line["success"], true, "{line}");
+    let id = line["episode_id"].as_str().expect("episode id");
+    let (status, row) = common::http_get_json(&format!("{}/api/episodes/{id}", server.url));
+    assert_eq!(status, 200, "{row}");
+    assert_eq!(row["outcome"], "SUCCESS", "{row}");
+    assert_eq!(row["state"], "finished", "{row}");
 }

@@ -11,9 +11,8 @@ use serde_json::Value;
 
 const TASK: &str = "libero_object/pick_up_the_ketchup_and_place_it_in_the_basket";
 
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_libero-agent")
-}
+mod common;
+use common::{Server, bin, http_get_json};
 
 fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -28,51 +27,6 @@ fn python() -> PathBuf {
     py
 }
 
-/// A running `libero-agent serve` on a free loopback port; killed on drop.
-struct Server {
-    child: Child,
-    url: String,
-}
-
-impl Server {
-    fn start(data: &Path) -> Self {
-        let mut child = Command::new(bin())
-            .args(["serve", "--addr", "127.0.0.1:0", "--data"])
-            .arg(data)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start libero-agent serve");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("listening line");
-        let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad listening line {line:?}: {e}"));
-        Self { child, url: v["url"].as_str().expect("url").to_owned() }
-    }
-
-    fn kill(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        self.kill();
-    }
-}
-
-/// `GET` of a loopback JSON endpoint (status, body).
-fn http_get_json(url: &str) -> (u16, Value) {
-    let rest = url.strip_prefix("http://").expect("http url");
-    let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
-    let mut stream = std::net::TcpStream::connect(host).expect("connect");
-    write!(stream, "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
-    let mut text = String::new();
-    stream.read_to_string(&mut text).unwrap();
-    let status = text.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("status");
-    let body = &text[text.find("\r\n\r\n").expect("headers end") + 4..];
-    (status, serde_json::from_str(body).unwrap_or_else(|e| panic!("body {body:?} is not JSON: {e}")))
-}
 
 fn prepare(server: &Server, workspace: &Path, level: u8) -> Value {
     let out = Command::new(bin())
