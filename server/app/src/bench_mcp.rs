@@ -5,7 +5,6 @@
 //! render)_p50` says what the protocol, publishing, records and the private video add; the video's own
 //! cost per call (render + encode, on the recorder thread) is measured beside it.
 use std::path::PathBuf;
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
@@ -17,13 +16,12 @@ use libero_episode::{Level, MicroAction};
 use libero_render::{FrameState, Renderer};
 use serde_json::{Value, json};
 
-use crate::cmd_mcp_stdio::messages_of;
-use crate::serve::http_client::{HttpUrl, request};
-use crate::serve::{ServeArgs, serve_until};
+use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
+
+use crate::serve::client::{InProcessServer, McpClient, prepare_episode};
+use crate::serve::episodes::PrepareRequest;
 
 pub const DEFAULT_TASK: &str = "libero_90/KITCHEN_SCENE10_close_the_top_drawer_of_the_cabinet";
-/// Per-request timeout of the benchmark's client (a debug build under load can take seconds per call).
-const CALL_TIMEOUT: Duration = Duration::from_secs(600);
 
 /// Arguments of `bench mcp`.
 #[derive(Debug, Clone, clap::Args)]
@@ -70,81 +68,13 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-/// One MCP client session over streamable HTTP (what the Python SDK does in legacy mode).
-struct McpClient {
-    url: HttpUrl,
-    headers: Vec<(String, String)>,
-    next_id: u64,
-}
-
-impl McpClient {
-    fn connect(mcp_url: &str, token: &str) -> anyhow::Result<Self> {
-        let headers = vec![
-            ("Authorization".to_owned(), format!("Bearer {token}")),
-            ("Content-Type".to_owned(), "application/json".to_owned()),
-            ("Accept".to_owned(), "application/json, text/event-stream".to_owned()),
-        ];
-        let mut c = Self { url: HttpUrl::parse(mcp_url)?, headers, next_id: 1 };
-        let init = json!({"protocolVersion": "2025-06-18", "capabilities": {},
-            "clientInfo": {"name": "libero-agent-bench", "version": env!("CARGO_PKG_VERSION")}});
-        let (reply, session) = c.post("initialize", init)?;
-        if reply.get("result").is_none() {
-            bail!("initialize failed: {reply}");
-        }
-        if let Some(s) = session {
-            c.headers.push(("Mcp-Session-Id".to_owned(), s));
-        }
-        if let Some(v) = reply.pointer("/result/protocolVersion").and_then(Value::as_str) {
-            c.headers.push(("Mcp-Protocol-Version".to_owned(), v.to_owned()));
-        }
-        let note = json!({"jsonrpc": "2.0", "method": "notifications/initialized"});
-        let resp = request("POST", &c.url, &c.headers, note.to_string().as_bytes(), CALL_TIMEOUT)?;
-        if resp.status >= 400 {
-            bail!("notifications/initialized: HTTP {}", resp.status);
-        }
-        Ok(c)
-    }
-
-    fn post(&mut self, method: &str, params: Value) -> anyhow::Result<(Value, Option<String>)> {
-        let id = self.next_id;
-        self.next_id += 1;
-        let body = json!({"jsonrpc": "2.0", "id": id, "method": method, "params": params});
-        let resp = request("POST", &self.url, &self.headers, body.to_string().as_bytes(), CALL_TIMEOUT)?;
-        if resp.status >= 400 {
-            bail!("{method}: HTTP {}: {}", resp.status, String::from_utf8_lossy(&resp.body));
-        }
-        let session = resp.header("mcp-session-id").map(str::to_owned);
-        let reply = messages_of(&resp)
-            .into_iter()
-            .find(|m| m.get("id") == Some(&json!(id)))
-            .with_context(|| format!("{method}: no JSON-RPC reply with id {id}"))?;
-        Ok((reply, session))
-    }
-
-    /// `tools/call`; the tool's payload (`structuredContent`), which must say `ok: true`.
-    fn call_tool(&mut self, name: &str, arguments: Value) -> anyhow::Result<Value> {
-        let (reply, _) = self.post("tools/call", json!({"name": name, "arguments": arguments}))?;
-        let payload = reply.pointer("/result/structuredContent").cloned().with_context(|| format!("{name}: {reply}"))?;
-        if payload["ok"] != true {
-            bail!("{name} failed: {payload}");
-        }
-        Ok(payload)
-    }
-}
-
 /// Prepares one episode on the server; returns (mcp_url, token).
 fn prepare(base: &str, task: &str, level: u8, seed: u64) -> anyhow::Result<(String, String)> {
-    let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;
-    let body = json!({"task": task, "level": level, "seed": seed});
-    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
-    let resp = request("POST", &url, &headers, body.to_string().as_bytes(), CALL_TIMEOUT)?;
-    let v: Value = serde_json::from_slice(&resp.body).context("prepare reply is not JSON")?;
-    if resp.status != 201 {
-        bail!("prepare: HTTP {}: {v}", resp.status);
-    }
-    let token = v.pointer("/mcp_headers/Authorization").and_then(Value::as_str).context("no token")?;
-    let mcp_url = v["mcp_url"].as_str().context("no mcp_url")?;
-    Ok((mcp_url.to_owned(), token.trim_start_matches("Bearer ").to_owned()))
+    let req = PrepareRequest { task: task.to_owned(), level, seed, init_index: 0, workspace: None,
+        wall_time_s: DEFAULT_WALL_TIME_S, max_agent_steps: MAX_AGENT_STEPS_CAP };
+    let p = prepare_episode(base, &req)?;
+    let token = p.mcp_headers.get("Authorization").context("no token")?;
+    Ok((p.mcp_url, token.trim_start_matches("Bearer ").to_owned()))
 }
 
 /// Drives `episodes` episodes concurrently (one client thread each) and returns every timed call's latency.
@@ -160,7 +90,7 @@ fn run_concurrent(base: &str, args: &BenchMcpArgs, episodes: usize) -> anyhow::R
         .map(|(url, token)| {
             let barrier = barrier.clone();
             std::thread::spawn(move || -> anyhow::Result<Vec<f64>> {
-                let mut client = McpClient::connect(&url, &token)?;
+                let mut client = McpClient::connect_with_token(&url, &token, "libero-agent-bench")?;
                 client.call_tool("start_episode", json!({}))?;
                 barrier.wait(); // all episodes step at the same time
                 let mut latencies = Vec::with_capacity(calls);
@@ -244,33 +174,6 @@ fn video_cost_ms(world: &mut LiberoWorld, renderer: &Renderer, actions: usize) -
     }
 }
 
-/// Starts the server on a free loopback port in a runtime of its own; returns its URL and a stopper.
-fn start_server(data: PathBuf) -> anyhow::Result<(String, mpsc::Sender<()>, std::thread::JoinHandle<anyhow::Result<()>>)> {
-    let (url_tx, url_rx) = mpsc::channel::<String>();
-    let (stop_tx, stop_rx) = mpsc::channel::<()>();
-    let thread = std::thread::spawn(move || -> anyhow::Result<()> {
-        let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-        runtime.block_on(async move {
-            let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data) };
-            let stop = async move {
-                let _ = tokio::task::spawn_blocking(move || stop_rx.recv()).await;
-                "bench_finished_before_finish".to_owned()
-            };
-            let listening = move |v: Value| {
-                let _ = url_tx.send(v["url"].as_str().unwrap_or_default().to_owned());
-            };
-            serve_until(args, listening, stop).await
-        })
-    });
-    match url_rx.recv() {
-        Ok(url) if !url.is_empty() => Ok((url, stop_tx, thread)),
-        _ => match thread.join() {
-            Ok(Err(e)) => Err(e.context("the server did not start")),
-            _ => bail!("the server did not start"),
-        },
-    }
-}
-
 pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
     if args.calls == 0 || args.actions == 0 || args.actions > 50 || args.episodes.iter().any(|&n| n == 0) {
         bail!("--calls and --episodes must be positive and --actions between 1 and 50");
@@ -283,7 +186,8 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
     let base = baseline(args, &renderer)?;
     drop(renderer);
     let reference_ms = base["sim_plus_render_ms_p50"].as_f64().unwrap_or(f64::NAN);
-    let (url, stop, server) = start_server(data.clone())?;
+    let server = InProcessServer::start(data.clone(), "bench_finished_before_finish")?;
+    let url = server.url.clone();
     let mut runs = Vec::new();
     let mut failure = None;
     for &n in &args.episodes {
@@ -303,8 +207,7 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
             }
         }
     }
-    let _ = stop.send(());
-    let served = server.join().map_err(|_| anyhow::anyhow!("the server thread panicked"))?;
+    let served = server.stop();
     if remove_data {
         let _ = std::fs::remove_dir_all(&data);
     }

@@ -352,7 +352,8 @@ pub fn summarize(rollouts: &[Rollout], reps: usize) -> SuiteSummary {
     let score = if complete { components.map(|c| c.score()) } else { None };
     // Lower bound: sum over scored tasks only, each divided by the full member count.
     let scaled = |s: Split, f: &dyn Fn(&TaskSummary) -> Option<f64>| {
-        tasks.iter().filter(|t| t.split == s).filter_map(f).sum::<f64>() / s.members().len() as f64
+        // `+ 0.0`: an empty f64 sum is -0.0, which would print as "-0.0".
+        (tasks.iter().filter(|t| t.split == s).filter_map(f).sum::<f64>() + 0.0) / s.members().len() as f64
     };
     let as_f = |b: Option<bool>| b.map(|x| if x { 1.0 } else { 0.0 });
     let lower = ScoreComponents {

@@ -187,6 +187,18 @@ impl Episodes {
         map.get(id).map(|e| e.handle.status())
     }
 
+    /// Ends one episode (aborted with `reason` unless it already ended); false if this server does not hold it.
+    pub fn stop(&self, id: &str, reason: &str) -> bool {
+        let entry = self.map.read().ok().and_then(|m| m.get(id).cloned());
+        match entry {
+            Some(e) => {
+                e.handle.stop(reason);
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Records every unfinished episode as aborted with `reason` (server shutdown).
     pub fn stop_all(&self, reason: &str) {
         let entries: Vec<Arc<Entry>> = self.map.read().map(|m| m.values().cloned().collect()).unwrap_or_default();
