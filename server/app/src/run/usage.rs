@@ -115,19 +115,20 @@ pub fn usage_from_codex_session<'a>(texts: impl IntoIterator<Item = &'a str>) ->
         for line in text.lines().filter(|l| !l.trim().is_empty()) {
             lines += 1;
             let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
-            if v["type"] == "event_msg" && v["payload"]["type"] == "token_count" {
-                if let Some(Value::Object(u)) = v.pointer("/payload/info/total_token_usage") {
-                    let mut u = u.clone();
-                    // Codex names: cached_input_tokens, reasoning_output_tokens.
-                    if let Some(c) = u.get("cached_input_tokens").cloned() {
-                        u.insert("cache_read_input_tokens".into(), c);
-                    }
-                    if let Some(r) = u.get("reasoning_output_tokens").cloned() {
-                        u.insert("reasoning_tokens".into(), r);
-                    }
-                    last = record_of(&u).or(last);
-                    events += 1;
+            if v["type"] == "event_msg"
+                && v["payload"]["type"] == "token_count"
+                && let Some(Value::Object(u)) = v.pointer("/payload/info/total_token_usage")
+            {
+                let mut u = u.clone();
+                // Codex names: cached_input_tokens, reasoning_output_tokens.
+                if let Some(c) = u.get("cached_input_tokens").cloned() {
+                    u.insert("cache_read_input_tokens".into(), c);
                 }
+                if let Some(r) = u.get("reasoning_output_tokens").cloned() {
+                    u.insert("reasoning_tokens".into(), r);
+                }
+                last = record_of(&u).or(last);
+                events += 1;
             }
         }
     }
