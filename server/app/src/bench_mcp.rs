@@ -5,7 +5,6 @@
 //! render)_p50` says what the protocol, publishing, records and the private video add; the video's own
 //! cost per call (render + encode, on the recorder thread) is measured beside it.
 use std::path::PathBuf;
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
@@ -17,12 +16,12 @@ use libero_episode::{Level, MicroAction};
 use libero_render::{FrameState, Renderer};
 use serde_json::{Value, json};
 
+use libero_episode::tools::MAX_AGENT_STEPS_CAP;
+
+use crate::serve::client::{InProcessServer, McpClient, prepare_episode};
 use crate::serve::episodes::PrepareRequest;
-use crate::serve::mcp_client::{McpClient, prepare_on_server};
-use crate::serve::{ServeArgs, serve_until};
 
 pub const DEFAULT_TASK: &str = "libero_90/KITCHEN_SCENE10_close_the_top_drawer_of_the_cabinet";
-/// Per-request timeout of the benchmark's client (a debug build under load can take seconds per call).
 
 /// Arguments of `bench mcp`.
 #[derive(Debug, Clone, clap::Args)]
@@ -71,9 +70,10 @@ fn ms(d: Duration) -> f64 {
 
 /// Prepares one episode on the server; returns (mcp_url, token).
 fn prepare(base: &str, task: &str, level: u8, seed: u64) -> anyhow::Result<(String, String)> {
-    let req: PrepareRequest = serde_json::from_value(json!({"task": task, "level": level, "seed": seed}))?;
-    let (_, mcp_url, token) = prepare_on_server(base, &req)?;
-    Ok((mcp_url, token))
+    let req = PrepareRequest { level, seed, max_agent_steps: MAX_AGENT_STEPS_CAP, ..PrepareRequest::new(task) };
+    let p = prepare_episode(base, &req)?;
+    let token = p.mcp_headers.get("Authorization").context("no token")?;
+    Ok((p.mcp_url, token.trim_start_matches("Bearer ").to_owned()))
 }
 
 /// Drives `episodes` episodes concurrently (one client thread each) and returns every timed call's latency.
@@ -89,7 +89,7 @@ fn run_concurrent(base: &str, args: &BenchMcpArgs, episodes: usize) -> anyhow::R
         .map(|(url, token)| {
             let barrier = barrier.clone();
             std::thread::spawn(move || -> anyhow::Result<Vec<f64>> {
-                let mut client = McpClient::connect(&url, &token)?;
+                let mut client = McpClient::connect_with_token(&url, &token, "libero-agent-bench")?;
                 client.call_tool("start_episode", json!({}))?;
                 barrier.wait(); // all episodes step at the same time
                 let mut latencies = Vec::with_capacity(calls);
@@ -173,33 +173,6 @@ fn video_cost_ms(world: &mut LiberoWorld, renderer: &Renderer, actions: usize) -
     }
 }
 
-/// Starts the server on a free loopback port in a runtime of its own; returns its URL and a stopper.
-fn start_server(data: PathBuf) -> anyhow::Result<(String, mpsc::Sender<()>, std::thread::JoinHandle<anyhow::Result<()>>)> {
-    let (url_tx, url_rx) = mpsc::channel::<String>();
-    let (stop_tx, stop_rx) = mpsc::channel::<()>();
-    let thread = std::thread::spawn(move || -> anyhow::Result<()> {
-        let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-        runtime.block_on(async move {
-            let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data) };
-            let stop = async move {
-                let _ = tokio::task::spawn_blocking(move || stop_rx.recv()).await;
-                "bench_finished_before_finish".to_owned()
-            };
-            let listening = move |v: Value| {
-                let _ = url_tx.send(v["url"].as_str().unwrap_or_default().to_owned());
-            };
-            serve_until(args, listening, stop).await
-        })
-    });
-    match url_rx.recv() {
-        Ok(url) if !url.is_empty() => Ok((url, stop_tx, thread)),
-        _ => match thread.join() {
-            Ok(Err(e)) => Err(e.context("the server did not start")),
-            _ => bail!("the server did not start"),
-        },
-    }
-}
-
 pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
     if args.calls == 0 || args.actions == 0 || args.actions > 50 || args.episodes.iter().any(|&n| n == 0) {
         bail!("--calls and --episodes must be positive and --actions between 1 and 50");
@@ -212,7 +185,8 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
     let base = baseline(args, &renderer)?;
     drop(renderer);
     let reference_ms = base["sim_plus_render_ms_p50"].as_f64().unwrap_or(f64::NAN);
-    let (url, stop, server) = start_server(data.clone())?;
+    let server = InProcessServer::start(data.clone(), "bench_finished_before_finish")?;
+    let url = server.url.clone();
     let mut runs = Vec::new();
     let mut failure = None;
     for &n in &args.episodes {
@@ -232,8 +206,7 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
             }
         }
     }
-    let _ = stop.send(());
-    let served = server.join().map_err(|_| anyhow::anyhow!("the server thread panicked"))?;
+    let served = server.stop();
     if remove_data {
         let _ = std::fs::remove_dir_all(&data);
     }

@@ -16,7 +16,7 @@ use serde_json::{Value, json};
 
 use crate::serve::default_data_dir;
 use crate::serve::episodes::{Episodes, PrepareRequest};
-use crate::serve::mcp_client::{McpClient, prepare_on_server};
+use crate::serve::client::{McpClient, prepare_episode};
 
 #[derive(clap::Args, Debug)]
 pub struct ExpertArgs {
@@ -96,14 +96,11 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         return trace(args, &spec, &task_id);
     }
     let request = PrepareRequest {
-        task: task_id.clone(),
         level: args.level,
         seed: args.seed,
-        init_index: 0,
-        workspace: None,
-        wall_time_s: libero_episode::tools::DEFAULT_WALL_TIME_S,
         max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
         video: !args.no_video,
+        ..PrepareRequest::new(task_id.clone())
     };
     let local = match &args.server {
         Some(_) => None,
@@ -122,8 +119,11 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
                 (prepared.episode_id, outcome, record)
             }
             (None, Some(server)) => {
-                let (episode_id, mcp_url, token) = prepare_on_server(server, &request)?;
-                let mut port = McpPort(McpClient::connect(&mcp_url, &token)?);
+                let prepared = prepare_episode(server, &request)?;
+                let token = prepared.mcp_headers.get("Authorization").context("no token in the server's reply")?;
+                let token = token.trim_start_matches("Bearer ");
+                let mut port = McpPort(McpClient::connect_with_token(&prepared.mcp_url, token, "libero-agent-expert")?);
+                let episode_id = prepared.episode_id;
                 let outcome = run_expert(&mut port, &spec, &task_id, &args.behaviour, args.max_actions, progress);
                 (episode_id, outcome, None)
             }

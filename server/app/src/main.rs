@@ -15,6 +15,12 @@ mod cmd_expert;
 mod cmd_mcp_stdio;
 #[cfg(feature = "episode-serve")]
 mod serve;
+#[cfg(feature = "episode-serve")]
+mod cmd_agent;
+#[cfg(feature = "episode-serve")]
+mod cmd_report;
+#[cfg(feature = "episode-serve")]
+mod run;
 
 use clap::{Parser, Subcommand};
 
@@ -51,6 +57,15 @@ enum Command {
     /// Relay stdio MCP to an episode's HTTP endpoint (for stdio-only agent harnesses).
     #[cfg(feature = "episode-serve")]
     McpStdio(cmd_mcp_stdio::McpStdioArgs),
+    /// A benchmark batch: agent CLIs on scheduled rollouts, sandboxed and supervised (`--dry-run` to preview).
+    #[cfg(feature = "episode-serve")]
+    Run(Box<run::RunArgs>),
+    /// The paper's tables from batch directories.
+    #[cfg(feature = "episode-serve")]
+    Report(cmd_report::ReportArgs),
+    /// The built-in reference agent: a scripted MCP client with no model (for end-to-end tests).
+    #[cfg(feature = "episode-serve")]
+    Agent(cmd_agent::AgentArgs),
 }
 
 #[derive(Subcommand)]
@@ -81,5 +96,11 @@ fn main() -> anyhow::Result<()> {
         Command::Expert(a) => cmd_expert::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
+        #[cfg(feature = "episode-serve")]
+        Command::Run(a) => run::run(*a),
+        #[cfg(feature = "episode-serve")]
+        Command::Report(a) => cmd_report::run(a),
+        #[cfg(feature = "episode-serve")]
+        Command::Agent(a) => cmd_agent::run(a),
     }
 }

@@ -25,29 +25,8 @@ pub enum Difficulty {
     Hard,
 }
 
-/// The paper's reporting subsets (five tasks each outside perception, equal weight).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Split {
-    Perception,
-    ShortHorizonEasy,
-    ShortHorizonHard,
-    LongHorizonEasy,
-    LongHorizonHard,
-}
-
-impl Split {
-    /// The task numbers of each subset (paper_results.md "Splits").
-    pub fn members(self) -> &'static [u32] {
-        match self {
-            Split::Perception => &[1, 2, 3, 4, 5, 6, 7, 8, 9, 10],
-            Split::ShortHorizonEasy => &[11, 13, 14, 15, 20],
-            Split::ShortHorizonHard => &[12, 16, 17, 18, 19],
-            Split::LongHorizonEasy => &[23, 24, 26, 27, 29],
-            Split::LongHorizonHard => &[21, 22, 25, 28, 30],
-        }
-    }
-}
+/// The paper's reporting subsets, defined once beside the metrics that score them.
+pub use libero_metrics::Split;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -56,6 +56,22 @@ fn default_video() -> bool {
     true
 }
 
+impl PrepareRequest {
+    /// `task` with every default of the HTTP API.
+    pub fn new(task: impl Into<String>) -> Self {
+        Self {
+            task: task.into(),
+            level: default_level(),
+            seed: default_seed(),
+            init_index: 0,
+            workspace: None,
+            wall_time_s: default_wall_time_s(),
+            max_agent_steps: default_max_agent_steps(),
+            video: default_video(),
+        }
+    }
+}
+
 fn default_level() -> u8 {
     3
 }
@@ -198,6 +214,18 @@ impl Episodes {
     pub fn status(&self, id: &str) -> Option<EpisodeStatus> {
         let map = self.map.read().ok()?;
         map.get(id).map(|e| e.handle.status())
+    }
+
+    /// Ends one episode (aborted with `reason` unless it already ended); false if this server does not hold it.
+    pub fn stop(&self, id: &str, reason: &str) -> bool {
+        let entry = self.map.read().ok().and_then(|m| m.get(id).cloned());
+        match entry {
+            Some(e) => {
+                e.handle.stop(reason);
+                true
+            }
+            None => false,
+        }
     }
 
     /// Records every unfinished episode as aborted with `reason` (server shutdown).

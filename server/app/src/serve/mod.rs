@@ -2,10 +2,10 @@
 //! HTTP), guarded by a per-episode bearer token checked before anything reaches rmcp; `GET /api/health`;
 //! `POST /api/episodes` to prepare an episode (the CLI's `episode prepare` and the dashboard use it);
 //! `GET /api/episodes[/{id}]` from the episode store (operator-facing; no tokens, no paths).
+pub mod client;
 pub mod episodes;
 pub mod http_client;
 pub mod mcp;
-pub mod mcp_client;
 pub mod store;
 
 use std::collections::HashMap;
@@ -193,6 +193,7 @@ pub fn router(state: AppState) -> Router {
         .route("/api/health", get(health))
         .route("/api/episodes", post(prepare).get(list_episodes))
         .route("/api/episodes/{id}", get(episode_status))
+        .route("/api/episodes/{id}/abort", post(abort_episode))
         .route("/mcp/{id}", any(mcp_endpoint))
         .with_state(state)
 }
@@ -266,6 +267,31 @@ async fn episode_status(State(app): State<AppState>, Path(id): Path<String>) -> 
         Ok(Some(row)) => axum::Json(episode_json(&app, &row)).into_response(),
         Ok(None) => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
         Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    }
+}
+
+#[derive(serde::Deserialize)]
+struct AbortRequest {
+    reason: String,
+}
+
+/// Ends an open episode as aborted (INVALID) with the caller's reason: the batch runner's answer to an agent
+/// that exited or was killed before `finish_episode` (the original launcher killed its server instead).
+/// A finished episode is left as it is.
+async fn abort_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> Response {
+    let reason = match serde_json::from_slice::<AbortRequest>(&body) {
+        Ok(r) if !r.reason.trim().is_empty() => r.reason,
+        _ => return json_error(StatusCode::BAD_REQUEST, "body must be {\"reason\": \"…\"}"),
+    };
+    let eps = app.episodes.clone();
+    let id2 = id.clone();
+    match tokio::task::spawn_blocking(move || eps.stop(&id2, &reason)).await {
+        Ok(true) => {
+            app.sync(&id).await;
+            episode_status(State(app), Path(id)).await
+        }
+        Ok(false) => json_error(StatusCode::NOT_FOUND, format!("no open episode {id} on this server")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("abort failed: {e}")),
     }
 }
 

@@ -1,0 +1,235 @@
+//! `libero-agent report BATCH… [--format markdown|csv|json|latex]`: the paper's tables from batch
+//! directories, through the metrics crate. Rollouts are grouped by agent (`harness/model`) and condition
+//! (level, demonstration); several batches of the same agent combine (e.g. a re-run of INVALID rollouts).
+//! [`report_json`] is the JSON the dashboard's Results page reads.
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::bail;
+use libero_metrics::{Proportion, Split, SuiteSummary, summarize};
+use serde_json::{Value, json};
+
+use crate::run::batch::{Condition, LoadedBatch, load_batch, metrics_rollouts};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    Markdown,
+    Csv,
+    Json,
+    Latex,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ReportArgs {
+    /// Batch directories written by `libero-agent run`.
+    #[arg(required = true)]
+    pub batches: Vec<PathBuf>,
+    #[arg(long, value_enum, default_value = "markdown")]
+    pub format: Format,
+    /// Rollouts per task the stable rule needs.
+    #[arg(long, default_value_t = libero_metrics::PAPER_REPS)]
+    pub reps: usize,
+}
+
+/// One agent under one condition.
+pub struct Row {
+    pub agent: String,
+    pub condition: Condition,
+    pub summary: SuiteSummary,
+}
+
+/// Computes every (agent, condition) summary of the batches.
+pub fn rows(batches: &[LoadedBatch], reps: usize) -> Vec<Row> {
+    metrics_rollouts(batches)
+        .into_iter()
+        .map(|((agent, condition), rollouts)| Row { agent, condition, summary: summarize(&rollouts, reps) })
+        .collect()
+}
+
+/// The report as JSON: batches (settings, harness version, counts) and per-row summaries.
+pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
+    let rows: Vec<Value> = rows(batches, reps)
+        .into_iter()
+        .map(|r| json!({"agent": r.agent, "level": r.condition.level, "demo": r.condition.demo, "summary": r.summary}))
+        .collect();
+    let meta: Vec<Value> = batches
+        .iter()
+        .map(|b| json!({"name": b.name(), "dir": b.dir, "status": b.batch["status"], "settings": b.batch["settings"],
+            "harness": b.batch["harness"], "sandbox": b.batch["sandbox"], "counts": b.batch["counts"],
+            "outcomes": b.batch["outcomes"], "rollouts_recorded": b.records.len()}))
+        .collect();
+    json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows})
+}
+
+fn pct(x: Option<f64>) -> String {
+    x.map(|v| format!("{:.1}", 100.0 * v)).unwrap_or_else(|| "—".into())
+}
+
+fn coverage(s: &SuiteSummary, split: Split) -> String {
+    match s.split(split) {
+        Some(sp) if sp.complete() => pct(sp.stable),
+        Some(sp) => format!("{} ({}/{})", pct(sp.stable), sp.tasks_scored, sp.member_count),
+        None => "—".into(),
+    }
+}
+
+fn wilson(p: &Proportion) -> String {
+    match (p.rate, p.wilson_low, p.wilson_high) {
+        (Some(r), Some(lo), Some(hi)) => {
+            format!("{}/{} = {:.1} [{:.1}, {:.1}]", p.successes, p.trials, 100.0 * r, 100.0 * lo, 100.0 * hi)
+        }
+        _ => "—".into(),
+    }
+}
+
+fn opt(x: Option<f64>, digits: usize) -> String {
+    x.map(|v| format!("{v:.digits$}")).unwrap_or_else(|| "—".into())
+}
+
+fn label(r: &Row) -> String {
+    format!("{} (L{}, demo {})", r.agent, r.condition.level, r.condition.demo.as_str())
+}
+
+fn score(s: &SuiteSummary) -> String {
+    match s.score {
+        Some(x) => format!("{x:.1}"),
+        None => format!("≥ {:.1}", s.score_lower_bound),
+    }
+}
+
+pub fn markdown(batches: &[LoadedBatch], reps: usize) -> String {
+    let rows = rows(batches, reps);
+    let mut o = String::new();
+    let _ = writeln!(o, "# LIBERO-Agent results\n");
+    for b in batches {
+        let h = &b.batch["harness"];
+        let _ = writeln!(
+            o,
+            "- batch `{}`: {} {} `{}` effort {}, harness version {}, sandbox {}, status {}, {} rollouts recorded, outcomes {}",
+            b.name(),
+            b.batch["settings"]["experiment"].as_str().unwrap_or("?"),
+            h["name"].as_str().unwrap_or("?"),
+            b.batch["settings"]["model"].as_str().unwrap_or("?"),
+            b.batch["settings"]["effort"].as_str().unwrap_or("?"),
+            h["version"]["observed"].as_str().unwrap_or("unknown"),
+            b.batch["sandbox"]["version"].as_str().unwrap_or("none"),
+            b.batch["status"].as_str().unwrap_or("?"),
+            b.records.len(),
+            b.batch["outcomes"],
+        );
+    }
+    let _ = writeln!(o, "\n## Stable performance (Table 1; {reps} rollouts per task, INVALID excluded)\n");
+    let _ = writeln!(o, "Partial subsets show (scored/member tasks); a Score over a partial suite is a lower bound (≥).\n");
+    let _ = writeln!(o, "| Agent | Judg. Acc. | Perc. Task SR | Short Easy SR | Short Hard SR | Long Easy SC | Long Hard SC | Score | Avg. time | Avg. tokens |");
+    let _ = writeln!(o, "|---|---|---|---|---|---|---|---|---|---|");
+    for r in &rows {
+        let s = &r.summary;
+        let j = if s.judgment_tasks_scored == 0 { "—".into() } else { format!("{} ({}/10)", pct(s.judgment), s.judgment_tasks_scored) };
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} min | {}M |",
+            label(r),
+            j,
+            coverage(s, Split::Perception),
+            coverage(s, Split::ShortHorizonEasy),
+            coverage(s, Split::ShortHorizonHard),
+            coverage(s, Split::LongHorizonEasy),
+            coverage(s, Split::LongHorizonHard),
+            score(s),
+            opt(s.avg_wall_time_min, 1),
+            opt(s.avg_tokens_millions, 2),
+        );
+    }
+    let _ = writeln!(o, "\n## Ordinary success rates (SUCCESS / valid rollouts, 95% Wilson interval)\n");
+    let _ = writeln!(o, "| Agent | Perception | Short Easy | Short Hard | Long Easy | Long Hard | All |");
+    let _ = writeln!(o, "|---|---|---|---|---|---|---|");
+    for r in &rows {
+        let s = &r.summary;
+        let cells: Vec<String> = Split::ALL.iter().map(|sp| s.split(*sp).map(|x| wilson(&x.ordinary)).unwrap_or_default()).collect();
+        let _ = writeln!(o, "| {} | {} | {} |", label(r), cells.join(" | "), wilson(&s.ordinary));
+    }
+    let _ = writeln!(o, "\n## Per task\n");
+    let _ = writeln!(o, "| Agent | Task | Split | Valid | Excluded | Successes | Stable | Stage fraction (min / sum) |");
+    let _ = writeln!(o, "|---|---|---|---|---|---|---|---|");
+    for r in &rows {
+        for t in &r.summary.tasks {
+            let stable = match t.stable_success {
+                Some(true) => "yes",
+                Some(false) => "no",
+                None => "incomplete",
+            };
+            let _ = writeln!(
+                o,
+                "| {} | T{:02} | {} | {} | {} | {} | {} | {} / {} |",
+                label(r),
+                t.task_number,
+                t.split.as_str(),
+                t.valid_rollouts,
+                t.excluded_rollouts,
+                t.successes,
+                stable,
+                opt(t.stable_stage_fraction, 2),
+                opt(t.stage_fraction_sum, 2),
+            );
+        }
+    }
+    o
+}
+
+pub fn csv(batches: &[LoadedBatch], reps: usize) -> String {
+    let mut o = String::from("agent,level,demo,split,member_tasks,scored_tasks,stable_percent,ordinary_successes,valid_rollouts,wilson_low_percent,wilson_high_percent\n");
+    let f = |x: Option<f64>| x.map(|v| format!("{:.4}", 100.0 * v)).unwrap_or_default();
+    for r in rows(batches, reps) {
+        for sp in &r.summary.splits {
+            let _ = writeln!(
+                o,
+                "{},{},{},{},{},{},{},{},{},{},{}",
+                r.agent, r.condition.level, r.condition.demo.as_str(), sp.split.as_str(), sp.member_count, sp.tasks_scored,
+                f(sp.stable), sp.ordinary.successes, sp.ordinary.trials, f(sp.ordinary.wilson_low), f(sp.ordinary.wilson_high)
+            );
+        }
+        let s = &r.summary;
+        let _ = writeln!(
+            o,
+            "{},{},{},score,30,,{},,,,",
+            r.agent, r.condition.level, r.condition.demo.as_str(),
+            s.score.map(|x| format!("{x:.4}")).unwrap_or_default()
+        );
+    }
+    o
+}
+
+pub fn latex(batches: &[LoadedBatch], reps: usize) -> String {
+    let mut o = String::from(
+        "\\begin{tabular}{lrrrrrrrrr}\n\\toprule\nAgent & Judg. Acc. & Perc. SR & Short Easy & Short Hard & Long Easy SC & Long Hard SC & Score & Time (min) & Tokens (M) \\\\\n\\midrule\n",
+    );
+    let esc = |s: &str| s.replace('_', "\\_").replace('%', "\\%").replace('&', "\\&");
+    for r in rows(batches, reps) {
+        let s = &r.summary;
+        let c = |sp| s.split(sp).and_then(|x| x.stable);
+        let _ = writeln!(
+            o,
+            "{} & {} & {} & {} & {} & {} & {} & {} & {} & {} \\\\",
+            esc(&label(&r)), pct(s.judgment), pct(c(Split::Perception)), pct(c(Split::ShortHorizonEasy)),
+            pct(c(Split::ShortHorizonHard)), pct(c(Split::LongHorizonEasy)), pct(c(Split::LongHorizonHard)),
+            esc(&score(s)).replace('≥', "$\\geq$"), opt(s.avg_wall_time_min, 1), opt(s.avg_tokens_millions, 2)
+        );
+    }
+    o.push_str("\\bottomrule\n\\end{tabular}\n");
+    o.replace('—', "--")
+}
+
+pub fn run(args: ReportArgs) -> anyhow::Result<()> {
+    if args.reps == 0 {
+        bail!("--reps must be at least 1");
+    }
+    let batches = args.batches.iter().map(|d| load_batch(d)).collect::<anyhow::Result<Vec<_>>>()?;
+    let out = match args.format {
+        Format::Markdown => markdown(&batches, args.reps),
+        Format::Csv => csv(&batches, args.reps),
+        Format::Json => serde_json::to_string_pretty(&report_json(&batches, args.reps))? + "\n",
+        Format::Latex => latex(&batches, args.reps),
+    };
+    print!("{out}");
+    Ok(())
+}

@@ -1,0 +1,236 @@
+//! A batch directory: `batch.json` (settings, their hash, harness version, status and counts; rewritten
+//! atomically after every change), `rollouts.jsonl` (one record per ended rollout, appended), and
+//! `rollouts/<rollout_id>/` (logs, harness manifest, usage, the agent's session home). The dashboard and
+//! `report` read batches through [`load_batch`] and [`metrics_rollouts`].
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use libero_episode::json::write_json_file;
+use libero_metrics::{Outcome, Rollout, Split};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use sha2::{Digest, Sha256};
+
+use super::schedule::Demo;
+
+pub const BATCH_SCHEMA: &str = "libero_agent.batch.v1";
+pub const ROLLOUT_SCHEMA: &str = "libero_agent.rollout.v1";
+
+/// The settings a batch's rollouts must share; `--resume` refuses a batch whose hash differs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchSettings {
+    pub experiment: String,
+    pub harness: String,
+    pub model: String,
+    pub effort: String,
+    pub reps: u32,
+    /// Task numbers given with `--tasks` (empty: every implemented task of the experiment).
+    pub tasks: Vec<u32>,
+    pub seed: u64,
+    pub wall_time_s: f64,
+    pub max_agent_steps: u64,
+    /// The command of `--harness command` (it defines the agent).
+    pub agent_cmd: Option<String>,
+    pub sandbox: bool,
+}
+
+impl BatchSettings {
+    /// SHA-256 of the canonical JSON (sorted keys, compact).
+    pub fn sha256(&self) -> String {
+        let v = serde_json::to_value(self).unwrap_or(Value::Null);
+        let canonical = libero_episode::json::compact_sorted(&v);
+        Sha256::digest(canonical.as_bytes()).iter().map(|b| format!("{b:02x}")).collect()
+    }
+}
+
+/// One ended rollout (a line of `rollouts.jsonl`). Never holds a credential or an episode token.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RolloutRecord {
+    pub schema_version: String,
+    pub rollout_id: String,
+    pub task: String,
+    pub task_number: u32,
+    pub split: Split,
+    pub stage_count: u32,
+    pub repetition: u32,
+    pub level: u8,
+    pub demo: Demo,
+    pub outcome: Outcome,
+    pub episode_id: Option<String>,
+    pub workspace: Option<PathBuf>,
+    pub run_dir: Option<PathBuf>,
+    pub result_status: Option<String>,
+    pub success: Option<bool>,
+    pub termination_reason: Option<String>,
+    /// Why the rollout is INVALID/WATCHDOG_TIMEOUT (harness exit, API failure, supervision timeout, …).
+    pub infrastructure_error: Option<String>,
+    /// Episode time from `start_episode` (`result.wall_time_seconds`).
+    pub wall_time_s: Option<f64>,
+    /// The whole agent process, launch to exit.
+    pub harness_elapsed_s: Option<f64>,
+    pub accepted_agent_steps: Option<u64>,
+    pub completed_stages: Option<u32>,
+    pub judgment_correct: Option<bool>,
+    pub agent_exit_code: Option<i32>,
+    pub usage: Option<super::usage::Usage>,
+    pub started_at: String,
+    pub finished_at: String,
+}
+
+impl RolloutRecord {
+    /// A record of `plan` with nothing known yet (INVALID until supervision says otherwise).
+    pub fn planned(plan: &super::schedule::PlannedRollout) -> Self {
+        let now = libero_episode::json::utc_now_iso();
+        Self {
+            schema_version: ROLLOUT_SCHEMA.to_owned(),
+            rollout_id: plan.rollout_id.clone(),
+            task: plan.task.clone(),
+            task_number: plan.task_number,
+            split: plan.split,
+            stage_count: plan.stage_count,
+            repetition: plan.repetition,
+            level: plan.level,
+            demo: plan.demo,
+            outcome: Outcome::Invalid,
+            episode_id: None,
+            workspace: None,
+            run_dir: None,
+            result_status: None,
+            success: None,
+            termination_reason: None,
+            infrastructure_error: None,
+            wall_time_s: None,
+            harness_elapsed_s: None,
+            accepted_agent_steps: None,
+            completed_stages: None,
+            judgment_correct: None,
+            agent_exit_code: None,
+            usage: None,
+            started_at: now.clone(),
+            finished_at: now,
+        }
+    }
+
+    pub fn to_metrics(&self) -> Rollout {
+        Rollout {
+            task_number: self.task_number,
+            split: self.split,
+            repetition: self.repetition,
+            outcome: self.outcome,
+            judgment_correct: self.judgment_correct,
+            completed_stages: self.completed_stages,
+            stage_count: self.stage_count,
+            wall_time_s: self.wall_time_s,
+            total_tokens: self.usage.as_ref().and_then(|u| u.total_tokens),
+            accepted_agent_steps: self.accepted_agent_steps,
+        }
+    }
+}
+
+pub fn batch_json(dir: &Path) -> PathBuf {
+    dir.join("batch.json")
+}
+pub fn rollouts_jsonl(dir: &Path) -> PathBuf {
+    dir.join("rollouts.jsonl")
+}
+
+/// Appends one record and syncs it (a killed runner loses no ended rollout).
+pub fn append_record(dir: &Path, record: &RolloutRecord) -> anyhow::Result<()> {
+    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(rollouts_jsonl(dir))?;
+    let mut line = serde_json::to_string(record)?;
+    line.push('\n');
+    f.write_all(line.as_bytes())?;
+    f.sync_data()?;
+    Ok(())
+}
+
+/// Every record of `rollouts.jsonl` (a torn last line from a crash is skipped).
+pub fn read_records(dir: &Path) -> anyhow::Result<Vec<RolloutRecord>> {
+    let path = rollouts_jsonl(dir);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    Ok(text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect())
+}
+
+pub fn write_batch_json(dir: &Path, v: &Value) -> anyhow::Result<()> {
+    write_json_file(&batch_json(dir), v).with_context(|| format!("cannot write {}", batch_json(dir).display()))
+}
+
+/// A batch as the report and the dashboard see it.
+#[derive(Debug, Clone, Serialize)]
+pub struct LoadedBatch {
+    pub dir: PathBuf,
+    pub batch: Value,
+    pub records: Vec<RolloutRecord>,
+}
+
+impl LoadedBatch {
+    pub fn name(&self) -> String {
+        self.dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+    }
+}
+
+/// Reads `batch.json` and `rollouts.jsonl`.
+pub fn load_batch(dir: &Path) -> anyhow::Result<LoadedBatch> {
+    let text = std::fs::read_to_string(batch_json(dir)).with_context(|| format!("{} is not a batch directory", dir.display()))?;
+    let batch: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", batch_json(dir).display()))?;
+    if batch["schema_version"] != BATCH_SCHEMA {
+        bail!("{}: schema_version {}, expected {BATCH_SCHEMA}", batch_json(dir).display(), batch["schema_version"]);
+    }
+    Ok(LoadedBatch { dir: dir.to_path_buf(), batch, records: read_records(dir)? })
+}
+
+/// A reporting condition: one observation level and demonstration condition.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+pub struct Condition {
+    pub level: u8,
+    pub demo: Demo,
+}
+
+/// The batches' rollouts for the metrics, grouped by (agent, condition); the agent is `harness/model`.
+pub fn metrics_rollouts(batches: &[LoadedBatch]) -> BTreeMap<(String, Condition), Vec<Rollout>> {
+    let mut out: BTreeMap<(String, Condition), Vec<Rollout>> = BTreeMap::new();
+    for b in batches {
+        let agent = format!(
+            "{}/{}",
+            b.batch["settings"]["harness"].as_str().unwrap_or("?"),
+            b.batch["settings"]["model"].as_str().unwrap_or("?")
+        );
+        for r in &b.records {
+            out.entry((agent.clone(), Condition { level: r.level, demo: r.demo })).or_default().push(r.to_metrics());
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_settings_hash_changes_with_any_setting() {
+        let s = BatchSettings {
+            experiment: "main_table".into(),
+            harness: "codex".into(),
+            model: "m".into(),
+            effort: "high".into(),
+            reps: 3,
+            tasks: vec![],
+            seed: 100,
+            wall_time_s: 1800.0,
+            max_agent_steps: 1_000_000,
+            agent_cmd: None,
+            sandbox: true,
+        };
+        let mut t = s.clone();
+        assert_eq!(s.sha256(), t.sha256());
+        t.model = "other".into();
+        assert_ne!(s.sha256(), t.sha256());
+        assert_eq!(s.sha256().len(), 64);
+    }
+}

@@ -1,0 +1,517 @@
+//! How each agent CLI is launched for one rollout (protocol §8.3–§8.5), adapted to our transport: the MCP
+//! server is the episode's streamable-HTTP endpoint with its bearer token (stdio-only harnesses get the
+//! `mcp-stdio` relay). Every launch has an explicit model, a private session home (HOME and the CLI's own
+//! config directory, so session logs are ours to read and nothing leaks between rollouts), credentials only
+//! in the child's environment (or a 0600 file in the session home where the CLI insists), and the prompt as
+//! the last argument.
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use serde_json::{Value, json};
+
+use libero_episode::tools::{MCP_SERVER_KEY, ToolName};
+
+/// The agent CLIs the runner knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+#[value(rename_all = "snake_case")]
+pub enum Harness {
+    Codex,
+    ClaudeCode,
+    KimiCode,
+    QwenCode,
+    Deepseek,
+    /// Any command (`--agent-cmd`), e.g. the built-in reference agent.
+    Command,
+}
+
+/// npm packages of the harnesses launched through `npx` (the paper's versions).
+pub const DSH_PACKAGE: &str = "@deepseek-ai/dsh@0.1.5-rc.2";
+pub const KIMI_PACKAGE: &str = "@moonshot-ai/kimi-code@0.42.0";
+pub const QWEN_PACKAGE: &str = "@qwen-code/qwen-code@0.24.0";
+
+impl Harness {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Harness::Codex => "codex",
+            Harness::ClaudeCode => "claude_code",
+            Harness::KimiCode => "kimi_code",
+            Harness::QwenCode => "qwen_code",
+            Harness::Deepseek => "deepseek",
+            Harness::Command => "command",
+        }
+    }
+
+    /// The program run (for the install paths the sandbox exposes and the version probe).
+    pub fn program(self) -> &'static str {
+        match self {
+            Harness::Codex => "codex",
+            Harness::ClaudeCode => "claude",
+            Harness::KimiCode | Harness::QwenCode | Harness::Deepseek => "npx",
+            Harness::Command => "sh",
+        }
+    }
+
+    /// `<program> --version` argv (None for `command`).
+    pub fn version_probe(self) -> Option<Vec<String>> {
+        let npx = |pkg: &str| vec!["npx".to_owned(), "--yes".into(), pkg.into(), "--version".into()];
+        match self {
+            Harness::Codex => Some(vec!["codex".into(), "--version".into()]),
+            Harness::ClaudeCode => Some(vec!["claude".into(), "--version".into()]),
+            Harness::KimiCode => Some(npx(KIMI_PACKAGE)),
+            Harness::QwenCode => Some(npx(QWEN_PACKAGE)),
+            Harness::Deepseek => Some(npx(DSH_PACKAGE)),
+            Harness::Command => None,
+        }
+    }
+
+    pub fn needs_credentials(self) -> bool {
+        self != Harness::Command
+    }
+
+    /// The stdout file name in the rollout directory (JSON lines where the CLI streams JSON).
+    pub fn stdout_file(self) -> String {
+        let ext = match self {
+            Harness::ClaudeCode | Harness::KimiCode | Harness::QwenCode => "jsonl",
+            _ => "log",
+        };
+        format!("{}_stdout.{ext}", self.as_str())
+    }
+
+    /// Anthropic's protocol for Claude, OpenAI-compatible chat for the others (§6.7 `api_protocol`).
+    pub fn api_protocol(self) -> &'static str {
+        match self {
+            Harness::ClaudeCode => "anthropic_messages",
+            Harness::Command => "none",
+            _ => "openai_chat",
+        }
+    }
+}
+
+/// API credentials read from a file outside every workspace; never logged, never in a manifest.
+#[derive(Clone)]
+pub struct Credentials {
+    pub api_base: Option<String>,
+    pub api_key: String,
+    pub source: PathBuf,
+}
+
+impl std::fmt::Debug for Credentials {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Credentials").field("api_base", &self.api_base).field("source", &self.source).finish_non_exhaustive()
+    }
+}
+
+/// Default credentials file: `~/.config/libero-agent/credentials`.
+pub fn default_credentials_file() -> PathBuf {
+    let home = std::env::var_os("HOME").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/"));
+    home.join(".config/libero-agent/credentials")
+}
+
+impl Credentials {
+    /// `KEY = value` lines (`APIKEY|API_KEY|OPENAI_API_KEY`, `APIURL|API_BASE_URL|OPENAI_API_BASE|OPENAI_API_URL`),
+    /// else a bare http(s) URL line and the first other non-comment line of at least 8 characters as the key.
+    pub fn parse(text: &str, source: &Path) -> anyhow::Result<Self> {
+        let (mut base, mut key, mut bare_key) = (None, None, None);
+        for line in text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('#')) {
+            if let Some((k, v)) = line.split_once('=') {
+                let v = v.trim().trim_matches(['"', '\'']).to_owned();
+                match k.trim() {
+                    "APIKEY" | "API_KEY" | "OPENAI_API_KEY" => key = Some(v),
+                    "APIURL" | "API_BASE_URL" | "OPENAI_API_BASE" | "OPENAI_API_URL" => base = Some(v),
+                    _ => {}
+                }
+            } else if line.starts_with("http://") || line.starts_with("https://") {
+                base.get_or_insert_with(|| line.to_owned());
+            } else if line.len() >= 8 && bare_key.is_none() {
+                bare_key = Some(line.to_owned());
+            }
+        }
+        let api_key = key.or(bare_key).with_context(|| format!("{} holds no API key (APIKEY=…)", source.display()))?;
+        Ok(Self { api_base: base, api_key, source: source.to_path_buf() })
+    }
+
+    pub fn load(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read credentials file {}", path.display()))?;
+        Self::parse(&text, path)
+    }
+
+    /// OpenAI-style base: `/v1` appended if missing.
+    pub fn openai_base(&self) -> Option<String> {
+        self.api_base.as_ref().map(|b| {
+            let b = b.trim_end_matches('/');
+            if b.ends_with("/v1") { b.to_owned() } else { format!("{b}/v1") }
+        })
+    }
+
+    /// Anthropic-style base: a trailing `/v1` removed.
+    pub fn anthropic_base(&self) -> Option<String> {
+        self.api_base.as_ref().map(|b| b.trim_end_matches('/').trim_end_matches("/v1").to_owned())
+    }
+}
+
+/// Everything a launch depends on.
+pub struct LaunchContext<'a> {
+    pub harness: Harness,
+    pub model: &'a str,
+    pub effort: &'a str,
+    pub workspace: &'a Path,
+    pub session_home: &'a Path,
+    pub prompt: &'a str,
+    pub prompt_file: &'a Path,
+    pub mcp_url: &'a str,
+    pub mcp_token: &'a str,
+    pub credentials: Option<&'a Credentials>,
+    pub agent_cmd: Option<&'a str>,
+    /// This binary (for `mcp-stdio` and `{libero_agent}`).
+    pub self_exe: &'a Path,
+    /// Whether our sandbox isolates the agent (then Codex's own sandbox is not nested inside it).
+    pub sandboxed: bool,
+}
+
+/// A launch: argv, the child's whole environment, files to write first (path, content, mode).
+pub struct Launch {
+    pub argv: Vec<String>,
+    pub env: Vec<(String, String)>,
+    pub files: Vec<(PathBuf, String, u32)>,
+}
+
+impl Launch {
+    /// The argv for manifests: the prompt replaced by `<task-prompt>`.
+    pub fn public_argv(&self, prompt: &str) -> Vec<String> {
+        self.argv.iter().map(|a| if a == prompt { "<task-prompt>".to_owned() } else { a.clone() }).collect()
+    }
+}
+
+/// Shell-quotes one word.
+pub fn shell_quote(s: &str) -> String {
+    format!("'{}'", s.replace('\'', r"'\''"))
+}
+
+fn tool_names() -> Vec<&'static str> {
+    ToolName::ALL.iter().map(|t| t.as_str()).collect()
+}
+
+/// `{"mcpServers": {"libero": {"type": "http", "url", "headers"}}}` (Claude Code; Kimi adds timeouts).
+pub fn claude_mcp_config(url: &str, token: &str) -> Value {
+    json!({"mcpServers": {MCP_SERVER_KEY: {"type": "http", "url": url, "headers": {"Authorization": format!("Bearer {token}")}}}})
+}
+
+/// Qwen Code (a Gemini CLI fork) names streamable HTTP servers by `httpUrl`.
+pub fn qwen_mcp_config(url: &str, token: &str) -> Value {
+    json!({"mcpServers": {MCP_SERVER_KEY: {"httpUrl": url, "headers": {"Authorization": format!("Bearer {token}")},
+        "timeout": 600000, "trust": true, "includeTools": tool_names()}}})
+}
+
+/// Codex's `--config` overrides for the episode's MCP server (TOML values); the token comes from the
+/// environment variable `LIBERO_MCP_TOKEN`, never from argv.
+pub fn codex_mcp_args(url: &str) -> Vec<String> {
+    let tools = tool_names().iter().map(|t| format!("\"{t}\"")).collect::<Vec<_>>().join(", ");
+    [
+        format!("mcp_servers.{MCP_SERVER_KEY}.url=\"{url}\""),
+        format!("mcp_servers.{MCP_SERVER_KEY}.bearer_token_env_var=\"LIBERO_MCP_TOKEN\""),
+        format!("mcp_servers.{MCP_SERVER_KEY}.required=true"),
+        format!("mcp_servers.{MCP_SERVER_KEY}.startup_timeout_sec=30"),
+        format!("mcp_servers.{MCP_SERVER_KEY}.tool_timeout_sec=600"),
+        format!("mcp_servers.{MCP_SERVER_KEY}.enabled_tools=[{tools}]"),
+    ]
+    .into_iter()
+    .flat_map(|c| ["--config".to_owned(), c])
+    .collect()
+}
+
+fn s(x: &str) -> String {
+    x.to_owned()
+}
+
+/// Builds the launch of `ctx.harness`.
+pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
+    let home = ctx.session_home;
+    let home_s = home.to_string_lossy().into_owned();
+    let path = std::env::var("PATH").unwrap_or_else(|_| s("/usr/local/bin:/usr/bin:/bin"));
+    let mut env = vec![
+        (s("PATH"), path),
+        (s("HOME"), home_s.clone()),
+        (s("LANG"), s("C.UTF-8")),
+        (s("TERM"), s("dumb")),
+        (s("NO_COLOR"), s("1")),
+        (s("TMPDIR"), s("/tmp")),
+        (s("LIBERO_AGENT_WORKSPACE"), ctx.workspace.to_string_lossy().into_owned()),
+        (s("LIBERO_MCP_URL"), s(ctx.mcp_url)),
+        (s("LIBERO_MCP_TOKEN"), s(ctx.mcp_token)),
+    ];
+    let mut files = Vec::new();
+    let creds = || -> anyhow::Result<&Credentials> {
+        ctx.credentials.with_context(|| format!("the {} harness needs API credentials", ctx.harness.as_str()))
+    };
+    let prompt = s(ctx.prompt);
+    let argv: Vec<String> = match ctx.harness {
+        Harness::Codex => {
+            let c = creds()?;
+            env.push((s("CODEX_HOME"), home_s.clone()));
+            env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
+            env.push((s("CODEX_API_KEY"), c.api_key.clone()));
+            let mut a = vec![s("codex"), s("exec")];
+            if ctx.sandboxed {
+                // Our bubblewrap sandbox is the isolation; Codex's own (landlock/bwrap) cannot nest inside it.
+                a.push(s("--dangerously-bypass-approvals-and-sandbox"));
+            } else {
+                a.extend([s("--sandbox"), s("workspace-write"), s("--config"), s("approval_policy=\"never\"")]);
+            }
+            a.extend([s("--skip-git-repo-check"), s("--color"), s("never"), s("--model"), s(ctx.model)]);
+            a.extend([s("--config"), format!("model_reasoning_effort=\"{}\"", ctx.effort)]);
+            if let Some(b) = c.openai_base() {
+                a.extend([s("--config"), format!("openai_base_url=\"{b}\"")]);
+            }
+            a.extend(codex_mcp_args(ctx.mcp_url));
+            a.push(prompt);
+            a
+        }
+        Harness::ClaudeCode => {
+            let c = creds()?;
+            let cfg = home.join("mcp.json");
+            files.push((cfg.clone(), serde_json::to_string_pretty(&claude_mcp_config(ctx.mcp_url, ctx.mcp_token))?, 0o600));
+            if let Some(b) = c.anthropic_base() {
+                env.push((s("ANTHROPIC_BASE_URL"), b));
+            }
+            env.push((s("ANTHROPIC_API_KEY"), c.api_key.clone()));
+            env.push((s("CLAUDE_CONFIG_DIR"), home_s.clone()));
+            env.push((s("CLAUDE_CODE_DISABLE_NONESSENTIAL_TRAFFIC"), s("1")));
+            vec![
+                s("claude"), s("--bare"), s("--strict-mcp-config"), s("--mcp-config"), cfg.to_string_lossy().into_owned(),
+                s("--print"), s("--output-format"), s("stream-json"), s("--verbose"), s("--model"), s(ctx.model),
+                s("--effort"), s(ctx.effort), s("--permission-mode"), s("bypassPermissions"), prompt,
+            ]
+        }
+        Harness::KimiCode => {
+            let c = creds()?;
+            let base = c.openai_base().context("Kimi Code needs an API base URL (APIURL=…) in the credentials file")?;
+            let toml = format!(
+                "default_model = \"libero-kimi\"\ndefault_permission_mode = \"auto\"\nmerge_all_available_skills = false\n\
+                 builtin_product_skills = false\ntelemetry = false\n\n[providers.libero]\ntype = \"openai\"\nbase_url = {}\n\
+                 api_key = {}\n\n[models.libero-kimi]\nprovider = \"libero\"\nmodel = {}\nmax_context_size = 200000\n\
+                 max_output_size = 8192\ncapabilities = [\"thinking\", \"image_in\", \"tool_use\"]\n\n[thinking]\n\
+                 enabled = true\neffort = {}\nkeep = \"all\"\n\n[loop_control]\nmax_attempts_per_step = 10\n",
+                json!(base), json!(c.api_key), json!(ctx.model), json!(ctx.effort)
+            );
+            files.push((home.join("config.toml"), toml, 0o600));
+            let mut mcp = claude_mcp_config(ctx.mcp_url, ctx.mcp_token);
+            mcp["mcpServers"][MCP_SERVER_KEY]["startupTimeoutMs"] = json!(600000);
+            mcp["mcpServers"][MCP_SERVER_KEY]["toolTimeoutMs"] = json!(600000);
+            mcp["mcpServers"][MCP_SERVER_KEY]["enabledTools"] = json!(tool_names());
+            files.push((home.join("mcp.json"), serde_json::to_string_pretty(&mcp)?, 0o600));
+            files.push((home.join("empty-skills/.keep"), String::new(), 0o600));
+            for (k, v) in [("KIMI_CODE_NO_AUTO_UPDATE", "1"), ("KIMI_CLI_NO_AUTO_UPDATE", "1"), ("KIMI_DISABLE_TELEMETRY", "1"),
+                ("KIMI_CODE_BUILTIN_PRODUCT_SKILLS", "0"), ("CHOKIDAR_USEPOLLING", "1"), ("CHOKIDAR_INTERVAL", "1000")]
+            {
+                env.push((s(k), s(v)));
+            }
+            env.push((s("KIMI_CODE_HOME"), home_s.clone()));
+            vec![
+                s("npx"), s("--yes"), s(KIMI_PACKAGE), s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
+                s("--skills-dir"), format!("{home_s}/empty-skills"), s("--prompt"), prompt,
+            ]
+        }
+        Harness::QwenCode => {
+            let c = creds()?;
+            let cfg = home.join("mcp.json");
+            files.push((cfg.clone(), serde_json::to_string_pretty(&qwen_mcp_config(ctx.mcp_url, ctx.mcp_token))?, 0o600));
+            let settings = json!({"security": {"auth": {"selectedType": "openai"}},
+                "model": {"name": ctx.model, "reasoningEffort": ctx.effort},
+                "privacy": {"usageStatisticsEnabled": false},
+                "telemetry": {"enabled": false, "logPrompts": false, "includeSensitiveSpanAttributes": false}});
+            files.push((home.join(".qwen/settings.json"), serde_json::to_string_pretty(&settings)?, 0o600));
+            env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
+            if let Some(b) = c.openai_base() {
+                env.push((s("OPENAI_BASE_URL"), b));
+            }
+            for (k, v) in [("OPENAI_MODEL", ctx.model), ("QWEN_MODEL", ctx.model), ("QWEN_HOME", &home_s),
+                ("QWEN_RUNTIME_DIR", &home_s), ("QWEN_DISABLE_TELEMETRY", "1"), ("QWEN_DISABLE_USAGE_STATISTICS", "1")]
+            {
+                env.push((s(k), s(v)));
+            }
+            vec![
+                s("npx"), s("--yes"), s(QWEN_PACKAGE), s("--auth-type"), s("openai"), s("--model"), s(ctx.model),
+                s("--mcp-config"), cfg.to_string_lossy().into_owned(), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
+                s("--approval-mode"), s("yolo"), s("--chat-recording"), s("--output-format"), s("stream-json"), prompt,
+            ]
+        }
+        Harness::Deepseek => {
+            let c = creds()?;
+            if ctx.effort != "high" {
+                bail!("the DeepSeek harness runs at reasoning effort high only (got {})", ctx.effort);
+            }
+            let base = c.openai_base().context("the DeepSeek harness needs an API base URL (APIURL=…)")?;
+            let relay = [
+                s("mcp-stdio"), s("--url"), s(ctx.mcp_url), s("--header"), format!("Authorization: Bearer {}", ctx.mcp_token),
+            ];
+            let patch = format!(
+                "- plugin: llm-deepseek\n  config:\n    apiKeyEnv: DEEPSEEK_API_KEY\n    baseURL: {base}\n    thinking: enabled\n    \
+                 reasoningEffort: high\n    maxTokens: 8192\n    models:\n      - id: {model}\n        contextWindow: 200000\n\
+                 - plugin: agent-loop\n  config:\n    agents:\n      - id: main\n        provider: deepseek-official\n        \
+                 model: {model}\n        cwd: {ws}\n- plugin: agent-default-model\n  config:\n    provider: deepseek-official\n    \
+                 model: {model}\n- plugin: session-persistence-jsonl\n  config:\n    root: {home}/sessions\n    compression: none\n\
+                 - plugin: '@deepseek-ai/dsh-mcp-client'\n  id: libero-mcp\n  config:\n    serverName: {key}\n    transport: stdio\n    \
+                 command: {exe}\n    args: {args}\n    cwd: {ws}\n    toolCallTimeoutMs: 600000\n    failOnStartupError: true\n",
+                model = json!(ctx.model),
+                ws = json!(ctx.workspace),
+                home = home_s,
+                key = MCP_SERVER_KEY,
+                exe = json!(ctx.self_exe),
+                args = json!(relay),
+            );
+            let patch_file = home.join("dsh_mcp.patch.yml");
+            files.push((patch_file.clone(), patch, 0o600));
+            env.push((s("DEEPSEEK_API_KEY"), c.api_key.clone()));
+            env.push((s("DEEPSEEK_BASE_URL"), base));
+            for (k, v) in [("DSH_HOME", home_s.as_str()), ("DSH_TELEMETRY_DISABLED", "1"), ("DSH_TELEMETRY_MODE", "DISABLED"),
+                ("DSH_TOOLS_MODE", "native"), ("DSH_PERMISSION_MODE", "workspace-write")]
+            {
+                env.push((s(k), s(v)));
+            }
+            vec![s("npx"), s("--yes"), s(DSH_PACKAGE), s("--profile"), s("headless"), s("--patch"),
+                patch_file.to_string_lossy().into_owned(), prompt]
+        }
+        Harness::Command => {
+            let template = ctx.agent_cmd.context("--harness command needs --agent-cmd \"…\"")?;
+            let mcp_config = ctx.workspace.join(".libero/mcp.json");
+            let cmd = template
+                .replace("{workspace}", &shell_quote(&ctx.workspace.to_string_lossy()))
+                .replace("{prompt_file}", &shell_quote(&ctx.prompt_file.to_string_lossy()))
+                .replace("{mcp_config}", &shell_quote(&mcp_config.to_string_lossy()))
+                .replace("{mcp_url}", &shell_quote(ctx.mcp_url))
+                .replace("{model}", &shell_quote(ctx.model))
+                .replace("{libero_agent}", &shell_quote(&ctx.self_exe.to_string_lossy()));
+            vec![s("/bin/sh"), s("-c"), cmd]
+        }
+    };
+    Ok(Launch { argv, env, files })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ctx<'a>(h: Harness, creds: Option<&'a Credentials>) -> LaunchContext<'a> {
+        LaunchContext {
+            harness: h,
+            model: "m-1",
+            effort: "high",
+            workspace: Path::new("/tmp/ws/w1_t14_level3"),
+            session_home: Path::new("/b/rollouts/w1/home"),
+            prompt: "open the drawer\n\n\nA LIBERO episode…",
+            prompt_file: Path::new("/tmp/ws/w1_t14_level3/TASK_PROMPT.txt"),
+            mcp_url: "http://127.0.0.1:9/mcp/ep-1",
+            mcp_token: "tok123",
+            credentials: creds,
+            agent_cmd: Some("run {workspace} {libero_agent}"),
+            self_exe: Path::new("/opt/libero-agent"),
+            sandboxed: true,
+        }
+    }
+
+    #[test]
+    fn credentials_parse_and_bases_normalise() {
+        let c = Credentials::parse("# comment\nAPIURL = https://api.example.com\nAPIKEY=\"sk-abcdefgh\"\n", Path::new("/c")).unwrap();
+        assert_eq!(c.api_key, "sk-abcdefgh");
+        assert_eq!(c.openai_base().as_deref(), Some("https://api.example.com/v1"));
+        let c = Credentials::parse("https://x.test/v1/\nsk-bare-key-1234\n", Path::new("/c")).unwrap();
+        assert_eq!((c.api_key.as_str(), c.anthropic_base().as_deref()), ("sk-bare-key-1234", Some("https://x.test")));
+        assert!(Credentials::parse("APIURL=https://x\n", Path::new("/c")).is_err());
+        assert!(!format!("{c:?}").contains("sk-bare"), "Debug never prints the key");
+    }
+
+    #[test]
+    fn every_launch_names_the_model_and_keeps_the_key_off_argv() {
+        let c = Credentials { api_base: Some("https://api.test".into()), api_key: "sk-secret-key".into(), source: "/c".into() };
+        for h in [Harness::Codex, Harness::ClaudeCode, Harness::KimiCode, Harness::QwenCode, Harness::Deepseek] {
+            let l = build_launch(&ctx(h, Some(&c))).unwrap();
+            assert!(l.argv.iter().all(|a| !a.contains("sk-secret-key")), "{h:?}");
+            assert!(l.argv.iter().any(|a| a.contains("m-1")) || l.files.iter().any(|f| f.1.contains("m-1")), "{h:?}");
+            assert_eq!(l.argv.last().unwrap(), "open the drawer\n\n\nA LIBERO episode…", "{h:?}: prompt last");
+            assert!(l.public_argv(ctx(h, None).prompt).contains(&"<task-prompt>".to_owned()));
+            assert!(build_launch(&ctx(h, None)).is_err(), "{h:?} without credentials");
+        }
+        let codex = build_launch(&ctx(Harness::Codex, Some(&c))).unwrap();
+        let joined = codex.argv.join(" ");
+        assert!(joined.contains("mcp_servers.libero.url=\"http://127.0.0.1:9/mcp/ep-1\""));
+        assert!(joined.contains("bearer_token_env_var=\"LIBERO_MCP_TOKEN\"") && !joined.contains("tok123"));
+        let claude = build_launch(&ctx(Harness::ClaudeCode, Some(&c))).unwrap();
+        let cfg: Value = serde_json::from_str(&claude.files[0].1).unwrap();
+        assert_eq!(cfg["mcpServers"]["libero"]["headers"]["Authorization"], "Bearer tok123");
+        assert_eq!(claude.files[0].2, 0o600);
+    }
+
+    #[test]
+    fn command_placeholders_expand_to_quoted_words() {
+        let l = build_launch(&ctx(Harness::Command, None)).unwrap();
+        assert_eq!(l.argv[2], "run '/tmp/ws/w1_t14_level3' '/opt/libero-agent'");
+        assert_eq!(shell_quote("a'b"), r"'a'\''b'");
+    }
+
+    /// The MCP configuration the runner writes is understood by the real CLIs, without any model call:
+    /// Codex parses our `--config` overrides into a streamable-HTTP server with the bearer-token variable, and
+    /// Claude Code, given our server entry, connects to a live episode endpoint with its token ("Connected").
+    /// Skipped (with a note) where a CLI is not installed (`npm install -g @openai/codex @anthropic-ai/claude-code`).
+    #[test]
+    fn installed_clis_understand_the_mcp_configuration() {
+        use crate::serve::client::{InProcessServer, prepare_episode};
+        use crate::serve::episodes::PrepareRequest;
+        let have = |p: &str| crate::run::sandbox::which(p).is_some();
+        if !have("codex") && !have("claude") {
+            eprintln!("note: neither codex nor claude is installed; skipped");
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let server = InProcessServer::start(dir.path().join("data"), "test_finished").unwrap();
+        let req = PrepareRequest {
+            level: 3,
+            workspace: Some(dir.path().join("ws")),
+            wall_time_s: 60.0,
+            max_agent_steps: 10,
+            ..PrepareRequest::new("T14")
+        };
+        let p = prepare_episode(&server.url, &req).unwrap();
+        let token = p.mcp_headers["Authorization"].trim_start_matches("Bearer ").to_owned();
+        // Not under /tmp: Codex refuses to create its helper links in a temporary CODEX_HOME.
+        let home = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target/cli-config-test-home");
+        let _ = std::fs::remove_dir_all(&home);
+        std::fs::create_dir_all(&home).unwrap();
+        if have("codex") {
+            let mut args: Vec<String> = codex_mcp_args(&p.mcp_url).into_iter().map(|a| if a == "--config" { "-c".into() } else { a }).collect();
+            args.extend(["mcp".into(), "get".into(), "libero".into(), "--json".into()]);
+            let out = std::process::Command::new("codex").args(&args).env("CODEX_HOME", &home).env("LIBERO_MCP_TOKEN", &token)
+                .output().unwrap();
+            let text = String::from_utf8_lossy(&out.stdout);
+            assert!(out.status.success(), "codex: {text} {}", String::from_utf8_lossy(&out.stderr));
+            let v: Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("codex mcp get --json: {e}: {text}"));
+            let t = &v["transport"];
+            assert_eq!((t["type"].as_str(), t["url"].as_str()), (Some("streamable_http"), Some(p.mcp_url.as_str())), "{v}");
+            assert_eq!(t["bearer_token_env_var"], "LIBERO_MCP_TOKEN", "{v}");
+            assert_eq!(v["enabled_tools"], json!(tool_names()), "{v}");
+        } else {
+            eprintln!("note: codex is not installed; its check skipped");
+        }
+        if have("claude") {
+            let entry = claude_mcp_config(&p.mcp_url, &token)["mcpServers"]["libero"].to_string();
+            let claude = |args: &[&str]| {
+                std::process::Command::new("claude").args(args).current_dir(&home).env("HOME", &home)
+                    .env("CLAUDE_CONFIG_DIR", &home).output().unwrap()
+            };
+            assert!(claude(&["mcp", "add-json", "libero", &entry]).status.success());
+            let out = claude(&["mcp", "list"]);
+            let text = String::from_utf8_lossy(&out.stdout);
+            assert!(text.contains("libero") && text.contains("Connected"), "claude mcp list: {text}");
+            // A wrong token is refused: the check really reached the episode endpoint.
+            let bad = claude_mcp_config(&p.mcp_url, "wrong")["mcpServers"]["libero"].to_string();
+            assert!(claude(&["mcp", "remove", "libero", "-s", "local"]).status.success());
+            assert!(claude(&["mcp", "add-json", "libero", &bad]).status.success());
+            let text = String::from_utf8_lossy(&claude(&["mcp", "list"]).stdout).into_owned();
+            assert!(!text.contains("Connected"), "a wrong token must not connect: {text}");
+        } else {
+            eprintln!("note: claude is not installed; its check skipped");
+        }
+        let _ = std::fs::remove_dir_all(&home);
+        server.stop().unwrap();
+    }
+}

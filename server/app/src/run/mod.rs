@@ -1,0 +1,397 @@
+//! `libero-agent run`: a benchmark batch. One fresh workspace, episode and agent process per rollout, run by
+//! `--concurrency` workers against one server (in-process on 127.0.0.1:0 unless `--server`), each agent in a
+//! bubblewrap sandbox, supervised against the episode's wall budget, classified per §4.8, with no automatic
+//! retries. Progress goes to stderr; `batch.json` and `rollouts.jsonl` in the batch directory are what the
+//! report and the dashboard read.
+pub mod batch;
+pub mod harness;
+pub mod rollout;
+pub mod sandbox;
+pub mod schedule;
+pub mod usage;
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use libero_episode::json::utc_now_iso;
+use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
+use libero_metrics::Outcome;
+use libero_tasks::catalog::Catalog;
+use serde_json::{Value, json};
+
+use batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord, append_record, read_records, write_batch_json};
+use harness::{Credentials, Harness, default_credentials_file};
+use sandbox::Sandbox;
+use schedule::{Demo, Experiment, PlannedRollout, plan};
+
+use crate::serve::client::InProcessServer;
+
+/// Set by SIGINT/SIGTERM: stop scheduling, stop running agents, record them INTERRUPTED.
+pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::SeqCst);
+}
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct RunArgs {
+    /// main_table: T01–T30 at level 3; manip_observation: T11–T20 at levels 1 and 2; context: T21–T30 with
+    /// video and video+trajectory demonstrations.
+    #[arg(long, value_enum)]
+    pub experiment: Experiment,
+    #[arg(long, value_enum)]
+    pub harness: Harness,
+    /// The model id, always explicit (for `command` it labels the agent in reports).
+    #[arg(long)]
+    pub model: String,
+    /// Reasoning effort where the harness supports it.
+    #[arg(long, default_value = "high", value_parser = ["low", "medium", "high"])]
+    pub effort: String,
+    #[arg(long, default_value_t = 1)]
+    pub concurrency: usize,
+    /// Only these tasks, e.g. `T11,T13` (default: every implemented task of the experiment).
+    #[arg(long, value_delimiter = ',')]
+    pub tasks: Vec<String>,
+    /// Rollouts per task and condition.
+    #[arg(long, default_value_t = 3)]
+    pub reps: u32,
+    /// Batch directory (default: ./agent_runs/batch_<UTC time>).
+    #[arg(long)]
+    pub batch: Option<PathBuf>,
+    /// Print the schedule and launch nothing.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// With --dry-run: one JSON object per rollout on stdout.
+    #[arg(long, requires = "dry_run")]
+    pub json: bool,
+    /// Continue an existing batch: finished rollouts are skipped, changed settings refused.
+    #[arg(long)]
+    pub resume: bool,
+    /// The agent of `--harness command`; `{workspace}`, `{prompt_file}`, `{mcp_config}`, `{mcp_url}`, `{model}`
+    /// and `{libero_agent}` expand to shell-quoted words; run by /bin/sh in the workspace.
+    #[arg(long)]
+    pub agent_cmd: Option<String>,
+    /// A running `libero-agent serve` (default: a server in this process on 127.0.0.1:0).
+    #[arg(long)]
+    pub server: Option<String>,
+    /// Data directory of the in-process server (default: <batch>/server).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Where workspaces are created (default: $TMPDIR/libero-agent-workspaces/<batch name>).
+    #[arg(long)]
+    pub workspace_root: Option<PathBuf>,
+    /// API credentials (APIKEY=…, APIURL=…), outside every workspace (default ~/.config/libero-agent/credentials).
+    #[arg(long)]
+    pub credentials_file: Option<PathBuf>,
+    #[arg(long, default_value_t = 100)]
+    pub seed: u64,
+    #[arg(long, default_value_t = DEFAULT_WALL_TIME_S)]
+    pub wall_time_s: f64,
+    #[arg(long, default_value_t = MAX_AGENT_STEPS_CAP)]
+    pub max_agent_steps: u64,
+    /// Run agents without the bubblewrap sandbox (they can then read everything this user can).
+    #[arg(long)]
+    pub no_sandbox: bool,
+}
+
+/// What every rollout of a batch shares.
+pub struct RunContext {
+    pub batch_dir: PathBuf,
+    pub workspace_root: PathBuf,
+    pub server_url: String,
+    pub settings: BatchSettings,
+    pub harness: Harness,
+    pub credentials: Option<Credentials>,
+    pub sandbox: Option<Sandbox>,
+    pub harness_version: Value,
+    pub self_exe: PathBuf,
+}
+
+fn parse_tasks(tasks: &[String]) -> anyhow::Result<Vec<u32>> {
+    tasks
+        .iter()
+        .map(|t| t.trim().trim_start_matches(['T', 't']).parse::<u32>().with_context(|| format!("not a task id: {t:?}")))
+        .collect()
+}
+
+fn settings_of(args: &RunArgs, tasks: &[u32]) -> BatchSettings {
+    BatchSettings {
+        experiment: args.experiment.as_str().to_owned(),
+        harness: args.harness.as_str().to_owned(),
+        model: args.model.clone(),
+        effort: args.effort.clone(),
+        reps: args.reps,
+        tasks: tasks.to_vec(),
+        seed: args.seed,
+        wall_time_s: args.wall_time_s,
+        max_agent_steps: args.max_agent_steps,
+        agent_cmd: args.agent_cmd.clone(),
+        sandbox: !args.no_sandbox,
+    }
+}
+
+/// `<program> --version` (90 s), first version-looking word of the output.
+fn probe_version(harness: Harness) -> Value {
+    let Some(argv) = harness.version_probe() else {
+        return json!({"requested": null, "observed": null, "probe_output": null});
+    };
+    let out = std::process::Command::new(&argv[0]).args(&argv[1..]).stdin(std::process::Stdio::null()).output();
+    let text = match out {
+        Ok(o) => format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)),
+        Err(e) => format!("cannot run {}: {e}", argv[0]),
+    };
+    let observed = text
+        .split(|c: char| c.is_whitespace() || c == '@' || c == 'v')
+        .find(|w| w.split('.').count() >= 3 && w.split('.').next().is_some_and(|x| x.parse::<u32>().is_ok()));
+    json!({"requested": argv[..argv.len() - 1].join(" "), "observed": observed, "probe_output": text.trim().chars().take(500).collect::<String>()})
+}
+
+fn default_batch_dir() -> PathBuf {
+    let stamp: String = utc_now_iso()[..19].chars().filter(|c| c.is_ascii_digit() || *c == 'T').collect();
+    PathBuf::from("agent_runs").join(format!("batch_{stamp}Z"))
+}
+
+fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
+    Ok(if p.is_absolute() { p.to_path_buf() } else { std::env::current_dir()?.join(p) })
+}
+
+/// Live counts for the terminal and `batch.json`.
+struct Progress {
+    total: usize,
+    done: usize,
+    running: BTreeSet<String>,
+    outcomes: BTreeMap<Outcome, usize>,
+}
+
+impl Progress {
+    fn line(&self) -> String {
+        let o: Vec<String> = self.outcomes.iter().map(|(k, v)| format!("{} {v}", k.as_str())).collect();
+        format!(
+            "[{} done, {} running, {} left] {}",
+            self.done,
+            self.running.len(),
+            self.total - self.done - self.running.len(),
+            if o.is_empty() { "no outcomes yet".to_owned() } else { o.join(", ") }
+        )
+    }
+}
+
+fn batch_value(ctx: &RunContext, status: &str, created_at: &str, p: &Progress, skipped: &[String]) -> Value {
+    json!({
+        "schema_version": BATCH_SCHEMA,
+        "created_at": created_at,
+        "updated_at": utc_now_iso(),
+        "status": status,
+        "settings": ctx.settings,
+        "settings_sha256": ctx.settings.sha256(),
+        "harness": {"name": ctx.harness.as_str(), "version": ctx.harness_version},
+        "sandbox": ctx.sandbox.as_ref().map(|s| json!({"kind": "bubblewrap", "version": s.version})),
+        "server_url": ctx.server_url,
+        "workspace_root": ctx.workspace_root,
+        "max_outer_retries": 0,
+        "rollout_count": p.total,
+        "skipped_unimplemented_tasks": skipped,
+        "counts": {"done": p.done, "running": p.running.len(), "left": p.total - p.done - p.running.len()},
+        "running": p.running,
+        "outcomes": p.outcomes.iter().map(|(k, v)| (k.as_str().to_owned(), json!(v))).collect::<serde_json::Map<_, _>>(),
+    })
+}
+
+pub fn run(args: RunArgs) -> anyhow::Result<()> {
+    if args.concurrency == 0 {
+        bail!("--concurrency must be at least 1");
+    }
+    if args.model.trim().is_empty() {
+        bail!("--model must name the model");
+    }
+    if (args.harness == Harness::Command) != args.agent_cmd.is_some() {
+        bail!("--agent-cmd is required with --harness command and only allowed with it");
+    }
+    let catalog = Catalog::discover()?;
+    let only = parse_tasks(&args.tasks)?;
+    let (schedule, skipped) = plan(args.experiment, catalog.tasks(), (!only.is_empty()).then_some(&only[..]), args.reps)?;
+    if !skipped.is_empty() {
+        eprintln!("not implemented in this build, left out: {}", skipped.join(", "));
+    }
+    if args.dry_run {
+        for r in &schedule {
+            if args.json {
+                println!("{}", serde_json::to_string(r)?);
+            } else {
+                println!("{:<24} {} {:<34} level {} demo {}", r.rollout_id, r.task, r.task_name, r.level, r.demo.as_str());
+            }
+        }
+        if !args.json {
+            eprintln!("{} rollouts ({} experiment, {} × {} reps); nothing launched", schedule.len(), args.experiment.as_str(),
+                args.harness.as_str(), args.reps);
+        }
+        return Ok(());
+    }
+    if schedule.iter().any(|r| r.demo != Demo::None) {
+        bail!(
+            "the context experiment needs demonstration bundles (video, video + trajectory) in the workspace, which \
+             episode preparation does not provide yet; use --dry-run to see its schedule"
+        );
+    }
+    if schedule.is_empty() {
+        bail!("nothing to run");
+    }
+    let settings = settings_of(&args, &only);
+    let batch_dir = absolute(&args.batch.clone().unwrap_or_else(default_batch_dir))?;
+    let existing = batch::batch_json(&batch_dir);
+    let (created_at, done_records) = if existing.is_file() {
+        if !args.resume {
+            bail!("{} already holds a batch; pass --resume to continue it", batch_dir.display());
+        }
+        let old: Value = serde_json::from_str(&std::fs::read_to_string(&existing)?)?;
+        if old["settings_sha256"] != json!(settings.sha256()) {
+            bail!(
+                "--resume refuses changed settings: the batch was started with {}, now {}",
+                old["settings"],
+                serde_json::to_value(&settings)?
+            );
+        }
+        (old["created_at"].as_str().unwrap_or_default().to_owned(), read_records(&batch_dir)?)
+    } else {
+        std::fs::create_dir_all(&batch_dir)?;
+        (utc_now_iso(), Vec::new())
+    };
+    let credentials = if args.harness.needs_credentials() {
+        let path = args.credentials_file.clone().unwrap_or_else(default_credentials_file);
+        Some(Credentials::load(&path)?)
+    } else {
+        None
+    };
+    let sandbox = if args.no_sandbox {
+        eprintln!("warning: --no-sandbox: agents run without isolation and can read every file this user can");
+        None
+    } else {
+        Some(Sandbox::detect()?)
+    };
+    let batch_name = batch_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "batch".into());
+    let workspace_root = match &args.workspace_root {
+        Some(w) => absolute(w)?,
+        None => std::env::temp_dir().join("libero-agent-workspaces").join(&batch_name),
+    };
+    if let Some(c) = &credentials
+        && (c.source.starts_with(&workspace_root) || c.source.starts_with(&batch_dir))
+    {
+        bail!("the credentials file must lie outside the workspaces and the batch directory");
+    }
+    std::fs::create_dir_all(&workspace_root)?;
+    let self_exe = std::env::current_exe()?;
+    let harness_version = probe_version(args.harness);
+    // Rollouts with a directory but no record were running when an earlier runner died: INTERRUPTED, no retry.
+    let mut finished: BTreeSet<String> = done_records.iter().map(|r| r.rollout_id.clone()).collect();
+    for r in &schedule {
+        if !finished.contains(&r.rollout_id) && batch_dir.join("rollouts").join(&r.rollout_id).exists() {
+            let rec = interrupted_record(r);
+            append_record(&batch_dir, &rec)?;
+            finished.insert(r.rollout_id.clone());
+        }
+    }
+    let records_so_far = read_records(&batch_dir)?;
+    let mut outcomes = BTreeMap::new();
+    for r in records_so_far.iter().filter(|r| schedule.iter().any(|s| s.rollout_id == r.rollout_id)) {
+        *outcomes.entry(r.outcome).or_insert(0) += 1;
+    }
+    let todo: VecDeque<PlannedRollout> = schedule.iter().filter(|r| !finished.contains(&r.rollout_id)).cloned().collect();
+    let progress = Progress { total: schedule.len(), done: schedule.len() - todo.len(), running: BTreeSet::new(), outcomes };
+    // The in-process server lives as long as the batch.
+    let (server, server_url) = match &args.server {
+        Some(url) => (None, url.trim_end_matches('/').to_owned()),
+        None => {
+            let data = absolute(&args.data.clone().unwrap_or_else(|| batch_dir.join("server")))?;
+            let s = InProcessServer::start(data, "batch_runner_stopped_before_finish")?;
+            let url = s.url.clone();
+            (Some(s), url)
+        }
+    };
+    let ctx = Arc::new(RunContext {
+        batch_dir: batch_dir.clone(),
+        workspace_root,
+        server_url,
+        settings,
+        harness: args.harness,
+        credentials,
+        sandbox,
+        harness_version,
+        self_exe,
+    });
+    // SAFETY: installing an async-signal-safe handler that only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
+    let skipped = Arc::new(skipped);
+    write_batch_json(&batch_dir, &batch_value(&ctx, "running", &created_at, &progress, &skipped))?;
+    eprintln!("batch {} — {}", batch_dir.display(), progress.line());
+    let queue = Arc::new(Mutex::new(todo));
+    let state = Arc::new(Mutex::new(progress));
+    let workers: Vec<_> = (0..args.concurrency)
+        .map(|_| {
+            let (ctx, queue, state, skipped, created_at) =
+                (ctx.clone(), queue.clone(), state.clone(), skipped.clone(), created_at.clone());
+            std::thread::spawn(move || -> anyhow::Result<()> {
+                loop {
+                    if INTERRUPTED.load(Ordering::SeqCst) {
+                        return Ok(());
+                    }
+                    let Some(next) = queue.lock().map_err(|_| anyhow::anyhow!("queue poisoned"))?.pop_front() else {
+                        return Ok(());
+                    };
+                    {
+                        let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
+                        p.running.insert(next.rollout_id.clone());
+                        write_batch_json(&ctx.batch_dir, &batch_value(&ctx, "running", &created_at, &p, &skipped))?;
+                        eprintln!("{}: started — {}", next.rollout_id, p.line());
+                    }
+                    let rec = rollout::run_rollout(&ctx, &next);
+                    let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
+                    append_record(&ctx.batch_dir, &rec)?;
+                    p.running.remove(&rec.rollout_id);
+                    p.done += 1;
+                    *p.outcomes.entry(rec.outcome).or_insert(0) += 1;
+                    write_batch_json(&ctx.batch_dir, &batch_value(&ctx, "running", &created_at, &p, &skipped))?;
+                    let why = rec.infrastructure_error.as_deref().map(|e| format!(" ({e})")).unwrap_or_default();
+                    eprintln!("{}: {}{why} — {}", rec.rollout_id, rec.outcome.as_str(), p.line());
+                }
+            })
+        })
+        .collect();
+    let mut failure = None;
+    for w in workers {
+        match w.join() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => failure = Some(e),
+            Err(_) => failure = Some(anyhow::anyhow!("a worker panicked")),
+        }
+    }
+    if let Some(s) = server {
+        // Give the store a moment to record the last transitions, then stop.
+        std::thread::sleep(Duration::from_millis(200));
+        s.stop()?;
+    }
+    let p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
+    let stopped = INTERRUPTED.load(Ordering::SeqCst) || failure.is_some();
+    write_batch_json(&batch_dir, &batch_value(&ctx, if stopped { "stopped" } else { "finished" }, &created_at, &p, &skipped))?;
+    eprintln!("batch {}: {}", if stopped { "stopped" } else { "finished" }, p.line());
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    if stopped {
+        bail!("interrupted; `--resume` continues the batch (interrupted rollouts are not retried)");
+    }
+    Ok(())
+}
+
+fn interrupted_record(r: &PlannedRollout) -> RolloutRecord {
+    let mut rec = RolloutRecord::planned(r);
+    rec.outcome = Outcome::Interrupted;
+    rec.infrastructure_error = Some("an earlier runner stopped while this rollout ran (found at --resume)".into());
+    rec
+}

@@ -1,0 +1,368 @@
+//! One rollout: prepare the episode (fresh workspace), launch the agent in its sandbox, supervise it against
+//! the wall clock, end the episode if the agent did not, classify the outcome (§4.8), account time and tokens,
+//! scrub logs. No retries: whatever happens is the rollout's record.
+use std::fs;
+use std::os::unix::fs::PermissionsExt;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use libero_episode::json::{utc_now_iso, write_json_file};
+use libero_metrics::Outcome;
+use serde_json::{Value, json};
+
+use super::batch::RolloutRecord;
+use super::harness::{Harness, LaunchContext, build_launch};
+use super::sandbox::{SandboxSpec, cli_install_paths, own_binary_files};
+use super::schedule::PlannedRollout;
+use super::usage::{Usage, usage_from_codex_session, usage_from_jsonl};
+use super::{INTERRUPTED, RunContext};
+use crate::serve::client::{get_json, post_json, prepare_episode};
+use crate::serve::episodes::PrepareRequest;
+
+/// Supervision poll period.
+const POLL: Duration = Duration::from_millis(250);
+/// After the episode ended, how long the agent may keep running (to read the verdict) before it is stopped.
+const AFTER_FINISH_GRACE: Duration = Duration::from_secs(5);
+/// After the agent exited without finishing, how long the episode may still end (an in-flight call).
+const AGENT_EXIT_GRACE: Duration = Duration::from_secs(15);
+/// Beyond the episode's wall budget, how long the agent may run before the watchdog kills it (§8.4: 15 + 30 s).
+pub const WATCHDOG_GRACE_S: f64 = 45.0;
+/// SIGTERM → SIGKILL grace for the agent's process group.
+const KILL_GRACE: Duration = Duration::from_secs(10);
+
+pub const WATCHDOG_ERROR: &str = "multi-agent rollout wall-clock supervision timeout";
+
+/// §4.8 with the harness's infrastructure error.
+pub fn classify(result: Option<&Value>, infra: Option<&str>, budget_s: f64) -> Outcome {
+    if let (Some(r), Some(e)) = (result, infra)
+        && e.contains("wall-clock supervision timeout")
+        && r["wall_time_seconds"].as_f64().is_some_and(|w| w >= budget_s)
+    {
+        return Outcome::WatchdogTimeout;
+    }
+    if infra.is_some() {
+        return Outcome::Invalid;
+    }
+    let Some(r) = result else { return Outcome::Invalid };
+    if r["status"] != "finished" || r.get("infrastructure_error").is_some_and(|v| !v.is_null()) {
+        return Outcome::Invalid;
+    }
+    if r["success"] == true {
+        Outcome::Success
+    } else if r["termination_reason"] == "episode_wall_time_budget_exhausted" {
+        Outcome::SimTimeout
+    } else {
+        Outcome::Fail
+    }
+}
+
+/// Replaces the API key, `sk-…` tokens and `Bearer …` values with `<redacted>`.
+pub fn scrub(text: &str, secrets: &[&str]) -> String {
+    let mut out = text.to_owned();
+    for s in secrets.iter().filter(|s| s.len() >= 6) {
+        out = out.replace(*s, "<redacted>");
+    }
+    let mut result = String::with_capacity(out.len());
+    let mut rest = out.as_str();
+    loop {
+        let next = [rest.find("sk-"), rest.find("Bearer ")].into_iter().flatten().min();
+        let Some(i) = next else { break };
+        let prefix_len = if rest[i..].starts_with("sk-") { 3 } else { 7 };
+        result.push_str(&rest[..i + prefix_len]);
+        let tail = &rest[i + prefix_len..];
+        let end = tail.find(|c: char| !(c.is_ascii_alphanumeric() || "-_.".contains(c))).unwrap_or(tail.len());
+        if end >= 6 {
+            result.push_str("<redacted>");
+        } else {
+            result.push_str(&tail[..end]);
+        }
+        rest = &tail[end..];
+    }
+    result.push_str(rest);
+    result
+}
+
+fn read_result(run_dir: &Path) -> Option<Value> {
+    serde_json::from_str(&fs::read_to_string(run_dir.join("result.json")).ok()?).ok()
+}
+
+/// The episode's state: from its run directory when this machine sees it, else from the server's API.
+fn episode_ended(ctx: &RunContext, episode_id: &str, run_dir: &Path) -> bool {
+    if run_dir.is_dir() {
+        return run_dir.join("result.json").is_file();
+    }
+    matches!(get_json(&ctx.server_url, &format!("/api/episodes/{episode_id}")), Ok((200, v)) if v["state"] == "finished" || v["state"] == "aborted" || !v["outcome"].is_null())
+}
+
+fn kill_group(child: &mut Child) {
+    let pgid = child.id() as i32;
+    // SAFETY: kill(2) on the process group we created for the agent; no memory is touched.
+    unsafe { libc::kill(-pgid, libc::SIGTERM) };
+    let t = Instant::now();
+    while t.elapsed() < KILL_GRACE {
+        if matches!(child.try_wait(), Ok(Some(_))) {
+            // The leader is gone; make sure nothing of the group lingers.
+            unsafe { libc::kill(-pgid, libc::SIGKILL) };
+            return;
+        }
+        std::thread::sleep(POLL);
+    }
+    unsafe { libc::kill(-pgid, libc::SIGKILL) };
+    let _ = child.wait();
+}
+
+/// Session files the harness wrote under its home (JSON lines), for token accounting.
+fn jsonl_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(rd) = fs::read_dir(dir) else { return };
+    for e in rd.flatten() {
+        let p = e.path();
+        if p.is_dir() && !p.ends_with("node_modules") && !p.ends_with("_npx") {
+            jsonl_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "jsonl") {
+            out.push(p);
+        }
+    }
+}
+
+fn usage_of(harness: Harness, stdout: &Path, home: &Path, workspace: &Path) -> Usage {
+    let mut files = Vec::new();
+    jsonl_files(home, &mut files);
+    match harness {
+        Harness::Codex => {
+            let texts: Vec<String> = files.iter().filter_map(|f| fs::read_to_string(f).ok()).collect();
+            usage_from_codex_session(texts.iter().map(String::as_str))
+        }
+        Harness::Command => Usage::default(),
+        _ => {
+            if harness == Harness::Deepseek {
+                jsonl_files(workspace, &mut files);
+            }
+            if stdout.extension().is_some_and(|x| x == "jsonl") {
+                files.push(stdout.to_path_buf());
+            }
+            let texts: Vec<String> = files.iter().filter_map(|f| fs::read_to_string(f).ok()).collect();
+            usage_from_jsonl(texts.iter().map(String::as_str))
+        }
+    }
+}
+
+/// Runs one rollout to its record.
+pub fn run_rollout(ctx: &RunContext, plan: &PlannedRollout) -> RolloutRecord {
+    let mut rec = RolloutRecord::planned(plan);
+    if let Err(e) = supervise(ctx, plan, &mut rec) {
+        rec.infrastructure_error.get_or_insert_with(|| format!("{e:#}"));
+        rec.outcome = if INTERRUPTED.load(Ordering::SeqCst) { Outcome::Interrupted } else { Outcome::Invalid };
+    }
+    rec.finished_at = utc_now_iso();
+    rec
+}
+
+fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -> anyhow::Result<()> {
+    let dir = ctx.batch_dir.join("rollouts").join(&plan.rollout_id);
+    fs::create_dir_all(ctx.batch_dir.join("rollouts"))?;
+    fs::create_dir(&dir).with_context(|| format!("{} already exists (an earlier attempt)", dir.display()))?;
+    let home = dir.join("home");
+    fs::create_dir(&home)?;
+    fs::set_permissions(&home, fs::Permissions::from_mode(0o700))?;
+    let workspace = ctx.workspace_root.join(&plan.rollout_id);
+    let req = PrepareRequest {
+        level: plan.level,
+        seed: ctx.settings.seed,
+        workspace: Some(workspace.clone()),
+        wall_time_s: ctx.settings.wall_time_s,
+        max_agent_steps: ctx.settings.max_agent_steps,
+        ..PrepareRequest::new(plan.task.clone())
+    };
+    let prepared = prepare_episode(&ctx.server_url, &req).context("episode preparation failed")?;
+    rec.episode_id = Some(prepared.episode_id.clone());
+    rec.workspace = Some(prepared.workspace.clone());
+    rec.run_dir = Some(prepared.run_dir.clone());
+    let token = prepared.mcp_headers.get("Authorization").map(|t| t.trim_start_matches("Bearer ").to_owned()).unwrap_or_default();
+    let prompt = fs::read_to_string(&prepared.prompt_file).context("cannot read the prepared prompt")?;
+    let lctx = LaunchContext {
+        harness: ctx.harness,
+        model: &ctx.settings.model,
+        effort: &ctx.settings.effort,
+        workspace: &prepared.workspace,
+        session_home: &home,
+        prompt: &prompt,
+        prompt_file: &prepared.prompt_file,
+        mcp_url: &prepared.mcp_url,
+        mcp_token: &token,
+        credentials: ctx.credentials.as_ref(),
+        agent_cmd: ctx.settings.agent_cmd.as_deref(),
+        self_exe: &ctx.self_exe,
+        sandboxed: ctx.sandbox.is_some(),
+    };
+    let launch = build_launch(&lctx)?;
+    for (path, content, mode) in &launch.files {
+        if let Some(p) = path.parent() {
+            fs::create_dir_all(p)?;
+        }
+        fs::write(path, content)?;
+        fs::set_permissions(path, fs::Permissions::from_mode(*mode))?;
+    }
+    let argv = match &ctx.sandbox {
+        Some(sb) => {
+            let mut readable = own_binary_files();
+            readable.extend(cli_install_paths(ctx.harness.program()));
+            let spec = SandboxSpec { writable: vec![prepared.workspace.clone(), home.clone()], readable, cwd: prepared.workspace.clone() };
+            sb.command(&launch.argv, &spec)
+        }
+        None => launch.argv.clone(),
+    };
+    let stdout_path = dir.join(ctx.harness.stdout_file());
+    let stderr_path = dir.join(format!("{}_stderr.log", ctx.harness.as_str()));
+    let mut manifest = json!({
+        "schema_version": "libero.multi_agent_harness_run.v1",
+        "rollout_id": plan.rollout_id,
+        "created_at": utc_now_iso(),
+        "harness": ctx.harness.as_str(),
+        "model_requested": ctx.settings.model,
+        "effort": ctx.settings.effort,
+        "harness_version": ctx.harness_version,
+        "api_protocol": ctx.harness.api_protocol(),
+        "credential_source": ctx.credentials.as_ref().map(|c| c.source.clone()),
+        "credential_material": "never_recorded",
+        "sandbox": ctx.sandbox.as_ref().map(|s| s.version.clone()),
+        "episode_id": prepared.episode_id,
+        "workspace": prepared.workspace,
+        "private_run": prepared.run_dir,
+        "session_home": home,
+        "command": launch.public_argv(&prompt),
+        "task": plan.task, "level": plan.level, "demo": plan.demo, "seed": ctx.settings.seed,
+        "max_wall_time_seconds": ctx.settings.wall_time_s, "max_agent_steps": ctx.settings.max_agent_steps,
+    });
+    write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
+    let mut cmd = Command::new(&argv[0]);
+    cmd.args(&argv[1..])
+        .env_clear()
+        .envs(launch.env.iter().map(|(k, v)| (k, v)))
+        .current_dir(&prepared.workspace)
+        .stdin(Stdio::null())
+        .stdout(fs::File::create(&stdout_path)?)
+        .stderr(fs::File::create(&stderr_path)?)
+        .process_group(0);
+    let t0 = Instant::now();
+    let mut child = cmd.spawn().with_context(|| format!("cannot start {}", argv[0]))?;
+    let deadline = Duration::from_secs_f64(ctx.settings.wall_time_s + WATCHDOG_GRACE_S);
+    let mut infra: Option<String> = None;
+    let mut ended_at: Option<Instant> = None;
+    let mut exited_at: Option<Instant> = None;
+    let mut exit_code = None;
+    loop {
+        if exit_code.is_none()
+            && let Ok(Some(st)) = child.try_wait()
+        {
+            exit_code = Some(st.code().unwrap_or(-1));
+            exited_at = Some(Instant::now());
+        }
+        if ended_at.is_none() && episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
+            ended_at = Some(Instant::now());
+        }
+        if INTERRUPTED.load(Ordering::SeqCst) {
+            infra = Some("the batch runner was interrupted (SIGINT/SIGTERM)".into());
+            break;
+        }
+        match (ended_at, exited_at) {
+            (Some(_), Some(_)) => break,
+            (Some(e), None) if e.elapsed() >= AFTER_FINISH_GRACE => break,
+            (None, Some(x)) if x.elapsed() >= AGENT_EXIT_GRACE => {
+                infra = Some(format!("harness exited before finish_episode (exit code {})", exit_code.unwrap_or(-1)));
+                break;
+            }
+            _ => {}
+        }
+        if t0.elapsed() >= deadline {
+            infra = Some(WATCHDOG_ERROR.into());
+            break;
+        }
+        std::thread::sleep(POLL);
+    }
+    if exit_code.is_none() {
+        kill_group(&mut child);
+        exit_code = child.try_wait().ok().flatten().map(|s| s.code().unwrap_or(-1));
+    }
+    let elapsed_s = t0.elapsed().as_secs_f64();
+    if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
+        let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
+        let _ = post_json(&ctx.server_url, &format!("/api/episodes/{}/abort", prepared.episode_id), &json!({"reason": reason}));
+    }
+    let result = read_result(&prepared.run_dir).or_else(|| {
+        // A server on another machine: its row carries the verdict.
+        get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)).ok().map(|(_, v)| {
+            json!({"status": if v["outcome"] == "INVALID" { "aborted" } else { "finished" }, "success": v["success"],
+                "accepted_agent_steps": v["accepted_agent_steps"], "reason": v["reason"],
+                "private_evaluation": {"completed_required_stage_count": v["completed_stage_count"]}})
+        })
+    });
+    if INTERRUPTED.load(Ordering::SeqCst) && infra.is_some() {
+        rec.outcome = Outcome::Interrupted;
+    } else {
+        rec.outcome = classify(result.as_ref(), infra.as_deref(), ctx.settings.wall_time_s);
+    }
+    if let Some(r) = &result {
+        rec.result_status = r["status"].as_str().map(str::to_owned);
+        rec.success = r["success"].as_bool();
+        rec.termination_reason = r["termination_reason"].as_str().or(r["reason"].as_str()).map(str::to_owned);
+        rec.wall_time_s = r["wall_time_seconds"].as_f64();
+        rec.accepted_agent_steps = r["accepted_agent_steps"].as_u64();
+        let pe = &r["private_evaluation"];
+        rec.completed_stages = pe["completed_required_stage_count"].as_u64().and_then(|c| u32::try_from(c).ok());
+        rec.judgment_correct = pe["judgment_correct"].as_bool();
+    }
+    rec.infrastructure_error = infra;
+    rec.harness_elapsed_s = Some(elapsed_s);
+    rec.agent_exit_code = exit_code;
+    rec.usage = Some(usage_of(ctx.harness, &stdout_path, &home, &prepared.workspace));
+    // Scrub what the agent printed: the API key, sk-… keys, bearer tokens (ours included).
+    let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
+    for p in [&stdout_path, &stderr_path] {
+        if let Ok(t) = fs::read_to_string(p) {
+            let _ = fs::write(p, scrub(&t, &secrets));
+        }
+    }
+    if let Some(m) = manifest.as_object_mut() {
+        m.insert("finished_at".into(), json!(utc_now_iso()));
+        m.insert("elapsed_seconds".into(), json!(elapsed_s));
+        m.insert("agent_exit_code".into(), json!(exit_code));
+        m.insert("infrastructure_error".into(), json!(rec.infrastructure_error));
+        m.insert("result_status".into(), json!(rec.result_status));
+        m.insert("task_success".into(), json!(rec.success));
+        m.insert("outcome".into(), json!(rec.outcome));
+    }
+    write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
+    write_json_file(&dir.join("harness_usage.json"), &serde_json::to_value(&rec.usage)?)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outcomes_follow_section_4_8() {
+        let fin = |ok: bool| json!({"status": "finished", "success": ok, "wall_time_seconds": 12.0});
+        assert_eq!(classify(Some(&fin(true)), None, 1800.0), Outcome::Success);
+        assert_eq!(classify(Some(&fin(false)), None, 1800.0), Outcome::Fail);
+        let expired = json!({"status": "finished", "success": false, "termination_reason": "episode_wall_time_budget_exhausted",
+            "wall_time_seconds": 1800.2});
+        assert_eq!(classify(Some(&expired), None, 1800.0), Outcome::SimTimeout);
+        let aborted = json!({"status": "aborted", "wall_time_seconds": 1800.5});
+        assert_eq!(classify(Some(&aborted), Some(WATCHDOG_ERROR), 1800.0), Outcome::WatchdogTimeout);
+        assert_eq!(classify(Some(&json!({"status": "aborted", "wall_time_seconds": 30.0})), Some(WATCHDOG_ERROR), 1800.0), Outcome::Invalid);
+        assert_eq!(classify(Some(&fin(true)), Some("harness exited before finish_episode"), 1800.0), Outcome::Invalid);
+        assert_eq!(classify(None, None, 1800.0), Outcome::Invalid);
+    }
+
+    #[test]
+    fn scrubbing_removes_keys_and_tokens() {
+        let t = "key=sk-abcdef123456 auth: Bearer 0123456789abcdef and MYSECRETKEY here; sk-no";
+        let s = scrub(t, &["MYSECRETKEY"]);
+        assert_eq!(s, "key=sk-<redacted> auth: Bearer <redacted> and <redacted> here; sk-no");
+    }
+}

@@ -1,0 +1,162 @@
+//! The agent's sandbox: bubblewrap with a fresh mount namespace in which the agent sees the system
+//! directories read-only (`/usr`, `/lib*`, `/bin`, `/sbin`, `/etc`), its own CLI's install, the files it is
+//! given to read, and writes only its workspace and its session home. Everything else — `tasks/`, `assets/`,
+//! the asset cache, the server's data directory and store, other episodes' workspaces and run directories,
+//! the batch directory — does not exist inside. The network namespace is shared, so the agent reaches the
+//! MCP endpoint on loopback and its model API.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{Context, bail};
+
+/// System directories visible read-only (symlinks such as Debian's `/lib -> usr/lib` are recreated as links).
+const SYSTEM_DIRS: [&str; 7] = ["/usr", "/etc", "/bin", "/sbin", "/lib", "/lib64", "/lib32"];
+
+/// A working bubblewrap.
+#[derive(Debug, Clone)]
+pub struct Sandbox {
+    pub bwrap: PathBuf,
+    pub version: String,
+}
+
+/// What one agent may see.
+#[derive(Debug, Clone, Default)]
+pub struct SandboxSpec {
+    /// Read-write (the workspace, the session home).
+    pub writable: Vec<PathBuf>,
+    /// Read-only extras outside the system directories (the CLI's install, this binary and its libraries).
+    pub readable: Vec<PathBuf>,
+    pub cwd: PathBuf,
+}
+
+/// Finds `name` on `PATH` (or takes it as a path).
+pub fn which(name: &str) -> Option<PathBuf> {
+    if name.contains('/') {
+        return Path::new(name).is_file().then(|| PathBuf::from(name));
+    }
+    std::env::var_os("PATH")
+        .into_iter()
+        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .map(|d| d.join(name))
+        .find(|p| p.is_file())
+}
+
+impl Sandbox {
+    /// Checks that bubblewrap exists and can build a sandbox here (user namespaces may be disabled, e.g. in
+    /// some containers); the error says what failed and that `--no-sandbox` is the explicit way out.
+    pub fn detect() -> anyhow::Result<Self> {
+        let bwrap = which("bwrap").context(
+            "bubblewrap (`bwrap`) is not installed (Debian: apt-get install bubblewrap); pass --no-sandbox to run \
+             agents without isolation",
+        )?;
+        let version = Command::new(&bwrap)
+            .arg("--version")
+            .output()
+            .ok()
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned())
+            .unwrap_or_default();
+        let s = Self { bwrap, version };
+        let probe = s.command(&["/bin/true".to_owned()], &SandboxSpec { cwd: "/".into(), ..Default::default() });
+        let out = Command::new(&probe[0]).args(&probe[1..]).output().context("cannot run bwrap")?;
+        if !out.status.success() {
+            bail!(
+                "bubblewrap cannot create a sandbox on this machine ({}): {}; user namespaces may be disabled \
+                 (kernel.unprivileged_userns_clone / user.max_user_namespaces, or the container's seccomp policy). \
+                 Pass --no-sandbox to run agents without isolation",
+                out.status,
+                String::from_utf8_lossy(&out.stderr).trim()
+            );
+        }
+        Ok(s)
+    }
+
+    /// The argv running `argv` inside the sandbox.
+    pub fn command(&self, argv: &[String], spec: &SandboxSpec) -> Vec<String> {
+        let mut a: Vec<String> = vec![self.bwrap.to_string_lossy().into_owned()];
+        let mut push = |xs: &[&str]| a.extend(xs.iter().map(|s| (*s).to_owned()));
+        push(&["--unshare-user", "--unshare-pid", "--unshare-ipc", "--unshare-uts", "--unshare-cgroup-try"]);
+        push(&["--die-with-parent", "--new-session"]);
+        for dir in SYSTEM_DIRS {
+            let p = Path::new(dir);
+            match std::fs::symlink_metadata(p) {
+                Ok(m) if m.file_type().is_symlink() => {
+                    if let Ok(target) = std::fs::read_link(p) {
+                        push(&["--symlink", &target.to_string_lossy(), dir]);
+                    }
+                }
+                Ok(_) => push(&["--ro-bind", dir, dir]),
+                Err(_) => {}
+            }
+        }
+        push(&["--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp", "--tmpfs", "/run"]);
+        // Later mounts win: system first, then the extras, then the writable directories.
+        for p in &spec.readable {
+            let s = p.to_string_lossy();
+            if !SYSTEM_DIRS.iter().any(|d| p.starts_with(d)) {
+                push(&["--ro-bind-try", &s, &s]);
+            }
+        }
+        for p in &spec.writable {
+            let s = p.to_string_lossy();
+            push(&["--bind", &s, &s]);
+        }
+        push(&["--chdir", &spec.cwd.to_string_lossy(), "--"]);
+        a.extend(argv.iter().cloned());
+        a
+    }
+}
+
+/// This executable and the shared libraries it loaded from outside the system directories (libmujoco from the
+/// asset cache): what a sandboxed `libero-agent agent`/`mcp-stdio` needs to start. Only these files, not
+/// their folders, so the cache's assets stay invisible.
+pub fn own_binary_files() -> Vec<PathBuf> {
+    let mut out: Vec<PathBuf> = std::env::current_exe().into_iter().collect();
+    if let Ok(maps) = std::fs::read_to_string("/proc/self/maps") {
+        for line in maps.lines() {
+            let Some(path) = line.split_whitespace().nth(5) else { continue };
+            let p = PathBuf::from(path);
+            if path.starts_with('/') && path.contains(".so") && !SYSTEM_DIRS.iter().any(|d| p.starts_with(d)) && !out.contains(&p) {
+                out.push(p);
+            }
+        }
+    }
+    out
+}
+
+/// The install of a CLI named `program`: the resolved executable and, for npm-installed JavaScript CLIs, the
+/// package directory above it (outside `/usr` only; `/usr` is visible anyway).
+pub fn cli_install_paths(program: &str) -> Vec<PathBuf> {
+    let Some(found) = which(program) else { return Vec::new() };
+    let resolved = std::fs::canonicalize(&found).unwrap_or(found.clone());
+    let mut out = vec![found, resolved.clone()];
+    if let Some(pkg) = resolved.ancestors().find(|a| a.parent().is_some_and(|p| p.ends_with("node_modules"))) {
+        out.push(pkg.to_path_buf());
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_command_binds_only_what_the_spec_names() {
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new() };
+        let spec = SandboxSpec {
+            writable: vec!["/tmp/ws/w1".into()],
+            readable: vec!["/usr/bin/codex".into(), "/opt/tool".into()],
+            cwd: "/tmp/ws/w1".into(),
+        };
+        let a = s.command(&["sh".into(), "-c".into(), "true".into()], &spec);
+        let joined = a.join(" ");
+        assert!(joined.contains("--bind /tmp/ws/w1 /tmp/ws/w1"));
+        assert!(joined.contains("--ro-bind-try /opt/tool /opt/tool"));
+        assert!(!joined.contains("/usr/bin/codex"), "inside /usr already");
+        assert!(joined.contains("--ro-bind /usr /usr") && joined.contains("--unshare-user"));
+        assert!(joined.ends_with("--chdir /tmp/ws/w1 -- sh -c true"));
+        // The workspace's bind comes after the /tmp tmpfs, so it is not hidden by it.
+        let tmpfs = a.iter().position(|x| x == "/tmp").unwrap();
+        let bind = a.iter().position(|x| x == "/tmp/ws/w1").unwrap();
+        assert!(tmpfs < bind);
+    }
+}

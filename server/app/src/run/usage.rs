@@ -1,0 +1,214 @@
+//! Token usage from harness logs (protocol §6.6–§6.7): every JSON line is walked recursively and each mapping
+//! with a `usage` mapping yields a record (aliases normalised across providers); when some records come from
+//! `result`-type lines only those count; consecutive identical records (the same message streamed in parts)
+//! collapse; the rest are summed. Codex reports cumulative totals instead: its session log's last
+//! `token_count` event's `info.total_token_usage`.
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Usage {
+    pub available: bool,
+    pub requests_with_usage: u64,
+    pub lines_scanned: u64,
+    pub input_tokens: Option<u64>,
+    pub output_tokens: Option<u64>,
+    pub cache_read_input_tokens: Option<u64>,
+    pub reasoning_tokens: Option<u64>,
+    pub total_tokens: Option<u64>,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Record {
+    input: Option<u64>,
+    output: Option<u64>,
+    cache_read: Option<u64>,
+    reasoning: Option<u64>,
+    total: Option<u64>,
+}
+
+fn int(m: &Map<String, Value>, keys: &[&str]) -> Option<u64> {
+    keys.iter().find_map(|k| match m.get(*k) {
+        Some(Value::Number(n)) => n.as_u64().or_else(|| n.as_f64().filter(|f| f.is_finite() && *f >= 0.0).map(|f| f as u64)),
+        _ => None,
+    })
+}
+
+fn record_of(u: &Map<String, Value>) -> Option<Record> {
+    let cache_read = int(u, &["cache_read_input_tokens", "cache_read_tokens", "cached_tokens", "cacheReadInputTokens", "inputCacheRead"]);
+    let mut input = int(u, &["input_tokens", "prompt_tokens", "inputTokens"]);
+    if input.is_none() {
+        // Kimi: `inputOther` excludes the cached part.
+        input = int(u, &["inputOther"]).map(|o| o + cache_read.unwrap_or(0));
+    }
+    let output = int(u, &["output_tokens", "completion_tokens", "outputTokens", "output"]);
+    let reasoning = int(u, &["reasoning_tokens", "reasoningTokens"]);
+    let total = int(u, &["total_tokens", "totalTokens"]).or_else(|| match (input, output) {
+        (None, None) => None,
+        (i, o) => Some(i.unwrap_or(0) + o.unwrap_or(0)),
+    });
+    let r = Record { input, output, cache_read, reasoning, total };
+    (r != Record::default()).then_some(r)
+}
+
+fn walk(v: &Value, out: &mut Vec<Record>) {
+    match v {
+        Value::Object(m) => {
+            if let Some(Value::Object(u)) = m.get("usage")
+                && let Some(r) = record_of(u)
+            {
+                out.push(r);
+            }
+            for (k, child) in m {
+                if k != "usage" {
+                    walk(child, out);
+                }
+            }
+        }
+        Value::Array(xs) => xs.iter().for_each(|x| walk(x, out)),
+        _ => {}
+    }
+}
+
+fn sum(records: &[Record], lines_scanned: u64) -> Usage {
+    let add = |f: fn(&Record) -> Option<u64>| {
+        let vals: Vec<u64> = records.iter().filter_map(f).collect();
+        (!vals.is_empty()).then(|| vals.iter().sum())
+    };
+    Usage {
+        available: !records.is_empty(),
+        requests_with_usage: records.len() as u64,
+        lines_scanned,
+        input_tokens: add(|r| r.input),
+        output_tokens: add(|r| r.output),
+        cache_read_input_tokens: add(|r| r.cache_read),
+        reasoning_tokens: add(|r| r.reasoning),
+        total_tokens: add(|r| r.total),
+    }
+}
+
+/// Usage of JSON-lines texts (harness stdout in stream-json mode, archived session files).
+pub fn usage_from_jsonl<'a>(texts: impl IntoIterator<Item = &'a str>) -> Usage {
+    let (mut all, mut results, mut lines) = (Vec::new(), Vec::new(), 0u64);
+    for text in texts {
+        for line in text.lines().filter(|l| !l.trim().is_empty()) {
+            lines += 1;
+            let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
+            let mut rs = Vec::new();
+            walk(&v, &mut rs);
+            let is_result = matches!(v.get("type").and_then(Value::as_str), Some("result" | "turn.result" | "session.result"));
+            if is_result {
+                results.extend(rs.iter().copied());
+            }
+            all.extend(rs);
+        }
+    }
+    let mut chosen = if results.is_empty() { all } else { results };
+    chosen.dedup();
+    sum(&chosen, lines)
+}
+
+/// Codex session logs: the last `token_count` event's cumulative `total_token_usage`.
+pub fn usage_from_codex_session<'a>(texts: impl IntoIterator<Item = &'a str>) -> Usage {
+    let (mut last, mut lines, mut events) = (None, 0u64, 0u64);
+    for text in texts {
+        for line in text.lines().filter(|l| !l.trim().is_empty()) {
+            lines += 1;
+            let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
+            if v["type"] == "event_msg"
+                && v["payload"]["type"] == "token_count"
+                && let Some(Value::Object(u)) = v.pointer("/payload/info/total_token_usage")
+            {
+                let mut u = u.clone();
+                // Codex names: cached_input_tokens, reasoning_output_tokens.
+                if let Some(c) = u.get("cached_input_tokens").cloned() {
+                    u.insert("cache_read_input_tokens".into(), c);
+                }
+                if let Some(r) = u.get("reasoning_output_tokens").cloned() {
+                    u.insert("reasoning_tokens".into(), r);
+                }
+                last = record_of(&u).or(last);
+                events += 1;
+            }
+        }
+    }
+    let mut u = sum(&last.into_iter().collect::<Vec<_>>(), lines);
+    u.requests_with_usage = events;
+    u
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn claude_code_stream_json_counts_the_result_line_only() {
+        // Captured shape of `claude --print --output-format stream-json --verbose` (values shortened).
+        let log = r#"{"type":"system","subtype":"init","cwd":"/tmp/ws","session_id":"5b1c","tools":["mcp__libero__start_episode"],"model":"claude-opus-5"}
+{"type":"assistant","message":{"id":"msg_01","type":"message","role":"assistant","content":[{"type":"text","text":"Starting."}],"usage":{"input_tokens":4,"cache_creation_input_tokens":6120,"cache_read_input_tokens":11873,"output_tokens":8}},"session_id":"5b1c"}
+{"type":"assistant","message":{"id":"msg_01","type":"message","role":"assistant","content":[{"type":"tool_use","id":"toolu_1","name":"mcp__libero__start_episode","input":{}}],"usage":{"input_tokens":4,"cache_creation_input_tokens":6120,"cache_read_input_tokens":11873,"output_tokens":8}},"session_id":"5b1c"}
+{"type":"user","message":{"role":"user","content":[{"tool_use_id":"toolu_1","type":"tool_result","content":[{"type":"text","text":"{\"ok\": true}"}]}]},"session_id":"5b1c"}
+{"type":"result","subtype":"success","is_error":false,"duration_ms":91234,"num_turns":12,"result":"Done.","session_id":"5b1c","total_cost_usd":0.91,"usage":{"input_tokens":120,"cache_creation_input_tokens":30211,"cache_read_input_tokens":402113,"output_tokens":5120,"server_tool_use":{"web_search_requests":0}}}
+"#;
+        let u = usage_from_jsonl([log]);
+        assert!(u.available);
+        assert_eq!((u.requests_with_usage, u.lines_scanned), (1, 5));
+        assert_eq!((u.input_tokens, u.output_tokens, u.cache_read_input_tokens), (Some(120), Some(5120), Some(402113)));
+        assert_eq!(u.total_tokens, Some(5240));
+    }
+
+    #[test]
+    fn claude_without_a_result_line_sums_messages_and_collapses_repeats() {
+        let log = r#"{"type":"assistant","message":{"usage":{"input_tokens":10,"output_tokens":5}}}
+{"type":"assistant","message":{"usage":{"input_tokens":10,"output_tokens":5}}}
+{"type":"assistant","message":{"usage":{"input_tokens":20,"output_tokens":7}}}"#;
+        let u = usage_from_jsonl([log]);
+        assert_eq!((u.requests_with_usage, u.total_tokens), (2, Some(42)));
+    }
+
+    #[test]
+    fn qwen_code_stream_json_result() {
+        let log = r#"{"type":"system","subtype":"init","session_id":"q1","model":"qwen3.8-max"}
+{"type":"assistant","message":{"role":"assistant","content":[{"type":"text","text":"ok"}],"usage":{"input_tokens":900,"output_tokens":40,"cache_read_input_tokens":0}}}
+{"type":"result","subtype":"success","is_error":false,"num_turns":3,"usage":{"input_tokens":15800,"output_tokens":910,"cache_read_input_tokens":7000,"total_tokens":16710}}"#;
+        let u = usage_from_jsonl([log]);
+        assert_eq!((u.input_tokens, u.output_tokens, u.total_tokens), (Some(15800), Some(910), Some(16710)));
+    }
+
+    #[test]
+    fn kimi_code_counts_input_other_plus_cache_reads() {
+        let log = r#"{"type":"assistant","content":"…","usage":{"inputOther":1200,"inputCacheRead":3000,"inputCacheCreation":0,"output":150}}
+{"type":"assistant","content":"…","usage":{"inputOther":300,"inputCacheRead":4200,"output":90}}"#;
+        let u = usage_from_jsonl([log]);
+        assert_eq!(u.input_tokens, Some(1200 + 3000 + 300 + 4200));
+        assert_eq!(u.output_tokens, Some(240));
+        assert_eq!(u.total_tokens, Some(8700 + 240));
+    }
+
+    #[test]
+    fn deepseek_session_openai_style_usage() {
+        let log = r#"{"kind":"llm.response","data":{"model":"deepseek-v4-pro","usage":{"prompt_tokens":5000,"completion_tokens":700,"total_tokens":5700,"prompt_tokens_details":{"cached_tokens":4096},"completion_tokens_details":{"reasoning_tokens":300}}}}
+{"kind":"tool.result","data":{"ok":true}}
+not json at all
+{"kind":"llm.response","data":{"usage":{"prompt_tokens":6000,"completion_tokens":100,"total_tokens":6100,"usage":true}}}"#;
+        let u = usage_from_jsonl([log]);
+        assert_eq!(u.lines_scanned, 4);
+        assert_eq!((u.input_tokens, u.output_tokens, u.total_tokens), (Some(11000), Some(800), Some(11800)));
+        // Nested details are not `usage` mappings: cached/reasoning come only from top-level aliases.
+        assert_eq!(u.reasoning_tokens, None);
+    }
+
+    #[test]
+    fn codex_session_takes_the_last_cumulative_count() {
+        let log = r#"{"timestamp":"2026-05-02T10:00:00.000Z","type":"session_meta","payload":{"id":"0197","cwd":"/tmp/ws","originator":"codex_exec","cli_version":"0.154.0"}}
+{"timestamp":"2026-05-02T10:00:05.000Z","type":"event_msg","payload":{"type":"token_count","info":null,"rate_limits":null}}
+{"timestamp":"2026-05-02T10:00:09.000Z","type":"event_msg","payload":{"type":"token_count","info":{"total_token_usage":{"input_tokens":12000,"cached_input_tokens":8000,"output_tokens":300,"reasoning_output_tokens":120,"total_tokens":12300},"last_token_usage":{"input_tokens":12000,"cached_input_tokens":8000,"output_tokens":300,"reasoning_output_tokens":120,"total_tokens":12300},"model_context_window":272000}}}
+{"timestamp":"2026-05-02T10:01:09.000Z","type":"event_msg","payload":{"type":"token_count","info":{"total_token_usage":{"input_tokens":30500,"cached_input_tokens":24000,"output_tokens":1100,"reasoning_output_tokens":400,"total_tokens":31600},"last_token_usage":{"input_tokens":18500,"cached_input_tokens":16000,"output_tokens":800,"reasoning_output_tokens":280,"total_tokens":19300},"model_context_window":272000}}}
+{"timestamp":"2026-05-02T10:01:10.000Z","type":"response_item","payload":{"type":"message","role":"assistant","content":[{"type":"output_text","text":"done"}]}}"#;
+        let u = usage_from_codex_session([log]);
+        assert_eq!((u.total_tokens, u.input_tokens, u.output_tokens), (Some(31600), Some(30500), Some(1100)));
+        assert_eq!((u.cache_read_input_tokens, u.reasoning_tokens), (Some(24000), Some(400)));
+        assert_eq!(u.requests_with_usage, 2);
+        assert!(!usage_from_codex_session(["{}"]).available);
+    }
+}

@@ -1,0 +1,183 @@
+//! The client side of our own server, shared by `bench mcp`, the batch runner and the reference agent: an MCP
+//! session over streamable HTTP (what the Python SDK does in legacy mode), preparing episodes over the HTTP
+//! API, and an in-process server on a free loopback port.
+use std::path::PathBuf;
+use std::sync::mpsc;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use serde_json::{Value, json};
+
+use super::episodes::{PrepareRequest, Prepared};
+use super::http_client::{HttpUrl, request};
+use super::{ServeArgs, serve_until};
+use crate::cmd_mcp_stdio::messages_of;
+
+/// Per-request timeout (a debug build under load can take seconds per call; a call never outlives an episode).
+pub const CALL_TIMEOUT: Duration = Duration::from_secs(600);
+
+/// One MCP client session over streamable HTTP.
+pub struct McpClient {
+    url: HttpUrl,
+    headers: Vec<(String, String)>,
+    next_id: u64,
+}
+
+impl McpClient {
+    /// `initialize` + `notifications/initialized` with `extra_headers` (e.g. the bearer token) on every request.
+    pub fn connect(mcp_url: &str, extra_headers: &[(String, String)], client_name: &str) -> anyhow::Result<Self> {
+        let mut headers = extra_headers.to_vec();
+        headers.push(("Content-Type".to_owned(), "application/json".to_owned()));
+        headers.push(("Accept".to_owned(), "application/json, text/event-stream".to_owned()));
+        let mut c = Self { url: HttpUrl::parse(mcp_url)?, headers, next_id: 1 };
+        let init = json!({"protocolVersion": "2025-06-18", "capabilities": {},
+            "clientInfo": {"name": client_name, "version": env!("CARGO_PKG_VERSION")}});
+        let (reply, session) = c.post("initialize", init)?;
+        if reply.get("result").is_none() {
+            bail!("initialize failed: {reply}");
+        }
+        if let Some(s) = session {
+            c.headers.push(("Mcp-Session-Id".to_owned(), s));
+        }
+        if let Some(v) = reply.pointer("/result/protocolVersion").and_then(Value::as_str) {
+            c.headers.push(("Mcp-Protocol-Version".to_owned(), v.to_owned()));
+        }
+        let note = json!({"jsonrpc": "2.0", "method": "notifications/initialized"});
+        let resp = request("POST", &c.url, &c.headers, note.to_string().as_bytes(), CALL_TIMEOUT)?;
+        if resp.status >= 400 {
+            bail!("notifications/initialized: HTTP {}", resp.status);
+        }
+        Ok(c)
+    }
+
+    /// With `Authorization: Bearer <token>`.
+    pub fn connect_with_token(mcp_url: &str, token: &str, client_name: &str) -> anyhow::Result<Self> {
+        Self::connect(mcp_url, &[("Authorization".to_owned(), format!("Bearer {token}"))], client_name)
+    }
+
+    /// One JSON-RPC request; the reply with its id and the session id header, if any.
+    pub fn post(&mut self, method: &str, params: Value) -> anyhow::Result<(Value, Option<String>)> {
+        let id = self.next_id;
+        self.next_id += 1;
+        let body = json!({"jsonrpc": "2.0", "id": id, "method": method, "params": params});
+        let resp = request("POST", &self.url, &self.headers, body.to_string().as_bytes(), CALL_TIMEOUT)?;
+        if resp.status >= 400 {
+            bail!("{method}: HTTP {}: {}", resp.status, String::from_utf8_lossy(&resp.body));
+        }
+        let session = resp.header("mcp-session-id").map(str::to_owned);
+        let reply = messages_of(&resp)
+            .into_iter()
+            .find(|m| m.get("id") == Some(&json!(id)))
+            .with_context(|| format!("{method}: no JSON-RPC reply with id {id}"))?;
+        Ok((reply, session))
+    }
+
+    /// `tools/list`: the tool names.
+    pub fn tool_names(&mut self) -> anyhow::Result<Vec<String>> {
+        let (reply, _) = self.post("tools/list", json!({}))?;
+        let tools = reply.pointer("/result/tools").and_then(Value::as_array).with_context(|| format!("tools/list: {reply}"))?;
+        Ok(tools.iter().filter_map(|t| t["name"].as_str().map(str::to_owned)).collect())
+    }
+
+    /// `tools/call`; the tool's payload (`structuredContent`), whatever its `ok`.
+    pub fn call_tool_payload(&mut self, name: &str, arguments: Value) -> anyhow::Result<Value> {
+        let (reply, _) = self.post("tools/call", json!({"name": name, "arguments": arguments}))?;
+        reply.pointer("/result/structuredContent").cloned().with_context(|| format!("{name}: {reply}"))
+    }
+
+    /// `tools/call`; the tool's payload, which must say `ok: true`.
+    pub fn call_tool(&mut self, name: &str, arguments: Value) -> anyhow::Result<Value> {
+        let payload = self.call_tool_payload(name, arguments)?;
+        if payload["ok"] != true {
+            bail!("{name} failed: {payload}");
+        }
+        Ok(payload)
+    }
+}
+
+/// Prepares one episode on the server at `base` (`POST /api/episodes`).
+pub fn prepare_episode(base: &str, req: &PrepareRequest) -> anyhow::Result<Prepared> {
+    let url = HttpUrl::parse(&format!("{}/api/episodes", base.trim_end_matches('/')))?;
+    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
+    let resp = request("POST", &url, &headers, &serde_json::to_vec(req)?, CALL_TIMEOUT)
+        .with_context(|| format!("is `libero-agent serve` running at {base}?"))?;
+    let v: Value = serde_json::from_slice(&resp.body).context("prepare reply is not JSON")?;
+    if resp.status != 201 {
+        let msg = v["error"].as_str().map(str::to_owned).unwrap_or_else(|| v.to_string());
+        bail!("the server refused to prepare the episode (HTTP {}): {msg}", resp.status);
+    }
+    serde_json::from_value(v).context("prepare reply does not describe an episode")
+}
+
+/// `GET <base><path>` as JSON (status, body).
+pub fn get_json(base: &str, path: &str) -> anyhow::Result<(u16, Value)> {
+    let url = HttpUrl::parse(&format!("{}{path}", base.trim_end_matches('/')))?;
+    let resp = request("GET", &url, &[], b"", Duration::from_secs(30))?;
+    Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
+}
+
+/// `POST <base><path>` with a JSON body (status, body).
+pub fn post_json(base: &str, path: &str, body: &Value) -> anyhow::Result<(u16, Value)> {
+    let url = HttpUrl::parse(&format!("{}{path}", base.trim_end_matches('/')))?;
+    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
+    let resp = request("POST", &url, &headers, body.to_string().as_bytes(), CALL_TIMEOUT)?;
+    Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
+}
+
+/// A server running in this process on a free loopback port; stops (recording open episodes as aborted with
+/// `stop_reason`) when [`InProcessServer::stop`] is called or it is dropped.
+pub struct InProcessServer {
+    pub url: String,
+    stop: Option<mpsc::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<anyhow::Result<()>>>,
+}
+
+impl InProcessServer {
+    pub fn start(data: PathBuf, stop_reason: &str) -> anyhow::Result<Self> {
+        let (url_tx, url_rx) = mpsc::channel::<String>();
+        let (stop_tx, stop_rx) = mpsc::channel::<()>();
+        let stop_reason = stop_reason.to_owned();
+        let thread = std::thread::spawn(move || -> anyhow::Result<()> {
+            let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
+            runtime.block_on(async move {
+                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data) };
+                let stop = async move {
+                    let _ = tokio::task::spawn_blocking(move || stop_rx.recv()).await;
+                    stop_reason
+                };
+                let listening = move |v: Value| {
+                    let _ = url_tx.send(v["url"].as_str().unwrap_or_default().to_owned());
+                };
+                serve_until(args, listening, stop).await
+            })
+        });
+        match url_rx.recv() {
+            Ok(url) if !url.is_empty() => Ok(Self { url, stop: Some(stop_tx), thread: Some(thread) }),
+            _ => match thread.join() {
+                Ok(Err(e)) => Err(e.context("the server did not start")),
+                _ => bail!("the server did not start"),
+            },
+        }
+    }
+
+    /// Stops the server and waits for it.
+    pub fn stop(mut self) -> anyhow::Result<()> {
+        self.shutdown()
+    }
+
+    fn shutdown(&mut self) -> anyhow::Result<()> {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        match self.thread.take() {
+            Some(t) => t.join().map_err(|_| anyhow::anyhow!("the server thread panicked"))?,
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for InProcessServer {
+    fn drop(&mut self) {
+        let _ = self.shutdown();
+    }
+}

@@ -1,0 +1,153 @@
+//! End to end without any model API: `libero-agent run` schedules a 2-rollout batch on T14 with concurrency 2,
+//! the built-in reference agent (`libero-agent agent`) plays each episode over MCP from inside its bubblewrap
+//! sandbox, the server evaluates, and `libero-agent report` computes the tables. Before playing, the agent's
+//! command probes what the sandbox must hide — the repository's `tasks/`, the server's data directory and
+//! store, the asset cache, the other episode's workspace — and every probe must fail while the episode itself
+//! still succeeds in running (a valid outcome). Also: `--resume` skips finished rollouts and refuses changed
+//! settings; `--dry-run --json` prints one object per rollout.
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_libero-agent")
+}
+
+fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap()
+}
+
+fn cache_dir() -> PathBuf {
+    std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"))
+}
+
+fn as_refs(v: &[String]) -> Vec<&str> {
+    v.iter().map(String::as_str).collect()
+}
+
+fn libero(args: &[&str]) -> Output {
+    let out = Command::new(bin()).args(args).output().expect("run libero-agent");
+    eprintln!("$ libero-agent {}\n{}", args.join(" "), String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// The agent command: probes (each line `denied …` or `READABLE …`) into the workspace, then the reference agent.
+fn agent_cmd(batch: &Path) -> String {
+    let tasks = repo_root().join("tasks/manifest.json");
+    let probes = [
+        format!("cat {}", tasks.display()),
+        format!("ls {}", repo_root().join("tasks").display()),
+        format!("ls {}", batch.join("server").display()),
+        format!("cat {}", batch.join("server/episodes.sqlite").display()),
+        format!("cat {}", batch.join("batch.json").display()),
+        format!("cat {}", batch.join("rollouts.jsonl").display()),
+        // The asset cache: BDDL files and init states of every task (only libmujoco itself is bound).
+        format!("ls {}", cache_dir().join("hf-libero-0.1.4/bddl_files").display()),
+        format!("ls {}", cache_dir().join("libero-assets-0.1.0/assets").display()),
+    ];
+    let mut script = String::from("probe() { if \"$@\" >/dev/null 2>&1; then echo \"READABLE $*\"; else echo \"denied $*\"; fi; }; { ");
+    for p in probes {
+        script.push_str(&format!("probe {p}; "));
+    }
+    // The sibling workspaces: only this rollout's own directory may be visible.
+    script.push_str("for w in w1_t14_level3 w2_t14_level3; do probe ls \"$(dirname {workspace})/$w/.libero\"; done; ");
+    script.push_str("echo \"siblings: $(ls \"$(dirname {workspace})\")\"; } > {workspace}/probe.txt; ");
+    script.push_str("exec {libero_agent} agent --workspace {workspace}");
+    script
+}
+
+#[test]
+fn a_sandboxed_reference_agent_batch_runs_and_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let batch = dir.path().join("batch");
+    let workspaces = dir.path().join("workspaces");
+    let cmd = agent_cmd(&batch);
+    let run_args = |model: &str, resume: bool| {
+        let mut a = vec![
+            "run", "--experiment", "main_table", "--harness", "command", "--model", model, "--tasks", "T14", "--reps", "2",
+            "--concurrency", "2", "--agent-cmd", &cmd, "--wall-time-s", "300",
+        ]
+        .into_iter()
+        .map(str::to_owned)
+        .collect::<Vec<_>>();
+        a.extend(["--batch".into(), batch.display().to_string(), "--workspace-root".into(), workspaces.display().to_string()]);
+        if resume {
+            a.push("--resume".into());
+        }
+        a
+    };
+
+    // The schedule alone.
+    let mut dry = run_args("reference", false);
+    dry.extend(["--dry-run".into(), "--json".into()]);
+    let out = libero(&as_refs(&dry));
+    assert!(out.status.success());
+    let planned: Vec<Value> = String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(planned.len(), 2);
+    assert_eq!((planned[1]["task"].as_str(), planned[1]["repetition"].as_u64()), (Some("T14"), Some(2)));
+    assert_eq!((planned[0]["level"].as_u64(), planned[0]["demo"].as_str()), (Some(3), Some("none")));
+    assert!(!batch.exists(), "a dry run launches and writes nothing");
+
+    // The batch.
+    let out = libero(&as_refs(&run_args("reference", false)));
+    assert!(out.status.success(), "run failed");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("[2 done, 0 running, 0 left]"), "progress on stderr: {stderr}");
+    let b: Value = serde_json::from_str(&std::fs::read_to_string(batch.join("batch.json")).unwrap()).unwrap();
+    assert_eq!(b["status"], "finished");
+    assert_eq!(b["settings"]["model"], "reference");
+    assert!(b["sandbox"]["kind"] == "bubblewrap", "{b}");
+    let records: Vec<Value> = std::fs::read_to_string(batch.join("rollouts.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(records.len(), 2);
+    for r in &records {
+        let outcome = r["outcome"].as_str().unwrap();
+        assert!(outcome == "FAIL" || outcome == "SUCCESS", "the sandboxed agent did its episode: {r}");
+        assert_eq!(r["accepted_agent_steps"], 4, "{r}");
+        assert!(r["wall_time_s"].as_f64().unwrap() > 0.0);
+        assert_eq!(r["agent_exit_code"], 0);
+        let ws = PathBuf::from(r["workspace"].as_str().unwrap());
+        let probe = std::fs::read_to_string(ws.join("probe.txt")).unwrap();
+        assert!(!probe.contains("READABLE") || probe.lines().filter(|l| l.starts_with("READABLE")).all(|l| {
+            l.contains(&format!("{}/.libero", r["rollout_id"].as_str().unwrap()))
+        }), "the sandbox leaked:\n{probe}");
+        assert!(probe.contains("denied cat") && probe.contains("episodes.sqlite"), "{probe}");
+        let own = r["rollout_id"].as_str().unwrap();
+        assert!(probe.contains(&format!("READABLE ls {}/{own}/.libero", workspaces.display())), "own workspace visible:\n{probe}");
+        assert!(probe.lines().any(|l| l == format!("siblings: {own}")), "only its own workspace:\n{probe}");
+        // The token and records stay out of the public log; the manifest never holds credentials.
+        let manifest = std::fs::read_to_string(batch.join("rollouts").join(own).join("harness_manifest.json")).unwrap();
+        assert!(manifest.contains("\"credential_material\": \"never_recorded\""));
+    }
+    assert!(!String::from_utf8_lossy(&std::fs::read(batch.join("rollouts.jsonl")).unwrap()).contains("Bearer"));
+
+    // The report.
+    let out = libero(&["report", batch.to_str().unwrap(), "--format", "json", "--reps", "2"]);
+    assert!(out.status.success());
+    let rep: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let row = &rep["rows"][0];
+    assert_eq!(row["agent"], "command/reference");
+    let easy = row["summary"]["splits"].as_array().unwrap().iter().find(|s| s["split"] == "short_horizon_easy").unwrap();
+    assert_eq!(easy["tasks_scored"], 1);
+    assert_eq!(easy["ordinary"]["trials"], 2);
+    assert!(easy["ordinary"]["wilson_high"].as_f64().unwrap() > 0.5);
+    for format in ["markdown", "csv", "latex"] {
+        let out = libero(&["report", batch.to_str().unwrap(), "--format", format]);
+        assert!(out.status.success() && String::from_utf8_lossy(&out.stdout).to_lowercase().contains("short"), "{format}");
+    }
+
+    // Resume: nothing left to run; changed settings refused; a second run without --resume refused.
+    let out = libero(&as_refs(&run_args("reference", true)));
+    assert!(out.status.success());
+    assert_eq!(std::fs::read_to_string(batch.join("rollouts.jsonl")).unwrap().lines().count(), 2, "no rollout re-run");
+    let out = libero(&as_refs(&run_args("another-model", true)));
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("refuses changed settings"));
+    let out = libero(&as_refs(&run_args("reference", false)));
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--resume"));
+}
