@@ -99,7 +99,7 @@ const STROKE_X: [f64; 2] = [-0.10, 0.105];
 /// Rest pad centre in the patch frame.
 const REST_PAD_LOCAL: [f64; 2] = [0.140, -0.205];
 /// How far below its resting height the sponge root is commanded while wiping (the OSC presses it onto the table).
-const PRESS_M: f64 = 0.003;
+const PRESS_M: f64 = 0.001;
 
 /// T19: grasp the sponge across its 7 cm width, wipe two strokes over the spill while pressing on the tabletop, set it
 /// on the blue pad, open and retreat. `wipe_half` wipes only the first half of the lower stroke before resting the
@@ -147,7 +147,7 @@ fn wipe_spill(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Task
     let stroke = move |name: &'static str, x: f64, y: f64, rz: std::sync::Arc<std::sync::Mutex<f64>>| {
         Phase::new(name, move |sim, _| {
             let z = *rz.lock().expect("lock") - PRESS_M;
-            wiping_goal(sim, x, y, z).slow(0.35)
+            wiping_goal(sim, x, y, z).slow(0.5)
         })
         .until(move |sim, _| at_xy(sim, x, y, 0.008))
         .max_steps(80)
