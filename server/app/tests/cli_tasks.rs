@@ -12,7 +12,7 @@ fn tasks_list_prints_all_30_as_a_table_or_json() {
     assert!(ok);
     assert!(table.starts_with("ID "), "{table}");
     assert_eq!(table.lines().filter(|l| l.starts_with('T')).count(), 30, "{table}");
-    assert!(table.contains("6 of 30 tasks implemented"), "{table}");
+    assert!(table.contains("8 of 30 tasks implemented"), "{table}");
     let (ok, json, _) = run(&["tasks", "list", "--json"]);
     assert!(ok);
     let tasks: serde_json::Value = serde_json::from_str(&json).unwrap();
@@ -26,7 +26,7 @@ fn tasks_show_prints_one_task_and_rejects_unknown_ids() {
     let (ok, json, _) = run(&["tasks", "show", "t19", "--json"]);
     assert!(ok);
     let t: serde_json::Value = serde_json::from_str(&json).unwrap();
-    assert_eq!((t["id"].as_str(), t["implemented"].as_bool(), t["stage_count"].as_u64()), (Some("T19"), Some(false), Some(3)));
+    assert_eq!((t["id"].as_str(), t["implemented"].as_bool(), t["stage_count"].as_u64()), (Some("T19"), Some(true), Some(3)));
     let (ok, _, err) = run(&["tasks", "show", "T99"]);
     assert!(!ok && err.contains("no release task \"T99\""), "{err}");
 }

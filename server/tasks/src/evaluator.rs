@@ -43,6 +43,10 @@ pub enum EventKind {
     /// Diagnostic: the BDDL goal conjunction became true / false at this tick (never scored).
     GoalSatisfied,
     GoalUnsatisfied,
+    /// A spill marker was wiped (T19; `subject` = the marker geom).
+    SpillMarkerCovered,
+    /// The pour counter registered a pour (T20; the pour began 2 control steps before this tick).
+    PourDetected,
 }
 
 /// A time-stamped private event (never shown to the agent).

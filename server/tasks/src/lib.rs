@@ -8,7 +8,9 @@ pub mod evaluator;
 pub mod expert;
 pub mod factory;
 pub mod goal;
+pub mod pour;
 pub mod predicates;
+pub mod wipe;
 
 pub use error::TasksError;
 pub use catalog::{Catalog, TaskEntry};

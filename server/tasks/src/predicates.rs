@@ -213,7 +213,7 @@ fn joint_ref(model: &MjModel, name: &str) -> Result<JointRef, TasksError> {
 }
 
 /// Whether `body` is `root` or one of its descendants.
-fn in_subtree(parent: &[i32], mut body: usize, root: usize) -> bool {
+pub(crate) fn in_subtree(parent: &[i32], mut body: usize, root: usize) -> bool {
     loop {
         if body == root {
             return true;

@@ -64,7 +64,11 @@ const ARTICULATED: &[&str] = &[
 /// `assets/`, and the fixed rotation about z the placement sampler gives movable instances (0 for all of the
 /// release's repository-owned objects, task catalog §2.3). Each file follows LIBERO's object layout: an outer body
 /// holding a body named `object`, with `bottom_site`, `top_site` and `horizontal_radius_site`.
-const PROJECT: &[(&str, &str, f64)] = &[];
+const PROJECT: &[(&str, &str, f64)] = &[
+    // T19 (task catalog §6.6): RoboCasa-style sponge (movable) and tabletop spill patch with the blue rest pad (fixture)
+    ("robocasa_sponge", "objects/robocasa_sponge/robocasa_sponge.xml", 0.0),
+    ("robocasa_spill_patch", "objects/robocasa_spill_patch/robocasa_spill_patch.xml", 0.0),
+];
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.
 pub fn all_keys() -> Vec<&'static str> {

@@ -5,6 +5,7 @@
 //! Besides the solving script (`solve`), each task has named **near-miss** behaviours: plausible runs that must fail
 //! (wrong object, drawer half open, …). An expert only ever acts through `osc_sequence`; the episode crate runs it on a
 //! lockstep replica of the episode's simulation.
+mod adapted;
 pub mod motion;
 mod stock;
 
@@ -81,7 +82,7 @@ impl<'a> SceneRefs<'a> {
 
 /// The tasks that have an expert, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    stock::behaviours(task_id)
+    stock::behaviours(task_id).or_else(|| adapted::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -98,6 +99,9 @@ pub fn expert_for(
             "task {task_id} has no expert behaviour {behaviour:?}; known: {SOLVE}, {}",
             known.join(", ")
         )));
+    }
+    if adapted::behaviours(task_id).is_some() {
+        return adapted::build(task_id, behaviour, &refs);
     }
     stock::build(task_id, behaviour, &refs)
 }

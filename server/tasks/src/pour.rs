@@ -1,0 +1,367 @@
+//! `private_ordered_physical_pour` (T20 pour_wine_into_mug; task catalog §4 T20): lift the wine bottle, then tilt it
+//! over the mug. Stages `01_Lift_Wine_Bottle` (lift seen) then `02_Pour_Wine_Into_Mug` (≥ 1 pour event).
+//!
+//! The pour counter (RoboMemArena `PourCounterConfig`: lift 0.03 m, radius 0.20 m, tilt enter 0.70 rad, return
+//! 0.20 rad, enter dwell 3, return dwell 5 control steps) runs at control rate only; substeps are counted but
+//! ignored. Per control step:
+//! 1. lifted ⇔ bottle root z − z(reset) > 0.03 (strict);
+//! 2. the first lifted step stores the bottle's rotation as the upright reference R_ref;
+//! 3. tilt = geodesic angle between R_ref and the current rotation (undefined before R_ref);
+//! 4. in_pour ⇔ lifted AND tilt ≥ 0.70 AND xy distance (bottle root, target site) ≤ 0.20;
+//! 5. armed: a run of 3 consecutive in_pour steps registers one pour (start = current − 2) and disarms;
+//! 6. disarmed: 5 consecutive steps with lifted AND tilt ≤ 0.20 re-arm. One long continuous pour counts once.
+//!
+//! Success ⇔ both stages completed AND a lift observed AND ≥ 1 pour. Nothing is required of the final state.
+use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::simulation::SimData;
+use nalgebra::Matrix3;
+use serde::Deserialize;
+
+use crate::TasksError;
+use crate::commitment::CommitmentTracker;
+use crate::evaluator::{
+    EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
+};
+use crate::goal::GoalChecker;
+use crate::predicates::SceneIndex;
+
+pub const CHECKER: &str = "private_ordered_physical_pour";
+pub const STAGES: [&str; 2] = ["01_Lift_Wine_Bottle", "02_Pour_Wine_Into_Mug"];
+
+/// The pour counter's parameters (manifest `checker.params`; defaults = the catalog's).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default)]
+pub struct PourParams {
+    pub bottle: String,
+    pub target_site: String,
+    pub lift_delta_m: f64,
+    pub target_radius_m: f64,
+    pub tilt_enter_rad: f64,
+    pub tilt_return_rad: f64,
+    pub enter_dwell_steps: u32,
+    pub return_dwell_steps: u32,
+    pub stages: Vec<String>,
+}
+
+impl Default for PourParams {
+    fn default() -> Self {
+        Self {
+            bottle: "wine_bottle_1".into(),
+            target_site: "white_yellow_mug_1_default_site".into(),
+            lift_delta_m: 0.03,
+            target_radius_m: 0.20,
+            tilt_enter_rad: 0.70,
+            tilt_return_rad: 0.20,
+            enter_dwell_steps: 3,
+            return_dwell_steps: 5,
+            stages: STAGES.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+}
+
+/// A registered pour: the control step its in-pour run began and the step it was counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Pour {
+    pub start_step: u64,
+    pub counted_step: u64,
+}
+
+/// The arm/disarm pour counter (steps 4–6 above) on already computed per-step quantities.
+#[derive(Debug, Clone)]
+pub struct PourCounter {
+    radius_m: f64,
+    tilt_enter_rad: f64,
+    tilt_return_rad: f64,
+    enter_dwell: u32,
+    return_dwell: u32,
+    armed: bool,
+    enter_run: u32,
+    return_run: u32,
+    pours: Vec<Pour>,
+}
+
+impl PourCounter {
+    pub fn new(p: &PourParams) -> Self {
+        Self {
+            radius_m: p.target_radius_m,
+            tilt_enter_rad: p.tilt_enter_rad,
+            tilt_return_rad: p.tilt_return_rad,
+            enter_dwell: p.enter_dwell_steps.max(1),
+            return_dwell: p.return_dwell_steps.max(1),
+            armed: true,
+            enter_run: 0,
+            return_run: 0,
+            pours: Vec::new(),
+        }
+    }
+
+    /// One control step: `tilt_rad` is `None` before the upright reference exists; `distance_m` is the bottle's xy
+    /// distance to the target. Returns the pour registered at this step, if any.
+    pub fn update(&mut self, step: u64, lifted: bool, tilt_rad: Option<f64>, distance_m: f64) -> Option<Pour> {
+        if self.armed {
+            let in_pour = lifted && tilt_rad.is_some_and(|t| t >= self.tilt_enter_rad) && distance_m <= self.radius_m;
+            self.enter_run = if in_pour { self.enter_run + 1 } else { 0 };
+            if self.enter_run >= self.enter_dwell {
+                let pour = Pour { start_step: step + 1 - u64::from(self.enter_dwell), counted_step: step };
+                self.pours.push(pour);
+                self.armed = false;
+                self.enter_run = 0;
+                self.return_run = 0;
+                return Some(pour);
+            }
+        } else {
+            let upright = lifted && tilt_rad.is_some_and(|t| t <= self.tilt_return_rad);
+            self.return_run = if upright { self.return_run + 1 } else { 0 };
+            if self.return_run >= self.return_dwell {
+                self.armed = true;
+                self.return_run = 0;
+                self.enter_run = 0;
+            }
+        }
+        None
+    }
+
+    pub fn pours(&self) -> &[Pour] {
+        &self.pours
+    }
+
+    pub fn armed(&self) -> bool {
+        self.armed
+    }
+}
+
+/// Geodesic angle between two rotations: `arccos((trace(AᵀB) − 1) / 2)`.
+pub fn geodesic_angle(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
+    (((a.transpose() * b).trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos()
+}
+
+pub struct PourWine {
+    params: PourParams,
+    index: std::sync::Arc<SceneIndex>,
+    goal: GoalChecker,
+    commitment: CommitmentTracker,
+    task_id: Option<String>,
+    bottle_body: usize,
+    target_site: usize,
+    z0_m: f64,
+    r_ref: Option<Matrix3<f64>>,
+    lift_seen: Option<Tick>,
+    max_tilt_rad: f64,
+    counter: PourCounter,
+    stages: StageTracker,
+    events: Vec<PrivateEvent>,
+    control_steps: u64,
+    substeps: u64,
+}
+
+impl PourWine {
+    pub fn new(
+        params: PourParams,
+        goal: GoalChecker,
+        commitment: CommitmentTracker,
+        model: &MjModel,
+        task_id: Option<String>,
+    ) -> Result<Self, TasksError> {
+        let index = goal.index().clone();
+        let bottle = index.instance(&params.bottle).ok_or_else(|| TasksError::Scene(format!("no object {}", params.bottle)))?;
+        let target_site = model
+            .name_to_id(MjtObjBase::mjOBJ_SITE, &params.target_site)
+            .ok_or_else(|| TasksError::Scene(format!("model has no site {:?}", params.target_site)))?;
+        let counter = PourCounter::new(&params);
+        let stages = StageTracker::new(params.stages.iter().map(StageSpec::required).collect());
+        Ok(Self {
+            bottle_body: index.instances[bottle].body,
+            params,
+            index,
+            goal,
+            commitment,
+            task_id,
+            target_site,
+            z0_m: 0.0,
+            r_ref: None,
+            lift_seen: None,
+            max_tilt_rad: 0.0,
+            counter,
+            stages,
+            events: Vec::new(),
+            control_steps: 0,
+            substeps: 0,
+        })
+    }
+}
+
+impl Evaluator for PourWine {
+    fn checker(&self) -> &str {
+        CHECKER
+    }
+
+    fn samples_substeps(&self) -> bool {
+        true
+    }
+
+    fn reset(&mut self, data: &SimData, _tick: Tick) {
+        self.z0_m = data.xpos()[self.bottle_body][2];
+        self.r_ref = None;
+        self.lift_seen = None;
+        self.max_tilt_rad = 0.0;
+        self.counter = PourCounter::new(&self.params);
+        self.stages = StageTracker::new(self.params.stages.iter().map(StageSpec::required).collect());
+        self.events.clear();
+        self.control_steps = 0;
+        self.substeps = 0;
+        self.commitment.reset(&self.index, data);
+    }
+
+    fn observe_substep(&mut self, _data: &SimData, _tick: Tick) {
+        self.substeps += 1;
+    }
+
+    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps += 1;
+        let p = data.xpos()[self.bottle_body];
+        let rot = Matrix3::from_row_slice(&data.xmat()[self.bottle_body]);
+        let lifted = p[2] - self.z0_m > self.params.lift_delta_m;
+        if lifted && self.r_ref.is_none() {
+            self.r_ref = Some(rot);
+        }
+        if lifted && self.lift_seen.is_none() {
+            self.lift_seen = Some(tick);
+        }
+        let tilt = self.r_ref.as_ref().map(|r| geodesic_angle(r, &rot));
+        if let Some(t) = tilt {
+            self.max_tilt_rad = self.max_tilt_rad.max(t);
+        }
+        let target = data.site_xpos()[self.target_site];
+        let distance = (p[0] - target[0]).hypot(p[1] - target[1]);
+        if self.counter.update(tick.control_step, lifted, tilt, distance).is_some() {
+            let event = PrivateEvent { subject: Some(self.params.bottle.clone()), ..PrivateEvent::new(EventKind::PourDetected, tick) };
+            self.events.push(event);
+        }
+        let (lift_seen, pours) = (self.lift_seen.is_some(), self.counter.pours().len());
+        self.stages.advance(tick, |i| if i == 0 { lift_seen } else { pours >= 1 });
+        if let Some(c) = self.commitment.observe(&self.index, data, tick) {
+            let event = PrivateEvent { subject: Some(c.subject.clone()), ..PrivateEvent::new(EventKind::FirstCommitment, tick) };
+            self.events.push(event);
+        }
+    }
+
+    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
+        let mut record = EvaluationRecord::new(CHECKER);
+        self.stages.write_into(&mut record);
+        record.task_id = self.task_id.clone();
+        let (lift, pours) = (self.lift_seen.is_some(), self.counter.pours().len());
+        // nothing beyond the latched events is checked on the final state (catalog §1.4a); reported for the trace
+        record.terminal_state_checks = vec![
+            TerminalCheck { name: "lift_observed".into(), passed: lift },
+            TerminalCheck {
+                name: format!("pour_events >= 1 (count {pours}, max tilt {:.3} rad)", self.max_tilt_rad),
+                passed: pours >= 1,
+            },
+        ];
+        record.terminal_state_success = true;
+        record.success = self.stages.all_required_completed() && lift && pours >= 1;
+        let counts = (self.control_steps, self.substeps);
+        fill_history(&mut record, counts, &self.events, &self.commitment, &self.goal, data);
+        record.failure_reason = (!record.success).then_some(FailureReason::IncompleteStage);
+        record
+    }
+}
+
+/// The fields every private physical evaluator fills the same way: sample counts, private events, first commitment
+/// and the diagnostic BDDL goal on the final state.
+pub(crate) fn fill_history(
+    record: &mut EvaluationRecord,
+    (control_steps, substeps): (u64, u64),
+    events: &[PrivateEvent],
+    commitment: &CommitmentTracker,
+    goal: &GoalChecker,
+    data: &SimData,
+) {
+    record.control_steps_observed = control_steps;
+    record.substeps_observed = substeps;
+    record.events = events.to_vec();
+    record.first_commitment = commitment.first().cloned();
+    let report = goal.evaluate(data);
+    record.bddl_final_goal_success = Some(report.success);
+    record.bddl_goal = Some(report);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn counter() -> PourCounter {
+        PourCounter::new(&PourParams::default())
+    }
+
+    /// Feeds `(lifted, tilt, distance)` per step from step 1; returns the counted steps.
+    fn run(c: &mut PourCounter, seq: &[(bool, Option<f64>, f64)]) -> Vec<u64> {
+        seq.iter().enumerate().filter_map(|(k, &(l, t, d))| c.update(k as u64 + 1, l, t, d).map(|p| p.counted_step)).collect()
+    }
+
+    #[test]
+    fn one_continuous_pour_counts_once() {
+        let mut c = counter();
+        let mut seq = vec![(true, Some(0.0), 0.1); 3];
+        seq.extend(vec![(true, Some(0.9), 0.1); 40]);
+        let counted = run(&mut c, &seq);
+        assert_eq!(counted, [6], "the third consecutive in-pour step counts, once");
+        assert_eq!(c.pours()[0].start_step, 4);
+        assert!(!c.armed());
+    }
+
+    #[test]
+    fn two_tilted_steps_do_not_count() {
+        let mut c = counter();
+        let seq = [(true, Some(0.9), 0.1), (true, Some(0.9), 0.1), (true, Some(0.5), 0.1), (true, Some(0.9), 0.1), (true, Some(0.9), 0.1)];
+        assert!(run(&mut c, &seq).is_empty());
+    }
+
+    #[test]
+    fn rearms_after_five_upright_lifted_steps() {
+        let mut c = counter();
+        let pour = [(true, Some(0.9), 0.1); 3];
+        let upright4 = [(true, Some(0.1), 0.1); 4];
+        let mut seq: Vec<_> = pour.to_vec();
+        seq.extend(upright4);
+        seq.extend(pour); // only 4 upright steps: still disarmed
+        assert_eq!(run(&mut c, &seq), [3]);
+        let mut c = counter();
+        let mut seq: Vec<_> = pour.to_vec();
+        seq.extend([(true, Some(0.1), 0.1); 5]);
+        seq.extend(pour);
+        assert_eq!(run(&mut c, &seq), [3, 11], "re-armed after 5 upright steps, second pour counts");
+        // an interrupted upright run restarts
+        let mut c = counter();
+        let mut seq: Vec<_> = pour.to_vec();
+        seq.extend([(true, Some(0.1), 0.1); 3]);
+        seq.push((true, Some(0.4), 0.1));
+        seq.extend([(true, Some(0.1), 0.1); 3]);
+        seq.extend(pour);
+        assert_eq!(run(&mut c, &seq), [3]);
+        // upright while set down (not lifted) does not re-arm
+        let mut c = counter();
+        let mut seq: Vec<_> = pour.to_vec();
+        seq.extend([(false, Some(0.0), 0.1); 10]);
+        seq.extend(pour);
+        assert_eq!(run(&mut c, &seq), [3]);
+    }
+
+    #[test]
+    fn tilting_outside_the_radius_or_unlifted_does_not_count() {
+        let mut c = counter();
+        assert!(run(&mut c, &[(true, Some(1.2), 0.2001); 10]).is_empty(), "outside 0.20 m");
+        assert!(run(&mut c, &[(false, Some(1.2), 0.05); 10]).is_empty(), "not lifted");
+        assert!(run(&mut c, &[(true, None, 0.05); 10]).is_empty(), "no upright reference yet");
+        assert_eq!(run(&mut c, &[(true, Some(0.70), 0.20); 3]), [3], "the bounds are inclusive");
+    }
+
+    #[test]
+    fn geodesic_tilt() {
+        let r0 = Matrix3::identity();
+        let r = *nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::x_axis(), 0.8).matrix();
+        assert!((geodesic_angle(&r0, &r) - 0.8).abs() < 1e-12);
+        let yaw = *nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), 0.3).matrix();
+        assert!((geodesic_angle(&yaw, &(yaw * r)) - 0.8).abs() < 1e-12);
+    }
+}
