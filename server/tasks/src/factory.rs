@@ -4,10 +4,40 @@ use libero_sim::mujoco_rs::prelude::MjModel;
 
 use crate::TasksError;
 use crate::bddl_terminal::{self, BddlTerminal};
+use crate::button_press::{self, ButtonPress};
 use crate::catalog::CheckerSpec;
 use crate::commitment::CommitmentTracker;
 use crate::evaluator::Evaluator;
 use crate::goal::GoalChecker;
+use crate::tube_insertion::{self, TubeInsertion};
+
+/// The checker types this build can judge (the catalog refuses an implemented task whose checker is not here).
+pub const EVALUATOR_KINDS: &[&str] =
+    &[bddl_terminal::CHECKER, "bddl_terminal_open", button_press::CHECKER, tube_insertion::CHECKER];
+
+/// The scene's BDDL goal (a diagnostic for private evaluators) and its first-commitment tracker.
+pub(crate) fn scene_goal_and_commitment(
+    scene: &ComposedScene,
+    model: &MjModel,
+) -> Result<(GoalChecker, CommitmentTracker), TasksError> {
+    let goal = GoalChecker::for_scene(scene, model)?;
+    let commitment = CommitmentTracker::new(goal.index(), model)?;
+    Ok((goal, commitment))
+}
+
+/// A private evaluator's lookup error: the model lacks what its parameters name.
+pub(crate) fn missing_in_model(checker: &str, kind: &str, name: &str) -> TasksError {
+    TasksError::Scene(format!("{checker}: the model has no {kind} {name:?}"))
+}
+
+/// The manifest's `checker.params` for `kind`.
+fn params<T: serde::de::DeserializeOwned>(checker: Option<&CheckerSpec>, kind: &str, task_id: Option<&str>) -> Result<T, TasksError> {
+    let value = checker.map(|c| c.params.clone()).unwrap_or_default();
+    serde_json::from_value(value).map_err(|e| TasksError::Catalog {
+        path: task_id.unwrap_or("task").to_owned(),
+        message: format!("checker {kind}: bad params: {e}"),
+    })
+}
 
 /// The evaluator for `checker` on `scene` (compiled as `model`). `None` — a stock LIBERO task without a suite
 /// entry — is judged like `bddl_terminal`: the scene's own BDDL goal on the final state.
@@ -20,9 +50,16 @@ pub fn build_evaluator(
     let kind = checker.map_or(bddl_terminal::CHECKER, |c| c.kind.as_str());
     match kind {
         "bddl_terminal" | "bddl_terminal_open" => {
-            let goal = GoalChecker::for_scene(scene, model)?;
-            let commitment = CommitmentTracker::new(goal.index(), model)?;
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             Ok(Box::new(BddlTerminal::new(kind, goal, commitment, task_id.map(str::to_owned))))
+        }
+        button_press::CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(ButtonPress::new(p, scene, model, task_id.map(str::to_owned))?))
+        }
+        tube_insertion::CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(TubeInsertion::new(p, scene, model, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

@@ -1,6 +1,7 @@
 //! Tasks: the LIBERO goal predicates on a composed scene, the private evaluators that judge an episode, and the
 //! catalog of the 30 release tasks (`tasks/manifest.json`). No I/O servers and no rendering here.
 pub mod bddl_terminal;
+pub mod button_press;
 pub mod catalog;
 pub mod commitment;
 pub mod error;
@@ -9,6 +10,7 @@ pub mod expert;
 pub mod factory;
 pub mod goal;
 pub mod predicates;
+pub mod tube_insertion;
 
 pub use error::TasksError;
 pub use catalog::{Catalog, TaskEntry};

@@ -7,6 +7,7 @@
 //! lockstep replica of the episode's simulation.
 pub mod motion;
 mod stock;
+mod vlabench;
 
 use libero_sim::Simulation;
 use libero_sim::compose::ComposedScene;
@@ -81,7 +82,7 @@ impl<'a> SceneRefs<'a> {
 
 /// The tasks that have an expert, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    stock::behaviours(task_id)
+    stock::behaviours(task_id).or_else(|| vlabench::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -99,5 +100,9 @@ pub fn expert_for(
             known.join(", ")
         )));
     }
-    stock::build(task_id, behaviour, &refs)
+    if stock::behaviours(task_id).is_some() {
+        stock::build(task_id, behaviour, &refs)
+    } else {
+        vlabench::build(task_id, behaviour, &refs)
+    }
 }
