@@ -55,10 +55,7 @@ impl Evaluator for BddlTerminal {
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
         self.control_steps += 1;
         self.note_goal(data, tick);
-        if let Some(c) = self.commitment.observe(self.goal.index(), data, tick) {
-            let event = PrivateEvent { subject: Some(c.subject.clone()), ..PrivateEvent::new(EventKind::FirstCommitment, tick) };
-            self.events.push(event);
-        }
+        self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
     }
 
     fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord {

@@ -19,7 +19,7 @@ use libero_sim::simulation::SimData;
 use serde::Serialize;
 
 use crate::TasksError;
-use crate::evaluator::Tick;
+use crate::evaluator::{EventKind, PrivateEvent, Tick};
 use crate::predicates::{JointKind, SceneIndex};
 
 /// Lift (m) above the reset height that, with a grasp, commits to an object.
@@ -49,6 +49,13 @@ pub struct Commitment {
     pub tick: Tick,
     /// Lift (m) for objects, joint displacement (m or rad) for fixtures, 0 for presses.
     pub magnitude: f64,
+}
+
+impl Commitment {
+    /// The `first_commitment` private event.
+    pub fn event(&self) -> PrivateEvent {
+        PrivateEvent { subject: Some(self.subject.clone()), ..PrivateEvent::new(EventKind::FirstCommitment, self.tick) }
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -149,6 +156,16 @@ impl CommitmentTracker {
         }
         self.first = Some(Commitment { kind: CommitmentKind::ButtonPressed, subject: button.to_owned(), tick, magnitude: 0.0 });
         self.first.as_ref()
+    }
+
+    /// [`observe`](Self::observe), as the private event that records the commitment.
+    pub fn observe_event(&mut self, index: &SceneIndex, data: &SimData, tick: Tick) -> Option<PrivateEvent> {
+        self.observe(index, data, tick).map(Commitment::event)
+    }
+
+    /// [`commit_press`](Self::commit_press), as the private event that records the commitment.
+    pub fn commit_press_event(&mut self, button: &str, tick: Tick) -> Option<PrivateEvent> {
+        self.commit_press(button, tick).map(Commitment::event)
     }
 
     pub fn first(&self) -> Option<&Commitment> {

@@ -266,6 +266,9 @@ pub struct EvaluationRecord {
     pub bddl_goal: Option<GoalReport>,
     pub bddl_final_goal_success: Option<bool>,
     pub failure_reason: Option<FailureReason>,
+    /// Evaluator-specific private diagnostics (per-button press history, measured insertion values, …).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub details: Option<serde_json::Value>,
 }
 
 impl EvaluationRecord {
@@ -292,6 +295,7 @@ impl EvaluationRecord {
             bddl_goal: None,
             bddl_final_goal_success: None,
             failure_reason: None,
+            details: None,
         }
     }
 }

@@ -4,14 +4,47 @@ use libero_sim::mujoco_rs::prelude::MjModel;
 
 use crate::TasksError;
 use crate::bddl_terminal::{self, BddlTerminal};
+use crate::button_press::{self, ButtonPress};
 use crate::catalog::CheckerSpec;
 use crate::commitment::CommitmentTracker;
 use crate::evaluator::Evaluator;
 use crate::goal::GoalChecker;
+use crate::pour::{self, PourWine};
+use crate::tube_insertion::{self, TubeInsertion};
+use crate::wipe::{self, SpillWipe};
 
-/// Whether this build has an evaluator of type `kind` (the catalog refuses implemented tasks without one).
-pub fn has_evaluator(kind: &str) -> bool {
-    matches!(kind, "bddl_terminal" | "bddl_terminal_open" | crate::wipe::CHECKER | crate::pour::CHECKER)
+/// The checker types this build can judge (the catalog refuses an implemented task whose checker is not here).
+pub const EVALUATOR_KINDS: &[&str] = &[
+    bddl_terminal::CHECKER,
+    "bddl_terminal_open",
+    button_press::CHECKER,
+    tube_insertion::CHECKER,
+    wipe::CHECKER,
+    pour::CHECKER,
+];
+
+/// The scene's BDDL goal (a diagnostic for private evaluators) and its first-commitment tracker.
+pub(crate) fn scene_goal_and_commitment(
+    scene: &ComposedScene,
+    model: &MjModel,
+) -> Result<(GoalChecker, CommitmentTracker), TasksError> {
+    let goal = GoalChecker::for_scene(scene, model)?;
+    let commitment = CommitmentTracker::new(goal.index(), model)?;
+    Ok((goal, commitment))
+}
+
+/// A private evaluator's lookup error: the model lacks what its parameters name.
+pub(crate) fn missing_in_model(checker: &str, kind: &str, name: &str) -> TasksError {
+    TasksError::Scene(format!("{checker}: the model has no {kind} {name:?}"))
+}
+
+/// The manifest's `checker.params` for `kind` (missing fields take the catalog's defaults where the type has them).
+fn params<T: serde::de::DeserializeOwned>(checker: Option<&CheckerSpec>, kind: &str, task_id: Option<&str>) -> Result<T, TasksError> {
+    let value = checker.map(|c| c.params.clone()).filter(|v| !v.is_null()).unwrap_or_else(|| serde_json::json!({}));
+    serde_json::from_value(value).map_err(|e| TasksError::Catalog {
+        path: task_id.unwrap_or("task").to_owned(),
+        message: format!("checker {kind}: bad params: {e}"),
+    })
 }
 
 /// The evaluator for `checker` on `scene` (compiled as `model`). `None` — a stock LIBERO task without a suite
@@ -25,36 +58,30 @@ pub fn build_evaluator(
     let kind = checker.map_or(bddl_terminal::CHECKER, |c| c.kind.as_str());
     match kind {
         "bddl_terminal" | "bddl_terminal_open" => {
-            let goal = GoalChecker::for_scene(scene, model)?;
-            let commitment = CommitmentTracker::new(goal.index(), model)?;
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             Ok(Box::new(BddlTerminal::new(kind, goal, commitment, task_id.map(str::to_owned))))
         }
-        crate::wipe::CHECKER => {
-            let goal = GoalChecker::for_scene(scene, model)?;
-            let commitment = CommitmentTracker::new(goal.index(), model)?;
-            let params = params::<crate::wipe::WipeParams>(checker, task_id)?;
-            Ok(Box::new(crate::wipe::SpillWipe::new(params, goal, commitment, model, task_id.map(str::to_owned))?))
+        button_press::CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(ButtonPress::new(p, scene, model, task_id.map(str::to_owned))?))
         }
-        crate::pour::CHECKER => {
-            let goal = GoalChecker::for_scene(scene, model)?;
-            let commitment = CommitmentTracker::new(goal.index(), model)?;
-            let params = params::<crate::pour::PourParams>(checker, task_id)?;
-            Ok(Box::new(crate::pour::PourWine::new(params, goal, commitment, model, task_id.map(str::to_owned))?))
+        tube_insertion::CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(TubeInsertion::new(p, scene, model, task_id.map(str::to_owned))?))
+        }
+        wipe::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(SpillWipe::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        pour::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PourWine::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),
             message: format!("no evaluator of type {other} in this build"),
-        }),
-    }
-}
-
-/// The checker's manifest `params` as `T` (missing fields take the catalog's defaults).
-fn params<T: serde::de::DeserializeOwned + Default>(checker: Option<&CheckerSpec>, task_id: Option<&str>) -> Result<T, TasksError> {
-    match checker.map(|c| &c.params) {
-        None | Some(serde_json::Value::Null) => Ok(T::default()),
-        Some(v) => serde_json::from_value(v.clone()).map_err(|e| TasksError::Catalog {
-            path: task_id.unwrap_or("task").to_owned(),
-            message: format!("checker params: {e}"),
         }),
     }
 }

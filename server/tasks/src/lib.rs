@@ -1,6 +1,7 @@
 //! Tasks: the LIBERO goal predicates on a composed scene, the private evaluators that judge an episode, and the
 //! catalog of the 30 release tasks (`tasks/manifest.json`). No I/O servers and no rendering here.
 pub mod bddl_terminal;
+pub mod button_press;
 pub mod catalog;
 pub mod commitment;
 pub mod error;
@@ -10,6 +11,7 @@ pub mod factory;
 pub mod goal;
 pub mod pour;
 pub mod predicates;
+pub mod tube_insertion;
 pub mod wipe;
 
 pub use error::TasksError;

@@ -298,6 +298,9 @@ struct LoadedObject {
     info: InstanceInfo,
     body: Element,
     assets: Element,
+    /// `<sensor>` entries of a project asset (prefixed), e.g. the button's touch sensor. robosuite merges only an
+    /// object's body and assets; LIBERO's own objects carry no sensors, so this is empty for them.
+    sensors: Element,
     /// Region sites of this instance: (site name without prefix, size, joints of the innermost body).
     site_scan: Vec<(String, Vec<f64>, Vec<String>)>,
 }
@@ -447,6 +450,10 @@ fn load_object(name: &str, cat: &registry::Category, is_fixture: bool, paths: &A
         },
         body: obj,
         assets: xml.section("asset").clone(),
+        sensors: match cat.root {
+            registry::AssetRoot::Project => xml.section("sensor").clone(),
+            registry::AssetRoot::Libero => Element::new("sensor"),
+        },
         site_scan,
     })
 }
@@ -717,6 +724,7 @@ pub fn compose(problem: &Problem, paths: &AssetPaths) -> Result<ComposedScene, S
     for lo in objects.iter().chain(fixtures.iter()) {
         world.merge_assets(&lo.assets);
         world.section_mut("worldbody").children.push(lo.body.clone());
+        world.section_mut("sensor").children.extend(lo.sensors.children.iter().cloned());
     }
     let mjcf = world.root.to_xml();
     Ok(ComposedScene {

@@ -65,6 +65,11 @@ const ARTICULATED: &[&str] = &[
 /// release's repository-owned objects, task catalog §2.3). Each file follows LIBERO's object layout: an outer body
 /// holding a body named `object`, with `bottom_site`, `top_site` and `horizontal_radius_site`.
 const PROJECT: &[(&str, &str, f64)] = &[
+    // T13: the VLABench-style single press button (task catalog §6.4)
+    ("vlabench_single_button", "objects/vlabench_single_button/vlabench_single_button.xml", 0.0),
+    // T18: primitive stand-ins for VLABench's chemistry tube and tube rack (catalog §4 T18, §6.8)
+    ("vlabench_tube", "objects/vlabench_tube/vlabench_tube.xml", 0.0),
+    ("vlabench_tube_stand", "objects/vlabench_tube_stand/vlabench_tube_stand.xml", 0.0),
     // T19 (task catalog §6.6): RoboCasa-style sponge (movable) and tabletop spill patch with the blue rest pad (fixture)
     ("robocasa_sponge", "objects/robocasa_sponge/robocasa_sponge.xml", 0.0),
     ("robocasa_spill_patch", "objects/robocasa_spill_patch/robocasa_spill_patch.xml", 0.0),

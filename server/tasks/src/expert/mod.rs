@@ -8,6 +8,7 @@
 mod adapted;
 pub mod motion;
 mod stock;
+mod vlabench;
 
 use libero_sim::Simulation;
 use libero_sim::compose::ComposedScene;
@@ -82,7 +83,7 @@ impl<'a> SceneRefs<'a> {
 
 /// The tasks that have an expert, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    stock::behaviours(task_id).or_else(|| adapted::behaviours(task_id))
+    stock::behaviours(task_id).or_else(|| vlabench::behaviours(task_id)).or_else(|| adapted::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -100,8 +101,11 @@ pub fn expert_for(
             known.join(", ")
         )));
     }
-    if adapted::behaviours(task_id).is_some() {
-        return adapted::build(task_id, behaviour, &refs);
+    if stock::behaviours(task_id).is_some() {
+        stock::build(task_id, behaviour, &refs)
+    } else if vlabench::behaviours(task_id).is_some() {
+        vlabench::build(task_id, behaviour, &refs)
+    } else {
+        adapted::build(task_id, behaviour, &refs)
     }
-    stock::build(task_id, behaviour, &refs)
 }
