@@ -5,6 +5,7 @@ pub mod actor;
 pub mod call;
 pub mod error;
 pub mod json;
+pub mod live;
 pub mod observation;
 pub mod publish;
 pub mod readout;
@@ -17,7 +18,8 @@ pub mod workspace;
 #[cfg(feature = "world")]
 pub mod world;
 
-pub use actor::{EpisodeConfig, EpisodeHandle, EpisodeState, EpisodeStatus, Verdict, World, spawn_episode};
+pub use actor::{EpisodeConfig, EpisodeHandle, EpisodeState, EpisodeStatus, Verdict, World, spawn_episode, spawn_episode_live};
+pub use live::{LiveEvent, LiveFrame, LiveSink};
 pub use call::{MicroAction, ToolCall, ToolError, validate_actions};
 pub use error::EpisodeError;
 pub use observation::{CameraFrame, Frame, Level, RgbImage, RobotReadout};

@@ -14,6 +14,7 @@ use libero_tasks::{Evaluator, Tick, build_evaluator};
 use crate::EpisodeError;
 use crate::actor::{Verdict, World};
 use crate::call::MicroAction;
+use crate::live::{LiveSink, WorldTap};
 use crate::observation::{CameraFrame, Frame, Level, RgbImage};
 use crate::readout::{BasePose, robot_base_body, robot_readout};
 use crate::task::TaskSource;
@@ -50,6 +51,8 @@ pub struct LiberoWorld {
     control_step: u64,
     /// LIBERO's per-step stove-burner visibility, applied to every rendered frame.
     toggles: VisualToggles,
+    /// The operator's live view and telemetry (see [`LiberoWorld::set_live`]); `None` costs nothing.
+    live: Option<WorldTap>,
 }
 
 /// LIBERO's `_post_process` after every control step ([`TurnOnSites`]: the stove's burner ring shows iff it is
@@ -124,7 +127,18 @@ impl LiberoWorld {
         let base_body = robot_base_body(&sim)?;
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
         let toggles = VisualToggles::new(&scene, &model)?;
-        Ok(Self { sim, start_row, renderer, gpu_model, base_body, level: spec.level, evaluator, control_step: 0, toggles })
+        Ok(Self {
+            sim,
+            start_row,
+            renderer,
+            gpu_model,
+            base_body,
+            level: spec.level,
+            evaluator,
+            control_step: 0,
+            toggles,
+            live: None,
+        })
     }
 
     /// Whether the next image shows a turned-on fixture's visual site (the stove's burner ring).
@@ -248,6 +262,7 @@ impl World for LiberoWorld {
         }
         self.control_step = 0;
         self.evaluator.reset(self.sim.data(), self.tick(None));
+        self.report_live();
         Ok(())
     }
 
@@ -265,6 +280,7 @@ impl World for LiberoWorld {
         self.control_step = step;
         self.toggles.after_step(self.sim.data().qpos());
         self.evaluator.observe_control_step(self.sim.data(), self.tick(None));
+        self.report_live();
         Ok(())
     }
 
@@ -292,14 +308,45 @@ impl LiberoWorld {
     /// place when the world is dropped (episode finished, expired or aborted) or at [`Self::end_video`].
     pub fn record_video(&mut self, path: &std::path::Path) -> Result<(), EpisodeError> {
         let cameras = VideoCameras { head: HEAD_CAMERA.into(), wrist: WRIST_CAMERA.into(), size_px: RESOLUTION_PX };
-        let recorder = VideoRecorder::spawn(path, self.renderer.clone(), self.gpu_model.clone(), cameras)
+        let tap = self.live.as_ref().map(WorldTap::frame_tap);
+        let counter = self.live.as_ref().map(WorldTap::frame_counter);
+        let recorder = VideoRecorder::spawn_with_tap(path, self.renderer.clone(), self.gpu_model.clone(), cameras, tap)
             .map_err(|e| EpisodeError::Render(e.to_string()))?;
-        self.sim.set_step_observer(Some(recorder.into_step_observer()));
+        let mut observe = recorder.into_step_observer();
+        match counter {
+            None => self.sim.set_step_observer(Some(observe)),
+            Some(counter) => self.sim.set_step_observer(Some(Box::new(move |model: &MjModel, data: &libero_sim::SimData| {
+                observe(model, data);
+                counter.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
+            }))),
+        }
         Ok(())
     }
 
     /// Stops recording and finalises the video now (waits for the encoder to drain).
     pub fn end_video(&mut self) {
         self.sim.set_step_observer(None);
+    }
+}
+
+/// The operator's live view, apart from the protocol methods: step and private stage events to a sink, and
+/// `telemetry.jsonl` (end-effector position, gripper, wrist force per control step) for the review page.
+impl LiberoWorld {
+    /// Sends this world's live events to `sink` and writes `telemetry` (the run directory's
+    /// `telemetry.jsonl`). Call before [`Self::record_video`], whose frames then feed the live view too.
+    pub fn set_live(&mut self, sink: LiveSink, telemetry: Option<&std::path::Path>) -> Result<(), EpisodeError> {
+        self.live = Some(WorldTap::new(sink, telemetry)?);
+        Ok(())
+    }
+
+    fn report_live(&mut self) {
+        let Some(tap) = self.live.as_mut() else { return };
+        let robot = robot_readout(&self.sim, &BasePose::of(&self.sim, self.base_body));
+        let (events, progress) = (self.evaluator.private_events(), self.evaluator.stage_progress());
+        if self.control_step == 0 {
+            tap.on_reset(&robot, events, progress);
+        } else {
+            tap.after_step(self.control_step, &robot, events, progress);
+        }
     }
 }

@@ -306,6 +306,14 @@ pub trait Evaluator: Send {
     fn observe_substep(&mut self, _data: &SimData, _tick: Tick) {}
     /// Judges the final state (terminal checks) together with the history observed so far.
     fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord;
+    /// Private events recorded since the reset, in order, for the operator's live dashboard (never the agent).
+    fn private_events(&self) -> &[PrivateEvent] {
+        &[]
+    }
+    /// Live `(completed, K)` for the operator's dashboard, where the evaluator can tell before finish.
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        None
+    }
 }
 
 pub use crate::commitment::{Commitment, CommitmentKind, CommitmentTracker};
