@@ -98,7 +98,7 @@ function drawAll() {
   if (!data) return;
   drawTimeline();
   drawPlot('plot-eef', 'end-effector position in base (m): x y z', [(r) => r.eef_pos_in_base_m[0], (r) => r.eef_pos_in_base_m[1], (r) => r.eef_pos_in_base_m[2]], ['#dc2626', '#16a34a', '#2563eb']);
-  drawPlot('plot-gripper', 'gripper width (m, sum of finger joints)', [(r) => r.gripper_qpos_m[0] - r.gripper_qpos_m[1]], ['#7c3aed']);
+  drawPlot('plot-gripper', 'gripper opening (m): finger joint 1 − finger joint 2', [(r) => r.gripper_qpos_m[0] - r.gripper_qpos_m[1]], ['#7c3aed']);
   drawPlot('plot-force', 'wrist force (N): x y z |f|', [(r) => r.wrist_force_n[0], (r) => r.wrist_force_n[1], (r) => r.wrist_force_n[2], (r) => Math.hypot(...r.wrist_force_n)], ['#dc2626', '#16a34a', '#2563eb', '#111']);
 }
 

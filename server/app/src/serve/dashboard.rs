@@ -78,6 +78,18 @@ fn valid_id(id: &str) -> bool {
     !id.is_empty() && id.len() <= 96 && id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
+/// The stored row of episode `id`, or the response saying why there is none.
+async fn stored_row(app: &App, id: &str) -> Result<super::store::EpisodeRow, Response> {
+    if !valid_id(id) {
+        return Err(json_error(StatusCode::NOT_FOUND, "no such episode"));
+    }
+    match app.store.get(id).await {
+        Ok(Some(row)) => Ok(row),
+        Ok(None) => Err(json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
+        Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}"))),
+    }
+}
+
 // ---------------------------------------------------------------------------------------------- home page
 
 #[derive(Template)]
@@ -218,13 +230,9 @@ struct LivePage {
 }
 
 async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
-    if !valid_id(&id) {
-        return json_error(StatusCode::NOT_FOUND, "no such episode");
-    }
-    let row = match app.store.get(&id).await {
-        Ok(Some(r)) => r,
-        Ok(None) => return json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
-        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    let row = match stored_row(&app, &id).await {
+        Ok(r) => r,
+        Err(resp) => return resp,
     };
     let Some(hub) = app.hubs.get(&id) else {
         // Not run by this process (finished before a restart): only the review exists.
@@ -311,19 +319,17 @@ struct ReviewPage {
 }
 
 async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
-    if !valid_id(&id) {
-        return json_error(StatusCode::NOT_FOUND, "no such episode");
+    if valid_id(&id) {
+        app.sync(&id).await;
     }
-    app.sync(&id).await;
-    match app.store.get(&id).await {
-        Ok(Some(row)) => page(ReviewPage {
+    match stored_row(&app, &id).await {
+        Ok(row) => page(ReviewPage {
             id,
             task: row.episode.task_ref,
             level: row.episode.level,
             outcome: row.outcome.unwrap_or_else(|| "RUNNING".into()),
         }),
-        Ok(None) => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+        Err(resp) => resp,
     }
 }
 
@@ -363,13 +369,9 @@ fn timeline_calls(actions: &[Value]) -> Vec<Value> {
 
 /// Everything the review page shows, from the private run directory. Operator-only.
 async fn review_data(State(app): State<AppState>, Path(id): Path<String>) -> Response {
-    if !valid_id(&id) {
-        return json_error(StatusCode::NOT_FOUND, "no such episode");
-    }
-    let run = match app.store.get(&id).await {
-        Ok(Some(row)) => RunDir::new(row.episode.run_dir),
-        Ok(None) => return json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
-        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    let run = match stored_row(&app, &id).await {
+        Ok(row) => RunDir::new(row.episode.run_dir),
+        Err(resp) => return resp,
     };
     let data = tokio::task::spawn_blocking(move || {
         let result = read_result(&run);
@@ -404,10 +406,7 @@ async fn serve_file(path: std::path::PathBuf, req: Request<Body>) -> Response {
 }
 
 async fn run_dir_of(app: &App, id: &str) -> Option<RunDir> {
-    if !valid_id(id) {
-        return None;
-    }
-    app.store.get(id).await.ok().flatten().map(|r| RunDir::new(r.episode.run_dir))
+    stored_row(app, id).await.ok().map(|r| RunDir::new(r.episode.run_dir))
 }
 
 async fn video(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
@@ -472,7 +471,7 @@ fn task_cards() -> anyhow::Result<Vec<TaskCard>> {
             checks: if t.checker.is_bddl_terminal() {
                 "success when the task's BDDL goal holds on the final state at finish_episode".into()
             } else {
-                format!("{} ordered stages judged by a private evaluator; success needs all of them", t.stage_count)
+                format!("K = {} ordered stage(s) judged by a private evaluator; success needs all of them", t.stage_count)
             },
             implemented: t.implemented,
             not_implemented_reason: t.not_implemented_reason.clone().unwrap_or_default(),
