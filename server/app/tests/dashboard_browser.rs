@@ -92,7 +92,10 @@ fn http(method: &str, url: &str, headers: &[(&str, &str)], body: &[u8]) -> (u16,
     let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
     let mut stream = std::net::TcpStream::connect(host).expect("connect");
     stream.set_read_timeout(Some(Duration::from_secs(300))).unwrap();
-    let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\nContent-Length: {}\r\n", body.len());
+    let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {host}\r\nContent-Length: {}\r\n", body.len());
+    if !headers.iter().any(|(k, _)| k.eq_ignore_ascii_case("connection")) {
+        head.push_str("Connection: close\r\n");
+    }
     for (k, v) in headers {
         head.push_str(&format!("{k}: {v}\r\n"));
     }
@@ -100,10 +103,37 @@ fn http(method: &str, url: &str, headers: &[(&str, &str)], body: &[u8]) -> (u16,
     stream.write_all(head.as_bytes()).unwrap();
     stream.write_all(body).unwrap();
     let mut raw = Vec::new();
-    stream.read_to_end(&mut raw).unwrap();
-    let split = raw.windows(4).position(|w| w == b"\r\n\r\n").expect("headers end");
+    let mut buf = [0u8; 4096];
+    // Up to the end of the headers first: a 101 (WebSocket) answer keeps the connection open.
+    let split = loop {
+        let n = stream.read(&mut buf).unwrap();
+        assert!(n > 0, "connection closed before the headers ended");
+        raw.extend_from_slice(&buf[..n]);
+        if let Some(p) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
+            break p;
+        }
+    };
     let head = String::from_utf8_lossy(&raw[..split]).into_owned();
     let status = head.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("status");
+    if status == 101 {
+        return (status, head, Vec::new());
+    }
+    let length = head
+        .lines()
+        .find_map(|l| l.to_ascii_lowercase().strip_prefix("content-length:").map(|v| v.trim().parse::<usize>().unwrap()));
+    match length {
+        // A kept-alive connection (the caller chose its own `Connection`) ends after the body, not at EOF.
+        Some(n) => {
+            while raw.len() < split + 4 + n {
+                let k = stream.read(&mut buf).unwrap();
+                assert!(k > 0, "connection closed inside the body");
+                raw.extend_from_slice(&buf[..k]);
+            }
+        }
+        None => {
+            stream.read_to_end(&mut raw).unwrap();
+        }
+    }
     let mut body = raw[split + 4..].to_vec();
     if head.to_ascii_lowercase().contains("transfer-encoding: chunked") {
         body = dechunk(&body);
@@ -237,6 +267,17 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
     for private in ["telemetry", "continuous_video", "private_stage_events", "result.json", "actions.jsonl"] {
         assert!(!files.iter().any(|f| f.contains(private)), "{private} leaked into the workspace: {files:?}");
     }
+    // Another site's page in the operator's browser can neither read the live streams nor prepare episodes.
+    let upgrade = [("Connection", "Upgrade"), ("Upgrade", "websocket"), ("Sec-WebSocket-Version", "13"),
+        ("Sec-WebSocket-Key", "dGhlIHNhbXBsZSBub25jZQ==")];
+    let local_origin = format!("http://127.0.0.1:{}", server.port);
+    let (status, _, _) = http("GET", &format!("{}/ws/episodes", server.url), &[&upgrade[..], &[("Origin", local_origin.as_str())]].concat(), b"");
+    assert_eq!(status, 101, "the dashboard's own pages connect");
+    let (status, _, _) = http("GET", &format!("{}/ws/episodes", server.url), &[&upgrade[..], &[("Origin", "http://evil.example")]].concat(), b"");
+    assert_eq!(status, 403, "cross-site WebSocket refused");
+    let (status, _, _) = http("POST", &format!("{}/api/episodes", server.url),
+        &[("Origin", "http://evil.example"), ("Content-Type", "text/plain")], br#"{"task":"T14"}"#);
+    assert_eq!(status, 403, "cross-site prepare refused");
     // Pages never show the agent's token.
     let token = agent_token(&prepared);
     for page in ["/", &format!("/episodes/{episode}/review"), &format!("/api/episodes/{episode}/review"), "/api/episodes"] {

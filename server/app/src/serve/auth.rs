@@ -66,8 +66,26 @@ fn cookie<'a>(headers: &'a HeaderMap, name: &str) -> Option<&'a str> {
         .map(|(_, v)| v)
 }
 
-/// Middleware: pages redirect to the login form, everything else answers 401.
+/// Whether a browser sent this request from another site: its `Origin` names a different host than `Host`.
+/// WebSockets and form posts carry no CORS protection, so without this check any web page the operator
+/// visits could read an open (loopback) dashboard's streams or prepare episodes.
+fn cross_site(headers: &HeaderMap) -> bool {
+    let Some(origin) = headers.get(header::ORIGIN) else { return false };
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
+    let origin_host = origin.to_str().ok().and_then(|o| o.split_once("://")).map(|(_, rest)| rest.trim_end_matches('/'));
+    !matches!((origin_host, host), (Some(o), Some(h)) if o.eq_ignore_ascii_case(h))
+}
+
+/// Middleware: cross-site requests answer 403; without the token, pages redirect to the login form and
+/// everything else answers 401.
 pub async fn require_operator(State(token): State<OperatorToken>, req: Request, next: Next) -> Response {
+    if cross_site(req.headers()) {
+        return (
+            StatusCode::FORBIDDEN,
+            axum::Json(serde_json::json!({"ok": false, "error": "cross-site requests to the dashboard are refused"})),
+        )
+            .into_response();
+    }
     if token.admits(req.headers()) {
         return next.run(req).await;
     }
