@@ -79,11 +79,17 @@ async function main() {
       await new Promise((r) => setTimeout(r, 1000));
     }
     check(video, 'the review page has the video');
-    await review.waitForFunction(() => document.getElementById('video').readyState >= 2, null, { timeout: 30000 });
+    // Metadata first (duration); playing below needs the data, which a loaded machine may deliver slowly.
+    const videoState = () => video.evaluate((v) => JSON.stringify({ readyState: v.readyState, networkState: v.networkState,
+      error: v.error && v.error.message, currentTime: v.currentTime, paused: v.paused, buffered: v.buffered.length }));
+    const waitVideo = async (fn, what) => {
+      try { await review.waitForFunction(fn, null, { timeout: 60000 }); } catch (e) { throw new Error(`${what}: ${await videoState()}: ${e}`); }
+    };
+    await waitVideo(() => document.getElementById('video').readyState >= 1, 'video metadata');
     const duration = await video.evaluate((v) => v.duration);
     check(duration > 3, `video duration ${duration}`);
     await review.keyboard.press('Space');
-    await review.waitForFunction(() => document.getElementById('video').currentTime > 0.5, null, { timeout: 20000 });
+    await waitVideo(() => document.getElementById('video').currentTime > 0.5, 'video plays on space');
     await review.keyboard.press('Space');
     check(await video.evaluate((v) => v.paused), 'space pauses');
     const before = await video.evaluate((v) => v.currentTime);
