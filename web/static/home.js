@@ -6,7 +6,9 @@ const status = document.getElementById('live-status');
 
 function row(e) {
   const tr = el('tr', { 'data-id': e.id });
-  const link = el('a', { href: `/episodes/${encodeURIComponent(e.id)}` }, e.id);
+  // Open episodes go to the live page, ended ones straight to their review.
+  const ended = e.outcome && e.outcome !== 'RUNNING';
+  const link = el('a', { href: `/episodes/${encodeURIComponent(e.id)}${ended ? '/review' : ''}` }, e.id);
   const progress = e.completed_stage_count != null && e.required_stage_count != null
     ? `${e.completed_stage_count}/${e.required_stage_count}` : '–';
   const cells = [
