@@ -11,7 +11,8 @@ Cache: $LIBERO_AGENT_CACHE, default ~/.cache/libero-agent. The repository gets o
 
 Usage: setup.py [--test] [--no-apt]
   --test    also the test extras: Debian packages for browser tests and MuJoCo's software renderer,
-            and a Python venv with mujoco/numpy/pillow (the reference peer of some tests).
+            a Python venv with mujoco/numpy/pillow/mcp (the reference peer of some tests) and
+            playwright-core from npm for the browser tests (they drive Debian's chromium; no browser download).
 """
 import hashlib
 import json
@@ -191,6 +192,23 @@ def setup_venv(reqs: list) -> None:
     stamp.write_text(marker)
 
 
+def setup_node(packages: list) -> None:
+    """playwright-core for the browser tests, in the cache (no browser download: tests use Debian's chromium)."""
+    node = cache_dir() / "node"
+    marker = "\n".join(packages)
+    stamp = node / ".complete"
+    if stamp.exists() and stamp.read_text() == marker:
+        return
+    if shutil.which("npm") is None:
+        fail("npm is missing (Debian: apt-get install nodejs npm); the browser tests need it")
+    say(f"installing {', '.join(packages)} into {node}")
+    node.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD="1")
+    if subprocess.call(["npm", "install", "--prefix", str(node), "--no-audit", "--no-fund", *packages], env=env) != 0:
+        fail("npm install failed")
+    stamp.write_text(marker)
+
+
 def main() -> None:
     args = set(sys.argv[1:])
     lock = json.loads(LOCK.read_text())
@@ -199,6 +217,7 @@ def main() -> None:
     setup_pypi(lock)
     if "--test" in args:
         setup_venv(lock["python_test_venv"])
+        setup_node(lock["node_test"])
     say(f"ready (cache {cache_dir()})")
 
 

@@ -43,6 +43,18 @@ pub struct PrepareArgs {
     pub wall_time_s: f64,
     #[arg(long, default_value_t = 1_000_000)]
     pub max_agent_steps: u64,
+    /// Agent harness driving the episode (shown and filterable on the dashboard).
+    #[arg(long)]
+    pub harness: Option<String>,
+    /// Model behind the harness.
+    #[arg(long)]
+    pub model: Option<String>,
+    /// Batch the episode belongs to.
+    #[arg(long)]
+    pub batch: Option<String>,
+    /// File holding the server's operator token (needed when the server listens beyond loopback).
+    #[arg(long)]
+    pub operator_token_file: Option<PathBuf>,
 }
 
 pub fn run_episode(args: EpisodeArgs) -> anyhow::Result<()> {
@@ -71,11 +83,18 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         wall_time_s: p.wall_time_s,
         max_agent_steps: p.max_agent_steps,
         video: true,
+        harness: p.harness,
+        model: p.model,
+        batch: p.batch,
     };
     let base = p.server.trim_end_matches('/');
     let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;
     let body = serde_json::to_vec(&req)?;
-    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
+    let mut headers = vec![("Content-Type".to_owned(), "application/json".to_owned())];
+    if let Some(file) = &p.operator_token_file {
+        let token = std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
+        headers.push(("Authorization".to_owned(), format!("Bearer {}", token.trim())));
+    }
     let resp = request("POST", &url, &headers, &body, Duration::from_secs(300))
         .with_context(|| format!("is `libero-agent serve` running at {base}?"))?;
     let text = String::from_utf8_lossy(&resp.body);

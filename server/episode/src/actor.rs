@@ -13,6 +13,7 @@ use serde_json::{Map, Value, json};
 use crate::EpisodeError;
 use crate::call::{MicroAction, ToolCall, ToolError, validate_actions};
 use crate::json::{compact_sorted, utc_now_iso};
+use crate::live::{LiveEvent, LiveSink, unix_now_s};
 use crate::observation::{Frame, Level, observation_id};
 use crate::publish::publish_observation;
 use crate::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, aborted_result, classify, write_result};
@@ -172,11 +173,24 @@ struct Actor<W: World> {
     run: RunDir,
     workspace: WorkspaceLayout,
     status: Arc<Mutex<EpisodeStatus>>,
+    /// The operator's live view (calls, the end); never the agent's.
+    live: Option<LiveSink>,
+    /// Whether the end was reported to `live` already.
+    end_reported: bool,
 }
 
 /// Starts an episode thread. `make_world` runs on that thread; if it fails, the episode is recorded as
 /// aborted and the error returned (nothing is served).
 pub fn spawn_episode<W, F>(config: EpisodeConfig, make_world: F) -> Result<EpisodeHandle, EpisodeError>
+where
+    W: World + 'static,
+    F: FnOnce() -> Result<W, EpisodeError> + Send + 'static,
+{
+    spawn_episode_live(config, None, make_world)
+}
+
+/// As [`spawn_episode`], reporting calls and the episode's end to `live` (the operator's dashboard).
+pub fn spawn_episode_live<W, F>(config: EpisodeConfig, live: Option<LiveSink>, make_world: F) -> Result<EpisodeHandle, EpisodeError>
 where
     W: World + 'static,
     F: FnOnce() -> Result<W, EpisodeError> + Send + 'static,
@@ -222,6 +236,8 @@ where
                 log,
                 run,
                 status: actor_status,
+                live,
+                end_reported: false,
             };
             actor.run(rx);
         })?;
@@ -296,6 +312,31 @@ impl<W: World> Actor<W> {
     }
 
     fn handle_call(&mut self, name: &str, arguments: Option<Map<String, Value>>) -> Value {
+        let actions = arguments.as_ref().and_then(|a| a.get("actions")).and_then(Value::as_array).map(Vec::len);
+        if let Some(live) = &self.live {
+            live(LiveEvent::CallReceived { tool: name.to_owned(), actions, at_unix_s: unix_now_s() });
+        }
+        let payload = self.handle_call_logged(name, arguments);
+        if let Some(live) = &self.live {
+            let text = |k: &str| payload.get(k).and_then(Value::as_str).map(str::to_owned);
+            live(LiveEvent::CallAnswered {
+                tool: name.to_owned(),
+                actions,
+                ok: payload.get("ok") == Some(&Value::Bool(true)),
+                error_type: text("error_type"),
+                error: text("error"),
+                observation_id: text("observation_id"),
+                accepted_agent_steps: self.accepted,
+                max_agent_steps: self.config.agent_step_limit(),
+                wall_time_s: self.wall_time_s().or_else(|| payload.get("wall_time_seconds").and_then(Value::as_f64)),
+                max_wall_time_s: self.config.max_wall_time_s,
+                at_unix_s: unix_now_s(),
+            });
+        }
+        payload
+    }
+
+    fn handle_call_logged(&mut self, name: &str, arguments: Option<Map<String, Value>>) -> Value {
         let call = ToolCall::parse(name, arguments.as_ref());
         let request = json!({
             "tool": name,
@@ -508,7 +549,7 @@ impl<W: World> Actor<W> {
         self.abort(reason);
     }
 
-    fn update_status(&self) {
+    fn update_status(&mut self) {
         let state = match self.phase {
             Phase::Prepared => EpisodeState::Prepared,
             Phase::Active { .. } => EpisodeState::Active,
@@ -521,11 +562,27 @@ impl<W: World> Actor<W> {
             }
             _ => None,
         };
-        if let Ok(mut s) = self.status.lock() {
-            s.state = state;
-            s.accepted_agent_steps = self.accepted;
-            s.latest_observation_id = self.latest_id.clone();
-            s.outcome = outcome;
+        let reason = match self.status.lock() {
+            Ok(mut s) => {
+                s.state = state;
+                s.accepted_agent_steps = self.accepted;
+                s.latest_observation_id = self.latest_id.clone();
+                s.outcome = outcome;
+                s.reason.clone()
+            }
+            Err(_) => None,
+        };
+        self.report_end(state, outcome, reason);
+    }
+
+    /// Tells the live view once that the episode ended.
+    fn report_end(&mut self, state: EpisodeState, outcome: Option<Outcome>, reason: Option<String>) {
+        let (Some(live), Some(outcome)) = (&self.live, outcome) else { return };
+        if self.end_reported {
+            return;
         }
+        self.end_reported = true;
+        let state = serde_json::to_value(state).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default();
+        live(LiveEvent::Finished { state, outcome: Some(outcome.as_str().to_owned()), reason });
     }
 }

@@ -6,6 +6,7 @@ pub mod call;
 pub mod error;
 pub mod expert_run;
 pub mod json;
+pub mod live;
 pub mod observation;
 pub mod physics;
 pub mod publish;
@@ -19,7 +20,8 @@ pub mod workspace;
 #[cfg(feature = "world")]
 pub mod world;
 
-pub use actor::{EpisodeConfig, EpisodeHandle, EpisodeState, EpisodeStatus, Verdict, World, spawn_episode};
+pub use actor::{EpisodeConfig, EpisodeHandle, EpisodeState, EpisodeStatus, Verdict, World, spawn_episode, spawn_episode_live};
+pub use live::{LiveEvent, LiveFrame, LiveSink};
 pub use call::{MicroAction, ToolCall, ToolError, validate_actions};
 pub use error::EpisodeError;
 pub use observation::{CameraFrame, Frame, Level, RgbImage, RobotReadout};

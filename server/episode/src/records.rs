@@ -44,6 +44,10 @@ impl RunDir {
     pub fn agent_prompt(&self) -> PathBuf {
         self.root.join("agent_prompt.txt")
     }
+    /// Per-control-step end-effector, gripper and wrist-force series for the review page.
+    pub fn telemetry_jsonl(&self) -> PathBuf {
+        self.root.join(crate::live::TELEMETRY_FILE)
+    }
 }
 
 /// `actions.jsonl`: every request and its response, errors included.

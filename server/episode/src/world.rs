@@ -11,6 +11,7 @@ use libero_sim::placement::{TurnOnSites, update_visual_sites};
 use crate::EpisodeError;
 use crate::actor::{Verdict, World};
 use crate::call::MicroAction;
+use crate::live::{LiveSink, WorldTap};
 use crate::observation::{CameraFrame, Frame, Level, RgbImage};
 pub use crate::physics::{SETTLE_STEPS, WorldSpec};
 use crate::physics::WorldPhysics;
@@ -31,6 +32,8 @@ pub struct LiberoWorld {
     level: Level,
     /// LIBERO's per-step stove-burner visibility, applied to every rendered frame.
     toggles: VisualToggles,
+    /// The operator's live view and telemetry (see [`LiberoWorld::set_live`]); `None` costs nothing.
+    live: Option<WorldTap>,
 }
 
 /// LIBERO's `_post_process` after every control step ([`TurnOnSites`]: the stove's burner ring shows iff it is
@@ -84,7 +87,7 @@ impl LiberoWorld {
         let model = physics.model().clone();
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
         let toggles = VisualToggles::new(&physics.scene, &model)?;
-        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles })
+        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None })
     }
 
     /// Whether the next image shows a turned-on fixture's visual site (the stove's burner ring).
@@ -165,12 +168,15 @@ impl World for LiberoWorld {
     fn start(&mut self) -> Result<(), EpisodeError> {
         self.toggles.reset();
         let toggles = &mut self.toggles;
-        self.physics.start(|sim| toggles.after_step(sim.data().qpos()))
+        self.physics.start(|sim| toggles.after_step(sim.data().qpos()))?;
+        self.report_live();
+        Ok(())
     }
 
     fn step(&mut self, action: &MicroAction) -> Result<(), EpisodeError> {
         self.physics.step(action)?;
         self.toggles.after_step(self.physics.sim.data().qpos());
+        self.report_live();
         Ok(())
     }
 
@@ -198,14 +204,48 @@ impl LiberoWorld {
     /// place when the world is dropped (episode finished, expired or aborted) or at [`Self::end_video`].
     pub fn record_video(&mut self, path: &std::path::Path) -> Result<(), EpisodeError> {
         let cameras = VideoCameras { head: HEAD_CAMERA.into(), wrist: WRIST_CAMERA.into(), size_px: RESOLUTION_PX };
-        let recorder = VideoRecorder::spawn(path, self.renderer.clone(), self.gpu_model.clone(), cameras)
+        let tap = self.live.as_ref().map(WorldTap::frame_tap);
+        let counter = self.live.as_ref().map(WorldTap::frame_counter);
+        let recorder = VideoRecorder::spawn_with_tap(path, self.renderer.clone(), self.gpu_model.clone(), cameras, tap)
             .map_err(|e| EpisodeError::Render(e.to_string()))?;
-        self.physics.sim.set_step_observer(Some(recorder.into_step_observer()));
+        let mut observe = recorder.into_step_observer();
+        match counter {
+            None => self.physics.sim.set_step_observer(Some(observe)),
+            Some(counter) => self.physics.sim.set_step_observer(Some(Box::new(move |model: &MjModel, data: &libero_sim::SimData| {
+                observe(model, data);
+                counter.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
+            }))),
+        }
         Ok(())
     }
 
     /// Stops recording and finalises the video now (waits for the encoder to drain).
     pub fn end_video(&mut self) {
         self.physics.sim.set_step_observer(None);
+    }
+}
+
+/// The operator's live view, apart from the protocol methods: step and private stage events to a sink, and
+/// `telemetry.jsonl` (end-effector position, gripper, wrist force per control step) for the review page.
+impl LiberoWorld {
+    /// Sends this world's live events to `sink` and writes `telemetry` (the run directory's
+    /// `telemetry.jsonl`). Call before [`Self::record_video`], whose frames then feed the live view too.
+    pub fn set_live(&mut self, sink: LiveSink, telemetry: Option<&std::path::Path>) -> Result<(), EpisodeError> {
+        self.live = Some(WorldTap::new(sink, telemetry)?);
+        Ok(())
+    }
+
+    fn report_live(&mut self) {
+        let Some(tap) = self.live.as_mut() else { return };
+        let sim = &self.physics.sim;
+        let robot = robot_readout(sim, &BasePose::of(sim, self.base_body));
+        let evaluator = &self.physics.evaluator;
+        let (events, progress) = (evaluator.private_events(), evaluator.stage_progress());
+        let control_step = self.physics.control_step;
+        if control_step == 0 {
+            tap.on_reset(&robot, events, progress);
+        } else {
+            tap.after_step(control_step, &robot, events, progress);
+        }
     }
 }

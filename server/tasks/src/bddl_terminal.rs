@@ -77,4 +77,13 @@ impl Evaluator for BddlTerminal {
         record.failure_reason = (!record.success).then_some(FailureReason::TerminalStateInvalid);
         record
     }
+
+    fn private_events(&self) -> &[PrivateEvent] {
+        &self.events
+    }
+
+    /// K = 1: the goal holding now is the stage that finish would complete.
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        Some((usize::from(self.last_goal == Some(true)), 1))
+    }
 }

@@ -320,6 +320,14 @@ pub trait Evaluator: Send {
     fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {
         Vec::new()
     }
+    /// Private events recorded since the reset, in order, for the operator's live dashboard (never the agent).
+    fn private_events(&self) -> &[PrivateEvent] {
+        &[]
+    }
+    /// Live `(completed, K)` for the operator's dashboard, where the evaluator can tell before finish.
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        None
+    }
 }
 
 pub use crate::commitment::{Commitment, CommitmentKind, CommitmentTracker};

@@ -13,7 +13,7 @@ use libero_episode::task::{TaskSource, resolve_task};
 use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
 use libero_episode::workspace::{WorkspaceContract, WorkspaceLayout, create_workspace};
 use libero_episode::world::{LiberoWorld, WorldSpec};
-use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode};
+use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode_live};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
 use rmcp::transport::streamable_http_server::session::local::LocalSessionManager;
@@ -21,6 +21,7 @@ use rmcp::transport::streamable_http_server::{StreamableHttpServerConfig, Stream
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
+use super::live::LiveHubs;
 use super::mcp::EpisodeMcp;
 
 pub type McpService = StreamableHttpService<EpisodeMcp, LocalSessionManager>;
@@ -50,6 +51,13 @@ pub struct PrepareRequest {
     /// Record the private continuous video (default true; tests that only need verdicts turn it off).
     #[serde(default = "default_video")]
     pub video: bool,
+    /// Agent harness (`codex`, `claude`, …), model and batch name, for the dashboard's table and filters.
+    #[serde(default)]
+    pub harness: Option<String>,
+    #[serde(default)]
+    pub model: Option<String>,
+    #[serde(default)]
+    pub batch: Option<String>,
 }
 
 fn default_video() -> bool {
@@ -68,6 +76,9 @@ impl PrepareRequest {
             wall_time_s: default_wall_time_s(),
             max_agent_steps: default_max_agent_steps(),
             video: default_video(),
+            harness: None,
+            model: None,
+            batch: None,
         }
     }
 }
@@ -116,16 +127,18 @@ pub struct Episodes {
     renderer: Mutex<Option<Renderer>>,
     /// Where each MCP handler reports the episode it just served (the store sync listens).
     calls: Option<tokio::sync::mpsc::UnboundedSender<String>>,
+    /// Each episode's live view for the dashboard.
+    live: Option<Arc<LiveHubs>>,
 }
 
-fn random_hex(bytes: usize) -> std::io::Result<String> {
+pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
     let mut buf = vec![0u8; bytes];
     fs::File::open("/dev/urandom")?.read_exact(&mut buf)?;
     Ok(buf.iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// Equal-time comparison, so response timing does not leak how much of a token was right.
-fn tokens_equal(a: &str, b: &str) -> bool {
+pub(crate) fn tokens_equal(a: &str, b: &str) -> bool {
     a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
@@ -161,12 +174,18 @@ impl Episodes {
                 None
             }
         };
-        Ok(Self { data, base_url, paths, map: RwLock::new(HashMap::new()), renderer: Mutex::new(None), calls: None })
+        Ok(Self { data, base_url, paths, map: RwLock::new(HashMap::new()), renderer: Mutex::new(None), calls: None, live: None })
     }
 
     /// Reports every served tool call's episode id on `calls`.
     pub fn with_call_reports(mut self, calls: tokio::sync::mpsc::UnboundedSender<String>) -> Self {
         self.calls = Some(calls);
+        self
+    }
+
+    /// Feeds every later episode's live events to `hubs`.
+    pub fn with_live(mut self, hubs: Arc<LiveHubs>) -> Self {
+        self.live = Some(hubs);
         self
     }
 
@@ -300,6 +319,9 @@ impl Episodes {
             "max_wall_time_seconds": req.wall_time_s,
             "workspace": workspace,
             "mcp_url": mcp_url,
+            "harness": req.harness,
+            "model": req.model,
+            "batch": req.batch,
         });
         let run = RunDir::new(&run_dir);
         write_json_file(&run.episode_record(), &record)?;
@@ -315,15 +337,21 @@ impl Episodes {
         let spec = WorldSpec { task: task.clone(), level, seed: req.seed, init_index: req.init_index, paths };
         let renderer = self.renderer()?;
         let video = run.continuous_video();
+        let telemetry = run.telemetry_jsonl();
+        let live = self.live.as_ref().map(|hubs| hubs.open(&episode_id, config.agent_step_limit(), config.max_wall_time_s));
+        let world_live = live.clone();
         let record_video = req.video;
         let make_world = move || {
             let mut world = LiberoWorld::new(&spec, renderer)?;
+            if let Some(sink) = world_live {
+                world.set_live(sink, Some(&telemetry))?;
+            }
             if record_video {
                 world.record_video(&video)?;
             }
             Ok(world)
         };
-        let handle = spawn_episode(config, make_world)
+        let handle = spawn_episode_live(config, live, make_world)
             .with_context(|| format!("cannot build the simulation for {}", task.task_ref))?;
         let layout = WorkspaceLayout::new(&workspace);
         let contract = WorkspaceContract {
@@ -360,6 +388,32 @@ impl Episodes {
             instruction: task.instruction,
             level: req.level,
         })
+    }
+}
+
+impl Episodes {
+    /// The settled initial head-camera view of task `id` as a PNG, rendered through the same world set-up as
+    /// an episode (placement, init state, settle) and cached in `<data>/thumbnails/` (rendered once).
+    pub fn task_thumbnail(&self, id: &str) -> anyhow::Result<PathBuf> {
+        if !(id.len() <= 8 && id.chars().all(|c| c.is_ascii_alphanumeric())) {
+            bail!("bad task id {id:?}");
+        }
+        let path = self.data.join("thumbnails").join(format!("{id}.png"));
+        if path.is_file() {
+            return Ok(path);
+        }
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        let task = resolve_task(id, &paths)?;
+        let spec = WorldSpec { task, level: Level::L1, seed: 100, init_index: 0, paths };
+        let mut world = LiberoWorld::new(&spec, self.renderer()?)?;
+        libero_episode::World::start(&mut world)?;
+        let frame = libero_episode::World::frame(&mut world, 0)?;
+        let image = &frame.head.image;
+        fs::create_dir_all(self.data.join("thumbnails"))?;
+        let partial = path.with_extension("png.partial");
+        libero_episode::observation::write_png(&partial, image.width, image.height, 3, &image.rgb)?;
+        fs::rename(&partial, &path)?;
+        Ok(path)
     }
 }
 

@@ -1,10 +1,14 @@
 //! `libero-agent serve`: every prepared episode at its own MCP endpoint `/mcp/<episode_id>` (rmcp streamable
 //! HTTP), guarded by a per-episode bearer token checked before anything reaches rmcp; `GET /api/health`;
 //! `POST /api/episodes` to prepare an episode (the CLI's `episode prepare` and the dashboard use it);
-//! `GET /api/episodes[/{id}]` from the episode store (operator-facing; no tokens, no paths).
+//! `GET /api/episodes[/{id}]` from the episode store (operator-facing; no tokens, no paths); the browser console
+//! (`dashboard`), fed live by each episode's event bus (`live`), behind the operator guard (`auth`).
+pub mod auth;
 pub mod client;
+pub mod dashboard;
 pub mod episodes;
 pub mod http_client;
+pub mod live;
 pub mod mcp;
 pub mod store;
 
@@ -39,6 +43,10 @@ pub struct ServeArgs {
     /// ~/.local/share/libero-agent).
     #[arg(long)]
     pub data: Option<PathBuf>,
+    /// File holding the operator token for the dashboard and operator API. Without it, a server bound
+    /// beyond loopback generates one and prints it once to stderr; on loopback the dashboard is then open.
+    #[arg(long)]
+    pub operator_token_file: Option<PathBuf>,
 }
 
 pub fn default_data_dir() -> PathBuf {
@@ -55,6 +63,11 @@ pub struct App {
     pub store: Store,
     /// The last state written to the store per episode, so only transitions cost a write.
     synced: Mutex<HashMap<String, EpisodeState>>,
+    /// Live events of the episodes this process runs, for the dashboard.
+    pub hubs: Arc<live::LiveHubs>,
+    pub operator: auth::OperatorToken,
+    /// Task thumbnails render one at a time.
+    thumbnail_lock: tokio::sync::Mutex<()>,
 }
 
 type AppState = Arc<App>;
@@ -75,6 +88,7 @@ impl App {
                 if let Ok(mut m) = self.synced.lock() {
                     m.insert(id.to_owned(), status.state);
                 }
+                self.hubs.notify();
             }
             Err(e) => eprintln!("warning: {e:#}"),
         }
@@ -144,19 +158,29 @@ pub async fn serve_until(
 ) -> anyhow::Result<()> {
     let data = args.data.clone().unwrap_or_else(default_data_dir);
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create data directory {}", data.display()))?;
+    let operator = auth::OperatorToken::for_server(args.addr, args.operator_token_file.as_deref())?;
     let listener = tokio::net::TcpListener::bind(args.addr).await.with_context(|| format!("cannot bind {}", args.addr))?;
     let local = listener.local_addr()?;
     let base_url = format!("http://{local}");
     let (calls_tx, calls_rx) = unbounded_channel();
-    let episodes = Arc::new(Episodes::new(data.clone(), base_url.clone())?.with_call_reports(calls_tx));
+    let hubs = Arc::new(live::LiveHubs::default());
+    let episodes = Arc::new(Episodes::new(data.clone(), base_url.clone())?.with_call_reports(calls_tx).with_live(hubs.clone()));
     let recovered = episodes.recover_interrupted();
     let store = Store::open(&episodes.data_dir().join(STORE_FILE)).await?;
     let reconciled = store.reconcile(&episodes.runs_dir()).await?;
-    let app = Arc::new(App { episodes, store, synced: Mutex::new(HashMap::new()) });
+    let app = Arc::new(App {
+        episodes,
+        store,
+        synced: Mutex::new(HashMap::new()),
+        hubs,
+        operator,
+        thumbnail_lock: tokio::sync::Mutex::new(()),
+    });
     let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
     listening(json!({
         "event": "listening", "url": base_url, "data": data,
         "recovered_invalid_episodes": recovered, "store_rows_closed_at_start": reconciled,
+        "dashboard": format!("{base_url}/"), "operator_token_required": app.operator.0.is_some(),
     }));
     let stop = {
         let app = app.clone();
@@ -189,12 +213,27 @@ async fn shutdown_signal() -> String {
 }
 
 pub fn router(state: AppState) -> Router {
-    Router::new()
-        .route("/api/health", get(health))
+    use tower_http::compression::CompressionLayer;
+    // The operator's side: pages, operator API, live streams, private media. Episode tokens open none of it.
+    let operator = Router::new()
         .route("/api/episodes", post(prepare).get(list_episodes))
         .route("/api/episodes/{id}", get(episode_status))
         .route("/api/episodes/{id}/abort", post(abort_episode))
+        .merge(dashboard::compressed_routes())
+        .layer(CompressionLayer::new())
+        .merge(dashboard::raw_routes())
+        .layer(axum::middleware::from_fn_with_state(state.operator.clone(), auth::require_operator));
+    Router::new()
+        .route("/api/health", get(health))
         .route("/mcp/{id}", any(mcp_endpoint))
+        .merge(
+            Router::new()
+                .route("/login", get(auth::login_form).post(auth::login))
+                .with_state(state.operator.clone()),
+        )
+        .merge(dashboard::static_routes().layer(CompressionLayer::new()))
+        .merge(operator)
+        .layer(tower_http::trace::TraceLayer::new_for_http())
         .with_state(state)
 }
 
@@ -220,6 +259,7 @@ async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> Respon
                     if let Err(e) = app.store.insert_prepared(&new).await {
                         eprintln!("warning: {e:#}");
                     }
+                    app.hubs.notify();
                 }
                 None => eprintln!("warning: episode {} has no readable episode record", prepared.episode_id),
             }

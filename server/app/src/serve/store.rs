@@ -38,8 +38,30 @@ const SCHEMA: &str = "CREATE TABLE IF NOT EXISTS episodes (
     run_dir TEXT NOT NULL
 )";
 
+/// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
+/// older store by [`Store::open`].
+const ADDED_COLUMNS: [(&str, &str); 4] =
+    [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION")];
+
 const COLUMNS: &str = "id, task_ref, level, seed, init_index, created_at, started_at, finished_at, outcome, reason, \
-    success, accepted_agent_steps, completed_stage_count, required_stage_count, run_dir";
+    success, accepted_agent_steps, completed_stage_count, required_stage_count, run_dir, harness, model, batch, \
+    wall_time_s";
+
+/// The dashboard's episode filters (`None`: any). Outcome `RUNNING` selects episodes without an outcome yet.
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
+pub struct EpisodeFilter {
+    pub task: Option<String>,
+    pub outcome: Option<String>,
+    pub batch: Option<String>,
+}
+
+impl EpisodeFilter {
+    /// Empty strings (an empty form field) mean no filter.
+    pub fn normalized(self) -> Self {
+        let keep = |v: Option<String>| v.map(|s| s.trim().to_owned()).filter(|s| !s.is_empty());
+        Self { task: keep(self.task), outcome: keep(self.outcome).map(|o| o.to_uppercase()), batch: keep(self.batch) }
+    }
+}
 
 /// One stored episode. The run directory is private: the HTTP API leaves it out (see [`EpisodeRow::public`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -55,6 +77,8 @@ pub struct EpisodeRow {
     pub accepted_agent_steps: Option<i64>,
     pub completed_stage_count: Option<i64>,
     pub required_stage_count: Option<i64>,
+    /// Episode wall time (`result.json`), once ended.
+    pub wall_time_s: Option<f64>,
 }
 
 impl EpisodeRow {
@@ -76,6 +100,9 @@ impl EpisodeRow {
             init_index: r.try_get("init_index")?,
             created_at: r.try_get("created_at")?,
             run_dir: PathBuf::from(r.try_get::<String, _>("run_dir")?),
+            harness: r.try_get("harness")?,
+            model: r.try_get("model")?,
+            batch: r.try_get("batch")?,
         };
         Ok(Self {
             episode,
@@ -87,6 +114,7 @@ impl EpisodeRow {
             accepted_agent_steps: r.try_get("accepted_agent_steps")?,
             completed_stage_count: r.try_get("completed_stage_count")?,
             required_stage_count: r.try_get("required_stage_count")?,
+            wall_time_s: r.try_get("wall_time_s")?,
         })
     }
 }
@@ -101,6 +129,7 @@ pub struct EpisodeEnd {
     pub accepted_agent_steps: Option<i64>,
     pub completed_stage_count: Option<i64>,
     pub required_stage_count: Option<i64>,
+    pub wall_time_s: Option<f64>,
 }
 
 impl EpisodeEnd {
@@ -123,6 +152,7 @@ impl EpisodeEnd {
             accepted_agent_steps: result.get("accepted_agent_steps").and_then(Value::as_i64),
             completed_stage_count: eval_count("completed_required_stage_count"),
             required_stage_count: eval_count("required_stage_count"),
+            wall_time_s: result.get("wall_time_seconds").and_then(Value::as_f64),
         }
     }
 }
@@ -137,6 +167,10 @@ pub struct NewEpisode {
     pub init_index: i64,
     pub created_at: String,
     pub run_dir: PathBuf,
+    /// Agent harness and model driving the episode, and the batch it belongs to, where the preparer said.
+    pub harness: Option<String>,
+    pub model: Option<String>,
+    pub batch: Option<String>,
 }
 
 impl NewEpisode {
@@ -152,6 +186,9 @@ impl NewEpisode {
             init_index: r["init_state_index"].as_i64()?,
             created_at: r["created_at"].as_str()?.to_owned(),
             run_dir: run.root.clone(),
+            harness: r["harness"].as_str().map(str::to_owned),
+            model: r["model"].as_str().map(str::to_owned),
+            batch: r["batch"].as_str().map(str::to_owned),
         })
     }
 }
@@ -176,14 +213,18 @@ impl Store {
             .await
             .with_context(|| format!("cannot open the episode store {}", path.display()))?;
         sqlx::query(SCHEMA).execute(&pool).await.context("cannot create the episodes table")?;
+        for (name, kind) in ADDED_COLUMNS {
+            // Fails only where the column exists already (a store written by this version).
+            let _ = sqlx::query(&format!("ALTER TABLE episodes ADD COLUMN {name} {kind}")).execute(&pool).await;
+        }
         Ok(Self { pool })
     }
 
     /// The row of a newly prepared episode (kept as is if it already exists).
     pub async fn insert_prepared(&self, e: &NewEpisode) -> anyhow::Result<()> {
         sqlx::query(
-            "INSERT INTO episodes (id, task_ref, level, seed, init_index, created_at, run_dir) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7) ON CONFLICT (id) DO NOTHING",
+            "INSERT INTO episodes (id, task_ref, level, seed, init_index, created_at, run_dir, harness, model, batch) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10) ON CONFLICT (id) DO NOTHING",
         )
         .bind(&e.id)
         .bind(&e.task_ref)
@@ -192,6 +233,9 @@ impl Store {
         .bind(e.init_index)
         .bind(&e.created_at)
         .bind(e.run_dir.to_string_lossy().into_owned())
+        .bind(&e.harness)
+        .bind(&e.model)
+        .bind(&e.batch)
         .execute(&self.pool)
         .await
         .with_context(|| format!("store: cannot insert episode {}", e.id))?;
@@ -212,8 +256,8 @@ impl Store {
     pub async fn record_end(&self, id: &str, end: &EpisodeEnd) -> anyhow::Result<()> {
         sqlx::query(
             "UPDATE episodes SET finished_at = $1, outcome = $2, reason = $3, success = $4, \
-             accepted_agent_steps = $5, completed_stage_count = $6, required_stage_count = $7 \
-             WHERE id = $8 AND outcome IS NULL",
+             accepted_agent_steps = $5, completed_stage_count = $6, required_stage_count = $7, wall_time_s = $8 \
+             WHERE id = $9 AND outcome IS NULL",
         )
         .bind(&end.finished_at)
         .bind(end.outcome.as_str())
@@ -222,6 +266,7 @@ impl Store {
         .bind(end.accepted_agent_steps)
         .bind(end.completed_stage_count)
         .bind(end.required_stage_count)
+        .bind(end.wall_time_s)
         .bind(id)
         .execute(&self.pool)
         .await
@@ -273,7 +318,20 @@ impl Store {
 
     /// Newest first.
     pub async fn list(&self, limit: i64) -> anyhow::Result<Vec<EpisodeRow>> {
-        let rows = sqlx::query(&format!("SELECT {COLUMNS} FROM episodes ORDER BY created_at DESC, id DESC LIMIT $1"))
+        self.list_filtered(&EpisodeFilter::default(), limit).await
+    }
+
+    /// Newest first, those matching `filter`.
+    pub async fn list_filtered(&self, filter: &EpisodeFilter, limit: i64) -> anyhow::Result<Vec<EpisodeRow>> {
+        let sql = format!(
+            "SELECT {COLUMNS} FROM episodes WHERE ($1 IS NULL OR task_ref = $1) \
+             AND ($2 IS NULL OR outcome = $2 OR ($2 = 'RUNNING' AND outcome IS NULL)) AND ($3 IS NULL OR batch = $3) \
+             ORDER BY created_at DESC, id DESC LIMIT $4"
+        );
+        let rows = sqlx::query(&sql)
+            .bind(&filter.task)
+            .bind(&filter.outcome)
+            .bind(&filter.batch)
             .bind(limit)
             .fetch_all(&self.pool)
             .await
@@ -300,6 +358,9 @@ mod tests {
             init_index: 2,
             created_at: utc_now_iso(),
             run_dir: run_dir.to_path_buf(),
+            harness: Some("codex".into()),
+            model: None,
+            batch: Some("b1".into()),
         }
     }
 
@@ -325,7 +386,15 @@ mod tests {
         assert_eq!((row.completed_stage_count, row.required_stage_count), (Some(1), Some(3)));
         assert_eq!(row.started_at.as_deref(), Some("2026-01-01T00:00:00+00:00"));
         assert!(row.public().get("run_dir").is_none(), "paths stay out of the API");
-        assert_eq!(store.list(10).await.unwrap(), vec![row]);
+        assert_eq!(store.list(10).await.unwrap(), vec![row.clone()]);
+        let filter = |task: &str, outcome: &str, batch: &str| {
+            EpisodeFilter { task: Some(task.into()), outcome: Some(outcome.into()), batch: Some(batch.into()) }.normalized()
+        };
+        let task = row.episode.task_ref.clone();
+        assert_eq!(store.list_filtered(&filter(&task, "sim_timeout", "b1"), 10).await.unwrap(), vec![row.clone()]);
+        assert!(store.list_filtered(&filter(&task, "RUNNING", ""), 10).await.unwrap().is_empty());
+        assert!(store.list_filtered(&filter("", "", "b2"), 10).await.unwrap().is_empty());
+        assert_eq!(row.episode.harness.as_deref(), Some("codex"));
     }
 
     #[tokio::test]

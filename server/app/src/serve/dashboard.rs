@@ -1,0 +1,532 @@
+//! The browser console: server-rendered pages (askama templates in `web/templates/`), vanilla ES modules and
+//! CSS from `web/static/` (compiled into the binary, so an installed server needs no web folder), the live
+//! WebSockets (episode list, one episode's events and frames), and the review page's data: the private video
+//! with HTTP range support, the private observation copies, telemetry, calls and stage events. Every route here
+//! is behind the operator guard; nothing here is reachable with an episode token.
+use std::path::{Component, Path as FsPath};
+use std::sync::Arc;
+use std::time::Duration;
+
+use askama::Template;
+use axum::Router;
+use axum::body::Body;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Path, Query, Request, State};
+use axum::http::{StatusCode, header};
+use axum::response::{Html, IntoResponse, Redirect, Response};
+use axum::routing::get;
+use libero_episode::RunDir;
+use libero_episode::records::read_result;
+use serde_json::{Value, json};
+use tower::ServiceExt;
+use tower_http::services::ServeFile;
+
+use super::live::Hub;
+use super::store::EpisodeFilter;
+use super::{App, AppState, episode_json, json_error};
+
+/// Largest episode list the home page shows.
+const HOME_LIST_LIMIT: i64 = 500;
+/// Coalesces bursts of list changes into one refresh per viewer.
+const LIST_REFRESH_MIN_INTERVAL: Duration = Duration::from_millis(250);
+
+/// Pages, static files and JSON: small responses worth compressing.
+pub fn compressed_routes() -> Router<AppState> {
+    Router::new()
+        .route("/", get(home))
+        .route("/tasks", get(tasks_page))
+        .route("/episodes/{id}", get(live_page))
+        .route("/episodes/{id}/review", get(review_page))
+        .route("/api/episodes/{id}/review", get(review_data))
+        .route("/api/tasks", get(tasks_json))
+}
+
+/// Streams and media: never compressed (range requests, WebSocket upgrades, JPEG/PNG/MP4).
+pub fn raw_routes() -> Router<AppState> {
+    Router::new()
+        .route("/ws/episodes", get(list_socket))
+        .route("/ws/episodes/{id}", get(episode_socket))
+        .route("/episodes/{id}/video.mp4", get(video))
+        .route("/episodes/{id}/observations/{*path}", get(observation_file))
+        .route("/tasks/{id}/thumbnail.png", get(thumbnail))
+}
+
+/// Static files, open to everyone (no data in them; the login page needs them).
+pub fn static_routes() -> Router<AppState> {
+    Router::new().route("/static/{file}", get(static_file))
+}
+
+fn page(t: impl Template) -> Response {
+    match t.render() {
+        Ok(html) => Html(html).into_response(),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("template: {e}")),
+    }
+}
+
+#[derive(Template)]
+#[template(path = "login.html")]
+struct LoginPage {
+    failed: bool,
+}
+
+pub fn login_page(failed: bool) -> String {
+    LoginPage { failed }.render().unwrap_or_else(|e| format!("template error: {e}"))
+}
+
+/// Episode ids are `ep-<utc>-<hex>`; anything else never reaches the filesystem.
+fn valid_id(id: &str) -> bool {
+    !id.is_empty() && id.len() <= 96 && id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// The stored row of episode `id`, or the response saying why there is none.
+async fn stored_row(app: &App, id: &str) -> Result<super::store::EpisodeRow, Response> {
+    if !valid_id(id) {
+        return Err(json_error(StatusCode::NOT_FOUND, "no such episode"));
+    }
+    match app.store.get(id).await {
+        Ok(Some(row)) => Ok(row),
+        Ok(None) => Err(json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
+        Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}"))),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------- home page
+
+#[derive(Template)]
+#[template(path = "home.html")]
+struct HomePage {
+    filter_task: String,
+    filter_outcome: String,
+    filter_batch: String,
+    outcomes: Vec<String>,
+    rows: Vec<HomeRow>,
+    tasks: Vec<String>,
+}
+
+/// One line of the episode table (the same fields the live list sends as JSON).
+struct HomeRow {
+    id: String,
+    task: String,
+    harness: String,
+    model: String,
+    batch: String,
+    level: i64,
+    outcome: String,
+    progress: String,
+    wall_time: String,
+    submissions: String,
+}
+
+impl HomeRow {
+    fn of(v: &Value) -> Self {
+        let text = |k: &str| v[k].as_str().unwrap_or("").to_owned();
+        let progress = match (v["completed_stage_count"].as_i64(), v["required_stage_count"].as_i64()) {
+            (Some(c), Some(k)) => format!("{c}/{k}"),
+            _ => "–".into(),
+        };
+        Self {
+            id: text("id"),
+            task: text("task_ref"),
+            harness: text("harness"),
+            model: text("model"),
+            batch: text("batch"),
+            level: v["level"].as_i64().unwrap_or(0),
+            outcome: v["outcome"].as_str().unwrap_or("RUNNING").to_owned(),
+            progress,
+            wall_time: v["wall_time_s"].as_f64().map(|s| format!("{s:.1} s")).unwrap_or_else(|| "–".into()),
+            submissions: v["accepted_agent_steps"].as_i64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
+        }
+    }
+}
+
+/// The stored rows with the live figures of episodes this process is running.
+async fn episode_list(app: &App, filter: &EpisodeFilter) -> anyhow::Result<Vec<Value>> {
+    app.sync_all().await;
+    let rows = app.store.list_filtered(filter, HOME_LIST_LIMIT).await?;
+    Ok(rows
+        .iter()
+        .map(|r| {
+            let mut v = episode_json(app, r);
+            if let (Some(hub), Some(obj)) = (app.hubs.get(&r.episode.id), v.as_object_mut()) {
+                let live = hub.summary();
+                for k in ["completed_stage_count", "required_stage_count", "wall_time_s"] {
+                    if obj.get(k).is_none_or(Value::is_null) && !live[k].is_null() {
+                        obj.insert(k.into(), live[k].clone());
+                    }
+                }
+            }
+            if let Some(obj) = v.as_object_mut() {
+                obj.entry("outcome").and_modify(|o| {
+                    if o.is_null() {
+                        *o = json!("RUNNING");
+                    }
+                });
+            }
+            v
+        })
+        .collect())
+}
+
+async fn home(State(app): State<AppState>, Query(filter): Query<EpisodeFilter>) -> Response {
+    let filter = filter.normalized();
+    let list = match episode_list(&app, &filter).await {
+        Ok(l) => l,
+        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    };
+    let tasks = libero_tasks::Catalog::discover().map(|c| c.tasks().iter().map(|t| t.id.clone()).collect()).unwrap_or_default();
+    page(HomePage {
+        rows: list.iter().map(HomeRow::of).collect(),
+        filter_task: filter.task.unwrap_or_default(),
+        filter_outcome: filter.outcome.unwrap_or_default(),
+        filter_batch: filter.batch.unwrap_or_default(),
+        outcomes: ["RUNNING", "SUCCESS", "FAIL", "SIM_TIMEOUT", "INVALID"].map(String::from).to_vec(),
+        tasks,
+    })
+}
+
+async fn list_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Query(filter): Query<EpisodeFilter>) -> Response {
+    let filter = filter.normalized();
+    ws.on_upgrade(move |socket| list_stream(socket, app, filter))
+}
+
+/// Sends the filtered list at once and again after every change (at most every 250 ms).
+async fn list_stream(mut socket: WebSocket, app: AppState, filter: EpisodeFilter) {
+    let mut changes = app.hubs.changes();
+    loop {
+        let message = match episode_list(&app, &filter).await {
+            Ok(list) => json!({"type": "episodes", "episodes": list}),
+            Err(e) => json!({"type": "error", "error": format!("{e:#}")}),
+        };
+        if socket.send(Message::Text(message.to_string().into())).await.is_err() {
+            return;
+        }
+        tokio::select! {
+            changed = changes.recv() => {
+                if matches!(changed, Err(tokio::sync::broadcast::error::RecvError::Closed)) {
+                    return;
+                }
+                tokio::time::sleep(LIST_REFRESH_MIN_INTERVAL).await;
+                changes = changes.resubscribe(); // drop what piled up meanwhile: one refresh covers it
+            }
+            incoming = socket.recv() => {
+                if !matches!(incoming, Some(Ok(Message::Ping(_) | Message::Pong(_) | Message::Text(_)))) {
+                    return;
+                }
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------- live page
+
+#[derive(Template)]
+#[template(path = "live.html")]
+struct LivePage {
+    id: String,
+    task: String,
+    level: i64,
+    max_agent_steps: u64,
+    max_wall_time_s: f64,
+}
+
+async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    let row = match stored_row(&app, &id).await {
+        Ok(r) => r,
+        Err(resp) => return resp,
+    };
+    let Some(hub) = app.hubs.get(&id) else {
+        // Not run by this process (finished before a restart): only the review exists.
+        return Redirect::to(&format!("/episodes/{id}/review")).into_response();
+    };
+    page(LivePage {
+        id,
+        task: row.episode.task_ref,
+        level: row.episode.level,
+        max_agent_steps: hub.max_agent_steps,
+        max_wall_time_s: hub.max_wall_time_s,
+    })
+}
+
+async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    let Some(hub) = app.hubs.get(&id) else { return json_error(StatusCode::NOT_FOUND, format!("episode {id} is not live here")) };
+    ws.on_upgrade(move |socket| episode_stream(socket, hub))
+}
+
+async fn send_text(socket: &mut WebSocket, text: &str) -> bool {
+    socket.send(Message::Text(text.into())).await.is_ok()
+}
+
+/// Catch-up (history, latest step, newest frame) then everything as it happens. The episode never waits:
+/// frames come from a watch channel (a slow socket skips to the newest), events from a broadcast channel (a
+/// viewer that falls behind is sent the whole history again, marked `reset`).
+async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>) {
+    let Some(sub) = hub.subscribe() else { return };
+    let hello = json!({"type": "hello", "max_agent_steps": hub.max_agent_steps, "max_wall_time_s": hub.max_wall_time_s});
+    if !send_text(&mut socket, &hello.to_string()).await {
+        return;
+    }
+    for text in sub.history.iter().chain(&sub.latest_step) {
+        if !send_text(&mut socket, text).await {
+            return;
+        }
+    }
+    let (mut events, mut frames) = (sub.events, sub.frames);
+    let newest = frames.borrow_and_update().clone();
+    if let Some(frame) = newest {
+        if socket.send(Message::Binary(frame)).await.is_err() {
+            return;
+        }
+    }
+    loop {
+        tokio::select! {
+            event = events.recv() => match event {
+                Ok(text) => if !send_text(&mut socket, &text).await { return },
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
+                    let Some((history, fresh)) = hub.resubscribe() else { return };
+                    events = fresh;
+                    if !send_text(&mut socket, r#"{"type":"reset"}"#).await { return }
+                    for text in &history {
+                        if !send_text(&mut socket, text).await { return }
+                    }
+                }
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+            },
+            changed = frames.changed() => {
+                if changed.is_err() { return }
+                let frame = frames.borrow_and_update().clone();
+                if let Some(frame) = frame {
+                    if socket.send(Message::Binary(frame)).await.is_err() { return }
+                }
+            }
+            incoming = socket.recv() => {
+                if !matches!(incoming, Some(Ok(Message::Ping(_) | Message::Pong(_) | Message::Text(_)))) {
+                    return;
+                }
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------- review page
+
+#[derive(Template)]
+#[template(path = "review.html")]
+struct ReviewPage {
+    id: String,
+    task: String,
+    level: i64,
+    outcome: String,
+}
+
+async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    if valid_id(&id) {
+        app.sync(&id).await;
+    }
+    match stored_row(&app, &id).await {
+        Ok(row) => page(ReviewPage {
+            id,
+            task: row.episode.task_ref,
+            level: row.episode.level,
+            outcome: row.outcome.unwrap_or_else(|| "RUNNING".into()),
+        }),
+        Err(resp) => resp,
+    }
+}
+
+fn read_jsonl(path: &FsPath) -> Vec<Value> {
+    std::fs::read_to_string(path)
+        .map(|t| t.lines().filter_map(|l| serde_json::from_str(l).ok()).collect())
+        .unwrap_or_default()
+}
+
+/// The calls of `actions.jsonl`, each with the control steps it covered (start = step 0; an accepted
+/// `osc_sequence` of n actions advances n steps).
+fn timeline_calls(actions: &[Value]) -> Vec<Value> {
+    let mut control_step = 0u64;
+    actions
+        .iter()
+        .map(|e| {
+            let (req, resp) = (&e["request"], &e["response"]);
+            let ok = resp["ok"] == json!(true);
+            let steps = if ok { resp["execution"]["control_steps"].as_u64().unwrap_or(0) } else { 0 };
+            let begin = control_step;
+            control_step += steps;
+            json!({
+                "event_index": e["event_index"],
+                "recorded_at": e["recorded_at"],
+                "tool": req["tool"].as_str().or(req["command"].as_str()),
+                "actions": req["arguments"]["actions"].as_array().map(Vec::len),
+                "ok": ok,
+                "error_type": resp["error_type"],
+                "error": resp["error"],
+                "observation_id": resp["observation_id"],
+                "control_step_begin": begin,
+                "control_step_end": control_step,
+            })
+        })
+        .collect()
+}
+
+/// Everything the review page shows, from the private run directory. Operator-only.
+async fn review_data(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    let run = match stored_row(&app, &id).await {
+        Ok(row) => RunDir::new(row.episode.run_dir),
+        Err(resp) => return resp,
+    };
+    let data = tokio::task::spawn_blocking(move || {
+        let result = read_result(&run);
+        let mut stage_events = read_jsonl(&run.stage_events_jsonl());
+        if let Some(events) = result.as_ref().and_then(|r| r["private_evaluation"]["events"].as_array()) {
+            stage_events.extend(events.iter().cloned());
+        }
+        stage_events.sort_by_key(|e| e["control_step"].as_u64().unwrap_or(0));
+        json!({
+            "ok": true,
+            "calls": timeline_calls(&read_jsonl(&run.actions_jsonl())),
+            "stage_events": stage_events,
+            "telemetry": read_jsonl(&run.telemetry_jsonl()),
+            "result": result,
+            "video": run.continuous_video().is_file(),
+            "video_fps": 20.0,
+        })
+    })
+    .await;
+    match data {
+        Ok(v) => axum::Json(v).into_response(),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("review: {e}")),
+    }
+}
+
+/// A file served with range support (the video, observation images).
+async fn serve_file(path: std::path::PathBuf, req: Request<Body>) -> Response {
+    match ServeFile::new(path).oneshot(req).await {
+        Ok(resp) => resp.map(Body::new).into_response(),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("file: {e}")),
+    }
+}
+
+async fn run_dir_of(app: &App, id: &str) -> Option<RunDir> {
+    stored_row(app, id).await.ok().map(|r| RunDir::new(r.episode.run_dir))
+}
+
+async fn video(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
+    match run_dir_of(&app, &id).await {
+        Some(run) if run.continuous_video().is_file() => serve_file(run.continuous_video(), req).await,
+        Some(_) => json_error(StatusCode::NOT_FOUND, "the video is not finalised yet (it is complete once the episode ends)"),
+        None => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
+    }
+}
+
+/// `observations/<obs_id>/<file>`: only plain relative names inside the private copy.
+async fn observation_file(State(app): State<AppState>, Path((id, rel)): Path<(String, String)>, req: Request<Body>) -> Response {
+    let rel_path = FsPath::new(&rel);
+    let plain = rel_path.components().all(|c| matches!(c, Component::Normal(_)))
+        && rel.chars().all(|c| c.is_ascii_alphanumeric() || "-_./".contains(c));
+    let Some(run) = run_dir_of(&app, &id).await.filter(|_| plain) else {
+        return json_error(StatusCode::NOT_FOUND, "no such observation file");
+    };
+    let path = run.private_observations().join(rel_path);
+    if !path.is_file() {
+        return json_error(StatusCode::NOT_FOUND, "no such observation file");
+    }
+    serve_file(path, req).await
+}
+
+// ---------------------------------------------------------------------------------------------- tasks page
+
+/// A task as the dashboard shows it: public facts only (no checker parameters, poses, masses or init files).
+#[derive(serde::Serialize)]
+struct TaskCard {
+    id: String,
+    name: String,
+    instruction: String,
+    group: String,
+    split: String,
+    difficulty: String,
+    capability: String,
+    k: usize,
+    checks: String,
+    implemented: bool,
+    not_implemented_reason: String,
+}
+
+fn enum_text<T: serde::Serialize>(v: &T) -> String {
+    serde_json::to_value(v).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default()
+}
+
+fn task_cards() -> anyhow::Result<Vec<TaskCard>> {
+    let catalog = libero_tasks::Catalog::discover()?;
+    Ok(catalog
+        .tasks()
+        .iter()
+        .map(|t| TaskCard {
+            id: t.id.clone(),
+            name: t.name.clone(),
+            instruction: t.agent_instruction().to_owned(),
+            group: t.group.clone(),
+            split: enum_text(&t.split),
+            difficulty: enum_text(&t.difficulty),
+            capability: t.capability.clone(),
+            k: t.stage_count,
+            checks: if t.checker.is_bddl_terminal() {
+                "success when the task's BDDL goal holds on the final state at finish_episode".into()
+            } else {
+                format!("K = {} ordered stage(s) judged by a private evaluator; success needs all of them", t.stage_count)
+            },
+            implemented: t.implemented,
+            not_implemented_reason: t.not_implemented_reason.clone().unwrap_or_default(),
+        })
+        .collect())
+}
+
+#[derive(Template)]
+#[template(path = "tasks.html")]
+struct TasksPage {
+    tasks: Vec<TaskCard>,
+}
+
+async fn tasks_page() -> Response {
+    match task_cards() {
+        Ok(tasks) => page(TasksPage { tasks }),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    }
+}
+
+async fn tasks_json() -> Response {
+    match task_cards() {
+        Ok(tasks) => axum::Json(json!({"ok": true, "tasks": tasks})).into_response(),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    }
+}
+
+/// Renders once (seconds), then served from the cache; one render at a time so a page of thumbnails does not
+/// build thirty worlds at once.
+async fn thumbnail(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
+    let _one_at_a_time = app.thumbnail_lock.lock().await;
+    let episodes = app.episodes.clone();
+    match tokio::task::spawn_blocking(move || episodes.task_thumbnail(&id)).await {
+        Ok(Ok(path)) => serve_file(path, req).await,
+        Ok(Err(e)) => json_error(StatusCode::NOT_FOUND, format!("{e:#}")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("thumbnail: {e}")),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------- static files
+
+macro_rules! web_static {
+    ($name:literal) => {
+        include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../web/static/", $name))
+    };
+}
+
+async fn static_file(Path(file): Path<String>) -> Response {
+    let (body, kind) = match file.as_str() {
+        "style.css" => (web_static!("style.css"), "text/css; charset=utf-8"),
+        "common.js" => (web_static!("common.js"), "text/javascript; charset=utf-8"),
+        "home.js" => (web_static!("home.js"), "text/javascript; charset=utf-8"),
+        "live.js" => (web_static!("live.js"), "text/javascript; charset=utf-8"),
+        "review.js" => (web_static!("review.js"), "text/javascript; charset=utf-8"),
+        _ => return json_error(StatusCode::NOT_FOUND, "no such file"),
+    };
+    ([(header::CONTENT_TYPE, kind), (header::CACHE_CONTROL, "no-cache")], body).into_response()
+}

@@ -1,0 +1,211 @@
+//! The dashboard's fan-out of each episode's live events (see `libero_episode::live`). The episode's sink
+//! serialises an event once, appends it to the catch-up history and broadcasts it; frames go through a
+//! `watch` channel that holds only the newest one. Neither call waits for a viewer: a slow viewer misses
+//! frames (it always gets the newest) and, if it falls behind the event channel, is re-sent the history.
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, RwLock};
+
+use axum::body::Bytes;
+use libero_episode::{LiveEvent, LiveFrame, LiveSink};
+use serde_json::{Value, json};
+use tokio::sync::{broadcast, watch};
+
+/// Events buffered per viewer before it counts as lagging (then it gets the history again).
+const EVENT_CHANNEL_CAPACITY: usize = 1024;
+/// Most events kept for a viewer that connects late (step events are not kept, only the latest one).
+const HISTORY_LIMIT: usize = 20_000;
+
+/// One event as sent to browsers: JSON text, serialised once.
+pub type EventText = Arc<str>;
+
+/// What a viewer that connects now needs to catch up.
+#[derive(Default)]
+pub struct CatchUp {
+    pub history: Vec<EventText>,
+    pub latest_step: Option<EventText>,
+    pub progress: Option<(usize, usize)>,
+    pub accepted_agent_steps: u64,
+    pub wall_time_s: Option<f64>,
+    pub finished: bool,
+}
+
+/// One episode's live channels.
+pub struct Hub {
+    pub max_agent_steps: u64,
+    pub max_wall_time_s: f64,
+    events: broadcast::Sender<EventText>,
+    frames: watch::Sender<Option<Bytes>>,
+    state: Mutex<CatchUp>,
+}
+
+/// A viewer's subscription, taken together with the history so nothing is missed or sent twice.
+pub struct Subscription {
+    pub history: Vec<EventText>,
+    pub latest_step: Option<EventText>,
+    pub events: broadcast::Receiver<EventText>,
+    pub frames: watch::Receiver<Option<Bytes>>,
+}
+
+impl Hub {
+    fn publish(&self, event: LiveEvent, changes: &broadcast::Sender<()>) {
+        match event {
+            LiveEvent::Frame(frame) => {
+                // Encoded once; every viewer's socket sends the same bytes.
+                self.frames.send_replace(Some(frame_message(&frame)));
+            }
+            event => {
+                let Ok(text) = serde_json::to_string(&event) else { return };
+                let text: EventText = text.into();
+                let list_changed = matches!(
+                    event,
+                    LiveEvent::CallAnswered { .. } | LiveEvent::Progress { .. } | LiveEvent::Finished { .. }
+                );
+                let Ok(mut state) = self.state.lock() else { return };
+                match &event {
+                    LiveEvent::Step { .. } => state.latest_step = Some(text.clone()),
+                    _ if state.history.len() < HISTORY_LIMIT => state.history.push(text.clone()),
+                    _ => {}
+                }
+                match &event {
+                    LiveEvent::Progress { completed, required } => state.progress = Some((*completed, *required)),
+                    LiveEvent::CallAnswered { accepted_agent_steps, wall_time_s, .. } => {
+                        state.accepted_agent_steps = *accepted_agent_steps;
+                        state.wall_time_s = *wall_time_s;
+                    }
+                    LiveEvent::Finished { .. } => state.finished = true,
+                    _ => {}
+                }
+                // Sent under the lock, so a subscriber's history and its channel neither overlap nor leave a gap.
+                let _ = self.events.send(text);
+                drop(state);
+                if list_changed {
+                    let _ = changes.send(());
+                }
+            }
+        }
+    }
+
+    pub fn subscribe(&self) -> Option<Subscription> {
+        let state = self.state.lock().ok()?;
+        Some(Subscription {
+            history: state.history.clone(),
+            latest_step: state.latest_step.clone(),
+            events: self.events.subscribe(),
+            frames: self.frames.subscribe(),
+        })
+    }
+
+    /// The history again (for a viewer that lagged), with a fresh receiver.
+    pub fn resubscribe(&self) -> Option<(Vec<EventText>, broadcast::Receiver<EventText>)> {
+        let state = self.state.lock().ok()?;
+        Some((state.history.clone(), self.events.subscribe()))
+    }
+
+    /// Live figures for the episode table: progress, submissions, wall time, ended.
+    pub fn summary(&self) -> Value {
+        let Ok(s) = self.state.lock() else { return Value::Null };
+        json!({
+            "completed_stage_count": s.progress.map(|p| p.0),
+            "required_stage_count": s.progress.map(|p| p.1),
+            "accepted_agent_steps": s.accepted_agent_steps,
+            "wall_time_s": s.wall_time_s,
+            "finished": s.finished,
+        })
+    }
+}
+
+/// A frame as one binary WebSocket message: 4-byte little-endian header length, JSON header, JPEG bytes.
+fn frame_message(frame: &LiveFrame) -> Bytes {
+    let header = json!({
+        "type": "frame",
+        "control_step": frame.control_step,
+        "sim_time_s": frame.sim_time_s,
+        "video_frame": frame.video_frame,
+        "width_px": frame.width_px,
+        "height_px": frame.height_px,
+    })
+    .to_string();
+    let mut out = Vec::with_capacity(4 + header.len() + frame.jpeg.len());
+    out.extend_from_slice(&(header.len() as u32).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out.extend_from_slice(&frame.jpeg);
+    Bytes::from(out)
+}
+
+/// Every live episode's hub, plus a "the episode list changed" signal for the home page.
+pub struct LiveHubs {
+    map: RwLock<HashMap<String, Arc<Hub>>>,
+    changes: broadcast::Sender<()>,
+}
+
+impl Default for LiveHubs {
+    fn default() -> Self {
+        Self { map: RwLock::new(HashMap::new()), changes: broadcast::channel(64).0 }
+    }
+}
+
+impl LiveHubs {
+    /// Creates `id`'s hub and returns the sink the episode reports to.
+    pub fn open(self: &Arc<Self>, id: &str, max_agent_steps: u64, max_wall_time_s: f64) -> LiveSink {
+        let hub = Arc::new(Hub {
+            max_agent_steps,
+            max_wall_time_s,
+            events: broadcast::channel(EVENT_CHANNEL_CAPACITY).0,
+            frames: watch::channel(None).0,
+            state: Mutex::new(CatchUp::default()),
+        });
+        if let Ok(mut map) = self.map.write() {
+            map.insert(id.to_owned(), hub.clone());
+        }
+        self.notify();
+        let changes = self.changes.clone();
+        Arc::new(move |event| hub.publish(event, &changes))
+    }
+
+    pub fn get(&self, id: &str) -> Option<Arc<Hub>> {
+        self.map.read().ok()?.get(id).cloned()
+    }
+
+    /// Tells home pages to refresh their list.
+    pub fn notify(&self) {
+        let _ = self.changes.send(());
+    }
+
+    pub fn changes(&self) -> broadcast::Receiver<()> {
+        self.changes.subscribe()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc as StdArc;
+
+    use super::*;
+
+    #[test]
+    fn late_viewers_get_history_and_the_newest_frame_and_slow_ones_never_block_the_sender() {
+        let hubs = StdArc::new(LiveHubs::default());
+        let sink = hubs.open("ep", 10, 60.0);
+        sink(LiveEvent::CallReceived { tool: "start_episode".into(), actions: None, at_unix_s: 0.0 });
+        for c in 0..5000u64 {
+            sink(LiveEvent::Step { control_step: c, sim_time_s: c as f64 * 0.05 });
+        }
+        let frame = |c| LiveFrame { control_step: Some(c), sim_time_s: 0.0, video_frame: c, width_px: 2, height_px: 1, jpeg: vec![1, 2, 3].into() };
+        sink(LiveEvent::Frame(frame(1)));
+        sink(LiveEvent::Frame(frame(2)));
+        let hub = hubs.get("ep").unwrap();
+        let sub = hub.subscribe().unwrap();
+        assert_eq!(sub.history.len(), 1, "step events are not history");
+        assert!(sub.latest_step.as_deref().unwrap().contains("\"control_step\":4999"));
+        let newest = sub.frames.borrow().clone().unwrap();
+        let header_len = u32::from_le_bytes(newest[..4].try_into().unwrap()) as usize;
+        let header: Value = serde_json::from_slice(&newest[4..4 + header_len]).unwrap();
+        assert_eq!((header["control_step"].as_u64(), &newest[4 + header_len..]), (Some(2), &[1u8, 2, 3][..]));
+        // A viewer that never reads: the sender goes on; the viewer lags and is told so.
+        let mut events = sub.events;
+        for c in 0..(EVENT_CHANNEL_CAPACITY as u64 + 10) {
+            sink(LiveEvent::Step { control_step: c, sim_time_s: 0.0 });
+        }
+        assert!(matches!(events.try_recv(), Err(broadcast::error::TryRecvError::Lagged(_))));
+    }
+}

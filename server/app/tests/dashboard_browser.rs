@@ -1,0 +1,354 @@
+//! The browser console, proven with a real browser: `libero-agent serve` runs a T14 episode that a scripted agent
+//! drives over MCP (official Python SDK) while Debian's chromium, driven headless by playwright-core
+//! (`tests/dashboard/browser_check.cjs`), watches the live page, then reviews the finished episode and opens the
+//! tasks page. Screenshots land in `target/test-artifacts/dashboard/`. Also without a browser: range requests on
+//! the private video, no private file reachable by path tricks, nothing of the live view in the agent's
+//! workspace, and the operator guard beyond loopback (agent tokens never open the dashboard).
+//!
+//! Needs `python3 scripts/setup.py --test` (chromium, the MCP venv, playwright-core); fails saying so otherwise.
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use serde_json::{Value, json};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_libero-agent")
+}
+
+fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn cache() -> PathBuf {
+    std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"))
+}
+
+const SETUP_HINT: &str = "run `python3 scripts/setup.py --test` (as root for the Debian packages)";
+
+/// Every prerequisite of the browser test, or a clear failure naming how to get it.
+fn browser_prerequisites() -> (PathBuf, PathBuf, PathBuf) {
+    let chromium = std::env::var_os("LIBERO_AGENT_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| "/usr/bin/chromium".into());
+    assert!(chromium.is_file(), "{} missing: the dashboard test needs Debian's chromium; {SETUP_HINT}", chromium.display());
+    let node_modules = cache().join("node/node_modules");
+    assert!(
+        node_modules.join("playwright-core/package.json").is_file(),
+        "playwright-core missing under {}; {SETUP_HINT}",
+        node_modules.display()
+    );
+    let python = cache().join("pyenv/bin/python");
+    assert!(python.is_file(), "{} missing; {SETUP_HINT}", python.display());
+    let node = Command::new("node").arg("--version").output();
+    assert!(node.is_ok_and(|o| o.status.success()), "node missing (Debian: apt-get install nodejs); {SETUP_HINT}");
+    (chromium, node_modules, python)
+}
+
+/// A running `libero-agent serve`; killed on drop. `stderr` is captured for the operator-token test.
+struct Server {
+    child: Child,
+    url: String,
+    port: u16,
+}
+
+impl Server {
+    fn start(data: &Path, addr: &str, extra: &[&str]) -> (Self, Option<std::process::ChildStderr>) {
+        let mut child = Command::new(bin())
+            .args(["serve", "--addr", addr, "--data"])
+            .arg(data)
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start libero-agent serve");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("listening line");
+        let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad listening line {line:?}: {e}"));
+        let url = v["url"].as_str().expect("url").to_owned();
+        let port = url.rsplit(':').next().and_then(|p| p.parse().ok()).expect("port");
+        let stderr = child.stderr.take();
+        (Self { child, url, port }, stderr)
+    }
+
+    /// Loopback URL of the server (it may listen on 0.0.0.0).
+    fn local(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// One HTTP/1.1 request on loopback; (status, headers text, body bytes).
+fn http(method: &str, url: &str, headers: &[(&str, &str)], body: &[u8]) -> (u16, String, Vec<u8>) {
+    let rest = url.strip_prefix("http://").expect("http url");
+    let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
+    let mut stream = std::net::TcpStream::connect(host).expect("connect");
+    stream.set_read_timeout(Some(Duration::from_secs(300))).unwrap();
+    let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {host}\r\nContent-Length: {}\r\n", body.len());
+    if !headers.iter().any(|(k, _)| k.eq_ignore_ascii_case("connection")) {
+        head.push_str("Connection: close\r\n");
+    }
+    for (k, v) in headers {
+        head.push_str(&format!("{k}: {v}\r\n"));
+    }
+    head.push_str("\r\n");
+    stream.write_all(head.as_bytes()).unwrap();
+    stream.write_all(body).unwrap();
+    let mut raw = Vec::new();
+    let mut buf = [0u8; 4096];
+    // Up to the end of the headers first: a 101 (WebSocket) answer keeps the connection open.
+    let split = loop {
+        let n = stream.read(&mut buf).unwrap();
+        assert!(n > 0, "connection closed before the headers ended");
+        raw.extend_from_slice(&buf[..n]);
+        if let Some(p) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
+            break p;
+        }
+    };
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let status = head.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("status");
+    if status == 101 {
+        return (status, head, Vec::new());
+    }
+    let length = head
+        .lines()
+        .find_map(|l| l.to_ascii_lowercase().strip_prefix("content-length:").map(|v| v.trim().parse::<usize>().unwrap()));
+    match length {
+        // A kept-alive connection (the caller chose its own `Connection`) ends after the body, not at EOF.
+        Some(n) => {
+            while raw.len() < split + 4 + n {
+                let k = stream.read(&mut buf).unwrap();
+                assert!(k > 0, "connection closed inside the body");
+                raw.extend_from_slice(&buf[..k]);
+            }
+        }
+        None => {
+            stream.read_to_end(&mut raw).unwrap();
+        }
+    }
+    let mut body = raw[split + 4..].to_vec();
+    if head.to_ascii_lowercase().contains("transfer-encoding: chunked") {
+        body = dechunk(&body);
+    }
+    (status, head, body)
+}
+
+fn dechunk(mut b: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let line_end = b.windows(2).position(|w| w == b"\r\n").expect("chunk size line");
+        let size = usize::from_str_radix(std::str::from_utf8(&b[..line_end]).unwrap().trim(), 16).unwrap();
+        if size == 0 {
+            return out;
+        }
+        out.extend_from_slice(&b[line_end + 2..line_end + 2 + size]);
+        b = &b[line_end + 4 + size..];
+    }
+}
+
+fn prepare(base: &str, extra_headers: &[(&str, &str)], workspace: &Path) -> Value {
+    let body = json!({"task": "T14", "level": 3, "harness": "scripted", "model": "sinusoid", "batch": "dash-test",
+        "workspace": workspace});
+    let mut headers = vec![("Content-Type", "application/json")];
+    headers.extend_from_slice(extra_headers);
+    let (status, _, body) = http("POST", &format!("{base}/api/episodes"), &headers, body.to_string().as_bytes());
+    assert_eq!(status, 201, "prepare: {}", String::from_utf8_lossy(&body));
+    serde_json::from_slice(&body).expect("prepare JSON")
+}
+
+fn agent_token(prepared: &Value) -> String {
+    prepared["mcp_headers"]["Authorization"].as_str().expect("auth").trim_start_matches("Bearer ").to_owned()
+}
+
+fn artifacts_dir() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/dashboard");
+    std::fs::create_dir_all(&dir).expect("artifacts dir");
+    dir
+}
+
+fn files_under(dir: &Path) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).into_iter().flatten().flatten() {
+            let p = e.path();
+            out.push(p.strip_prefix(dir).unwrap().to_string_lossy().into_owned());
+            if p.is_dir() {
+                stack.push(p);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn chromium_watches_a_live_t14_episode_then_reviews_it() {
+    let (chromium, node_modules, python) = browser_prerequisites();
+    let tmp = tempfile::tempdir().unwrap();
+    let (server, _stderr) = Server::start(&tmp.path().join("data"), "127.0.0.1:0", &[]);
+    let ws = tmp.path().join("ws");
+    let prepared = prepare(&server.url, &[], &ws);
+    let episode = prepared["episode_id"].as_str().unwrap().to_owned();
+    let artifacts = artifacts_dir();
+
+    // The browser opens the live page first; the agent starts once it is connected.
+    let mut browser = Command::new("node")
+        .arg(repo_root().join("tests/dashboard/browser_check.cjs"))
+        .args([&server.url, &episode])
+        .arg(&artifacts)
+        .env("NODE_PATH", &node_modules)
+        .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start node");
+    let (tx, rx) = mpsc::channel::<Value>();
+    let stdout = browser.stdout.take().expect("node stdout");
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            match serde_json::from_str(&line) {
+                Ok(v) => {
+                    let _ = tx.send(v);
+                }
+                Err(_) => eprintln!("node: {line}"),
+            }
+        }
+    });
+    let first = rx.recv_timeout(Duration::from_secs(120)).expect("the browser script reports");
+    assert_eq!(first["event"], "live-ready", "browser before the agent started: {first}");
+
+    let agent = Command::new(&python)
+        .arg(repo_root().join("tests/dashboard/drive_episode.py"))
+        .args(["--url", prepared["mcp_url"].as_str().unwrap(), "--token", &agent_token(&prepared)])
+        .args(["--calls", "4", "--actions", "20", "--pause-s", "1.5"])
+        .output()
+        .expect("run the scripted agent");
+    let agent_out = String::from_utf8_lossy(&agent.stdout);
+    assert!(agent.status.success(), "scripted agent failed:\n{agent_out}\n{}", String::from_utf8_lossy(&agent.stderr));
+
+    let report = rx.recv_timeout(Duration::from_secs(540)).expect("the browser script finishes");
+    let status = browser.wait().expect("node exit");
+    assert!(status.success() && report["ok"] == true, "browser checks failed: {report}");
+    eprintln!("browser report: {report}");
+    for shot in ["live-running", "live-finished", "home", "review", "review-deeplink", "tasks"] {
+        assert!(artifacts.join(format!("{shot}.png")).is_file(), "screenshot {shot}.png");
+    }
+
+    // The private video answers range requests (the browser's seeking relies on them).
+    let video = format!("{}/episodes/{episode}/video.mp4", server.url);
+    let (status, head, body) = http("GET", &video, &[("Range", "bytes=0-99")], b"");
+    assert_eq!((status, body.len()), (206, 100), "{head}");
+    assert!(head.to_ascii_lowercase().contains("content-range: bytes 0-99/"), "{head}");
+    // Telemetry was recorded per control step: 80 accepted actions after step 0.
+    let (status, _, body) = http("GET", &format!("{}/api/episodes/{episode}/review", server.url), &[], b"");
+    assert_eq!(status, 200);
+    let review: Value = serde_json::from_slice(&body).unwrap();
+    let telemetry = review["telemetry"].as_array().unwrap();
+    assert_eq!(telemetry.len(), 81, "control steps 0..=80");
+    assert_eq!(telemetry[0]["video_frame"], 9, "control step 0 is the last of 10 settle frames");
+    assert_eq!(review["calls"].as_array().unwrap().len(), 7, "start, 4 sequences, 1 rejected, finish");
+    // No path tricks into the run directory.
+    for bad in ["..%2Fresult.json", "obs_000001/..%2F..%2Fresult.json", "%2Fetc%2Fpasswd"] {
+        let (status, _, _) = http("GET", &format!("{}/episodes/{episode}/observations/{bad}", server.url), &[], b"");
+        assert_eq!(status, 404, "{bad}");
+    }
+    let (status, _, _) = http("GET", &format!("{}/episodes/{episode}/observations/obs_000001/head/rgb.png", server.url), &[], b"");
+    assert_eq!(status, 200);
+    // The agent's workspace holds nothing of the live view or the private records.
+    let files = files_under(&ws);
+    for private in ["telemetry", "continuous_video", "private_stage_events", "result.json", "actions.jsonl"] {
+        assert!(!files.iter().any(|f| f.contains(private)), "{private} leaked into the workspace: {files:?}");
+    }
+    // Another site's page in the operator's browser can neither read the live streams nor prepare episodes.
+    let upgrade = [("Connection", "Upgrade"), ("Upgrade", "websocket"), ("Sec-WebSocket-Version", "13"),
+        ("Sec-WebSocket-Key", "dGhlIHNhbXBsZSBub25jZQ==")];
+    let local_origin = format!("http://127.0.0.1:{}", server.port);
+    let (status, _, _) = http("GET", &format!("{}/ws/episodes", server.url), &[&upgrade[..], &[("Origin", local_origin.as_str())]].concat(), b"");
+    assert_eq!(status, 101, "the dashboard's own pages connect");
+    let (status, _, _) = http("GET", &format!("{}/ws/episodes", server.url), &[&upgrade[..], &[("Origin", "http://evil.example")]].concat(), b"");
+    assert_eq!(status, 403, "cross-site WebSocket refused");
+    let (status, _, _) = http("POST", &format!("{}/api/episodes", server.url),
+        &[("Origin", "http://evil.example"), ("Content-Type", "text/plain")], br#"{"task":"T14"}"#);
+    assert_eq!(status, 403, "cross-site prepare refused");
+    // Pages never show the agent's token.
+    let token = agent_token(&prepared);
+    for page in ["/", &format!("/episodes/{episode}/review"), &format!("/api/episodes/{episode}/review"), "/api/episodes"] {
+        let (_, _, body) = http("GET", &format!("{}{page}", server.url), &[], b"");
+        assert!(!String::from_utf8_lossy(&body).contains(&token), "{page} shows the agent token");
+    }
+}
+
+#[test]
+fn beyond_loopback_the_dashboard_needs_the_operator_token_and_agent_tokens_never_open_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Generated and printed once to stderr when bound beyond loopback without a token file.
+    let (server, stderr) = Server::start(&tmp.path().join("gen"), "0.0.0.0:0", &[]);
+    let (tx, rx) = mpsc::channel();
+    let mut stderr = BufReader::new(stderr.expect("stderr"));
+    std::thread::spawn(move || {
+        let mut text = String::new();
+        while stderr.read_line(&mut text).is_ok_and(|n| n > 0) {
+            if text.contains("operator token") && text.lines().count() >= 2 {
+                let _ = tx.send(text.clone());
+            }
+        }
+    });
+    let announced = rx.recv_timeout(Duration::from_secs(20)).expect("the generated token on stderr");
+    let generated = announced.lines().nth(1).expect("token line").trim().to_owned();
+    assert!(generated.len() >= 32, "{announced}");
+    let base = server.local();
+    let (status, head, _) = http("GET", &format!("{base}/"), &[], b"");
+    assert_eq!(status, 303, "pages redirect to the login form: {head}");
+    assert!(head.contains("location: /login") || head.contains("Location: /login"), "{head}");
+    let bearer = format!("Bearer {generated}");
+    let (status, _, _) = http("GET", &format!("{base}/api/episodes"), &[("Authorization", &bearer)], b"");
+    assert_eq!(status, 200);
+    drop(server);
+
+    // With a token file: cookie login, bearer, and an agent token that opens nothing but its MCP endpoint.
+    let token = "0123456789abcdef-operator-secret";
+    let file = tmp.path().join("operator.token");
+    std::fs::write(&file, format!("{token}\n")).unwrap();
+    let (server, _stderr) = Server::start(&tmp.path().join("file"), "0.0.0.0:0", &["--operator-token-file", file.to_str().unwrap()]);
+    let base = server.local();
+    let (status, _, _) = http("GET", &format!("{base}/api/health"), &[], b"");
+    assert_eq!(status, 200, "health stays open");
+    let (status, _, body) = http("GET", &format!("{base}/login"), &[], b"");
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&body).contains("Operator token"));
+    let bearer = format!("Bearer {token}");
+    let prepared = prepare(&base, &[("Authorization", &bearer)], &tmp.path().join("ws"));
+    let agent = format!("Bearer {}", agent_token(&prepared));
+    let episode = prepared["episode_id"].as_str().unwrap();
+    for path in ["/api/episodes", "/", "/tasks", &format!("/episodes/{episode}/review"), &format!("/api/episodes/{episode}/review")] {
+        let (status, _, _) = http("GET", &format!("{base}{path}"), &[("Authorization", &agent)], b"");
+        assert!(status == 401 || status == 303, "the agent token opened {path}: {status}");
+        let (status, _, _) = http("GET", &format!("{base}{path}"), &[("Authorization", &bearer)], b"");
+        assert_eq!(status, 200, "the operator token opens {path}");
+    }
+    let (status, _, _) =
+        http("POST", &format!("{base}/api/episodes"), &[("Authorization", &agent), ("Content-Type", "application/json")], b"{}");
+    assert_eq!(status, 401, "agents cannot prepare episodes");
+    let (status, _, _) = http("POST", &format!("{base}/login"), &[("Content-Type", "application/x-www-form-urlencoded")], format!("token={}", agent_token(&prepared)).as_bytes());
+    assert_eq!(status, 401, "the agent token is no login");
+    let (status, head, _) =
+        http("POST", &format!("{base}/login"), &[("Content-Type", "application/x-www-form-urlencoded")], format!("token={token}").as_bytes());
+    assert_eq!(status, 303, "{head}");
+    let cookie_line = head.lines().find(|l| l.to_ascii_lowercase().starts_with("set-cookie:")).expect("a cookie");
+    assert!(cookie_line.contains("HttpOnly") && cookie_line.contains("SameSite=Strict"), "{cookie_line}");
+    let cookie = cookie_line.split_once(':').unwrap().1.split(';').next().unwrap().trim().to_owned();
+    let (status, _, body) = http("GET", &format!("{base}/"), &[("Cookie", &cookie)], b"");
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&body).contains(episode), "the home page lists the episode");
+    assert!(!String::from_utf8_lossy(&body).contains(&agent_token(&prepared)), "no agent token on pages");
+    let (status, _, _) = http("GET", &format!("{base}/ws/episodes"), &[("Authorization", &agent)], b"");
+    assert_eq!(status, 401, "live streams are guarded too");
+}

@@ -1,0 +1,134 @@
+// Drives Debian's chromium (headless, through playwright-core; no browser download) over the dashboard while a
+// scripted agent runs episode EPISODE: the home page lists it live, the live page shows frames whose
+// control-step label changes, calls and evaluator progress as they happen, the review page plays the video,
+// steps with the keyboard, scrubs the timeline, opens a deep link and shows the observation the agent got, and
+// the tasks page shows a rendered thumbnail. Prints JSON lines: {"event":"live-ready"} once the live page is
+// connected (the test then starts the agent), finally {"ok":true,...}. Screenshots go to ARTIFACTS.
+const { chromium } = require('playwright-core');
+const path = require('path');
+
+const [base, episode, artifacts] = process.argv.slice(2);
+const executablePath = process.env.LIBERO_AGENT_CHROMIUM || '/usr/bin/chromium';
+const say = (o) => process.stdout.write(JSON.stringify(o) + '\n');
+const shot = (page, name) => page.screenshot({ path: path.join(artifacts, `${name}.png`), fullPage: true });
+function check(cond, what) { if (!cond) throw new Error(`check failed: ${what}`); }
+const text = (page, sel) => page.locator(sel).innerText();
+
+async function main() {
+  const browser = await chromium.launch({ executablePath, headless: true, args: ['--no-sandbox', '--autoplay-policy=no-user-gesture-required'] });
+  const context = await browser.newContext({ viewport: { width: 1500, height: 1100 } });
+  const report = {};
+  const errors = [];
+  try {
+    // Home: the prepared episode is listed; the list is pushed live.
+    const home = await context.newPage();
+    home.on('pageerror', (e) => errors.push(`home: ${e}`));
+    await home.goto(`${base}/?task=T14`);
+    await home.locator(`tr[data-id="${episode}"]`).waitFor({ timeout: 15000 });
+    await home.locator('#live-status', { hasText: 'live' }).waitFor({ timeout: 10000 });
+
+    // Live page, opened before the agent starts.
+    const live = await context.newPage();
+    live.on('pageerror', (e) => errors.push(`live: ${e}`));
+    await live.goto(`${base}/episodes/${episode}`);
+    await live.locator('#state', { hasText: 'live' }).waitFor({ timeout: 15000 });
+    say({ event: 'live-ready' });
+
+    await live.waitForFunction(() => Number(document.getElementById('frame-count').textContent) >= 3, null, { timeout: 120000 });
+    const firstStep = await text(live, '#frame-step');
+    const firstCount = Number(await text(live, '#frame-count'));
+    await live.waitForFunction((s) => {
+      const v = document.getElementById('frame-step').textContent;
+      return v !== s && v !== 'settle' && v !== '–';
+    }, firstStep, { timeout: 120000 });
+    await live.locator('#calls li.ok', { hasText: 'osc_sequence' }).first().waitFor({ timeout: 120000 });
+    await live.locator('#progress', { hasText: '/1' }).waitFor({ timeout: 60000 });
+    const img = await live.locator('#frame').evaluate((e) => ({ w: e.naturalWidth, h: e.naturalHeight }));
+    check(img.w === 512 && img.h === 256, `live frame is head|wrist 512x256, got ${JSON.stringify(img)}`);
+    await shot(live, 'live-running');
+    report.live = { firstStep, laterStep: await text(live, '#frame-step'), frames: Number(await text(live, '#frame-count')), firstCount };
+    check(report.live.frames > firstCount, 'frames keep arriving');
+
+    // A second viewer opened mid-episode catches up at once: calls so far and the newest frame.
+    const late = await context.newPage();
+    await late.goto(`${base}/episodes/${episode}`);
+    await late.locator('#calls li.ok').first().waitFor({ timeout: 10000 });
+    await late.waitForFunction(() => Number(document.getElementById('frame-count').textContent) >= 1, null, { timeout: 10000 });
+    await late.close();
+
+    // The end arrives live; the home list follows.
+    await live.locator('#finished:not(.hidden)').waitFor({ timeout: 300000 });
+    report.live.outcome = await text(live, '#outcome');
+    report.live.calls = await live.locator('#calls li').count();
+    report.live.errors = await live.locator('#calls li.error').count();
+    check(report.live.errors >= 1, 'the rejected call shows as an error');
+    report.live.stageItems = await live.locator('#stages li').count();
+    await shot(live, 'live-finished');
+    await home.locator(`tr[data-id="${episode}"] td.outcome:not(.RUNNING)`).waitFor({ timeout: 30000 });
+    report.homeOutcome = await home.locator(`tr[data-id="${episode}"] td.outcome`).innerText();
+    await shot(home, 'home');
+
+    // Review: video, keyboard stepping, timeline scrub, deep link, the observation the agent received.
+    const review = await context.newPage();
+    review.on('pageerror', (e) => errors.push(`review: ${e}`));
+    let video = null;
+    for (let attempt = 0; attempt < 30; attempt += 1) { // the video is finalised just after the end
+      await review.goto(`${base}/episodes/${episode}/review`);
+      await review.waitForSelector('body[data-ready="true"]', { timeout: 30000 });
+      if (await review.locator('video#video').count()) { video = review.locator('video#video'); break; }
+      await new Promise((r) => setTimeout(r, 1000));
+    }
+    check(video, 'the review page has the video');
+    // Metadata first (duration); playing below needs the data, which a loaded machine may deliver slowly.
+    const videoState = () => video.evaluate((v) => JSON.stringify({ readyState: v.readyState, networkState: v.networkState,
+      error: v.error && v.error.message, currentTime: v.currentTime, paused: v.paused, buffered: v.buffered.length }));
+    const waitVideo = async (fn, what) => {
+      try { await review.waitForFunction(fn, null, { timeout: 60000 }); } catch (e) { throw new Error(`${what}: ${await videoState()}: ${e}`); }
+    };
+    await waitVideo(() => document.getElementById('video').readyState >= 1, 'video metadata');
+    const duration = await video.evaluate((v) => v.duration);
+    check(duration > 3, `video duration ${duration}`);
+    await review.keyboard.press('Space');
+    await waitVideo(() => document.getElementById('video').currentTime > 0.5, 'video plays on space');
+    await review.keyboard.press('Space');
+    check(await video.evaluate((v) => v.paused), 'space pauses');
+    const before = await video.evaluate((v) => v.currentTime);
+    const stepBefore = await text(review, '#cstep');
+    await review.keyboard.press('ArrowRight');
+    await review.keyboard.press('ArrowRight');
+    await review.waitForTimeout(300);
+    const after = await video.evaluate((v) => v.currentTime);
+    check(Math.abs(after - before - 0.1) < 0.03, `two → steps move 0.1 s (${before} → ${after})`);
+    check((await text(review, '#cstep')) !== stepBefore, 'the control-step label follows');
+    const box = await review.locator('#timeline').boundingBox();
+    await review.mouse.click(box.x + box.width * 0.8, box.y + box.height / 2);
+    await review.waitForTimeout(300);
+    const scrubbed = await video.evaluate((v) => v.currentTime);
+    check(Math.abs(scrubbed - duration * 0.8) < 0.3, `timeline click seeks to 80% (${scrubbed} of ${duration})`);
+    await review.locator('#observation img').first().waitFor({ timeout: 10000 });
+    await review.waitForFunction(() => [...document.querySelectorAll('#observation img')].some((i) => i.naturalWidth > 0), null, { timeout: 10000 });
+    check(/osc_sequence|finish_episode|start_episode/.test(await text(review, '#call-detail')), 'the call at this moment is shown');
+    check((await text(review, '#result')).includes('private_evaluation'), 'the result record is shown');
+    report.review = { duration, before, after, scrubbed, events: await review.locator('#events li').count() };
+    await shot(review, 'review');
+    await review.goto(`${base}/episodes/${episode}/review?t=1.5`);
+    await review.waitForSelector('body[data-ready="true"]');
+    await review.waitForFunction(() => Math.abs(document.getElementById('video').currentTime - 1.5) < 0.05, null, { timeout: 20000 });
+    await shot(review, 'review-deeplink');
+
+    // Tasks: the catalog with a rendered thumbnail for an implemented task, none for an unimplemented one.
+    const tasks = await context.newPage();
+    await tasks.goto(`${base}/tasks`);
+    const thumb = tasks.locator('#T14 img');
+    await thumb.scrollIntoViewIfNeeded();
+    await tasks.waitForFunction(() => document.querySelector('#T14 img').naturalWidth === 256, null, { timeout: 120000 });
+    check((await tasks.locator('#T13').innerText()).includes('not implemented'), 'T13 shows as not implemented');
+    await shot(tasks, 'tasks');
+    check(errors.length === 0, `no page errors: ${errors.join('; ')}`);
+    say({ ok: true, ...report });
+  } finally {
+    await browser.close();
+  }
+}
+
+main().catch((e) => { say({ ok: false, error: String(e && e.stack || e) }); process.exit(1); });

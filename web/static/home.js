@@ -1,0 +1,45 @@
+// Home page: the episode table, replaced whenever the server pushes a changed list (filters travel in the URL).
+import { wsUrl, el, fmtS } from './common.js';
+
+const tbody = document.getElementById('episodes');
+const status = document.getElementById('live-status');
+
+function row(e) {
+  const tr = el('tr', { 'data-id': e.id });
+  // Open episodes go to the live page, ended ones straight to their review.
+  const ended = e.outcome && e.outcome !== 'RUNNING';
+  const link = el('a', { href: `/episodes/${encodeURIComponent(e.id)}${ended ? '/review' : ''}` }, e.id);
+  const progress = e.completed_stage_count != null && e.required_stage_count != null
+    ? `${e.completed_stage_count}/${e.required_stage_count}` : '–';
+  const cells = [
+    link, e.task_ref, e.harness ?? '', e.model ?? '', e.batch ?? '', String(e.level),
+    e.outcome ?? 'RUNNING', progress, e.wall_time_s != null ? `${fmtS(e.wall_time_s, 1)} s` : '–',
+    e.accepted_agent_steps != null ? String(e.accepted_agent_steps) : '–',
+  ];
+  cells.forEach((c, i) => {
+    const td = el('td', i === 6 ? { class: `outcome ${c}` } : {});
+    if (c instanceof Node) td.append(c); else td.textContent = c;
+    tr.append(td);
+  });
+  return tr;
+}
+
+function render(episodes) {
+  tbody.replaceChildren(...episodes.map(row));
+  document.getElementById('empty')?.remove();
+}
+
+function connect() {
+  const ws = new WebSocket(wsUrl(`/ws/episodes${location.search}`));
+  ws.onopen = () => { status.textContent = 'live'; };
+  ws.onmessage = (m) => {
+    const d = JSON.parse(m.data);
+    if (d.type === 'episodes') render(d.episodes);
+  };
+  ws.onclose = () => {
+    status.textContent = 'reconnecting';
+    setTimeout(connect, 2000);
+  };
+}
+
+connect();

@@ -1,0 +1,92 @@
+// Live episode page: head | wrist frames, calls, private evaluator events and budgets as they happen.
+// Frames arrive as binary messages (4-byte LE header length, JSON header, JPEG); everything else as JSON.
+import { wsUrl, el, fmtS, callSummary, stageText } from './common.js';
+
+const root = document.querySelector('.live');
+const id = root.dataset.episode;
+const $ = (x) => document.getElementById(x);
+const img = $('frame');
+const budget = { maxSteps: Number(root.dataset.maxSteps), maxWall: Number(root.dataset.maxWall), wall: null, at: null, running: true };
+let frames = 0;
+let pendingCall = null;
+
+function showFrame(buf) {
+  const view = new DataView(buf);
+  const n = view.getUint32(0, true);
+  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
+  const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/jpeg' }));
+  const old = img.src;
+  img.onload = () => { if (old.startsWith('blob:')) URL.revokeObjectURL(old); };
+  img.src = url;
+  $('frame-step').textContent = header.control_step ?? 'settle';
+  $('frame-time').textContent = fmtS(header.sim_time_s);
+  $('frame-index').textContent = header.video_frame;
+  $('frame-count').textContent = ++frames;
+}
+
+function onEvent(e) {
+  switch (e.type) {
+    case 'hello':
+      budget.maxSteps = e.max_agent_steps; budget.maxWall = e.max_wall_time_s;
+      $('max-steps').textContent = e.max_agent_steps;
+      $('state').textContent = 'live';
+      break;
+    case 'reset':
+      $('calls').replaceChildren(); $('stages').replaceChildren();
+      break;
+    case 'call_received':
+      pendingCall = el('li', { class: 'pending' }, `→ ${callSummary(e.tool, e.actions)} …`);
+      $('calls').prepend(pendingCall);
+      break;
+    case 'call_answered': {
+      const text = `${callSummary(e.tool, e.actions)}: ${e.ok ? `ok ${e.observation_id ?? ''}` : `${e.error_type}: ${e.error}`}`;
+      const li = pendingCall ?? el('li');
+      li.className = e.ok ? 'ok' : 'error';
+      li.textContent = text;
+      if (!pendingCall) $('calls').prepend(li);
+      pendingCall = null;
+      $('submissions').textContent = e.accepted_agent_steps;
+      budget.wall = e.wall_time_s; budget.at = e.at_unix_s;
+      break;
+    }
+    case 'step':
+      $('step').textContent = `${e.control_step} (${fmtS(e.sim_time_s)} s)`;
+      break;
+    case 'stage':
+      $('stages').prepend(el('li', { class: e.event.kind }, stageText(e.event)));
+      break;
+    case 'progress':
+      $('progress').textContent = `${e.completed}/${e.required}`;
+      break;
+    case 'finished':
+      budget.running = false;
+      $('state').textContent = e.state;
+      $('outcome').textContent = e.outcome ?? e.state;
+      $('reason').textContent = e.reason ?? '';
+      $('finished').classList.remove('hidden');
+      break;
+    default:
+      break;
+  }
+}
+
+function tickWall() {
+  if (budget.wall == null) return;
+  const elapsed = budget.running ? budget.wall + (Date.now() / 1000 - budget.at) : budget.wall;
+  $('wall-left').textContent = `${fmtS(Math.max(0, budget.maxWall - elapsed), 0)} s`;
+}
+setInterval(tickWall, 500);
+
+function connect() {
+  const ws = new WebSocket(wsUrl(`/ws/episodes/${encodeURIComponent(id)}`));
+  ws.binaryType = 'arraybuffer';
+  ws.onmessage = (m) => {
+    if (typeof m.data === 'string') onEvent(JSON.parse(m.data)); else showFrame(m.data);
+  };
+  ws.onclose = () => {
+    if (budget.running) { $('state').textContent = 'reconnecting'; setTimeout(connect, 2000); }
+  };
+  ws.onopen = () => { $('calls').replaceChildren(); $('stages').replaceChildren(); };
+}
+
+connect();

@@ -1,0 +1,219 @@
+// Review page: the private continuous video synchronised with the calls, private stage events, telemetry plots
+// and the observation the agent received at each call. ←/→ step one control step, space plays or pauses,
+// ?t=seconds opens a moment.
+import { el, fmtS, callSummary, stageText } from './common.js';
+
+const root = document.querySelector('.review');
+const id = root.dataset.episode;
+const $ = (x) => document.getElementById(x);
+const video = $('video');
+let data = null;
+let fps = 20;
+let byFrame = new Map(); // video frame -> telemetry row
+let duration = 0;
+let shownObservation = null;
+
+/** Video time (s) of the state after control step c (middle of its frame). */
+function timeOfStep(c) {
+  const row = data.telemetry.find((r) => r.control_step === c);
+  return row && row.video_frame != null ? (row.video_frame + 0.5) / fps : null;
+}
+
+function frameAt(t) {
+  return Math.max(0, Math.floor(t * fps + 1e-6));
+}
+
+function stepAt(t) {
+  const row = byFrame.get(frameAt(t));
+  return row ? row.control_step : null;
+}
+
+/** The last call answered at or before time t. */
+function callAt(t) {
+  let found = null;
+  for (const c of data.calls) {
+    if (c.t != null && c.t <= t + 0.5 / fps) found = c;
+  }
+  return found;
+}
+
+function seek(t) {
+  const max = duration || video.duration || 0;
+  video.currentTime = Math.min(Math.max(0, t), Math.max(0, max - 1e-3));
+  update();
+}
+
+// ---- drawing
+
+function xOf(t, w) { return duration > 0 ? (t / duration) * w : 0; }
+
+function drawTimeline() {
+  const c = $('timeline'); const g = c.getContext('2d');
+  g.clearRect(0, 0, c.width, c.height);
+  g.fillStyle = '#f3f4f6'; g.fillRect(0, 0, c.width, c.height);
+  for (const call of data.calls) {
+    if (call.t == null) continue;
+    const x0 = call.t0 != null ? xOf(call.t0, c.width) : xOf(call.t, c.width);
+    const x1 = xOf(call.t, c.width);
+    g.fillStyle = call.ok ? 'rgba(37,99,235,0.25)' : 'rgba(220,38,38,0.35)';
+    g.fillRect(x0, 8, Math.max(2, x1 - x0), 24);
+    g.fillStyle = call.ok ? '#2563eb' : '#dc2626';
+    g.fillRect(x1 - 1, 4, 2, 32);
+  }
+  for (const e of data.stage_events) {
+    if (e.t == null) continue;
+    const x = xOf(e.t, c.width);
+    g.fillStyle = e.kind === 'stage_completed' || e.kind === 'goal_satisfied' ? '#16a34a' : '#d97706';
+    g.beginPath(); g.moveTo(x, 40); g.lineTo(x - 6, 56); g.lineTo(x + 6, 56); g.fill();
+  }
+  const x = xOf(video.currentTime, c.width);
+  g.fillStyle = '#111'; g.fillRect(x - 1, 0, 2, c.height);
+}
+
+function drawPlot(canvasId, title, series, colors) {
+  const c = $(canvasId); const g = c.getContext('2d');
+  g.clearRect(0, 0, c.width, c.height);
+  const rows = data.telemetry.filter((r) => r.video_frame != null);
+  const values = series.flatMap((f) => rows.map(f)).filter(Number.isFinite);
+  g.fillStyle = '#374151'; g.font = '12px sans-serif'; g.fillText(title, 4, 12);
+  if (rows.length < 2 || values.length === 0) return;
+  let lo = Math.min(...values); let hi = Math.max(...values);
+  if (hi - lo < 1e-9) { lo -= 1; hi += 1; }
+  const top = 16; const h = c.height - top - 4;
+  const yOf = (v) => top + h - ((v - lo) / (hi - lo)) * h;
+  series.forEach((f, k) => {
+    g.strokeStyle = colors[k]; g.lineWidth = 1.5; g.beginPath();
+    rows.forEach((r, i) => {
+      const x = xOf((r.video_frame + 0.5) / fps, c.width); const y = yOf(f(r));
+      if (i === 0) g.moveTo(x, y); else g.lineTo(x, y);
+    });
+    g.stroke();
+  });
+  g.fillStyle = '#6b7280'; g.fillText(`${hi.toPrecision(3)}`, c.width - 60, 12); g.fillText(`${lo.toPrecision(3)}`, c.width - 60, c.height - 4);
+  const x = xOf(video.currentTime, c.width);
+  g.fillStyle = '#111'; g.fillRect(x - 1, top, 2, h);
+}
+
+function drawAll() {
+  if (!data) return;
+  drawTimeline();
+  drawPlot('plot-eef', 'end-effector position in base (m): x y z', [(r) => r.eef_pos_in_base_m[0], (r) => r.eef_pos_in_base_m[1], (r) => r.eef_pos_in_base_m[2]], ['#dc2626', '#16a34a', '#2563eb']);
+  drawPlot('plot-gripper', 'gripper opening (m): finger joint 1 − finger joint 2', [(r) => r.gripper_qpos_m[0] - r.gripper_qpos_m[1]], ['#7c3aed']);
+  drawPlot('plot-force', 'wrist force (N): x y z |f|', [(r) => r.wrist_force_n[0], (r) => r.wrist_force_n[1], (r) => r.wrist_force_n[2], (r) => Math.hypot(...r.wrist_force_n)], ['#dc2626', '#16a34a', '#2563eb', '#111']);
+}
+
+// ---- panels
+
+async function showObservation(obsId) {
+  if (obsId === shownObservation) return;
+  shownObservation = obsId;
+  const box = $('observation');
+  if (!obsId) { box.textContent = '–'; return; }
+  const base = `/episodes/${encodeURIComponent(id)}/observations/${obsId}`;
+  box.replaceChildren(el('div', { class: 'muted' }, obsId));
+  const imgs = el('div', { class: 'obs-images' });
+  for (const cam of ['head', 'wrist']) {
+    imgs.append(el('img', { src: `${base}/${cam}/rgb.png`, alt: `${cam} rgb`, title: `${cam} rgb`, width: 128, height: 128 }));
+    const depth = el('img', { src: `${base}/${cam}/depth_visualization.png`, alt: `${cam} depth`, title: `${cam} depth preview`, width: 128, height: 128 });
+    depth.onerror = () => depth.remove(); // levels 1-2 publish no depth
+    imgs.append(depth);
+  }
+  box.append(imgs);
+  try {
+    const doc = await (await fetch(`${base}/observation.json`)).json();
+    if (shownObservation !== obsId) return;
+    const robot = doc.robot_state ?? doc.robot ?? doc.proprioception ?? doc;
+    box.append(el('pre', { class: 'state' }, JSON.stringify(robot, null, 1).slice(0, 4000)));
+  } catch (err) {
+    box.append(el('div', { class: 'error' }, `observation.json: ${err}`));
+  }
+}
+
+function update() {
+  if (!data) return;
+  const t = video.currentTime;
+  $('time').textContent = fmtS(t);
+  const step = stepAt(t);
+  $('cstep').textContent = step ?? 'settle';
+  const link = new URL(location.href); link.searchParams.set('t', t.toFixed(2));
+  $('deeplink').href = link.pathname + link.search;
+  const call = callAt(t);
+  $('call-detail').textContent = call
+    ? `#${call.event_index} ${callSummary(call.tool, call.actions)} → ${call.ok ? 'ok' : `${call.error_type}: ${call.error}`} (steps ${call.control_step_begin}–${call.control_step_end})`
+    : '–';
+  showObservation(call?.observation_id ?? null);
+  for (const li of $('events').children) li.classList.toggle('current', li.dataset.t && Math.abs(Number(li.dataset.t) - (call?.t ?? -1)) < 1e-9);
+  drawAll();
+}
+
+function buildEvents() {
+  const items = [
+    ...data.calls.map((c) => ({ t: c.t, cls: c.ok ? 'ok' : 'error', text: `${callSummary(c.tool, c.actions)} ${c.ok ? 'ok' : `${c.error_type}: ${c.error}`}` })),
+    ...data.stage_events.map((e) => ({ t: e.t, cls: e.kind, text: stageText(e) })),
+  ].sort((a, b) => (a.t ?? -1) - (b.t ?? -1));
+  $('events').replaceChildren(...items.map((it) => {
+    const li = el('li', { class: it.cls, 'data-t': it.t ?? '' }, `${it.t != null ? fmtS(it.t) : '–'} s · ${it.text}`);
+    if (it.t != null) li.addEventListener('click', () => { video.pause(); seek(it.t); });
+    return li;
+  }));
+}
+
+// ---- input
+
+function stepBy(k) {
+  video.pause();
+  seek((frameAt(video.currentTime) + k + 0.5) / fps);
+}
+
+function scrub(ev) {
+  const c = $('timeline'); const r = c.getBoundingClientRect();
+  seek(((ev.clientX - r.left) / r.width) * duration);
+}
+
+$('timeline').addEventListener('pointerdown', (ev) => {
+  video.pause(); scrub(ev);
+  const move = (e) => scrub(e);
+  window.addEventListener('pointermove', move);
+  window.addEventListener('pointerup', () => window.removeEventListener('pointermove', move), { once: true });
+});
+$('play').addEventListener('click', () => (video.paused ? video.play() : video.pause()));
+$('prev').addEventListener('click', () => stepBy(-1));
+$('next').addEventListener('click', () => stepBy(1));
+document.addEventListener('keydown', (e) => {
+  if (e.target instanceof HTMLInputElement) return;
+  if (e.key === 'ArrowLeft') { e.preventDefault(); stepBy(-1); }
+  if (e.key === 'ArrowRight') { e.preventDefault(); stepBy(1); }
+  if (e.key === ' ') { e.preventDefault(); if (video.paused) video.play(); else video.pause(); }
+});
+video.addEventListener('play', () => { $('play').textContent = 'pause'; });
+video.addEventListener('pause', () => { $('play').textContent = 'play'; update(); });
+video.addEventListener('seeked', update);
+video.addEventListener('timeupdate', update);
+function animate() { if (!video.paused) update(); requestAnimationFrame(animate); }
+requestAnimationFrame(animate);
+
+// ---- load
+
+async function load() {
+  const resp = await fetch(`/api/episodes/${encodeURIComponent(id)}/review`);
+  data = await resp.json();
+  fps = data.video_fps || 20;
+  byFrame = new Map(data.telemetry.filter((r) => r.video_frame != null).map((r) => [r.video_frame, r]));
+  for (const c of data.calls) {
+    c.t = timeOfStep(c.control_step_end);
+    c.t0 = timeOfStep(c.control_step_begin);
+  }
+  for (const e of data.stage_events) e.t = timeOfStep(e.control_step);
+  const last = data.telemetry.reduce((m, r) => Math.max(m, r.video_frame ?? 0), 0);
+  duration = (last + 1) / fps;
+  $('result').textContent = JSON.stringify(data.result, null, 2);
+  if (!data.video) video.replaceWith(el('p', { class: 'error' }, 'The video is finalised when the episode ends.'));
+  buildEvents();
+  const t = Number(new URL(location.href).searchParams.get('t'));
+  const start = () => { if (Number.isFinite(t) && t > 0) seek(t); else update(); };
+  if (video.readyState >= 1) start(); else video.addEventListener('loadedmetadata', start, { once: true });
+  if (!data.video) update();
+  document.body.dataset.ready = 'true';
+}
+
+load().catch((err) => { $('result').textContent = `cannot load the review: ${err}`; });
