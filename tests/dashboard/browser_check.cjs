@@ -7,7 +7,7 @@
 const { chromium } = require('playwright-core');
 const path = require('path');
 
-const [base, episode, artifacts] = process.argv.slice(2);
+const [base, episode, artifacts, unimplemented] = process.argv.slice(2);
 const executablePath = process.env.LIBERO_AGENT_CHROMIUM || '/usr/bin/chromium';
 const say = (o) => process.stdout.write(JSON.stringify(o) + '\n');
 const shot = (page, name) => page.screenshot({ path: path.join(artifacts, `${name}.png`), fullPage: true });
@@ -122,7 +122,7 @@ async function main() {
     const thumb = tasks.locator('#T14 img');
     await thumb.scrollIntoViewIfNeeded();
     await tasks.waitForFunction(() => document.querySelector('#T14 img').naturalWidth === 256, null, { timeout: 120000 });
-    check((await tasks.locator('#T13').innerText()).includes('not implemented'), 'T13 shows as not implemented');
+    check((await tasks.locator(`#${unimplemented}`).innerText()).includes('not implemented'), `${unimplemented} shows as not implemented`);
     await shot(tasks, 'tasks');
     check(errors.length === 0, `no page errors: ${errors.join('; ')}`);
     say({ ok: true, ...report });

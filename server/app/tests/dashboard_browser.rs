@@ -204,6 +204,7 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
         .arg(repo_root().join("tests/dashboard/browser_check.cjs"))
         .args([&server.url, &episode])
         .arg(&artifacts)
+        .arg(first_unimplemented_task())
         .env("NODE_PATH", &node_modules)
         .env("LIBERO_AGENT_CHROMIUM", &chromium)
         .stdout(Stdio::piped())
@@ -351,4 +352,16 @@ fn beyond_loopback_the_dashboard_needs_the_operator_token_and_agent_tokens_never
     assert!(!String::from_utf8_lossy(&body).contains(&agent_token(&prepared)), "no agent token on pages");
     let (status, _, _) = http("GET", &format!("{base}/ws/episodes"), &[("Authorization", &agent)], b"");
     assert_eq!(status, 401, "live streams are guarded too");
+}
+
+/// A task the catalog lists as not implemented (the tasks page must say so), from `tasks list --json`.
+fn first_unimplemented_task() -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_libero-agent")).args(["tasks", "list", "--json"]).output().expect("tasks list");
+    let tasks: Value = serde_json::from_slice(&out.stdout).expect("tasks list --json");
+    tasks
+        .as_array()
+        .and_then(|a| a.iter().find(|t| t["implemented"] == false))
+        .and_then(|t| t["id"].as_str())
+        .expect("every task implemented: the not-implemented check has nothing to show")
+        .to_owned()
 }
