@@ -243,9 +243,9 @@ impl LiberoWorld {
         let (events, progress) = (evaluator.private_events(), evaluator.stage_progress());
         let control_step = self.physics.control_step;
         if control_step == 0 {
-            tap.on_reset(&robot, events, progress);
+            tap.on_reset(&robot, &events, progress);
         } else {
-            tap.after_step(control_step, &robot, events, progress);
+            tap.after_step(control_step, &robot, &events, progress);
         }
     }
 }

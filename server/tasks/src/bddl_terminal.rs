@@ -78,8 +78,8 @@ impl Evaluator for BddlTerminal {
         record
     }
 
-    fn private_events(&self) -> &[PrivateEvent] {
-        &self.events
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        self.events.clone()
     }
 
     /// K = 1: the goal holding now is the stage that finish would complete.

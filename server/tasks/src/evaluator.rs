@@ -208,6 +208,17 @@ impl StageTracker {
     }
 }
 
+/// A tracker's stage events and an evaluator's other events in one time-ordered list (stable: at equal ticks,
+/// stage events first), for [`Evaluator::private_events`].
+pub fn merged_events(stages: &StageTracker, others: &[PrivateEvent]) -> Vec<PrivateEvent> {
+    let mut all: Vec<PrivateEvent> = stages.events().iter().chain(others).cloned().collect();
+    all.sort_by(|a, b| {
+        let key = |e: &PrivateEvent| (e.tick.control_step, e.tick.substep.unwrap_or(u32::MAX));
+        key(a).cmp(&key(b))
+    });
+    all
+}
+
 /// `100 × completed / K` (0 when K = 0).
 pub fn score_percent(completed: usize, required: usize) -> f64 {
     if required == 0 { 0.0 } else { 100.0 * completed as f64 / required as f64 }
@@ -320,9 +331,10 @@ pub trait Evaluator: Send {
     fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {
         Vec::new()
     }
-    /// Private events recorded since the reset, in order, for the operator's live dashboard (never the agent).
-    fn private_events(&self) -> &[PrivateEvent] {
-        &[]
+    /// Private events recorded since the reset (stage events included), in time order, for the operator's live
+    /// dashboard (never the agent). Only called while someone watches.
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        Vec::new()
     }
     /// Live `(completed, K)` for the operator's dashboard, where the evaluator can tell before finish.
     fn stage_progress(&self) -> Option<(usize, usize)> {

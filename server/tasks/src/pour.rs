@@ -191,6 +191,14 @@ impl PourWine {
 }
 
 impl Evaluator for PourWine {
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        crate::evaluator::merged_events(&self.stages, &self.events)
+    }
+
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        Some((self.stages.completed_required_count(), self.stages.required_count()))
+    }
+
     fn checker(&self) -> &str {
         CHECKER
     }

@@ -169,6 +169,10 @@ impl TubeInsertion {
 }
 
 impl Evaluator for TubeInsertion {
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        self.events.clone()
+    }
+
     fn checker(&self) -> &str {
         CHECKER
     }

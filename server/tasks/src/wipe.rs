@@ -245,6 +245,14 @@ impl SpillWipe {
 }
 
 impl Evaluator for SpillWipe {
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        crate::evaluator::merged_events(&self.stages, &self.events)
+    }
+
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        Some((self.stages.completed_required_count(), self.stages.required_count()))
+    }
+
     fn checker(&self) -> &str {
         CHECKER
     }
