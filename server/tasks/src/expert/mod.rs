@@ -5,7 +5,9 @@
 //! Besides the solving script (`solve`), each task has named **near-miss** behaviours: plausible runs that must fail
 //! (wrong object, drawer half open, …). An expert only ever acts through `osc_sequence`; the episode crate runs it on a
 //! lockstep replica of the episode's simulation.
+mod articulated;
 pub mod motion;
+mod objects;
 mod stock;
 
 use libero_sim::Simulation;

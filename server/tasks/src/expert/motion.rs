@@ -197,3 +197,34 @@ impl Script {
         self.phases.get(self.current).map(|p| p.name)
     }
 }
+
+/// The home orientation turned about world z so that the fingers open along the horizontal direction `dir`
+/// (at home they open along world y; the turn is the smaller of the two that fit, |angle| ≤ π/2).
+pub fn open_along(home_rot: &Matrix3<f64>, dir: Vector3<f64>) -> Matrix3<f64> {
+    let mut phi = dir.y.atan2(dir.x) - std::f64::consts::FRAC_PI_2;
+    while phi > std::f64::consts::FRAC_PI_2 {
+        phi -= std::f64::consts::PI;
+    }
+    while phi <= -std::f64::consts::FRAC_PI_2 {
+        phi += std::f64::consts::PI;
+    }
+    rotate_world(home_rot, Vector3::z(), phi)
+}
+
+/// World position of a body's origin.
+pub fn body_pos(sim: &Simulation, body: usize) -> Vector3<f64> {
+    vec3(&sim.data().xpos()[body])
+}
+
+/// Gripper command that brings the finger opening toward `width_m` and then holds it (the command ramps the
+/// fingers' target by an eighth of the full range per control step; 0 holds the target where it is).
+pub fn width_command(sim: &Simulation, width_m: f64) -> f64 {
+    let w = gripper_width_m(sim);
+    if w > width_m + 0.004 {
+        GRIPPER_CLOSED
+    } else if w < width_m - 0.004 {
+        GRIPPER_OPEN
+    } else {
+        0.0
+    }
+}
