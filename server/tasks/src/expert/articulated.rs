@@ -5,8 +5,8 @@ use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 use libero_sim::Simulation;
 
 use super::motion::{
-    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, body_point, open_along, rotate_world,
-    vec3,
+    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, body_point, grip_pose, open_along,
+    rotate_world, rotation_error, vec3,
 };
 use super::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
@@ -71,9 +71,10 @@ fn reach_and_grip(
 const DRAWER_HANDLE_LOCAL_M: [f64; 3] = [-0.00278, -0.10161, 0.18393];
 const DRAWER_OUT_LOCAL: [f64; 3] = [0.0, -1.0, 0.0];
 
-/// T15: straddle the handle bar from above (fingers opening along the pull, the inner finger dropping into the
-/// 1.5 cm gap between bar and drawer front), close on it, pull outward until the slide reads `q_goal`.
-/// `pull_half` stops 7 cm out (open needs q < −0.14).
+/// T15: the handle bar stands only 1.6 cm proud of the drawer front, too narrow a slot for a finger from above, so
+/// the hand comes at it from the front: pointing into the drawer, fingers opening vertically, it closes on the bar
+/// from above and below and pulls outward until the slide reads `q_goal`. `pull_half` stops 7 cm out (open needs
+/// q < −0.14).
 pub fn open_top_drawer(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
     let drawer = refs.body("wooden_cabinet_1_cabinet_top")?;
     let (q_adr, _) = refs.joint("wooden_cabinet_1_top_level")?;
@@ -81,40 +82,37 @@ pub fn open_top_drawer(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expe
     let handle = move |sim: &Simulation| body_point(sim, drawer, DRAWER_HANDLE_LOCAL_M);
     let out = move |sim: &Simulation| body_dir(sim, drawer, DRAWER_OUT_LOCAL);
     let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
-    // the fingers' centre sits a little outward of the bar so the inner finger clears it and the drawer front
-    const CENTRE_OUT_M: f64 = 0.005;
-    let rot = move |sim: &Simulation, ctx: &PhaseCtx| open_along(&ctx.home_rot, out(sim));
-    let pre = move |sim: &Simulation, up_m: f64| handle(sim) + out(sim) * CENTRE_OUT_M + UP * up_m;
+    // fingers along the pull, then the hand tipped a quarter about the horizontal across the pull: it points into
+    // the drawer and the fingers open vertically
+    let rot = move |sim: &Simulation, ctx: &PhaseCtx| {
+        let o = out(sim);
+        rotate_world(&open_along(&ctx.home_rot, o), UP.cross(&o), std::f64::consts::FRAC_PI_2)
+    };
+    // the grip site a few millimetres past the bar's centre: the pads sit just behind the site
+    let at = move |sim: &Simulation, out_m: f64| handle(sim) + out(sim) * out_m;
     Ok(Box::new(Script::new(vec![
-        Phase::new("above_handle", move |sim, ctx| Goal::at(pre(sim, 0.10), GRIPPER_OPEN).rotated(rot(sim, ctx)))
-            .until_reached(0.01)
-            .max_steps(120),
-        // from fully open, five closing steps bring the fingers' target to 3 cm apart; 0 then holds it there
-        Phase::new("narrow_fingers", move |sim, ctx| Goal::at(pre(sim, 0.10), GRIPPER_CLOSED).rotated(rot(sim, ctx))).for_steps(5),
-        Phase::new("over_handle", move |sim, ctx| Goal::at(pre(sim, 0.04), 0.0).slow(0.4).rotated(rot(sim, ctx)))
+        Phase::new("in_front_of_handle", move |sim, ctx| Goal::at(at(sim, 0.12), GRIPPER_OPEN).rotated(rot(sim, ctx)))
+            .until(move |sim, ctx| {
+                (grip_pose(sim).0 - at(sim, 0.12)).norm() < 0.01 && rotation_error(sim, &rot(sim, ctx)) < 0.05
+            })
+            .max_steps(150),
+        Phase::new("onto_handle", move |sim, ctx| Goal::at(at(sim, -0.003), GRIPPER_OPEN).slow(0.3).rotated(rot(sim, ctx)))
             .until_reached(0.004)
             .max_steps(80),
-        Phase::new("down_around_handle", move |sim, ctx| Goal::at(pre(sim, 0.0), 0.0).slow(0.25).rotated(rot(sim, ctx)))
-            .until_reached(0.004)
-            .max_steps(80),
-        Phase::new("grip_handle", move |sim, ctx| {
-            Goal::at(handle(sim), GRIPPER_CLOSED).rotated(rot(sim, ctx))
-        })
-        .until(settled_grip(15))
-        .max_steps(20),
+        Phase::new("grip_handle", move |sim, ctx| Goal::at(at(sim, -0.003), GRIPPER_CLOSED).rotated(rot(sim, ctx)))
+            .until(settled_grip(15))
+            .max_steps(20),
         Phase::new("pull_drawer", move |sim, ctx| {
             // lead the handle outward; the goal follows the drawer as it slides
             let lead = (q(sim) - q_goal).clamp(0.0, 0.05) + 0.01;
-            Goal::at(handle(sim) + out(sim) * lead, GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
+            Goal::at(at(sim, lead), GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
         })
         .until(move |sim, _| q(sim) <= q_goal)
         .max_steps(200),
-        Phase::new("release", move |sim, ctx| Goal::at(handle(sim), GRIPPER_OPEN).rotated(rot(sim, ctx))).for_steps(8),
-        Phase::new("lift_away", move |sim, ctx| {
-            Goal::at(handle(sim) + out(sim) * 0.03 + UP * 0.10, GRIPPER_OPEN).rotated(rot(sim, ctx))
-        })
-        .until_reached(0.02)
-        .max_steps(40),
+        Phase::new("release", move |sim, ctx| Goal::at(at(sim, 0.0), GRIPPER_OPEN).rotated(rot(sim, ctx))).for_steps(8),
+        Phase::new("back_away", move |sim, ctx| Goal::at(at(sim, 0.10), GRIPPER_OPEN).rotated(rot(sim, ctx)))
+            .until_reached(0.02)
+            .max_steps(40),
     ])))
 }
 

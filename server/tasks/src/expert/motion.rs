@@ -211,6 +211,11 @@ pub fn open_along(home_rot: &Matrix3<f64>, dir: Vector3<f64>) -> Matrix3<f64> {
     rotate_world(home_rot, Vector3::z(), phi)
 }
 
+/// Angle (rad) between the grip site's orientation and `wanted`.
+pub fn rotation_error(sim: &Simulation, wanted: &Matrix3<f64>) -> f64 {
+    Rotation3::from_matrix_unchecked(wanted * grip_pose(sim).1.transpose()).angle()
+}
+
 /// World position of a body's origin.
 pub fn body_pos(sim: &Simulation, body: usize) -> Vector3<f64> {
     vec3(&sim.data().xpos()[body])
