@@ -84,17 +84,15 @@ pub fn pick_soup_into_basket(refs: &SceneRefs, behaviour: &str) -> Result<Box<dy
     ])))
 }
 
-/// Plate contact radius (m) for the pusher: the LIBERO scanned plate's rim reaches ≈ 0.065 m from its origin.
-const PLATE_RADIUS_M: f64 = 0.07;
-
-/// T12: fingers open and lowered behind the plate make a wide paddle (turned so its width is across the push);
-/// each step the paddle is placed behind the plate on the line from the plate to the zone's centre and pushed
-/// forward, so the plate steers toward the centre. `push_short` stops with the plate 9 cm short of the centre
-/// (outside the zone's ±4 cm).
+/// T12: the plate starts just in front of the cabinet, whose drawer handles leave no room for the hand behind it,
+/// so the hand works from inside the dish: fingers open and turned across the push, lowered onto the plate's floor
+/// a little behind its centre, then moved toward the zone's centre with the goal recomputed from the plate every
+/// step; the fingers drag the dish and bear on its inner rim. `push_short` stops with the plate 9 cm short of the
+/// centre (outside the zone's ±4 cm).
 pub fn push_plate(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
     let plate = refs.instance_body("plate_1")?;
     let zone = refs.site("main_table_stove_front_region")?;
-    let stop_m = if behaviour == SOLVE { 0.006 } else { 0.09 };
+    let stop_m = if behaviour == SOLVE { 0.012 } else { 0.09 };
     let plate_pos = move |sim: &Simulation| body_pos(sim, plate);
     let centre = move |sim: &Simulation| vec3(&sim.data().site_xpos()[zone]);
     let dir = move |sim: &Simulation| {
@@ -106,30 +104,34 @@ pub fn push_plate(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, 
         Vector3::new(-d.y, d.x, 0.0)
     };
     let remaining = move |sim: &Simulation| flat(centre(sim) - plate_pos(sim)).norm();
-    let push_z = move |sim: &Simulation| plate_pos(sim).z + 0.025;
-    let behind = move |sim: &Simulation, extra: f64| {
+    // the grip site over the dish, `behind_m` back from its centre along the push, `up_m` above its origin
+    let over = move |sim: &Simulation, behind_m: f64, up_m: f64| {
         let p = plate_pos(sim);
-        let b = flat(p) - dir(sim) * (PLATE_RADIUS_M + extra);
-        Vector3::new(b.x, b.y, push_z(sim))
+        Vector3::new(p.x, p.y, p.z + up_m) - dir(sim) * behind_m
     };
+    const PUSH_UP_M: f64 = 0.02;
+    const BEHIND_M: f64 = 0.02;
+    let rot = move |sim: &Simulation, ctx: &PhaseCtx| open_along(&ctx.home_rot, across(sim));
     Ok(Box::new(Script::new(vec![
-        Phase::new("above_behind_plate", move |sim, ctx| {
-            Goal::at(behind(sim, 0.03) + UP * 0.10, GRIPPER_OPEN).rotated(open_along(&ctx.home_rot, across(sim)))
+        Phase::new("above_plate", move |sim, ctx| Goal::at(over(sim, BEHIND_M, 0.12), GRIPPER_OPEN).rotated(rot(sim, ctx)))
+            .until_reached(0.01)
+            .max_steps(150),
+        Phase::new("into_plate", move |sim, ctx| {
+            Goal::at(over(sim, BEHIND_M, PUSH_UP_M), GRIPPER_OPEN).slow(0.4).rotated(rot(sim, ctx))
         })
-        .until_reached(0.015)
-        .max_steps(150),
-        Phase::new("down_behind_plate", move |sim, ctx| {
-            Goal::at(behind(sim, 0.03), GRIPPER_OPEN).slow(0.6).rotated(open_along(&ctx.home_rot, across(sim)))
-        })
-        .until_reached(0.008)
+        .until_reached(0.006)
         .max_steps(80),
         Phase::new("push_plate", move |sim, ctx| {
-            let lead = remaining(sim).min(0.04);
-            Goal::at(behind(sim, 0.0) + dir(sim) * lead, GRIPPER_OPEN).slow(0.4).rotated(open_along(&ctx.home_rot, across(sim)))
+            // the fingers come to bear on the rim ≈ 4 cm ahead of where they went in: lead beyond that, by less as
+            // the plate nears the centre
+            let lead = 0.04 + remaining(sim).min(0.04);
+            // slower near the centre so the dish does not coast past it
+            let speed = (0.1 + 4.0 * remaining(sim)).min(0.4);
+            Goal::at(over(sim, BEHIND_M, PUSH_UP_M) + dir(sim) * lead, GRIPPER_OPEN).slow(speed).rotated(rot(sim, ctx))
         })
         .until(move |sim, _| remaining(sim) <= stop_m)
         .max_steps(300),
-        Phase::new("back_off", move |sim, ctx| {
+        Phase::new("lift_away", move |sim, ctx| {
             Goal::at(ctx.start_pos_m + UP * 0.10, GRIPPER_OPEN).rotated(grip_pose(sim).1)
         })
         .until_reached(0.02)
