@@ -38,7 +38,7 @@ pub fn pick_soup_into_basket(refs: &SceneRefs, behaviour: &str) -> Result<Box<dy
     };
     let carry_z = move |sim: &Simulation| body_pos(sim, basket).z + 0.26;
     let drop_z = move |sim: &Simulation, start_z: f64| {
-        if beside { start_z } else { vec3(&sim.data().site_xpos()[region]).z + 0.01 }
+        if beside { start_z } else { vec3(&sim.data().site_xpos()[region]).z + 0.035 }
     };
     // the held orientation is whatever the grasp ended with: keep it (the can hangs across the fingers)
     let held = std::sync::Arc::new(std::sync::Mutex::new(None::<nalgebra::Matrix3<f64>>));
@@ -78,9 +78,11 @@ pub fn pick_soup_into_basket(refs: &SceneRefs, behaviour: &str) -> Result<Box<dy
             Goal::at(drop_xy(sim) + UP * z, GRIPPER_CLOSED).slow(0.5).rotated(hold(&held, ctx))
         })
         .until_reached(0.01)
-        .max_steps(80),
-        Phase::new("release", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN)).for_steps(10),
-        Phase::new("lift_away", move |_, ctx| Goal::at(ctx.start_pos_m + UP * 0.12, GRIPPER_OPEN)).until_reached(0.02).max_steps(40),
+        .max_steps(50),
+        Phase::new("release", move |sim, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(grip_pose(sim).1)).for_steps(10),
+        Phase::new("lift_away", move |sim, ctx| Goal::at(ctx.start_pos_m + UP * 0.12, GRIPPER_OPEN).rotated(grip_pose(sim).1))
+            .until_reached(0.02)
+            .max_steps(40),
     ])))
 }
 

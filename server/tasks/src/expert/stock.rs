@@ -9,6 +9,7 @@ use crate::TasksError;
 
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     Some(match task_id {
+        "T11" => &["drop_beside"],
         "T12" => &["push_short"],
         "T14" => &["push_half"],
         "T15" => &["pull_half"],
