@@ -6,7 +6,7 @@ use libero_sim::Simulation;
 
 use super::motion::{
     GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, body_point, grip_pose, open_along,
-    rotate_world, rotation_error, vec3,
+    open_along_near,    rotate_world, rotation_error, vec3,
 };
 use super::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
@@ -40,7 +40,8 @@ impl HingeHand {
     fn rot(&self, sim: &Simulation, ctx: &PhaseCtx, angle: f64) -> Matrix3<f64> {
         let axis = Unit::new_normalize(self.axis(sim));
         let dir0 = Rotation3::from_axis_angle(&axis, -self.q(sim)) * body_dir(sim, self.body, self.local_dir);
-        rotate_world(&open_along(&ctx.home_rot, dir0), *axis, angle)
+        // prefer a small positive turn: the microwave door's plane lies right at the ±π/2 tie
+        rotate_world(&open_along_near(&ctx.home_rot, dir0, 0.3), *axis, angle)
     }
 }
 
@@ -52,8 +53,11 @@ fn reach_and_grip(
     rot: impl Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Copy + Send + 'static,
 ) -> Vec<Phase> {
     vec![
+        // turned fully before going down: a hand still turning sweeps its fingers into the part
         Phase::new(names[0], move |sim, ctx| Goal::at(grasp(sim) + UP * 0.10, GRIPPER_OPEN).rotated(rot(sim, ctx)))
-            .until_reached(0.01)
+            .until(move |sim, ctx| {
+                (grip_pose(sim).0 - (grasp(sim) + UP * 0.10)).norm() < 0.01 && rotation_error(sim, &rot(sim, ctx)) < 0.05
+            })
             .max_steps(120),
         Phase::new(names[1], move |sim, ctx| Goal::at(grasp(sim) + UP * 0.03, GRIPPER_OPEN).slow(0.4).rotated(rot(sim, ctx)))
             .until_reached(0.006)
@@ -118,7 +122,7 @@ pub fn open_top_drawer(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expe
 
 /// LIBERO microwave: a point on the door handle (vertical capsule) a little below its upper standoff, in the door
 /// body's frame; the door's local +x runs from the hinge toward the handle.
-const MICROWAVE_GRASP_LOCAL_M: [f64; 3] = [0.2375, -0.054, 0.035];
+const MICROWAVE_GRASP_LOCAL_M: [f64; 3] = [0.2375, -0.058, 0.050];
 
 /// T16: grasp the handle from above (fingers opening along the door plane), then carry it along the arc about the
 /// hinge, the goal leading the door by a fixed angle and the hand turning with the door, until the hinge reads
@@ -134,7 +138,7 @@ pub fn open_microwave(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Exper
     let hand = HingeHand { body: door, local_dir: [1.0, 0.0, 0.0], joint, q_adr };
     let axis = move |sim: &Simulation| hand.axis(sim);
     let rot_at = move |sim: &Simulation, ctx: &PhaseCtx, angle: f64| hand.rot(sim, ctx, angle);
-    const LEAD_RAD: f64 = 0.3;
+    const LEAD_RAD: f64 = 0.15;
     let mut phases = reach_and_grip(["above_handle", "near_handle", "down_to_handle", "grip_handle"], grasp, move |sim, ctx| {
         rot_at(sim, ctx, q(sim))
     });
@@ -144,13 +148,18 @@ pub fn open_microwave(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Exper
             let spin = Rotation3::from_axis_angle(&Unit::new_normalize(axis(sim)), -lead);
             let a = anchor(sim);
             let target = a + spin * (grasp(sim) - a);
-            Goal::at(target, GRIPPER_CLOSED).slow(0.5).rotated(rot_at(sim, ctx, q(sim) - lead))
+            // the handle ends near the arm's reach: tip the fingers away from the robot as the door opens (about
+            // the fingers' opening axis, the door's plane), which brings the wrist back toward the base
+            let a = body_dir(sim, door, [1.0, 0.0, 0.0]);
+            let tilt = -0.6 * (-q(sim) / 1.45).clamp(0.0, 1.0);
+            Goal::at(target, GRIPPER_CLOSED).slow(0.3).rotated(rotate_world(&rot_at(sim, ctx, q(sim) - lead), a, tilt))
         })
         .until(move |sim, _| q(sim) <= q_goal)
         .max_steps(300),
-        Phase::new("release", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_OPEN).rotated(rot_at(sim, ctx, q(sim)))).for_steps(8),
+        // keep the tipped hand as it is while letting go and rising: turning it back near the door swats it shut
+        Phase::new("release", move |sim, _| Goal::at(grasp(sim), GRIPPER_OPEN).rotated(grip_pose(sim).1)).for_steps(8),
         Phase::new("lift_away", move |sim, ctx| {
-            Goal::at(grasp(sim) + UP * 0.12, GRIPPER_OPEN).rotated(rot_at(sim, ctx, q(sim)))
+            Goal::at(ctx.start_pos_m + UP * 0.12, GRIPPER_OPEN).rotated(grip_pose(sim).1)
         })
         .until_reached(0.02)
         .max_steps(40),

@@ -13,6 +13,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         "T12" => &["push_short"],
         "T14" => &["push_half"],
         "T15" => &["pull_half"],
+        "T16" => &["open_partly"],
         "T17" => &["turn_slightly"],
         _ => return None,
     })
