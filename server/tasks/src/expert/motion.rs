@@ -222,16 +222,3 @@ pub fn rotation_error(sim: &Simulation, wanted: &Matrix3<f64>) -> f64 {
 pub fn body_pos(sim: &Simulation, body: usize) -> Vector3<f64> {
     vec3(&sim.data().xpos()[body])
 }
-
-/// Gripper command that brings the finger opening toward `width_m` and then holds it (the command ramps the
-/// fingers' target by an eighth of the full range per control step; 0 holds the target where it is).
-pub fn width_command(sim: &Simulation, width_m: f64) -> f64 {
-    let w = gripper_width_m(sim);
-    if w > width_m + 0.004 {
-        GRIPPER_CLOSED
-    } else if w < width_m - 0.004 {
-        GRIPPER_OPEN
-    } else {
-        0.0
-    }
-}
