@@ -6,7 +6,9 @@
 //! (wrong object, drawer half open, …). An expert only ever acts through `osc_sequence`; the episode crate runs it on a
 //! lockstep replica of the episode's simulation.
 mod adapted;
+mod articulated;
 pub mod motion;
+mod objects;
 mod stock;
 mod vlabench;
 

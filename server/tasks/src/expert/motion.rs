@@ -197,3 +197,28 @@ impl Script {
         self.phases.get(self.current).map(|p| p.name)
     }
 }
+
+/// The home orientation turned about world z so that the fingers open along the horizontal direction `dir`
+/// (at home they open along world y; the turn is the smaller of the two that fit, |angle| ≤ π/2).
+pub fn open_along(home_rot: &Matrix3<f64>, dir: Vector3<f64>) -> Matrix3<f64> {
+    open_along_near(home_rot, dir, 0.0)
+}
+
+/// As [`open_along`], choosing of the two turns that fit the one nearest `prefer_rad`: for a direction near the
+/// ±π/2 tie a fixed preference keeps the choice from flipping by π with numerical noise.
+pub fn open_along_near(home_rot: &Matrix3<f64>, dir: Vector3<f64>, prefer_rad: f64) -> Matrix3<f64> {
+    use std::f64::consts::PI;
+    let phi = dir.y.atan2(dir.x) - std::f64::consts::FRAC_PI_2;
+    let phi = phi - PI * ((phi - prefer_rad) / PI).round();
+    rotate_world(home_rot, Vector3::z(), phi)
+}
+
+/// Angle (rad) between the grip site's orientation and `wanted`.
+pub fn rotation_error(sim: &Simulation, wanted: &Matrix3<f64>) -> f64 {
+    Rotation3::from_matrix_unchecked(wanted * grip_pose(sim).1.transpose()).angle()
+}
+
+/// World position of a body's origin.
+pub fn body_pos(sim: &Simulation, body: usize) -> Vector3<f64> {
+    vec3(&sim.data().xpos()[body])
+}

@@ -9,14 +9,24 @@ use crate::TasksError;
 
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     Some(match task_id {
+        "T11" => &["drop_beside"],
+        "T12" => &["push_short"],
         "T14" => &["push_half"],
+        "T15" => &["pull_half"],
+        "T16" => &["open_partly"],
+        "T17" => &["turn_slightly"],
         _ => return None,
     })
 }
 
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
     match task_id {
+        "T11" => super::objects::pick_soup_into_basket(refs, behaviour),
+        "T12" => super::objects::push_plate(refs, behaviour),
         "T14" => close_top_drawer(refs, behaviour),
+        "T15" => super::articulated::open_top_drawer(refs, behaviour),
+        "T16" => super::articulated::open_microwave(refs, behaviour),
+        "T17" => super::articulated::turn_on_stove(refs, behaviour),
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
