@@ -21,8 +21,8 @@ use crate::serve::client::{McpClient, prepare_episode};
 #[derive(clap::Args, Debug)]
 pub struct ExpertArgs {
     /// Release task (`T14`, …).
-    #[arg(long)]
-    pub task: String,
+    #[arg(long, required_unless_present = "list")]
+    pub task: Option<String>,
     /// How many episodes to run.
     #[arg(long, default_value_t = 1)]
     pub runs: u32,
@@ -85,7 +85,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     if args.list {
         return list();
     }
-    let task_id = args.task.trim().to_ascii_uppercase();
+    let task_id = args.task.as_deref().unwrap_or_default().trim().to_ascii_uppercase();
     if expert::behaviours(&task_id).is_none() {
         bail!("task {task_id} has no scripted expert (see `libero-agent expert --list`)");
     }
