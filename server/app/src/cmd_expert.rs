@@ -49,6 +49,9 @@ pub struct ExpertArgs {
     /// Joint whose qpos `--trace` prints (repeatable).
     #[arg(long = "watch-joint")]
     pub watch_joints: Vec<String>,
+    /// Body whose world position `--trace` prints (repeatable).
+    #[arg(long = "watch-body")]
+    pub watch_bodies: Vec<String>,
     /// Do not record the private continuous video (faster; verdicts and action logs are unaffected).
     #[arg(long)]
     pub no_video: bool,
@@ -142,6 +145,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "completed_stage_count": record["completed_required_stage_count"],
             "required_stage_count": record["required_stage_count"],
             "completed_stage_names": record["completed_stage_names"],
+            "stage_regressions": record["stage_regressions"],
             "failure_reason": record["failure_reason"],
             "first_commitment": record["first_commitment"],
             "osc_sequence_calls": run.osc_calls,
@@ -155,23 +159,36 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `(name, id)` of the named model objects of `kind`, warning about names the model lacks.
+fn lookup(model: &libero_sim::mujoco_rs::prelude::MjModel, kind: libero_sim::mujoco_rs::prelude::MjtObjBase, names: &[String]) -> Vec<(String, usize)> {
+    names
+        .iter()
+        .filter_map(|n| {
+            let id = model.name_to_id(kind, n);
+            if id.is_none() {
+                eprintln!("warning: no {kind:?} {n:?}");
+            }
+            id.map(|id| (n.clone(), id))
+        })
+        .collect()
+}
+
 fn trace(args: &ExpertArgs, spec: &WorldSpec, task_id: &str) -> anyhow::Result<()> {
+    use libero_sim::mujoco_rs::prelude::MjtObjBase;
     let mut watch: Option<Vec<(String, usize)>> = None;
+    let mut bodies: Option<Vec<(String, usize)>> = None;
     let record = run_replica_only(spec, task_id, &args.behaviour, args.max_actions, |t, sim| {
         let watch = watch.get_or_insert_with(|| {
             let model = sim.model();
-            args.watch_joints
-                .iter()
-                .filter_map(|n| {
-                    let j = model.name_to_id(libero_sim::mujoco_rs::prelude::MjtObjBase::mjOBJ_JOINT, n);
-                    if j.is_none() {
-                        eprintln!("warning: no joint {n:?}");
-                    }
-                    j.map(|j| (n.clone(), model.jnt_qposadr()[j] as usize))
-                })
-                .collect()
+            let joints = lookup(model, MjtObjBase::mjOBJ_JOINT, &args.watch_joints);
+            joints.into_iter().map(|(n, j)| (n, model.jnt_qposadr()[j] as usize)).collect()
         });
+        let bodies = bodies.get_or_insert_with(|| lookup(sim.model(), MjtObjBase::mjOBJ_BODY, &args.watch_bodies));
         let mut line = json!(t);
+        for (name, b) in bodies.iter() {
+            let p = sim.data().xpos()[*b];
+            line[name.as_str()] = json!([(p[0] * 1e4).round() / 1e4, (p[1] * 1e4).round() / 1e4, (p[2] * 1e4).round() / 1e4]);
+        }
         for (name, adr) in watch.iter() {
             line[name.as_str()] = json!(sim.data().qpos()[*adr]);
         }
