@@ -145,6 +145,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "completed_stage_count": record["completed_required_stage_count"],
             "required_stage_count": record["required_stage_count"],
             "completed_stage_names": record["completed_stage_names"],
+            "stage_regressions": record["stage_regressions"],
             "failure_reason": record["failure_reason"],
             "first_commitment": record["first_commitment"],
             "osc_sequence_calls": run.osc_calls,
@@ -188,6 +189,10 @@ fn trace(args: &ExpertArgs, spec: &WorldSpec, task_id: &str) -> anyhow::Result<(
         });
         let bodies = bodies.get_or_insert_with(|| named_ids(sim.model(), MjtObjBase::mjOBJ_BODY, &args.watch_bodies));
         let mut line = json!(t);
+        for (name, b) in bodies.iter() {
+            let p = sim.data().xpos()[*b];
+            line[name.as_str()] = json!([(p[0] * 1e4).round() / 1e4, (p[1] * 1e4).round() / 1e4, (p[2] * 1e4).round() / 1e4]);
+        }
         for (name, adr) in watch.iter() {
             line[name.as_str()] = json!(sim.data().qpos()[*adr]);
         }

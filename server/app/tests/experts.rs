@@ -73,6 +73,14 @@ fn check_task(task: &str, behaviours: &[String]) {
         let (_, r) = run(task, b, 1);
         assert_eq!(r[0]["success"], false, "{task}: near-miss {b} must fail: {}", r[0]);
         assert!(r[0]["actions"].as_u64().is_some_and(|n| n > 0), "{task} {b} must act: {}", r[0]);
+        // long-horizon behaviours: `partial_<n>` completes exactly n stages; `undo` completes a stage and undoes it
+        if let Some(n) = b.strip_prefix("partial_").and_then(|n| n.parse::<u64>().ok()) {
+            assert_eq!(r[0]["completed_stage_count"].as_u64(), Some(n), "{task} {b}: exactly {n} stages: {}", r[0]);
+        }
+        if b == "undo" {
+            let regressions = r[0]["stage_regressions"].as_array().map_or(0, Vec::len);
+            assert!(regressions > 0, "{task} undo: the evaluator must record the regression: {}", r[0]);
+        }
     }
 }
 

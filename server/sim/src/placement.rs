@@ -317,8 +317,13 @@ impl Placement {
                     in_site_sample(rng, obj, reference.pos, s, &placed)?
                 } else {
                     let half = [region.size.first().copied().unwrap_or(0.0), region.size.get(1).copied().unwrap_or(0.0)];
-                    let xr = [[-half[0] / 2.0, half[0] / 2.0]];
-                    let yr = [[-half[1] / 2.0, half[1] / 2.0]];
+                    // Project extension (no stock BDDL gives an object-owned region ranges): explicit `:ranges`
+                    // replace LIBERO's `±size/2`, as offsets from the site, so several objects fit on one surface.
+                    let (xr, yr) = if region.ranges.is_empty() {
+                        (vec![[-half[0] / 2.0, half[0] / 2.0]], vec![[-half[1] / 2.0, half[1] / 2.0]])
+                    } else {
+                        xy_ranges(&region.ranges)
+                    };
                     let base = [reference.pos[0], reference.pos[1], reference.pos[2] + reference.top_z];
                     site_region_sample(rng, obj, &xr, &yr, base, s, &placed)?
                 };

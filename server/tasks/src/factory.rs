@@ -10,6 +10,7 @@ use crate::commitment::CommitmentTracker;
 use crate::evaluator::Evaluator;
 use crate::goal::GoalChecker;
 use crate::pour::{self, PourWine};
+use crate::staged::{self, StagedEvaluator};
 use crate::tube_insertion::{self, TubeInsertion};
 use crate::wipe::{self, SpillWipe};
 
@@ -21,6 +22,8 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     tube_insertion::CHECKER,
     wipe::CHECKER,
     pour::CHECKER,
+    staged::CHECKER_ORDERED,
+    staged::CHECKER_UNORDERED,
 ];
 
 /// The scene's BDDL goal (a diagnostic for private evaluators) and its first-commitment tracker.
@@ -78,6 +81,11 @@ pub fn build_evaluator(
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(PourWine::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        staged::CHECKER_ORDERED | staged::CHECKER_UNORDERED => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(StagedEvaluator::new(kind, p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

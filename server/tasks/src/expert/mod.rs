@@ -7,6 +7,7 @@
 //! lockstep replica of the episode's simulation.
 mod adapted;
 mod articulated;
+mod long;
 pub mod motion;
 mod objects;
 mod stock;
@@ -85,7 +86,10 @@ impl<'a> SceneRefs<'a> {
 
 /// The tasks that have an expert, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    stock::behaviours(task_id).or_else(|| vlabench::behaviours(task_id)).or_else(|| adapted::behaviours(task_id))
+    stock::behaviours(task_id)
+        .or_else(|| vlabench::behaviours(task_id))
+        .or_else(|| adapted::behaviours(task_id))
+        .or_else(|| long::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -107,7 +111,9 @@ pub fn expert_for(
         stock::build(task_id, behaviour, &refs)
     } else if vlabench::behaviours(task_id).is_some() {
         vlabench::build(task_id, behaviour, &refs)
-    } else {
+    } else if adapted::behaviours(task_id).is_some() {
         adapted::build(task_id, behaviour, &refs)
+    } else {
+        long::build(task_id, behaviour, &refs)
     }
 }
