@@ -5,7 +5,7 @@
 //! episodes ran on the batch's own in-process server), the ablation table, progress, and batch selection.
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use common::{Server, bin, http_get_json, http_get_text};
@@ -42,8 +42,9 @@ fn write_ablation_batch(dir: &Path) {
     std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
 }
 
-#[test]
-fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
+/// A reference-agent T14 batch (2 rollouts) in `<data>/batches/main`, the ablation fixture under `extra/`, and a
+/// server that sees both.
+fn setup() -> (tempfile::TempDir, Server, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     let batch = data.join("batches/main");
@@ -58,6 +59,12 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     write_ablation_batch(&extra.join("abl"));
 
     let server = Server::start_with(&data, &["--batches", extra.to_str().unwrap()]);
+    (dir, server, batch)
+}
+
+#[test]
+fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
+    let (_dir, server, batch) = setup();
 
     // The JSON: both batches, the main one with exactly the report's rows.
     let (status, all) = http_get_json(&format!("{}/api/results", server.url));
@@ -110,4 +117,35 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     assert!(html.contains("<td>T14</td>") && !html.contains("<td>T11</td>") && !html.contains("http-equiv=\"refresh\""));
     let (status, _) = http_get_json(&format!("{}/api/results?batch=nope", server.url));
     assert_eq!(status, 404);
+}
+
+/// Chromium opens `/results` and clicks a T14 rollout through to its review page. Needs `python3
+/// scripts/setup.py --test` (chromium, node, playwright-core); fails saying so otherwise.
+#[test]
+fn chromium_clicks_a_results_cell_through_to_the_review() {
+    let chromium = std::env::var_os("LIBERO_AGENT_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| "/usr/bin/chromium".into());
+    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
+    let node_modules = cache.join("node/node_modules");
+    assert!(
+        chromium.is_file() && node_modules.join("playwright-core/package.json").is_file(),
+        "chromium or playwright-core missing: run `python3 scripts/setup.py --test`"
+    );
+    let (_dir, server, _batch) = setup();
+    let artifacts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/dashboard");
+    std::fs::create_dir_all(&artifacts).unwrap();
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/dashboard/results_click.cjs");
+    let out = Command::new("node")
+        .arg(script)
+        .args([server.url.as_str(), "T14"])
+        .arg(&artifacts)
+        .env("NODE_PATH", &node_modules)
+        .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .output()
+        .expect("run node (Debian: apt-get install nodejs)");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    eprintln!("{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    let last: Value = stdout.lines().last().and_then(|l| serde_json::from_str(l).ok()).expect("a JSON line from the script");
+    assert_eq!(last["ok"], true, "{last}");
 }
