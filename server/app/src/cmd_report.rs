@@ -61,11 +61,12 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
     json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows})
 }
 
-fn pct(x: Option<f64>) -> String {
+pub(crate) fn pct(x: Option<f64>) -> String {
     x.map(|v| format!("{:.1}", 100.0 * v)).unwrap_or_else(|| "—".into())
 }
 
-fn coverage(s: &SuiteSummary, split: Split) -> String {
+/// A stable split value, with (scored/member) when the subset is partial.
+pub(crate) fn coverage(s: &SuiteSummary, split: Split) -> String {
     match s.split(split) {
         Some(sp) if sp.complete() => pct(sp.stable),
         Some(sp) => format!("{} ({}/{})", pct(sp.stable), sp.tasks_scored, sp.member_count),
@@ -73,7 +74,8 @@ fn coverage(s: &SuiteSummary, split: Split) -> String {
     }
 }
 
-fn wilson(p: &Proportion) -> String {
+/// `successes/trials = rate [low, high]` in percent.
+pub(crate) fn wilson(p: &Proportion) -> String {
     match (p.rate, p.wilson_low, p.wilson_high) {
         (Some(r), Some(lo), Some(hi)) => {
             format!("{}/{} = {:.1} [{:.1}, {:.1}]", p.successes, p.trials, 100.0 * r, 100.0 * lo, 100.0 * hi)

@@ -140,7 +140,7 @@ impl InProcessServer {
         let thread = std::thread::spawn(move || -> anyhow::Result<()> {
             let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
             runtime.block_on(async move {
-                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data), operator_token_file: None };
+                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data), operator_token_file: None, batches: vec![] };
                 let stop = async move {
                     let _ = tokio::task::spawn_blocking(move || stop_rx.recv()).await;
                     stop_reason

@@ -11,7 +11,7 @@ use askama::Template;
 use axum::Router;
 use axum::body::Body;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path, Query, Request, State};
+use axum::extract::{Path, Query, RawQuery, Request, State};
 use axum::http::{StatusCode, header};
 use axum::response::{Html, IntoResponse, Redirect, Response};
 use axum::routing::get;
@@ -22,6 +22,7 @@ use tower::ServiceExt;
 use tower_http::services::ServeFile;
 
 use super::live::Hub;
+use super::results::{self, Selection};
 use super::store::EpisodeFilter;
 use super::{App, AppState, episode_json, json_error};
 
@@ -39,6 +40,8 @@ pub fn compressed_routes() -> Router<AppState> {
         .route("/episodes/{id}/review", get(review_page))
         .route("/api/episodes/{id}/review", get(review_data))
         .route("/api/tasks", get(tasks_json))
+        .route("/results", get(results_page))
+        .route("/api/results", get(results_api))
 }
 
 /// Streams and media: never compressed (range requests, WebSocket upgrades, JPEG/PNG/MP4).
@@ -85,8 +88,84 @@ async fn stored_row(app: &App, id: &str) -> Result<super::store::EpisodeRow, Res
     }
     match app.store.get(id).await {
         Ok(Some(row)) => Ok(row),
-        Ok(None) => Err(json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
+        Ok(None) => batch_episode(app, id).await.ok_or_else(|| json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
         Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}"))),
+    }
+}
+
+/// An episode a batch ran on its own in-process server (`<batch>/server`, not this server's store): found
+/// through the batch's `rollouts.jsonl`, read from its run directory, so Results links open its review.
+async fn batch_episode(app: &App, id: &str) -> Option<super::store::EpisodeRow> {
+    let roots = app.batch_roots.clone();
+    let id = id.to_owned();
+    tokio::task::spawn_blocking(move || {
+        let run_dir = results::discover(&roots).into_iter().find_map(|(_, dir)| {
+            crate::run::batch::read_records(&dir)
+                .ok()?
+                .into_iter()
+                .find(|r| r.episode_id.as_deref() == Some(id.as_str()))
+                .and_then(|r| r.run_dir)
+        })?;
+        let run = RunDir::new(run_dir);
+        let episode = super::store::NewEpisode::from_record(&run).filter(|e| e.id == id)?;
+        let end = super::store::EpisodeEnd::from_run(&run);
+        Some(super::store::EpisodeRow {
+            episode,
+            started_at: None,
+            finished_at: end.as_ref().map(|e| e.finished_at.clone()),
+            outcome: end.as_ref().map(|e| e.outcome.as_str().to_owned()),
+            reason: end.as_ref().and_then(|e| e.reason.clone()),
+            success: end.as_ref().map(|e| e.success),
+            accepted_agent_steps: end.as_ref().and_then(|e| e.accepted_agent_steps),
+            completed_stage_count: end.as_ref().and_then(|e| e.completed_stage_count),
+            required_stage_count: end.as_ref().and_then(|e| e.required_stage_count),
+            wall_time_s: end.as_ref().and_then(|e| e.wall_time_s),
+        })
+    })
+    .await
+    .ok()
+    .flatten()
+}
+
+// ---------------------------------------------------------------------------------------------- results page
+
+#[derive(Template)]
+#[template(path = "results.html")]
+struct ResultsPage {
+    available: Vec<(String, bool)>,
+    reps: String,
+    view: results::View,
+}
+
+/// Loads the selected batches off the async workers (they are files of any size).
+async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<crate::run::batch::LoadedBatch>), Response> {
+    let (roots, sel) = (app.batch_roots.clone(), sel.clone());
+    match tokio::task::spawn_blocking(move || results::load_selected(&roots, &sel)).await {
+        Ok(Ok(x)) => Ok(x),
+        Ok(Err(e)) => Err(json_error(StatusCode::NOT_FOUND, e)),
+        Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("results: {e}"))),
+    }
+}
+
+async fn results_page(State(app): State<AppState>, RawQuery(query): RawQuery) -> Response {
+    let sel = Selection::parse(query.as_deref());
+    let (names, batches) = match selected(&app, &sel).await {
+        Ok(x) => x,
+        Err(resp) => return resp,
+    };
+    let view = results::view(&batches, &sel);
+    page(ResultsPage {
+        available: names.into_iter().map(|n| (n.clone(), sel.batches.contains(&n))).collect(),
+        reps: sel.reps.map(|n| n.to_string()).unwrap_or_default(),
+        view,
+    })
+}
+
+async fn results_api(State(app): State<AppState>, RawQuery(query): RawQuery) -> Response {
+    let sel = Selection::parse(query.as_deref());
+    match selected(&app, &sel).await {
+        Ok((names, batches)) => axum::Json(results::results_json(&names, &batches, &sel)).into_response(),
+        Err(resp) => resp,
     }
 }
 

@@ -10,6 +10,7 @@ pub mod episodes;
 pub mod http_client;
 pub mod live;
 pub mod mcp;
+pub mod results;
 pub mod store;
 
 use std::collections::HashMap;
@@ -47,6 +48,10 @@ pub struct ServeArgs {
     /// beyond loopback generates one and prints it once to stderr; on loopback the dashboard is then open.
     #[arg(long)]
     pub operator_token_file: Option<PathBuf>,
+    /// More batch directories for the Results page, besides `<data>/batches/`: a batch directory itself or a
+    /// folder of them (e.g. `./agent_runs`, where `run` puts batches by default). Repeatable.
+    #[arg(long = "batches", value_name = "DIR")]
+    pub batches: Vec<PathBuf>,
 }
 
 pub fn default_data_dir() -> PathBuf {
@@ -68,6 +73,8 @@ pub struct App {
     pub operator: auth::OperatorToken,
     /// Task thumbnails render one at a time.
     thumbnail_lock: tokio::sync::Mutex<()>,
+    /// Where the Results page looks for batch directories (`results::batch_roots`).
+    pub batch_roots: Vec<PathBuf>,
 }
 
 type AppState = Arc<App>;
@@ -175,12 +182,13 @@ pub async fn serve_until(
         hubs,
         operator,
         thumbnail_lock: tokio::sync::Mutex::new(()),
+        batch_roots: results::batch_roots(&data, &args.batches),
     });
     let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
     listening(json!({
         "event": "listening", "url": base_url, "data": data,
         "recovered_invalid_episodes": recovered, "store_rows_closed_at_start": reconciled,
-        "dashboard": format!("{base_url}/"), "operator_token_required": app.operator.0.is_some(),
+        "dashboard": format!("{base_url}/"), "batch_roots": app.batch_roots, "operator_token_required": app.operator.0.is_some(),
     }));
     let stop = {
         let app = app.clone();

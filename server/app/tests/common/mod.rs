@@ -18,9 +18,15 @@ pub struct Server {
 
 impl Server {
     pub fn start(data: &Path) -> Self {
+        Self::start_with(data, &[])
+    }
+
+    /// With more `serve` arguments (e.g. `--batches DIR`).
+    pub fn start_with(data: &Path, extra: &[&str]) -> Self {
         let mut child = Command::new(bin())
             .args(["serve", "--addr", "127.0.0.1:0", "--data"])
             .arg(data)
+            .args(extra)
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
@@ -43,8 +49,8 @@ impl Drop for Server {
     }
 }
 
-/// `GET` of a loopback JSON endpoint (status, body).
-pub fn http_get_json(url: &str) -> (u16, Value) {
+/// `GET` of a loopback URL (status, body as text).
+pub fn http_get_text(url: &str) -> (u16, String) {
     let rest = url.strip_prefix("http://").expect("http url");
     let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
     let mut stream = std::net::TcpStream::connect(host).expect("connect");
@@ -52,6 +58,12 @@ pub fn http_get_json(url: &str) -> (u16, Value) {
     let mut text = String::new();
     stream.read_to_string(&mut text).unwrap();
     let status = text.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("status");
-    let body = &text[text.find("\r\n\r\n").expect("headers end") + 4..];
-    (status, serde_json::from_str(body).unwrap_or_else(|e| panic!("body {body:?} is not JSON: {e}")))
+    let body = text[text.find("\r\n\r\n").expect("headers end") + 4..].to_owned();
+    (status, body)
+}
+
+/// `GET` of a loopback JSON endpoint (status, body).
+pub fn http_get_json(url: &str) -> (u16, Value) {
+    let (status, body) = http_get_text(url);
+    (status, serde_json::from_str(&body).unwrap_or_else(|e| panic!("body {body:?} is not JSON: {e}")))
 }

@@ -1,0 +1,399 @@
+//! The Results page and `/api/results`: the paper's tables over the batch directories `libero-agent run`
+//! writes. The server finds batches under `<data>/batches/` and under every `serve --batches DIR` (a batch
+//! directory itself or a folder of them); each is read afresh per request, so a running batch's progress shows
+//! on refresh. Numbers come from [`report_json`] (the same code as `libero-agent report --format json`), one
+//! batch at a time, with the batch's own `--reps` unless `?reps=N`.
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use libero_metrics::{PAPER_REPS, Split, overall};
+use serde_json::{Value, json};
+
+use crate::cmd_report::{Row, coverage, pct, report_json, rows, wilson};
+use crate::run::batch::{LoadedBatch, RolloutRecord, load_batch};
+
+/// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
+pub fn batch_roots(data: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {
+    std::iter::once(data.join("batches")).chain(extra.iter().cloned()).collect()
+}
+
+/// Every batch directory under `roots` as (name, dir), sorted by name; a name seen twice keeps the first.
+pub fn discover(roots: &[PathBuf]) -> Vec<(String, PathBuf)> {
+    let mut found: Vec<(String, PathBuf)> = Vec::new();
+    let mut names = BTreeSet::new();
+    for root in roots {
+        let dirs: Vec<PathBuf> = if root.join("batch.json").is_file() {
+            vec![root.clone()]
+        } else {
+            let mut ds: Vec<PathBuf> = std::fs::read_dir(root)
+                .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.join("batch.json").is_file()).collect())
+                .unwrap_or_default();
+            ds.sort();
+            ds
+        };
+        for d in dirs {
+            let name = d.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            if !name.is_empty() && names.insert(name.clone()) {
+                found.push((name, d));
+            }
+        }
+    }
+    found.sort();
+    found
+}
+
+/// What a request selected: batch names (none: all) and an optional stable-rule repetition count.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct Selection {
+    pub batches: Vec<String>,
+    pub reps: Option<usize>,
+}
+
+fn percent_decode(s: &str) -> String {
+    let bytes = s.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        let hex = bytes.get(i + 1..i + 3).and_then(|h| std::str::from_utf8(h).ok()).and_then(|h| u8::from_str_radix(h, 16).ok());
+        match (bytes[i], hex) {
+            (b'+', _) => out.push(b' '),
+            (b'%', Some(b)) => {
+                out.push(b);
+                i += 2;
+            }
+            (b, _) => out.push(b),
+        }
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+impl Selection {
+    /// `batch=A&batch=B&reps=3` (repeated keys, which axum's `Query` cannot collect).
+    pub fn parse(query: Option<&str>) -> Self {
+        let mut s = Self::default();
+        for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
+            let (k, v) = pair.split_once('=').unwrap_or((pair, ""));
+            let v = percent_decode(v);
+            match k {
+                "batch" if !v.trim().is_empty() && !s.batches.contains(&v) => s.batches.push(v),
+                "reps" => s.reps = v.parse().ok().filter(|&n| n > 0),
+                _ => {}
+            }
+        }
+        s
+    }
+}
+
+/// The rule's repetition count for `b`: the request's, else the batch's `--reps`, else the paper's 3.
+fn reps_of(b: &LoadedBatch, sel: &Selection) -> usize {
+    sel.reps
+        .or_else(|| b.batch["settings"]["reps"].as_u64().map(|n| n as usize).filter(|&n| n > 0))
+        .unwrap_or(PAPER_REPS)
+}
+
+/// The selected batches (all discovered ones when none is named); an unknown name is an error naming it.
+pub fn load_selected(roots: &[PathBuf], sel: &Selection) -> Result<(Vec<String>, Vec<LoadedBatch>), String> {
+    let all = discover(roots);
+    let names: Vec<String> = all.iter().map(|(n, _)| n.clone()).collect();
+    let wanted: Vec<&(String, PathBuf)> = if sel.batches.is_empty() {
+        all.iter().collect()
+    } else {
+        let mut w = Vec::new();
+        for name in &sel.batches {
+            match all.iter().find(|(n, _)| n == name) {
+                Some(x) => w.push(x),
+                None => return Err(format!("no batch {name:?} (known: {})", names.join(", "))),
+            }
+        }
+        w
+    };
+    let mut loaded = Vec::new();
+    for (_, dir) in wanted {
+        loaded.push(load_batch(dir).map_err(|e| format!("{e:#}"))?);
+    }
+    Ok((names, loaded))
+}
+
+fn episode_json(r: &RolloutRecord) -> Value {
+    json!({
+        "rollout_id": r.rollout_id, "task": r.task, "task_number": r.task_number, "split": r.split,
+        "repetition": r.repetition, "level": r.level, "demo": r.demo, "outcome": r.outcome,
+        "completed_stages": r.completed_stages, "stage_count": r.stage_count, "episode_id": r.episode_id,
+        "review": r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")),
+        "wall_time_s": r.wall_time_s, "judgment_correct": r.judgment_correct,
+    })
+}
+
+/// `/api/results`: per batch its settings, progress, the report (as `report --format json` of that batch
+/// alone) and every recorded rollout with its review link.
+pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) -> Value {
+    let list: Vec<Value> = batches
+        .iter()
+        .map(|b| {
+            let reps = reps_of(b, sel);
+            json!({
+                "name": b.name(),
+                "dir": b.dir,
+                "status": b.batch["status"],
+                "experiment": b.batch["settings"]["experiment"],
+                "harness": b.batch["settings"]["harness"],
+                "model": b.batch["settings"]["model"],
+                "reps": reps,
+                "progress": {"rollout_count": b.batch["rollout_count"], "counts": b.batch["counts"],
+                    "running": b.batch["running"], "outcomes": b.batch["outcomes"], "updated_at": b.batch["updated_at"]},
+                "report": report_json(std::slice::from_ref(b), reps),
+                "episodes": b.records.iter().map(episode_json).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    json!({"ok": true, "schema_version": "libero_agent.results.v1", "available": names, "batches": list})
+}
+
+// ------------------------------------------------------------------------------------------- page view
+
+fn condition_label(r: &Row) -> String {
+    format!("L{}, demo {}", r.condition.level, r.condition.demo.as_str())
+}
+
+/// One line of the main table.
+pub struct MainRow {
+    pub batch: String,
+    pub agent: String,
+    pub condition: String,
+    pub reps: usize,
+    pub j: String,
+    pub p: String,
+    pub m_easy: String,
+    pub m_hard: String,
+    pub l_easy: String,
+    pub l_hard: String,
+    pub score: String,
+    /// The suite is incomplete: the Score shown is the metrics crate's lower bound.
+    pub score_is_bound: bool,
+    pub time: String,
+    pub tokens: String,
+    pub ordinary: Vec<String>,
+}
+
+/// A batch's progress line (done/running/left, outcomes so far).
+pub struct ProgressRow {
+    pub batch: String,
+    pub status: String,
+    pub experiment: String,
+    pub agent: String,
+    pub done: String,
+    pub running: String,
+    pub left: String,
+    pub outcomes: String,
+}
+
+/// One rollout in a per-task cell.
+pub struct EpisodeLink {
+    pub href: String,
+    pub label: String,
+    pub outcome: String,
+    pub title: String,
+}
+
+pub struct TaskCell {
+    /// `successes/valid` (plus excluded), empty when the column has no rollout of the task.
+    pub summary: String,
+    pub stable: String,
+    pub links: Vec<EpisodeLink>,
+}
+
+pub struct TaskRow {
+    pub task: String,
+    pub split: String,
+    pub cells: Vec<TaskCell>,
+}
+
+/// An ablation table: one line per condition of a batch.
+pub struct Ablation {
+    pub title: String,
+    pub heads: Vec<String>,
+    pub rows: Vec<Vec<String>>,
+}
+
+pub struct View {
+    pub main: Vec<MainRow>,
+    pub progress: Vec<ProgressRow>,
+    pub columns: Vec<String>,
+    pub tasks: Vec<TaskRow>,
+    pub ablations: Vec<Ablation>,
+    pub any_running: bool,
+}
+
+fn agent_of(b: &LoadedBatch) -> String {
+    format!("{} + {}", b.batch["settings"]["harness"].as_str().unwrap_or("?"), b.batch["settings"]["model"].as_str().unwrap_or("?"))
+}
+
+fn count(v: &Value) -> String {
+    v.as_u64().map(|n| n.to_string()).unwrap_or_else(|| "—".into())
+}
+
+/// Everything the page shows, from the same rows the JSON carries.
+pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
+    let mut v = View { main: vec![], progress: vec![], columns: vec![], tasks: vec![], ablations: vec![], any_running: false };
+    // (column index, batch, condition row) for the per-task table.
+    let mut task_numbers = BTreeSet::new();
+    let mut cols: Vec<(&LoadedBatch, Row)> = Vec::new();
+    for b in batches {
+        let reps = reps_of(b, sel);
+        let status = b.batch["status"].as_str().unwrap_or("?").to_owned();
+        v.any_running |= status == "running";
+        let outcomes = b.batch["outcomes"]
+            .as_object()
+            .map(|o| o.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "))
+            .filter(|s| !s.is_empty())
+            .unwrap_or_else(|| "none yet".into());
+        let experiment = b.batch["settings"]["experiment"].as_str().unwrap_or("?").to_owned();
+        v.progress.push(ProgressRow {
+            batch: b.name(),
+            status,
+            experiment: experiment.clone(),
+            agent: agent_of(b),
+            done: count(&b.batch["counts"]["done"]),
+            running: count(&b.batch["counts"]["running"]),
+            left: count(&b.batch["counts"]["left"]),
+            outcomes,
+        });
+        let batch_rows = rows(std::slice::from_ref(b), reps);
+        for r in &batch_rows {
+            let s = &r.summary;
+            v.main.push(MainRow {
+                batch: b.name(),
+                agent: agent_of(b),
+                condition: condition_label(r),
+                reps,
+                j: if s.judgment_tasks_scored == 0 {
+                    "—".into()
+                } else {
+                    format!("{} ({}/10)", pct(s.judgment), s.judgment_tasks_scored)
+                },
+                p: coverage(s, Split::Perception),
+                m_easy: coverage(s, Split::ShortHorizonEasy),
+                m_hard: coverage(s, Split::ShortHorizonHard),
+                l_easy: coverage(s, Split::LongHorizonEasy),
+                l_hard: coverage(s, Split::LongHorizonHard),
+                score: match s.score {
+                    Some(x) => format!("{x:.1}"),
+                    None => format!("≥ {:.1}", s.score_lower_bound),
+                },
+                score_is_bound: s.score.is_none(),
+                time: s.avg_wall_time_min.map(|m| format!("{m:.1} min")).unwrap_or_else(|| "—".into()),
+                tokens: s.avg_tokens_millions.map(|t| format!("{t:.2} M")).unwrap_or_else(|| "—".into()),
+                ordinary: Split::ALL
+                    .iter()
+                    .map(|sp| s.split(*sp).map(|x| wilson(&x.ordinary)).unwrap_or_default())
+                    .chain(std::iter::once(wilson(&s.ordinary)))
+                    .collect(),
+            });
+            task_numbers.extend(s.tasks.iter().map(|t| t.task_number));
+        }
+        if let Some(a) = ablation(&experiment, b, &batch_rows) {
+            v.ablations.push(a);
+        }
+        cols.extend(batch_rows.into_iter().map(|r| (b, r)));
+    }
+    v.columns = cols.iter().map(|(b, r)| format!("{} · {} ({})", b.name(), agent_of(b), condition_label(r))).collect();
+    for n in task_numbers {
+        let cells = cols
+            .iter()
+            .map(|(b, r)| {
+                let recs: Vec<&RolloutRecord> = b
+                    .records
+                    .iter()
+                    .filter(|x| x.task_number == n && x.level == r.condition.level && x.demo == r.condition.demo)
+                    .collect();
+                let t = r.summary.tasks.iter().find(|t| t.task_number == n);
+                let mut recs = recs;
+                recs.sort_by_key(|x| x.repetition);
+                TaskCell {
+                    summary: t
+                        .map(|t| {
+                            let excluded = if t.excluded_rollouts > 0 { format!(" (+{} excluded)", t.excluded_rollouts) } else { String::new() };
+                            format!("{}/{}{excluded}", t.successes, t.valid_rollouts)
+                        })
+                        .unwrap_or_default(),
+                    stable: t
+                        .map(|t| {
+                            if t.split.is_long_horizon() {
+                                format!("min c/K {}", t.stable_stage_fraction.map(|f| format!("{f:.2}")).unwrap_or_else(|| "—".into()))
+                            } else {
+                                match t.stable_success {
+                                    Some(true) => "stable".into(),
+                                    Some(false) => "not stable".into(),
+                                    None => "incomplete".into(),
+                                }
+                            }
+                        })
+                        .unwrap_or_default(),
+                    links: recs
+                        .iter()
+                        .map(|x| {
+                            let c = x.completed_stages.map(|c| c.to_string()).unwrap_or_else(|| "?".into());
+                            EpisodeLink {
+                                href: x.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")).unwrap_or_default(),
+                                label: format!("{c}/{}", x.stage_count),
+                                outcome: x.outcome.as_str().to_owned(),
+                                title: format!("repetition {}: {} ({})", x.repetition, x.outcome.as_str(), x.rollout_id),
+                            }
+                        })
+                        .collect(),
+                }
+            })
+            .collect();
+        v.tasks.push(TaskRow {
+            task: format!("T{n:02}"),
+            split: Split::of_task(n).map(|s| s.as_str().to_owned()).unwrap_or_default(),
+            cells,
+        });
+    }
+    v
+}
+
+/// The ablation tables of the paper: short-horizon manipulation by observation level, long-horizon context
+/// tasks by demonstration condition (Overall: mean of the easy and hard subsets).
+fn ablation(experiment: &str, b: &LoadedBatch, rows: &[Row]) -> Option<Ablation> {
+    let (title, by, easy, hard) = match experiment {
+        "manip_observation" => ("Observation ablation (short-horizon manipulation by level)", "Level", Split::ShortHorizonEasy, Split::ShortHorizonHard),
+        "context" => ("Context ablation (long-horizon tasks by demonstration)", "Demonstration", Split::LongHorizonEasy, Split::LongHorizonHard),
+        _ => return None,
+    };
+    let lines = rows
+        .iter()
+        .map(|r| {
+            let s = &r.summary;
+            let get = |sp| s.split(sp).and_then(|x| x.stable);
+            let both = get(easy).zip(get(hard)).map(|(e, h)| overall(e, h));
+            vec![
+                if experiment == "context" { r.condition.demo.as_str().to_owned() } else { format!("L{}", r.condition.level) },
+                coverage(s, easy),
+                coverage(s, hard),
+                pct(both),
+                wilson(&s.ordinary),
+            ]
+        })
+        .collect();
+    Some(Ablation {
+        title: format!("{title} — {} · {}", b.name(), agent_of(b)),
+        heads: vec![by.into(), easy.label().into(), hard.label().into(), "Overall".into(), "Ordinary SR [95% Wilson]".into()],
+        rows: lines,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_batch_keys_are_all_kept() {
+        let s = Selection::parse(Some("batch=a&batch=b%2Dc&reps=3&batch=a&x=1"));
+        assert_eq!(s, Selection { batches: vec!["a".into(), "b-c".into()], reps: Some(3) });
+        assert_eq!(Selection::parse(None), Selection::default());
+        assert_eq!(Selection::parse(Some("reps=0&batch=")).reps, None);
+        assert_eq!(percent_decode("100%"), "100%");
+    }
+}

@@ -1,0 +1,38 @@
+// Opens the Results page in Debian's chromium (headless, playwright-core), checks the main table and the per-task
+// table, clicks the first rollout link of task TASK and expects that episode's review page to load with its
+// result record. Usage: node results_click.cjs BASE TASK ARTIFACTS. Prints one JSON line, {"ok":true,...} or
+// {"ok":false,"error":...}. Screenshots go to ARTIFACTS.
+const { chromium } = require('playwright-core');
+const path = require('path');
+
+const [base, task, artifacts] = process.argv.slice(2);
+const executablePath = process.env.LIBERO_AGENT_CHROMIUM || '/usr/bin/chromium';
+const say = (o) => process.stdout.write(JSON.stringify(o) + '\n');
+function check(cond, what) { if (!cond) throw new Error(`check failed: ${what}`); }
+
+async function main() {
+  const browser = await chromium.launch({ executablePath, headless: true, args: ['--no-sandbox'] });
+  const errors = [];
+  try {
+    const page = await browser.newPage({ viewport: { width: 1500, height: 1000 } });
+    page.on('pageerror', (e) => errors.push(`${page.url()}: ${e}`));
+    await page.goto(`${base}/results`);
+    check(await page.locator('#main-table tbody tr').count() > 0, 'the main table has rows');
+    const row = page.locator('#per-task tbody tr', { has: page.locator('td', { hasText: new RegExp(`^${task}$`) }) });
+    const link = row.locator('a.outcome').first();
+    await link.waitFor({ timeout: 10000 });
+    const href = await link.getAttribute('href');
+    check(/^\/episodes\/[^/]+\/review$/.test(href), `a review link, got ${href}`);
+    await page.screenshot({ path: path.join(artifacts, 'results.png'), fullPage: true });
+    await Promise.all([page.waitForURL(`**${href}`, { timeout: 15000 }), link.click()]);
+    await page.waitForSelector('body[data-ready="true"]', { timeout: 30000 });
+    await page.waitForFunction(() => (document.getElementById('result') || {}).textContent?.includes('private_evaluation'), null, { timeout: 15000 });
+    await page.screenshot({ path: path.join(artifacts, 'results-review.png'), fullPage: true });
+    check(errors.length === 0, `no page errors: ${errors.join('; ')}`);
+    say({ ok: true, review: href });
+  } finally {
+    await browser.close();
+  }
+}
+
+main().catch((e) => { say({ ok: false, error: String(e && e.stack || e) }); process.exit(1); });
