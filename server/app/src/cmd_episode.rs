@@ -5,6 +5,8 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 
+use libero_episode::demo::DemoCondition;
+
 use crate::serve::episodes::PrepareRequest;
 use crate::serve::http_client::{HttpUrl, request};
 
@@ -43,6 +45,14 @@ pub struct PrepareArgs {
     pub wall_time_s: f64,
     #[arg(long, default_value_t = 1_000_000)]
     pub max_agent_steps: u64,
+    /// Demonstration at `benchmark_inputs/expert_demo/`: none, video (§7.4 video_only) or video+traj (video plus
+    /// the actions and measured end-effector states).
+    #[arg(long, default_value = "none", value_parser = parse_demo)]
+    pub demo: DemoCondition,
+}
+
+fn parse_demo(s: &str) -> Result<DemoCondition, String> {
+    DemoCondition::parse(s).ok_or_else(|| format!("{s:?} is not none, video or video+traj"))
 }
 
 pub fn run_episode(args: EpisodeArgs) -> anyhow::Result<()> {
@@ -71,6 +81,7 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         wall_time_s: p.wall_time_s,
         max_agent_steps: p.max_agent_steps,
         video: true,
+        demo: p.demo,
     };
     let base = p.server.trim_end_matches('/');
     let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;
