@@ -240,3 +240,27 @@ print("ok")
     let out = Command::new(common::python()).args(["-c", script]).arg(&dataset).arg(actions.to_string()).output().unwrap();
     assert!(out.status.success(), "{}", text(&out));
 }
+
+#[test]
+fn an_empty_library_gets_a_verified_expert_demo_on_first_use() {
+    let data = tempfile::tempdir().unwrap();
+    let server = common::Server::start(data.path());
+    let out = bin()
+        .args(["episode", "prepare", "--server", &server.url, "--task", "T14", "--level", "1", "--demo", "video"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let prepared: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let library: Vec<PathBuf> = fs::read_dir(data.path().join("demos/T14")).unwrap().flatten().map(|e| e.path()).collect();
+    assert_eq!(library.len(), 1, "one bundle recorded: {library:?}");
+    let out = validate(&library[0]);
+    assert!(out.status.success(), "{}", text(&out));
+    let manifest: Value = serde_json::from_str(&fs::read_to_string(library[0].join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["verification"]["verified"], true);
+    assert_ne!(manifest["source"]["episode_id"], prepared["episode_id"], "the demo comes from a separate episode");
+    let ws = PathBuf::from(prepared["workspace"].as_str().unwrap());
+    assert!(ws.join("benchmark_inputs/expert_demo/video/head_wrist_rgb.mp4").is_file());
+    // An unknown condition is refused by the CLI before reaching the server.
+    let out = bin().args(["episode", "prepare", "--server", &server.url, "--task", "T14", "--demo", "trajectory"]).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not none, video or video+traj"), "{}", text(&out));
+}

@@ -92,20 +92,14 @@ pub struct ProjectionReceipt {
     pub frame_count: u64,
 }
 
-fn demonstration(frame_count: u64, modalities: &[&str]) -> Value {
-    json!({
-        "episode_outcome": "verified successful demonstration",
-        "relation_to_target": "same_task_separate_episode",
-        "scene_or_object_poses_may_differ": true,
-        "modalities": modalities,
-    })
-    .as_object()
-    .map(|o| {
-        let mut o = o.clone();
-        o.insert("frame_count".into(), json!(frame_count));
-        Value::Object(o)
-    })
-    .unwrap_or(Value::Null)
+/// The `demonstration` fields every agent-visible manifest shares.
+fn demonstration(modalities: &[&str]) -> serde_json::Map<String, Value> {
+    let mut d = serde_json::Map::new();
+    d.insert("episode_outcome".into(), json!("verified successful demonstration"));
+    d.insert("relation_to_target".into(), json!("same_task_separate_episode"));
+    d.insert("scene_or_object_poses_may_differ".into(), json!(true));
+    d.insert("modalities".into(), json!(modalities));
+    d
 }
 
 /// Projects the valid, verified library bundle `source` to `dest` (which must not exist) for `condition`. The
@@ -167,11 +161,8 @@ pub fn project_bundle(
     });
     let public = match condition {
         DemoCondition::Video => {
-            let mut d = demonstration(frame_count, &["head_rgb", "wrist_rgb"]);
-            if let Some(o) = d.as_object_mut() {
-                o.remove("frame_count"); // §7.4 keeps the count inside `video`
-                o.insert("video".into(), video);
-            }
+            let mut d = demonstration(&["head_rgb", "wrist_rgb"]);
+            d.insert("video".into(), video); // §7.4 keeps the frame count inside `video`
             json!({
                 "schema_version": VIDEO_ONLY_SCHEMA,
                 "task_instruction": instruction,
@@ -181,15 +172,14 @@ pub fn project_bundle(
         }
         _ => {
             write_public_trajectory(source, &partial)?;
-            let mut d = demonstration(frame_count, &["head_rgb", "wrist_rgb", "actions", "eef_state"]);
-            if let Some(o) = d.as_object_mut() {
-                o.insert("transition_count".into(), json!(frame_count.saturating_sub(1)));
-                o.insert("actions_present".into(), json!(true));
-                o.insert("action_representation".into(), json!(ACTION_SCHEMA));
-                o.insert("measured_eef_states_are_observations".into(), json!(true));
-                o.insert("stepwise_success_present".into(), json!(false));
-                o.insert("video".into(), video);
-            }
+            let mut d = demonstration(&["head_rgb", "wrist_rgb", "actions", "eef_state"]);
+            d.insert("frame_count".into(), json!(frame_count));
+            d.insert("transition_count".into(), json!(frame_count.saturating_sub(1)));
+            d.insert("actions_present".into(), json!(true));
+            d.insert("action_representation".into(), json!(ACTION_SCHEMA));
+            d.insert("measured_eef_states_are_observations".into(), json!(true));
+            d.insert("stepwise_success_present".into(), json!(false));
+            d.insert("video".into(), video);
             json!({
                 "schema_version": VIDEO_TRAJECTORY_SCHEMA,
                 "task_instruction": instruction,
