@@ -293,3 +293,46 @@ pub fn validate_projection(dir: &Path, condition: DemoCondition) -> Vec<Violatio
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn conditions_read_and_write_the_cli_and_api_spellings() {
+        for c in [DemoCondition::None, DemoCondition::Video, DemoCondition::VideoTraj] {
+            assert_eq!(DemoCondition::parse(c.as_str()), Some(c));
+            assert_eq!(serde_json::to_value(c).unwrap(), json!(c.as_str()), "the HTTP API uses the CLI spelling");
+            assert_eq!(DemoCondition::parse(c.icl_condition()), Some(c), "§7.1 names are accepted too");
+        }
+        assert_eq!(DemoCondition::parse("trajectory"), None);
+        assert_eq!(DemoCondition::None.prompt_notice(), None, "the release prompt has no notice");
+        let video = DemoCondition::Video.prompt_notice().unwrap();
+        assert!(video.contains("benchmark_inputs/expert_demo/") && video.contains("No actions, states"));
+        let traj = DemoCondition::VideoTraj.prompt_notice().unwrap();
+        assert!(traj.contains("observations, not actions") && traj.contains("`osc_sequence` micro action"));
+    }
+
+    #[test]
+    fn a_projection_with_an_extra_file_or_a_wrong_hash_is_rejected() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        fs::create_dir_all(d.join("video/contact_sheets")).unwrap();
+        for rel in [VIDEO_HEAD_WRIST, SHEET_HEAD, SHEET_WRIST] {
+            fs::write(d.join(rel), rel).unwrap();
+        }
+        let video = json!({
+            "file": artifact(d, VIDEO_HEAD_WRIST, "video/mp4").unwrap(),
+            "contact_sheets": {"head_rgb": artifact(d, SHEET_HEAD, "image/png").unwrap(), "wrist_rgb": artifact(d, SHEET_WRIST, "image/png").unwrap()},
+        });
+        let mut demo = demonstration(&["head_rgb", "wrist_rgb"]);
+        demo.insert("video".into(), video);
+        let m = json!({"schema_version": VIDEO_ONLY_SCHEMA, "task_instruction": "x", "icl_condition": "video_only", "demonstration": demo});
+        write_json_file(&d.join(MANIFEST), &m).unwrap();
+        assert_eq!(validate_projection(d, DemoCondition::Video), vec![]);
+        fs::write(d.join(SHEET_HEAD), "changed").unwrap();
+        fs::write(d.join("extra.txt"), "x").unwrap();
+        let rules: Vec<&str> = validate_projection(d, DemoCondition::Video).iter().map(|v| v.rule).collect();
+        assert_eq!(rules, ["file_set", "sha256_mismatch"]);
+    }
+}
