@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, RwLock};
 
 use anyhow::{Context, bail};
-use libero_episode::demo::record::RecordOptions;
+use libero_episode::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
 use libero_episode::demo::{DemoCondition, library, project_bundle, record_bundle};
 use libero_episode::expert_run::run_expert;
 use libero_episode::json::{utc_now_iso, write_json_file};
@@ -245,13 +245,26 @@ impl Episodes {
         let run = run_expert(&mut handle, &spec, task_ref, libero_tasks::expert::SOLVE, 3000, |_| {});
         handle.stop("demonstration recording over");
         run.with_context(|| format!("the {task_ref} expert could not record a demonstration"))?;
-        let out = library::bundle_dir(&lib, task_ref, &prepared.episode_id);
         let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "libero-agent expert solve".into() };
-        let summary = record_bundle(&prepared.run_dir, &out, &options, self.renderer()?, &paths)?;
+        let summary = self.record_demo(&prepared.episode_id, &options)?;
         if !summary.verified {
-            bail!("the {task_ref} expert's demonstration did not verify by replay ({})", out.display());
+            bail!("the {task_ref} expert's demonstration did not verify by replay ({})", summary.dir.display());
         }
-        Ok(out)
+        Ok(summary.dir)
+    }
+
+    /// Records a finished episode of this server into the demo library (`<data>/demos/<task>/<episode id>/`):
+    /// replayed, rendered, and verified if the episode succeeded and the replay reproduces it. What the teleop
+    /// page's "save demonstration" calls.
+    pub fn record_demo(&self, episode_id: &str, options: &RecordOptions) -> anyhow::Result<BundleSummary> {
+        if episode_id.is_empty() || !episode_id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+            bail!("not an episode id: {episode_id:?}");
+        }
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        let run_dir = self.runs_dir().join(episode_id);
+        let source = SourceEpisode::read(&RunDir::new(&run_dir)).with_context(|| format!("episode {episode_id}"))?;
+        let out = library::bundle_dir(&self.demo_library(), &source.task_ref, episode_id);
+        Ok(record_bundle(&run_dir, &out, options, self.renderer()?, &paths)?)
     }
 
     pub fn count(&self) -> usize {
