@@ -11,7 +11,7 @@ Cache: $LIBERO_AGENT_CACHE, default ~/.cache/libero-agent. The repository gets o
 
 Usage: setup.py [--test] [--no-apt]
   --test    also the test extras: Debian packages for browser tests and MuJoCo's software renderer,
-            a Python venv with mujoco/numpy/pillow/mcp (the reference peer of some tests) and
+            a Python venv with mujoco/numpy/pillow/mcp/pyarrow/av (independent peers of some tests) and
             playwright-core from npm for the browser tests (they drive Debian's chromium; no browser download).
 """
 import hashlib
@@ -179,6 +179,15 @@ def setup_venv(reqs: list) -> None:
     marker = "\n".join(reqs)
     stamp = venv / ".complete"
     if stamp.exists() and stamp.read_text() == marker:
+        return
+    python = venv / "bin" / "python"
+    if stamp.exists() and python.is_file():
+        # A list that grew (or changed pins): install into the existing venv rather than recreate it, so tests
+        # of other checkouts using the same cache keep a working interpreter meanwhile.
+        say(f"updating the test venv at {venv} ({', '.join(reqs)})")
+        if subprocess.call([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", *reqs]) != 0:
+            fail("pip install into the test venv failed")
+        stamp.write_text(marker)
         return
     say(f"creating the test venv at {venv} ({', '.join(reqs)})")
     if venv.exists():

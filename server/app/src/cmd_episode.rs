@@ -5,6 +5,8 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 
+use libero_episode::demo::DemoCondition;
+
 use crate::serve::episodes::PrepareRequest;
 use crate::serve::http_client::{HttpUrl, request};
 
@@ -55,6 +57,14 @@ pub struct PrepareArgs {
     /// File holding the server's operator token (needed when the server listens beyond loopback).
     #[arg(long)]
     pub operator_token_file: Option<PathBuf>,
+    /// Demonstration at `benchmark_inputs/expert_demo/`: none, video (§7.4 video_only) or video+traj (video plus
+    /// the actions and measured end-effector states).
+    #[arg(long, default_value = "none", value_parser = parse_demo)]
+    pub demo: DemoCondition,
+}
+
+fn parse_demo(s: &str) -> Result<DemoCondition, String> {
+    DemoCondition::parse(s).ok_or_else(|| format!("{s:?} is not none, video or video+traj"))
 }
 
 pub fn run_episode(args: EpisodeArgs) -> anyhow::Result<()> {
@@ -86,6 +96,7 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         harness: p.harness,
         model: p.model,
         batch: p.batch,
+        demo: p.demo,
     };
     let base = p.server.trim_end_matches('/');
     let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;

@@ -5,6 +5,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
+use libero_episode::demo::record::RecordOptions;
+use libero_episode::demo::{library, record_bundle};
 use libero_episode::expert_run::{IDLE, ToolPort, run_expert, run_replica_only};
 use libero_episode::physics::WorldSpec;
 use libero_episode::records::read_result;
@@ -55,6 +57,10 @@ pub struct ExpertArgs {
     /// Upper bound on the actions one run may send.
     #[arg(long, default_value_t = 3000)]
     pub max_actions: u64,
+    /// Record every successful run as a demonstration bundle into this library directory
+    /// (`DIR/<task>/<episode id>/`, replayed, rendered and verified). In-process runs only.
+    #[arg(long)]
+    pub demo_out: Option<PathBuf>,
 }
 
 struct McpPort(McpClient);
@@ -102,6 +108,13 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         video: !args.no_video,
         ..PrepareRequest::new(task_id.clone())
     };
+    if args.demo_out.is_some() && args.server.is_some() {
+        bail!("--demo-out needs the run directories here: run without --server");
+    }
+    let renderer = match &args.demo_out {
+        Some(_) => Some(libero_render::Renderer::new().context("cannot open a GPU to render the demonstration")?),
+        None => None,
+    };
     let local = match &args.server {
         Some(_) => None,
         None => Some(Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?),
@@ -109,14 +122,14 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     let mut failures = 0;
     for run_index in 1..=args.runs {
         let progress = |line: &str| eprintln!("[{task_id} {} run {run_index}/{}] {line}", args.behaviour, args.runs);
-        let (episode_id, outcome, record) = match (&local, &args.server) {
+        let (episode_id, outcome, record, run_dir) = match (&local, &args.server) {
             (Some(episodes), _) => {
                 let prepared = episodes.prepare(request.clone())?;
                 let mut handle = episodes.handle(&prepared.episode_id).context("prepared episode vanished")?;
                 let outcome = run_expert(&mut handle, &spec, &task_id, &args.behaviour, args.max_actions, progress);
                 handle.stop("expert run over");
                 let record = read_result(&RunDir::new(&prepared.run_dir)).and_then(|r| r.get("private_evaluation").cloned());
-                (prepared.episode_id, outcome, record)
+                (prepared.episode_id, outcome, record, Some(prepared.run_dir))
             }
             (None, Some(server)) => {
                 let prepared = prepare_episode(server, &request)?;
@@ -125,7 +138,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
                 let mut port = McpPort(McpClient::connect_with_token(&prepared.mcp_url, token, "libero-agent-expert")?);
                 let episode_id = prepared.episode_id;
                 let outcome = run_expert(&mut port, &spec, &task_id, &args.behaviour, args.max_actions, progress);
-                (episode_id, outcome, None)
+                (episode_id, outcome, None, None)
             }
             (None, None) => unreachable!("either local or remote"),
         };
@@ -133,6 +146,20 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         let record = record.unwrap_or_else(|| run.replica_record.clone());
         let success = record["success"].as_bool().unwrap_or(false);
         failures += u32::from(!success && args.behaviour == expert::SOLVE);
+        let demo = match (&args.demo_out, &renderer, &run_dir) {
+            (Some(lib), Some(renderer), Some(run_dir)) if success => {
+                let out = library::bundle_dir(lib, &task_id, &episode_id);
+                let options = RecordOptions {
+                    source_type: "scripted_expert".into(),
+                    source_desc: format!("libero-agent expert --behaviour {}", args.behaviour),
+                };
+                let s = record_bundle(run_dir, &out, &options, renderer.clone(), &spec.paths)
+                    .with_context(|| format!("recording the demonstration of {episode_id}"))?;
+                progress(&format!("demonstration {} ({} frames, verified {})", out.display(), s.frame_count, s.verified));
+                json!({"dir": out, "frame_count": s.frame_count, "verified": s.verified})
+            }
+            _ => Value::Null,
+        };
         let line = json!({
             "task": task_id,
             "behaviour": args.behaviour,
@@ -146,6 +173,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "first_commitment": record["first_commitment"],
             "osc_sequence_calls": run.osc_calls,
             "actions": run.actions,
+            "demo": demo,
         });
         println!("{line}");
     }

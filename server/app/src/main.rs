@@ -8,6 +8,8 @@ mod cmd_tasks;
 #[cfg(feature = "episode-serve")]
 mod bench_mcp;
 #[cfg(feature = "episode-serve")]
+mod cmd_demo;
+#[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
 mod cmd_expert;
@@ -54,6 +56,9 @@ enum Command {
     /// Run a task's scripted privileged expert as episodes and print each result record as JSON.
     #[cfg(feature = "episode-serve")]
     Expert(cmd_expert::ExpertArgs),
+    /// Demonstration bundles: record from a run directory, verify by replay, validate, export to LeRobot v3.
+    #[cfg(feature = "episode-serve")]
+    Demo(cmd_demo::DemoArgs),
     /// Relay stdio MCP to an episode's HTTP endpoint (for stdio-only agent harnesses).
     #[cfg(feature = "episode-serve")]
     McpStdio(cmd_mcp_stdio::McpStdioArgs),
@@ -94,6 +99,8 @@ fn main() -> anyhow::Result<()> {
         Command::Episode(a) => cmd_episode::run_episode(a),
         #[cfg(feature = "episode-serve")]
         Command::Expert(a) => cmd_expert::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Demo(a) => cmd_demo::run(a),
         #[cfg(feature = "episode-serve")]
         Command::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
         #[cfg(feature = "episode-serve")]

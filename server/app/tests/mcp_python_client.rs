@@ -12,19 +12,10 @@ use serde_json::Value;
 const TASK: &str = "libero_object/pick_up_the_ketchup_and_place_it_in_the_basket";
 
 mod common;
-use common::{Server, bin, http_get_json};
+use common::{Server, bin, http_get_json, python};
 
 fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn python() -> PathBuf {
-    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
-    let py = cache.join("pyenv/bin/python");
-    assert!(py.is_file(), "{} missing: run `python3 scripts/setup.py --test`", py.display());
-    py
 }
 
 

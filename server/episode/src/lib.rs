@@ -3,6 +3,8 @@
 //! the evaluator-private records. No HTTP here: the `app` crate serves these over MCP.
 pub mod actor;
 pub mod call;
+#[cfg(feature = "world")]
+pub mod demo;
 pub mod error;
 pub mod expert_run;
 pub mod json;

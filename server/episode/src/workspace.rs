@@ -43,6 +43,9 @@ impl WorkspaceLayout {
     pub fn scratch(&self) -> PathBuf {
         self.root.join("scratch")
     }
+    pub fn expert_demo(&self) -> PathBuf {
+        self.root.join(EXPERT_DEMO_DIR)
+    }
 }
 
 /// What the public workspace files state about an episode.
@@ -56,7 +59,22 @@ pub struct WorkspaceContract {
     pub mcp_url: String,
     /// HTTP headers a client must send (the per-episode bearer token).
     pub mcp_headers: BTreeMap<String, String>,
+    /// Demonstration placed at `benchmark_inputs/expert_demo/`: its `icl_condition` and the §5.2 notice
+    /// (None in the release condition).
+    pub demo: Option<DemoNotice>,
 }
+
+/// What the workspace says about a placed demonstration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoNotice {
+    /// `video_only` or `video_plus_trajectory`.
+    pub icl_condition: String,
+    /// Inserted after the instruction, surrounded by newlines (§5.2).
+    pub notice: String,
+}
+
+/// Workspace-relative directory of a placed demonstration (§7.3/§7.4).
+pub const EXPERT_DEMO_DIR: &str = "benchmark_inputs/expert_demo";
 
 /// Collapses internal whitespace to single spaces (the original's instruction normalisation).
 pub fn normalize_instruction(s: &str) -> String {
@@ -65,11 +83,17 @@ pub fn normalize_instruction(s: &str) -> String {
 
 /// The release prompt (§5.1): MCP transport, no resets, no ICL notice.
 pub fn task_prompt(instruction: &str, max_wall_time_s: f64, max_agent_steps: u64) -> String {
+    task_prompt_with_notice(instruction, None, max_wall_time_s, max_agent_steps)
+}
+
+/// §5.1 with an ICL notice (§5.2) on the line after the instruction; without one that line is empty.
+pub fn task_prompt_with_notice(instruction: &str, notice: Option<&str>, max_wall_time_s: f64, max_agent_steps: u64) -> String {
     let instruction = normalize_instruction(instruction);
+    let notice = notice.map(normalize_instruction).unwrap_or_default();
     let t = format_g(max_wall_time_s);
     format!(
         "{instruction}\n\
-\n\
+{notice}\n\
 \n\
 A LIBERO episode has been prepared for you.\n\
 \n\
@@ -90,8 +114,8 @@ success.\n",
     )
 }
 
-/// `.libero/episode.json`, schema `libero.agent_workspace.v1` (§3.2), release values.
-pub fn episode_contract(max_wall_time_s: f64) -> Value {
+/// `.libero/episode.json`, schema `libero.agent_workspace.v1` (§3.2), release values except the demonstration.
+pub fn episode_contract(max_wall_time_s: f64, demo: Option<&DemoNotice>) -> Value {
     json!({
         "schema_version": "libero.agent_workspace.v1",
         "episode_resumable": false,
@@ -105,8 +129,8 @@ pub fn episode_contract(max_wall_time_s: f64) -> Value {
         "agent_step_budget_scope": "per_attempt",
         "max_wall_time_seconds": max_wall_time_s,
         "wall_time_budget_scope": "per_episode_across_resets",
-        "icl_condition": "none",
-        "expert_demo": null,
+        "icl_condition": demo.map_or("none", |d| d.icl_condition.as_str()),
+        "expert_demo": demo.map(|_| EXPERT_DEMO_DIR),
         "experience_context": null,
     })
 }
@@ -133,9 +157,10 @@ pub fn create_workspace(layout: &WorkspaceLayout, contract: &WorkspaceContract) 
     fs::create_dir_all(layout.benchmark_inputs())?;
     fs::create_dir_all(layout.private_dir())?;
     set_mode(&layout.private_dir(), 0o700)?;
-    let prompt = task_prompt(&contract.instruction, contract.max_wall_time_s, contract.max_agent_steps);
+    let notice = contract.demo.as_ref().map(|d| d.notice.as_str());
+    let prompt = task_prompt_with_notice(&contract.instruction, notice, contract.max_wall_time_s, contract.max_agent_steps);
     write_atomic(&layout.prompt_file(), prompt.as_bytes())?;
-    write_json_file(&layout.episode_json(), &episode_contract(contract.max_wall_time_s))?;
+    write_json_file(&layout.episode_json(), &episode_contract(contract.max_wall_time_s, contract.demo.as_ref()))?;
     write_json_file(&layout.mcp_json(), &mcp_config(&contract.mcp_url, &contract.mcp_headers))?;
     set_mode(&layout.mcp_json(), 0o600)
 }
@@ -166,6 +191,14 @@ mod tests {
     }
 
     #[test]
+    fn a_demo_notice_sits_on_the_line_after_the_instruction() {
+        let p = task_prompt_with_notice("open the drawer", Some("A demo is at `benchmark_inputs/expert_demo/`."), 1800.0, 10);
+        let lines: Vec<&str> = p.lines().collect();
+        assert_eq!(lines[..4], ["open the drawer", "A demo is at `benchmark_inputs/expert_demo/`.", "", "A LIBERO episode has been prepared for you."]);
+        assert_eq!(p.lines().count(), 11);
+    }
+
+    #[test]
     fn workspace_files_follow_the_contract() {
         let dir = tempfile::tempdir().unwrap();
         let layout = WorkspaceLayout::new(dir.path().join("ws"));
@@ -177,6 +210,7 @@ mod tests {
             max_wall_time_s: 1800.0,
             mcp_url: "http://127.0.0.1:9/mcp/ep1".into(),
             mcp_headers: headers,
+            demo: None,
         };
         create_workspace(&layout, &contract).unwrap();
         let episode: Value = serde_json::from_str(&fs::read_to_string(layout.episode_json()).unwrap()).unwrap();

@@ -173,6 +173,7 @@ fn a_real_level3_episode_publishes_the_observation_files_and_nothing_private() {
         max_wall_time_s: 600.0,
         mcp_url: "http://127.0.0.1:1/mcp/l3".into(),
         mcp_headers: Default::default(),
+        demo: None,
     };
     create_workspace(&WorkspaceLayout::new(&cfg.workspace), &contract).unwrap();
     let (ws, run) = (cfg.workspace.clone(), RunDir::new(&cfg.run_dir));

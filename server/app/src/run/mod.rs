@@ -26,7 +26,7 @@ use serde_json::{Value, json};
 use batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord, append_record, read_records, write_batch_json};
 use harness::{Credentials, Harness, default_credentials_file};
 use sandbox::Sandbox;
-use schedule::{Demo, Experiment, PlannedRollout, plan};
+use schedule::{Experiment, PlannedRollout, plan};
 
 use crate::serve::client::InProcessServer;
 
@@ -230,12 +230,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 args.harness.as_str(), args.reps);
         }
         return Ok(());
-    }
-    if schedule.iter().any(|r| r.demo != Demo::None) {
-        bail!(
-            "the context experiment needs demonstration bundles (video, video + trajectory) in the workspace, which \
-             episode preparation does not provide yet; use --dry-run to see its schedule"
-        );
     }
     if schedule.is_empty() {
         bail!("nothing to run");

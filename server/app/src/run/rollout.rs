@@ -10,6 +10,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use libero_episode::demo::DemoCondition;
 use libero_episode::json::{utc_now_iso, write_json_file};
 use libero_metrics::Outcome;
 use serde_json::{Value, json};
@@ -17,7 +18,7 @@ use serde_json::{Value, json};
 use super::batch::RolloutRecord;
 use super::harness::{Harness, LaunchContext, build_launch};
 use super::sandbox::{SandboxSpec, cli_install_paths, own_binary_files};
-use super::schedule::PlannedRollout;
+use super::schedule::{Demo, PlannedRollout};
 use super::usage::{Usage, usage_from_codex_session, usage_from_jsonl};
 use super::{INTERRUPTED, RunContext};
 use crate::serve::client::{get_json, post_json, prepare_episode};
@@ -175,6 +176,11 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         workspace: Some(workspace.clone()),
         wall_time_s: ctx.settings.wall_time_s,
         max_agent_steps: ctx.settings.max_agent_steps,
+        demo: match plan.demo {
+            Demo::None => DemoCondition::None,
+            Demo::Video => DemoCondition::Video,
+            Demo::VideoTraj => DemoCondition::VideoTraj,
+        },
         ..PrepareRequest::new(plan.task.clone())
     };
     let prepared = prepare_episode(&ctx.server_url, &req).context("episode preparation failed")?;

@@ -7,11 +7,15 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, RwLock};
 
 use anyhow::{Context, bail};
+use libero_episode::demo::record::RecordOptions;
+use libero_episode::demo::{DemoCondition, library, project_bundle, record_bundle};
+use libero_episode::expert_run::run_expert;
 use libero_episode::json::{utc_now_iso, write_json_file};
+use libero_episode::physics::WorldSpec as PhysicsSpec;
 use libero_episode::records::{aborted_result, read_result, write_result};
 use libero_episode::task::{TaskSource, resolve_task};
 use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
-use libero_episode::workspace::{WorkspaceContract, WorkspaceLayout, create_workspace};
+use libero_episode::workspace::{DemoNotice, WorkspaceContract, WorkspaceLayout, create_workspace};
 use libero_episode::world::{LiberoWorld, WorldSpec};
 use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode_live};
 use libero_render::Renderer;
@@ -58,6 +62,10 @@ pub struct PrepareRequest {
     pub model: Option<String>,
     #[serde(default)]
     pub batch: Option<String>,
+    /// Demonstration placed at `benchmark_inputs/expert_demo/` (`none`, `video`, `video+traj`), taken from the
+    /// server's demo library (`<data>/demos/<task>/`), recorded with the task's expert when the library has none.
+    #[serde(default)]
+    pub demo: DemoCondition,
 }
 
 fn default_video() -> bool {
@@ -79,6 +87,7 @@ impl PrepareRequest {
             harness: None,
             model: None,
             batch: None,
+            demo: DemoCondition::None,
         }
     }
 }
@@ -129,6 +138,8 @@ pub struct Episodes {
     calls: Option<tokio::sync::mpsc::UnboundedSender<String>>,
     /// Each episode's live view for the dashboard.
     live: Option<Arc<LiveHubs>>,
+    /// Serialises recording missing demonstrations, so concurrent rollouts of one task record one bundle.
+    demo_recording: Mutex<()>,
 }
 
 pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
@@ -174,7 +185,16 @@ impl Episodes {
                 None
             }
         };
-        Ok(Self { data, base_url, paths, map: RwLock::new(HashMap::new()), renderer: Mutex::new(None), calls: None, live: None })
+        Ok(Self {
+            data,
+            base_url,
+            paths,
+            map: RwLock::new(HashMap::new()),
+            renderer: Mutex::new(None),
+            calls: None,
+            live: None,
+            demo_recording: Mutex::new(()),
+        })
     }
 
     /// Reports every served tool call's episode id on `calls`.
@@ -210,6 +230,48 @@ impl Episodes {
 
     pub fn runs_dir(&self) -> PathBuf {
         self.data.join("runs")
+    }
+
+    /// The demonstration library: `<data>/demos/<task>/<source episode id>/`.
+    pub fn demo_library(&self) -> PathBuf {
+        self.data.join("demos")
+    }
+
+    /// A valid, verified library bundle of `task`; when there is none, one is recorded now from a scripted-expert
+    /// episode (a separate episode, level 1, no video) and verified by replay.
+    pub fn demo_bundle(&self, task: &TaskSource, seed: u64) -> anyhow::Result<PathBuf> {
+        let lib = self.demo_library();
+        if let Some(b) = library::find_verified(&lib, &task.task_ref, None) {
+            return Ok(b);
+        }
+        let _one_at_a_time = self.demo_recording.lock().map_err(|_| anyhow::anyhow!("demo lock poisoned"))?;
+        if let Some(b) = library::find_verified(&lib, &task.task_ref, None) {
+            return Ok(b);
+        }
+        let task_ref = task.task_ref.as_str();
+        if libero_tasks::expert::behaviours(task_ref).is_none() {
+            bail!(
+                "no verified demonstration of {task_ref} in {} and no scripted expert to record one (record one with \
+                 `libero-agent expert --task {task_ref} --demo-out {}`, or by teleoperation)",
+                library::task_dir(&lib, task_ref).display(),
+                lib.display()
+            );
+        }
+        let req = PrepareRequest { level: 1, seed, video: false, ..PrepareRequest::new(task_ref) };
+        let prepared = self.prepare(req)?;
+        let mut handle = self.handle(&prepared.episode_id).context("the demonstration episode vanished")?;
+        let paths = self.paths.clone().context("assets are missing")?;
+        let spec = PhysicsSpec { task: task.clone(), level: Level::L1, seed, init_index: 0, paths: paths.clone() };
+        let run = run_expert(&mut handle, &spec, task_ref, libero_tasks::expert::SOLVE, 3000, |_| {});
+        handle.stop("demonstration recording over");
+        run.with_context(|| format!("the {task_ref} expert could not record a demonstration"))?;
+        let out = library::bundle_dir(&lib, task_ref, &prepared.episode_id);
+        let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "libero-agent expert solve".into() };
+        let summary = record_bundle(&prepared.run_dir, &out, &options, self.renderer()?, &paths)?;
+        if !summary.verified {
+            bail!("the {task_ref} expert's demonstration did not verify by replay ({})", out.display());
+        }
+        Ok(out)
     }
 
     pub fn count(&self) -> usize {
@@ -290,6 +352,10 @@ impl Episodes {
         }
         let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
         let task: TaskSource = resolve_task(&req.task, &paths)?;
+        let demo_source = match req.demo {
+            DemoCondition::None => None,
+            _ => Some(self.demo_bundle(&task, req.seed).context("no demonstration for this episode")?),
+        };
         let episode_id = format!("ep-{}-{}", compact_utc(), random_hex(4)?);
         let token = random_hex(32)?;
         let run_dir = self.runs_dir().join(&episode_id);
@@ -317,6 +383,7 @@ impl Episodes {
             "init_state_index": req.init_index,
             "max_agent_steps": req.max_agent_steps,
             "max_wall_time_seconds": req.wall_time_s,
+            "demo": req.demo.as_str(),
             "workspace": workspace,
             "mcp_url": mcp_url,
             "harness": req.harness,
@@ -360,10 +427,20 @@ impl Episodes {
             max_wall_time_s: req.wall_time_s,
             mcp_url: mcp_url.clone(),
             mcp_headers: headers.clone(),
+            demo: req.demo.prompt_notice().map(|notice| DemoNotice { icl_condition: req.demo.icl_condition().into(), notice }),
         };
         if let Err(e) = create_workspace(&layout, &contract) {
             handle.stop(&format!("workspace creation failed: {e}"));
             return Err(e).with_context(|| format!("cannot create the workspace {}", workspace.display()));
+        }
+        if let Some(source) = &demo_source {
+            match project_bundle(source, &layout.expert_demo(), req.demo, &task.instruction) {
+                Ok(receipt) => write_json_file(&run_dir.join("icl_projection_receipt.json"), &serde_json::to_value(&receipt)?)?,
+                Err(e) => {
+                    handle.stop(&format!("demonstration placement failed: {e}"));
+                    return Err(e).context("cannot place the demonstration in the workspace");
+                }
+            }
         }
         fs::copy(layout.prompt_file(), run.agent_prompt())?;
         let mcp = EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() };

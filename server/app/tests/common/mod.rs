@@ -1,10 +1,20 @@
 //! Shared by the integration tests that run the real binary and server.
 #![allow(dead_code)]
 use std::io::{BufRead, BufReader, Read, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
 use serde_json::Value;
+
+/// The test venv's interpreter (`scripts/setup.py --test`): the independent Python peers of some tests.
+pub fn python() -> PathBuf {
+    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
+    let py = cache.join("pyenv/bin/python");
+    assert!(py.is_file(), "{} missing: run `python3 scripts/setup.py --test`", py.display());
+    py
+}
 
 pub fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")

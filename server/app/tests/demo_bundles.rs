@@ -1,0 +1,266 @@
+//! Demonstration bundles end to end through the real binary: a scripted-expert recording of T14 verifies by
+//! replay, tampered bundles fail validation naming file and rule, the agent-visible copy placed by `episode prepare
+//! --demo` holds nothing private, and the LeRobot export reads back with independent readers (pyarrow, PyAV).
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use serde_json::Value;
+
+mod common;
+
+fn bin() -> Command {
+    let mut c = Command::new(common::bin());
+    c.env("XDG_RUNTIME_DIR", std::env::temp_dir());
+    c
+}
+
+fn text(o: &Output) -> String {
+    format!("stdout:\n{}\nstderr:\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// One T14 expert episode recorded into a library (shared by the tests of this file: it takes ~40 s on a CPU).
+fn recorded() -> &'static (tempfile::TempDir, PathBuf, Value) {
+    static BUNDLE: OnceLock<(tempfile::TempDir, PathBuf, Value)> = OnceLock::new();
+    BUNDLE.get_or_init(|| {
+        let root = tempfile::tempdir().expect("tempdir");
+        let out = bin()
+            .args(["expert", "--task", "T14", "--runs", "1", "--no-video", "--data"])
+            .arg(root.path().join("data"))
+            .arg("--demo-out")
+            .arg(root.path().join("lib"))
+            .output()
+            .expect("run libero-agent expert");
+        assert!(out.status.success(), "{}", text(&out));
+        let record: Value = serde_json::from_slice(&out.stdout).expect("one JSON record");
+        let dir = PathBuf::from(record["demo"]["dir"].as_str().expect("demo.dir"));
+        (root, dir, record)
+    })
+}
+
+/// A private copy of the recorded bundle to tamper with.
+fn copy_of(src: &Path, dest: &Path) {
+    fs::create_dir_all(dest).unwrap();
+    for e in fs::read_dir(src).unwrap().flatten() {
+        let to = dest.join(e.file_name());
+        if e.file_type().unwrap().is_dir() { copy_of(&e.path(), &to) } else { fs::copy(e.path(), to).map(drop).unwrap() }
+    }
+}
+
+fn validate(dir: &Path) -> Output {
+    bin().args(["demo", "validate"]).arg(dir).output().expect("run demo validate")
+}
+
+#[test]
+fn a_t14_expert_recording_verifies_by_replay() {
+    let (_root, dir, record) = recorded();
+    assert_eq!(record["success"], true, "{record}");
+    assert_eq!(record["demo"]["verified"], true, "{record}");
+    let actions = record["actions"].as_u64().unwrap();
+    assert_eq!(record["demo"]["frame_count"].as_u64(), Some(actions + 1), "frame 0 after settling + one per action");
+    let manifest: Value = serde_json::from_str(&fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["task"]["id"], "T14");
+    assert_eq!(manifest["source"]["episode_id"], record["episode_id"]);
+    let sampled = manifest["overview"]["sampling"]["sampled_frame_indices"].as_array().unwrap();
+    assert_eq!(sampled.len(), 12);
+    assert_eq!((sampled[0].as_u64(), sampled[11].as_u64()), (Some(0), Some(actions)), "endpoints kept");
+    let rows = fs::read_to_string(dir.join("trajectory.jsonl")).unwrap().lines().count() as u64;
+    assert_eq!(rows, actions);
+    let out = validate(dir);
+    assert!(out.status.success(), "{}", text(&out));
+    // Verification replays on a copy so the shared bundle stays untouched for the other tests.
+    let copy = tempfile::tempdir().unwrap();
+    copy_of(dir, copy.path());
+    let out = bin().args(["demo", "verify"]).arg(copy.path()).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((v["replay_success"].clone(), v["verified"].clone()), (Value::Bool(true), Value::Bool(true)));
+}
+
+#[test]
+fn tampered_bundles_fail_validation_naming_file_and_rule() {
+    let (_root, dir, _) = recorded();
+    let cases: [(&str, fn(&Path), &[&str]); 4] = [
+        (
+            "edited action",
+            |b| {
+                let p = b.join("trajectory.jsonl");
+                let t = fs::read_to_string(&p).unwrap();
+                let first = t.lines().next().unwrap();
+                let mut row: Value = serde_json::from_str(first).unwrap();
+                row["action"]["normalized_vector_7d"][0] = Value::from(0.123);
+                let edited = t.replacen(first, &serde_json::to_string(&row).unwrap(), 1);
+                fs::write(&p, edited).unwrap();
+            },
+            &["trajectory.jsonl: [sha256_mismatch]"],
+        ),
+        (
+            "action out of range",
+            |b| {
+                let p = b.join("trajectory.jsonl");
+                let t = fs::read_to_string(&p).unwrap().replacen("\"normalized_vector_7d\":[", "\"normalized_vector_7d\":[1.5,", 1);
+                let t = t.replacen(",1.0],\"schema_version\"", "],\"schema_version\"", 1);
+                fs::write(&p, t).unwrap();
+            },
+            &["trajectory.jsonl: [action_out_of_range] line 1"],
+        ),
+        ("missing video", |b| fs::remove_file(b.join("video/head_rgb.mp4")).unwrap(), &["video/head_rgb.mp4: [missing_file]"]),
+        (
+            "extra file and wrong schema",
+            |b| {
+                fs::write(b.join("notes.txt"), "hi").unwrap();
+                let p = b.join("manifest.json");
+                let t = fs::read_to_string(&p).unwrap().replace("libero_agent.demonstration_bundle.v1", "v0");
+                fs::write(&p, t).unwrap();
+            },
+            &["notes.txt: [unlisted_file]", "manifest.json: [schema_version]"],
+        ),
+    ];
+    for (name, tamper, expected) in cases {
+        let copy = tempfile::tempdir().unwrap();
+        copy_of(dir, copy.path());
+        tamper(copy.path());
+        let out = validate(copy.path());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{name}: a tampered bundle passed\n{}", text(&out));
+        for e in expected {
+            assert!(stderr.contains(e), "{name}: expected {e:?} in\n{stderr}");
+        }
+        let verify = bin().args(["demo", "verify"]).arg(copy.path()).output().unwrap();
+        assert!(!verify.status.success(), "{name}: verify must refuse an invalid bundle");
+    }
+}
+
+/// Workspace files as relative paths.
+fn files_under(root: &Path) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in fs::read_dir(&d).unwrap().flatten() {
+            if e.file_type().unwrap().is_dir() {
+                stack.push(e.path());
+            } else {
+                out.push(e.path().strip_prefix(root).unwrap().to_string_lossy().into_owned());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn prepared_episodes_get_the_demo_and_notice_without_private_data() {
+    let (_root, dir, record) = recorded();
+    let data = tempfile::tempdir().unwrap();
+    copy_of(dir, &data.path().join("demos/T14").join(dir.file_name().unwrap()));
+    let server = common::Server::start(data.path());
+    for (condition, expected_files, notice) in [
+        (
+            "video",
+            vec!["manifest.json", "video/contact_sheets/head_rgb.png", "video/contact_sheets/wrist_rgb.png", "video/head_wrist_rgb.mp4"],
+            "It is RGB video only",
+        ),
+        (
+            "video+traj",
+            vec!["manifest.json", "trajectory.jsonl", "video/contact_sheets/head_rgb.png", "video/contact_sheets/wrist_rgb.png", "video/head_wrist_rgb.mp4"],
+            "The measured EEF poses are observations, not actions.",
+        ),
+    ] {
+        let out = bin()
+            .args(["episode", "prepare", "--server", &server.url, "--task", "T14", "--level", "1", "--demo", condition])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{condition}: {}", text(&out));
+        let prepared: Value = serde_json::from_slice(&out.stdout).unwrap();
+        let ws = PathBuf::from(prepared["workspace"].as_str().unwrap());
+        let demo = ws.join("benchmark_inputs/expert_demo");
+        assert_eq!(files_under(&demo), expected_files, "{condition}");
+        let prompt = fs::read_to_string(ws.join("TASK_PROMPT.txt")).unwrap();
+        let lines: Vec<&str> = prompt.lines().collect();
+        assert_eq!(lines[0], "close the top drawer of the cabinet");
+        assert!(lines[1].contains("benchmark_inputs/expert_demo/") && lines[1].contains(notice), "{condition}: {}", lines[1]);
+        assert_eq!(lines[2], "");
+        let contract: Value = serde_json::from_str(&fs::read_to_string(ws.join(".libero/episode.json")).unwrap()).unwrap();
+        assert_eq!(contract["expert_demo"], "benchmark_inputs/expert_demo");
+        // Nothing private: no source episode id, seed, init index, task id, evaluator record.
+        let source_id = record["episode_id"].as_str().unwrap();
+        for f in &expected_files {
+            if f.ends_with(".json") || f.ends_with(".jsonl") {
+                let t = fs::read_to_string(demo.join(f)).unwrap();
+                for private in [source_id, "\"seed\"", "init_state", "\"T14\"", "private_evaluation", "episode_success", "call_index"] {
+                    assert!(!t.contains(private), "{condition}: {f} leaks {private:?}");
+                }
+            }
+        }
+        let out = bin().args(["demo", "validate", "--agent", condition]).arg(&demo).output().unwrap();
+        assert!(out.status.success(), "{condition}: {}", text(&out));
+        let receipt = PathBuf::from(prepared["run_dir"].as_str().unwrap()).join("icl_projection_receipt.json");
+        let receipt: Value = serde_json::from_str(&fs::read_to_string(receipt).unwrap()).unwrap();
+        assert_eq!(receipt["source_episode_id"], source_id, "the private receipt names the source");
+        assert_ne!(prepared["episode_id"], source_id, "a separate episode");
+    }
+}
+
+#[test]
+fn the_lerobot_export_reads_back_with_pyarrow_and_pyav() {
+    let (_root, dir, record) = recorded();
+    let out_dir = tempfile::tempdir().unwrap();
+    let dataset = out_dir.path().join("lerobot");
+    let out = bin().args(["demo", "export-lerobot"]).arg(dir).arg(dir).arg("--out").arg(&dataset).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let actions = record["actions"].as_u64().unwrap();
+    let script = r#"
+import json, sys
+import pyarrow.parquet as pq, av
+root, n = sys.argv[1], int(sys.argv[2])
+info = json.load(open(f"{root}/meta/info.json"))
+assert info["codebase_version"] == "v3.0" and info["total_episodes"] == 2 and info["total_frames"] == 2 * n, info
+data = pq.read_table(f"{root}/data/chunk-000/file-000.parquet").to_pydict()
+assert len(data["action"]) == 2 * n and all(len(a) == 7 for a in data["action"])
+assert all(len(s) == 8 for s in data["observation.state"])
+assert data["index"] == list(range(2 * n)) and data["frame_index"][:n] == list(range(n))
+assert data["episode_index"] == [0] * n + [1] * n and set(data["task_index"]) == {0}
+assert data["action"][:n] == data["action"][n:], "the same bundle twice"
+eps = pq.read_table(f"{root}/meta/episodes/chunk-000/file-000.parquet").to_pylist()
+assert [e["length"] for e in eps] == [n, n] and eps[1]["dataset_from_index"] == n
+assert eps[0]["tasks"] == ["close the top drawer of the cabinet"]
+tasks = pq.read_table(f"{root}/meta/tasks.parquet").to_pylist()
+assert tasks == [{"task_index": 0, "task": "close the top drawer of the cabinet"}], tasks
+for key in ("observation.images.head", "observation.images.wrist"):
+    e = eps[1]
+    path = root + "/" + info["video_path"].format(video_key=key, chunk_index=e[f"videos/{key}/chunk_index"], file_index=e[f"videos/{key}/file_index"])
+    frames = list(av.open(path).decode(video=0))
+    assert len(frames) >= round(e[f"videos/{key}/to_timestamp"] * info["fps"]), (len(frames), e)
+    assert (frames[0].width, frames[0].height) == (256, 256)
+stats = json.load(open(f"{root}/meta/stats.json"))
+assert len(stats["action"]["mean"]) == 7 and stats["action"]["count"] == [2 * n]
+print("ok")
+"#;
+    let out = Command::new(common::python()).args(["-c", script]).arg(&dataset).arg(actions.to_string()).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+}
+
+#[test]
+fn an_empty_library_gets_a_verified_expert_demo_on_first_use() {
+    let data = tempfile::tempdir().unwrap();
+    let server = common::Server::start(data.path());
+    let out = bin()
+        .args(["episode", "prepare", "--server", &server.url, "--task", "T14", "--level", "1", "--demo", "video"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let prepared: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let library: Vec<PathBuf> = fs::read_dir(data.path().join("demos/T14")).unwrap().flatten().map(|e| e.path()).collect();
+    assert_eq!(library.len(), 1, "one bundle recorded: {library:?}");
+    let out = validate(&library[0]);
+    assert!(out.status.success(), "{}", text(&out));
+    let manifest: Value = serde_json::from_str(&fs::read_to_string(library[0].join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["verification"]["verified"], true);
+    assert_ne!(manifest["source"]["episode_id"], prepared["episode_id"], "the demo comes from a separate episode");
+    let ws = PathBuf::from(prepared["workspace"].as_str().unwrap());
+    assert!(ws.join("benchmark_inputs/expert_demo/video/head_wrist_rgb.mp4").is_file());
+    // An unknown condition is refused by the CLI before reaching the server.
+    let out = bin().args(["episode", "prepare", "--server", &server.url, "--task", "T14", "--demo", "trajectory"]).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not none, video or video+traj"), "{}", text(&out));
+}

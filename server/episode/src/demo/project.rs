@@ -1,0 +1,295 @@
+//! The agent-visible copy of a library bundle at `benchmark_inputs/expert_demo/` (§7.4, and our layout for video +
+//! trajectory, which the original never defined: §12 item 5). Nothing private travels: no source episode id, seed,
+//! init-state index, task id, evaluator record or verification details; only the instruction, the videos, the
+//! contact sheets and (video + trajectory) the actions with the measured end-effector states.
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use serde_json::{Value, json};
+
+use super::*;
+use crate::json::{compact_sorted, write_json_file};
+use crate::workspace::normalize_instruction;
+
+pub const VIDEO_ONLY_SCHEMA: &str = "libero.video_only_demo_bundle.v1";
+pub const VIDEO_TRAJECTORY_SCHEMA: &str = "libero_agent.video_trajectory_demo_bundle.v1";
+pub const RECEIPT_SCHEMA: &str = "libero_agent.demo_projection_receipt.v1";
+
+/// Demonstration condition of an episode (§7.1; the paper's None / Video / Video + Traj.).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum DemoCondition {
+    #[default]
+    #[serde(rename = "none")]
+    None,
+    #[serde(rename = "video")]
+    Video,
+    #[serde(rename = "video+traj")]
+    VideoTraj,
+}
+
+impl DemoCondition {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Video => "video",
+            Self::VideoTraj => "video+traj",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "none" => Some(Self::None),
+            "video" | "video_only" => Some(Self::Video),
+            "video+traj" | "video_traj" | "video_plus_trajectory" => Some(Self::VideoTraj),
+            _ => None,
+        }
+    }
+
+    /// `icl_condition` in the workspace contract and the bundle manifest.
+    pub fn icl_condition(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Video => "video_only",
+            Self::VideoTraj => "video_plus_trajectory",
+        }
+    }
+
+    /// The §5.2 notice inserted after the instruction (None for `none`).
+    pub fn prompt_notice(self) -> Option<String> {
+        match self {
+            Self::None => None,
+            Self::Video => Some(
+                "A verified successful demonstration of this task from a separate episode is at \
+`benchmark_inputs/expert_demo/`. It is RGB video only (head and wrist views), with decoder-free contact sheets in \
+`video/contact_sheets/`. The current scene configuration and object or goal poses may differ. No actions, states, \
+depth, camera calibration or annotations are provided."
+                    .into(),
+            ),
+            Self::VideoTraj => Some(
+                "A verified successful demonstration of this task from a separate episode is at \
+`benchmark_inputs/expert_demo/`: RGB video (head and wrist views) with decoder-free contact sheets in \
+`video/contact_sheets/`, and `trajectory.jsonl` with the expert's native per-control-cycle OSC_POSE actions and \
+measured EEF state observations. The current scene configuration and object or goal poses may differ. The measured \
+EEF poses are observations, not actions. Each source action vector has the same component semantics as one \
+`osc_sequence` micro action."
+                    .into(),
+            ),
+        }
+    }
+}
+
+/// The private record of what was placed (kept in the run directory, never in the workspace).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ProjectionReceipt {
+    pub schema_version: &'static str,
+    pub icl_condition: &'static str,
+    pub source_bundle: PathBuf,
+    pub source_episode_id: String,
+    pub target_task_instruction: String,
+    pub agent_bundle: PathBuf,
+    pub manifest_sha256: String,
+    pub frame_count: u64,
+}
+
+/// The `demonstration` fields every agent-visible manifest shares.
+fn demonstration(modalities: &[&str]) -> serde_json::Map<String, Value> {
+    let mut d = serde_json::Map::new();
+    d.insert("episode_outcome".into(), json!("verified successful demonstration"));
+    d.insert("relation_to_target".into(), json!("same_task_separate_episode"));
+    d.insert("scene_or_object_poses_may_differ".into(), json!(true));
+    d.insert("modalities".into(), json!(modalities));
+    d
+}
+
+/// Projects the valid, verified library bundle `source` to `dest` (which must not exist) for `condition`. The
+/// bundle's instruction must equal `target_instruction` (normalized). Built under `<dest>.partial`, validated,
+/// then renamed into place.
+pub fn project_bundle(
+    source: &Path,
+    dest: &Path,
+    condition: DemoCondition,
+    target_instruction: &str,
+) -> Result<ProjectionReceipt, DemoError> {
+    if condition == DemoCondition::None {
+        return Err(DemoError::Library("the `none` condition places no bundle".into()));
+    }
+    let violations = validate_bundle(source);
+    if !violations.is_empty() {
+        return Err(DemoError::Invalid { dir: source.to_owned(), violations });
+    }
+    let manifest = read_json(&source.join(MANIFEST))?;
+    if manifest["verification"]["verified"] != true {
+        return Err(DemoError::Library(format!("{} is not a verified demonstration (run `libero-agent demo verify`)", source.display())));
+    }
+    let instruction = normalize_instruction(target_instruction);
+    if manifest["task"]["instruction"] != instruction.as_str() {
+        return Err(DemoError::Library(format!(
+            "{} demonstrates {:?}, not the target task {instruction:?}",
+            source.display(),
+            manifest["task"]["instruction"]
+        )));
+    }
+    if dest.exists() {
+        return Err(DemoError::Library(format!("{} already exists", dest.display())));
+    }
+    let frame_count = manifest["frame_count"].as_u64().unwrap_or(0);
+    let partial = PathBuf::from(format!("{}.partial", dest.display()));
+    if partial.exists() {
+        fs::remove_dir_all(&partial).map_err(io_err(&partial))?;
+    }
+    fs::create_dir_all(partial.join("video/contact_sheets")).map_err(io_err(&partial))?;
+    for rel in [VIDEO_HEAD_WRIST, SHEET_HEAD, SHEET_WRIST] {
+        fs::copy(source.join(rel), partial.join(rel)).map_err(io_err(&source.join(rel)))?;
+    }
+    let sampling = json!({
+        "rule": SAMPLING_RULE,
+        "maximum_frames_per_sheet": MAX_FRAMES_PER_SHEET,
+        "source_frame_count": frame_count,
+        "sampled_frame_indices": manifest["overview"]["sampling"]["sampled_frame_indices"],
+    });
+    let video = json!({
+        "file": artifact(&partial, VIDEO_HEAD_WRIST, "video/mp4")?,
+        "fps_hz": DEMO_VIDEO_FPS_HZ,
+        "frame_count": frame_count,
+        "layout": "head_rgb_left__wrist_rgb_right",
+        "contact_sheets": {
+            "head_rgb": artifact(&partial, SHEET_HEAD, "image/png")?,
+            "wrist_rgb": artifact(&partial, SHEET_WRIST, "image/png")?,
+        },
+        "sampling": sampling,
+    });
+    let public = match condition {
+        DemoCondition::Video => {
+            let mut d = demonstration(&["head_rgb", "wrist_rgb"]);
+            d.insert("video".into(), video); // §7.4 keeps the frame count inside `video`
+            json!({
+                "schema_version": VIDEO_ONLY_SCHEMA,
+                "task_instruction": instruction,
+                "icl_condition": condition.icl_condition(),
+                "demonstration": d,
+            })
+        }
+        _ => {
+            write_public_trajectory(source, &partial)?;
+            let mut d = demonstration(&["head_rgb", "wrist_rgb", "actions", "eef_state"]);
+            d.insert("frame_count".into(), json!(frame_count));
+            d.insert("transition_count".into(), json!(frame_count.saturating_sub(1)));
+            d.insert("actions_present".into(), json!(true));
+            d.insert("action_representation".into(), json!(ACTION_SCHEMA));
+            d.insert("measured_eef_states_are_observations".into(), json!(true));
+            d.insert("stepwise_success_present".into(), json!(false));
+            d.insert("video".into(), video);
+            json!({
+                "schema_version": VIDEO_TRAJECTORY_SCHEMA,
+                "task_instruction": instruction,
+                "icl_condition": condition.icl_condition(),
+                "demonstration": d,
+                "action_semantics": action_semantics(),
+                "trajectory": artifact(&partial, TRAJECTORY, "application/x-ndjson")?,
+                "integrity": integrity_block(&partial)?,
+            })
+        }
+    };
+    let manifest_path = partial.join(MANIFEST);
+    write_json_file(&manifest_path, &public).map_err(io_err(&manifest_path))?;
+    let problems = validate_projection(&partial, condition);
+    if !problems.is_empty() {
+        return Err(DemoError::Invalid { dir: partial, violations: problems });
+    }
+    if let Some(parent) = dest.parent() {
+        fs::create_dir_all(parent).map_err(io_err(parent))?;
+    }
+    fs::rename(&partial, dest).map_err(io_err(dest))?;
+    let bytes = fs::read(dest.join(MANIFEST)).map_err(io_err(dest))?;
+    Ok(ProjectionReceipt {
+        schema_version: RECEIPT_SCHEMA,
+        icl_condition: condition.icl_condition(),
+        source_bundle: source.to_owned(),
+        source_episode_id: manifest["source"]["episode_id"].as_str().unwrap_or_default().to_owned(),
+        target_task_instruction: instruction,
+        agent_bundle: dest.to_owned(),
+        manifest_sha256: sha256_hex(&bytes),
+        frame_count,
+    })
+}
+
+/// Public trajectory rows: `{transition_index, source_action, state_before, state_after}`; no call indices (they
+/// would tell how the source agent batched its calls, which is about the source episode, not the task).
+fn write_public_trajectory(source: &Path, dest: &Path) -> Result<(), DemoError> {
+    let path = source.join(TRAJECTORY);
+    let text = fs::read_to_string(&path).map_err(io_err(&path))?;
+    let mut out = String::new();
+    for line in text.lines() {
+        let row: Value = serde_json::from_str(line).map_err(|e| DemoError::Source(format!("{TRAJECTORY}: {e}")))?;
+        let public = json!({
+            "transition_index": row["action_index"],
+            "source_action": row["action"],
+            "state_before": row["state_before"],
+            "state_after": row["state_after"],
+        });
+        out.push_str(&compact_sorted(&public));
+        out.push('\n');
+    }
+    let p = dest.join(TRAJECTORY);
+    fs::write(&p, out).map_err(io_err(&p))
+}
+
+/// Checks an agent-visible bundle: the exact file set, manifest keys and schema, artifact sizes and hashes.
+pub fn validate_projection(dir: &Path, condition: DemoCondition) -> Vec<Violation> {
+    let mk = |file: &str, rule: &'static str, detail: String| Violation { file: file.to_owned(), rule, detail };
+    let mut out = Vec::new();
+    let (schema, keys, files): (&str, &[&str], Vec<&str>) = match condition {
+        DemoCondition::Video => (
+            VIDEO_ONLY_SCHEMA,
+            &["demonstration", "icl_condition", "schema_version", "task_instruction"],
+            vec![MANIFEST, SHEET_HEAD, SHEET_WRIST, VIDEO_HEAD_WRIST],
+        ),
+        _ => (
+            VIDEO_TRAJECTORY_SCHEMA,
+            &["action_semantics", "demonstration", "icl_condition", "integrity", "schema_version", "task_instruction", "trajectory"],
+            vec![MANIFEST, TRAJECTORY, SHEET_HEAD, SHEET_WRIST, VIDEO_HEAD_WRIST],
+        ),
+    };
+    let mut on_disk = bundle_files(dir).unwrap_or_default();
+    on_disk.push(MANIFEST.into());
+    on_disk.sort();
+    let mut want: Vec<String> = files.iter().map(|s| s.to_string()).collect();
+    want.sort();
+    if on_disk != want {
+        out.push(mk(".", "file_set", format!("files {on_disk:?}, expected exactly {want:?}")));
+    }
+    let m = match read_json(&dir.join(MANIFEST)) {
+        Ok(m) => m,
+        Err(e) => return vec![mk(MANIFEST, "bad_json", e.to_string())],
+    };
+    let got: Vec<&str> = m.as_object().map(|o| o.keys().map(String::as_str).collect()).unwrap_or_default();
+    let mut got = got;
+    got.sort();
+    if got != keys {
+        out.push(mk(MANIFEST, "manifest_keys", format!("keys {got:?}, expected {keys:?}")));
+    }
+    if m["schema_version"] != schema {
+        out.push(mk(MANIFEST, "schema_version", format!("{} is not {schema:?}", m["schema_version"])));
+    }
+    let video = &m["demonstration"]["video"];
+    let mut artifacts = vec![&video["file"], &video["contact_sheets"]["head_rgb"], &video["contact_sheets"]["wrist_rgb"]];
+    if condition == DemoCondition::VideoTraj {
+        artifacts.push(&m["trajectory"]);
+    }
+    for a in artifacts {
+        let Some(rel) = a["path"].as_str() else {
+            out.push(mk(MANIFEST, "artifact_mismatch", format!("artifact without a path: {a}")));
+            continue;
+        };
+        match fs::read(dir.join(rel)) {
+            Err(_) => out.push(mk(rel, "missing_file", "named in the manifest but absent".into())),
+            Ok(bytes) => {
+                if a["size_bytes"].as_u64() != Some(bytes.len() as u64) || a["sha256"].as_str() != Some(sha256_hex(&bytes).as_str()) {
+                    out.push(mk(rel, "sha256_mismatch", "size or sha256 differs from the manifest".into()));
+                }
+            }
+        }
+    }
+    out
+}

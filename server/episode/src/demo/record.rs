@@ -1,0 +1,409 @@
+//! Recording a bundle from a finished episode's run directory, and verifying one by replay.
+//!
+//! Frames are not decoded from the private H.264 video: the actions are replayed from the same task, seed and
+//! init state (bit-identical by the determinism contract) and both cameras are rendered after settling (frame 0)
+//! and after every action, so the bundle has exactly `actions + 1` frames, as §7.4's video.
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use libero_render::Renderer;
+use libero_sim::AssetPaths;
+use serde_json::{Value, json};
+
+use super::*;
+use crate::actor::World;
+use crate::json::{compact_sorted, write_json_file};
+use crate::observation::{Frame, Level, write_png};
+use crate::physics::{SETTLE_STEPS, WorldPhysics, WorldSpec};
+use crate::records::{RunDir, read_result};
+use crate::task::resolve_task;
+use crate::video::{Mp4Writer, side_by_side};
+use crate::world::{LiberoWorld, RESOLUTION_PX};
+
+/// What a bundle is made from: the episode's identity and its accepted actions, read from its run directory.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SourceEpisode {
+    pub episode_id: String,
+    /// What `resolve_task` accepts (`T14`, `suite/name`, a `.bddl` path).
+    pub task_ref: String,
+    pub instruction: String,
+    pub level: u8,
+    pub seed: u64,
+    pub init_state_index: usize,
+    /// `(event_index of the osc_sequence call, action)` in execution order.
+    pub actions: Vec<(u64, [f64; 7])>,
+    /// The evaluator's verdict in `result.json` (None: the episode never finished).
+    pub success: Option<bool>,
+}
+
+impl SourceEpisode {
+    /// Reads `episode_record.json`, `actions.jsonl` (accepted `osc_sequence` calls only) and `result.json`.
+    pub fn read(run: &RunDir) -> Result<Self, DemoError> {
+        let record = read_json(&run.episode_record())?;
+        let text = |v: &Value, what: &str| {
+            v.as_str().map(str::to_owned).ok_or_else(|| DemoError::Source(format!("episode_record.json has no {what}")))
+        };
+        let episode_id = text(&record["episode_id"], "episode_id")?;
+        let task_ref = text(&record["task"]["task_ref"], "task.task_ref")?;
+        let instruction = text(&record["task"]["instruction"], "task.instruction")?;
+        let number = |k: &str| record[k].as_u64().ok_or_else(|| DemoError::Source(format!("episode_record.json has no {k}")));
+        let level = u8::try_from(number("level")?).map_err(|_| DemoError::Source("level out of range".into()))?;
+        let seed = number("seed")?;
+        // A suite task fixes its init row; the record holds the request's index.
+        let init_state_index = record["task"]["suite"]["init_index"].as_u64().map_or_else(|| number("init_state_index"), Ok)? as usize;
+        let path = run.actions_jsonl();
+        let log = fs::read_to_string(&path).map_err(io_err(&path))?;
+        let mut actions = Vec::new();
+        for (n, line) in log.lines().enumerate() {
+            let event: Value = serde_json::from_str(line)
+                .map_err(|e| DemoError::Source(format!("actions.jsonl line {}: not JSON: {e}", n + 1)))?;
+            if event["request"]["tool"] != "osc_sequence" || event["response"]["ok"] != true {
+                continue;
+            }
+            let call_index = event["event_index"].as_u64().unwrap_or(n as u64);
+            let list = event["request"]["arguments"]["actions"].as_array().ok_or_else(|| {
+                DemoError::Source(format!("actions.jsonl line {}: accepted osc_sequence without actions", n + 1))
+            })?;
+            for a in list {
+                let v = a
+                    .as_array()
+                    .and_then(|xs| xs.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>())
+                    .and_then(|xs| <[f64; 7]>::try_from(xs).ok())
+                    .ok_or_else(|| DemoError::Source(format!("actions.jsonl line {}: an action is not 7 numbers", n + 1)))?;
+                actions.push((call_index, v));
+            }
+        }
+        let success = read_result(run).and_then(|r| r["success"].as_bool());
+        Ok(Self { episode_id, task_ref, instruction, level, seed, init_state_index, actions, success })
+    }
+
+    fn spec(&self, paths: &AssetPaths) -> Result<WorldSpec, DemoError> {
+        let task = resolve_task(&self.task_ref, paths)?;
+        Ok(WorldSpec { task, level: Level::L1, seed: self.seed, init_index: self.init_state_index, paths: paths.clone() })
+    }
+}
+
+/// How a bundle is recorded.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    /// `scripted_expert`, `human_teleop`, `agent`: who produced the actions (ux anchors §3.2 `source_type`).
+    pub source_type: String,
+    /// Free text next to it (expert behaviour, operator, model).
+    pub source_desc: String,
+}
+
+/// What [`record_bundle`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BundleSummary {
+    pub dir: PathBuf,
+    pub frame_count: usize,
+    pub transition_count: usize,
+    pub source_success: Option<bool>,
+    pub replay_success: bool,
+    pub verified: bool,
+}
+
+/// Public fields of the library manifest, apart from the files' records.
+pub(crate) struct ManifestFields<'a> {
+    pub source: &'a SourceEpisode,
+    pub options: &'a RecordOptions,
+    pub replay_success: Option<bool>,
+}
+
+/// Writes `manifest.json` for the files already in `dir` (artifacts and integrity recomputed from disk).
+pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<Value, DemoError> {
+    let frame_count = f.source.actions.len() + 1;
+    let sampled = sample_frame_indices(frame_count, MAX_FRAMES_PER_SHEET);
+    let verified = f.source.success == Some(true) && f.replay_success == Some(true);
+    let manifest = json!({
+        "schema_version": BUNDLE_SCHEMA,
+        "task": {"id": f.source.task_ref, "instruction": crate::workspace::normalize_instruction(&f.source.instruction)},
+        "source": {
+            "episode_id": f.source.episode_id,
+            "source_type": f.options.source_type,
+            "source_desc": f.options.source_desc,
+            "level": f.source.level,
+            "seed": f.source.seed,
+            "init_state_index": f.source.init_state_index,
+            "settle_steps": SETTLE_STEPS,
+            "episode_success": f.source.success,
+        },
+        "verification": {
+            "verified": verified,
+            "method": "replay_on_world_physics",
+            "replay_success": f.replay_success,
+        },
+        "frame_count": frame_count,
+        "transition_count": f.source.actions.len(),
+        "action_semantics": action_semantics(),
+        "trajectory": artifact(dir, TRAJECTORY, "application/x-ndjson")?,
+        "video": {
+            "fps_hz": DEMO_VIDEO_FPS_HZ,
+            "frame_count": frame_count,
+            "layout": "head_rgb_left__wrist_rgb_right",
+            "file": artifact(dir, VIDEO_HEAD_WRIST, "video/mp4")?,
+            "head_rgb": artifact(dir, VIDEO_HEAD, "video/mp4")?,
+            "wrist_rgb": artifact(dir, VIDEO_WRIST, "video/mp4")?,
+        },
+        "overview": {
+            "sampling": {
+                "rule": SAMPLING_RULE,
+                "maximum_frames_per_sheet": MAX_FRAMES_PER_SHEET,
+                "source_frame_count": frame_count,
+                "sampled_frame_indices": sampled,
+            },
+            "contact_sheets": {
+                "head_rgb": artifact(dir, SHEET_HEAD, "image/png")?,
+                "wrist_rgb": artifact(dir, SHEET_WRIST, "image/png")?,
+            },
+        },
+        "integrity": integrity_block(dir)?,
+    });
+    let path = dir.join(MANIFEST);
+    write_json_file(&path, &manifest).map_err(io_err(&path))?;
+    Ok(manifest)
+}
+
+/// Writes `trajectory.jsonl` (compact, keys sorted, one row per action).
+pub(crate) fn write_trajectory(dir: &Path, source: &SourceEpisode, states: &[MeasuredState]) -> Result<(), DemoError> {
+    if states.len() != source.actions.len() + 1 {
+        return Err(DemoError::Source(format!("{} states for {} actions", states.len(), source.actions.len())));
+    }
+    let mut text = String::new();
+    for (i, (call, a)) in source.actions.iter().enumerate() {
+        text.push_str(&compact_sorted(&trajectory_row(i, *call, a, &states[i], &states[i + 1])));
+        text.push('\n');
+    }
+    let path = dir.join(TRAJECTORY);
+    fs::write(&path, text).map_err(io_err(&path))
+}
+
+/// §7.4 contact sheet: the sampled tiles in a grid of `ceil(√n)` columns, 8-px white gutters, no labels.
+pub fn contact_sheet(tiles: &[&[u8]], tile_px: u32) -> (u32, u32, Vec<u8>) {
+    const GUTTER_PX: u32 = 8;
+    let n = tiles.len().max(1) as u32;
+    let cols = (1..=n).find(|c| c * c >= n).unwrap_or(1);
+    let rows = n.div_ceil(cols);
+    let width = cols * tile_px + (cols + 1) * GUTTER_PX;
+    let height = rows * tile_px + (rows + 1) * GUTTER_PX;
+    let mut out = vec![255u8; (width * height * 3) as usize];
+    for (k, tile) in tiles.iter().enumerate() {
+        let (c, r) = (k as u32 % cols, k as u32 / cols);
+        let (x0, y0) = (GUTTER_PX + c * (tile_px + GUTTER_PX), GUTTER_PX + r * (tile_px + GUTTER_PX));
+        for y in 0..tile_px {
+            let src = (y * tile_px * 3) as usize;
+            let dst = (((y0 + y) * width + x0) * 3) as usize;
+            let len = (tile_px * 3) as usize;
+            if let (Some(s), Some(d)) = (tile.get(src..src + len), out.get_mut(dst..dst + len)) {
+                d.copy_from_slice(s);
+            }
+        }
+    }
+    (width, height, out)
+}
+
+fn measured(frame: &Frame) -> MeasuredState {
+    MeasuredState {
+        eef_pose_robot_base_xyzw: frame.robot.eef_pose_robot_base_xyzw,
+        gripper_finger_joint_position_m: frame.robot.gripper_finger_joint_position_m,
+    }
+}
+
+/// Records the bundle of the finished episode in `run_dir` into `out` (which must not exist): replays its actions
+/// with rendering, writes videos, contact sheets, `trajectory.jsonl` and the manifest. The bundle is marked
+/// verified only if the episode succeeded and the replay reproduces the evaluator's success. Written under
+/// `<out>.partial` and renamed, so a crash never leaves a half bundle under the final name.
+pub fn record_bundle(
+    run_dir: &Path,
+    out: &Path,
+    options: &RecordOptions,
+    renderer: Renderer,
+    paths: &AssetPaths,
+) -> Result<BundleSummary, DemoError> {
+    let source = SourceEpisode::read(&RunDir::new(run_dir))?;
+    if source.actions.is_empty() {
+        return Err(DemoError::Source(format!("{}: the episode accepted no actions", run_dir.display())));
+    }
+    if out.exists() {
+        return Err(DemoError::Library(format!("{} already exists", out.display())));
+    }
+    let partial = PathBuf::from(format!("{}.partial", out.display()));
+    if partial.exists() {
+        fs::remove_dir_all(&partial).map_err(io_err(&partial))?;
+    }
+    fs::create_dir_all(partial.join("video/contact_sheets")).map_err(io_err(&partial))?;
+    let spec = source.spec(paths)?;
+    let mut world = LiberoWorld::new(&spec, renderer)?;
+    let size = RESOLUTION_PX;
+    let mut both = Mp4Writer::new(&partial.join(VIDEO_HEAD_WRIST), 2 * size, size)?;
+    let mut head_video = Mp4Writer::new(&partial.join(VIDEO_HEAD), size, size)?;
+    let mut wrist_video = Mp4Writer::new(&partial.join(VIDEO_WRIST), size, size)?;
+    let frame_count = source.actions.len() + 1;
+    let sampled = sample_frame_indices(frame_count, MAX_FRAMES_PER_SHEET);
+    let (mut head_tiles, mut wrist_tiles) = (Vec::new(), Vec::new());
+    let mut states = Vec::with_capacity(frame_count);
+    world.start()?;
+    for index in 0..frame_count {
+        if index > 0 {
+            world.step(&source.actions[index - 1].1)?;
+        }
+        let frame = world.frame(index as u64)?;
+        states.push(measured(&frame));
+        let (head, wrist) = (&frame.head.image.rgb, &frame.wrist.image.rgb);
+        both.push_rgb(&side_by_side(head, wrist, size as usize, size as usize)?)?;
+        head_video.push_rgb(head)?;
+        wrist_video.push_rgb(wrist)?;
+        if sampled.contains(&index) {
+            head_tiles.push(head.clone());
+            wrist_tiles.push(wrist.clone());
+        }
+    }
+    let replay_success = world.verdict()?.success;
+    for w in [both, head_video, wrist_video] {
+        w.finish()?;
+    }
+    for (rel, tiles) in [(SHEET_HEAD, &head_tiles), (SHEET_WRIST, &wrist_tiles)] {
+        let refs: Vec<&[u8]> = tiles.iter().map(Vec::as_slice).collect();
+        let (w, h, rgb) = contact_sheet(&refs, size);
+        let path = partial.join(rel);
+        write_png(&path, w, h, 3, &rgb).map_err(io_err(&path))?;
+    }
+    write_trajectory(&partial, &source, &states)?;
+    let manifest = write_manifest(&partial, &ManifestFields { source: &source, options, replay_success: Some(replay_success) })?;
+    fs::rename(&partial, out).map_err(io_err(out))?;
+    Ok(BundleSummary {
+        dir: out.to_owned(),
+        frame_count,
+        transition_count: source.actions.len(),
+        source_success: source.success,
+        replay_success,
+        verified: manifest["verification"]["verified"] == true,
+    })
+}
+
+/// The source episode a library bundle describes, read back from its manifest and trajectory.
+pub fn bundle_source(dir: &Path) -> Result<(Value, SourceEpisode), DemoError> {
+    let manifest = read_json(&dir.join(MANIFEST))?;
+    let s = &manifest["source"];
+    let path = dir.join(TRAJECTORY);
+    let text = fs::read_to_string(&path).map_err(io_err(&path))?;
+    let mut actions = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let row: Value = serde_json::from_str(line).map_err(|e| DemoError::Source(format!("{TRAJECTORY} line {}: {e}", n + 1)))?;
+        let a = parse_action(&row["action"])
+            .ok_or_else(|| DemoError::Source(format!("{TRAJECTORY} line {}: not a valid 7-D action", n + 1)))?;
+        actions.push((row["call_index"].as_u64().unwrap_or(0), a));
+    }
+    let missing = |k: &str| DemoError::Source(format!("{MANIFEST}: source.{k} missing"));
+    let source = SourceEpisode {
+        episode_id: s["episode_id"].as_str().ok_or_else(|| missing("episode_id"))?.to_owned(),
+        task_ref: manifest["task"]["id"].as_str().ok_or_else(|| missing("task.id"))?.to_owned(),
+        instruction: manifest["task"]["instruction"].as_str().ok_or_else(|| missing("task.instruction"))?.to_owned(),
+        level: s["level"].as_u64().and_then(|l| u8::try_from(l).ok()).ok_or_else(|| missing("level"))?,
+        seed: s["seed"].as_u64().ok_or_else(|| missing("seed"))?,
+        init_state_index: s["init_state_index"].as_u64().ok_or_else(|| missing("init_state_index"))? as usize,
+        actions,
+        success: s["episode_success"].as_bool(),
+    };
+    Ok((manifest, source))
+}
+
+/// Replays a bundle's actions from its init state on [`WorldPhysics`] (no rendering) and rewrites its manifest
+/// with the outcome: verified only if the evaluator's success is reproduced. Returns the replayed success.
+pub fn verify_bundle(dir: &Path, paths: &AssetPaths) -> Result<bool, DemoError> {
+    let (manifest, source) = bundle_source(dir)?;
+    let spec = source.spec(paths)?;
+    let mut physics = WorldPhysics::build(&spec, |_, _, _| Ok(()))?;
+    physics.start(|_| {})?;
+    for (_, a) in &source.actions {
+        physics.step(a)?;
+    }
+    let success = physics.evaluate().success;
+    let options = RecordOptions {
+        source_type: manifest["source"]["source_type"].as_str().unwrap_or("unknown").to_owned(),
+        source_desc: manifest["source"]["source_desc"].as_str().unwrap_or("").to_owned(),
+    };
+    write_manifest(dir, &ManifestFields { source: &source, options: &options, replay_success: Some(success) })?;
+    Ok(success)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOLDEN_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/demo_bundle");
+
+    /// A two-action source with made-up states and placeholder media: the wire format only.
+    fn synthetic(dir: &Path) -> SourceEpisode {
+        let source = SourceEpisode {
+            episode_id: "ep-20260101T000000Z-0000abcd".into(),
+            task_ref: "T14".into(),
+            instruction: "close the top  drawer of the cabinet".into(),
+            level: 3,
+            seed: 100,
+            init_state_index: 0,
+            actions: vec![(1, [0.5, -0.25, 0.0, 0.0, 0.0, 0.125, -1.0]), (1, [1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0])],
+            success: Some(true),
+        };
+        let state = |k: f64| MeasuredState {
+            eef_pose_robot_base_xyzw: [0.5 + k, 0.0, 0.25, 1.0, 0.0, 0.0, 0.0],
+            gripper_finger_joint_position_m: [0.04 - k, -0.04 + k],
+        };
+        fs::create_dir_all(dir.join("video/contact_sheets")).unwrap();
+        for (rel, bytes) in [(VIDEO_HEAD_WRIST, &b"mp4 both"[..]), (VIDEO_HEAD, b"mp4 head"), (VIDEO_WRIST, b"mp4 wrist"), (SHEET_HEAD, b"png head"), (SHEET_WRIST, b"png wrist")] {
+            fs::write(dir.join(rel), bytes).unwrap();
+        }
+        write_trajectory(dir, &source, &[state(0.0), state(0.015625), state(0.03125)]).unwrap();
+        source
+    }
+
+    /// The library manifest and trajectory rows are a wire format (teleop, exports and other tools read them):
+    /// byte-for-byte equal to the golden files. `UPDATE_GOLDEN=1` rewrites them after a deliberate change.
+    #[test]
+    fn manifest_and_trajectory_match_the_golden_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let source = synthetic(dir.path());
+        let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "golden".into() };
+        let manifest = write_manifest(dir.path(), &ManifestFields { source: &source, options: &options, replay_success: Some(true) }).unwrap();
+        assert_eq!(manifest["verification"]["verified"], true);
+        assert_eq!(manifest["task"]["instruction"], "close the top drawer of the cabinet", "normalized");
+        let golden = Path::new(GOLDEN_DIR);
+        for name in [MANIFEST, TRAJECTORY] {
+            let got = fs::read_to_string(dir.path().join(name)).unwrap();
+            if std::env::var_os("UPDATE_GOLDEN").is_some() {
+                fs::create_dir_all(golden).unwrap();
+                fs::write(golden.join(name), &got).unwrap();
+            }
+            let want = fs::read_to_string(golden.join(name)).unwrap_or_else(|e| panic!("{name}: {e} (UPDATE_GOLDEN=1 writes it)"));
+            assert_eq!(got, want, "{name} differs from the golden file");
+        }
+        let (back, read) = bundle_source(dir.path()).unwrap();
+        assert_eq!(back, manifest);
+        assert_eq!(read.actions.iter().map(|a| a.1).collect::<Vec<_>>(), source.actions.iter().map(|a| a.1).collect::<Vec<_>>());
+        assert_eq!(read.task_ref, "T14");
+    }
+
+    #[test]
+    fn a_replay_that_fails_or_a_failed_source_is_never_verified() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut source = synthetic(dir.path());
+        let options = RecordOptions { source_type: "agent".into(), source_desc: String::new() };
+        let m = write_manifest(dir.path(), &ManifestFields { source: &source, options: &options, replay_success: Some(false) }).unwrap();
+        assert_eq!(m["verification"]["verified"], false);
+        source.success = Some(false);
+        let m = write_manifest(dir.path(), &ManifestFields { source: &source, options: &options, replay_success: Some(true) }).unwrap();
+        assert_eq!(m["verification"]["verified"], false);
+    }
+
+    #[test]
+    fn contact_sheets_follow_the_video_only_grid() {
+        let tile = vec![0u8; 4 * 4 * 3];
+        let tiles: Vec<&[u8]> = vec![&tile; 12];
+        let (w, h, rgb) = contact_sheet(&tiles, 4);
+        assert_eq!((w, h), (4 * 4 + 5 * 8, 3 * 4 + 4 * 8), "12 tiles: 4 columns, 3 rows, 8-px gutters");
+        assert_eq!(&rgb[..3], &[255, 255, 255], "white gutter");
+        let at = |x: u32, y: u32| &rgb[((y * w + x) * 3) as usize..][..3];
+        assert_eq!(at(8, 8), &[0, 0, 0], "first tile starts after the gutter");
+        assert_eq!(contact_sheet(&tiles[..5], 4).0, 3 * 4 + 4 * 8, "5 tiles: ceil(√5) = 3 columns");
+    }
+}
