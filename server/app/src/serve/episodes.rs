@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex, RwLock};
 
 use anyhow::{Context, bail};
 use libero_episode::demo::record::RecordOptions;
-use libero_episode::demo::{DemoCondition, library, project_bundle, record_bundle};
+use libero_episode::demo::{BundleSummary, DemoCondition, library, project_bundle, record_bundle, verify_bundle};
 use libero_episode::expert_run::run_expert;
 use libero_episode::json::{utc_now_iso, write_json_file};
 use libero_episode::physics::WorldSpec as PhysicsSpec;
@@ -272,6 +272,20 @@ impl Episodes {
             bail!("the {task_ref} expert's demonstration did not verify by replay ({})", out.display());
         }
         Ok(out)
+    }
+
+    /// Records the finished episode `episode_id` (run directory `run_dir`) into the demo library as a bundle of
+    /// `task_ref`; the library function replays it, so the summary says whether it verified.
+    pub fn record_demo(&self, run_dir: &Path, task_ref: &str, episode_id: &str, options: &RecordOptions) -> anyhow::Result<BundleSummary> {
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        let out = library::bundle_dir(&self.demo_library(), task_ref, episode_id);
+        Ok(record_bundle(run_dir, &out, options, self.renderer()?, &paths)?)
+    }
+
+    /// Replays library bundle `dir` and rewrites its verification; true if the evaluator's success is reproduced.
+    pub fn verify_demo(&self, dir: &Path) -> anyhow::Result<bool> {
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        Ok(verify_bundle(dir, &paths)?)
     }
 
     pub fn count(&self) -> usize {
