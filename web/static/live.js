@@ -1,6 +1,6 @@
 // Live episode page: head | wrist frames, calls, private evaluator events and budgets as they happen.
 // Frames arrive as binary messages (4-byte LE header length, JSON header, JPEG); everything else as JSON.
-import { wsUrl, el, fmtS, callSummary, stageText } from './common.js';
+import { wsUrl, el, fmtS, callSummary, parseFrame, showBlob, showEvaluatorEvent } from './common.js';
 
 const root = document.querySelector('.live');
 const id = root.dataset.episode;
@@ -11,13 +11,8 @@ let frames = 0;
 let pendingCall = null;
 
 function showFrame(buf) {
-  const view = new DataView(buf);
-  const n = view.getUint32(0, true);
-  const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
-  const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/jpeg' }));
-  const old = img.src;
-  img.onload = () => { if (old.startsWith('blob:')) URL.revokeObjectURL(old); };
-  img.src = url;
+  const { header, blob } = parseFrame(buf);
+  showBlob(img, blob);
   $('frame-step').textContent = header.control_step ?? 'settle';
   $('frame-time').textContent = fmtS(header.sim_time_s);
   $('frame-index').textContent = header.video_frame;
@@ -25,6 +20,7 @@ function showFrame(buf) {
 }
 
 function onEvent(e) {
+  if (showEvaluatorEvent(e, $('stages'), $('progress'))) return;
   switch (e.type) {
     case 'hello':
       budget.maxSteps = e.max_agent_steps; budget.maxWall = e.max_wall_time_s;
@@ -51,12 +47,6 @@ function onEvent(e) {
     }
     case 'step':
       $('step').textContent = `${e.control_step} (${fmtS(e.sim_time_s)} s)`;
-      break;
-    case 'stage':
-      $('stages').prepend(el('li', { class: e.event.kind }, stageText(e.event)));
-      break;
-    case 'progress':
-      $('progress').textContent = `${e.completed}/${e.required}`;
       break;
     case 'finished':
       budget.running = false;

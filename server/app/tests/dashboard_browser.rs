@@ -287,6 +287,53 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
     }
 }
 
+/// Issue 8's browser part: chromium teleoperates T14 from the tasks page's link with the robosuite keys, sees frames
+/// and the latency label, saves the demonstration; the bundle then passes `demo validate`, the Demos page lists,
+/// plays and exports it, and only same-site requests may delete it.
+#[test]
+fn chromium_teleoperates_t14_and_saves_a_bundle_that_validates() {
+    let (chromium, node_modules, _python) = browser_prerequisites();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let (server, _stderr) = Server::start(&data, "127.0.0.1:0", &[]);
+    let artifacts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/teleop");
+    std::fs::create_dir_all(&artifacts).expect("artifacts dir");
+    let out = Command::new("node")
+        .arg(repo_root().join("tests/dashboard/teleop_check.cjs"))
+        .args([server.url.as_str(), "T14"])
+        .arg(&artifacts)
+        .env("NODE_PATH", &node_modules)
+        .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .stderr(Stdio::inherit())
+        .output()
+        .expect("run node");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let report: Value = stdout.lines().rev().find_map(|l| serde_json::from_str(l).ok()).unwrap_or(Value::Null);
+    assert!(out.status.success() && report["ok"] == true, "teleop browser checks failed: {stdout}");
+    eprintln!("teleop report: {report}");
+    for shot in ["teleop-driving", "teleop-saved", "demos"] {
+        assert!(artifacts.join(format!("{shot}.png")).is_file(), "screenshot {shot}.png");
+    }
+    let key = report["bundle"].as_str().expect("bundle key");
+    let dir = data.join("demos").join(key);
+    let validate = Command::new(bin()).args(["demo", "validate"]).arg(&dir).output().expect("demo validate");
+    assert!(validate.status.success(), "demo validate {}: {}", dir.display(), String::from_utf8_lossy(&validate.stderr));
+    let manifest: Value = serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["source"]["source_type"], "human_teleop");
+    assert!(manifest["transition_count"].as_u64().unwrap() >= 20, "at least a second of driving: {manifest}");
+    assert_eq!(manifest["verification"]["verified"], report["verified"], "the page shows the manifest's verdict");
+    // Deleting is operator-only and same-site: another site's page cannot, the dashboard can.
+    let delete = format!("{}/api/demos/{key}/delete", server.url);
+    let (status, _, _) = http("POST", &delete, &[("Origin", "http://evil.example")], b"");
+    assert_eq!(status, 403, "cross-site delete refused");
+    assert!(dir.is_dir());
+    let (status, _, _) = http("POST", &format!("{}/api/demos/T14/..%2F..%2Fruns/delete", server.url), &[], b"");
+    assert_eq!(status, 404, "no path tricks");
+    let (status, _, body) = http("POST", &delete, &[], b"");
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    assert!(!dir.exists(), "deleted");
+}
+
 #[test]
 fn beyond_loopback_the_dashboard_needs_the_operator_token_and_agent_tokens_never_open_it() {
     let tmp = tempfile::tempdir().unwrap();

@@ -59,7 +59,7 @@ pub fn static_routes() -> Router<AppState> {
     Router::new().route("/static/{file}", get(static_file))
 }
 
-fn page(t: impl Template) -> Response {
+pub(crate) fn page(t: impl Template) -> Response {
     match t.render() {
         Ok(html) => Html(html).into_response(),
         Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("template: {e}")),
@@ -77,7 +77,7 @@ pub fn login_page(failed: bool) -> String {
 }
 
 /// Episode ids are `ep-<utc>-<hex>`; anything else never reaches the filesystem.
-fn valid_id(id: &str) -> bool {
+pub(crate) fn valid_id(id: &str) -> bool {
     !id.is_empty() && id.len() <= 96 && id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
@@ -477,7 +477,7 @@ async fn review_data(State(app): State<AppState>, Path(id): Path<String>) -> Res
 }
 
 /// A file served with range support (the video, observation images).
-async fn serve_file(path: std::path::PathBuf, req: Request<Body>) -> Response {
+pub(crate) async fn serve_file(path: std::path::PathBuf, req: Request<Body>) -> Response {
     match ServeFile::new(path).oneshot(req).await {
         Ok(resp) => resp.map(Body::new).into_response(),
         Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("file: {e}")),
@@ -605,6 +605,8 @@ async fn static_file(Path(file): Path<String>) -> Response {
         "home.js" => (web_static!("home.js"), "text/javascript; charset=utf-8"),
         "live.js" => (web_static!("live.js"), "text/javascript; charset=utf-8"),
         "review.js" => (web_static!("review.js"), "text/javascript; charset=utf-8"),
+        "teleop.js" => (web_static!("teleop.js"), "text/javascript; charset=utf-8"),
+        "demos.js" => (web_static!("demos.js"), "text/javascript; charset=utf-8"),
         _ => return json_error(StatusCode::NOT_FOUND, "no such file"),
     };
     ([(header::CONTENT_TYPE, kind), (header::CACHE_CONTROL, "no-cache")], body).into_response()

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex, RwLock};
 
 use anyhow::{Context, bail};
 use libero_episode::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
-use libero_episode::demo::{DemoCondition, library, project_bundle, record_bundle};
+use libero_episode::demo::{DemoCondition, library, project_bundle, record_bundle, verify_bundle};
 use libero_episode::expert_run::run_expert;
 use libero_episode::json::{utc_now_iso, write_json_file};
 use libero_episode::physics::WorldSpec as PhysicsSpec;
@@ -285,6 +285,12 @@ impl Episodes {
         let source = SourceEpisode::read(&RunDir::new(&run_dir)).with_context(|| format!("episode {episode_id}"))?;
         let out = library::bundle_dir(&self.demo_library(), &source.task_ref, episode_id);
         Ok(record_bundle(&run_dir, &out, options, self.renderer()?, &paths)?)
+    }
+
+    /// Replays library bundle `dir` and rewrites its verification; true if the evaluator's success is reproduced.
+    pub fn verify_demo(&self, dir: &Path) -> anyhow::Result<bool> {
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        Ok(verify_bundle(dir, &paths)?)
     }
 
     pub fn count(&self) -> usize {

@@ -12,6 +12,7 @@ pub mod live;
 pub mod mcp;
 pub mod results;
 pub mod store;
+pub mod teleop;
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -75,6 +76,9 @@ pub struct App {
     thumbnail_lock: tokio::sync::Mutex<()>,
     /// Where the Results page looks for batch directories (`results::batch_roots`).
     pub batch_roots: Vec<PathBuf>,
+    /// Episodes the operator drives from the teleop page; only these accept actions from the operator's socket,
+    /// so an agent's benchmark episode can never be steered from the dashboard.
+    pub teleop: Mutex<HashMap<String, String>>,
 }
 
 type AppState = Arc<App>;
@@ -113,6 +117,20 @@ impl App {
             }
         }
         Ok(())
+    }
+
+    /// Stores a prepared episode's row. The run directory's record is written; the row follows it (restart
+    /// reconciles a lost write).
+    pub async fn insert_prepared(&self, prepared: &episodes::Prepared) {
+        match NewEpisode::from_record(&RunDir::new(&prepared.run_dir)) {
+            Some(new) => {
+                if let Err(e) = self.store.insert_prepared(&new).await {
+                    eprintln!("warning: {e:#}");
+                }
+                self.hubs.notify();
+            }
+            None => eprintln!("warning: episode {} has no readable episode record", prepared.episode_id),
+        }
     }
 
     /// Syncs every episode whose last stored state is not final.
@@ -183,6 +201,7 @@ pub async fn serve_until(
         operator,
         thumbnail_lock: tokio::sync::Mutex::new(()),
         batch_roots: results::batch_roots(&data, &args.batches),
+        teleop: Mutex::new(HashMap::new()),
     });
     let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
     listening(json!({
@@ -228,8 +247,10 @@ pub fn router(state: AppState) -> Router {
         .route("/api/episodes/{id}", get(episode_status))
         .route("/api/episodes/{id}/abort", post(abort_episode))
         .merge(dashboard::compressed_routes())
+        .merge(teleop::compressed_routes())
         .layer(CompressionLayer::new())
         .merge(dashboard::raw_routes())
+        .merge(teleop::raw_routes())
         .layer(axum::middleware::from_fn_with_state(state.operator.clone(), auth::require_operator));
     Router::new()
         .route("/api/health", get(health))
@@ -261,16 +282,7 @@ async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> Respon
     let eps = app.episodes.clone();
     match tokio::task::spawn_blocking(move || eps.prepare(req)).await {
         Ok(Ok(prepared)) => {
-            // The run directory's record is written; the row follows it (restart reconciles a lost write).
-            match NewEpisode::from_record(&RunDir::new(&prepared.run_dir)) {
-                Some(new) => {
-                    if let Err(e) = app.store.insert_prepared(&new).await {
-                        eprintln!("warning: {e:#}");
-                    }
-                    app.hubs.notify();
-                }
-                None => eprintln!("warning: episode {} has no readable episode record", prepared.episode_id),
-            }
+            app.insert_prepared(&prepared).await;
             (StatusCode::CREATED, axum::Json(prepared)).into_response()
         }
         Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),

@@ -1,0 +1,378 @@
+//! Teleoperation and the demonstration library in the dashboard (issue 8). The operator drives an episode of
+//! their own in-process (`EpisodeHandle::call`, never the agent-token MCP path) from a WebSocket that carries
+//! batches of normalized OSC actions; the live view is the ordinary live frame stream. "Save demonstration"
+//! finishes the episode and records a bundle into `<data>/demos/<task>/<episode>/` with the demo library, which
+//! verifies it by replay. The Demos page lists, plays, verifies, deletes and exports bundles. Everything here
+//! sits behind the operator guard (token and cross-site check).
+use std::path::{Path as FsPath, PathBuf};
+use std::time::Instant;
+
+use askama::Template;
+use axum::Router;
+use axum::body::{Body, Bytes};
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Path, Request, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use libero_episode::EpisodeHandle;
+use libero_episode::demo::lerobot::export_lerobot;
+use libero_episode::demo::record::RecordOptions;
+use libero_episode::demo::{MANIFEST, VIDEO_HEAD_WRIST, library, read_json, validate_bundle};
+use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
+use serde::Deserialize;
+use serde_json::{Map, Value, json};
+
+use super::dashboard::{page, serve_file, valid_id};
+use super::episodes::{PrepareRequest, random_hex};
+use super::{AppState, json_error};
+
+/// Wall-clock budget of an operator episode: long enough for unhurried driving.
+const TELEOP_WALL_TIME_S: f64 = 3600.0;
+/// Seed of a teleop episode unless the page asks for another (the dashboard test's and thumbnails' seed).
+const DEFAULT_SEED: u64 = 100;
+
+/// Pages and JSON.
+pub fn compressed_routes() -> Router<AppState> {
+    Router::new()
+        .route("/teleop/{task}", get(teleop_page))
+        .route("/api/teleop", post(create))
+        .route("/api/teleop/{id}/save", post(save))
+        .route("/demos", get(demos_page))
+        .route("/api/demos", get(demos_json))
+        .route("/api/demos/export", post(export))
+        .route("/api/demos/{task}/{bundle}/verify", post(verify))
+        .route("/api/demos/{task}/{bundle}/delete", post(delete))
+}
+
+/// The control socket and bundle videos (never compressed).
+pub fn raw_routes() -> Router<AppState> {
+    Router::new()
+        .route("/ws/teleop/{id}", get(control_socket))
+        .route("/demos/{task}/{bundle}/video.mp4", get(bundle_video))
+}
+
+fn ok_json(v: Value) -> Response {
+    axum::Json(v).into_response()
+}
+
+/// An implemented catalog task's `(id, instruction, K)`, or why it cannot be driven.
+fn implemented_task(id: &str) -> Result<(String, String, usize), String> {
+    let catalog = libero_tasks::Catalog::discover().map_err(|e| format!("{e:#}"))?;
+    let t = catalog.tasks().iter().find(|t| t.id == id).ok_or_else(|| format!("no task {id} in the catalog"))?;
+    if !t.implemented {
+        return Err(format!("{id} is not implemented: {}", t.not_implemented_reason.clone().unwrap_or_default()));
+    }
+    Ok((t.id.clone(), t.agent_instruction().to_owned(), t.stage_count))
+}
+
+// ---------------------------------------------------------------------------------------------- teleop page
+
+#[derive(Template)]
+#[template(path = "teleop.html")]
+struct TeleopPage {
+    task: String,
+    instruction: String,
+    k: usize,
+    seed: u64,
+}
+
+async fn teleop_page(Path(task): Path<String>) -> Response {
+    match implemented_task(&task) {
+        Ok((task, instruction, k)) => page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED }),
+        Err(e) => json_error(StatusCode::NOT_FOUND, e),
+    }
+}
+
+#[derive(Deserialize)]
+struct CreateRequest {
+    task: String,
+    #[serde(default = "default_seed")]
+    seed: u64,
+}
+
+fn default_seed() -> u64 {
+    DEFAULT_SEED
+}
+
+/// Prepares and starts an operator episode (level 1, private video on, so the live frames flow); a reset is
+/// simply a new one of the same task and seed, which starts from the same init state.
+async fn create(State(app): State<AppState>, body: Bytes) -> Response {
+    let req: CreateRequest = match serde_json::from_slice(&body) {
+        Ok(r) => r,
+        Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"task\": \"T14\", \"seed\": 100}}: {e}")),
+    };
+    let task = match implemented_task(&req.task) {
+        Ok((task, ..)) => task,
+        Err(e) => return json_error(StatusCode::UNPROCESSABLE_ENTITY, e),
+    };
+    let prepare = PrepareRequest {
+        level: 1,
+        seed: req.seed,
+        wall_time_s: TELEOP_WALL_TIME_S,
+        video: true,
+        harness: Some("teleop".into()),
+        model: Some("human".into()),
+        ..PrepareRequest::new(task.clone())
+    };
+    let eps = app.episodes.clone();
+    let started = tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
+        let prepared = eps.prepare(prepare)?;
+        let handle = eps.handle(&prepared.episode_id).ok_or_else(|| anyhow::anyhow!("the episode vanished"))?;
+        let answer = handle.call("start_episode", None);
+        if answer["ok"] != true {
+            handle.stop("teleop start failed");
+            anyhow::bail!("start_episode failed: {}", answer["error"]);
+        }
+        Ok(prepared)
+    })
+    .await;
+    let prepared = match started {
+        Ok(Ok(p)) => p,
+        Ok(Err(e)) => return json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
+        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("teleop start: {e}")),
+    };
+    app.insert_prepared(&prepared).await;
+    if let Ok(mut m) = app.teleop.lock() {
+        m.insert(prepared.episode_id.clone(), task.clone());
+    }
+    app.sync(&prepared.episode_id).await;
+    ok_json(json!({"ok": true, "episode_id": prepared.episode_id, "task": task, "seed": req.seed}))
+}
+
+/// The handle and task of an operator episode; agents' episodes are never returned.
+fn teleop_episode(app: &super::App, id: &str) -> Option<(EpisodeHandle, String)> {
+    let task = app.teleop.lock().ok()?.get(id).cloned()?;
+    Some((app.episodes.handle(id)?, task))
+}
+
+async fn control_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    let Some((handle, _)) = teleop_episode(&app, &id) else {
+        return json_error(StatusCode::NOT_FOUND, format!("{id} is not an operator episode of this server"));
+    };
+    ws.on_upgrade(move |socket| control_stream(socket, app, id, handle))
+}
+
+/// One batch from the page: `seq` echoes back so the page can pair answers and measure the achieved rate.
+#[derive(Deserialize)]
+struct ActionBatch {
+    seq: u64,
+    actions: Vec<[f64; 7]>,
+}
+
+/// Runs the page's batches one after another as `osc_sequence` calls and answers each. Batches are executed
+/// in order; the page keeps at most a couple in flight, so the queue here stays short.
+async fn control_stream(mut socket: WebSocket, app: AppState, id: String, handle: EpisodeHandle) {
+    while let Some(Ok(message)) = socket.recv().await {
+        let text = match message {
+            Message::Text(t) => t,
+            Message::Close(_) => return,
+            _ => continue,
+        };
+        let reply = match serde_json::from_str::<ActionBatch>(&text) {
+            Ok(batch) if (1..=MAX_MICRO_ACTIONS_PER_CALL).contains(&batch.actions.len()) => run_batch(&handle, batch).await,
+            Ok(batch) => json!({"type": "ack", "seq": batch.seq, "ok": false,
+                "error": format!("a batch holds 1 to {MAX_MICRO_ACTIONS_PER_CALL} actions")}),
+            Err(e) => json!({"type": "ack", "ok": false, "error": format!("not an action batch: {e}")}),
+        };
+        app.sync(&id).await;
+        if socket.send(Message::Text(reply.to_string().into())).await.is_err() {
+            return;
+        }
+    }
+}
+
+async fn run_batch(handle: &EpisodeHandle, batch: ActionBatch) -> Value {
+    let n = batch.actions.len();
+    let mut args = Map::new();
+    args.insert("actions".into(), json!(batch.actions));
+    let h = handle.clone();
+    let started = Instant::now();
+    let answer = tokio::task::spawn_blocking(move || h.call("osc_sequence", Some(args))).await;
+    let exec_ms = started.elapsed().as_secs_f64() * 1000.0;
+    match answer {
+        Ok(a) => json!({"type": "ack", "seq": batch.seq, "ok": a["ok"] == true, "actions": n, "exec_ms": exec_ms,
+            "error_type": a["error_type"], "error": a["error"],
+            "accepted_agent_steps": handle.status().accepted_agent_steps}),
+        Err(e) => json!({"type": "ack", "seq": batch.seq, "ok": false, "error": format!("episode call: {e}")}),
+    }
+}
+
+/// Finishes the operator episode, records its bundle (replayed, hence verified or not) and reports why it is
+/// not verified when it is not.
+async fn save(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    let Some((handle, task)) = teleop_episode(&app, &id) else {
+        return json_error(StatusCode::NOT_FOUND, format!("{id} is not an operator episode of this server"));
+    };
+    let eps = app.episodes.clone();
+    let episode = id.clone();
+    let saved = tokio::task::spawn_blocking(move || -> anyhow::Result<Value> {
+        let finish = handle.call("finish_episode", None);
+        let options = RecordOptions {
+            source_type: "human_teleop".into(),
+            source_desc: "libero-agent dashboard teleop (keyboard / gamepad)".into(),
+        };
+        let s = eps.record_demo(&episode, &options)?;
+        let violations: Vec<String> = validate_bundle(&s.dir).iter().map(ToString::to_string).collect();
+        let reason = if !violations.is_empty() {
+            Some(format!("the bundle breaks {} rule(s) of §7.7", violations.len()))
+        } else if s.source_success != Some(true) {
+            Some("the episode did not succeed (the evaluator's verdict at finish_episode), so it cannot verify".into())
+        } else if !s.replay_success {
+            Some("replaying the actions did not reproduce the evaluator's success".into())
+        } else {
+            None
+        };
+        Ok(json!({
+            "ok": true, "verified": s.verified && violations.is_empty(), "reason": reason, "violations": violations,
+            "bundle": format!("{}/{}", library::task_dir_name(&task), library::task_dir_name(&episode)),
+            "frame_count": s.frame_count, "transition_count": s.transition_count,
+            "source_success": s.source_success, "replay_success": s.replay_success, "finish": finish,
+        }))
+    })
+    .await;
+    app.sync(&id).await;
+    if let Ok(mut m) = app.teleop.lock() {
+        m.remove(&id);
+    }
+    match saved {
+        Ok(Ok(v)) => ok_json(v),
+        Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("save: {e}")),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------- demos page
+
+#[derive(Template)]
+#[template(path = "demos.html")]
+struct DemosPage {}
+
+async fn demos_page() -> Response {
+    page(DemosPage {})
+}
+
+/// `<library>/<task>/<bundle>` for names that are plain directory names (never a path trick) and exist.
+fn bundle_path(app: &super::App, task: &str, bundle: &str) -> Option<PathBuf> {
+    let plain = |s: &str| valid_id(s) && library::task_dir_name(s) == s;
+    if !(plain(task) && plain(bundle)) {
+        return None;
+    }
+    let dir = app.episodes.demo_library().join(task).join(bundle);
+    dir.join(MANIFEST).is_file().then_some(dir)
+}
+
+/// Every bundle of the library with what the table shows (newest first).
+fn list_bundles(root: &FsPath) -> Vec<Value> {
+    let mut rows = Vec::new();
+    for task_dir in std::fs::read_dir(root).into_iter().flatten().flatten() {
+        for b in std::fs::read_dir(task_dir.path()).into_iter().flatten().flatten() {
+            let dir = b.path();
+            let name = b.file_name().to_string_lossy().into_owned();
+            if !dir.is_dir() || name.ends_with(".partial") {
+                continue;
+            }
+            let Ok(m) = read_json(&dir.join(MANIFEST)) else { continue };
+            let modified = std::fs::metadata(dir.join(MANIFEST))
+                .and_then(|md| md.modified())
+                .ok()
+                .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                .map(|d| d.as_secs_f64());
+            let violations = validate_bundle(&dir);
+            rows.push(json!({
+                "key": format!("{}/{name}", task_dir.file_name().to_string_lossy()),
+                "task": m["task"]["id"], "instruction": m["task"]["instruction"],
+                "verified": m["verification"]["verified"], "replay_success": m["verification"]["replay_success"],
+                "actions": m["transition_count"], "source_type": m["source"]["source_type"],
+                "episode_id": m["source"]["episode_id"], "modified_unix_s": modified,
+                "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
+            }));
+        }
+    }
+    rows.sort_by(|a, b| b["modified_unix_s"].as_f64().partial_cmp(&a["modified_unix_s"].as_f64()).unwrap_or(std::cmp::Ordering::Equal));
+    rows
+}
+
+async fn demos_json(State(app): State<AppState>) -> Response {
+    let root = app.episodes.demo_library();
+    match tokio::task::spawn_blocking(move || list_bundles(&root)).await {
+        Ok(rows) => ok_json(json!({"ok": true, "bundles": rows})),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("demos: {e}")),
+    }
+}
+
+async fn bundle_video(State(app): State<AppState>, Path((task, bundle)): Path<(String, String)>, req: Request<Body>) -> Response {
+    match bundle_path(&app, &task, &bundle) {
+        Some(dir) => serve_file(dir.join(VIDEO_HEAD_WRIST), req).await,
+        None => json_error(StatusCode::NOT_FOUND, "no such bundle"),
+    }
+}
+
+/// Validates, then replays; the manifest's verification is rewritten by the library.
+async fn verify(State(app): State<AppState>, Path((task, bundle)): Path<(String, String)>) -> Response {
+    let Some(dir) = bundle_path(&app, &task, &bundle) else { return json_error(StatusCode::NOT_FOUND, "no such bundle") };
+    let eps = app.episodes.clone();
+    let result = tokio::task::spawn_blocking(move || -> anyhow::Result<Value> {
+        let violations: Vec<String> = validate_bundle(&dir).iter().map(ToString::to_string).collect();
+        if !violations.is_empty() {
+            return Ok(json!({"ok": true, "verified": false, "reason": "invalid bundle, not replayed", "violations": violations}));
+        }
+        let verified = eps.verify_demo(&dir)?;
+        let reason = (!verified).then_some("the source episode did not succeed or the replay did not reproduce its success");
+        Ok(json!({"ok": true, "verified": verified, "reason": reason, "violations": []}))
+    })
+    .await;
+    match result {
+        Ok(Ok(v)) => ok_json(v),
+        Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("verify: {e}")),
+    }
+}
+
+async fn delete(State(app): State<AppState>, Path((task, bundle)): Path<(String, String)>) -> Response {
+    let Some(dir) = bundle_path(&app, &task, &bundle) else { return json_error(StatusCode::NOT_FOUND, "no such bundle") };
+    match std::fs::remove_dir_all(&dir) {
+        Ok(()) => ok_json(json!({"ok": true, "deleted": format!("{task}/{bundle}")})),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("delete {task}/{bundle}: {e}")),
+    }
+}
+
+#[derive(Deserialize)]
+struct ExportRequest {
+    /// `task/bundle` keys as the list gives them.
+    bundles: Vec<String>,
+}
+
+/// Exports the chosen bundles to a new LeRobot v3 dataset under `<data>/exports/`.
+async fn export(State(app): State<AppState>, body: Bytes) -> Response {
+    let req: ExportRequest = match serde_json::from_slice(&body) {
+        Ok(r) => r,
+        Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"bundles\": [\"T14/ep-…\"]}}: {e}")),
+    };
+    let mut dirs = Vec::new();
+    for key in &req.bundles {
+        match key.split_once('/').and_then(|(t, b)| bundle_path(&app, t, b)) {
+            Some(d) => dirs.push(d),
+            None => return json_error(StatusCode::NOT_FOUND, format!("no bundle {key}")),
+        }
+    }
+    if dirs.is_empty() {
+        return json_error(StatusCode::BAD_REQUEST, "choose at least one bundle");
+    }
+    let suffix = match random_hex(3) {
+        Ok(s) => s,
+        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e}")),
+    };
+    let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let out = app.episodes.data_dir().join("exports").join(format!("lerobot-{stamp}-{suffix}"));
+    let result = tokio::task::spawn_blocking(move || {
+        std::fs::create_dir_all(out.parent().unwrap_or(&out))?;
+        export_lerobot(&dirs, &out).map_err(anyhow::Error::from)
+    })
+    .await;
+    match result {
+        Ok(Ok(s)) => ok_json(json!({"ok": true, "out": s.out, "episodes": s.episodes, "frames": s.frames, "tasks": s.tasks})),
+        Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("export: {e}")),
+    }
+}

@@ -1,0 +1,63 @@
+// Demos page: the library's bundles (task, verified, actions, date), play one's head | wrist video, verify by
+// replay, delete, and export the selected ones to a LeRobot v3 dataset. Actions are same-origin POSTs.
+import { el, postJson } from './common.js';
+
+const $ = (x) => document.getElementById(x);
+const status = (t) => { $('status').textContent = t; };
+
+function row(b) {
+  const [task, bundle] = b.key.split('/');
+  const tr = el('tr', { 'data-key': b.key });
+  const pick = el('input', { type: 'checkbox', class: 'pick', value: b.key });
+  const date = b.modified_unix_s ? new Date(b.modified_unix_s * 1000).toISOString().replace('T', ' ').slice(0, 19) : '–';
+  const cells = [pick, b.task ?? task, bundle, b.source_type ?? '', b.verified ? 'yes' : 'no',
+    b.valid ? 'yes' : `no: ${b.first_violation}`, String(b.actions ?? '–'), date];
+  for (const c of cells) {
+    const td = el('td');
+    td.append(c);
+    tr.append(td);
+  }
+  tr.children[4].className = b.verified ? 'outcome SUCCESS verified' : 'outcome FAIL verified';
+  const actions = el('td');
+  const play = el('button', { class: 'play' }, 'Play');
+  play.onclick = () => {
+    $('player').classList.remove('hidden');
+    $('player-title').textContent = b.key;
+    $('video').src = `/demos/${task}/${bundle}/video.mp4`;
+    $('video').play().catch(() => {});
+  };
+  const verify = el('button', { class: 'verify' }, 'Verify');
+  verify.onclick = async () => {
+    status(`replaying ${b.key} …`);
+    const r = await postJson(`/api/demos/${task}/${bundle}/verify`);
+    status(r.ok ? `${b.key}: ${r.verified ? 'verified' : `not verified — ${r.reason}`}` : `verify failed: ${r.error}`);
+    await load();
+  };
+  const del = el('button', { class: 'delete' }, 'Delete');
+  del.onclick = async () => {
+    if (!window.confirm(`Delete ${b.key}?`)) return;
+    const r = await postJson(`/api/demos/${task}/${bundle}/delete`);
+    status(r.ok ? `deleted ${b.key}` : `delete failed: ${r.error}`);
+    await load();
+  };
+  actions.append(play, ' ', verify, ' ', del);
+  tr.append(actions);
+  return tr;
+}
+
+async function load() {
+  const r = await fetch('/api/demos').then((x) => x.json());
+  if (!r.ok) { status(r.error); return; }
+  $('bundles').replaceChildren(...r.bundles.map(row));
+  if (!r.bundles.length) $('bundles').append(el('tr', {}, 'No bundles yet: record one from a task\'s Teleoperate page.'));
+}
+
+$('all').onchange = () => { for (const c of document.querySelectorAll('.pick')) c.checked = $('all').checked; };
+$('export').onclick = async () => {
+  const bundles = [...document.querySelectorAll('.pick:checked')].map((c) => c.value);
+  if (!bundles.length) { status('select at least one bundle'); return; }
+  status(`exporting ${bundles.length} bundle(s) …`);
+  const r = await postJson('/api/demos/export', { bundles });
+  status(r.ok ? `exported ${r.episodes} episode(s), ${r.frames} frames to ${r.out}` : `export failed: ${r.error}`);
+};
+load();
