@@ -144,6 +144,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "completed_stage_names": record["completed_stage_names"],
             "failure_reason": record["failure_reason"],
             "first_commitment": record["first_commitment"],
+            "judgment_correct": record["judgment_correct"],
             "osc_sequence_calls": run.osc_calls,
             "actions": run.actions,
         });

@@ -59,7 +59,14 @@ pub fn build_evaluator(
     match kind {
         "bddl_terminal" | "bddl_terminal_open" => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-            Ok(Box::new(BddlTerminal::new(kind, goal, commitment, task_id.map(str::to_owned))))
+            let p: bddl_terminal::BddlTerminalParams = params(checker, kind, task_id)?;
+            if let Some(t) = &p.judgment_target
+                && goal.index().instance(t).is_none()
+            {
+                return Err(missing_in_model(kind, "instance", t));
+            }
+            let e = BddlTerminal::new(kind, goal, commitment, task_id.map(str::to_owned));
+            Ok(Box::new(e.with_judgment_target(p.judgment_target)))
         }
         button_press::CHECKER => {
             let p = params(checker, kind, task_id)?;

@@ -7,6 +7,7 @@
 //! lockstep replica of the episode's simulation.
 mod adapted;
 pub mod motion;
+mod perception;
 mod stock;
 mod vlabench;
 
@@ -83,7 +84,10 @@ impl<'a> SceneRefs<'a> {
 
 /// The tasks that have an expert, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    stock::behaviours(task_id).or_else(|| vlabench::behaviours(task_id)).or_else(|| adapted::behaviours(task_id))
+    stock::behaviours(task_id)
+        .or_else(|| vlabench::behaviours(task_id))
+        .or_else(|| adapted::behaviours(task_id))
+        .or_else(|| perception::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -105,7 +109,9 @@ pub fn expert_for(
         stock::build(task_id, behaviour, &refs)
     } else if vlabench::behaviours(task_id).is_some() {
         vlabench::build(task_id, behaviour, &refs)
-    } else {
+    } else if adapted::behaviours(task_id).is_some() {
         adapted::build(task_id, behaviour, &refs)
+    } else {
+        perception::build(task_id, behaviour, &refs)
     }
 }

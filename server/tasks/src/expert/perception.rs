@@ -1,0 +1,137 @@
+//! Experts for the perception suite (T01–T10). Each knows the private target (read from the scene, as every expert
+//! reads privileged state) and has a `wrong_target` behaviour that does the same thing to a distractor: it must fail,
+//! and its first commitment must be judged wrong (`judgment_correct == false`).
+//!
+//! Bin family (T01, T03, T04, T05, T07): grasp the candidate from above, lift it clear of the bin walls, carry it
+//! over the bin, lower it inside, let go, retreat.
+use std::sync::{Arc, Mutex};
+
+use libero_sim::Simulation;
+use nalgebra::Vector3;
+
+use super::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, grip_pose, rotate_world, vec3};
+use super::{Expert, SOLVE, SceneRefs};
+use crate::TasksError;
+
+/// The behaviour that commits to a distractor instead of the target.
+pub const WRONG_TARGET: &str = "wrong_target";
+
+/// One bin-family task: target and the distractor `wrong_target` takes, and where on each the fingers close
+/// (height of the grip site above the candidate's root-body origin). The hand's lowest part is ≈ 5 cm above the grip
+/// site, so on tall candidates the grip is taken ≈ 4.5 cm below the top of their collision geometry.
+struct BinTask {
+    target: &'static str,
+    distractor: &'static str,
+    target_grip_m: f64,
+    distractor_grip_m: f64,
+    /// Hand yaw (about world z, from the home orientation) for the distractor: T01's fallen token lies across y.
+    distractor_yaw_rad: f64,
+}
+
+fn bin_task(task_id: &str) -> Option<BinTask> {
+    let t = |target, distractor, target_grip_m, distractor_grip_m| BinTask {
+        target,
+        distractor,
+        target_grip_m,
+        distractor_grip_m,
+        distractor_yaw_rad: 0.0,
+    };
+    Some(match task_id {
+        // upright token (root at its centre, 12 cm tall) vs a fallen one (7.2 cm tall, 12 cm across y: turn the hand)
+        "T01" => BinTask { distractor_yaw_rad: std::f64::consts::FRAC_PI_2, ..t("marker_1", "marker_2", 0.013, 0.0) },
+        // bottles: root at the centre of the 11 cm colliding body
+        "T03" => t("candidate_1", "candidate_2", 0.01, 0.01),
+        // blocks and balls: root at the centre
+        "T04" => t("candidate_1", "candidate_2", 0.0, 0.0),
+        // (the near slot, x ≈ 0.2, is at the edge of the arm's reach from straight above: the middle one is taken)
+        "T05" => t("candidate_1", "candidate_2", 0.0, 0.0),
+        // drinks: root at the centre, 15 cm tall
+        "T07" => t("drink_2", "drink_1", 0.028, 0.028),
+        _ => return None,
+    })
+}
+
+pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
+    bin_task(task_id).map(|_| &[WRONG_TARGET][..])
+}
+
+pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
+    match bin_task(task_id) {
+        Some(t) if behaviour == SOLVE => place_in_bin(refs, t.target, t.target_grip_m, 0.0),
+        Some(t) => place_in_bin(refs, t.distractor, t.distractor_grip_m, t.distractor_yaw_rad),
+        None => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
+    }
+}
+
+fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
+    vec3(&sim.data().xpos()[body])
+}
+
+fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
+    (a.x - b.x).hypot(a.y - b.y)
+}
+
+/// Height of the carried object's root above the bin's root while it is carried over the walls (12 cm high) and
+/// when it is let go inside.
+const CARRY_ABOVE_REST_M: f64 = 0.17;
+const RELEASE_ABOVE_REST_M: f64 = 0.025;
+
+/// Grasp `object` `grip_m` above its root with the hand yawed by `yaw_rad`, put it in `perception_bin_1`.
+fn place_in_bin(refs: &SceneRefs, object: &str, grip_m: f64, yaw_rad: f64) -> Result<Box<dyn Expert>, TasksError> {
+    Ok(Box::new(Script::new(pick_and_place(refs, object, grip_m, yaw_rad, "perception_bin_1", 0.0)?)))
+}
+
+/// The phases that grasp `object` and let it go inside `bin_name`, over a point `bin_offset_x_m` from the bin's centre
+/// along x (negative: nearer the robot, for bins at the edge of the arm's reach).
+fn pick_and_place(
+    refs: &SceneRefs,
+    object: &str,
+    grip_m: f64,
+    yaw_rad: f64,
+    bin_name: &str,
+    bin_offset_x_m: f64,
+) -> Result<Vec<Phase>, TasksError> {
+    let obj = refs.instance_body(object)?;
+    let bin = refs.instance_body(bin_name)?;
+    let up = Vector3::z();
+    // the object's resting root height above the bin's root (both stand on the table), captured at the start
+    let rest = Arc::new(Mutex::new(0.0_f64));
+    let rest_w = rest.clone();
+    // grip-site goal that brings the held object's root to `target`
+    let carry = move |sim: &Simulation, target: Vector3<f64>| grip_pose(sim).0 + (target - pos(sim, obj));
+    // where the object's root goes: over the bin's centre, `above_rest` higher than where it rested on the table
+    let over_bin = move |rest: &Arc<Mutex<f64>>, sim: &Simulation, above_rest: f64| {
+        let b = pos(sim, bin);
+        Vector3::new(b.x + bin_offset_x_m, b.y, b.z + *rest.lock().expect("lock") + above_rest)
+    };
+    let (r1, r2, r3) = (rest.clone(), rest.clone(), rest);
+    let hand = move |ctx: &PhaseCtx| rotate_world(&ctx.home_rot, Vector3::z(), yaw_rad);
+    let phases = vec![
+        Phase::new("above_object", move |sim, ctx| {
+            *rest_w.lock().expect("lock") = pos(sim, obj).z - pos(sim, bin).z;
+            Goal::at(pos(sim, obj) + up * (grip_m + 0.12), GRIPPER_OPEN).rotated(hand(ctx))
+        })
+        .until_reached(0.012),
+        Phase::new("down_to_object", move |sim, ctx| Goal::at(pos(sim, obj) + up * grip_m, GRIPPER_OPEN).rotated(hand(ctx)).slow(0.5))
+            .until_reached(0.006)
+            .max_steps(80),
+        Phase::new("grasp", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED).rotated(hand(ctx))).for_steps(12),
+        Phase::new("lift", move |_, ctx| Goal::at(ctx.start_pos_m + up * 0.18, GRIPPER_CLOSED).rotated(hand(ctx)).slow(0.6))
+            .until_reached(0.015)
+            .max_steps(80),
+        Phase::new("carry_over_bin", move |sim, ctx| Goal::at(carry(sim, over_bin(&r1, sim, CARRY_ABOVE_REST_M)), GRIPPER_CLOSED).rotated(hand(ctx)).slow(0.6))
+            .until(move |sim, _| xy_dist(pos(sim, obj), pos(sim, bin) + Vector3::x() * bin_offset_x_m) < 0.01)
+            .max_steps(150),
+        Phase::new("lower_into_bin", move |sim, ctx| {
+            Goal::at(carry(sim, over_bin(&r2, sim, RELEASE_ABOVE_REST_M)), GRIPPER_CLOSED).rotated(hand(ctx)).slow(0.4)
+        })
+        .until(move |sim, _| (pos(sim, obj) - over_bin(&r3, sim, RELEASE_ABOVE_REST_M)).norm() < 0.012)
+        .max_steps(100),
+        Phase::new("release", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(hand(ctx))).for_steps(12),
+        Phase::new("retreat", move |_, ctx| Goal::at(ctx.start_pos_m + up * 0.12, GRIPPER_OPEN).rotated(hand(ctx)).slow(0.6))
+            .until_reached(0.015)
+            .max_steps(60),
+        Phase::new("wait", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(hand(ctx))).for_steps(10),
+    ];
+    Ok(phases)
+}
