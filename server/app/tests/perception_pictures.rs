@@ -13,7 +13,10 @@ const TASKS: &[(&str, &str)] = &[
     ("T03", "select_red_object"),
     ("T04", "select_striped_object"),
     ("T05", "select_marked_instance"),
+    ("T06", "select_ball_shape"),
     ("T07", "select_cola_drink"),
+    ("T09", "select_highest_reflectance"),
+    ("T10", "select_largest_cylinder"),
 ];
 
 fn repo_root() -> PathBuf {

@@ -18,6 +18,7 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     bddl_terminal::CHECKER,
     "bddl_terminal_open",
     button_press::CHECKER,
+    button_press::GATED_CHECKER,
     tube_insertion::CHECKER,
     wipe::CHECKER,
     pour::CHECKER,
@@ -71,6 +72,10 @@ pub fn build_evaluator(
         button_press::CHECKER => {
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(ButtonPress::new(p, scene, model, task_id.map(str::to_owned))?))
+        }
+        button_press::GATED_CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(ButtonPress::gated(p, scene, model, task_id.map(str::to_owned))?))
         }
         tube_insertion::CHECKER => {
             let p = params(checker, kind, task_id)?;

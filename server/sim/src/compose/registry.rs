@@ -91,6 +91,17 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("vlabench_milk_drink", "objects/vlabench_milk_drink/vlabench_milk_drink.xml", 0.0),
     ("vlabench_cola_drink", "objects/vlabench_cola_drink/vlabench_cola_drink.xml", 0.0),
     ("vlabench_juice_drink", "objects/vlabench_juice_drink/vlabench_juice_drink.xml", 0.0),
+    // T06, T09, T10 (task catalog §3.1, §6.4): buttons paired with a candidate cue, written by
+    // scripts/gen_perception_assets.py
+    ("vlabench_property_weight_sphere", "objects/vlabench_property_weight_sphere/vlabench_property_weight_sphere.xml", 0.0),
+    ("vlabench_property_weight_cylinder", "objects/vlabench_property_weight_cylinder/vlabench_property_weight_cylinder.xml", 0.0),
+    ("vlabench_property_weight_cube", "objects/vlabench_property_weight_cube/vlabench_property_weight_cube.xml", 0.0),
+    ("vlabench_property_size_small_cylinder", "objects/vlabench_property_size_small_cylinder/vlabench_property_size_small_cylinder.xml", 0.0),
+    ("vlabench_property_size_medium_cylinder", "objects/vlabench_property_size_medium_cylinder/vlabench_property_size_medium_cylinder.xml", 0.0),
+    ("vlabench_property_size_large_cylinder", "objects/vlabench_property_size_large_cylinder/vlabench_property_size_large_cylinder.xml", 0.0),
+    ("vlabench_property_reflection_matte_gray", "objects/vlabench_property_reflection_matte_gray/vlabench_property_reflection_matte_gray.xml", 0.0),
+    ("vlabench_property_reflection_polished_silver", "objects/vlabench_property_reflection_polished_silver/vlabench_property_reflection_polished_silver.xml", 0.0),
+    ("vlabench_property_reflection_satin_gray", "objects/vlabench_property_reflection_satin_gray/vlabench_property_reflection_satin_gray.xml", 0.0),
 ];
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.

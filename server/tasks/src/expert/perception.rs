@@ -2,6 +2,9 @@
 //! reads privileged state) and has a `wrong_target` behaviour that does the same thing to a distractor: it must fail,
 //! and its first commitment must be judged wrong (`judgment_correct == false`).
 //!
+//! Button family (T06, T09, T10): press and hold the paired button's cap (the T13 press); `wrong_target` presses
+//! another button the same way.
+//!
 //! Bin family (T01, T03, T04, T05, T07): grasp the candidate from above, lift it clear of the bin walls, carry it
 //! over the bin, lower it inside, let go, retreat.
 use std::sync::{Arc, Mutex};
@@ -51,11 +54,28 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
     })
 }
 
+/// Button family (T06, T09, T10): `(target, the button wrong_target presses)`.
+fn button_task(task_id: &str) -> Option<(&'static str, &'static str)> {
+    Some(match task_id {
+        "T06" => ("button_1", "button_2"),
+        "T09" => ("button_2", "button_3"),
+        "T10" => ("button_3", "button_2"),
+        _ => return None,
+    })
+}
+
+/// The cap's top face in the property button's frame (cap centre at (−0.045, 0, 0.085), half height 0.010).
+const PROPERTY_CAP_TOP_LOCAL_M: [f64; 3] = [-0.045, 0.0, 0.095];
+
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    bin_task(task_id).map(|_| &[WRONG_TARGET][..])
+    (bin_task(task_id).is_some() || button_task(task_id).is_some()).then_some(&[WRONG_TARGET][..])
 }
 
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
+    if let Some((target, other)) = button_task(task_id) {
+        let button = if behaviour == SOLVE { target } else { other };
+        return super::vlabench::press(refs, button, PROPERTY_CAP_TOP_LOCAL_M, true);
+    }
     match bin_task(task_id) {
         Some(t) if behaviour == SOLVE => place_in_bin(refs, t.target, t.target_grip_m, 0.0),
         Some(t) => place_in_bin(refs, t.distractor, t.distractor_grip_m, t.distractor_yaw_rad),
