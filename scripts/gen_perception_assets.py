@@ -233,3 +233,39 @@ for key, material, what in [
     property_button(key, f"T09 cue: a {what} panel 7 x 6 cm, tilted 25 deg toward the camera.", "box", "0.035 0.030 0.006",
                     "0.077 0 0.062", material, plate_half="0.130 0.045 0.004", cue_extra=' euler="0 0.436 0"')
 
+
+# ---- T08 (catalog §6.3): the weighing mug and the CompoSuite green target bin ----
+# One mug category for all three mugs: the geometry is identical and the mass in the file is a placeholder; the
+# manifest's private checker params give each instance its mass, applied to the compiled model before the episode
+# starts (libero_tasks::apply_private_model_edits), so no file an agent might see tells the mugs apart.
+mug = vis("mug_body", "cylinder", "0.035 0.038", "0 0 0", material="mug_grey")
+mug += vis("mug_inside", "cylinder", "0.030 0.001", "0 0 0.0375", material="mug_inside")
+mug += ('        <geom name="mug_handle_side" type="capsule" fromto="0.047 0 -0.018 0.047 0 0.018" size="0.005" '
+        'material="mug_grey" group="1" contype="0" conaffinity="0"/>\n')
+for z in ("-0.018", "0.018"):
+    mug += (f'        <geom name="mug_handle_{"low" if z.startswith("-") else "high"}" type="capsule" '
+            f'fromto="0.034 0 {z} 0.047 0 {z}" size="0.005" material="mug_grey" group="1" contype="0" conaffinity="0"/>\n')
+mug += col("mug_collision", "cylinder", "0.034 0.038", "0.36", extra=' friction="0.95 0.3 0.1"')
+write("clier_weighing_mug",
+      "T08 weighing mug (catalog §6.3; the CLIER mug meshes are external): 7.6 cm tall, outer radius 3.5 cm, a side\n"
+      "     handle reaching 4.7 cm along +x (visual only), neutral grey (0.70, 0.72, 0.75), shininess 0.35, specular 0.25;\n"
+      "     one collision cylinder r 3.4 cm, friction (0.95, 0.3, 0.1). Root at the body's centre. The mass here (0.36 kg)\n"
+      "     is a placeholder: each episode sets the instance's mass from the manifest's private checker params.",
+      mug, -0.038, 0.038, 0.047,
+      assets='    <material name="mug_grey" rgba="0.70 0.72 0.75 1" shininess="0.35" specular="0.25"/>\n'
+             '    <material name="mug_inside" rgba="0.40 0.41 0.43 1" shininess="0.35" specular="0.25"/>\n')
+
+tb = ""
+for n, size, pos, mass in [
+    ("bottom", "0.110 0.115 0.008", "0 0 0.008", "2"),
+    ("front", "0.008 0.115 0.060", "-0.105 0 0.060", "1"), ("back", "0.008 0.115 0.060", "0.105 0 0.060", "1"),
+    ("left", "0.110 0.008 0.060", "0 -0.110 0.060", "1"), ("right", "0.110 0.008 0.060", "0 0.110 0.060", "1"),
+]:
+    tb += vis(f"bin_{n}_visual", "box", size, pos, material="target_green")
+    tb += col(f"bin_{n}_collision", "box", size, mass, pos, ' friction="1 0.3 0.1"')
+tb += '        <site name="contain_region" type="box" size="0.095 0.098 0.075" pos="0 0 0.075" rgba="0 0 0 0"/>\n'
+write("composuite_target_bin",
+      "T08 green target bin, catalog §6.3 composuite/target_bin.xml: five boxes (vis + col), 6 kg, outer footprint\n"
+      "     0.236 x 0.246 m, walls 12 cm high; region site contain_region h=(0.095, 0.098, 0.075) at z 0.075.",
+      tb, 0, 0.135, 0.118,
+      assets='    <material name="target_green" rgba="0.12 0.55 0.22 1" shininess="0.25"/>\n')

@@ -15,6 +15,7 @@ const TASKS: &[(&str, &str)] = &[
     ("T05", "select_marked_instance"),
     ("T06", "select_ball_shape"),
     ("T07", "select_cola_drink"),
+    ("T08", "weigh_and_place_heaviest_mug"),
     ("T09", "select_highest_reflectance"),
     ("T10", "select_largest_cylinder"),
 ];

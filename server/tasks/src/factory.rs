@@ -11,6 +11,7 @@ use crate::evaluator::Evaluator;
 use crate::goal::GoalChecker;
 use crate::pour::{self, PourWine};
 use crate::tube_insertion::{self, TubeInsertion};
+use crate::weighing::{self, PhysicalWeighing};
 use crate::wipe::{self, SpillWipe};
 
 /// The checker types this build can judge (the catalog refuses an implemented task whose checker is not here).
@@ -22,6 +23,7 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     tube_insertion::CHECKER,
     wipe::CHECKER,
     pour::CHECKER,
+    weighing::CHECKER,
 ];
 
 /// The scene's BDDL goal (a diagnostic for private evaluators) and its first-commitment tracker.
@@ -46,6 +48,15 @@ fn params<T: serde::de::DeserializeOwned>(checker: Option<&CheckerSpec>, kind: &
         path: task_id.unwrap_or("task").to_owned(),
         message: format!("checker {kind}: bad params: {e}"),
     })
+}
+
+/// Edits a task's private checker parameters make to the compiled model before the episode starts (T08: each
+/// mug's mass). Call before [`build_evaluator`] and before the model is frozen; a no-op for other checkers.
+pub fn apply_private_model_edits(checker: Option<&CheckerSpec>, task_id: Option<&str>, model: &mut MjModel) -> Result<(), TasksError> {
+    match checker.map(|c| c.kind.as_str()) {
+        Some(weighing::CHECKER) => weighing::apply_mug_masses(&params(checker, weighing::CHECKER, task_id)?, model),
+        _ => Ok(()),
+    }
 }
 
 /// The evaluator for `checker` on `scene` (compiled as `model`). `None` — a stock LIBERO task without a suite
@@ -90,6 +101,11 @@ pub fn build_evaluator(
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(PourWine::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        weighing::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PhysicalWeighing::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

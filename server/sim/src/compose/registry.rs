@@ -102,6 +102,10 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("vlabench_property_reflection_matte_gray", "objects/vlabench_property_reflection_matte_gray/vlabench_property_reflection_matte_gray.xml", 0.0),
     ("vlabench_property_reflection_polished_silver", "objects/vlabench_property_reflection_polished_silver/vlabench_property_reflection_polished_silver.xml", 0.0),
     ("vlabench_property_reflection_satin_gray", "objects/vlabench_property_reflection_satin_gray/vlabench_property_reflection_satin_gray.xml", 0.0),
+    // T08 (task catalog §6.3): one weighing-mug category for all three mugs (masses are private, set per episode) and
+    // the green target bin, written by scripts/gen_perception_assets.py
+    ("clier_weighing_mug", "objects/clier_weighing_mug/clier_weighing_mug.xml", 0.0),
+    ("composuite_target_bin", "objects/composuite_target_bin/composuite_target_bin.xml", 0.0),
 ];
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.

@@ -21,6 +21,11 @@ use crate::predicates::SceneIndex;
 /// The behaviour that solves the task.
 pub const SOLVE: &str = "solve";
 
+/// T08: the phase at whose end a weighed mug has hung still in the hand (tests read the wrist force there).
+pub fn perception_weigh_hold_phase() -> &'static str {
+    perception::WEIGH_HOLD_PHASE
+}
+
 /// A policy over privileged state, one control step at a time.
 pub trait Expert: Send {
     /// The next normalized 7-vector action for the current state, or `None` when the expert is done.

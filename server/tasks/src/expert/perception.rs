@@ -68,7 +68,7 @@ fn button_task(task_id: &str) -> Option<(&'static str, &'static str)> {
 const PROPERTY_CAP_TOP_LOCAL_M: [f64; 3] = [-0.045, 0.0, 0.095];
 
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    (bin_task(task_id).is_some() || button_task(task_id).is_some()).then_some(&[WRONG_TARGET][..])
+    (bin_task(task_id).is_some() || button_task(task_id).is_some() || task_id == "T08").then_some(&[WRONG_TARGET][..])
 }
 
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
@@ -79,6 +79,7 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
     match bin_task(task_id) {
         Some(t) if behaviour == SOLVE => place_in_bin(refs, t.target, t.target_grip_m, 0.0),
         Some(t) => place_in_bin(refs, t.distractor, t.distractor_grip_m, t.distractor_yaw_rad),
+        None if task_id == "T08" => weigh_and_place(refs, behaviour),
         None => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
@@ -154,4 +155,55 @@ fn pick_and_place(
         Phase::new("wait", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(hand(ctx))).for_steps(10),
     ];
     Ok(phases)
+}
+
+/// T08 mugs in stage order.
+const MUGS: [&str; 3] = ["mug_1", "mug_2", "mug_3"];
+/// How high a mug is lifted to weigh it, and how long it is held there (control steps).
+pub const WEIGH_LIFT_M: f64 = 0.08;
+pub const WEIGH_HOLD_STEPS: u32 = 20;
+/// The name of the phase at whose end a weighed mug hangs still in the hand (the wrist-force test reads it there).
+pub const WEIGH_HOLD_PHASE: &str = "weigh_hold";
+
+/// A mug's mass in the compiled model (the episode writes the private masses there; the expert reads privileged state).
+fn mug_mass(refs: &SceneRefs, mug: &str) -> Result<f64, TasksError> {
+    let main = refs.body(&format!("{mug}_main"))?;
+    let parents = refs.model.body_parentid();
+    let in_mug = |b: usize| b == main || parents[b] as usize == main;
+    Ok((0..parents.len()).filter(|&b| in_mug(b)).map(|b| refs.model.body_mass()[b]).sum())
+}
+
+/// The phases that weigh one object: grasp across its body, lift it `WEIGH_LIFT_M`, hold still, set it back, let go.
+fn weigh(refs: &SceneRefs, object: &str) -> Result<Vec<Phase>, TasksError> {
+    let obj = refs.instance_body(object)?;
+    let up = Vector3::z();
+    Ok(vec![
+        Phase::new("above_mug", move |sim, _| Goal::at(pos(sim, obj) + up * 0.12, GRIPPER_OPEN)).until_reached(0.012),
+        Phase::new("down_to_mug", move |sim, _| Goal::at(pos(sim, obj), GRIPPER_OPEN).slow(0.5)).until_reached(0.01).max_steps(80),
+        Phase::new("grasp_mug", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(12),
+        Phase::new("weigh_lift", move |_, ctx| Goal::at(ctx.start_pos_m + up * WEIGH_LIFT_M, GRIPPER_CLOSED).slow(0.4))
+            .until_reached(0.008)
+            .max_steps(60),
+        Phase::new(WEIGH_HOLD_PHASE, move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(WEIGH_HOLD_STEPS),
+        Phase::new("set_down", move |_, ctx| Goal::at(ctx.start_pos_m - up * (WEIGH_LIFT_M - 0.004), GRIPPER_CLOSED).slow(0.4))
+            .until_reached(0.008)
+            .max_steps(60),
+        Phase::new("let_go", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN)).for_steps(10),
+        Phase::new("up_from_mug", move |_, ctx| Goal::at(ctx.start_pos_m + up * 0.10, GRIPPER_OPEN)).until_reached(0.015).max_steps(40),
+    ])
+}
+
+/// T08: weigh the three mugs in turn, then put the heaviest (by the model's masses) in the green bin; `wrong_target`
+/// weighs them all the same way and puts the lightest in the bin.
+fn weigh_and_place(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+    let mut by_mass = MUGS.iter().map(|m| Ok((mug_mass(refs, m)?, *m))).collect::<Result<Vec<_>, TasksError>>()?;
+    by_mass.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let chosen = if behaviour == SOLVE { by_mass[2].1 } else { by_mass[0].1 };
+    let mut phases = Vec::new();
+    for m in MUGS {
+        phases.extend(weigh(refs, m)?);
+    }
+    // the bin's centre (x ≈ 0.20) is at the edge of the arm's reach from above: aim 4 cm nearer, still well inside
+    phases.extend(pick_and_place(refs, chosen, 0.0, 0.0, "target_bin_1", -0.04)?);
+    Ok(Box::new(Script::new(phases)))
 }
