@@ -10,6 +10,7 @@ mod common;
 /// `(task, BDDL stem)` of the perception tasks built so far.
 const TASKS: &[(&str, &str)] = &[
     ("T01", "select_upright_marker"),
+    ("T02", "select_between_condiments"),
     ("T03", "select_red_object"),
     ("T04", "select_striped_object"),
     ("T05", "select_marked_instance"),

@@ -5,7 +5,7 @@
 //! Button family (T06, T09, T10): press and hold the paired button's cap (the T13 press); `wrong_target` presses
 //! another button the same way.
 //!
-//! Bin family (T01, T03, T04, T05, T07): grasp the candidate from above, lift it clear of the bin walls, carry it
+//! Bin family (T01, T03, T04, T05, T07, and T02 with LIBERO's basket): grasp the candidate from above, lift it clear of the bin walls, carry it
 //! over the bin, lower it inside, let go, retreat.
 use std::sync::{Arc, Mutex};
 
@@ -29,6 +29,11 @@ struct BinTask {
     distractor_grip_m: f64,
     /// Hand yaw (about world z, from the home orientation) for the distractor: T01's fallen token lies across y.
     distractor_yaw_rad: f64,
+    /// The receptacle, and where over it the object is let go (x offset from its centre, m).
+    bin: &'static str,
+    bin_offset_x_m: f64,
+    /// How far above its resting height the object's root is carried over the receptacle's rim.
+    carry_above_rest_m: f64,
 }
 
 fn bin_task(task_id: &str) -> Option<BinTask> {
@@ -38,6 +43,9 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
         target_grip_m,
         distractor_grip_m,
         distractor_yaw_rad: 0.0,
+        bin: "perception_bin_1",
+        bin_offset_x_m: 0.0,
+        carry_above_rest_m: CARRY_ABOVE_REST_M,
     };
     Some(match task_id {
         // upright token (root at its centre, 12 cm tall) vs a fallen one (7.2 cm tall, 12 cm across y: turn the hand)
@@ -48,6 +56,9 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
         "T04" => t("candidate_1", "candidate_2", 0.0, 0.0),
         // (the near slot, x ≈ 0.2, is at the edge of the arm's reach from straight above: the middle one is taken)
         "T05" => t("candidate_1", "candidate_2", 0.0, 0.0),
+        // LIBERO condiment bottles standing (root 6 cm above the bottom), carried high over the basket's rim (the basket
+        // stands 9 cm nearer the robot than in the catalog: at x ≈ 0.2 it is beyond a top-down reach)
+        "T02" => BinTask { bin: "basket_1", carry_above_rest_m: 0.20, ..t("condiment_2", "condiment_1", 0.0, 0.0) },
         // drinks: root at the centre, 15 cm tall
         "T07" => t("drink_2", "drink_1", 0.028, 0.028),
         _ => return None,
@@ -77,8 +88,8 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
         return super::vlabench::press(refs, button, PROPERTY_CAP_TOP_LOCAL_M, true);
     }
     match bin_task(task_id) {
-        Some(t) if behaviour == SOLVE => place_in_bin(refs, t.target, t.target_grip_m, 0.0),
-        Some(t) => place_in_bin(refs, t.distractor, t.distractor_grip_m, t.distractor_yaw_rad),
+        Some(t) if behaviour == SOLVE => place_in_bin(refs, &t, t.target, t.target_grip_m, 0.0),
+        Some(t) => place_in_bin(refs, &t, t.distractor, t.distractor_grip_m, t.distractor_yaw_rad),
         None if task_id == "T08" => weigh_and_place(refs, behaviour),
         None => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
@@ -97,9 +108,9 @@ fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
 const CARRY_ABOVE_REST_M: f64 = 0.17;
 const RELEASE_ABOVE_REST_M: f64 = 0.025;
 
-/// Grasp `object` `grip_m` above its root with the hand yawed by `yaw_rad`, put it in `perception_bin_1`.
-fn place_in_bin(refs: &SceneRefs, object: &str, grip_m: f64, yaw_rad: f64) -> Result<Box<dyn Expert>, TasksError> {
-    Ok(Box::new(Script::new(pick_and_place(refs, object, grip_m, yaw_rad, "perception_bin_1", 0.0)?)))
+/// Grasp `object` `grip_m` above its root with the hand yawed by `yaw_rad`, put it in the task's bin.
+fn place_in_bin(refs: &SceneRefs, t: &BinTask, object: &str, grip_m: f64, yaw_rad: f64) -> Result<Box<dyn Expert>, TasksError> {
+    Ok(Box::new(Script::new(pick_and_place(refs, object, grip_m, yaw_rad, t.bin, t.bin_offset_x_m, t.carry_above_rest_m)?)))
 }
 
 /// The phases that grasp `object` and let it go inside `bin_name`, over a point `bin_offset_x_m` from the bin's centre
@@ -111,6 +122,7 @@ fn pick_and_place(
     yaw_rad: f64,
     bin_name: &str,
     bin_offset_x_m: f64,
+    carry_above_rest_m: f64,
 ) -> Result<Vec<Phase>, TasksError> {
     let obj = refs.instance_body(object)?;
     let bin = refs.instance_body(bin_name)?;
@@ -140,7 +152,7 @@ fn pick_and_place(
         Phase::new("lift", move |_, ctx| Goal::at(ctx.start_pos_m + up * 0.18, GRIPPER_CLOSED).rotated(hand(ctx)).slow(0.6))
             .until_reached(0.015)
             .max_steps(80),
-        Phase::new("carry_over_bin", move |sim, ctx| Goal::at(carry(sim, over_bin(&r1, sim, CARRY_ABOVE_REST_M)), GRIPPER_CLOSED).rotated(hand(ctx)).slow(0.6))
+        Phase::new("carry_over_bin", move |sim, ctx| Goal::at(carry(sim, over_bin(&r1, sim, carry_above_rest_m)), GRIPPER_CLOSED).rotated(hand(ctx)).slow(0.6))
             .until(move |sim, _| xy_dist(pos(sim, obj), pos(sim, bin) + Vector3::x() * bin_offset_x_m) < 0.01)
             .max_steps(150),
         Phase::new("lower_into_bin", move |sim, ctx| {
@@ -204,6 +216,6 @@ fn weigh_and_place(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>,
         phases.extend(weigh(refs, m)?);
     }
     // the bin's centre (x ≈ 0.20) is at the edge of the arm's reach from above: aim 4 cm nearer, still well inside
-    phases.extend(pick_and_place(refs, chosen, 0.0, 0.0, "target_bin_1", -0.04)?);
+    phases.extend(pick_and_place(refs, chosen, 0.0, 0.0, "target_bin_1", -0.04, CARRY_ABOVE_REST_M)?);
     Ok(Box::new(Script::new(phases)))
 }
