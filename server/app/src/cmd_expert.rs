@@ -175,6 +175,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "stage_regressions": record["stage_regressions"],
             "failure_reason": record["failure_reason"],
             "first_commitment": record["first_commitment"],
+            "judgment_correct": record["judgment_correct"],
             "osc_sequence_calls": run.osc_calls,
             "actions": run.actions,
             "demo": demo,

@@ -1,7 +1,8 @@
 //! Proof of solvability and of checker soundness for every task with a scripted privileged expert, through the
 //! real binary and the real episode path (`libero-agent expert`: episodes prepared like any other, the expert acting
 //! only through `osc_sequence`): the expert succeeds in 3 of 3 runs from the task's init state, an idle agent (start,
-//! then finish) fails, and every near-miss behaviour fails.
+//! then finish) fails, and every near-miss behaviour fails. Perception tasks (those with a `wrong_target` behaviour)
+//! also judge target identification: the expert's record has `judgment_correct == true`, wrong_target's `false`.
 use std::process::Command;
 
 use serde_json::Value;
@@ -62,6 +63,14 @@ fn check_task(task: &str, behaviours: &[String]) {
     let actions: Vec<_> = solved.iter().map(|r| r["actions"].clone()).collect();
     assert!(actions.windows(2).all(|w| w[0] == w[1]), "{task}: runs from the same init state must be identical: {actions:?}");
 
+    // perception tasks: the expert's first commitment is the private target, the wrong-target run's is not
+    let judged = behaviours.iter().any(|b| b == "wrong_target");
+    if judged {
+        for r in &solved {
+            assert_eq!(r["judgment_correct"], true, "{task}: the expert commits to the target first: {r}");
+        }
+    }
+
     let (_, idle) = run(task, "idle", 1);
     assert_eq!(idle[0]["success"], false, "{task}: the idle agent must fail: {}", idle[0]);
     assert_eq!(idle[0]["completed_stage_count"], 0, "{}", idle[0]);
@@ -81,6 +90,10 @@ fn check_task(task: &str, behaviours: &[String]) {
             let regressions = r[0]["stage_regressions"].as_array().map_or(0, Vec::len);
             assert!(regressions > 0, "{task} undo: the evaluator must record the regression: {}", r[0]);
         }
+        if b == "wrong_target" {
+            assert_eq!(r[0]["judgment_correct"], false, "{task}: wrong_target commits to a distractor: {}", r[0]);
+            assert!(r[0]["first_commitment"].is_object(), "{task}: wrong_target commits to something: {}", r[0]);
+        }
     }
 }
 
@@ -99,7 +112,7 @@ fn every_expert_solves_its_task_three_of_three_and_idle_and_near_miss_runs_fail(
 
 #[test]
 fn unknown_tasks_and_behaviours_are_refused_clearly() {
-    let out = bin().args(["expert", "--task", "T05"]).output().unwrap();
+    let out = bin().args(["expert", "--task", "T21"]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no scripted expert"), "{}", String::from_utf8_lossy(&out.stderr));
     let data = tempfile::tempdir().unwrap();

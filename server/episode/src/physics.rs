@@ -9,7 +9,7 @@ use libero_sim::compose::{ComposedScene, compose_file};
 use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, InitStates, Simulation};
-use libero_tasks::{Evaluator, Tick, build_evaluator};
+use libero_tasks::{Evaluator, Tick, apply_private_model_edits, build_evaluator};
 
 use crate::EpisodeError;
 use crate::call::MicroAction;
@@ -56,6 +56,9 @@ impl WorldPhysics {
         };
         let placement = Placement::sample(&scene, seed, Some(&model))?;
         placement.apply(&mut model)?;
+        // private parameters that shape the physics (T08's mug masses) reach the model here, never through a file
+        apply_private_model_edits(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &mut model)
+            .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
         let evaluator = build_evaluator(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &scene, &model)
             .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
         let init_index = suite.map_or(spec.init_index, |s| s.init_index);

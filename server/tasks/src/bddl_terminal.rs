@@ -1,6 +1,10 @@
 //! `bddl_terminal` (and `bddl_terminal_open`): success is the BDDL goal conjunction on the final state; nothing
 //! is latched (task catalog §1.3 step 5, §1.4: K = 1, completed = success). The goal is also sampled at every control
 //! step, only to record diagnostic "goal became true/false" events and the first commitment.
+//!
+//! Perception tasks judged by the terminal goal (the bin family T01–T05, T07) name their private target in the
+//! manifest (`params.judgment_target`); the record then carries `judgment_correct`: the first object grasped and
+//! lifted ≥ 0.04 m is the target (task catalog §8.6).
 use libero_sim::simulation::SimData;
 
 use crate::commitment::CommitmentTracker;
@@ -13,8 +17,18 @@ pub const CHECKER: &str = "bddl_terminal";
 /// The single stage of a terminal task.
 pub const STAGE_NAME: &str = "01_BDDL_Goal_At_Finish";
 
+/// The manifest's `checker.params` (all optional).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BddlTerminalParams {
+    /// Perception tasks: the instance the agent must identify (private).
+    #[serde(default)]
+    pub judgment_target: Option<String>,
+}
+
 pub struct BddlTerminal {
     checker: String,
+    judgment_target: Option<String>,
     goal: GoalChecker,
     commitment: CommitmentTracker,
     task_id: Option<String>,
@@ -26,7 +40,22 @@ pub struct BddlTerminal {
 impl BddlTerminal {
     /// `checker` is the manifest's checker name (`bddl_terminal` or `bddl_terminal_open`; same rule).
     pub fn new(checker: impl Into<String>, goal: GoalChecker, commitment: CommitmentTracker, task_id: Option<String>) -> Self {
-        Self { checker: checker.into(), goal, commitment, task_id, control_steps: 0, last_goal: None, events: Vec::new() }
+        Self {
+            checker: checker.into(),
+            judgment_target: None,
+            goal,
+            commitment,
+            task_id,
+            control_steps: 0,
+            last_goal: None,
+            events: Vec::new(),
+        }
+    }
+
+    /// Judges target identification against `target` (an instance of the scene).
+    pub fn with_judgment_target(mut self, target: Option<String>) -> Self {
+        self.judgment_target = target;
+        self
     }
 
     fn note_goal(&mut self, data: &SimData, tick: Tick) {
@@ -72,6 +101,8 @@ impl Evaluator for BddlTerminal {
         record.control_steps_observed = self.control_steps;
         record.events = self.events.clone();
         record.first_commitment = self.commitment.first().cloned();
+        record.judgment_correct =
+            self.judgment_target.as_deref().map(|t| crate::evaluator::judged_target(record.first_commitment.as_ref(), t));
         record.bddl_final_goal_success = Some(report.success);
         record.bddl_goal = Some(report);
         record.failure_reason = (!record.success).then_some(FailureReason::TerminalStateInvalid);

@@ -277,6 +277,10 @@ pub struct EvaluationRecord {
     pub bddl_goal: Option<GoalReport>,
     pub bddl_final_goal_success: Option<bool>,
     pub failure_reason: Option<FailureReason>,
+    /// Perception tasks: whether the agent's first commitment (see [`CommitmentTracker`]) was the private target
+    /// (task catalog §1.5/§8.6; per-task definitions in tasks/README.md). `None` for tasks that judge no target.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub judgment_correct: Option<bool>,
     /// Evaluator-specific private diagnostics (per-button press history, measured insertion values, …).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub details: Option<serde_json::Value>,
@@ -306,6 +310,7 @@ impl EvaluationRecord {
             bddl_goal: None,
             bddl_final_goal_success: None,
             failure_reason: None,
+            judgment_correct: None,
             details: None,
         }
     }
@@ -343,6 +348,12 @@ pub trait Evaluator: Send {
 }
 
 pub use crate::commitment::{Commitment, CommitmentKind, CommitmentTracker};
+
+/// Judgment for a perception task whose target is the instance `target`: the first commitment exists and is that
+/// instance (no commitment at all is not a correct judgment).
+pub fn judged_target(first: Option<&Commitment>, target: &str) -> bool {
+    first.is_some_and(|c| c.subject == target)
+}
 
 #[cfg(test)]
 mod tests {

@@ -12,6 +12,7 @@ use crate::goal::GoalChecker;
 use crate::pour::{self, PourWine};
 use crate::staged::{self, StagedEvaluator};
 use crate::tube_insertion::{self, TubeInsertion};
+use crate::weighing::{self, PhysicalWeighing};
 use crate::wipe::{self, SpillWipe};
 
 /// The checker types this build can judge (the catalog refuses an implemented task whose checker is not here).
@@ -19,11 +20,13 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     bddl_terminal::CHECKER,
     "bddl_terminal_open",
     button_press::CHECKER,
+    button_press::GATED_CHECKER,
     tube_insertion::CHECKER,
     wipe::CHECKER,
     pour::CHECKER,
     staged::CHECKER_ORDERED,
     staged::CHECKER_UNORDERED,
+    weighing::CHECKER,
 ];
 
 /// The scene's BDDL goal (a diagnostic for private evaluators) and its first-commitment tracker.
@@ -50,6 +53,15 @@ fn params<T: serde::de::DeserializeOwned>(checker: Option<&CheckerSpec>, kind: &
     })
 }
 
+/// Edits a task's private checker parameters make to the compiled model before the episode starts (T08: each
+/// mug's mass). Call before [`build_evaluator`] and before the model is frozen; a no-op for other checkers.
+pub fn apply_private_model_edits(checker: Option<&CheckerSpec>, task_id: Option<&str>, model: &mut MjModel) -> Result<(), TasksError> {
+    match checker.map(|c| c.kind.as_str()) {
+        Some(weighing::CHECKER) => weighing::apply_mug_masses(&params(checker, weighing::CHECKER, task_id)?, model),
+        _ => Ok(()),
+    }
+}
+
 /// The evaluator for `checker` on `scene` (compiled as `model`). `None` — a stock LIBERO task without a suite
 /// entry — is judged like `bddl_terminal`: the scene's own BDDL goal on the final state.
 pub fn build_evaluator(
@@ -62,11 +74,22 @@ pub fn build_evaluator(
     match kind {
         "bddl_terminal" | "bddl_terminal_open" => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-            Ok(Box::new(BddlTerminal::new(kind, goal, commitment, task_id.map(str::to_owned))))
+            let p: bddl_terminal::BddlTerminalParams = params(checker, kind, task_id)?;
+            if let Some(t) = &p.judgment_target
+                && goal.index().instance(t).is_none()
+            {
+                return Err(missing_in_model(kind, "instance", t));
+            }
+            let e = BddlTerminal::new(kind, goal, commitment, task_id.map(str::to_owned));
+            Ok(Box::new(e.with_judgment_target(p.judgment_target)))
         }
         button_press::CHECKER => {
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(ButtonPress::new(p, scene, model, task_id.map(str::to_owned))?))
+        }
+        button_press::GATED_CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(ButtonPress::gated(p, scene, model, task_id.map(str::to_owned))?))
         }
         tube_insertion::CHECKER => {
             let p = params(checker, kind, task_id)?;
@@ -86,6 +109,11 @@ pub fn build_evaluator(
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(StagedEvaluator::new(kind, p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        weighing::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PhysicalWeighing::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

@@ -13,11 +13,12 @@ pub mod pour;
 pub mod predicates;
 pub mod staged;
 pub mod tube_insertion;
+pub mod weighing;
 pub mod wipe;
 
 pub use error::TasksError;
 pub use catalog::{Catalog, TaskEntry};
 pub use evaluator::{EvaluationRecord, Evaluator, Tick};
-pub use factory::build_evaluator;
+pub use factory::{apply_private_model_edits, build_evaluator};
 pub use goal::{GoalChecker, GoalReport, PredicateValue};
 pub use predicates::{ArticulationRule, EntityRef, JointTest, PredicateKind, SceneIndex, articulation_rule};

@@ -73,6 +73,39 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // T19 (task catalog §6.6): RoboCasa-style sponge (movable) and tabletop spill patch with the blue rest pad (fixture)
     ("robocasa_sponge", "objects/robocasa_sponge/robocasa_sponge.xml", 0.0),
     ("robocasa_spill_patch", "objects/robocasa_spill_patch/robocasa_spill_patch.xml", 0.0),
+    // T01, T03, T04, T05, T07 (task catalog §3.0, §6.5): the collection bin and the primitive candidates, written by
+    // scripts/gen_perception_assets.py
+    ("vlabench_perception_bin", "objects/vlabench_perception_bin/vlabench_perception_bin.xml", 0.0),
+    ("vlabench_perception_upright_token", "objects/vlabench_perception_upright_token/vlabench_perception_upright_token.xml", 0.0),
+    ("vlabench_perception_fallen_token", "objects/vlabench_perception_fallen_token/vlabench_perception_fallen_token.xml", 0.0),
+    ("vlabench_perception_fallen_token_2", "objects/vlabench_perception_fallen_token_2/vlabench_perception_fallen_token_2.xml", 0.0),
+    ("vlabench_perception_red_color", "objects/vlabench_perception_red_color/vlabench_perception_red_color.xml", 0.0),
+    ("vlabench_perception_blue_color", "objects/vlabench_perception_blue_color/vlabench_perception_blue_color.xml", 0.0),
+    ("vlabench_perception_green_color", "objects/vlabench_perception_green_color/vlabench_perception_green_color.xml", 0.0),
+    ("vlabench_perception_striped_texture", "objects/vlabench_perception_striped_texture/vlabench_perception_striped_texture.xml", 0.0),
+    ("vlabench_perception_spotted_texture", "objects/vlabench_perception_spotted_texture/vlabench_perception_spotted_texture.xml", 0.0),
+    ("vlabench_perception_plain_texture", "objects/vlabench_perception_plain_texture/vlabench_perception_plain_texture.xml", 0.0),
+    ("vlabench_perception_single_marked_instance", "objects/vlabench_perception_single_marked_instance/vlabench_perception_single_marked_instance.xml", 0.0),
+    ("vlabench_perception_double_marked_instance", "objects/vlabench_perception_double_marked_instance/vlabench_perception_double_marked_instance.xml", 0.0),
+    ("vlabench_perception_unmarked_instance", "objects/vlabench_perception_unmarked_instance/vlabench_perception_unmarked_instance.xml", 0.0),
+    ("vlabench_milk_drink", "objects/vlabench_milk_drink/vlabench_milk_drink.xml", 0.0),
+    ("vlabench_cola_drink", "objects/vlabench_cola_drink/vlabench_cola_drink.xml", 0.0),
+    ("vlabench_juice_drink", "objects/vlabench_juice_drink/vlabench_juice_drink.xml", 0.0),
+    // T06, T09, T10 (task catalog §3.1, §6.4): buttons paired with a candidate cue, written by
+    // scripts/gen_perception_assets.py
+    ("vlabench_property_weight_sphere", "objects/vlabench_property_weight_sphere/vlabench_property_weight_sphere.xml", 0.0),
+    ("vlabench_property_weight_cylinder", "objects/vlabench_property_weight_cylinder/vlabench_property_weight_cylinder.xml", 0.0),
+    ("vlabench_property_weight_cube", "objects/vlabench_property_weight_cube/vlabench_property_weight_cube.xml", 0.0),
+    ("vlabench_property_size_small_cylinder", "objects/vlabench_property_size_small_cylinder/vlabench_property_size_small_cylinder.xml", 0.0),
+    ("vlabench_property_size_medium_cylinder", "objects/vlabench_property_size_medium_cylinder/vlabench_property_size_medium_cylinder.xml", 0.0),
+    ("vlabench_property_size_large_cylinder", "objects/vlabench_property_size_large_cylinder/vlabench_property_size_large_cylinder.xml", 0.0),
+    ("vlabench_property_reflection_matte_gray", "objects/vlabench_property_reflection_matte_gray/vlabench_property_reflection_matte_gray.xml", 0.0),
+    ("vlabench_property_reflection_polished_silver", "objects/vlabench_property_reflection_polished_silver/vlabench_property_reflection_polished_silver.xml", 0.0),
+    ("vlabench_property_reflection_satin_gray", "objects/vlabench_property_reflection_satin_gray/vlabench_property_reflection_satin_gray.xml", 0.0),
+    // T08 (task catalog §6.3): one weighing-mug category for all three mugs (masses are private, set per episode) and
+    // the green target bin, written by scripts/gen_perception_assets.py
+    ("clier_weighing_mug", "objects/clier_weighing_mug/clier_weighing_mug.xml", 0.0),
+    ("composuite_target_bin", "objects/composuite_target_bin/composuite_target_bin.xml", 0.0),
 ];
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.

@@ -10,6 +10,7 @@ mod articulated;
 mod long;
 pub mod motion;
 mod objects;
+mod perception;
 mod stock;
 mod vlabench;
 
@@ -22,6 +23,11 @@ use crate::predicates::SceneIndex;
 
 /// The behaviour that solves the task.
 pub const SOLVE: &str = "solve";
+
+/// T08: the phase at whose end a weighed mug has hung still in the hand (tests read the wrist force there).
+pub fn perception_weigh_hold_phase() -> &'static str {
+    perception::WEIGH_HOLD_PHASE
+}
 
 /// A policy over privileged state, one control step at a time.
 pub trait Expert: Send {
@@ -90,6 +96,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| vlabench::behaviours(task_id))
         .or_else(|| adapted::behaviours(task_id))
         .or_else(|| long::behaviours(task_id))
+        .or_else(|| perception::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -113,7 +120,9 @@ pub fn expert_for(
         vlabench::build(task_id, behaviour, &refs)
     } else if adapted::behaviours(task_id).is_some() {
         adapted::build(task_id, behaviour, &refs)
-    } else {
+    } else if long::behaviours(task_id).is_some() {
         long::build(task_id, behaviour, &refs)
+    } else {
+        perception::build(task_id, behaviour, &refs)
     }
 }

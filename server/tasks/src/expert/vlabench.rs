@@ -36,21 +36,32 @@ const PRESS_HOLD_STEPS: u32 = 30;
 /// release seed 100 the longest pressed run is 6 samples (< 11), and likewise at seeds 1, 2, 4; at seed 3 the touch
 /// began early in a step and lasted 26 samples (a press). The near-miss is therefore only claimed at seed 100.
 fn press_button(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
-    let button = refs.instance_body("button_1")?;
+    press(refs, "button_1", CAP_TOP_LOCAL_M, behaviour == SOLVE)
+}
+
+/// Press the cap (top face at `cap_top_local_m` in the button's frame) of fixture `button` and hold (`hold`), or tap it.
+pub(super) fn press(
+    refs: &SceneRefs,
+    button_name: &str,
+    cap_top_local_m: [f64; 3],
+    hold: bool,
+) -> Result<Box<dyn Expert>, TasksError> {
+    let button = refs.instance_body(button_name)?;
+    let sensor_name = format!("{button_name}_button_touch");
     let sensor = refs
         .model
-        .name_to_id(libero_sim::mujoco_rs::prelude::MjtObjBase::mjOBJ_SENSOR, "button_1_button_touch")
-        .ok_or_else(|| TasksError::Scene("expert: the model has no sensor \"button_1_button_touch\"".into()))?;
+        .name_to_id(libero_sim::mujoco_rs::prelude::MjtObjBase::mjOBJ_SENSOR, &sensor_name)
+        .ok_or_else(|| TasksError::Scene(format!("expert: the model has no sensor {sensor_name:?}")))?;
     let sensor_adr = refs.model.sensor_adr()[sensor] as usize;
     let touched = move |sim: &Simulation| sim.data().sensordata()[sensor_adr] >= 0.001;
-    let cap_top = move |sim: &Simulation| body_point(sim, button, CAP_TOP_LOCAL_M);
+    let cap_top = move |sim: &Simulation| body_point(sim, button, cap_top_local_m);
     let up = Vector3::z();
     let mut phases = vec![
         Phase::new("close_gripper", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED))
             .for_steps(8),
         Phase::new("above_cap", move |sim, _| Goal::at(cap_top(sim) + up * 0.10, GRIPPER_CLOSED)).until_reached(0.01),
     ];
-    if behaviour == SOLVE {
+    if hold {
         phases.extend([
             Phase::new("down_to_cap", move |sim, _| Goal::at(cap_top(sim) + up * 0.01, GRIPPER_CLOSED).slow(0.4))
                 .until_reached(0.006),
