@@ -3,9 +3,8 @@
 //! and through the `mcp-stdio` relay; malformed traffic is thrown at the endpoint; a killed server's open
 //! episode is recorded as INVALID on restart, in its run directory and in the episode store, while the
 //! store keeps the finished episode's row; `bench mcp` prints its JSON.
-use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 use serde_json::Value;
 
