@@ -77,6 +77,8 @@ struct JointWatch {
 pub struct CommitmentTracker {
     left_pad: usize,
     right_pad: usize,
+    /// `gripper0_grip_site`, for the released-and-clear test.
+    grip_site: usize,
     objects: Vec<ObjectWatch>,
     joints: Vec<JointWatch>,
     first: Option<Commitment>,
@@ -103,7 +105,10 @@ impl CommitmentTracker {
                 joints.push(JointWatch { instance: i, qpos_adr: j.qpos_adr, threshold, q0: 0.0 });
             }
         }
-        Ok(Self { left_pad: geom(LEFT_PAD_GEOM)?, right_pad: geom(RIGHT_PAD_GEOM)?, objects, joints, first: None })
+        let grip_site = model
+            .name_to_id(MjtObjBase::mjOBJ_SITE, libero_sim::robot::GRIP_SITE)
+            .ok_or_else(|| TasksError::Scene(format!("model has no site {}", libero_sim::robot::GRIP_SITE)))?;
+        Ok(Self { left_pad: geom(LEFT_PAD_GEOM)?, right_pad: geom(RIGHT_PAD_GEOM)?, grip_site, objects, joints, first: None })
     }
 
     /// Captures reset heights and joint positions; forgets any earlier commitment.
@@ -126,6 +131,15 @@ impl CommitmentTracker {
             })
         };
         touches(self.left_pad) && touches(self.right_pad)
+    }
+
+    /// Released-and-clear: instance `i` is not grasped and its root origin is at least `min_distance_m` from the grip
+    /// site (the hand has let go and moved away).
+    pub fn released_and_clear(&self, index: &SceneIndex, data: &SimData, i: usize, min_distance_m: f64) -> bool {
+        let p = data.xpos()[index.instances[i].body];
+        let g = data.site_xpos()[self.grip_site];
+        let d = ((p[0] - g[0]).powi(2) + (p[1] - g[1]).powi(2) + (p[2] - g[2]).powi(2)).sqrt();
+        !self.grasped(index, data, i) && d >= min_distance_m
     }
 
     /// Samples one control step; returns the commitment if it happened now.

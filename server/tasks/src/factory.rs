@@ -113,7 +113,7 @@ pub fn build_evaluator(
         weighing::CHECKER => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
-            Ok(Box::new(PhysicalWeighing::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+            Ok(Box::new(PhysicalWeighing::new(p, goal, commitment, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

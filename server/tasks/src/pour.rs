@@ -247,10 +247,7 @@ impl Evaluator for PourWine {
         }
         let (lift_seen, pours) = (self.lift_seen.is_some(), self.counter.pours().len());
         self.stages.advance(tick, |i| if i == 0 { lift_seen } else { pours >= 1 });
-        if let Some(c) = self.commitment.observe(&self.index, data, tick) {
-            let event = PrivateEvent { subject: Some(c.subject.clone()), ..PrivateEvent::new(EventKind::FirstCommitment, tick) };
-            self.events.push(event);
-        }
+        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
     }
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {

@@ -31,7 +31,6 @@ use crate::predicates::{EntityRef, SceneIndex, region_contains};
 
 pub const CHECKER: &str = "private_physical_weighing";
 pub const PLACE_STAGE: &str = "Place_Heaviest_Mug_In_Green_Bin";
-const GRIP_SITE: &str = "gripper0_grip_site";
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -97,7 +96,6 @@ pub struct PhysicalWeighing {
     mugs: Vec<(String, usize)>,
     target: usize,
     region: usize,
-    grip_site: usize,
     z0: Vec<f64>,
     weighed: Vec<Option<Tick>>,
     placed: Option<Tick>,
@@ -112,7 +110,6 @@ impl PhysicalWeighing {
         params: WeighingParams,
         goal: GoalChecker,
         commitment: CommitmentTracker,
-        model: &MjModel,
         task_id: Option<String>,
     ) -> Result<Self, TasksError> {
         let index = goal.index().clone();
@@ -126,7 +123,6 @@ impl PhysicalWeighing {
             Some(EntityRef::Region(r)) => r,
             _ => return Err(missing_in_model(CHECKER, "region", &params.receptacle_region)),
         };
-        let grip_site = model.name_to_id(MjtObjBase::mjOBJ_SITE, GRIP_SITE).ok_or_else(|| missing_in_model(CHECKER, "site", GRIP_SITE))?;
         let n = mugs.len();
         Ok(Self {
             params,
@@ -137,7 +133,6 @@ impl PhysicalWeighing {
             mugs,
             target,
             region,
-            grip_site,
             z0: vec![0.0; n],
             weighed: vec![None; n],
             placed: None,
@@ -161,10 +156,7 @@ impl PhysicalWeighing {
     }
 
     fn released_and_clear(&self, data: &SimData, m: usize) -> bool {
-        let p = self.pos(data, m);
-        let g = data.site_xpos()[self.grip_site];
-        let d = ((p[0] - g[0]).powi(2) + (p[1] - g[1]).powi(2) + (p[2] - g[2]).powi(2)).sqrt();
-        !self.commitment.grasped(&self.index, data, self.mugs[m].1) && d >= self.params.release_clear_distance_m
+        self.commitment.released_and_clear(&self.index, data, self.mugs[m].1, self.params.release_clear_distance_m)
     }
 
     fn stage_event(&mut self, i: usize, tick: Tick) {

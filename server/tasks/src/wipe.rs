@@ -36,8 +36,6 @@ pub const MARKER_ALPHA_UNCOVERED: f32 = 0.92;
 pub const MARKER_ALPHA_COVERED: f32 = 0.0;
 /// Body contact counts only with a penetration/gap distance at most this (catalog §0 "Body contact").
 pub const BODY_CONTACT_MAX_DIST_M: f64 = 1e-3;
-/// The grip site Released-and-clear measures from.
-pub const GRIP_SITE: &str = "gripper0_grip_site";
 
 /// The manifest's `checker.params` (defaults = the catalog's values).
 #[derive(Debug, Clone, Deserialize)]
@@ -103,7 +101,6 @@ pub struct SpillWipe {
     commitment: CommitmentTracker,
     task_id: Option<String>,
     sponge: usize,
-    grip_site: usize,
     /// Geom ids of the markers and their model colours.
     marker_geoms: Vec<(usize, [f32; 4])>,
     /// Per geom: 1 = in the sponge's body subtree, 2 = in the table's, 0 = neither.
@@ -130,7 +127,6 @@ impl SpillWipe {
         let id = |kind, name: &str| {
             model.name_to_id(kind, name).ok_or_else(|| TasksError::Scene(format!("model has no {kind:?} {name:?}")))
         };
-        let grip_site = id(MjtObjBase::mjOBJ_SITE, GRIP_SITE)?;
         let table = id(MjtObjBase::mjOBJ_BODY, &params.table_body)?;
         let ngeom = model.ffi().ngeom as usize;
         let mut marker_geoms = Vec::with_capacity(params.markers);
@@ -167,7 +163,6 @@ impl SpillWipe {
             commitment,
             task_id,
             sponge,
-            grip_site,
             marker_geoms,
             geom_side,
             rest_on,
@@ -197,10 +192,7 @@ impl SpillWipe {
     }
 
     fn released_and_clear(&self, data: &SimData) -> bool {
-        let p = self.sponge_pos(data);
-        let g = data.site_xpos()[self.grip_site];
-        let d = ((p[0] - g[0]).powi(2) + (p[1] - g[1]).powi(2) + (p[2] - g[2]).powi(2)).sqrt();
-        !self.grasped(data) && d >= self.params.release_clear_distance_m
+        self.commitment.released_and_clear(&self.index, data, self.sponge, self.params.release_clear_distance_m)
     }
 
     fn rest_holds(&self, data: &SimData) -> bool {
@@ -238,7 +230,7 @@ impl SpillWipe {
             }
         }
         // ordered: only the current stage is tested (the earlier stages' conditions are their prerequisites)
-        let holds: Vec<bool> = (0..STAGES.len()).map(|i| self.stage_holds(data, i)).collect();
+        let holds: [bool; STAGES.len()] = std::array::from_fn(|i| self.stage_holds(data, i));
         self.stages.advance(tick, |i| holds[i]);
         self.stages.track_regressions(tick, |i| holds[i]);
     }
@@ -279,10 +271,7 @@ impl Evaluator for SpillWipe {
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
         self.control_steps += 1;
         self.sample(data, tick);
-        if let Some(c) = self.commitment.observe(&self.index, data, tick) {
-            let event = PrivateEvent { subject: Some(c.subject.clone()), ..PrivateEvent::new(EventKind::FirstCommitment, tick) };
-            self.events.push(event);
-        }
+        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
     }
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
