@@ -4,18 +4,13 @@
 // steps with the keyboard, scrubs the timeline, opens a deep link and shows the observation the agent got, and
 // the tasks page shows a rendered thumbnail. Prints JSON lines: {"event":"live-ready"} once the live page is
 // connected (the test then starts the agent), finally {"ok":true,...}. Screenshots go to ARTIFACTS.
-const { chromium } = require('playwright-core');
-const path = require('path');
+const { launch, say, shotter, check, text } = require('./common.cjs');
 
 const [base, episode, artifacts, unimplemented] = process.argv.slice(2);
-const executablePath = process.env.LIBERO_AGENT_CHROMIUM || '/usr/bin/chromium';
-const say = (o) => process.stdout.write(JSON.stringify(o) + '\n');
-const shot = (page, name) => page.screenshot({ path: path.join(artifacts, `${name}.png`), fullPage: true });
-function check(cond, what) { if (!cond) throw new Error(`check failed: ${what}`); }
-const text = (page, sel) => page.locator(sel).innerText();
+const shot = shotter(artifacts);
 
 async function main() {
-  const browser = await chromium.launch({ executablePath, headless: true, args: ['--no-sandbox', '--autoplay-policy=no-user-gesture-required'] });
+  const browser = await launch();
   const context = await browser.newContext({ viewport: { width: 1500, height: 1100 } });
   const report = {};
   const errors = [];

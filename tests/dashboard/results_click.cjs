@@ -2,16 +2,13 @@
 // table, clicks the first rollout link of task TASK and expects that episode's review page to load with its
 // result record. Usage: node results_click.cjs BASE TASK ARTIFACTS. Prints one JSON line, {"ok":true,...} or
 // {"ok":false,"error":...}. Screenshots go to ARTIFACTS.
-const { chromium } = require('playwright-core');
-const path = require('path');
+const { launch, say, shotter, check } = require('./common.cjs');
 
 const [base, task, artifacts] = process.argv.slice(2);
-const executablePath = process.env.LIBERO_AGENT_CHROMIUM || '/usr/bin/chromium';
-const say = (o) => process.stdout.write(JSON.stringify(o) + '\n');
-function check(cond, what) { if (!cond) throw new Error(`check failed: ${what}`); }
+const shot = shotter(artifacts);
 
 async function main() {
-  const browser = await chromium.launch({ executablePath, headless: true, args: ['--no-sandbox'] });
+  const browser = await launch();
   const errors = [];
   try {
     const page = await browser.newPage({ viewport: { width: 1500, height: 1000 } });
@@ -23,11 +20,11 @@ async function main() {
     await link.waitFor({ timeout: 10000 });
     const href = await link.getAttribute('href');
     check(/^\/episodes\/[^/]+\/review$/.test(href), `a review link, got ${href}`);
-    await page.screenshot({ path: path.join(artifacts, 'results.png'), fullPage: true });
+    await shot(page, 'results');
     await Promise.all([page.waitForURL(`**${href}`, { timeout: 15000 }), link.click()]);
     await page.waitForSelector('body[data-ready="true"]', { timeout: 30000 });
     await page.waitForFunction(() => (document.getElementById('result') || {}).textContent?.includes('private_evaluation'), null, { timeout: 15000 });
-    await page.screenshot({ path: path.join(artifacts, 'results-review.png'), fullPage: true });
+    await shot(page, 'results-review');
     check(errors.length === 0, `no page errors: ${errors.join('; ')}`);
     say({ ok: true, review: href });
   } finally {

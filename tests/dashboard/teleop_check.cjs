@@ -3,14 +3,10 @@
 // change, the control step advances, the latency and achieved-rate labels fill in, saves the demonstration and
 // reads the verdict, then opens the Demos page (the bundle is listed, its video loads) and exports it to LeRobot.
 // Prints one JSON line {"ok":true, "bundle":"T14/ep-…", ...}. Screenshots go to ARTIFACTS.
-const { chromium } = require('playwright-core');
-const path = require('path');
+const { launch, say, shotter, check, text } = require('./common.cjs');
 
 const [base, task, artifacts] = process.argv.slice(2);
-const executablePath = process.env.LIBERO_AGENT_CHROMIUM || '/usr/bin/chromium';
-const shot = (page, name) => page.screenshot({ path: path.join(artifacts, `${name}.png`), fullPage: true });
-function check(cond, what) { if (!cond) throw new Error(`check failed: ${what}`); }
-const text = (page, sel) => page.locator(sel).innerText();
+const shot = shotter(artifacts);
 const frameSrc = (page) => page.locator('#frame').evaluate((e) => e.src);
 
 async function hold(page, key, ms) {
@@ -20,7 +16,7 @@ async function hold(page, key, ms) {
 }
 
 async function main() {
-  const browser = await chromium.launch({ executablePath, headless: true, args: ['--no-sandbox', '--autoplay-policy=no-user-gesture-required'] });
+  const browser = await launch();
   const context = await browser.newContext({ viewport: { width: 1500, height: 1100 } });
   const report = {};
   const errors = [];
@@ -88,7 +84,7 @@ async function main() {
   } finally {
     await browser.close();
   }
-  process.stdout.write(JSON.stringify(report) + '\n');
+  say(report);
   process.exit(report.ok ? 0 : 1);
 }
 
