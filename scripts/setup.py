@@ -209,6 +209,9 @@ def setup_node(packages: list) -> None:
     if stamp.exists() and stamp.read_text() == marker:
         return
     if shutil.which("npm") is None:
+        # Debian's own nodejs ships npm as a separate package (other node builds include it).
+        setup_apt(["npm"])
+    if shutil.which("npm") is None:
         fail("npm is missing (Debian: apt-get install nodejs npm); the browser tests need it")
     say(f"installing {', '.join(packages)} into {node}")
     node.mkdir(parents=True, exist_ok=True)
