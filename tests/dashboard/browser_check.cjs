@@ -104,6 +104,8 @@ async function main() {
     await review.waitForFunction(() => [...document.querySelectorAll('#observation img')].some((i) => i.naturalWidth > 0), null, { timeout: 10000 });
     check(/osc_sequence|finish_episode|start_episode/.test(await text(review, '#call-detail')), 'the call at this moment is shown');
     check((await text(review, '#result')).includes('private_evaluation'), 'the result record is shown');
+    const stageRows = await review.locator('#stages tbody tr').count();
+    check(stageRows >= 1 && /01_/.test(await text(review, '#stages')), `the per-stage diagnostics table is shown (${stageRows} rows)`);
     report.review = { duration, before, after, scrubbed, events: await review.locator('#events li').count() };
     await shot(review, 'review');
     await review.goto(`${base}/episodes/${episode}/review?t=1.5`);
@@ -117,7 +119,11 @@ async function main() {
     const thumb = tasks.locator('#T14 img');
     await thumb.scrollIntoViewIfNeeded();
     await tasks.waitForFunction(() => document.querySelector('#T14 img').naturalWidth === 256, null, { timeout: 120000 });
-    check((await tasks.locator(`#${unimplemented}`).innerText()).includes('not implemented'), `${unimplemented} shows as not implemented`);
+    if (unimplemented === '-') {
+      check((await tasks.locator('article.task.unimplemented').count()) === 0, 'every task is implemented and none is marked otherwise');
+    } else {
+      check((await tasks.locator(`#${unimplemented}`).innerText()).includes('not implemented'), `${unimplemented} shows as not implemented`);
+    }
     await shot(tasks, 'tasks');
     check(errors.length === 0, `no page errors: ${errors.join('; ')}`);
     say({ ok: true, ...report });

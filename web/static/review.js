@@ -158,6 +158,43 @@ function buildEvents() {
   }));
 }
 
+/** An element with child nodes. */
+function node(tag, attrs, ...children) {
+  const e = el(tag, attrs);
+  e.append(...children);
+  return e;
+}
+
+/** Per-stage diagnostics of the record (reached / succeeded / regressions / sustained-contact ratio). */
+function buildStages() {
+  const stages = data.result?.private_evaluation?.stage_diagnostics ?? [];
+  const table = $('stages');
+  if (stages.length === 0) {
+    table.replaceChildren(node('tbody', {}, node('tr', {}, el('td', { class: 'muted' }, 'no staged evaluation'))));
+    return;
+  }
+  const head = node('tr', {}, ...['', 'stage', 'reached', 'done at', 'regressed', 'sustained contact'].map((h) => el('th', {}, h)));
+  const rows = stages.map((s) => {
+    const state = s.succeeded ? 'succeeded' : s.reached ? 'failed' : 'unreached';
+    const t = s.completed_control_step != null ? timeOfStep(s.completed_control_step) : null;
+    const scr = s.sustained_contact_ratio_percent != null
+      ? `${s.sustained_contact_ratio_percent.toFixed(0)}% of ${s.contact_exec_steps} steps` : '';
+    const regressed = s.regressions > 0
+      ? `${s.regressions}×${s.regressed_during_later_stage ? ' (undone by a later stage)' : ''}` : '';
+    const name = `${s.stage_name}${s.required ? '' : ' (optional)'}${s.failure_reason ? ` — ${s.failure_reason.replaceAll('_', ' ')}` : ''}`;
+    const tr = node('tr', { class: state, 'data-t': t ?? undefined },
+      el('td', { class: 'mark' }, s.succeeded ? '✔' : s.reached ? '✘' : '·'),
+      el('td', {}, name),
+      el('td', {}, s.reached ? 'yes' : 'no'),
+      el('td', {}, s.completed_control_step != null ? `step ${s.completed_control_step}` : '–'),
+      el('td', {}, regressed),
+      el('td', {}, scr));
+    if (t != null) tr.addEventListener('click', () => { video.pause(); seek(t); });
+    return tr;
+  });
+  table.replaceChildren(node('thead', {}, head), node('tbody', {}, ...rows));
+}
+
 // ---- input
 
 function stepBy(k) {
@@ -209,6 +246,7 @@ async function load() {
   $('result').textContent = JSON.stringify(data.result, null, 2);
   if (!data.video) video.replaceWith(el('p', { class: 'error' }, 'The video is finalised when the episode ends.'));
   buildEvents();
+  buildStages();
   const t = Number(new URL(location.href).searchParams.get('t'));
   const start = () => { if (Number.isFinite(t) && t > 0) seek(t); else update(); };
   if (video.readyState >= 1) start(); else video.addEventListener('loadedmetadata', start, { once: true });

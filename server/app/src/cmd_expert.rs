@@ -173,6 +173,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "required_stage_count": record["required_stage_count"],
             "completed_stage_names": record["completed_stage_names"],
             "stage_regressions": record["stage_regressions"],
+            "stage_diagnostics": record["stage_diagnostics"],
             "failure_reason": record["failure_reason"],
             "first_commitment": record["first_commitment"],
             "judgment_correct": record["judgment_correct"],

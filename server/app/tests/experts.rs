@@ -49,6 +49,9 @@ fn run(task: &str, behaviour: &str, runs: u32) -> (bool, Vec<Value>) {
     for r in &records {
         assert_eq!(r["task"], task);
         assert!(r["required_stage_count"].as_u64().is_some_and(|k| k >= 1), "{r}");
+        // every record carries one diagnostic per stage, the required ones counting K
+        let stages = r["stage_diagnostics"].as_array().expect("stage diagnostics");
+        assert_eq!(stages.iter().filter(|s| s["required"] == true).count() as u64, r["required_stage_count"].as_u64().unwrap_or(0), "{r}");
     }
     (out.status.success(), records)
 }
@@ -58,6 +61,12 @@ fn check_task(task: &str, behaviours: &[String]) {
     for r in &solved {
         assert_eq!(r["success"], true, "{task} expert run failed: {r}");
         assert_eq!(r["completed_stage_count"], r["required_stage_count"], "{r}");
+        let stages = r["stage_diagnostics"].as_array().expect("stage diagnostics");
+        assert!(stages.iter().all(|s| s["reached"] == true && s["succeeded"] == true || s["required"] == false), "{r}");
+        // opening operations carry the sustained-contact ratio; a solved opening holds the handle for a while
+        for s in stages.iter().filter(|s| s["contact_exec_steps"].is_u64()) {
+            assert!(s["sustained_contact_ratio_percent"].as_f64().is_some_and(|p| p > 0.0), "{task}: {s}");
+        }
     }
     assert!(ok, "{task}: the expert command must exit 0 when every run succeeds");
     let actions: Vec<_> = solved.iter().map(|r| r["actions"].clone()).collect();
@@ -85,10 +94,16 @@ fn check_task(task: &str, behaviours: &[String]) {
         // long-horizon behaviours: `partial_<n>` completes exactly n stages; `undo` completes a stage and undoes it
         if let Some(n) = b.strip_prefix("partial_").and_then(|n| n.parse::<u64>().ok()) {
             assert_eq!(r[0]["completed_stage_count"].as_u64(), Some(n), "{task} {b}: exactly {n} stages: {}", r[0]);
+            // the diagnostics agree: n stages succeeded and (ordered stages) the next one was reached but failed
+            let stages = r[0]["stage_diagnostics"].as_array().expect("stage diagnostics");
+            let succeeded = stages.iter().filter(|s| s["required"] == true && s["succeeded"] == true).count() as u64;
+            assert_eq!(succeeded, n, "{task} {b}: {}", r[0]);
         }
         if b == "undo" {
             let regressions = r[0]["stage_regressions"].as_array().map_or(0, Vec::len);
             assert!(regressions > 0, "{task} undo: the evaluator must record the regression: {}", r[0]);
+            let stages = r[0]["stage_diagnostics"].as_array().expect("stage diagnostics");
+            assert!(stages.iter().any(|s| s["regressions"].as_u64().is_some_and(|n| n > 0)), "{task} undo: {}", r[0]);
         }
         if b == "wrong_target" {
             assert_eq!(r[0]["judgment_correct"], false, "{task}: wrong_target commits to a distractor: {}", r[0]);

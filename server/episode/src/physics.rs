@@ -118,7 +118,7 @@ impl WorldPhysics {
     /// The evaluator's record on the current state.
     pub fn evaluate(&mut self) -> libero_tasks::EvaluationRecord {
         let tick = self.tick(None);
-        self.evaluator.finish(self.sim.data(), tick)
+        self.evaluator.finish(self.sim.data(), tick).with_stage_diagnostics()
     }
 }
 

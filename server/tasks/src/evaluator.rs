@@ -284,6 +284,10 @@ pub struct EvaluationRecord {
     /// Evaluator-specific private diagnostics (per-button press history, measured insertion values, …).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub details: Option<serde_json::Value>,
+    /// Per-stage reached / succeeded / regressions / sustained-contact ratio, derived from the fields above by
+    /// [`EvaluationRecord::with_stage_diagnostics`] (never filled by evaluators themselves).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub stage_diagnostics: Vec<crate::diagnostics::StageDiagnostic>,
 }
 
 impl EvaluationRecord {
@@ -312,7 +316,14 @@ impl EvaluationRecord {
             failure_reason: None,
             judgment_correct: None,
             details: None,
+            stage_diagnostics: Vec::new(),
         }
+    }
+
+    /// The record with its per-stage diagnostics filled in (see [`crate::diagnostics`]).
+    pub fn with_stage_diagnostics(mut self) -> Self {
+        self.stage_diagnostics = crate::diagnostics::stage_diagnostics(&self);
+        self
     }
 }
 

@@ -4,6 +4,7 @@ pub mod bddl_terminal;
 pub mod button_press;
 pub mod catalog;
 pub mod commitment;
+pub mod diagnostics;
 pub mod error;
 pub mod evaluator;
 pub mod expert;
