@@ -127,7 +127,7 @@ fn every_expert_solves_its_task_three_of_three_and_idle_and_near_miss_runs_fail(
 
 #[test]
 fn unknown_tasks_and_behaviours_are_refused_clearly() {
-    let out = bin().args(["expert", "--task", "T21"]).output().unwrap();
+    let out = bin().args(["expert", "--task", "T99"]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no scripted expert"), "{}", String::from_utf8_lossy(&out.stderr));
     let data = tempfile::tempdir().unwrap();
