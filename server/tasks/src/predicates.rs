@@ -498,3 +498,17 @@ fn mat_vec(m: &[f64; 9], v: [f64; 3]) -> [f64; 3] {
         m[6] * v[0] + m[7] * v[1] + m[8] * v[2],
     ]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Catalog §2.2: the latched door is open strictly above 0.3 rad and closed at or below 0.01 rad.
+    #[test]
+    fn latched_door_thresholds() {
+        let r = articulation_rule("robosuite_latched_door").unwrap();
+        let (open, close) = (r.open.unwrap(), r.close.unwrap());
+        assert!(open.holds(0.3001) && !open.holds(0.3));
+        assert!(close.holds(0.01) && close.holds(0.0) && !close.holds(0.0101));
+    }
+}
