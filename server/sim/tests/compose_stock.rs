@@ -135,3 +135,25 @@ fn authored_scene_gets_region_sites_objects_and_fixtures_in_libero_order() {
     let m = scene.compile().unwrap();
     assert_eq!(m.ffi().nq, 9 + 7 + 7 + 3);
 }
+
+/// T28's door scene (catalog §2.3, §6.7): robosuite's 0.8 × 0.3 table at (−0.2, −0.35), the mounted Panda's base at
+/// (−0.56, 0, 0.912), the door standing on the table (z_offset 0: root at 0.8 + 0.3), and only the hinge exposed as an
+/// articulation joint (the latch must not make `Open` true).
+#[test]
+fn robosuite_door_scene_places_table_robot_and_door_as_robosuite_does() {
+    let bddl = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tasks/bddl/unlatch_and_open_door.bddl");
+    let scene = compose_file(&bddl, &AssetPaths::discover().expect("assets")).unwrap();
+    assert_eq!(scene.robot_base_pos, [-0.56, 0.0, 0.912]);
+    assert!(scene.robot_mounted);
+    assert_eq!(scene.fixture_z_offset, 0.0);
+    assert_eq!(scene.fixtures[0].joints, ["latched_door_1_hinge"]);
+    assert!(scene.mjcf.contains("name=\"latched_door_1_latch_joint\""));
+    let model = scene.compile().unwrap();
+    let placement = libero_sim::placement::Placement::sample(&scene, 100, Some(&model)).unwrap();
+    let door = &placement.fixtures[0];
+    assert!((door.pos[2] - 1.1).abs() < 1e-9, "{door:?}");
+    assert!((door.pos[0] + 0.12).abs() <= 0.0100001 && (door.pos[1] + 0.35).abs() <= 0.0100001, "{door:?}");
+    let yaw = 2.0 * door.quat_wxyz[3].atan2(door.quat_wxyz[0]);
+    assert!((-1.8208..=-1.5707).contains(&yaw), "yaw {yaw}");
+    assert!(scene.mjcf.contains("<body name=\"table\" pos=\"-0.2 -0.35 0.775\">"), "table body position");
+}

@@ -41,6 +41,8 @@ pub enum JointTest {
     Above(f64),
     /// `q >= value`
     AtLeast(f64),
+    /// `q <= value`
+    AtMost(f64),
 }
 
 impl JointTest {
@@ -49,6 +51,7 @@ impl JointTest {
             JointTest::Below(v) => q < v,
             JointTest::Above(v) => q > v,
             JointTest::AtLeast(v) => q >= v,
+            JointTest::AtMost(v) => q <= v,
         }
     }
 }
@@ -75,6 +78,8 @@ pub fn articulation_rule(category: &str) -> Option<ArticulationRule> {
         "wooden_cabinet" | "white_cabinet" => Some(r(JointTest::Below(-0.14), JointTest::Above(0.0))),
         "short_cabinet" => Some(r(JointTest::Above(0.10), JointTest::Below(0.0))),
         "short_fridge" => Some(r(JointTest::Above(2.0), JointTest::Below(0.0))),
+        // T28's latched door hinge, range [0, 0.4] rad (catalog §2.2: open > 0.3, close ≤ 0.01)
+        "robosuite_latched_door" => Some(r(JointTest::Above(0.3), JointTest::AtMost(0.01))),
         // knob hinge, range [-0.005, 2.1] rad
         "flat_stove" => Some(ArticulationRule {
             turn_on: Some(JointTest::AtLeast(0.5)),
@@ -492,4 +497,18 @@ fn mat_vec(m: &[f64; 9], v: [f64; 3]) -> [f64; 3] {
         m[3] * v[0] + m[4] * v[1] + m[5] * v[2],
         m[6] * v[0] + m[7] * v[1] + m[8] * v[2],
     ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Catalog §2.2: the latched door is open strictly above 0.3 rad and closed at or below 0.01 rad.
+    #[test]
+    fn latched_door_thresholds() {
+        let r = articulation_rule("robosuite_latched_door").unwrap();
+        let (open, close) = (r.open.unwrap(), r.close.unwrap());
+        assert!(open.holds(0.3001) && !open.holds(0.3));
+        assert!(close.holds(0.01) && close.holds(0.0) && !close.holds(0.0101));
+    }
 }

@@ -13,7 +13,9 @@
 //! difference inside `dz_range_m`), `drawer_open` / `drawer_closed` (world-y displacement of a drawer's region site
 //! from its value at reset above / below a threshold, catalog §2.2), `in_box` (RoboMemArena box rule: site box with
 //! half-extent |R·size|, lower z extended by `lower_z_m`, upper by `upper_z_m`), `released` (not grasped by
-//! robosuite's two-pad test), `lifted` (root z − z at reset > `above_m`), and `not`.
+//! robosuite's two-pad test), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
+//! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `not`, and `any` (a
+//! disjunction).
 //!
 //! Completed stages are re-tested every control step: a completed stage whose conjunction stops holding is recorded
 //! as a regression (event + count), and stays completed. For stages naming a `contact_body` (opening operations), the
@@ -22,7 +24,7 @@
 use std::sync::Arc;
 
 use libero_bddl::{Atom as BddlAtom, Pos};
-use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::mujoco_rs::prelude::{MjModel, MjtJoint, MjtObjBase};
 use libero_sim::simulation::SimData;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -63,7 +65,20 @@ pub enum AtomSpec {
     InBox { object: String, site: String, lower_z_m: f64, upper_z_m: f64 },
     Released(String),
     Lifted { object: String, above_m: f64 },
+    /// A joint's position (rad for hinges, m for slides) strictly above `min` and below `max` where given; with
+    /// `abs`, its magnitude (a handle that unlatches turned either way).
+    Joint {
+        name: String,
+        #[serde(default)]
+        min: Option<f64>,
+        #[serde(default)]
+        max: Option<f64>,
+        #[serde(default)]
+        abs: bool,
+    },
     Not(Box<AtomSpec>),
+    /// True when at least one inner atom holds.
+    Any(Vec<AtomSpec>),
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -97,7 +112,9 @@ enum Check {
     InBox { body: usize, site: usize, half_m: [f64; 3], lower_z_m: f64, upper_z_m: f64 },
     Released(usize),
     Lifted { body: usize, above_m: f64 },
+    Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
     Not(Box<Check>),
+    Any(Vec<Check>),
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -152,9 +169,19 @@ impl Check {
             }
             Check::Released(i) => !c.commitment.grasped(c.index, d, *i),
             Check::Lifted { body, above_m } => d.xpos()[*body][2] - c.base.body0.get(*body).map_or(0.0, |p| p[2]) > *above_m,
+            Check::Joint { qpos_adr, min, max, abs } => {
+                let q = d.qpos()[*qpos_adr];
+                joint_inside(if *abs { q.abs() } else { q }, *min, *max)
+            }
             Check::Not(inner) => !inner.holds(c),
+            Check::Any(inner) => inner.iter().any(|a| a.holds(c)),
         }
     }
+}
+
+/// `min < q < max`, each bound only where given.
+fn joint_inside(q: f64, min: Option<f64>, max: Option<f64>) -> bool {
+    min.is_none_or(|m| q > m) && max.is_none_or(|m| q < m)
 }
 
 fn compile(spec: &AtomSpec, index: &SceneIndex, model: &MjModel) -> Result<Check, TasksError> {
@@ -191,7 +218,15 @@ fn compile(spec: &AtomSpec, index: &SceneIndex, model: &MjModel) -> Result<Check
         }
         AtomSpec::Released(object) => Check::Released(index.instance(object).ok_or_else(|| scene_err("object", object))?),
         AtomSpec::Lifted { object, above_m } => Check::Lifted { body: instance_body(object)?, above_m: *above_m },
+        AtomSpec::Joint { name, min, max, abs } => {
+            let j = model.name_to_id(MjtObjBase::mjOBJ_JOINT, name).ok_or_else(|| scene_err("joint", name))?;
+            if !matches!(model.jnt_type()[j], MjtJoint::mjJNT_HINGE | MjtJoint::mjJNT_SLIDE) {
+                return Err(scene_err("hinge or slide joint", name));
+            }
+            Check::Joint { qpos_adr: model.jnt_qposadr()[j] as usize, min: *min, max: *max, abs: *abs }
+        }
         AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, index, model)?)),
+        AtomSpec::Any(inner) => Check::Any(inner.iter().map(|a| compile(a, index, model)).collect::<Result<_, _>>()?),
     })
 }
 
@@ -520,6 +555,29 @@ mod tests {
         assert_eq!(m.runs, [2, 5, 1]);
         assert_eq!(m.sustained_steps(), 5);
         assert!((m.ratio_percent() - 100.0 * 5.0 / 11.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn joint_bounds_are_strict_and_optional() {
+        assert!(joint_inside(0.31, Some(0.3), None));
+        assert!(!joint_inside(0.3, Some(0.3), None));
+        assert!(joint_inside(-5.0, None, Some(0.01)));
+        assert!(!joint_inside(0.01, None, Some(0.01)));
+        assert!(joint_inside(0.5, Some(0.4), Some(0.6)) && !joint_inside(0.7, Some(0.4), Some(0.6)));
+        assert!(joint_inside(1.0, None, None));
+    }
+
+    #[test]
+    fn joint_and_any_atoms_parse() {
+        let p: StagedParams = serde_json::from_value(json!({
+            "stages": [{"name": "01", "all": [{"any": [
+                {"joint": {"name": "d_latch_joint", "min": 1.1, "abs": true}},
+                {"joint": {"name": "d_hinge", "min": 0.05}}]}], "contact_body": "d_latch"}]
+        }))
+        .unwrap();
+        let AtomSpec::Any(inner) = &p.stages[0].all[0] else { panic!("not an any atom") };
+        assert!(matches!(&inner[0], AtomSpec::Joint { min: Some(m), max: None, abs: true, .. } if *m == 1.1));
+        assert!(matches!(&inner[1], AtomSpec::Joint { abs: false, .. }));
     }
 
     #[test]

@@ -8,8 +8,9 @@ use libero_sim::{AssetPaths, InitStates};
 use libero_tasks::catalog::{Category, Split};
 use libero_tasks::{Catalog, GoalChecker};
 
-/// K per task from the task catalog §0 (T01…T30).
-const CATALOG_K: [usize; 30] = [1, 1, 1, 1, 1, 1, 1, 4, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 3, 2, 5, 5, 8, 4, 4, 3, 4, 1, 3, 4];
+/// K per task from the task catalog §0 (T01…T30), except T28: the paper's long-horizon table and the project's
+/// issue give it K = 2 (unlatch, open) where the release checker has K = 1 (tasks/README.md, T28 differences).
+const CATALOG_K: [usize; 30] = [1, 1, 1, 1, 1, 1, 1, 4, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 3, 2, 5, 5, 8, 4, 4, 3, 4, 2, 3, 4];
 
 #[test]
 fn manifest_lists_30_unique_tasks_with_the_paper_splits_and_catalog_stage_counts() {
@@ -45,7 +46,7 @@ fn implemented_tasks_run_from_available_files_and_others_say_why_not() {
         implemented,
         [
             "T01", "T02", "T03", "T04", "T05", "T06", "T07", "T08", "T09", "T10", "T11", "T12", "T13", "T14", "T15", "T16",
-            "T17", "T18", "T19", "T20", "T26", "T27"
+            "T17", "T18", "T19", "T20", "T26", "T27", "T28"
         ]
     );
     for t in catalog.tasks() {

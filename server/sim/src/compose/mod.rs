@@ -27,6 +27,10 @@ pub enum ProblemClass {
     Study,
     Floor,
     CoffeeTable,
+    /// Libero-Agent's `Libero_Robosuite_Door_Manipulation` (T28): robosuite 1.4's own Door scene — the stock
+    /// `TableArena` (0.8 × 0.3 × 0.05 table at offset (−0.2, −0.35, 0.8)), the Panda on its default Rethink mount,
+    /// robosuite's agentview, fixtures placed with z_offset 0 (task catalog §2.3).
+    RobosuiteDoor,
 }
 
 /// A camera the problem class sets on the arena (`_setup_camera`), world frame, quaternion (w, x, y, z).
@@ -46,6 +50,8 @@ const GALLERY: CameraSpec = CameraSpec {
     quat: [0.42261379957199097, 0.23374411463737488, 0.41646939516067505, 0.7702690958976746],
 };
 const PAPER_QUAT: [f64; 4] = [0.513, 0.353, 0.443, 0.645];
+/// robosuite Door's agentview position (`Door._load_model`), kept by the door problem class.
+const DOOR_AGENT_POS: [f64; 3] = [0.5986131746834771, -4.392035683362857e-09, 1.5903500240372423];
 
 impl ProblemClass {
     /// `TASK_MAPPING[name.lower()]`.
@@ -57,6 +63,7 @@ impl ProblemClass {
             "libero_study_tabletop_manipulation" => Self::Study,
             "libero_floor_manipulation" => Self::Floor,
             "libero_coffee_table_manipulation" => Self::CoffeeTable,
+            "libero_robosuite_door_manipulation" => Self::RobosuiteDoor,
             _ => return None,
         })
     }
@@ -64,7 +71,7 @@ impl ProblemClass {
     /// The workspace fixture name used as region target (`main_table`, `kitchen_table`, ...).
     pub fn workspace_name(self) -> &'static str {
         match self {
-            Self::Tabletop => "main_table",
+            Self::Tabletop | Self::RobosuiteDoor => "main_table",
             Self::Kitchen => "kitchen_table",
             Self::LivingRoom => "living_room_table",
             Self::Study => "study_table",
@@ -76,7 +83,7 @@ impl ProblemClass {
     /// The fixture category that stands for the workspace itself and is not loaded.
     pub fn workspace_category(self) -> &'static str {
         match self {
-            Self::Tabletop => "table",
+            Self::Tabletop | Self::RobosuiteDoor => "table",
             other => other.workspace_name(),
         }
     }
@@ -86,8 +93,10 @@ impl ProblemClass {
         matches!(self, Self::LivingRoom | Self::Study | Self::Kitchen)
     }
 
+    /// The arena file: LIBERO's scene styles, or robosuite's own `arenas/table_arena.xml` for the door scene.
     fn scene_xml(self) -> &'static str {
         match self {
+            Self::RobosuiteDoor => "arenas/table_arena.xml",
             Self::Tabletop => "scenes/libero_tabletop_base_style.xml",
             Self::Kitchen => "scenes/libero_kitchen_tabletop_base_style.xml",
             Self::LivingRoom => "scenes/libero_living_room_tabletop_base_style.xml",
@@ -97,13 +106,15 @@ impl ProblemClass {
         }
     }
 
-    /// (floor texture, wall texture) of the default style (`arenas/style.py`).
-    fn textures(self) -> (&'static str, &'static str) {
-        match self {
+    /// (floor texture, wall texture) of the default style (`arenas/style.py`); `None` for robosuite's own arena,
+    /// which keeps the textures its file names.
+    fn textures(self) -> Option<(&'static str, &'static str)> {
+        Some(match self {
             Self::Tabletop | Self::Study | Self::Floor => ("light-gray-floor-tile.png", "light-gray-plaster.png"),
             Self::Kitchen => ("gray_ceramic_tile.png", "yellow_linen_wall_texture.png"),
             Self::LivingRoom | Self::CoffeeTable => ("seamless_wood_planks_floor.png", "light-gray-plaster.png"),
-        }
+            Self::RobosuiteDoor => return None,
+        })
     }
 
     /// Full table size (x, y, z) in metres; `None` for the floor.
@@ -111,6 +122,7 @@ impl ProblemClass {
         match self {
             Self::Tabletop | Self::Kitchen | Self::Study => Some([1.0, 1.2, 0.05]),
             Self::LivingRoom | Self::CoffeeTable => Some([0.70, 1.6, 0.024]),
+            Self::RobosuiteDoor => Some([0.8, 0.3, 0.05]),
             Self::Floor => None,
         }
     }
@@ -122,11 +134,16 @@ impl ProblemClass {
             Self::LivingRoom | Self::CoffeeTable => [0.0, 0.0, 0.41],
             Self::Study => [-0.2, 0.0, 0.867],
             Self::Floor => [0.0, 0.0, -0.035],
+            Self::RobosuiteDoor => [-0.2, -0.35, 0.8],
         }
     }
 
-    /// z offset of fixture placement (`0.01 - table_full_size[2]`, floor −0.025).
+    /// z offset of fixture placement (`0.01 - table_full_size[2]`, floor −0.025; 0 for the door scene, whose
+    /// door asset's `bottom_site` is calibrated for robosuite's own sampler).
     pub fn fixture_z_offset(self) -> f64 {
+        if self == Self::RobosuiteDoor {
+            return 0.0;
+        }
         match self.table_full_size() {
             Some(s) => 0.01 - s[2],
             None => -0.025,
@@ -135,14 +152,15 @@ impl ProblemClass {
 
     /// MountedPanda (RethinkMount) or OnTheGroundPanda (NullMount).
     pub fn robot_is_mounted(self) -> bool {
-        matches!(self, Self::Tabletop | Self::Kitchen | Self::Study)
+        matches!(self, Self::Tabletop | Self::Kitchen | Self::Study | Self::RobosuiteDoor)
     }
 
     /// `robot_model.base_xpos_offset[key](table_length)`: where the robot base's bottom goes.
     fn robot_base_xpos(self) -> [f64; 3] {
         let l = self.table_full_size().map(|s| s[0]).unwrap_or(0.0);
         match self {
-            Self::Tabletop | Self::Kitchen => [-0.16 - l / 2.0, 0.0, 0.0],
+            // robosuite Panda `base_xpos_offset["table"]`: the same rule on the door scene's 0.8 m table
+            Self::Tabletop | Self::Kitchen | Self::RobosuiteDoor => [-0.16 - l / 2.0, 0.0, 0.0],
             Self::Study => [-0.25 - l / 2.0, 0.0, 0.0],
             Self::LivingRoom => [-0.16 - l / 2.0, 0.0, 0.42],
             Self::CoffeeTable => [-0.16 - l / 2.0, 0.0, 0.41],
@@ -153,7 +171,7 @@ impl ProblemClass {
     /// Body that carries the table-region sites.
     fn region_body(self) -> &'static str {
         match self {
-            Self::Tabletop | Self::Kitchen => "table",
+            Self::Tabletop | Self::Kitchen | Self::RobosuiteDoor => "table",
             Self::Study => "study_table",
             Self::LivingRoom => "living_room_table",
             Self::Floor => "floor",
@@ -203,6 +221,11 @@ impl ProblemClass {
                     pos: [0.5386131746834771, 0.0, 0.7903500240372423],
                     quat: AGENT_TABLE_QUAT,
                 },
+            ],
+            // the arena file's own frontview / birdview / sideview stay as robosuite writes them
+            Self::RobosuiteDoor => vec![
+                agent(DOOR_AGENT_POS, AGENT_TABLE_QUAT),
+                CameraSpec { name: "canonical_agentview", pos: DOOR_AGENT_POS, quat: AGENT_TABLE_QUAT },
             ],
         }
     }
@@ -432,6 +455,9 @@ fn load_object(name: &str, cat: &registry::Category, is_fixture: bool, paths: &A
             sites.push(e.get("name").unwrap_or("").to_string());
         }
     });
+    if let Some(exposed) = cat.exposed_joints {
+        joints.retain(|j| exposed.iter().any(|e| j.strip_prefix(&prefix) == Some(*e)));
+    }
     let vis_sites = cat.vis_sites.iter().map(|s| format!("{prefix}{s}")).collect();
     Ok(LoadedObject {
         info: InstanceInfo {
@@ -513,14 +539,15 @@ fn build_robot(class: ProblemClass, paths: &AssetPaths) -> Result<(MjXml, [f64; 
 
 /// Arena per problem class: scene XML, recolouring, table sizing, textures, origin, cameras.
 fn build_arena(class: ProblemClass, paths: &AssetPaths) -> Result<MjXml, SimError> {
-    let mut arena = MjXml::load(&paths.libero_assets.join(class.scene_xml()))?;
+    let root = if class == ProblemClass::RobosuiteDoor { &paths.robosuite_assets } else { &paths.libero_assets };
+    let mut arena = MjXml::load(&root.join(class.scene_xml()))?;
     recolor_collision_geoms(arena.section_mut("worldbody"), &mjxml::ENVIRONMENT_COLLISION_COLOR, true);
-    if matches!(class, ProblemClass::Tabletop | ProblemClass::Kitchen) {
+    if matches!(class, ProblemClass::Tabletop | ProblemClass::Kitchen | ProblemClass::RobosuiteDoor) {
         configure_table(&mut arena, class)?;
     }
     // floor / wall textures: replace the file name, keep the directory
-    let (floor_tex, wall_tex) = class.textures();
-    for (tex, file) in [("texplane", floor_tex), ("tex-wall", wall_tex)] {
+    let textures = class.textures().map(|(floor, wall)| [("texplane", floor), ("tex-wall", wall)]);
+    for (tex, file) in textures.into_iter().flatten() {
         let node = arena
             .section_mut("asset")
             .child_named_mut("texture", tex)
@@ -553,7 +580,8 @@ fn build_arena(class: ProblemClass, paths: &AssetPaths) -> Result<MjXml, SimErro
     Ok(arena)
 }
 
-/// `TableArena.configure_location` / `KitchenTableArena.configure_location` (identical code).
+/// `TableArena.configure_location` / `KitchenTableArena.configure_location` (identical code; robosuite's own
+/// `TableArena` is the same too, with its default friction (1, 0.005, 0.0001)).
 fn configure_table(arena: &mut MjXml, class: ProblemClass) -> Result<(), SimError> {
     let full = class.table_full_size().expect("table classes have a size");
     let half = [full[0] / 2.0, full[1] / 2.0, full[2] / 2.0];
@@ -620,7 +648,7 @@ pub fn compose(problem: &Problem, paths: &AssetPaths) -> Result<ComposedScene, S
         SimError::Input(format!(
             "unknown problem class `{}` (known: libero_tabletop_manipulation, libero_kitchen_tabletop_manipulation, \
              libero_living_room_tabletop_manipulation, libero_study_tabletop_manipulation, libero_floor_manipulation, \
-             libero_coffee_table_manipulation)",
+             libero_coffee_table_manipulation, libero_robosuite_door_manipulation)",
             problem.problem_name
         ))
     })?;
@@ -659,7 +687,9 @@ pub fn compose(problem: &Problem, paths: &AssetPaths) -> Result<ComposedScene, S
             let cx = (rg[2] + rg[0]) / 2.0;
             let cy = (rg[3] + rg[1]) / 2.0;
             let pos_s = match class {
-                ProblemClass::Tabletop | ProblemClass::Floor | ProblemClass::CoffeeTable => array_to_string(&[cx, cy, 0.02]),
+                ProblemClass::Tabletop | ProblemClass::Floor | ProblemClass::CoffeeTable | ProblemClass::RobosuiteDoor => {
+                    array_to_string(&[cx, cy, 0.02])
+                }
                 ProblemClass::Kitchen => array_to_string(&[cx + wo[0] + 0.0, cy + wo[1] + 0.0, wo[2] + -0.90]),
                 ProblemClass::Study | ProblemClass::LivingRoom => array_to_string(&[cx + wo[0], cy + wo[1], wo[2]]),
             };

@@ -43,6 +43,9 @@ pub struct Category {
     pub free_joint_as_object: bool,
     /// Sites whose visibility follows the object state (flat_stove `burner`).
     pub vis_sites: &'static [&'static str],
+    /// `Some`: only these joints (unprefixed names) are the instance's articulation joints that predicates and
+    /// `Open`/`Close` initializers read; the others (the latched door's latch) only act physically.
+    pub exposed_joints: Option<&'static [&'static str]>,
 }
 
 const HOPE: &[&str] = &[
@@ -106,7 +109,12 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // the green target bin, written by scripts/gen_perception_assets.py
     ("clier_weighing_mug", "objects/clier_weighing_mug/clier_weighing_mug.xml", 0.0),
     ("composuite_target_bin", "objects/composuite_target_bin/composuite_target_bin.xml", 0.0),
+    // T28 (task catalog §6.7): robosuite's locked door (`door_lock.xml`) with the LIBERO wrapper's hinge overrides
+    (LATCHED_DOOR, "objects/robosuite_latched_door/robosuite_latched_door.xml", 0.0),
 ];
+
+/// The latched door fixture of T28: only its `hinge` is an articulation joint (catalog §2.2).
+pub const LATCHED_DOOR: &str = "robosuite_latched_door";
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.
 pub fn all_keys() -> Vec<&'static str> {
@@ -136,9 +144,16 @@ pub fn category(key: &str) -> Option<Category> {
         articulation: None,
         free_joint_as_object: true,
         vis_sites: &[],
+        exposed_joints: None,
     };
     if let Some(&(k, file, rotation_z)) = PROJECT.iter().find(|(k, _, _)| *k == key) {
-        return Some(Category { root: AssetRoot::Project, ..mk(k, file.to_owned(), range(rotation_z, rotation_z, 'z')) });
+        let mut c = Category { root: AssetRoot::Project, ..mk(k, file.to_owned(), range(rotation_z, rotation_z, 'z')) };
+        if k == LATCHED_DOOR {
+            // catalog §2.2: open range [0.31, 0.39], close range [0, 0] on the hinge (range [0, 0.4] rad)
+            c.articulation = Some(Articulation { open: Some([0.31, 0.39]), close: Some([0.0, 0.0]), ..Default::default() });
+            c.exposed_joints = Some(&["hinge"]);
+        }
+        return Some(c);
     }
     if let Some(k) = HOPE.iter().find(|k| **k == key) {
         let rot = match *k {
