@@ -106,6 +106,10 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // the green target bin, written by scripts/gen_perception_assets.py
     ("clier_weighing_mug", "objects/clier_weighing_mug/clier_weighing_mug.xml", 0.0),
     ("composuite_target_bin", "objects/composuite_target_bin/composuite_target_bin.xml", 0.0),
+    // T29 (task catalog §6.2): MetaWorld-style hammer (movable) and nail block with the sliding nail (fixture; no
+    // predicate reads the nail joint, the private evaluator does)
+    ("metaworld_hammer", "objects/metaworld_hammer/metaworld_hammer.xml", 0.0),
+    ("metaworld_hammer_block", "objects/metaworld_hammer_block/metaworld_hammer_block.xml", 0.0),
 ];
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.
