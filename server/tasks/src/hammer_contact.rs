@@ -26,7 +26,7 @@ use crate::evaluator::{
 };
 use crate::factory::missing_in_model;
 use crate::goal::GoalChecker;
-use crate::predicates::{SceneIndex, in_subtree};
+use crate::predicates::{SceneIndex, SubtreeContact};
 
 pub const CHECKER: &str = "private_ordered_hammer_contact";
 pub const STAGES: [&str; 3] = ["01_Lift_Hammer", "02_Hammer_Contacts_Nail", "03_Drive_Nail"];
@@ -173,8 +173,8 @@ pub struct HammerContact {
     task_id: Option<String>,
     hammer_body: usize,
     nail_qpos_adr: usize,
-    /// Per geom: 1 = in the hammer's body subtree, 2 = in the nail link's, 0 = neither.
-    geom_side: Vec<u8>,
+    /// Body contact(hammer, nail link).
+    touching: SubtreeContact,
     progress: HammerProgress,
     events: Vec<PrivateEvent>,
     control_steps: u64,
@@ -199,20 +199,7 @@ impl HammerContact {
             .name_to_id(MjtObjBase::mjOBJ_JOINT, &params.nail_joint)
             .ok_or_else(|| missing_in_model(CHECKER, "joint", &params.nail_joint))?;
         let nail_qpos_adr = model.jnt_qposadr()[joint] as usize;
-        let (parents, geom_body) = (model.body_parentid(), model.geom_bodyid());
-        let geom_side = geom_body
-            .iter()
-            .map(|&b| {
-                let b = b as usize;
-                if in_subtree(parents, b, hammer_body) {
-                    1
-                } else if in_subtree(parents, b, nail_body) {
-                    2
-                } else {
-                    0
-                }
-            })
-            .collect();
+        let touching = SubtreeContact::new(model, hammer_body, nail_body, params.contact_distance_max_m);
         let progress = HammerProgress::new(&params, 0.0, 0.0);
         Ok(Self {
             params,
@@ -222,7 +209,7 @@ impl HammerContact {
             task_id,
             hammer_body,
             nail_qpos_adr,
-            geom_side,
+            touching,
             progress,
             events: Vec::new(),
             control_steps: 0,
@@ -234,16 +221,8 @@ impl HammerContact {
         data.qpos()[self.nail_qpos_adr]
     }
 
-    /// Body contact(hammer, nail): some contact between the two subtrees with distance ≤ the threshold.
-    fn touching(&self, data: &SimData) -> bool {
-        data.contact().iter().any(|c| {
-            let (a, b) = (self.geom_side[c.geom[0] as usize], self.geom_side[c.geom[1] as usize]);
-            c.dist <= self.params.contact_distance_max_m && ((a, b) == (1, 2) || (a, b) == (2, 1))
-        })
-    }
-
     fn sample(&mut self, data: &SimData, tick: Tick) {
-        let s = HammerSample { hammer_z_m: data.xpos()[self.hammer_body][2], nail_q_m: self.nail_q(data), contact: self.touching(data) };
+        let s = HammerSample { hammer_z_m: data.xpos()[self.hammer_body][2], nail_q_m: self.nail_q(data), contact: self.touching.holds(data) };
         self.progress.observe(tick, s);
     }
 }
@@ -294,13 +273,7 @@ impl Evaluator for HammerContact {
         record.details = Some(p.details(q));
         let stages_done = p.stages().all_required_completed();
         crate::pour::fill_history(&mut record, (self.control_steps, self.substeps), &self.events, &self.commitment, &self.goal, data);
-        record.failure_reason = if record.success {
-            None
-        } else if !stages_done {
-            Some(FailureReason::IncompleteStage)
-        } else {
-            Some(FailureReason::TerminalStateInvalid)
-        };
+        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
         record
     }
 
