@@ -247,6 +247,19 @@ pub enum FailureReason {
     ExtraPour,
 }
 
+impl FailureReason {
+    /// The usual verdict of a staged evaluator: none on success, else an incomplete stage before a bad final state.
+    pub fn of_staged(success: bool, stages_done: bool) -> Option<Self> {
+        if success {
+            None
+        } else if !stages_done {
+            Some(Self::IncompleteStage)
+        } else {
+            Some(Self::TerminalStateInvalid)
+        }
+    }
+}
+
 /// The private evaluation of one episode (`result.json` → `private_evaluation`; protocol §4.9).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EvaluationRecord {
@@ -423,6 +436,13 @@ mod tests {
         assert_eq!(t.advance_strict(tick(2), |_| true), None, "no progress after a violation");
         assert_eq!(t.completed_required_count(), 0);
         assert_eq!(t.events()[0].kind, EventKind::OrderViolation);
+    }
+
+    #[test]
+    fn staged_failure_reason_blames_a_missing_stage_before_the_final_state() {
+        assert_eq!(FailureReason::of_staged(true, true), None);
+        assert_eq!(FailureReason::of_staged(false, false), Some(FailureReason::IncompleteStage));
+        assert_eq!(FailureReason::of_staged(false, true), Some(FailureReason::TerminalStateInvalid));
     }
 
     #[test]

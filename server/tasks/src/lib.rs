@@ -10,6 +10,7 @@ pub mod evaluator;
 pub mod expert;
 pub mod factory;
 pub mod goal;
+pub mod hammer_contact;
 pub mod pour;
 pub mod predicates;
 pub mod staged;

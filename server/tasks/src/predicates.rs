@@ -230,6 +230,43 @@ pub(crate) fn in_subtree(parent: &[i32], mut body: usize, root: usize) -> bool {
     }
 }
 
+/// "Body contact(A, B)" of the manipulation helpers (task catalog §0): some active contact between a geom of A's
+/// body subtree and a geom of B's with contact distance ≤ `max_dist_m`. The geoms are sorted once per model.
+#[derive(Debug, Clone)]
+pub struct SubtreeContact {
+    /// Per geom: 1 = in A's subtree, 2 = in B's (A wins where they nest), 0 = neither.
+    geom_side: Vec<u8>,
+    max_dist_m: f64,
+}
+
+impl SubtreeContact {
+    pub fn new(model: &MjModel, body_a: usize, body_b: usize, max_dist_m: f64) -> Self {
+        let parents = model.body_parentid();
+        let geom_side = model
+            .geom_bodyid()
+            .iter()
+            .map(|&b| {
+                let b = b as usize;
+                if in_subtree(parents, b, body_a) {
+                    1
+                } else if in_subtree(parents, b, body_b) {
+                    2
+                } else {
+                    0
+                }
+            })
+            .collect();
+        Self { geom_side, max_dist_m }
+    }
+
+    pub fn holds(&self, data: &SimData) -> bool {
+        data.contact().iter().any(|c| {
+            let (a, b) = (self.geom_side[c.geom[0] as usize], self.geom_side[c.geom[1] as usize]);
+            c.dist <= self.max_dist_m && ((a, b) == (1, 2) || (a, b) == (2, 1))
+        })
+    }
+}
+
 impl SceneIndex {
     pub fn new(scene: &ComposedScene, model: &MjModel) -> Result<Self, TasksError> {
         let mut instances = Vec::new();

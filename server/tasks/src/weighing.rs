@@ -251,13 +251,7 @@ impl Evaluator for PhysicalWeighing {
         let report = self.goal.evaluate(data);
         record.bddl_final_goal_success = Some(report.success);
         record.bddl_goal = Some(report);
-        record.failure_reason = if record.success {
-            None
-        } else if !all_weighed {
-            Some(FailureReason::IncompleteStage)
-        } else {
-            Some(FailureReason::TerminalStateInvalid)
-        };
+        record.failure_reason = FailureReason::of_staged(record.success, all_weighed);
         let weighing: Vec<serde_json::Value> = self
             .mugs
             .iter()

@@ -27,7 +27,7 @@ use crate::evaluator::{
     EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
 };
 use crate::goal::GoalChecker;
-use crate::predicates::{CompiledAtom, SceneIndex, in_subtree};
+use crate::predicates::{CompiledAtom, SceneIndex, SubtreeContact};
 
 pub const CHECKER: &str = "private_ordered_physical_wipe";
 pub const STAGES: [&str; 3] = ["01_Grasp_Sponge", "02_Wipe_All_Spill_Markers", "03_Release_Sponge_On_Blue_Rest_Area"];
@@ -103,8 +103,8 @@ pub struct SpillWipe {
     sponge: usize,
     /// Geom ids of the markers and their model colours.
     marker_geoms: Vec<(usize, [f32; 4])>,
-    /// Per geom: 1 = in the sponge's body subtree, 2 = in the table's, 0 = neither.
-    geom_side: Vec<u8>,
+    /// Body contact(sponge, table).
+    sponge_on_table: SubtreeContact,
     rest_on: CompiledAtom,
     covered: Vec<bool>,
     grasp_seen: bool,
@@ -138,20 +138,7 @@ impl SpillWipe {
             let c = model.geom_rgba()[g];
             marker_geoms.push((g, [c[0], c[1], c[2], c[3]]));
         }
-        let (parents, geom_body) = (model.body_parentid(), model.geom_bodyid());
-        let sponge_body = index.instances[sponge].body;
-        let geom_side = (0..ngeom)
-            .map(|g| {
-                let b = geom_body[g] as usize;
-                if in_subtree(parents, b, sponge_body) {
-                    1
-                } else if in_subtree(parents, b, table) {
-                    2
-                } else {
-                    0
-                }
-            })
-            .collect();
+        let sponge_on_table = SubtreeContact::new(model, index.instances[sponge].body, table, BODY_CONTACT_MAX_DIST_M);
         let atom = libero_bddl::Atom { predicate: "On".into(), args: vec![params.sponge.clone(), params.rest_region.clone()], pos: Default::default() };
         let rest_on = CompiledAtom::compile(&index, &atom)?;
         let stages = StageTracker::new(params.stages.iter().map(StageSpec::required).collect());
@@ -164,7 +151,7 @@ impl SpillWipe {
             task_id,
             sponge,
             marker_geoms,
-            geom_side,
+            sponge_on_table,
             rest_on,
             covered,
             grasp_seen: false,
@@ -185,10 +172,7 @@ impl SpillWipe {
 
     /// Body contact(sponge, table): some contact between the two subtrees with distance ≤ 1 mm.
     fn touching_table(&self, data: &SimData) -> bool {
-        data.contact().iter().any(|c| {
-            let (a, b) = (self.geom_side[c.geom[0] as usize], self.geom_side[c.geom[1] as usize]);
-            c.dist <= BODY_CONTACT_MAX_DIST_M && ((a, b) == (1, 2) || (a, b) == (2, 1))
-        })
+        self.sponge_on_table.holds(data)
     }
 
     fn released_and_clear(&self, data: &SimData) -> bool {
@@ -292,13 +276,7 @@ impl Evaluator for SpillWipe {
         record.success = stages_done && record.terminal_state_success;
         let counts = (self.control_steps, self.substeps);
         crate::pour::fill_history(&mut record, counts, &self.events, &self.commitment, &self.goal, data);
-        record.failure_reason = if record.success {
-            None
-        } else if !stages_done {
-            Some(FailureReason::IncompleteStage)
-        } else {
-            Some(FailureReason::TerminalStateInvalid)
-        };
+        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
         record
     }
 

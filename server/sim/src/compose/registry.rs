@@ -111,6 +111,10 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("composuite_target_bin", "objects/composuite_target_bin/composuite_target_bin.xml", 0.0),
     // T28 (task catalog §6.7): robosuite's locked door (`door_lock.xml`) with the LIBERO wrapper's hinge overrides
     (LATCHED_DOOR, "objects/robosuite_latched_door/robosuite_latched_door.xml", 0.0),
+    // T29 (task catalog §6.2): MetaWorld-style hammer (movable) and nail block with the sliding nail (fixture; no
+    // predicate reads the nail joint, the private evaluator does)
+    ("metaworld_hammer", "objects/metaworld_hammer/metaworld_hammer.xml", 0.0),
+    ("metaworld_hammer_block", "objects/metaworld_hammer_block/metaworld_hammer_block.xml", 0.0),
 ];
 
 /// The latched door fixture of T28: only its `hinge` is an articulation joint (catalog §2.2).

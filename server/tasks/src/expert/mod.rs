@@ -8,6 +8,7 @@
 mod adapted;
 mod articulated;
 mod door;
+mod hammer;
 mod long;
 pub mod motion;
 mod objects;
@@ -98,6 +99,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| adapted::behaviours(task_id))
         .or_else(|| long::behaviours(task_id))
         .or_else(|| door::behaviours(task_id))
+        .or_else(|| hammer::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
 }
 
@@ -126,6 +128,8 @@ pub fn expert_for(
         long::build(task_id, behaviour, &refs)
     } else if door::behaviours(task_id).is_some() {
         door::build(task_id, behaviour, &refs)
+    } else if hammer::behaviours(task_id).is_some() {
+        hammer::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }
