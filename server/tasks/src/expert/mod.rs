@@ -11,6 +11,7 @@ mod long;
 pub mod motion;
 mod objects;
 mod perception;
+mod robomem;
 mod stock;
 mod vlabench;
 
@@ -96,6 +97,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| vlabench::behaviours(task_id))
         .or_else(|| adapted::behaviours(task_id))
         .or_else(|| long::behaviours(task_id))
+        .or_else(|| robomem::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
 }
 
@@ -122,6 +124,8 @@ pub fn expert_for(
         adapted::build(task_id, behaviour, &refs)
     } else if long::behaviours(task_id).is_some() {
         long::build(task_id, behaviour, &refs)
+    } else if robomem::behaviours(task_id).is_some() {
+        robomem::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }
