@@ -264,3 +264,4 @@ fn t24_drainer_is_the_union_of_its_two_region_boxes() {
         assert_eq!(r.bddl_final_goal_success, Some(inside), "the BDDL goal Or(In left, In right)");
     }
 }
+
