@@ -7,7 +7,7 @@
 //! step and, for evaluators whose [`Evaluator::samples_substeps`] is true, [`Evaluator::observe_substep`] after every
 //! physics substep (25 per control step, before the control-step call). [`Evaluator::finish`] judges the final state.
 use libero_sim::simulation::SimData;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::goal::GoalReport;
 
@@ -45,8 +45,10 @@ pub enum EventKind {
     GoalUnsatisfied,
     /// A spill marker was wiped (T19; `subject` = the marker geom).
     SpillMarkerCovered,
-    /// The pour counter registered a pour (T20; the pour began 2 control steps before this tick).
+    /// The pour counter registered a pour (T20, T24; the pour began 2 control steps before this tick).
     PourDetected,
+    /// A failure monitor latched a permanent failure (T24 `extra_pour`; `subject` = the monitor's name).
+    FailureLatched,
 }
 
 /// A time-stamped private event (never shown to the agent).
@@ -169,6 +171,11 @@ impl StageTracker {
         }
     }
 
+    /// Whether stage `i` has completed.
+    pub fn is_completed(&self, i: usize) -> bool {
+        self.completed_at.get(i).is_some_and(Option::is_some)
+    }
+
     pub fn order_violated(&self) -> bool {
         self.order_violation.is_some()
     }
@@ -238,7 +245,7 @@ pub struct StageRegressions {
 }
 
 /// Why an episode failed, in the vocabulary of protocol §4.9 (plus `order_violation`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum FailureReason {
     IncompleteStage,

@@ -28,18 +28,40 @@ use crate::predicates::SceneIndex;
 pub const CHECKER: &str = "private_ordered_physical_pour";
 pub const STAGES: [&str; 2] = ["01_Lift_Wine_Bottle", "02_Pour_Wine_Into_Mug"];
 
-/// The pour counter's parameters (manifest `checker.params`; defaults = the catalog's).
+/// The pour counter's thresholds (RoboMemArena `PourCounterConfig`; defaults = the catalog's), shared by T20's
+/// evaluator and the staged evaluator's `pour_count` atom (T24).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(default)]
-pub struct PourParams {
-    pub bottle: String,
-    pub target_site: String,
+pub struct PourCounterConfig {
     pub lift_delta_m: f64,
     pub target_radius_m: f64,
     pub tilt_enter_rad: f64,
     pub tilt_return_rad: f64,
     pub enter_dwell_steps: u32,
     pub return_dwell_steps: u32,
+}
+
+impl Default for PourCounterConfig {
+    fn default() -> Self {
+        Self {
+            lift_delta_m: 0.03,
+            target_radius_m: 0.20,
+            tilt_enter_rad: 0.70,
+            tilt_return_rad: 0.20,
+            enter_dwell_steps: 3,
+            return_dwell_steps: 5,
+        }
+    }
+}
+
+/// T20's parameters (manifest `checker.params`; defaults = the catalog's).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default)]
+pub struct PourParams {
+    pub bottle: String,
+    pub target_site: String,
+    #[serde(flatten)]
+    pub counter: PourCounterConfig,
     pub stages: Vec<String>,
 }
 
@@ -48,12 +70,7 @@ impl Default for PourParams {
         Self {
             bottle: "wine_bottle_1".into(),
             target_site: "white_yellow_mug_1_default_site".into(),
-            lift_delta_m: 0.03,
-            target_radius_m: 0.20,
-            tilt_enter_rad: 0.70,
-            tilt_return_rad: 0.20,
-            enter_dwell_steps: 3,
-            return_dwell_steps: 5,
+            counter: PourCounterConfig::default(),
             stages: STAGES.iter().map(|s| s.to_string()).collect(),
         }
     }
@@ -81,7 +98,7 @@ pub struct PourCounter {
 }
 
 impl PourCounter {
-    pub fn new(p: &PourParams) -> Self {
+    pub fn new(p: &PourCounterConfig) -> Self {
         Self {
             radius_m: p.target_radius_m,
             tilt_enter_rad: p.tilt_enter_rad,
@@ -130,6 +147,66 @@ impl PourCounter {
     }
 }
 
+/// Steps 1–3 of the algorithm on the simulator state, feeding a [`PourCounter`]: one bottle, one target site.
+#[derive(Debug, Clone)]
+pub struct PourTracker {
+    config: PourCounterConfig,
+    bottle_body: usize,
+    target_site: usize,
+    /// bottle root z at the evaluator reset
+    z0_m: f64,
+    r_ref: Option<Matrix3<f64>>,
+    lift_seen: bool,
+    max_tilt_rad: f64,
+    counter: PourCounter,
+}
+
+impl PourTracker {
+    /// A tracker whose lift baseline is `z0_m` (the bottle root height at the evaluator reset).
+    pub fn new(config: &PourCounterConfig, bottle_body: usize, target_site: usize, z0_m: f64) -> Self {
+        Self {
+            counter: PourCounter::new(config),
+            config: config.clone(),
+            bottle_body,
+            target_site,
+            z0_m,
+            r_ref: None,
+            lift_seen: false,
+            max_tilt_rad: 0.0,
+        }
+    }
+
+    /// One control step; returns the pour registered at this step, if any.
+    pub fn update(&mut self, data: &SimData, control_step: u64) -> Option<Pour> {
+        let p = data.xpos()[self.bottle_body];
+        let rot = Matrix3::from_row_slice(&data.xmat()[self.bottle_body]);
+        let lifted = p[2] - self.z0_m > self.config.lift_delta_m;
+        if lifted && self.r_ref.is_none() {
+            self.r_ref = Some(rot);
+        }
+        self.lift_seen |= lifted;
+        let tilt = self.r_ref.as_ref().map(|r| geodesic_angle(r, &rot));
+        if let Some(t) = tilt {
+            self.max_tilt_rad = self.max_tilt_rad.max(t);
+        }
+        let target = data.site_xpos()[self.target_site];
+        let distance = (p[0] - target[0]).hypot(p[1] - target[1]);
+        self.counter.update(control_step, lifted, tilt, distance)
+    }
+
+    pub fn pours(&self) -> &[Pour] {
+        self.counter.pours()
+    }
+
+    pub fn lift_seen(&self) -> bool {
+        self.lift_seen
+    }
+
+    pub fn max_tilt_rad(&self) -> f64 {
+        self.max_tilt_rad
+    }
+}
+
 /// Geodesic angle between two rotations: `arccos((trace(AᵀB) − 1) / 2)`.
 pub fn geodesic_angle(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
     (((a.transpose() * b).trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos()
@@ -143,11 +220,7 @@ pub struct PourWine {
     task_id: Option<String>,
     bottle_body: usize,
     target_site: usize,
-    z0_m: f64,
-    r_ref: Option<Matrix3<f64>>,
-    lift_seen: Option<Tick>,
-    max_tilt_rad: f64,
-    counter: PourCounter,
+    tracker: PourTracker,
     stages: StageTracker,
     events: Vec<PrivateEvent>,
     control_steps: u64,
@@ -167,21 +240,18 @@ impl PourWine {
         let target_site = model
             .name_to_id(MjtObjBase::mjOBJ_SITE, &params.target_site)
             .ok_or_else(|| TasksError::Scene(format!("model has no site {:?}", params.target_site)))?;
-        let counter = PourCounter::new(&params);
+        let bottle_body = index.instances[bottle].body;
+        let tracker = PourTracker::new(&params.counter, bottle_body, target_site, 0.0);
         let stages = StageTracker::new(params.stages.iter().map(StageSpec::required).collect());
         Ok(Self {
-            bottle_body: index.instances[bottle].body,
+            bottle_body,
             params,
             index,
             goal,
             commitment,
             task_id,
             target_site,
-            z0_m: 0.0,
-            r_ref: None,
-            lift_seen: None,
-            max_tilt_rad: 0.0,
-            counter,
+            tracker,
             stages,
             events: Vec::new(),
             control_steps: 0,
@@ -208,11 +278,8 @@ impl Evaluator for PourWine {
     }
 
     fn reset(&mut self, data: &SimData, _tick: Tick) {
-        self.z0_m = data.xpos()[self.bottle_body][2];
-        self.r_ref = None;
-        self.lift_seen = None;
-        self.max_tilt_rad = 0.0;
-        self.counter = PourCounter::new(&self.params);
+        let z0_m = data.xpos()[self.bottle_body][2];
+        self.tracker = PourTracker::new(&self.params.counter, self.bottle_body, self.target_site, z0_m);
         self.stages = StageTracker::new(self.params.stages.iter().map(StageSpec::required).collect());
         self.events.clear();
         self.control_steps = 0;
@@ -226,26 +293,11 @@ impl Evaluator for PourWine {
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
         self.control_steps += 1;
-        let p = data.xpos()[self.bottle_body];
-        let rot = Matrix3::from_row_slice(&data.xmat()[self.bottle_body]);
-        let lifted = p[2] - self.z0_m > self.params.lift_delta_m;
-        if lifted && self.r_ref.is_none() {
-            self.r_ref = Some(rot);
-        }
-        if lifted && self.lift_seen.is_none() {
-            self.lift_seen = Some(tick);
-        }
-        let tilt = self.r_ref.as_ref().map(|r| geodesic_angle(r, &rot));
-        if let Some(t) = tilt {
-            self.max_tilt_rad = self.max_tilt_rad.max(t);
-        }
-        let target = data.site_xpos()[self.target_site];
-        let distance = (p[0] - target[0]).hypot(p[1] - target[1]);
-        if self.counter.update(tick.control_step, lifted, tilt, distance).is_some() {
+        if self.tracker.update(data, tick.control_step).is_some() {
             let event = PrivateEvent { subject: Some(self.params.bottle.clone()), ..PrivateEvent::new(EventKind::PourDetected, tick) };
             self.events.push(event);
         }
-        let (lift_seen, pours) = (self.lift_seen.is_some(), self.counter.pours().len());
+        let (lift_seen, pours) = (self.tracker.lift_seen(), self.tracker.pours().len());
         self.stages.advance(tick, |i| if i == 0 { lift_seen } else { pours >= 1 });
         self.events.extend(self.commitment.observe_event(&self.index, data, tick));
     }
@@ -254,12 +306,12 @@ impl Evaluator for PourWine {
         let mut record = EvaluationRecord::new(CHECKER);
         self.stages.write_into(&mut record);
         record.task_id = self.task_id.clone();
-        let (lift, pours) = (self.lift_seen.is_some(), self.counter.pours().len());
+        let (lift, pours) = (self.tracker.lift_seen(), self.tracker.pours().len());
         // nothing beyond the latched events is checked on the final state (catalog §1.4a); reported for the trace
         record.terminal_state_checks = vec![
             TerminalCheck { name: "lift_observed".into(), passed: lift },
             TerminalCheck {
-                name: format!("pour_events >= 1 (count {pours}, max tilt {:.3} rad)", self.max_tilt_rad),
+                name: format!("pour_events >= 1 (count {pours}, max tilt {:.3} rad)", self.tracker.max_tilt_rad()),
                 passed: pours >= 1,
             },
         ];
@@ -296,7 +348,7 @@ mod tests {
     use super::*;
 
     fn counter() -> PourCounter {
-        PourCounter::new(&PourParams::default())
+        PourCounter::new(&PourCounterConfig::default())
     }
 
     /// Feeds `(lifted, tilt, distance)` per step from step 1; returns the counted steps.

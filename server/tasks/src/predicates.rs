@@ -75,7 +75,7 @@ pub fn articulation_rule(category: &str) -> Option<ArticulationRule> {
         // door hinge about z, range [-2.094, 0] rad
         "microwave" => Some(r(JointTest::Below(-1.3), JointTest::Above(-0.005))),
         // drawer slides along local +y, range [-0.16, 0.01] m
-        "wooden_cabinet" | "white_cabinet" => Some(r(JointTest::Below(-0.14), JointTest::Above(0.0))),
+        "wooden_cabinet" | "white_cabinet" | "wooden_cabinet_tall_bottom" => Some(r(JointTest::Below(-0.14), JointTest::Above(0.0))),
         "short_cabinet" => Some(r(JointTest::Above(0.10), JointTest::Below(0.0))),
         "short_fridge" => Some(r(JointTest::Above(2.0), JointTest::Below(0.0))),
         // T28's latched door hinge, range [0, 0.4] rad (catalog §2.2: open > 0.3, close ≤ 0.01)

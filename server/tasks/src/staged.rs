@@ -14,8 +14,18 @@
 //! from its value at reset above / below a threshold, catalog §2.2), `in_box` (RoboMemArena box rule: site box with
 //! half-extent |R·size|, lower z extended by `lower_z_m`, upper by `upper_z_m`), `released` (not grasped by
 //! robosuite's two-pad test), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
-//! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `not`, and `any` (a
-//! disjunction).
+//! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `pour_count` (a named pour
+//! counter has registered ≥ `at_least` pours), `any` (disjunction) and `not`.
+//!
+//! Bindings (T23's "occupied drawer"): a name `$<binding>` usable wherever an atom names a site (drawer sites, `near`
+//! anchors); at reset it is bound to the candidate site nearest (3-D) to an object's root, and stays bound for the
+//! episode.
+//!
+//! Pour counters (T24): named RoboMemArena pour counters ([`crate::pour::PourTracker`], the T20 algorithm). A counter is
+//! created the first control step a stage naming it is current (RoboMemArena creates it when the pour stage is first
+//! evaluated) and from then on updated once per control step, before the stages are tested; `pour_count` atoms read it
+//! (0 before creation). Failure monitors latch a permanent failure (e.g. `extra_pour`) at the first control step at or
+//! after a given stage's completion where their atom holds.
 //!
 //! Completed stages are re-tested every control step: a completed stage whose conjunction stops holding is recorded
 //! as a regression (event + count), and stays completed. For stages naming a `contact_body` (opening operations), the
@@ -37,6 +47,7 @@ use crate::evaluator::{
 };
 use crate::goal::GoalChecker;
 use crate::predicates::{CompiledAtom, EntityRef, SceneIndex, in_subtree};
+use crate::pour::{PourCounterConfig, PourTracker};
 
 pub const CHECKER_ORDERED: &str = "private_ordered_stages";
 pub const CHECKER_UNORDERED: &str = "private_unordered_goal_predicates";
@@ -76,9 +87,39 @@ pub enum AtomSpec {
         #[serde(default)]
         abs: bool,
     },
-    Not(Box<AtomSpec>),
-    /// True when at least one inner atom holds.
+    /// The named pour counter (`pour_counters`) has registered at least `at_least` pours.
+    PourCount { counter: String, at_least: usize },
+    /// At least one of the atoms holds.
     Any(Vec<AtomSpec>),
+    Not(Box<AtomSpec>),
+}
+
+/// A site chosen per episode: among `sites`, the one whose world position at reset is nearest (3-D) to the root of
+/// `nearest_to`. Atoms name it `$<name>`.
+#[derive(Debug, Clone, Deserialize)]
+pub struct BindingParams {
+    pub name: String,
+    pub nearest_to: String,
+    pub sites: Vec<String>,
+}
+
+/// A named pour counter: `bottle` poured over `target_site` (catalog §4 T20 algorithm and thresholds).
+#[derive(Debug, Clone, Deserialize)]
+pub struct PourCounterParams {
+    pub name: String,
+    pub bottle: String,
+    pub target_site: String,
+    #[serde(flatten)]
+    pub config: PourCounterConfig,
+}
+
+/// A permanent failure latched at the first control step, at or after `after_stage` completed, where `when` holds.
+#[derive(Debug, Clone, Deserialize)]
+pub struct FailureMonitorParams {
+    pub name: String,
+    pub after_stage: String,
+    pub when: AtomSpec,
+    pub reason: FailureReason,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -101,6 +142,12 @@ pub struct StagedParams {
     /// Checks on the final state, all required for success.
     #[serde(default)]
     pub terminal: Vec<StageParams>,
+    #[serde(default)]
+    pub bindings: Vec<BindingParams>,
+    #[serde(default)]
+    pub pour_counters: Vec<PourCounterParams>,
+    #[serde(default)]
+    pub failures: Vec<FailureMonitorParams>,
 }
 
 /// A compiled atom.
@@ -108,19 +155,37 @@ pub struct StagedParams {
 enum Check {
     Bddl(CompiledAtom),
     Near { body: usize, anchor: Anchor, xy_max_m: f64, dz: [f64; 2] },
-    Drawer { site: usize, open: bool, threshold_m: f64 },
+    Drawer { site: SiteRef, open: bool, threshold_m: f64 },
     InBox { body: usize, site: usize, half_m: [f64; 3], lower_z_m: f64, upper_z_m: f64 },
     Released(usize),
     Lifted { body: usize, above_m: f64 },
     Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
-    Not(Box<Check>),
+    PourCount { counter: usize, at_least: usize },
     Any(Vec<Check>),
+    Not(Box<Check>),
 }
 
 #[derive(Debug, Clone, Copy)]
 enum Anchor {
     Body(usize),
-    Site(usize),
+    Site(SiteRef),
+}
+
+/// A site named directly, or through a binding resolved at reset.
+#[derive(Debug, Clone, Copy)]
+enum SiteRef {
+    Fixed(usize),
+    Bound(usize),
+}
+
+impl SiteRef {
+    /// The site id (`None` for a binding before the first reset).
+    fn id(self, base: &Baseline) -> Option<usize> {
+        match self {
+            SiteRef::Fixed(s) => Some(s),
+            SiteRef::Bound(b) => base.bound.get(b).copied(),
+        }
+    }
 }
 
 /// Per-episode baselines the atoms read.
@@ -130,12 +195,60 @@ struct Baseline {
     site0: Vec<[f64; 3]>,
     /// body id → world position at reset
     body0: Vec<[f64; 3]>,
+    /// binding → the site it was bound to at reset
+    bound: Vec<usize>,
+}
+
+/// A compiled binding.
+#[derive(Debug, Clone)]
+struct Binding {
+    name: String,
+    probe_body: usize,
+    sites: Vec<usize>,
+}
+
+impl Binding {
+    /// The candidate nearest (3-D) to the probe's root in `data` (the first on ties).
+    fn resolve(&self, data: &SimData) -> usize {
+        let p = data.xpos()[self.probe_body];
+        let d2 = |s: usize| {
+            let q = data.site_xpos()[s];
+            (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>()
+        };
+        self.sites.iter().copied().min_by(|&a, &b| d2(a).total_cmp(&d2(b))).unwrap_or(self.sites[0])
+    }
+}
+
+/// A named pour counter; `tracker` exists from the control step a stage naming it was first current.
+#[derive(Debug, Clone)]
+struct PourSlot {
+    params: PourCounterParams,
+    bottle_body: usize,
+    target_site: usize,
+    tracker: Option<PourTracker>,
+}
+
+impl PourSlot {
+    fn count(&self) -> usize {
+        self.tracker.as_ref().map_or(0, |t| t.pours().len())
+    }
+}
+
+/// A compiled failure monitor.
+#[derive(Debug, Clone)]
+struct FailureMonitor {
+    name: String,
+    after_stage: usize,
+    when: Check,
+    reason: FailureReason,
+    latched_at: Option<Tick>,
 }
 
 struct Ctx<'a> {
     index: &'a SceneIndex,
     commitment: &'a CommitmentTracker,
     base: &'a Baseline,
+    pours: &'a [PourSlot],
     data: &'a SimData,
 }
 
@@ -148,13 +261,17 @@ impl Check {
                 let p = d.xpos()[*body];
                 let q = match anchor {
                     Anchor::Body(b) => d.xpos()[*b],
-                    Anchor::Site(s) => d.site_xpos()[*s],
+                    Anchor::Site(s) => match s.id(c.base) {
+                        Some(s) => d.site_xpos()[s],
+                        None => return false,
+                    },
                 };
                 let dz_now = p[2] - q[2];
                 (p[0] - q[0]).hypot(p[1] - q[1]) < *xy_max_m && dz_now > dz[0] && dz_now < dz[1]
             }
             Check::Drawer { site, open, threshold_m } => {
-                let dy = (d.site_xpos()[*site][1] - c.base.site0.get(*site).map_or(0.0, |p| p[1])).abs();
+                let Some(site) = site.id(c.base) else { return false };
+                let dy = (d.site_xpos()[site][1] - c.base.site0.get(site).map_or(0.0, |p| p[1])).abs();
                 if *open { dy > *threshold_m } else { dy < *threshold_m }
             }
             Check::InBox { body, site, half_m, lower_z_m, upper_z_m } => {
@@ -173,8 +290,19 @@ impl Check {
                 let q = d.qpos()[*qpos_adr];
                 joint_inside(if *abs { q.abs() } else { q }, *min, *max)
             }
+            Check::PourCount { counter, at_least } => c.pours.get(*counter).is_some_and(|p| p.count() >= *at_least),
+            Check::Any(atoms) => atoms.iter().any(|a| a.holds(c)),
             Check::Not(inner) => !inner.holds(c),
-            Check::Any(inner) => inner.iter().any(|a| a.holds(c)),
+        }
+    }
+
+    /// The pour counters this atom reads (so a stage naming one creates it when current).
+    fn counters(&self, out: &mut Vec<usize>) {
+        match self {
+            Check::PourCount { counter, .. } => out.push(*counter),
+            Check::Any(atoms) => atoms.iter().for_each(|a| a.counters(out)),
+            Check::Not(inner) => inner.counters(out),
+            _ => {}
         }
     }
 }
@@ -184,12 +312,36 @@ fn joint_inside(q: f64, min: Option<f64>, max: Option<f64>) -> bool {
     min.is_none_or(|m| q > m) && max.is_none_or(|m| q < m)
 }
 
-fn compile(spec: &AtomSpec, index: &SceneIndex, model: &MjModel) -> Result<Check, TasksError> {
-    let scene_err = |what: &str, name: &str| TasksError::Scene(format!("{CHECKER_ORDERED}: no {what} {name:?}"));
-    let instance_body = |name: &str| -> Result<usize, TasksError> {
-        index.instance(name).map(|i| index.instances[i].body).ok_or_else(|| scene_err("object or fixture", name))
+/// What atoms may name besides the scene: bindings and pour counters, by name.
+struct Names<'a> {
+    index: &'a SceneIndex,
+    model: &'a MjModel,
+    bindings: &'a [String],
+    counters: &'a [String],
+}
+
+fn scene_err(what: &str, name: &str) -> TasksError {
+    TasksError::Scene(format!("{CHECKER_ORDERED}: no {what} {name:?}"))
+}
+
+fn site_id(model: &MjModel, name: &str) -> Result<usize, TasksError> {
+    model.name_to_id(MjtObjBase::mjOBJ_SITE, name).ok_or_else(|| scene_err("site", name))
+}
+
+fn instance_body(index: &SceneIndex, name: &str) -> Result<usize, TasksError> {
+    index.instance(name).map(|i| index.instances[i].body).ok_or_else(|| scene_err("object or fixture", name))
+}
+
+fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
+    let (index, model) = (names.index, names.model);
+    let instance_body = |name: &str| instance_body(index, name);
+    let site = |name: &str| site_id(model, name);
+    let site_ref = |name: &str| -> Result<SiteRef, TasksError> {
+        match name.strip_prefix('$') {
+            Some(b) => names.bindings.iter().position(|n| n == b).map(SiteRef::Bound).ok_or_else(|| scene_err("binding", b)),
+            None => site(name).map(SiteRef::Fixed),
+        }
     };
-    let site = |name: &str| model.name_to_id(MjtObjBase::mjOBJ_SITE, name).ok_or_else(|| scene_err("site", name));
     Ok(match spec {
         AtomSpec::Bddl(words) => {
             let (predicate, args) = words.split_first().ok_or_else(|| scene_err("predicate in", "[]"))?;
@@ -199,15 +351,15 @@ fn compile(spec: &AtomSpec, index: &SceneIndex, model: &MjModel) -> Result<Check
         AtomSpec::Near { object, anchor, xy_max_m, dz_range_m } => {
             let anchor = match index.instance(anchor) {
                 Some(i) => Anchor::Body(index.instances[i].body),
-                None => Anchor::Site(site(anchor)?),
+                None => Anchor::Site(site_ref(anchor)?),
             };
             Check::Near { body: instance_body(object)?, anchor, xy_max_m: *xy_max_m, dz: *dz_range_m }
         }
         AtomSpec::DrawerOpen { site: s, min_displacement_m } => {
-            Check::Drawer { site: site(s)?, open: true, threshold_m: *min_displacement_m }
+            Check::Drawer { site: site_ref(s)?, open: true, threshold_m: *min_displacement_m }
         }
         AtomSpec::DrawerClosed { site: s, max_displacement_m } => {
-            Check::Drawer { site: site(s)?, open: false, threshold_m: *max_displacement_m }
+            Check::Drawer { site: site_ref(s)?, open: false, threshold_m: *max_displacement_m }
         }
         AtomSpec::InBox { object, site: s, lower_z_m, upper_z_m } => {
             let half_m = match index.resolve(s) {
@@ -225,8 +377,12 @@ fn compile(spec: &AtomSpec, index: &SceneIndex, model: &MjModel) -> Result<Check
             }
             Check::Joint { qpos_adr: model.jnt_qposadr()[j] as usize, min: *min, max: *max, abs: *abs }
         }
-        AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, index, model)?)),
-        AtomSpec::Any(inner) => Check::Any(inner.iter().map(|a| compile(a, index, model)).collect::<Result<_, _>>()?),
+        AtomSpec::PourCount { counter, at_least } => Check::PourCount {
+            counter: names.counters.iter().position(|n| n == counter).ok_or_else(|| scene_err("pour counter", counter))?,
+            at_least: *at_least,
+        },
+        AtomSpec::Any(atoms) => Check::Any(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
+        AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, names)?)),
     })
 }
 
@@ -235,20 +391,20 @@ struct Stage {
     name: String,
     all: Vec<Check>,
     contact_body: Option<usize>,
+    /// pour counters its atoms read
+    counters: Vec<usize>,
 }
 
 impl Stage {
-    fn compile(p: &StageParams, index: &SceneIndex, model: &MjModel) -> Result<Self, TasksError> {
-        let all = p.all.iter().map(|a| compile(a, index, model)).collect::<Result<Vec<_>, _>>()?;
+    fn compile(p: &StageParams, names: &Names) -> Result<Self, TasksError> {
+        let all = p.all.iter().map(|a| compile(a, names)).collect::<Result<Vec<_>, _>>()?;
         let contact_body = match &p.contact_body {
-            Some(b) => Some(
-                model
-                    .name_to_id(MjtObjBase::mjOBJ_BODY, b)
-                    .ok_or_else(|| TasksError::Scene(format!("{CHECKER_ORDERED}: no body {b:?}")))?,
-            ),
+            Some(b) => Some(names.model.name_to_id(MjtObjBase::mjOBJ_BODY, b).ok_or_else(|| scene_err("body", b))?),
             None => None,
         };
-        Ok(Self { name: p.name.clone(), all, contact_body })
+        let mut counters = Vec::new();
+        all.iter().for_each(|a| a.counters(&mut counters));
+        Ok(Self { name: p.name.clone(), all, contact_body, counters })
     }
 
     fn holds(&self, c: &Ctx) -> bool {
@@ -307,9 +463,13 @@ pub struct StagedEvaluator {
     n_required: usize,
     terminal: Vec<Stage>,
     gripper_bodies: Vec<bool>,
+    site_names: Vec<String>,
     body_parent: Vec<i32>,
     geom_body: Vec<usize>,
     base: Baseline,
+    bindings: Vec<Binding>,
+    pours: Vec<PourSlot>,
+    failures: Vec<FailureMonitor>,
     tracker: StageTracker,
     /// unordered mode: which goals hold now, and the log of changes
     holding: Vec<bool>,
@@ -333,12 +493,51 @@ impl StagedEvaluator {
         task_id: Option<String>,
     ) -> Result<Self, TasksError> {
         let index = goal.index().clone();
-        let mut stages = params.stages.iter().map(|s| Stage::compile(s, &index, model)).collect::<Result<Vec<_>, _>>()?;
+        let bindings = params
+            .bindings
+            .iter()
+            .map(|b| {
+                let sites = b.sites.iter().map(|s| site_id(model, s)).collect::<Result<Vec<_>, _>>()?;
+                if sites.is_empty() {
+                    return Err(scene_err("candidate site in binding", &b.name));
+                }
+                Ok(Binding { name: b.name.clone(), probe_body: instance_body(&index, &b.nearest_to)?, sites })
+            })
+            .collect::<Result<Vec<_>, TasksError>>()?;
+        let pours = params
+            .pour_counters
+            .iter()
+            .map(|p| {
+                Ok(PourSlot {
+                    params: p.clone(),
+                    bottle_body: instance_body(&index, &p.bottle)?,
+                    target_site: site_id(model, &p.target_site)?,
+                    tracker: None,
+                })
+            })
+            .collect::<Result<Vec<_>, TasksError>>()?;
+        let binding_names: Vec<String> = params.bindings.iter().map(|b| b.name.clone()).collect();
+        let counter_names: Vec<String> = params.pour_counters.iter().map(|p| p.name.clone()).collect();
+        let names = Names { index: &index, model, bindings: &binding_names, counters: &counter_names };
+        let mut stages = params.stages.iter().map(|s| Stage::compile(s, &names)).collect::<Result<Vec<_>, _>>()?;
         let n_required = stages.len();
         for s in &params.optional_stages {
-            stages.push(Stage::compile(s, &index, model)?);
+            stages.push(Stage::compile(s, &names)?);
         }
-        let terminal = params.terminal.iter().map(|s| Stage::compile(s, &index, model)).collect::<Result<Vec<_>, _>>()?;
+        let terminal = params.terminal.iter().map(|s| Stage::compile(s, &names)).collect::<Result<Vec<_>, _>>()?;
+        let failures = params
+            .failures
+            .iter()
+            .map(|f| {
+                Ok(FailureMonitor {
+                    name: f.name.clone(),
+                    after_stage: stages.iter().position(|s| s.name == f.after_stage).ok_or_else(|| scene_err("stage", &f.after_stage))?,
+                    when: compile(&f.when, &names)?,
+                    reason: f.reason,
+                    latched_at: None,
+                })
+            })
+            .collect::<Result<Vec<_>, TasksError>>()?;
         let nbody = model.ffi().nbody as usize;
         let gripper_bodies = (0..nbody)
             .map(|b| model.id_to_name(MjtObjBase::mjOBJ_BODY, b).is_some_and(|n| n.starts_with("gripper0_")))
@@ -356,9 +555,13 @@ impl StagedEvaluator {
             n_required,
             terminal,
             gripper_bodies,
+            site_names: (0..model.ffi().nsite as usize).map(|s| model.id_to_name(MjtObjBase::mjOBJ_SITE, s).unwrap_or_default().to_owned()).collect(),
             body_parent: model.body_parentid().to_vec(),
             geom_body: model.geom_bodyid().iter().map(|&b| b as usize).collect(),
             base: Baseline::default(),
+            bindings,
+            pours,
+            failures,
             tracker: StageTracker::new(specs),
             holding: vec![false; n],
             unordered_regressions: vec![0; n],
@@ -384,12 +587,50 @@ impl StagedEvaluator {
         })
     }
 
+    fn site_name(&self, site: usize) -> String {
+        self.site_names.get(site).cloned().unwrap_or_default()
+    }
+
     fn stage_event(&self, kind: EventKind, tick: Tick, i: usize) -> PrivateEvent {
         PrivateEvent { stage_index: Some(i), stage_name: Some(self.stages[i].name.clone()), ..PrivateEvent::new(kind, tick) }
     }
 
+    /// Creates the pour counters the stages `evaluated` name (first time only), then updates every existing counter
+    /// once for this control step.
+    fn feed_pours(&mut self, evaluated: &[usize], data: &SimData, tick: Tick) {
+        for &i in evaluated {
+            for &c in &self.stages[i].counters {
+                let slot = &mut self.pours[c];
+                if slot.tracker.is_none() {
+                    let z0_m = self.base.body0.get(slot.bottle_body).map_or(0.0, |p| p[2]);
+                    slot.tracker = Some(PourTracker::new(&slot.params.config, slot.bottle_body, slot.target_site, z0_m));
+                }
+            }
+        }
+        for slot in &mut self.pours {
+            if let Some(t) = slot.tracker.as_mut()
+                && t.update(data, tick.control_step).is_some()
+            {
+                self.events.push(PrivateEvent { subject: Some(slot.params.bottle.clone()), ..PrivateEvent::new(EventKind::PourDetected, tick) });
+            }
+        }
+    }
+
+    /// Latches every armed failure monitor whose atom holds now (armed once its stage has completed).
+    fn check_failures(&mut self, data: &SimData, tick: Tick) {
+        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        for m in &mut self.failures {
+            if m.latched_at.is_none() && self.tracker.is_completed(m.after_stage) && m.when.holds(&ctx) {
+                m.latched_at = Some(tick);
+                self.events.push(PrivateEvent { subject: Some(m.name.clone()), ..PrivateEvent::new(EventKind::FailureLatched, tick) });
+            }
+        }
+    }
+
     fn observe_unordered(&mut self, data: &SimData, tick: Tick) {
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, data };
+        let all: Vec<usize> = (0..self.stages.len()).collect();
+        self.feed_pours(&all, data, tick);
+        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
         let now: Vec<bool> = self.stages.iter().map(|s| s.holds(&ctx)).collect();
         for (i, &h) in now.iter().enumerate() {
             if h != self.holding[i] {
@@ -428,7 +669,8 @@ impl StagedEvaluator {
                 self.monitors[m].step(contact);
             }
         }
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, data };
+        self.feed_pours(current.as_slice(), data, tick);
+        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
         let stages = &self.stages;
         match self.order {
             OrderMode::Strict => {
@@ -439,6 +681,7 @@ impl StagedEvaluator {
             }
         }
         self.tracker.track_regressions(tick, |i| stages[i].holds(&ctx));
+        self.check_failures(data, tick);
     }
 }
 
@@ -448,7 +691,10 @@ impl Evaluator for StagedEvaluator {
     }
 
     fn reset(&mut self, data: &SimData, tick: Tick) {
-        self.base = Baseline { site0: data.site_xpos().to_vec(), body0: data.xpos().to_vec() };
+        let bound = self.bindings.iter().map(|b| b.resolve(data)).collect();
+        self.base = Baseline { site0: data.site_xpos().to_vec(), body0: data.xpos().to_vec(), bound };
+        self.pours.iter_mut().for_each(|p| p.tracker = None);
+        self.failures.iter_mut().for_each(|f| f.latched_at = None);
         self.tracker = StageTracker::new(Self::specs(&self.stages, self.n_required));
         self.monitors.clear();
         self.monitor_open = None;
@@ -457,7 +703,7 @@ impl Evaluator for StagedEvaluator {
         self.unordered_regressions.iter_mut().for_each(|r| *r = 0);
         self.control_steps = 0;
         self.commitment.reset(&self.index, data);
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, data };
+        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
         self.holding = self.stages.iter().map(|s| s.holds(&ctx)).collect();
         self.initial_goal_count = self.holding[..self.n_required].iter().filter(|&&h| h).count();
         self.max_goal_count = self.initial_goal_count;
@@ -479,7 +725,7 @@ impl Evaluator for StagedEvaluator {
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
         let mut record = EvaluationRecord::new(self.checker.clone());
         record.task_id = self.task_id.clone();
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, data };
+        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
         record.terminal_state_checks =
             self.terminal.iter().map(|t| TerminalCheck { name: t.name.clone(), passed: t.holds(&ctx) }).collect();
         record.terminal_state_success = record.terminal_state_checks.iter().all(|c| c.passed);
@@ -525,10 +771,41 @@ impl Evaluator for StagedEvaluator {
                 .collect();
             details.insert("opening_operations".into(), json!(ops));
         }
+        if !self.bindings.is_empty() {
+            let bound: serde_json::Map<String, serde_json::Value> = self
+                .bindings
+                .iter()
+                .zip(&self.base.bound)
+                .map(|(b, &s)| (b.name.clone(), json!(self.site_name(s))))
+                .collect();
+            details.insert("bindings".into(), serde_json::Value::Object(bound));
+        }
+        if !self.pours.is_empty() {
+            let counters: Vec<_> = self
+                .pours
+                .iter()
+                .map(|p| {
+                    let pours: Vec<_> = p.tracker.iter().flat_map(|t| t.pours()).map(|q| json!({"start_step": q.start_step, "counted_step": q.counted_step})).collect();
+                    json!({"name": p.params.name, "created": p.tracker.is_some(), "count": p.count(), "pours": pours,
+                        "max_tilt_rad": p.tracker.as_ref().map(PourTracker::max_tilt_rad)})
+                })
+                .collect();
+            details.insert("pour_counters".into(), json!(counters));
+        }
+        let latched: Vec<&FailureMonitor> = self.failures.iter().filter(|f| f.latched_at.is_some()).collect();
+        if !self.failures.is_empty() {
+            let list: Vec<_> = latched
+                .iter()
+                .map(|f| json!({"name": f.name, "reason": f.reason, "control_step": f.latched_at.map(|t| t.control_step)}))
+                .collect();
+            details.insert("latched_failures".into(), json!(list));
+        }
         record.details = Some(serde_json::Value::Object(details));
-        record.success = stages_ok && record.terminal_state_success;
+        record.success = stages_ok && record.terminal_state_success && latched.is_empty();
         record.failure_reason = if record.success {
             None
+        } else if let Some(f) = latched.first() {
+            Some(f.reason)
         } else if self.tracker.order_violated() {
             Some(FailureReason::OrderViolation)
         } else if !stages_ok {

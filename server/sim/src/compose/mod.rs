@@ -332,6 +332,31 @@ fn vec3(v: &[f64]) -> [f64; 3] {
     [v.first().copied().unwrap_or(0.0), v.get(1).copied().unwrap_or(0.0), v.get(2).copied().unwrap_or(0.0)]
 }
 
+/// Applies a derived category's declared edits (registry [`registry::AssetEdit`]) to the asset's outer body.
+fn apply_edits(outer: &mut Element, edits: &[registry::AssetEdit], file: &Path) -> Result<(), SimError> {
+    let missing = |tag: &str, name: &str| SimError::Assets(format!("{}: edit names no <{tag} name=\"{name}\">", file.display()));
+    for edit in edits {
+        match edit {
+            registry::AssetEdit::Set { tag, name, attr, from, to } => {
+                let e = outer.find_named_mut(tag, name).ok_or_else(|| missing(tag, name))?;
+                let now = e.get(attr).unwrap_or("");
+                if now != *from {
+                    return Err(SimError::Assets(format!(
+                        "{}: <{tag} name=\"{name}\"> {attr}=\"{now}\", the edit expects \"{from}\" (asset changed?)",
+                        file.display()
+                    )));
+                }
+                e.set(attr, *to);
+            }
+            registry::AssetEdit::Add { body, tag, attrs } => {
+                let owned: Vec<(&str, String)> = attrs.iter().map(|(k, v)| (*k, (*v).to_owned())).collect();
+                outer.find_named_mut("body", body).ok_or_else(|| missing("body", body))?.children.push(Element::with_attrs(tag, &owned));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// `MujocoXMLObject(fname, name, joints, obj_type="all", duplicate_collision_geoms=False)`.
 fn load_object(name: &str, cat: &registry::Category, is_fixture: bool, paths: &AssetPaths) -> Result<LoadedObject, SimError> {
     let file = match cat.root {
@@ -340,18 +365,14 @@ fn load_object(name: &str, cat: &registry::Category, is_fixture: bool, paths: &A
     };
     let mut xml = MjXml::load(&file)?;
     let prefix = format!("{name}_");
-    let outer = xml
+    let mut outer = xml
         .section("worldbody")
         .children
         .iter()
         .find(|c| c.tag == "body")
         .ok_or_else(|| SimError::Assets(format!("{}: no outer body", file.display())))?
         .clone();
-    let mut obj = outer
-        .child_named("body", "object")
-        .ok_or_else(|| SimError::Assets(format!("{}: no body named `object` in the outer body", file.display())))?
-        .clone();
-    obj.set("name", "main");
+    let no_object = || SimError::Assets(format!("{}: no body named `object` in the outer body", file.display()));
     // geoms in document order: keep groups 0/1, name unnamed ones g{i}
     fn filter_geoms(e: &mut Element, counter: &mut usize, file: &Path) -> Result<(), SimError> {
         let mut kept = Vec::with_capacity(e.children.len());
@@ -379,7 +400,10 @@ fn load_object(name: &str, cat: &registry::Category, is_fixture: bool, paths: &A
         Ok(())
     }
     let mut counter = 0;
-    filter_geoms(&mut obj, &mut counter, &file)?;
+    filter_geoms(outer.child_named_mut("body", "object").ok_or_else(no_object)?, &mut counter, &file)?;
+    apply_edits(&mut outer, cat.edits, &file)?;
+    let mut obj = outer.child_named("body", "object").ok_or_else(no_object)?.clone();
+    obj.set("name", "main");
     if !is_fixture && cat.free_joint_as_object {
         obj.children.push(Element::with_attrs(
             "joint",

@@ -46,7 +46,60 @@ pub struct Category {
     /// `Some`: only these joints (unprefixed names) are the instance's articulation joints that predicates and
     /// `Open`/`Close` initializers read; the others (the latched door's latch) only act physically.
     pub exposed_joints: Option<&'static [&'static str]>,
+    /// Edits applied to `file` at compose time (derived categories, see [`DERIVED`]); empty for plain categories.
+    pub edits: &'static [AssetEdit],
 }
+
+/// One declared edit of a category's MJCF, applied to the loaded tree before prefixing. Elements are found by tag and
+/// name anywhere in the asset's outer body; unnamed geoms of the `object` body are named `g<i>` (document order over
+/// all its geoms) before the edits run, as the loader names them anyway.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum AssetEdit {
+    /// Replace attribute `attr` of `<tag name=name>`, which must currently read `from` (guards against an asset
+    /// update silently changing what the edit means).
+    Set { tag: &'static str, name: &'static str, attr: &'static str, from: &'static str, to: &'static str },
+    /// Append `<tag attrs…/>` to the body named `body`.
+    Add { body: &'static str, tag: &'static str, attrs: &'static [(&'static str, &'static str)] },
+}
+
+/// Categories derived from a LIBERO category by declared edits (RoboMemArena's asset variants, task catalog §6.9):
+/// the LIBERO file in the asset cache is loaded and edited at compose time, so no LIBERO mesh or MJCF is copied
+/// into the repository. Key, base category, edits; everything else (rotation, articulation) is the base's.
+const DERIVED: &[(&str, &str, &[AssetEdit])] = &[
+    // T23, T27: the wooden cabinet raised 5 cm on a visual plinth; drawers, joints and sites unchanged relative to
+    // the raised body (roof site `top_side` ends at z 0.27152)
+    (
+        "wooden_cabinet_tall_bottom",
+        "wooden_cabinet",
+        &[
+            AssetEdit::Set { tag: "body", name: "base", attr: "pos", from: "0 0 0.0", to: "0 0 0.05" },
+            AssetEdit::Add {
+                body: "object",
+                tag: "geom",
+                attrs: &[
+                    ("name", "plinth"),
+                    ("type", "box"),
+                    ("pos", "0.004 0.016 0.025"),
+                    ("size", "0.12534 0.09438 0.025"),
+                    ("contype", "0"),
+                    ("conaffinity", "0"),
+                    ("group", "1"),
+                    ("material", "wooden_cabinet_base"),
+                ],
+            },
+        ],
+    ),
+    // T24: the chefmate frypan with its flat base collision box (geom 4) lowered 8 mm and its bottom site at
+    // z −0.0112, so the pan rests on its base on the coffee table
+    (
+        "robomemarena_frypan",
+        "chefmate_8_frypan",
+        &[
+            AssetEdit::Set { tag: "geom", name: "g4", attr: "pos", from: "-0.00000 -0.00000 0.00675", to: "0 0 -0.00125" },
+            AssetEdit::Set { tag: "site", name: "bottom_site", attr: "pos", from: "0 0 -0.06", to: "0 0 -0.0112" },
+        ],
+    ),
+];
 
 const HOPE: &[&str] = &[
     "alphabet_soup", "bbq_sauce", "butter", "chocolate_pudding", "cookies", "cream_cheese", "ketchup",
@@ -149,7 +202,11 @@ pub fn category(key: &str) -> Option<Category> {
         free_joint_as_object: true,
         vis_sites: &[],
         exposed_joints: None,
+        edits: &[],
     };
+    if let Some(&(k, base, edits)) = DERIVED.iter().find(|(k, _, _)| *k == key) {
+        return category(base).map(|c| Category { key: k, edits, ..c });
+    }
     if let Some(&(k, file, rotation_z)) = PROJECT.iter().find(|(k, _, _)| *k == key) {
         let mut c = Category { root: AssetRoot::Project, ..mk(k, file.to_owned(), range(rotation_z, rotation_z, 'z')) };
         if k == LATCHED_DOOR {

@@ -30,37 +30,37 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 }
 
 /// `partial_<n>` → n.
-fn partial_count(behaviour: &str) -> Option<usize> {
+pub(super) fn partial_count(behaviour: &str) -> Option<usize> {
     behaviour.strip_prefix("partial_").and_then(|n| n.parse().ok())
 }
 
-fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
+pub(super) fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
     vec3(&sim.data().xpos()[body])
 }
 
-fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
+pub(super) fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
     (a.x - b.x).hypot(a.y - b.y)
 }
 
 /// The grip-site goal that brings a held object's root to `target` (closed loop on the object's pose).
-fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
+pub(super) fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
     grip_pose(sim).0 + (target - pos(sim, body))
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).
-type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
+pub(super) type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
 
 /// Pick `body` from above (fingers closing `grasp_dz_m` above its root), carry it at `carry_z_m` (absolute
 /// world height of the root) to above `target`, lower it until the root is ≈ 1 cm above `target`, open and retreat.
-fn pick_place(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn) {
+pub(super) fn pick_place(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn) {
     pick_place_turned(phases, body, grasp_dz_m, carry_z_m, target, Arc::new(|_, ctx| ctx.home_rot));
 }
 
 /// The hand's orientation for a pick (from the state and the phase context).
-type RotFn = Arc<dyn Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Send + Sync>;
+pub(super) type RotFn = Arc<dyn Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Send + Sync>;
 
 /// [`pick_place`] with the hand turned by `rot` throughout.
-fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn, rot: RotFn) {
+pub(super) fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn, rot: RotFn) {
     let grasp = move |sim: &Simulation| pos(sim, body) + Vector3::z() * grasp_dz_m;
     let r = move |k: &RotFn| {
         let k = k.clone();
@@ -111,7 +111,7 @@ fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carr
 }
 
 /// Remembers a value computed on the first call (positions at the start of the run).
-fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
+pub(super) fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
     let cell: Arc<Mutex<Option<T>>> = Arc::new(Mutex::new(None));
     move |sim| *cell.lock().expect("memo lock").get_or_insert_with(|| f(sim))
 }
@@ -159,7 +159,7 @@ const OBJECT_GRASP_DZ_M: f64 = 0.02;
 const CARRY_Z_M: f64 = 0.85;
 
 /// The horizontal axis of an object's largest collision box along which it is narrowest (fingers close across it).
-fn narrow_axis(sim: &Simulation, geom: usize, half_m: [f64; 3]) -> Vector3<f64> {
+pub(super) fn narrow_axis(sim: &Simulation, geom: usize, half_m: [f64; 3]) -> Vector3<f64> {
     let m = super::motion::mat3(&sim.data().geom_xmat()[geom]);
     (0..3)
         .filter(|&k| m[(2, k)].abs() < 0.7)
@@ -168,7 +168,7 @@ fn narrow_axis(sim: &Simulation, geom: usize, half_m: [f64; 3]) -> Vector3<f64> 
 }
 
 /// The largest box geom of an instance (its main collision box) and its half sizes.
-fn main_box(refs: &SceneRefs, name: &str) -> Result<(usize, [f64; 3]), TasksError> {
+pub(super) fn main_box(refs: &SceneRefs, name: &str) -> Result<(usize, [f64; 3]), TasksError> {
     let i = refs.index.instance(name).ok_or_else(|| TasksError::Scene(format!("expert: no instance {name:?}")))?;
     let sizes = refs.model.geom_size();
     refs.index
@@ -178,14 +178,17 @@ fn main_box(refs: &SceneRefs, name: &str) -> Result<(usize, [f64; 3]), TasksErro
         .ok_or_else(|| TasksError::Scene(format!("expert: {name} has no collision geom")))
 }
 
-/// LIBERO wooden cabinet middle drawer: handle bar centre in the drawer body's frame; the drawer opens along local −y.
-const MIDDLE_HANDLE_LOCAL_M: [f64; 3] = [-0.00278, -0.10161, 0.11041];
+/// LIBERO wooden cabinet drawers (top, middle, bottom): handle bar centre in the drawer body's frame (the same in
+/// RoboMemArena's raised cabinet, whose drawer bodies moved up with their parent); drawers open along local −y.
+pub(super) const TOP_HANDLE_LOCAL_M: [f64; 3] = [-0.00278, -0.10161, 0.18393];
+pub(super) const MIDDLE_HANDLE_LOCAL_M: [f64; 3] = [-0.00278, -0.10161, 0.11041];
+pub(super) const BOTTOM_HANDLE_LOCAL_M: [f64; 3] = [-0.00278, -0.10161, 0.04114];
 const DRAWER_OUT_LOCAL: [f64; 3] = [0.0, -1.0, 0.0];
 
 /// Phases that pull a wooden-cabinet drawer open (the hand points into the drawer with its fingers opening
 /// vertically and closes on the bar from above and below), until the slide reads `q_goal`.
-fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, q_adr: usize, q_goal: f64) {
-    let handle = move |sim: &Simulation| body_point(sim, drawer, MIDDLE_HANDLE_LOCAL_M);
+pub(super) fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64; 3], q_adr: usize, q_goal: f64) {
+    let handle = move |sim: &Simulation| body_point(sim, drawer, handle_local_m);
     let out = move |sim: &Simulation| body_dir(sim, drawer, DRAWER_OUT_LOCAL);
     let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
     let rot = move |sim: &Simulation, ctx: &PhaseCtx| into_drawer(out(sim), &ctx.home_rot);
@@ -219,15 +222,15 @@ fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, q_adr: usize, q_goal: f64
 
 /// The hand pointing into a drawer (horizontal), its fingers opening vertically: nothing of the hand rises above the
 /// handle, so it can reach the middle drawer's bar under the top drawer's handle.
-fn into_drawer(out: Vector3<f64>, home_rot: &Matrix3<f64>) -> Matrix3<f64> {
+pub(super) fn into_drawer(out: Vector3<f64>, home_rot: &Matrix3<f64>) -> Matrix3<f64> {
     rotate_world(&open_along(home_rot, out), Vector3::z().cross(&out), std::f64::consts::FRAC_PI_2)
 }
 
 /// Phases that push a wooden-cabinet drawer home with the closed fingertips on its handle bar (hand pointing into the
 /// drawer: a hand pointing down catches its palm on the top drawer's handle before the middle drawer is home), until
 /// `q ≥ q_goal`.
-fn push_drawer(phases: &mut Vec<Phase>, drawer: usize, q_adr: usize, q_goal: f64) {
-    let handle = move |sim: &Simulation| body_point(sim, drawer, MIDDLE_HANDLE_LOCAL_M);
+pub(super) fn push_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64; 3], q_adr: usize, q_goal: f64) {
+    let handle = move |sim: &Simulation| body_point(sim, drawer, handle_local_m);
     let out = move |sim: &Simulation| body_dir(sim, drawer, DRAWER_OUT_LOCAL);
     let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
     let rot = move |sim: &Simulation, ctx: &PhaseCtx| into_drawer(out(sim), &ctx.home_rot);
@@ -268,9 +271,9 @@ fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
         b => partial_count(b).filter(|&n| n <= 4).ok_or_else(|| TasksError::Scene(format!("T27: unknown behaviour {b}")))?,
     };
     let mut phases = Vec::new();
-    pull_drawer(&mut phases, drawer, q_adr, -0.152);
+    pull_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, -0.152);
     if behaviour == "undo" {
-        push_drawer(&mut phases, drawer, q_adr, 0.0);
+        push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
     }
     let items = [("cookies_1", -0.045), ("chocolate_pudding_1", 0.05)];
     for (name, across_m) in &items[..n.saturating_sub(1).min(2)] {
@@ -295,7 +298,7 @@ fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
         pick_place_turned(&mut phases, body, 0.0, DRAWER_CARRY_Z_M, target, rot);
     }
     if n == 4 {
-        push_drawer(&mut phases, drawer, q_adr, 0.0);
+        push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
     }
     Ok(Box::new(Script::new(phases)))
 }

@@ -13,6 +13,7 @@ mod long;
 pub mod motion;
 mod objects;
 mod perception;
+mod robomem;
 mod stock;
 mod vlabench;
 
@@ -100,6 +101,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| long::behaviours(task_id))
         .or_else(|| door::behaviours(task_id))
         .or_else(|| hammer::behaviours(task_id))
+        .or_else(|| robomem::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
 }
 
@@ -130,6 +132,8 @@ pub fn expert_for(
         door::build(task_id, behaviour, &refs)
     } else if hammer::behaviours(task_id).is_some() {
         hammer::build(task_id, behaviour, &refs)
+    } else if robomem::behaviours(task_id).is_some() {
+        robomem::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }
