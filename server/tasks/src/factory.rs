@@ -26,6 +26,7 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     pour::CHECKER,
     staged::CHECKER_ORDERED,
     staged::CHECKER_UNORDERED,
+    staged::CHECKER_BUFFER_ROTATION,
     weighing::CHECKER,
 ];
 
@@ -105,7 +106,7 @@ pub fn build_evaluator(
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(PourWine::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
-        staged::CHECKER_ORDERED | staged::CHECKER_UNORDERED => {
+        staged::CHECKER_ORDERED | staged::CHECKER_UNORDERED | staged::CHECKER_BUFFER_ROTATION => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(StagedEvaluator::new(kind, p, goal, commitment, model, task_id.map(str::to_owned))?))
