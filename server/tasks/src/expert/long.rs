@@ -30,15 +30,15 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 }
 
 /// `partial_<n>` → n.
-fn partial_count(behaviour: &str) -> Option<usize> {
+pub(super) fn partial_count(behaviour: &str) -> Option<usize> {
     behaviour.strip_prefix("partial_").and_then(|n| n.parse().ok())
 }
 
-fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
+pub(super) fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
     vec3(&sim.data().xpos()[body])
 }
 
-fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
+pub(super) fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
     (a.x - b.x).hypot(a.y - b.y)
 }
 
@@ -48,20 +48,28 @@ fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).
-type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
+pub(super) type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
 
 /// Pick `body` from above (fingers closing `grasp_dz_m` above its root), carry it at `carry_z_m` (absolute
 /// world height of the root) to above `target`, lower it until the root is ≈ 1 cm above `target`, open and retreat.
 fn pick_place(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn) {
-    pick_place_turned(phases, body, grasp_dz_m, carry_z_m, target, Arc::new(|_, ctx| ctx.home_rot));
+    pick_place_turned(phases, body, Vector3::z() * grasp_dz_m, carry_z_m, target, Arc::new(|_, ctx| ctx.home_rot));
 }
 
 /// The hand's orientation for a pick (from the state and the phase context).
-type RotFn = Arc<dyn Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Send + Sync>;
+pub(super) type RotFn = Arc<dyn Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Send + Sync>;
 
-/// [`pick_place`] with the hand turned by `rot` throughout.
-fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn, rot: RotFn) {
-    let grasp = move |sim: &Simulation| pos(sim, body) + Vector3::z() * grasp_dz_m;
+/// [`pick_place`] with the hand turned by `rot` throughout, the fingers closing at `grasp_offset_m` (world frame) from
+/// the object's root.
+pub(super) fn pick_place_turned(
+    phases: &mut Vec<Phase>,
+    body: usize,
+    grasp_offset_m: Vector3<f64>,
+    carry_z_m: f64,
+    target: TargetFn,
+    rot: RotFn,
+) {
+    let grasp = move |sim: &Simulation| pos(sim, body) + grasp_offset_m;
     let r = move |k: &RotFn| {
         let k = k.clone();
         move |sim: &Simulation, ctx: &PhaseCtx| k(sim, ctx)
@@ -111,7 +119,7 @@ fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carr
 }
 
 /// Remembers a value computed on the first call (positions at the start of the run).
-fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
+pub(super) fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
     let cell: Arc<Mutex<Option<T>>> = Arc::new(Mutex::new(None));
     move |sim| *cell.lock().expect("memo lock").get_or_insert_with(|| f(sim))
 }
@@ -292,7 +300,7 @@ fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
         phases.push(
             Phase::new("via_middle", move |_, _| Goal::at(Vector3::new(0.0, 0.0, 0.70), GRIPPER_OPEN)).until_reached(0.03).max_steps(80),
         );
-        pick_place_turned(&mut phases, body, 0.0, DRAWER_CARRY_Z_M, target, rot);
+        pick_place_turned(&mut phases, body, Vector3::zeros(), DRAWER_CARRY_Z_M, target, rot);
     }
     if n == 4 {
         push_drawer(&mut phases, drawer, q_adr, 0.0);
