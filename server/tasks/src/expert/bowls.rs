@@ -41,8 +41,8 @@ const RIM_GRASP_OFFSET_M: [f64; 3] = [0.0, 0.048, 0.038];
 /// Bowl-root height while carrying: the bowl's bottom ≈ 12 cm above the tabletop (z = 0.90), clear of the other
 /// bowls' rims (≈ 0.96) even if the held bowl hangs tilted.
 const CARRY_Z_M: f64 = 1.03;
-/// How far below a bowl's resting height on a plate the place target is (the hand lets go once the bowl is within
-/// 1.5 cm of the target, see `pick_place_turned`).
+/// How far below a bowl's resting height on a plate the place target is (the hand lets go once the bowl's root is
+/// within 1.5 cm above the target, see `pick_place_turned`): the 5.6 g bowl lands gently and stays centred.
 const RELEASE_BELOW_REST_M: f64 = 0.006;
 /// Control steps the hand waits at the end.
 const SETTLE_STEPS: u32 = 15;
@@ -77,8 +77,8 @@ fn rotate_bowls(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Ta
     for (body, target) in moves {
         let rest = rest_dz.clone();
         let to: TargetFn = match target {
-            // the plate's centre, a little below the bowl's resting height on it: the bowl is let go ≈ 5 mm above
-            // the plate instead of 1.5 cm (a light bowl dropped further bounces, flickering its On contact)
+            // the plate's centre, a little below the bowl's resting height on it, so the bowl is let go at most
+            // ≈ 9 mm above where it comes to rest
             Target::Plate(p) => Arc::new(move |sim| pos(sim, p) + Vector3::z() * (rest(sim) - RELEASE_BELOW_REST_M)),
             Target::Table(plates) => {
                 let spot = memo(move |sim: &Simulation| table_spot(sim, &plates));
