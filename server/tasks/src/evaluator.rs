@@ -36,8 +36,12 @@ pub enum EventKind {
     StageCompleted,
     /// A completed stage's condition stopped holding (the stage stays completed).
     StageRegressed,
-    /// A later stage held before the current one (strict-order evaluators; latches failure).
+    /// A later stage held before the current one (strict-order evaluators; latches failure; `subject` names it
+    /// `<later>_before_<current>`).
     OrderViolation,
+    /// A forbidden contact was seen (T25: a bowl touched the tabletop; latches failure; `subject` names it
+    /// `<object>_touched_<label>`).
+    ForbiddenContact,
     /// The first commitment of the episode (see [`CommitmentTracker`]).
     FirstCommitment,
     /// Diagnostic: the BDDL goal conjunction became true / false at this tick (never scored).
@@ -95,7 +99,8 @@ pub struct StageTracker {
     /// Whether each completed stage's condition held at its last re-test.
     holding: Vec<bool>,
     regressions: Vec<u32>,
-    order_violation: Option<Tick>,
+    /// When, and the (later, current) stages of the violation.
+    order_violation: Option<(Tick, usize, usize)>,
     events: Vec<PrivateEvent>,
 }
 
@@ -144,9 +149,10 @@ impl StageTracker {
     /// if one already holds, the run is latched as an ordering violation and makes no further progress.
     pub fn advance_strict(&mut self, tick: Tick, mut holds: impl FnMut(usize) -> bool) -> Option<usize> {
         let i = self.current()?;
-        if (i + 1..self.specs.len()).any(&mut holds) {
-            self.order_violation = Some(tick);
-            self.events.push(self.stage_event(EventKind::OrderViolation, tick, i));
+        if let Some(later) = (i + 1..self.specs.len()).find(|&j| holds(j)) {
+            self.order_violation = Some((tick, later, i));
+            let subject = Some(format!("{}_before_{}", self.specs[later].name, self.specs[i].name));
+            self.events.push(PrivateEvent { subject, ..self.stage_event(EventKind::OrderViolation, tick, i) });
             return None;
         }
         holds(i).then(|| {
@@ -178,6 +184,11 @@ impl StageTracker {
 
     pub fn order_violated(&self) -> bool {
         self.order_violation.is_some()
+    }
+
+    /// `<later>_before_<current>` of a strict-order violation, as the original evaluator names the latch.
+    pub fn order_violation_label(&self) -> Option<String> {
+        self.order_violation.map(|(_, later, current)| format!("{}_before_{}", self.specs[later].name, self.specs[current].name))
     }
 
     pub fn required_count(&self) -> usize {
@@ -252,6 +263,8 @@ pub enum FailureReason {
     TerminalStateInvalid,
     OrderViolation,
     ExtraPour,
+    /// A forbidden contact was seen (T25: a bowl touched the tabletop).
+    ForbiddenContact,
 }
 
 impl FailureReason {
@@ -443,6 +456,8 @@ mod tests {
         assert_eq!(t.advance_strict(tick(2), |_| true), None, "no progress after a violation");
         assert_eq!(t.completed_required_count(), 0);
         assert_eq!(t.events()[0].kind, EventKind::OrderViolation);
+        assert_eq!(t.order_violation_label().as_deref(), Some("02_b_before_01_a"));
+        assert_eq!(t.events()[0].subject.as_deref(), Some("02_b_before_01_a"));
     }
 
     #[test]

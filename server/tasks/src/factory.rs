@@ -27,6 +27,7 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     pour::CHECKER,
     staged::CHECKER_ORDERED,
     staged::CHECKER_UNORDERED,
+    staged::CHECKER_BUFFER_ROTATION,
     weighing::CHECKER,
     hammer_contact::CHECKER,
 ];
@@ -107,7 +108,7 @@ pub fn build_evaluator(
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(PourWine::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
-        staged::CHECKER_ORDERED | staged::CHECKER_UNORDERED => {
+        staged::CHECKER_ORDERED | staged::CHECKER_UNORDERED | staged::CHECKER_BUFFER_ROTATION => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(StagedEvaluator::new(kind, p, goal, commitment, model, task_id.map(str::to_owned))?))

@@ -13,7 +13,8 @@
 //! difference inside `dz_range_m`), `drawer_open` / `drawer_closed` (world-y displacement of a drawer's region site
 //! from its value at reset above / below a threshold, catalog §2.2), `in_box` (RoboMemArena box rule: site box with
 //! half-extent |R·size|, lower z extended by `lower_z_m`, upper by `upper_z_m`), `released` (not grasped by
-//! robosuite's two-pad test), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
+//! robosuite's two-pad test), `released_and_clear` (not grasped and the object's root at least `min_distance_m` from
+//! the grip site, catalog §2.4), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
 //! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `pour_count` (a named pour
 //! counter has registered ≥ `at_least` pours), `any` (disjunction) and `not`.
 //!
@@ -26,6 +27,11 @@
 //! evaluated) and from then on updated once per control step, before the stages are tested; `pour_count` atoms read it
 //! (0 before creation). Failure monitors latch a permanent failure (e.g. `extra_pour`) at the first control step at or
 //! after a given stage's completion where their atom holds.
+//!
+//! Optional guards and rates (T25): `forbidden_contacts` latches a permanent failure the first tick any listed
+//! object's body subtree touches a forbidden body's subtree (contact distance ≤ `max_distance_m`), recorded as
+//! `<object>_touched_<label>`; it is checked first at every tick and stops all further tracking. With
+//! `sample_substeps` the stage logic also runs after every physics substep (same rules at both rates).
 //!
 //! Completed stages are re-tested every control step: a completed stage whose conjunction stops holding is recorded
 //! as a regression (event + count), and stays completed. For stages naming a `contact_body` (opening operations), the
@@ -51,6 +57,8 @@ use crate::pour::{PourCounterConfig, PourTracker};
 
 pub const CHECKER_ORDERED: &str = "private_ordered_stages";
 pub const CHECKER_UNORDERED: &str = "private_unordered_goal_predicates";
+/// T25's checker: strict stages, substep sampling and the bowl–table contact guard, all from the manifest params.
+pub const CHECKER_BUFFER_ROTATION: &str = "private_ordered_buffer_rotation_and_tabletop_avoidance";
 
 /// Minimum contact run (control steps) that counts as sustained.
 pub const SUSTAINED_RUN_STEPS: u32 = 5;
@@ -75,6 +83,7 @@ pub enum AtomSpec {
     DrawerClosed { site: String, max_displacement_m: f64 },
     InBox { object: String, site: String, lower_z_m: f64, upper_z_m: f64 },
     Released(String),
+    ReleasedAndClear { object: String, min_distance_m: f64 },
     Lifted { object: String, above_m: f64 },
     /// A joint's position (rad for hinges, m for slides) strictly above `min` and below `max` where given; with
     /// `abs`, its magnitude (a handle that unlatches turned either way).
@@ -131,10 +140,28 @@ pub struct StageParams {
     pub contact_body: Option<String>,
 }
 
+/// A contact that fails the run for good the first time it is seen (T25: a bowl touching the tabletop).
+#[derive(Debug, Clone, Deserialize)]
+pub struct ForbiddenContactParams {
+    /// Instances none of whose body subtrees may touch `body`.
+    pub objects: Vec<String>,
+    /// MuJoCo body whose subtree is forbidden (e.g. the kitchen table's `table`).
+    pub body: String,
+    /// Names the latch `<object>_touched_<label>`.
+    pub label: String,
+    /// A contact counts when its distance (negative = penetration) is at most this.
+    pub max_distance_m: f64,
+}
+
 #[derive(Debug, Clone, Deserialize)]
 pub struct StagedParams {
     #[serde(default)]
     pub order: OrderMode,
+    /// Also sample after every physics substep (not only at control steps).
+    #[serde(default)]
+    pub sample_substeps: bool,
+    #[serde(default)]
+    pub forbidden_contacts: Vec<ForbiddenContactParams>,
     pub stages: Vec<StageParams>,
     /// Reported but not counted toward K nor required for success.
     #[serde(default)]
@@ -158,6 +185,7 @@ enum Check {
     Drawer { site: SiteRef, open: bool, threshold_m: f64 },
     InBox { body: usize, site: usize, half_m: [f64; 3], lower_z_m: f64, upper_z_m: f64 },
     Released(usize),
+    ReleasedAndClear { instance: usize, min_distance_m: f64 },
     Lifted { body: usize, above_m: f64 },
     Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
     PourCount { counter: usize, at_least: usize },
@@ -285,6 +313,9 @@ impl Check {
                 })
             }
             Check::Released(i) => !c.commitment.grasped(c.index, d, *i),
+            Check::ReleasedAndClear { instance, min_distance_m } => {
+                c.commitment.released_and_clear(c.index, d, *instance, *min_distance_m)
+            }
             Check::Lifted { body, above_m } => d.xpos()[*body][2] - c.base.body0.get(*body).map_or(0.0, |p| p[2]) > *above_m,
             Check::Joint { qpos_adr, min, max, abs } => {
                 let q = d.qpos()[*qpos_adr];
@@ -369,6 +400,10 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             Check::InBox { body: instance_body(object)?, site: site(s)?, half_m, lower_z_m: *lower_z_m, upper_z_m: *upper_z_m }
         }
         AtomSpec::Released(object) => Check::Released(index.instance(object).ok_or_else(|| scene_err("object", object))?),
+        AtomSpec::ReleasedAndClear { object, min_distance_m } => Check::ReleasedAndClear {
+            instance: index.instance(object).ok_or_else(|| scene_err("object", object))?,
+            min_distance_m: *min_distance_m,
+        },
         AtomSpec::Lifted { object, above_m } => Check::Lifted { body: instance_body(object)?, above_m: *above_m },
         AtomSpec::Joint { name, min, max, abs } => {
             let j = model.name_to_id(MjtObjBase::mjOBJ_JOINT, name).ok_or_else(|| scene_err("joint", name))?;
@@ -451,6 +486,80 @@ impl ContactMonitor {
     }
 }
 
+/// Which side of a forbidden-contact guard a geom is on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum GuardSide {
+    Neither,
+    /// In the body subtree of the guard's `objects[k]`.
+    Object(usize),
+    Forbidden,
+}
+
+/// A compiled [`ForbiddenContactParams`].
+#[derive(Debug, Clone)]
+struct ForbiddenContactGuard {
+    objects: Vec<String>,
+    label: String,
+    max_distance_m: f64,
+    /// geom id → side
+    side: Vec<GuardSide>,
+}
+
+impl ForbiddenContactGuard {
+    fn compile(p: &ForbiddenContactParams, index: &SceneIndex, model: &MjModel) -> Result<Self, TasksError> {
+        let body_id = |name: &str| {
+            model.name_to_id(MjtObjBase::mjOBJ_BODY, name).ok_or_else(|| TasksError::Scene(format!("forbidden contact: no body {name:?}")))
+        };
+        let forbidden = body_id(&p.body)?;
+        let roots = p
+            .objects
+            .iter()
+            .map(|o| {
+                index.instance(o).map(|i| index.instances[i].body).ok_or_else(|| TasksError::Scene(format!("forbidden contact: no object {o:?}")))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let (parents, geom_body) = (model.body_parentid(), model.geom_bodyid());
+        let side = geom_body
+            .iter()
+            .map(|&b| {
+                let b = b as usize;
+                if in_subtree(parents, b, forbidden) {
+                    GuardSide::Forbidden
+                } else {
+                    roots.iter().position(|&r| in_subtree(parents, b, r)).map_or(GuardSide::Neither, GuardSide::Object)
+                }
+            })
+            .collect();
+        Ok(Self { objects: p.objects.clone(), label: p.label.clone(), max_distance_m: p.max_distance_m, side })
+    }
+
+    /// The first listed object touching the forbidden body now, by contact order.
+    fn touching(&self, contacts: impl IntoIterator<Item = ([usize; 2], f64)>) -> Option<usize> {
+        contacts.into_iter().find_map(|([g1, g2], dist)| {
+            if dist > self.max_distance_m {
+                return None;
+            }
+            let side = |g: usize| self.side.get(g).copied().unwrap_or(GuardSide::Neither);
+            match (side(g1), side(g2)) {
+                (GuardSide::Object(k), GuardSide::Forbidden) | (GuardSide::Forbidden, GuardSide::Object(k)) => Some(k),
+                _ => None,
+            }
+        })
+    }
+
+    fn latch_name(&self, object: usize) -> String {
+        format!("{}_touched_{}", self.objects[object], self.label)
+    }
+}
+
+/// The latched forbidden contact of a run.
+#[derive(Debug, Clone, Serialize)]
+struct ForbiddenContactLatch {
+    name: String,
+    object: String,
+    tick: Tick,
+}
+
 pub struct StagedEvaluator {
     checker: String,
     order: OrderMode,
@@ -480,7 +589,11 @@ pub struct StagedEvaluator {
     monitors: Vec<ContactMonitor>,
     monitor_open: Option<(usize, usize)>,
     events: Vec<PrivateEvent>,
+    sample_substeps: bool,
+    guards: Vec<ForbiddenContactGuard>,
+    forbidden: Option<ForbiddenContactLatch>,
     control_steps: u64,
+    substeps: u64,
 }
 
 impl StagedEvaluator {
@@ -538,6 +651,8 @@ impl StagedEvaluator {
                 })
             })
             .collect::<Result<Vec<_>, TasksError>>()?;
+        let guards =
+            params.forbidden_contacts.iter().map(|g| ForbiddenContactGuard::compile(g, &index, model)).collect::<Result<Vec<_>, _>>()?;
         let nbody = model.ffi().nbody as usize;
         let gripper_bodies = (0..nbody)
             .map(|b| model.id_to_name(MjtObjBase::mjOBJ_BODY, b).is_some_and(|n| n.starts_with("gripper0_")))
@@ -571,7 +686,11 @@ impl StagedEvaluator {
             monitors: Vec::new(),
             monitor_open: None,
             events: Vec::new(),
+            sample_substeps: params.sample_substeps,
+            guards,
+            forbidden: None,
             control_steps: 0,
+            substeps: 0,
         })
     }
 
@@ -647,8 +766,8 @@ impl StagedEvaluator {
         self.max_goal_count = self.max_goal_count.max(count);
     }
 
-    fn observe_ordered(&mut self, data: &SimData, tick: Tick) {
-        // contact monitor of the current operation
+    /// The contact monitor of the current operation (control steps only: its ratio counts control steps).
+    fn observe_monitor(&mut self, data: &SimData) {
         let current = self.tracker.current();
         if let Some((stage, _)) = self.monitor_open
             && current != Some(stage)
@@ -669,7 +788,16 @@ impl StagedEvaluator {
                 self.monitors[m].step(contact);
             }
         }
-        self.feed_pours(current.as_slice(), data, tick);
+    }
+
+    /// Advances the stages; at control steps (`control`) also feeds the pour counters, re-tests the completed stages
+    /// for regressions (a diagnostic: at substep rate it would count every substep of contact chatter while a released
+    /// object settles) and polls the failure monitors.
+    fn observe_ordered(&mut self, data: &SimData, tick: Tick, control: bool) {
+        if control {
+            let current = self.tracker.current();
+            self.feed_pours(current.as_slice(), data, tick);
+        }
         let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
         let stages = &self.stages;
         match self.order {
@@ -680,14 +808,49 @@ impl StagedEvaluator {
                 self.tracker.advance(tick, |i| stages[i].holds(&ctx));
             }
         }
-        self.tracker.track_regressions(tick, |i| stages[i].holds(&ctx));
-        self.check_failures(data, tick);
+        if control {
+            self.tracker.track_regressions(tick, |i| stages[i].holds(&ctx));
+            self.check_failures(data, tick);
+        }
+    }
+
+    /// Latches the first forbidden contact (checked before anything else at every tick); true once latched, when
+    /// all further tracking stops.
+    fn forbidden_contact_latched(&mut self, data: &SimData, tick: Tick) -> bool {
+        if self.forbidden.is_some() {
+            return true;
+        }
+        let contacts = || data.contact().iter().map(|c| ([c.geom[0] as usize, c.geom[1] as usize], c.dist));
+        let Some((name, object)) =
+            self.guards.iter().find_map(|g| g.touching(contacts()).map(|k| (g.latch_name(k), g.objects[k].clone())))
+        else {
+            return false;
+        };
+        self.events.push(PrivateEvent { subject: Some(name.clone()), ..PrivateEvent::new(EventKind::ForbiddenContact, tick) });
+        self.forbidden = Some(ForbiddenContactLatch { name, object, tick });
+        true
+    }
+
+    /// One sample of the stage logic (control step or substep).
+    fn sample(&mut self, data: &SimData, tick: Tick, control: bool) {
+        if self.forbidden_contact_latched(data, tick) {
+            return;
+        }
+        if self.order == OrderMode::Unordered {
+            self.observe_unordered(data, tick);
+        } else {
+            self.observe_ordered(data, tick, control);
+        }
     }
 }
 
 impl Evaluator for StagedEvaluator {
     fn checker(&self) -> &str {
         &self.checker
+    }
+
+    fn samples_substeps(&self) -> bool {
+        self.sample_substeps
     }
 
     fn reset(&mut self, data: &SimData, tick: Tick) {
@@ -702,6 +865,8 @@ impl Evaluator for StagedEvaluator {
         self.unordered_events.clear();
         self.unordered_regressions.iter_mut().for_each(|r| *r = 0);
         self.control_steps = 0;
+        self.substeps = 0;
+        self.forbidden = None;
         self.commitment.reset(&self.index, data);
         let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
         self.holding = self.stages.iter().map(|s| s.holds(&ctx)).collect();
@@ -710,13 +875,19 @@ impl Evaluator for StagedEvaluator {
         let _ = tick;
     }
 
+    fn observe_substep(&mut self, data: &SimData, tick: Tick) {
+        if self.sample_substeps {
+            self.substeps += 1;
+            self.sample(data, tick, false);
+        }
+    }
+
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
         self.control_steps += 1;
-        if self.order == OrderMode::Unordered {
-            self.observe_unordered(data, tick);
-        } else {
-            self.observe_ordered(data, tick);
+        if self.forbidden.is_none() && self.order != OrderMode::Unordered {
+            self.observe_monitor(data);
         }
+        self.sample(data, tick, true);
         if let Some(e) = self.commitment.observe_event(&self.index, data, tick) {
             self.events.push(e);
         }
@@ -756,6 +927,9 @@ impl Evaluator for StagedEvaluator {
             self.tracker.write_into(&mut record);
             stages_ok = self.tracker.all_required_completed() && !self.tracker.order_violated();
             details.insert("order_violation".into(), json!(self.tracker.order_violated()));
+            if let Some(label) = self.tracker.order_violation_label() {
+                details.insert("order_violation_latch".into(), json!(label));
+            }
         }
         if let Some((_, m)) = self.monitor_open.take() {
             self.monitors[m].close();
@@ -800,10 +974,15 @@ impl Evaluator for StagedEvaluator {
                 .collect();
             details.insert("latched_failures".into(), json!(list));
         }
+        if !self.guards.is_empty() {
+            details.insert("forbidden_contact".into(), json!(self.forbidden));
+        }
         record.details = Some(serde_json::Value::Object(details));
-        record.success = stages_ok && record.terminal_state_success && latched.is_empty();
+        record.success = stages_ok && record.terminal_state_success && latched.is_empty() && self.forbidden.is_none();
         record.failure_reason = if record.success {
             None
+        } else if self.forbidden.is_some() {
+            Some(FailureReason::ForbiddenContact)
         } else if let Some(f) = latched.first() {
             Some(f.reason)
         } else if self.tracker.order_violated() {
@@ -813,7 +992,7 @@ impl Evaluator for StagedEvaluator {
         } else {
             Some(FailureReason::TerminalStateInvalid)
         };
-        crate::pour::fill_history(&mut record, (self.control_steps, 0), &self.events, &self.commitment, &self.goal, data);
+        crate::pour::fill_history(&mut record, (self.control_steps, self.substeps), &self.events, &self.commitment, &self.goal, data);
         record
     }
 }
@@ -832,6 +1011,27 @@ mod tests {
         assert_eq!(m.runs, [2, 5, 1]);
         assert_eq!(m.sustained_steps(), 5);
         assert!((m.ratio_percent() - 100.0 * 5.0 / 11.0).abs() < 1e-12);
+    }
+
+    fn guard() -> ForbiddenContactGuard {
+        use GuardSide::*;
+        ForbiddenContactGuard {
+            objects: vec!["bowl_a".into(), "bowl_b".into()],
+            label: "tabletop".into(),
+            max_distance_m: 1e-3,
+            side: vec![Neither, Object(0), Object(1), Forbidden, Forbidden],
+        }
+    }
+
+    #[test]
+    fn forbidden_contact_needs_a_listed_object_against_the_forbidden_body_within_the_distance() {
+        let g = guard();
+        assert_eq!(g.touching([([1, 2], -0.01), ([0, 3], -0.01), ([3, 4], -0.01)]), None, "bowl–bowl, other–table: allowed");
+        assert_eq!(g.touching([([3, 2], 0.0011)]), None, "a contact farther than 1 mm does not count");
+        assert_eq!(g.touching([([3, 2], 0.001)]), Some(1), "at the limit it counts, either geom order");
+        assert_eq!(g.touching([([0, 4], -0.02), ([1, 4], -0.002)]), Some(0));
+        assert_eq!(g.touching([([99, 3], -0.02)]), None, "unknown geoms are neither side");
+        assert_eq!(g.latch_name(1), "bowl_b_touched_tabletop");
     }
 
     #[test]
@@ -869,5 +1069,20 @@ mod tests {
         assert_eq!(p.order, OrderMode::Strict);
         assert_eq!(p.stages.len(), 2);
         assert!(matches!(p.stages[1].all[0], AtomSpec::Not(_)));
+        assert!(!p.sample_substeps && p.forbidden_contacts.is_empty(), "both default off");
+    }
+
+    #[test]
+    fn guard_rate_and_release_atom_parse_from_manifest_json() {
+        let p: StagedParams = serde_json::from_value(json!({
+            "order": "strict",
+            "sample_substeps": true,
+            "forbidden_contacts": [{"objects": ["a", "b"], "body": "table", "label": "tabletop", "max_distance_m": 0.001}],
+            "stages": [{"name": "01", "all": [{"released_and_clear": {"object": "a", "min_distance_m": 0.055}}]}]
+        }))
+        .unwrap();
+        assert!(p.sample_substeps);
+        assert_eq!(p.forbidden_contacts[0].objects, ["a", "b"]);
+        assert!(matches!(&p.stages[0].all[0], AtomSpec::ReleasedAndClear { object, min_distance_m } if object == "a" && *min_distance_m == 0.055));
     }
 }

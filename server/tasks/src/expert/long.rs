@@ -53,15 +53,23 @@ pub(super) type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync
 /// Pick `body` from above (fingers closing `grasp_dz_m` above its root), carry it at `carry_z_m` (absolute
 /// world height of the root) to above `target`, lower it until the root is ≈ 1 cm above `target`, open and retreat.
 pub(super) fn pick_place(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn) {
-    pick_place_turned(phases, body, grasp_dz_m, carry_z_m, target, Arc::new(|_, ctx| ctx.home_rot));
+    pick_place_turned(phases, body, Vector3::z() * grasp_dz_m, carry_z_m, target, Arc::new(|_, ctx| ctx.home_rot));
 }
 
 /// The hand's orientation for a pick (from the state and the phase context).
 pub(super) type RotFn = Arc<dyn Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Send + Sync>;
 
-/// [`pick_place`] with the hand turned by `rot` throughout.
-pub(super) fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn, rot: RotFn) {
-    let grasp = move |sim: &Simulation| pos(sim, body) + Vector3::z() * grasp_dz_m;
+/// [`pick_place`] with the hand turned by `rot` throughout, the fingers closing at `grasp_offset_m` (world frame) from
+/// the object's root.
+pub(super) fn pick_place_turned(
+    phases: &mut Vec<Phase>,
+    body: usize,
+    grasp_offset_m: Vector3<f64>,
+    carry_z_m: f64,
+    target: TargetFn,
+    rot: RotFn,
+) {
+    let grasp = move |sim: &Simulation| pos(sim, body) + grasp_offset_m;
     let r = move |k: &RotFn| {
         let k = k.clone();
         move |sim: &Simulation, ctx: &PhaseCtx| k(sim, ctx)
@@ -295,7 +303,7 @@ fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
         phases.push(
             Phase::new("via_middle", move |_, _| Goal::at(Vector3::new(0.0, 0.0, 0.70), GRIPPER_OPEN)).until_reached(0.03).max_steps(80),
         );
-        pick_place_turned(&mut phases, body, 0.0, DRAWER_CARRY_Z_M, target, rot);
+        pick_place_turned(&mut phases, body, Vector3::zeros(), DRAWER_CARRY_Z_M, target, rot);
     }
     if n == 4 {
         push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);

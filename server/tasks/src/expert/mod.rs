@@ -9,6 +9,7 @@ mod adapted;
 mod articulated;
 mod door;
 mod hammer;
+mod bowls;
 mod long;
 pub mod motion;
 mod objects;
@@ -102,6 +103,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| door::behaviours(task_id))
         .or_else(|| hammer::behaviours(task_id))
         .or_else(|| robomem::behaviours(task_id))
+        .or_else(|| bowls::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
 }
 
@@ -134,6 +136,8 @@ pub fn expert_for(
         hammer::build(task_id, behaviour, &refs)
     } else if robomem::behaviours(task_id).is_some() {
         robomem::build(task_id, behaviour, &refs)
+    } else if bowls::behaviours(task_id).is_some() {
+        bowls::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }

@@ -90,7 +90,7 @@ fn butter_into(refs: &SceneRefs, phases: &mut Vec<Phase>, drawer: Drawer) -> Res
     let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
     // back over the middle of the table first: from the cabinet the arm cannot swing straight down to the butter
     phases.push(Phase::new("via_middle", move |_, _| Goal::at(Vector3::new(0.0, 0.0, 0.75), GRIPPER_OPEN)).until_reached(0.03).max_steps(80));
-    pick_place_turned(phases, butter, 0.0, BUTTER_CARRY_Z_M, target, rot);
+    pick_place_turned(phases, butter, Vector3::zeros(), BUTTER_CARRY_Z_M, target, rot);
     Ok(())
 }
 
