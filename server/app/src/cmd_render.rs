@@ -29,6 +29,9 @@ pub struct RenderArgs {
     /// Row of the init-state file.
     #[arg(long, default_value_t = 0)]
     pub init_index: usize,
+    /// Placement seed for `--bddl` (release tasks without a trusted init state start from seed 100).
+    #[arg(long, default_value_t = 0, requires = "bddl")]
+    pub seed: u32,
     /// A compiled MJCF (e.g. `shared/reference/ref/*.xml`; `${ROBOSUITE_ASSETS}`/`${LIBERO_ASSETS}` are substituted).
     #[arg(long)]
     pub xml: Option<PathBuf>,
@@ -75,11 +78,11 @@ fn posed_from_xml(xml: &Path, keyframe: Option<usize>) -> anyhow::Result<Posed> 
     Ok(Posed { model, state })
 }
 
-fn posed_from_bddl(bddl: &Path, init_file: Option<&Path>, init_index: usize) -> anyhow::Result<Posed> {
+fn posed_from_bddl(bddl: &Path, init_file: Option<&Path>, init_index: usize, seed: u32) -> anyhow::Result<Posed> {
     use libero_sim::placement::update_visual_sites;
     use libero_sim::scene_setup::PreparedScene;
     let paths = libero_sim::AssetPaths::discover()?;
-    let prepared = PreparedScene::prepare(bddl, &paths, 0, init_file.map(|f| (f, init_index)))
+    let prepared = PreparedScene::prepare(bddl, &paths, seed, init_file.map(|f| (f, init_index)))
         .with_context(|| format!("setting up {}", bddl.display()))?;
     let nq = prepared.model.ffi().nq as usize;
     let qpos = prepared.start_qpos().to_vec();
@@ -131,7 +134,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     }
     let posed = match (&args.xml, &args.bddl) {
         (Some(xml), _) => posed_from_xml(xml, args.keyframe)?,
-        (None, Some(bddl)) => posed_from_bddl(bddl, args.init_file.as_deref(), args.init_index)?,
+        (None, Some(bddl)) => posed_from_bddl(bddl, args.init_file.as_deref(), args.init_index, args.seed)?,
         (None, None) => bail!("give --bddl FILE or --xml FILE"),
     };
     let renderer = Renderer::new()?;

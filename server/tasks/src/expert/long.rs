@@ -30,11 +30,11 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 }
 
 /// `partial_<n>` → n.
-fn partial_count(behaviour: &str) -> Option<usize> {
+pub(super) fn partial_count(behaviour: &str) -> Option<usize> {
     behaviour.strip_prefix("partial_").and_then(|n| n.parse().ok())
 }
 
-fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
+pub(super) fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
     vec3(&sim.data().xpos()[body])
 }
 
@@ -48,7 +48,7 @@ fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).
-type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
+pub(super) type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
 
 /// Pick `body` from above (fingers closing `grasp_dz_m` above its root), carry it at `carry_z_m` (absolute
 /// world height of the root) to above `target`, lower it until the root is ≈ 1 cm above `target`, open and retreat.
@@ -57,18 +57,25 @@ fn pick_place(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: 
 }
 
 /// The hand's orientation for a pick (from the state and the phase context).
-type RotFn = Arc<dyn Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Send + Sync>;
+pub(super) type RotFn = Arc<dyn Fn(&Simulation, &PhaseCtx) -> Matrix3<f64> + Send + Sync>;
 
 /// [`pick_place`] with the hand turned by `rot` throughout.
 fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn, rot: RotFn) {
-    let grasp = move |sim: &Simulation| pos(sim, body) + Vector3::z() * grasp_dz_m;
+    let grasp: TargetFn = Arc::new(move |sim: &Simulation| pos(sim, body) + Vector3::z() * grasp_dz_m);
+    pick_place_at(phases, body, grasp, carry_z_m, target, rot);
+}
+
+/// [`pick_place_turned`] with the fingers closing at `grasp` (world; e.g. a point on a pan's rim) instead of above
+/// the root. The carry stays closed loop on the root's position.
+pub(super) fn pick_place_at(phases: &mut Vec<Phase>, body: usize, grasp: TargetFn, carry_z_m: f64, target: TargetFn, rot: RotFn) {
+    let (g1, g2) = (grasp.clone(), grasp);
     let r = move |k: &RotFn| {
         let k = k.clone();
         move |sim: &Simulation, ctx: &PhaseCtx| k(sim, ctx)
     };
     let (r1, r2, r3, r4, r5, r6, r7, r8) = (r(&rot), r(&rot), r(&rot), r(&rot), r(&rot), r(&rot), r(&rot), r(&rot));
-    phases.push(Phase::new("above_object", move |sim, ctx| Goal::at(grasp(sim) + Vector3::z() * 0.10, GRIPPER_OPEN).rotated(r1(sim, ctx))).until_reached(0.015).max_steps(150));
-    phases.push(Phase::new("down_to_object", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_OPEN).slow(0.5).rotated(r2(sim, ctx))).until_reached(0.008).max_steps(60));
+    phases.push(Phase::new("above_object", move |sim, ctx| Goal::at(g1(sim) + Vector3::z() * 0.10, GRIPPER_OPEN).rotated(r1(sim, ctx))).until_reached(0.015).max_steps(150));
+    phases.push(Phase::new("down_to_object", move |sim, ctx| Goal::at(g2(sim), GRIPPER_OPEN).slow(0.5).rotated(r2(sim, ctx))).until_reached(0.008).max_steps(60));
     phases.push(Phase::new("close", move |sim, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED).rotated(r3(sim, ctx))).for_steps(12));
     phases.push(
         Phase::new("lift", move |sim, ctx| {
@@ -111,7 +118,7 @@ fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carr
 }
 
 /// Remembers a value computed on the first call (positions at the start of the run).
-fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
+pub(super) fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
     let cell: Arc<Mutex<Option<T>>> = Arc::new(Mutex::new(None));
     move |sim| *cell.lock().expect("memo lock").get_or_insert_with(|| f(sim))
 }

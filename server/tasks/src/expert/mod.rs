@@ -7,6 +7,7 @@
 //! lockstep replica of the episode's simulation.
 mod adapted;
 mod articulated;
+mod cooking;
 mod long;
 pub mod motion;
 mod objects;
@@ -96,6 +97,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| vlabench::behaviours(task_id))
         .or_else(|| adapted::behaviours(task_id))
         .or_else(|| long::behaviours(task_id))
+        .or_else(|| cooking::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
 }
 
@@ -122,6 +124,8 @@ pub fn expert_for(
         adapted::build(task_id, behaviour, &refs)
     } else if long::behaviours(task_id).is_some() {
         long::build(task_id, behaviour, &refs)
+    } else if cooking::behaviours(task_id).is_some() {
+        cooking::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }
