@@ -625,7 +625,7 @@ mod tests {
         g.observe(&[true, true, true, true], tick(2));
         g.observe(&[true, false, true, false], tick(3));
         assert_eq!(g.max_count(), 3);
-        let (mut record, mut details) = (EvaluationRecord::new("x".into()), serde_json::Map::new());
+        let (mut record, mut details) = (EvaluationRecord::new("x"), serde_json::Map::new());
         let all = g.write_into(&[true, false, true, false], &mut record, &mut details);
         assert!(!all);
         assert_eq!((record.required_stage_count, record.completed_required_stage_count), (3, 2));
@@ -647,7 +647,7 @@ mod tests {
         g.observe(&[true, false, false, false], tick(3));
         g.observe(&[false, false, false, false], tick(4));
         g.observe(&[true, false, false, false], tick(5));
-        let (mut record, mut details) = (EvaluationRecord::new("x".into()), serde_json::Map::new());
+        let (mut record, mut details) = (EvaluationRecord::new("x"), serde_json::Map::new());
         g.write_into(&[true, false, false, false], &mut record, &mut details);
         let steps: Vec<u64> = details["goal_set_changes"].as_array().unwrap().iter().map(|c| c["control_step"].as_u64().unwrap()).collect();
         assert_eq!(steps, [0, 2, 4, 5], "the reset set, then one entry per change");
@@ -664,7 +664,7 @@ mod tests {
         g.observe(&[true, true, true, false], tick(1));
         g.observe(&[false; 4], tick(2));
         g.reset(vec![false; 4], tick(0));
-        let (mut record, mut details) = (EvaluationRecord::new("x".into()), serde_json::Map::new());
+        let (mut record, mut details) = (EvaluationRecord::new("x"), serde_json::Map::new());
         assert!(!g.write_into(&[false; 4], &mut record, &mut details));
         assert_eq!(details["max_goal_count"], 0);
         assert!(record.stage_regressions.is_empty() && record.stage_events.is_empty());
