@@ -55,7 +55,7 @@ const PAN_TARGET_OFFSET_X_M: f64 = 0.045;
 /// of straight down (about world y), which brings the wrist back toward the base — 20° for the pan's handle, 34°
 /// for the moka pot, whose grasp is 5 cm farther out and higher.
 const PAN_PITCH_RAD: f64 = 0.35;
-const MOKA_PITCH_RAD: f64 = 0.6;
+const MOKA_PITCH_RAD: f64 = 0.0;
 /// Root heights while carrying over the stoves and knobs.
 const MOKA_CARRY_Z_M: f64 = 1.06;
 const PAN_CARRY_Z_M: f64 = 1.06;

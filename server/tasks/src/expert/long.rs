@@ -42,9 +42,16 @@ fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
     (a.x - b.x).hypot(a.y - b.y)
 }
 
-/// The grip-site goal that brings a held object's root to `target` (closed loop on the object's pose).
+/// Longest grip-to-root offset of a held object (a pan held 15 cm out on its handle); a longer one means the
+/// object is not in the hand.
+const MAX_HELD_OFFSET_M: f64 = 0.3;
+
+/// The grip-site goal that brings a held object's root to `target` (closed loop on the object's pose). The
+/// grip-to-root offset is capped so that a hand that lost (or never got) its object stays near the target
+/// instead of chasing it off the table.
 fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
-    grip_pose(sim).0 + (target - pos(sim, body))
+    let offset = grip_pose(sim).0 - pos(sim, body);
+    target + offset.cap_magnitude(MAX_HELD_OFFSET_M)
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).
