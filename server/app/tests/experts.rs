@@ -112,7 +112,10 @@ fn every_expert_solves_its_task_three_of_three_and_idle_and_near_miss_runs_fail(
 
 #[test]
 fn unknown_tasks_and_behaviours_are_refused_clearly() {
-    let out = bin().args(["expert", "--task", "T21"]).output().unwrap();
+    // a release task that has no expert yet (which ones do changes as experts are written)
+    let listed = experts();
+    let bare = (1..=30).map(|n| format!("T{n:02}")).find(|t| !listed.iter().any(|(l, _)| l == t)).expect("a task without an expert");
+    let out = bin().args(["expert", "--task", &bare]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no scripted expert"), "{}", String::from_utf8_lossy(&out.stderr));
     let data = tempfile::tempdir().unwrap();
