@@ -40,8 +40,8 @@ const DOOR_OPEN_RAD: f64 = -1.45;
 /// collision plate at 0.025 ± 0.0005).
 const BURNER_TOP_ABOVE_SITE_M: f64 = 0.0255;
 /// Moka pot: its root above the surface it stands on (collision boxes reach 0.0666 below the root), and where the
-/// fingers close: across the lid's knob (1 cm wide along the pot's local x), the only part of the pot the arm
-/// reaches from above at the pot's start (its body sits lower than the stretched arm gets).
+/// fingers close: across the lid's knob (1 cm wide along the pot's local x), straight down (its body, 6.8 cm across, would
+/// nearly fill the gripper's 8 cm opening).
 const MOKA_ROOT_ABOVE_SUPPORT_M: f64 = 0.0666;
 const MOKA_GRASP_DZ_M: f64 = 0.075;
 /// Chefmate frypan: its root lies ≈ 1 mm below the pan's underside; the fingers close across the handle (which runs
@@ -51,9 +51,9 @@ const PAN_HANDLE_GRASP_LOCAL_M: [f64; 3] = [0.15, 0.0, 0.039];
 /// The pan's target sits this far from the burner's centre, away from the robot (inside the ±0.075 m cook region),
 /// so that the fingers on its handle stay clear of the stove's knob when the pan is set down.
 const PAN_TARGET_OFFSET_X_M: f64 = 0.045;
-/// Both objects start near the far edge of the arm's reach (the elbow cannot straighten): the hand points forward
-/// of straight down (about world y), which brings the wrist back toward the base — 20° for the pan's handle, 34°
-/// for the moka pot, whose grasp is 5 cm farther out and higher.
+/// The pan's handle is near the far edge of the arm's reach (the elbow cannot straighten): the hand points forward
+/// of straight down by 20° (about world y), which brings the wrist back toward the base. The moka pot (moved nearer
+/// the robot, tasks/README.md) is grasped straight down.
 const PAN_PITCH_RAD: f64 = 0.35;
 const MOKA_PITCH_RAD: f64 = 0.0;
 /// Root heights while carrying over the stoves and knobs.
