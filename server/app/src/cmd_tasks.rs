@@ -16,6 +16,16 @@ pub enum TasksCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Regenerate a task's reference image (T22's goal image, protocol §3.9): the task's solving expert plays on a
+    /// replica of its episode, then the head camera renders the final state at 256×256. Fails unless every goal
+    /// stage holds in the rendered state.
+    #[cfg(feature = "episode-serve")]
+    GoalImage {
+        id: String,
+        /// Where to write the PNG (default: the path the manifest names under `assets/`).
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
 }
 
 pub fn run(cmd: &TasksCommand) -> anyhow::Result<()> {
@@ -31,7 +41,62 @@ pub fn run(cmd: &TasksCommand) -> anyhow::Result<()> {
                 print!("{}", details(task)?);
             }
         }
+        #[cfg(feature = "episode-serve")]
+        TasksCommand::GoalImage { id, out } => goal_image(&catalog, id, out.as_deref())?,
     }
+    Ok(())
+}
+
+/// Actions the expert may take while producing a goal image (its solve runs ≈ 2,000).
+#[cfg(feature = "episode-serve")]
+const GOAL_IMAGE_MAX_ACTIONS: u64 = 6_000;
+
+#[cfg(feature = "episode-serve")]
+fn goal_image(catalog: &Catalog, id: &str, out: Option<&std::path::Path>) -> anyhow::Result<()> {
+    use anyhow::bail;
+    use libero_episode::world::{WorldSpec, render_goal_image};
+    let task = catalog.get(id).with_context(|| format!("no release task {id:?} (expected T01–T30)"))?;
+    let reference = task.task_reference.as_ref().with_context(|| format!("{} has no task_reference", task.id))?;
+    let paths = libero_sim::AssetPaths::discover()?;
+    let out = out.map_or_else(|| paths.project_assets.join(&reference.path), std::path::Path::to_path_buf);
+    // the reference file itself is what is being made: resolve the task without it
+    let mut bare = task.clone();
+    bare.task_reference = None;
+    let files = catalog.files(&bare, &paths)?;
+    let source = libero_episode::task::TaskSource {
+        task_ref: task.id.clone(),
+        bddl: files.bddl,
+        init_states: files.init_states,
+        instruction: task.agent_instruction().to_owned(),
+        suite: Some(libero_episode::task::SuiteTask {
+            id: task.id.clone(),
+            name: task.name.clone(),
+            checker: task.checker.clone(),
+            init_index: files.init_index,
+            placement_seed: files.placement_seed,
+        }),
+        task_reference: None,
+    };
+    let seed = files.placement_seed.map_or(100, u64::from);
+    let spec = WorldSpec { task: source, level: libero_episode::Level::L1, seed, init_index: files.init_index, paths };
+    let renderer = libero_render::Renderer::new().context("cannot open a GPU to render the goal image")?;
+    let (image, record) = render_goal_image(&spec, renderer, &task.id, libero_tasks::expert::SOLVE, GOAL_IMAGE_MAX_ACTIONS)?;
+    if !record.success || record.completed_required_stage_count != record.required_stage_count {
+        bail!(
+            "the {} expert did not reach the goal ({} of {} goals: {:?}); not writing {}",
+            task.id,
+            record.completed_required_stage_count,
+            record.required_stage_count,
+            record.completed_stage_names,
+            out.display()
+        );
+    }
+    if let Some(dir) = out.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    libero_episode::observation::write_png(&out, image.width, image.height, 3, &image.rgb)
+        .with_context(|| format!("writing {}", out.display()))?;
+    println!("{}", serde_json::json!({"path": out, "shape": [image.height, image.width, 3], "goals": record.completed_stage_names}));
     Ok(())
 }
 

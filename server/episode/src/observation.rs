@@ -66,6 +66,23 @@ pub struct RgbImage {
     pub rgb: Vec<u8>,
 }
 
+impl RgbImage {
+    /// Reads an 8-bit RGB PNG (a task's reference image, protocol §3.9: it must be RGB, loaded as uint8 H×W×3).
+    pub fn read_png(path: &Path) -> std::io::Result<Self> {
+        let bad = |why: String| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("{}: {why}", path.display()));
+        let file = File::open(path)?;
+        let mut reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().map_err(|e| bad(e.to_string()))?;
+        let (color, depth) = reader.output_color_type();
+        if (color, depth) != (png::ColorType::Rgb, png::BitDepth::Eight) {
+            return Err(bad(format!("{color:?} {depth:?}, expected 8-bit RGB")));
+        }
+        let mut rgb = vec![0; reader.output_buffer_size()];
+        let info = reader.next_frame(&mut rgb).map_err(|e| bad(e.to_string()))?;
+        rgb.truncate(info.buffer_size());
+        Ok(Self { width: info.width, height: info.height, rgb })
+    }
+}
+
 /// One camera's published data. Images are top-left origin (OpenCV).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraFrame {

@@ -35,6 +35,8 @@ pub struct TaskSource {
     pub instruction: String,
     /// Set for release tasks; stock tasks are judged by their BDDL goal on the final state (`bddl_terminal`).
     pub suite: Option<SuiteTask>,
+    /// The reference image published with every observation (protocol §3.9; T22's goal image).
+    pub task_reference: Option<PathBuf>,
 }
 
 /// Resolves `id`: `T01`…`T30` (suite tasks), `suite/name` (stock LIBERO) or a path to a `.bddl` file.
@@ -65,6 +67,7 @@ pub fn resolve_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeE
         init_states: init.is_file().then_some(init),
         bddl,
         suite: None,
+        task_reference: None,
     })
 }
 
@@ -85,6 +88,7 @@ fn resolve_suite_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, Episod
             init_index: files.init_index,
             placement_seed: files.placement_seed,
         }),
+        task_reference: files.task_reference.map(|(path, _)| path),
     })
 }
 
@@ -99,6 +103,7 @@ fn from_bddl_path(id: &str, path: &Path, paths: &AssetPaths) -> TaskSource {
         init_states: init,
         instruction: libero_bddl::language_from_filename(&stem),
         suite: None,
+        task_reference: None,
     }
 }
 

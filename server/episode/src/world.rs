@@ -34,6 +34,8 @@ pub struct LiberoWorld {
     toggles: VisualToggles,
     /// The operator's live view and telemetry (see [`LiberoWorld::set_live`]); `None` costs nothing.
     live: Option<WorldTap>,
+    /// The task's reference image, published with every frame (protocol §3.9).
+    task_reference: Option<RgbImage>,
 }
 
 /// LIBERO's `_post_process` after every control step ([`TurnOnSites`]: the stove's burner ring shows iff it is
@@ -87,7 +89,8 @@ impl LiberoWorld {
         let model = physics.model().clone();
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
         let toggles = VisualToggles::new(&physics.scene, &model)?;
-        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None })
+        let task_reference = spec.task.task_reference.as_deref().map(RgbImage::read_png).transpose()?;
+        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None, task_reference })
     }
 
     /// Whether the next image shows a turned-on fixture's visual site (the stove's burner ring).
@@ -184,7 +187,7 @@ impl World for LiberoWorld {
         let base = BasePose::of(&self.physics.sim, self.base_body);
         let robot = robot_readout(&self.physics.sim, &base);
         let (head, wrist) = self.render()?;
-        Ok(Frame { frame_index, robot, head, wrist, task_reference: None })
+        Ok(Frame { frame_index, robot, head, wrist, task_reference: self.task_reference.clone() })
     }
 
     fn verdict(&mut self) -> Result<Verdict, EpisodeError> {
@@ -248,4 +251,32 @@ impl LiberoWorld {
             tap.after_step(control_step, &robot, &events, progress);
         }
     }
+}
+
+/// The goal image of a task with a reference (protocol §3.9): `behaviour` (the task's solving expert) plays on a
+/// world built from `spec` (its reference input left out, as it is what is being made), then the head camera renders
+/// the final state at the episode resolution, with the burner rings as the episode would show them. Returns the
+/// image and the evaluation record of the state it shows (so a caller can check that it depicts the goal).
+pub fn render_goal_image(
+    spec: &WorldSpec,
+    renderer: Renderer,
+    task_id: &str,
+    behaviour: &str,
+    max_actions: u64,
+) -> Result<(RgbImage, libero_tasks::EvaluationRecord), EpisodeError> {
+    let mut spec = spec.clone();
+    spec.task.task_reference = None;
+    let mut world = LiberoWorld::new(&spec, renderer)?;
+    world.start()?;
+    let mut expert = libero_tasks::expert::expert_for(task_id, behaviour, &world.physics.scene, world.physics.model())
+        .map_err(|e| EpisodeError::Task(e.to_string()))?;
+    for _ in 0..max_actions {
+        let Some(a) = expert.act(&world.physics.sim) else { break };
+        world.step(&a)?;
+    }
+    // one still step so the image shows the burner toggle of the final state (LIBERO renders before it toggles)
+    world.step(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])?;
+    let record = world.physics.evaluate();
+    let frame = world.frame(0)?;
+    Ok((frame.head.image, record))
 }

@@ -221,3 +221,43 @@ fn a_real_level3_episode_publishes_the_observation_files_and_nothing_private() {
     assert_eq!(std::fs::read_to_string(run.actions_jsonl()).unwrap().lines().count(), 2);
     assert!(run.private_observations().join("obs_000001/head/depth_m.npy").is_file());
 }
+
+/// Starts `task` at `level` and returns the first observation's JSON and the directory it was published in.
+fn first_observation(dir: &Path, task: &str, level: Level, renderer: &Renderer) -> (Value, std::path::PathBuf) {
+    let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
+    let s = WorldSpec { task: resolve_task(task, &paths).unwrap(), level, seed: 100, init_index: 0, paths };
+    let name = format!("{task}_{level:?}");
+    let cfg = config(dir, &name, level, 10, 600.0);
+    std::fs::create_dir_all(cfg.workspace.join("benchmark_inputs")).unwrap();
+    let cur = cfg.workspace.join("benchmark_inputs/current_observation");
+    let r = renderer.clone();
+    let h = spawn_episode(cfg, move || LiberoWorld::new(&s, r)).expect("episode");
+    h.call("start_episode", None);
+    let obs = serde_json::from_str(&std::fs::read_to_string(cur.join("observation.json")).unwrap()).unwrap();
+    h.call("finish_episode", None);
+    (obs, cur)
+}
+
+/// Protocol §3.9: every observation of T22 (goal image) carries the task reference and its file, at every level;
+/// T21 (same scene, text goal) gets no such key.
+#[test]
+fn the_goal_image_task_publishes_its_task_reference_and_the_text_goal_task_does_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let renderer = Renderer::new().expect("renderer");
+    for level in [Level::L1, Level::L3] {
+        let (obs, cur) = first_observation(dir.path(), "T22", level, &renderer);
+        let reference = &obs["task_reference"];
+        assert_eq!(
+            *reference,
+            json!({"semantics": "desired_object_arrangement",
+                   "rgb": {"file": "task_reference/rgb.png", "media_type": "image/png", "shape": [256, 256, 3]}}),
+            "{level:?}"
+        );
+        let image = libero_episode::observation::RgbImage::read_png(&cur.join("task_reference/rgb.png"))
+            .unwrap_or_else(|e| panic!("{level:?}: the reference file is not an 8-bit RGB PNG: {e}"));
+        assert_eq!((image.height, image.width, image.rgb.len()), (256, 256, 256 * 256 * 3), "{level:?}");
+    }
+    let (obs, cur) = first_observation(dir.path(), "T21", Level::L1, &renderer);
+    assert!(obs.get("task_reference").is_none(), "T21 has no reference image: {}", obs["task_reference"]);
+    assert!(!cur.join("task_reference").exists());
+}

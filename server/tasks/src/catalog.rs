@@ -96,6 +96,17 @@ impl CheckerSpec {
     }
 }
 
+/// An input the agent receives besides the instruction (protocol §3.9: T22's goal image).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskReference {
+    /// RGB PNG under the repository's `assets/` folder (`AssetPaths::project_assets`).
+    pub path: String,
+    /// What the image specifies (`desired_object_arrangement`: the goal's object arrangement; the robot pose is
+    /// not part of it).
+    pub semantics: String,
+}
+
 /// One release task.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -125,6 +136,9 @@ pub struct TaskEntry {
     pub implemented: bool,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub not_implemented_reason: Option<String>,
+    /// Published with every observation of the task's episodes (protocol §3.9).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub task_reference: Option<TaskReference>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub notes: Option<String>,
 }
@@ -146,6 +160,8 @@ pub struct TaskFiles {
     pub init_index: usize,
     /// Fixed placement seed, if the task has one (otherwise the episode seed).
     pub placement_seed: Option<u32>,
+    /// The task's reference image and its semantics (protocol §3.9), checked to exist.
+    pub task_reference: Option<(PathBuf, String)>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -216,12 +232,14 @@ impl Catalog {
             (InitKind::SeededPlacement, _) => None,
             _ => return Err(fail(format!("{} has no usable init state", task.id))),
         };
-        for p in std::iter::once(&bddl).chain(&init_states) {
+        let reference = task.task_reference.as_ref().map(|r| paths.project_assets.join(&r.path));
+        for p in std::iter::once(&bddl).chain(&init_states).chain(&reference) {
             if !p.is_file() {
                 return Err(fail(format!("{} is missing", p.display())));
             }
         }
-        Ok(TaskFiles { bddl, init_states, init_index: task.init.index, placement_seed: task.init.seed })
+        let task_reference = reference.zip(task.task_reference.as_ref().map(|r| r.semantics.clone()));
+        Ok(TaskFiles { bddl, init_states, init_index: task.init.index, placement_seed: task.init.seed, task_reference })
     }
 }
 

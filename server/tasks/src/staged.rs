@@ -560,6 +560,138 @@ struct ForbiddenContactLatch {
     tick: Tick,
 }
 
+fn stages_names(stages: &[Stage]) -> Vec<String> {
+    stages.iter().map(|s| s.name.clone()).collect()
+}
+
+/// One change of the satisfied-goal set (unordered mode): when, and which goals hold afterwards.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GoalSetChange {
+    pub control_step: u64,
+    pub sim_time_s: f64,
+    pub satisfied: Vec<String>,
+    /// Required goals among `satisfied`.
+    pub count: usize,
+}
+
+/// The cooking goal evaluator's bookkeeping (task catalog §5.0): no order and no latch — which goals hold on the
+/// final state decides — but the goal count at reset, the largest count seen, and every change of the satisfied
+/// set (events, per-goal drop counts, the sets themselves) are kept as diagnostics. Goals `n_required..` are
+/// optional: tracked but never counted.
+#[derive(Debug, Clone)]
+pub struct GoalSetTracker {
+    names: Vec<String>,
+    n_required: usize,
+    holding: Vec<bool>,
+    drops: Vec<u32>,
+    initial_count: usize,
+    max_count: usize,
+    events: Vec<PrivateEvent>,
+    changes: Vec<GoalSetChange>,
+}
+
+impl GoalSetTracker {
+    pub fn new(names: Vec<String>, n_required: usize) -> Self {
+        let n = names.len();
+        Self {
+            names,
+            n_required: n_required.min(n),
+            holding: vec![false; n],
+            drops: vec![0; n],
+            initial_count: 0,
+            max_count: 0,
+            events: Vec::new(),
+            changes: Vec::new(),
+        }
+    }
+
+    fn count(&self, holding: &[bool]) -> usize {
+        holding[..self.n_required].iter().filter(|&&h| h).count()
+    }
+
+    fn satisfied(&self) -> Vec<String> {
+        self.names.iter().zip(&self.holding).filter(|(_, h)| **h).map(|(n, _)| n.clone()).collect()
+    }
+
+    /// The evaluator reset: `holding` is the set at the reset state (counted as the initial count, not a change).
+    pub fn reset(&mut self, holding: Vec<bool>, tick: Tick) {
+        self.holding = holding;
+        self.drops.iter_mut().for_each(|d| *d = 0);
+        self.events.clear();
+        self.initial_count = self.count(&self.holding);
+        self.max_count = self.initial_count;
+        self.changes = vec![GoalSetChange {
+            control_step: tick.control_step,
+            sim_time_s: tick.sim_time_s,
+            satisfied: self.satisfied(),
+            count: self.initial_count,
+        }];
+    }
+
+    /// One control step: every goal that became true or false is an event; a goal that stopped holding is a drop.
+    pub fn observe(&mut self, now: &[bool], tick: Tick) {
+        let mut changed = false;
+        for (i, (&h, was)) in now.iter().zip(self.holding.iter_mut()).enumerate() {
+            if h == *was {
+                continue;
+            }
+            *was = h;
+            changed = true;
+            if !h {
+                self.drops[i] += 1;
+            }
+            let kind = if h { EventKind::StageCompleted } else { EventKind::StageRegressed };
+            self.events.push(PrivateEvent { stage_index: Some(i), stage_name: Some(self.names[i].clone()), ..PrivateEvent::new(kind, tick) });
+        }
+        if changed {
+            let count = self.count(&self.holding);
+            self.max_count = self.max_count.max(count);
+            self.changes.push(GoalSetChange {
+                control_step: tick.control_step,
+                sim_time_s: tick.sim_time_s,
+                satisfied: self.satisfied(),
+                count,
+            });
+        }
+    }
+
+    pub fn initial_count(&self) -> usize {
+        self.initial_count
+    }
+
+    pub fn max_count(&self) -> usize {
+        self.max_count
+    }
+
+    /// Fills the stage fields of `record` from the goals holding on the final state (`now`) and the diagnostics
+    /// into `details`; returns whether every required goal holds.
+    pub fn write_into(&self, now: &[bool], record: &mut EvaluationRecord, details: &mut serde_json::Map<String, serde_json::Value>) -> bool {
+        let names = |f: &dyn Fn(usize) -> bool| -> Vec<String> {
+            (0..self.names.len()).filter(|&i| f(i)).map(|i| self.names[i].clone()).collect()
+        };
+        let completed = self.count(now);
+        record.required_stage_count = self.n_required;
+        record.completed_required_stage_count = completed;
+        record.stage_score_percent = score_percent(completed, self.n_required);
+        record.ordered_stage_names = names(&|i| i < self.n_required);
+        record.optional_stage_names = names(&|i| i >= self.n_required);
+        record.completed_stage_names = names(&|i| now.get(i).copied().unwrap_or(false));
+        record.stage_regressions = (0..self.names.len())
+            .filter(|&i| self.drops[i] > 0)
+            .map(|i| StageRegressions { stage_name: self.names[i].clone(), count: self.drops[i] })
+            .collect();
+        record.stage_events = self.events.clone();
+        // the final state is one more sample: a change since the last control step still counts toward the maximum
+        let max_count = self.max_count.max(completed);
+        details.insert("initial_goal_count".into(), json!(self.initial_count));
+        details.insert("max_goal_count".into(), json!(max_count));
+        details.insert("final_goal_count".into(), json!(completed));
+        details.insert("regressed_from_max".into(), json!(completed < max_count));
+        details.insert("goal_set_changes".into(), json!(self.changes));
+        completed == self.n_required
+    }
+}
+
 pub struct StagedEvaluator {
     checker: String,
     order: OrderMode,
@@ -580,12 +712,8 @@ pub struct StagedEvaluator {
     pours: Vec<PourSlot>,
     failures: Vec<FailureMonitor>,
     tracker: StageTracker,
-    /// unordered mode: which goals hold now, and the log of changes
-    holding: Vec<bool>,
-    unordered_regressions: Vec<u32>,
-    initial_goal_count: usize,
-    max_goal_count: usize,
-    unordered_events: Vec<PrivateEvent>,
+    /// unordered mode: the satisfied-goal set over the episode
+    goals: GoalSetTracker,
     monitors: Vec<ContactMonitor>,
     monitor_open: Option<(usize, usize)>,
     events: Vec<PrivateEvent>,
@@ -657,8 +785,8 @@ impl StagedEvaluator {
         let gripper_bodies = (0..nbody)
             .map(|b| model.id_to_name(MjtObjBase::mjOBJ_BODY, b).is_some_and(|n| n.starts_with("gripper0_")))
             .collect();
-        let n = stages.len();
         let specs = Self::specs(&stages, n_required);
+        let goals = GoalSetTracker::new(stages_names(&stages), n_required);
         Ok(Self {
             checker: checker.to_owned(),
             order: if checker == CHECKER_UNORDERED { OrderMode::Unordered } else { params.order },
@@ -678,11 +806,7 @@ impl StagedEvaluator {
             pours,
             failures,
             tracker: StageTracker::new(specs),
-            holding: vec![false; n],
-            unordered_regressions: vec![0; n],
-            initial_goal_count: 0,
-            max_goal_count: 0,
-            unordered_events: Vec::new(),
+            goals,
             monitors: Vec::new(),
             monitor_open: None,
             events: Vec::new(),
@@ -708,10 +832,6 @@ impl StagedEvaluator {
 
     fn site_name(&self, site: usize) -> String {
         self.site_names.get(site).cloned().unwrap_or_default()
-    }
-
-    fn stage_event(&self, kind: EventKind, tick: Tick, i: usize) -> PrivateEvent {
-        PrivateEvent { stage_index: Some(i), stage_name: Some(self.stages[i].name.clone()), ..PrivateEvent::new(kind, tick) }
     }
 
     /// Creates the pour counters the stages `evaluated` name (first time only), then updates every existing counter
@@ -746,24 +866,16 @@ impl StagedEvaluator {
         }
     }
 
+    fn holding_now(&self, data: &SimData) -> Vec<bool> {
+        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        self.stages.iter().map(|s| s.holds(&ctx)).collect()
+    }
+
     fn observe_unordered(&mut self, data: &SimData, tick: Tick) {
         let all: Vec<usize> = (0..self.stages.len()).collect();
         self.feed_pours(&all, data, tick);
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
-        let now: Vec<bool> = self.stages.iter().map(|s| s.holds(&ctx)).collect();
-        for (i, &h) in now.iter().enumerate() {
-            if h != self.holding[i] {
-                let kind = if h { EventKind::StageCompleted } else { EventKind::StageRegressed };
-                if !h {
-                    self.unordered_regressions[i] += 1;
-                }
-                let e = self.stage_event(kind, tick, i);
-                self.unordered_events.push(e);
-            }
-        }
-        self.holding = now;
-        let count = self.holding[..self.n_required].iter().filter(|&&h| h).count();
-        self.max_goal_count = self.max_goal_count.max(count);
+        let now = self.holding_now(data);
+        self.goals.observe(&now, tick);
     }
 
     /// The contact monitor of the current operation (control steps only: its ratio counts control steps).
@@ -862,17 +974,12 @@ impl Evaluator for StagedEvaluator {
         self.monitors.clear();
         self.monitor_open = None;
         self.events.clear();
-        self.unordered_events.clear();
-        self.unordered_regressions.iter_mut().for_each(|r| *r = 0);
         self.control_steps = 0;
         self.substeps = 0;
         self.forbidden = None;
         self.commitment.reset(&self.index, data);
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
-        self.holding = self.stages.iter().map(|s| s.holds(&ctx)).collect();
-        self.initial_goal_count = self.holding[..self.n_required].iter().filter(|&&h| h).count();
-        self.max_goal_count = self.initial_goal_count;
-        let _ = tick;
+        let now = self.holding_now(data);
+        self.goals.reset(now, tick);
     }
 
     fn observe_substep(&mut self, data: &SimData, tick: Tick) {
@@ -905,24 +1012,7 @@ impl Evaluator for StagedEvaluator {
         let stages_ok;
         if self.order == OrderMode::Unordered {
             let now: Vec<bool> = self.stages.iter().map(|s| s.holds(&ctx)).collect();
-            let names = |f: &dyn Fn(usize) -> bool| -> Vec<String> {
-                (0..self.stages.len()).filter(|&i| f(i)).map(|i| self.stages[i].name.clone()).collect()
-            };
-            record.required_stage_count = self.n_required;
-            record.completed_required_stage_count = now[..self.n_required].iter().filter(|&&h| h).count();
-            record.stage_score_percent = score_percent(record.completed_required_stage_count, self.n_required);
-            record.ordered_stage_names = names(&|i| i < self.n_required);
-            record.optional_stage_names = names(&|i| i >= self.n_required);
-            record.completed_stage_names = names(&|i| now[i]);
-            record.stage_regressions = (0..self.stages.len())
-                .filter(|&i| self.unordered_regressions[i] > 0)
-                .map(|i| StageRegressions { stage_name: self.stages[i].name.clone(), count: self.unordered_regressions[i] })
-                .collect();
-            record.stage_events = self.unordered_events.clone();
-            stages_ok = record.completed_required_stage_count == self.n_required;
-            details.insert("initial_goal_count".into(), json!(self.initial_goal_count));
-            details.insert("max_goal_count".into(), json!(self.max_goal_count));
-            details.insert("regressed_from_max".into(), json!(record.completed_required_stage_count < self.max_goal_count));
+            stages_ok = self.goals.write_into(&now, &mut record, &mut details);
         } else {
             self.tracker.write_into(&mut record);
             stages_ok = self.tracker.all_required_completed() && !self.tracker.order_violated();
@@ -1055,6 +1145,72 @@ mod tests {
         let AtomSpec::Any(inner) = &p.stages[0].all[0] else { panic!("not an any atom") };
         assert!(matches!(&inner[0], AtomSpec::Joint { min: Some(m), max: None, abs: true, .. } if *m == 1.1));
         assert!(matches!(&inner[1], AtomSpec::Joint { abs: false, .. }));
+    }
+
+    fn tick(step: u64) -> Tick {
+        Tick::at_control_step(step, step as f64 * 0.05)
+    }
+
+    fn tracker() -> GoalSetTracker {
+        GoalSetTracker::new(["a", "b", "c", "opt"].map(String::from).to_vec(), 3)
+    }
+
+    #[test]
+    fn goal_set_counts_goals_on_the_final_state_and_keeps_initial_and_max() {
+        let mut g = tracker();
+        g.reset(vec![true, false, false, true], tick(0));
+        assert_eq!(g.initial_count(), 1, "the optional goal is not counted");
+        g.observe(&[true, true, false, true], tick(1));
+        g.observe(&[true, true, true, true], tick(2));
+        g.observe(&[true, false, true, false], tick(3));
+        assert_eq!(g.max_count(), 3);
+        let (mut record, mut details) = (EvaluationRecord::new("x"), serde_json::Map::new());
+        let all = g.write_into(&[true, false, true, false], &mut record, &mut details);
+        assert!(!all);
+        assert_eq!((record.required_stage_count, record.completed_required_stage_count), (3, 2));
+        assert_eq!(record.completed_stage_names, ["a", "c"]);
+        assert_eq!(record.optional_stage_names, ["opt"]);
+        assert_eq!(details["initial_goal_count"], 1);
+        assert_eq!(details["max_goal_count"], 3);
+        assert_eq!(details["regressed_from_max"], true);
+        let drops: Vec<_> = record.stage_regressions.iter().map(|r| (r.stage_name.as_str(), r.count)).collect();
+        assert_eq!(drops, [("b", 1), ("opt", 1)]);
+    }
+
+    #[test]
+    fn goal_set_logs_every_change_and_nothing_else() {
+        let mut g = tracker();
+        g.reset(vec![false; 4], tick(0));
+        g.observe(&[false; 4], tick(1));
+        g.observe(&[true, false, false, false], tick(2));
+        g.observe(&[true, false, false, false], tick(3));
+        g.observe(&[false, false, false, false], tick(4));
+        g.observe(&[true, false, false, false], tick(5));
+        let (mut record, mut details) = (EvaluationRecord::new("x"), serde_json::Map::new());
+        g.write_into(&[true, false, false, false], &mut record, &mut details);
+        let steps: Vec<u64> = details["goal_set_changes"].as_array().unwrap().iter().map(|c| c["control_step"].as_u64().unwrap()).collect();
+        assert_eq!(steps, [0, 2, 4, 5], "the reset set, then one entry per change");
+        let kinds: Vec<_> = record.stage_events.iter().map(|e| (e.kind, e.tick.control_step)).collect();
+        assert_eq!(kinds, [(EventKind::StageCompleted, 2), (EventKind::StageRegressed, 4), (EventKind::StageCompleted, 5)]);
+        assert_eq!(record.stage_regressions[0].count, 1);
+        assert_eq!(details["regressed_from_max"], false, "back at the maximum");
+    }
+
+    #[test]
+    fn goal_set_reset_forgets_the_previous_episode() {
+        let mut g = tracker();
+        g.reset(vec![false; 4], tick(0));
+        g.observe(&[true, true, true, false], tick(1));
+        g.observe(&[false; 4], tick(2));
+        g.reset(vec![false; 4], tick(0));
+        let (mut record, mut details) = (EvaluationRecord::new("x"), serde_json::Map::new());
+        assert!(!g.write_into(&[false; 4], &mut record, &mut details));
+        assert_eq!(details["max_goal_count"], 0);
+        assert!(record.stage_regressions.is_empty() && record.stage_events.is_empty());
+        let mut all = tracker();
+        all.reset(vec![true, true, true, false], tick(0));
+        assert!(all.write_into(&[true, true, true, false], &mut record, &mut details), "optional goals are not required");
+        assert_eq!(record.stage_score_percent, 100.0);
     }
 
     #[test]

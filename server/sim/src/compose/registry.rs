@@ -106,6 +106,8 @@ const HOPE: &[&str] = &[
     "macaroni_and_cheese", "milk", "orange_juice", "popcorn", "salad_dressing", "new_salad_dressing", "tomato_sauce",
 ];
 const SCANNED: &[&str] = &["white_bowl", "akita_black_bowl", "plate", "basket", "chefmate_8_frypan", "glazed_rim_porcelain_ramekin"];
+/// The long-horizon cooking scene's frying pan: the chefmate mesh with its own placement rotation.
+pub const LONG_HORIZON_FRYPAN: &str = "long_horizon_frypan";
 const TURBOSQUID: &[&str] = &[
     "wooden_tray", "white_storage_box", "wooden_shelf", "wooden_two_layer_shelf", "wine_rack", "wine_bottle",
     "dining_set_group", "bowl_drainer", "moka_pot", "black_book", "yellow_book", "red_coffee_mug", "desk_caddy",
@@ -179,6 +181,7 @@ pub fn all_keys() -> Vec<&'static str> {
     v.extend(HOPE);
     v.push("rack");
     v.extend(SCANNED);
+    v.push(LONG_HORIZON_FRYPAN);
     v.extend(ARTICULATED);
     v.extend(TURBOSQUID);
     v
@@ -227,6 +230,12 @@ pub fn category(key: &str) -> Option<Category> {
     }
     if key == "rack" {
         return Some(mk("rack", "stable_scanned_objects/simple_rack/simple_rack.xml".into(), zero('x')));
+    }
+    if key == LONG_HORIZON_FRYPAN {
+        // T21/T22 (task catalog §5.0): LIBERO's chefmate frypan sampled with zero rotation about z. Written as
+        // LIBERO writes sampler quaternions (x, y, z, w into w, x, y, z), that is a half turn about z: the handle,
+        // along the mesh's +x, points toward the robot.
+        return Some(mk(LONG_HORIZON_FRYPAN, "stable_scanned_objects/chefmate_8_frypan/chefmate_8_frypan.xml".into(), zero('z')));
     }
     if let Some(k) = SCANNED.iter().find(|k| **k == key) {
         return Some(mk(k, format!("stable_scanned_objects/{k}/{k}.xml"), half_pi));

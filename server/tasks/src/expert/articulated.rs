@@ -128,9 +128,14 @@ const MICROWAVE_GRASP_LOCAL_M: [f64; 3] = [0.2375, -0.058, 0.050];
 /// hinge, the goal leading the door by a fixed angle and the hand turning with the door, until the hinge reads
 /// `q_goal` (open needs q < −1.3 rad). `open_partly` stops at −0.9 rad.
 pub fn open_microwave(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
-    let door = refs.body("microwave_1_microdoorroot")?;
-    let (q_adr, joint) = refs.joint("microwave_1_microjoint")?;
     let q_goal = if behaviour == SOLVE { -1.45 } else { -0.9 };
+    Ok(Box::new(Script::new(microwave_door_phases(refs, "microwave_1", q_goal)?)))
+}
+
+/// The phases of [`open_microwave`] for the LIBERO microwave `microwave`, swinging its door to `q_goal` (rad).
+pub(super) fn microwave_door_phases(refs: &SceneRefs, microwave: &str, q_goal: f64) -> Result<Vec<Phase>, TasksError> {
+    let door = refs.body(&format!("{microwave}_microdoorroot"))?;
+    let (q_adr, joint) = refs.joint(&format!("{microwave}_microjoint"))?;
     let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
     let grasp = move |sim: &Simulation| body_point(sim, door, MICROWAVE_GRASP_LOCAL_M);
     let anchor = move |sim: &Simulation| vec3(&sim.data().xanchor()[joint]);
@@ -164,7 +169,7 @@ pub fn open_microwave(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Exper
         .until_reached(0.02)
         .max_steps(40),
     ]);
-    Ok(Box::new(Script::new(phases)))
+    Ok(phases)
 }
 
 /// LIBERO flat stove knob: a point between the fingers on the knob's ridge (which runs along the knob's local y),
@@ -175,10 +180,15 @@ const KNOB_GRASP_LOCAL_M: [f64; 3] = [0.0014, 0.012, 0.035];
 /// hinge reads `q_goal` (on needs q ≥ 0.5 rad); hold still until the knob stops, then let go.
 /// `turn_slightly` stops the turn at 0.2 rad (the knob coasts to ≈ 0.3).
 pub fn turn_on_stove(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
-    let knob = refs.body("flat_stove_1_button")?;
-    let (q_adr, joint) = refs.joint("flat_stove_1_button")?;
-    let dof = refs.model.jnt_dofadr()[joint] as usize;
     let q_goal = if behaviour == SOLVE { 0.9 } else { 0.2 };
+    Ok(Box::new(Script::new(stove_knob_phases(refs, "flat_stove_1", q_goal)?)))
+}
+
+/// The phases of [`turn_on_stove`] for the LIBERO flat stove `stove`, turning its knob up to `q_goal` (rad).
+pub(super) fn stove_knob_phases(refs: &SceneRefs, stove: &str, q_goal: f64) -> Result<Vec<Phase>, TasksError> {
+    let knob = refs.body(&format!("{stove}_button"))?;
+    let (q_adr, joint) = refs.joint(&format!("{stove}_button"))?;
+    let dof = refs.model.jnt_dofadr()[joint] as usize;
     let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
     let grasp = move |sim: &Simulation| body_point(sim, knob, KNOB_GRASP_LOCAL_M);
     // fingers open across the ridge (the knob's local x)
@@ -202,5 +212,5 @@ pub fn turn_on_stove(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert
             .until_reached(0.02)
             .max_steps(40),
     ]);
-    Ok(Box::new(Script::new(phases)))
+    Ok(phases)
 }

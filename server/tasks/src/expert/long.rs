@@ -42,9 +42,16 @@ pub(super) fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
     (a.x - b.x).hypot(a.y - b.y)
 }
 
-/// The grip-site goal that brings a held object's root to `target` (closed loop on the object's pose).
+/// Longest grip-to-root offset of a held object (a pan held 15 cm out on its handle); a longer one means the
+/// object is not in the hand.
+const MAX_HELD_OFFSET_M: f64 = 0.3;
+
+/// The grip-site goal that brings a held object's root to `target` (closed loop on the object's pose). The
+/// grip-to-root offset is capped so that a hand that lost (or never got) its object stays near the target
+/// instead of chasing it off the table.
 pub(super) fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
-    grip_pose(sim).0 + (target - pos(sim, body))
+    let offset = grip_pose(sim).0 - pos(sim, body);
+    target + offset.cap_magnitude(MAX_HELD_OFFSET_M)
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).
@@ -69,14 +76,21 @@ pub(super) fn pick_place_turned(
     target: TargetFn,
     rot: RotFn,
 ) {
-    let grasp = move |sim: &Simulation| pos(sim, body) + grasp_offset_m;
+    let grasp: TargetFn = Arc::new(move |sim: &Simulation| pos(sim, body) + grasp_offset_m);
+    pick_place_at(phases, body, grasp, carry_z_m, target, rot);
+}
+
+/// [`pick_place_turned`] with the fingers closing at `grasp` (world; e.g. a point on a pan's rim) instead of at a
+/// fixed offset from the root. The carry stays closed loop on the root's position.
+pub(super) fn pick_place_at(phases: &mut Vec<Phase>, body: usize, grasp: TargetFn, carry_z_m: f64, target: TargetFn, rot: RotFn) {
+    let (g1, g2) = (grasp.clone(), grasp);
     let r = move |k: &RotFn| {
         let k = k.clone();
         move |sim: &Simulation, ctx: &PhaseCtx| k(sim, ctx)
     };
     let (r1, r2, r3, r4, r5, r6, r7, r8) = (r(&rot), r(&rot), r(&rot), r(&rot), r(&rot), r(&rot), r(&rot), r(&rot));
-    phases.push(Phase::new("above_object", move |sim, ctx| Goal::at(grasp(sim) + Vector3::z() * 0.10, GRIPPER_OPEN).rotated(r1(sim, ctx))).until_reached(0.015).max_steps(150));
-    phases.push(Phase::new("down_to_object", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_OPEN).slow(0.5).rotated(r2(sim, ctx))).until_reached(0.008).max_steps(60));
+    phases.push(Phase::new("above_object", move |sim, ctx| Goal::at(g1(sim) + Vector3::z() * 0.10, GRIPPER_OPEN).rotated(r1(sim, ctx))).until_reached(0.015).max_steps(150));
+    phases.push(Phase::new("down_to_object", move |sim, ctx| Goal::at(g2(sim), GRIPPER_OPEN).slow(0.5).rotated(r2(sim, ctx))).until_reached(0.008).max_steps(60));
     phases.push(Phase::new("close", move |sim, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED).rotated(r3(sim, ctx))).for_steps(12));
     phases.push(
         Phase::new("lift", move |sim, ctx| {

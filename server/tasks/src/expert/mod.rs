@@ -10,6 +10,7 @@ mod articulated;
 mod door;
 mod hammer;
 mod bowls;
+mod cooking;
 mod long;
 pub mod motion;
 mod objects;
@@ -104,6 +105,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| hammer::behaviours(task_id))
         .or_else(|| robomem::behaviours(task_id))
         .or_else(|| bowls::behaviours(task_id))
+        .or_else(|| cooking::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
 }
 
@@ -138,6 +140,8 @@ pub fn expert_for(
         robomem::build(task_id, behaviour, &refs)
     } else if bowls::behaviours(task_id).is_some() {
         bowls::build(task_id, behaviour, &refs)
+    } else if cooking::behaviours(task_id).is_some() {
+        cooking::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }
