@@ -21,6 +21,12 @@ pub struct SuiteTask {
     pub init_index: usize,
     /// Placement seed fixed by the task (RoboMemArena: 100), else the episode seed is used.
     pub placement_seed: Option<u32>,
+    /// Zero-action control steps that turn the seeded placement into the start state (catalog `init`).
+    pub init_settle_steps: u32,
+    /// Object poses set on the placement before those settle steps (catalog `init.poses_in_body`).
+    pub init_poses_in_body: Vec<libero_tasks::catalog::PoseInBody>,
+    /// `vlabench_physical`: settle on the ordinary reset, then restore the start state, no settle after (§4.2).
+    pub settle_before_restore: bool,
 }
 
 /// A resolved task. Private: the BDDL path and init file never reach the workspace.
@@ -84,6 +90,9 @@ fn resolve_suite_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, Episod
             checker: entry.checker.clone(),
             init_index: files.init_index,
             placement_seed: files.placement_seed,
+            init_settle_steps: files.init_settle_steps,
+            init_poses_in_body: files.init_poses_in_body,
+            settle_before_restore: files.settle_before_restore,
         }),
     })
 }

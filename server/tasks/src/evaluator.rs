@@ -245,6 +245,8 @@ pub enum FailureReason {
     TerminalStateInvalid,
     OrderViolation,
     ExtraPour,
+    /// T30: the target rose with the board tilted before both counterweights were placed.
+    PrematureLiftDetected,
 }
 
 /// The private evaluation of one episode (`result.json` → `private_evaluation`; protocol §4.9).

@@ -10,6 +10,7 @@ use crate::commitment::CommitmentTracker;
 use crate::evaluator::Evaluator;
 use crate::goal::GoalChecker;
 use crate::pour::{self, PourWine};
+use crate::seesaw::{self, PhysicalSeesaw};
 use crate::staged::{self, StagedEvaluator};
 use crate::tube_insertion::{self, TubeInsertion};
 use crate::weighing::{self, PhysicalWeighing};
@@ -27,6 +28,7 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     staged::CHECKER_ORDERED,
     staged::CHECKER_UNORDERED,
     weighing::CHECKER,
+    seesaw::CHECKER,
 ];
 
 /// The scene's BDDL goal (a diagnostic for private evaluators) and its first-commitment tracker.
@@ -114,6 +116,11 @@ pub fn build_evaluator(
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(PhysicalWeighing::new(p, goal, commitment, task_id.map(str::to_owned))?))
+        }
+        seesaw::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PhysicalSeesaw::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

@@ -11,6 +11,7 @@ pub mod factory;
 pub mod goal;
 pub mod pour;
 pub mod predicates;
+pub mod seesaw;
 pub mod staged;
 pub mod tube_insertion;
 pub mod weighing;

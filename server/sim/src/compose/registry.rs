@@ -106,6 +106,10 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // the green target bin, written by scripts/gen_perception_assets.py
     ("clier_weighing_mug", "objects/clier_weighing_mug/clier_weighing_mug.xml", 0.0),
     ("composuite_target_bin", "objects/composuite_target_bin/composuite_target_bin.xml", 0.0),
+    // T30 (task catalog §6.1): the VLABench seesaw primitive (fixture; hinge `seesaw_hinge`, far-end site
+    // `seesaw_right_region`) and its 0.08 kg counterweight
+    ("vlabench_seesaw", "objects/vlabench_seesaw/vlabench_seesaw.xml", 0.0),
+    ("vlabench_seesaw_weight", "objects/vlabench_seesaw_weight/vlabench_seesaw_weight.xml", 0.0),
 ];
 
 /// All category keys LIBERO registers (except `target_zone`, which is not an asset) and whose assets exist.

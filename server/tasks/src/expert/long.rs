@@ -30,29 +30,29 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 }
 
 /// `partial_<n>` → n.
-fn partial_count(behaviour: &str) -> Option<usize> {
+pub(super) fn partial_count(behaviour: &str) -> Option<usize> {
     behaviour.strip_prefix("partial_").and_then(|n| n.parse().ok())
 }
 
-fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
+pub(super) fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
     vec3(&sim.data().xpos()[body])
 }
 
-fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
+pub(super) fn xy_dist(a: Vector3<f64>, b: Vector3<f64>) -> f64 {
     (a.x - b.x).hypot(a.y - b.y)
 }
 
 /// The grip-site goal that brings a held object's root to `target` (closed loop on the object's pose).
-fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
+pub(super) fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
     grip_pose(sim).0 + (target - pos(sim, body))
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).
-type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
+pub(super) type TargetFn = Arc<dyn Fn(&Simulation) -> Vector3<f64> + Send + Sync>;
 
 /// Pick `body` from above (fingers closing `grasp_dz_m` above its root), carry it at `carry_z_m` (absolute
 /// world height of the root) to above `target`, lower it until the root is ≈ 1 cm above `target`, open and retreat.
-fn pick_place(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn) {
+pub(super) fn pick_place(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn) {
     pick_place_turned(phases, body, grasp_dz_m, carry_z_m, target, Arc::new(|_, ctx| ctx.home_rot));
 }
 
@@ -111,7 +111,7 @@ fn pick_place_turned(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carr
 }
 
 /// Remembers a value computed on the first call (positions at the start of the run).
-fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
+pub(super) fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
     let cell: Arc<Mutex<Option<T>>> = Arc::new(Mutex::new(None));
     move |sim| *cell.lock().expect("memo lock").get_or_insert_with(|| f(sim))
 }

@@ -11,6 +11,7 @@ mod long;
 pub mod motion;
 mod objects;
 mod perception;
+mod seesaw;
 mod stock;
 mod vlabench;
 
@@ -97,6 +98,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| adapted::behaviours(task_id))
         .or_else(|| long::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
+        .or_else(|| seesaw::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -122,6 +124,8 @@ pub fn expert_for(
         adapted::build(task_id, behaviour, &refs)
     } else if long::behaviours(task_id).is_some() {
         long::build(task_id, behaviour, &refs)
+    } else if seesaw::behaviours(task_id).is_some() {
+        seesaw::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }
