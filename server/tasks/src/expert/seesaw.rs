@@ -1,7 +1,7 @@
 //! Expert for T30 basic_seesaw_usage: set both counterweights down on the seesaw's far end (the board is tilted
 //! 0.5 rad at rest, so each weight is lowered until its uphill bottom edge is just above the sloping board and let
-//! go), wait while the damped board swings down and raises the carton out of its guard cage, then lift the carton
-//! out and put it in the basket.
+//! go), wait while the damped board swings down and raises the carton in its guard cage (≈ 0.45 rad, ≈ 12 cm), then
+//! take the carton from above and put it in the basket.
 //!
 //! Behaviours: `partial_1` (one weight), `partial_2` (both weights, then the hand takes the second one back before
 //! the board has moved far: stage 3 needs both weights released), `partial_3` (both weights, wait for the lift),
@@ -36,7 +36,7 @@ const WEIGHT_HALF_Z_M: f64 = 0.022;
 /// Board plank half thickness.
 const BOARD_HALF_THICKNESS_M: f64 = 0.001;
 /// Where the weights go along the board (board frame, from the pivot; the far-end region spans 0.185–0.295): the
-/// first nearer the pivot (it alone tilts the board ≈ 0.05 rad and raises the carton ≈ 1 cm), the second farther
+/// first nearer the pivot (it alone tilts the board ≈ 0.04 rad and raises the carton ≈ 1 cm), the second farther
 /// out; 1.6 cm apart so the fingers (closing across the board) never touch the other weight.
 const FIRST_SPOT_M: f64 = 0.205;
 const SECOND_SPOT_M: f64 = 0.265;
@@ -47,10 +47,10 @@ const DROP_GAP_M: f64 = 0.004;
 /// Root height of a carried weight or carton: clears the board's high end and the cage roof (1.17 m).
 const CARRY_Z_M: f64 = 1.30;
 /// The fingers close this far above the carton's root, along its axis (its box reaches 0.04 above the root, its
-/// gable 0.062).
+/// gable 0.062): grasped higher, the gable wedges between the fingers and the carton stays in the opened hand.
 const CARTON_GRASP_M: f64 = 0.015;
-/// The carton is let go with its root this far above the basket's contain-region centre (it drops ≈ 3 cm onto the
-/// basket floor; pressed onto the floor, its gable wedges between the fingers).
+/// The carton is let go with its root this far above the basket's contain-region centre (it drops a few cm onto the
+/// basket floor instead of being pressed onto it).
 const CARTON_DROP_ABOVE_REGION_M: f64 = 0.04;
 /// Seesaw state that counts as "the board has lifted the carton" for the expert (above the evaluator's 0.12 rad and
 /// 0.04 m, so stage 3 has completed when the expert moves on).
