@@ -136,7 +136,8 @@ impl SeesawProgress {
         }
     }
 
-    /// One sample: guard, maxima, then the current stage.
+    /// One sample: guard (before the stages, so a lift seen at the step that completes stage 2 is premature), maxima,
+    /// then the current stage.
     pub fn observe(&mut self, s: &SeesawSample, tick: Tick) {
         let second_done = self.post_max.is_some();
         if !second_done && self.premature_lift.is_none() && self.lifted(s.hinge_delta_rad, s.target_lift_m) {
@@ -404,16 +405,26 @@ mod tests {
         let mut p = progress();
         p.observe(&sample(1, 0.05, 0.01, false), tick(1));
         assert_eq!(completed(&p), 1);
-        // both weights down and the board already tilted: stage 2 only, at most one stage per step
-        p.observe(&sample(2, 0.40, 0.09, false), tick(2));
+        // both weights down and the target already in the basket: stage 2 only, at most one stage per step
+        p.observe(&sample(2, 0.06, 0.015, true), tick(2));
         assert_eq!(completed(&p), 2);
-        assert_eq!(p.post_max(), Some((0.40, 0.09)));
+        assert_eq!(p.post_max(), Some((0.06, 0.015)));
         p.observe(&sample(2, 0.40, 0.09, true), tick(3));
         assert_eq!(completed(&p), 3);
         assert_eq!(p.lift_event(), Some(tick(3)));
-        p.observe(&sample(2, 0.40, 0.30, true), tick(4));
+        p.observe(&sample(2, 0.40, 0.09, true), tick(4));
         assert_eq!(completed(&p), 4);
         assert!(p.premature_lift().is_none());
+    }
+
+    #[test]
+    fn a_lift_at_the_step_that_places_the_second_weight_is_premature() {
+        // the guard is tested before the stages: the lift must follow the placement
+        let mut p = progress();
+        p.observe(&sample(1, 0.05, 0.01, false), tick(1));
+        p.observe(&sample(2, 0.40, 0.09, false), tick(2));
+        assert_eq!(completed(&p), 2);
+        assert_eq!(p.premature_lift(), Some(tick(2)));
     }
 
     #[test]
