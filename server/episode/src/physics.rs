@@ -38,8 +38,7 @@ pub struct WorldPhysics {
     /// the task's `init_settle_steps` where it has them).
     pub start_row: Vec<f64>,
     /// The ordinary reset's state (the seeded placement, with the task's `init_poses_in_body`), settled before
-    /// `start_row` is restored when
-    /// `settle_before_restore` is set.
+    /// `start_row` is restored when `settle_before_restore` is set.
     reset_row: Vec<f64>,
     /// `vlabench_physical` (§4.2): settle on the ordinary reset, restore `start_row`, no settle after.
     settle_before_restore: bool,
