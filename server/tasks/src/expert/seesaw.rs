@@ -42,8 +42,10 @@ const FIRST_SPOT_M: f64 = 0.205;
 const SECOND_SPOT_M: f64 = 0.265;
 /// `partial_2` sets its second weight near the pivot (still on the far end), where it turns the board slowest.
 const SLOW_SPOT_M: f64 = 0.14;
-/// Gap left under a held weight's uphill bottom edge when it is let go.
-const DROP_GAP_M: f64 = 0.004;
+/// Gap left under a held weight's uphill bottom edge when it is let go: the weight must not bear on the board while
+/// the fingers still hold it (before the evaluator sees it released), or the board tilts and lifts the carton past
+/// both thresholds before stage 2 — a premature lift.
+const DROP_GAP_M: f64 = 0.015;
 /// Root height of a carried weight or carton: clears the board's high end and the cage roof (1.17 m).
 const CARRY_Z_M: f64 = 1.30;
 /// The fingers close this far above the carton's root, along its axis (its box reaches 0.04 above the root, its
