@@ -3,8 +3,8 @@
 //! go), wait while the damped board swings down and raises the carton in its guard cage (≈ 0.45 rad, ≈ 12 cm), then
 //! take the carton from above and put it in the basket.
 //!
-//! Behaviours: `partial_1` (one weight), `partial_2` (both weights, then the hand takes the second one back before
-//! the board has moved far: stage 3 needs both weights released), `partial_3` (both weights, wait for the lift),
+//! Behaviours: `partial_1` (one weight), `partial_2` (both weights; the run ends at the step the second is let go,
+//! before the board has lifted the carton), `partial_3` (both weights, wait for the lift),
 //! `undo` (one weight on, then back to where it started: stage 1 regresses), `lift_by_hand` (press the board's far
 //! end down by hand before any weight is placed, which raises the carton: the premature-lift guard fails the run).
 use std::sync::Arc;
@@ -14,7 +14,7 @@ use nalgebra::Vector3;
 
 use super::long::{TargetFn, carry, memo, partial_count, pick_place, pos, xy_dist};
 use super::motion::{
-    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, Script, body_dir, body_point, vec3,
+    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, Script, body_dir, body_point, gripper_width_m, vec3,
 };
 use super::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
@@ -33,19 +33,22 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 /// Counterweight half extents (catalog §6.1: box 4.4 × 2.8 × 4.4 cm).
 const WEIGHT_HALF_X_M: f64 = 0.022;
 const WEIGHT_HALF_Z_M: f64 = 0.022;
+/// Its width across the fingers.
+const WEIGHT_WIDTH_M: f64 = 0.028;
 /// Board plank half thickness.
 const BOARD_HALF_THICKNESS_M: f64 = 0.001;
 /// Where the weights go along the board (board frame, from the pivot; the far-end region spans 0.185–0.295): the
-/// first nearer the pivot (it alone tilts the board ≈ 0.04 rad and raises the carton ≈ 1 cm), the second farther
-/// out; 1.6 cm apart so the fingers (closing across the board) never touch the other weight.
-const FIRST_SPOT_M: f64 = 0.205;
-const SECOND_SPOT_M: f64 = 0.265;
-/// `partial_2` sets its second weight near the pivot (still on the far end), where it turns the board slowest.
-const SLOW_SPOT_M: f64 = 0.14;
-/// Gap left under a held weight's uphill bottom edge when it is let go: the weight must not bear on the board while
-/// the fingers still hold it (before the evaluator sees it released), or the board tilts and lifts the carton past
-/// both thresholds before stage 2 — a premature lift.
-const DROP_GAP_M: f64 = 0.015;
+/// first nearer the pivot (it alone tilts the board ≈ 0.04 rad and raises the carton ≈ 1 cm), the second 6 cm farther
+/// out, clear of the first (which lies tilted with the board) and of the far lip (which leans over a weight held
+/// upright near it: touching it, the held weight would press the board down before it is let go).
+const FIRST_SPOT_M: f64 = 0.19;
+const SECOND_SPOT_M: f64 = 0.25;
+/// Gap left under a held weight's uphill bottom edge when it is let go: small for the first (dropped from higher it
+/// slides down the slope), larger for the second, which must not bear on the board while the fingers still hold it
+/// (before the evaluator sees it released): the board would tilt and lift the carton toward both thresholds before
+/// stage 2 — a premature lift.
+const FIRST_GAP_M: f64 = 0.008;
+const SECOND_GAP_M: f64 = 0.015;
 /// Root height of a carried weight or carton: clears the board's high end and the cage roof (1.17 m).
 const CARRY_Z_M: f64 = 1.30;
 /// The fingers close this far above the carton's root, along its axis (its box reaches 0.04 above the root, its
@@ -60,18 +63,18 @@ const WAIT_HINGE_RAD: f64 = 0.20;
 const WAIT_LIFT_M: f64 = 0.05;
 
 /// The root position at which a weight held upright (world-aligned) above board-frame spot `x_b` has its uphill
-/// bottom edge `DROP_GAP_M` above the sloping board.
-fn weight_drop_target(sim: &Simulation, board: usize, x_b: f64) -> Vector3<f64> {
+/// bottom edge `gap_m` above the sloping board.
+fn weight_drop_target(sim: &Simulation, board: usize, x_b: f64, gap_m: f64) -> Vector3<f64> {
     let surface = body_point(sim, board, [x_b, 0.0, BOARD_HALF_THICKNESS_M]);
     let along = body_dir(sim, board, [1.0, 0.0, 0.0]);
     // the board rises toward its far end: under the uphill edge the surface is this much higher
     let slope = if along.x.abs() > 1e-6 { along.z / along.x } else { 0.0 };
     let rise = (WEIGHT_HALF_X_M * slope).max(0.0);
-    Vector3::new(surface.x, surface.y, surface.z + rise + WEIGHT_HALF_Z_M + DROP_GAP_M)
+    Vector3::new(surface.x, surface.y, surface.z + rise + WEIGHT_HALF_Z_M + gap_m)
 }
 
-fn place_weight(phases: &mut Vec<Phase>, weight: usize, board: usize, x_b: f64) {
-    let target: TargetFn = Arc::new(move |sim| weight_drop_target(sim, board, x_b));
+fn place_weight(phases: &mut Vec<Phase>, weight: usize, board: usize, x_b: f64, gap_m: f64) {
+    let target: TargetFn = Arc::new(move |sim| weight_drop_target(sim, board, x_b, gap_m));
     pick_place(phases, weight, 0.0, CARRY_Z_M, target);
 }
 
@@ -112,18 +115,18 @@ fn seesaw(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksErr
     if behaviour == "lift_by_hand" {
         press_board_down(&mut phases, board, lifted.clone());
     }
-    place_weight(&mut phases, weights[0], board, FIRST_SPOT_M);
+    place_weight(&mut phases, weights[0], board, FIRST_SPOT_M, FIRST_GAP_M);
     if behaviour == "undo" {
         let back: TargetFn = Arc::new(move |sim| weight1_start(sim));
         pick_place(&mut phases, weights[0], 0.0, CARRY_Z_M, back);
     }
     if steps >= 2 {
         if behaviour == "partial_2" {
-            place_weight(&mut phases, weights[1], board, SLOW_SPOT_M);
-            take_back_at_once(&mut phases);
+            place_weight(&mut phases, weights[1], board, SECOND_SPOT_M, SECOND_GAP_M);
+            stop_once_released(&mut phases);
             return Ok(Box::new(Script::new(phases)));
         }
-        place_weight(&mut phases, weights[1], board, SECOND_SPOT_M);
+        place_weight(&mut phases, weights[1], board, SECOND_SPOT_M, SECOND_GAP_M);
     }
     if steps >= 3 {
         stand_clear(&mut phases);
@@ -186,13 +189,17 @@ fn pick_carton(phases: &mut Vec<Phase>, carton: usize, basket_region: usize) {
     );
 }
 
-/// `partial_2`: instead of letting go and retreating, open just long enough for the pads to leave the weight (the
-/// evaluator sees both weights released), then close on it again and keep it.
-fn take_back_at_once(phases: &mut Vec<Phase>) {
+/// `partial_2`: instead of letting go and retreating, open only until the fingers are clear of the weight (the step at
+/// which the evaluator sees both weights released and completes stage 2) and stop there: the episode ends before the
+/// board can lift the carton (stage 3 could complete one step later at the earliest).
+fn stop_once_released(phases: &mut Vec<Phase>) {
     // pick_place ends with `open` and `retreat`
     phases.truncate(phases.len().saturating_sub(2));
-    phases.push(Phase::new("let_go_briefly", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN)).for_steps(4));
-    phases.push(Phase::new("take_back", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(15));
+    phases.push(
+        Phase::new("let_go_and_stop", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN))
+            .until(|sim, _| gripper_width_m(sim) > WEIGHT_WIDTH_M + 0.008)
+            .max_steps(20),
+    );
 }
 
 /// `lift_by_hand`: the closed fingertips press the board's far end down until the carton has risen (before any
