@@ -63,22 +63,9 @@ fn goal_image(catalog: &Catalog, id: &str, out: Option<&std::path::Path>) -> any
     let mut bare = task.clone();
     bare.task_reference = None;
     let files = catalog.files(&bare, &paths)?;
-    let source = libero_episode::task::TaskSource {
-        task_ref: task.id.clone(),
-        bddl: files.bddl,
-        init_states: files.init_states,
-        instruction: task.agent_instruction().to_owned(),
-        suite: Some(libero_episode::task::SuiteTask {
-            id: task.id.clone(),
-            name: task.name.clone(),
-            checker: task.checker.clone(),
-            init_index: files.init_index,
-            placement_seed: files.placement_seed,
-        }),
-        task_reference: None,
-    };
-    let seed = files.placement_seed.map_or(100, u64::from);
-    let spec = WorldSpec { task: source, level: libero_episode::Level::L1, seed, init_index: files.init_index, paths };
+    let (seed, init_index) = (files.placement_seed.map_or(100, u64::from), files.init_index);
+    let source = libero_episode::task::suite_task_source(&bare, files);
+    let spec = WorldSpec { task: source, level: libero_episode::Level::L1, seed, init_index, paths };
     let renderer = libero_render::Renderer::new().context("cannot open a GPU to render the goal image")?;
     let (image, record) = render_goal_image(&spec, renderer, &task.id, libero_tasks::expert::SOLVE, GOAL_IMAGE_MAX_ACTIONS)?;
     if !record.success || record.completed_required_stage_count != record.required_stage_count {

@@ -9,6 +9,7 @@ use libero_sim::compose::{ComposedScene, compose_file};
 use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, InitStates, Simulation};
+use libero_tasks::catalog::PoseInBody;
 use libero_tasks::{Evaluator, Tick, apply_private_model_edits, build_evaluator};
 
 use crate::EpisodeError;
@@ -33,8 +34,14 @@ pub struct WorldSpec {
 pub struct WorldPhysics {
     pub scene: ComposedScene,
     pub sim: Simulation,
-    /// `[time, qpos, qvel]` restored at start: the trusted init state, or the seeded placement's state.
+    /// `[time, qpos, qvel]` restored at start: the trusted init state, or the seeded placement's state (settled for
+    /// the task's `init_settle_steps` where it has them).
     pub start_row: Vec<f64>,
+    /// The ordinary reset's state (the seeded placement, with the task's `init_poses_in_body`), settled before
+    /// `start_row` is restored when `settle_before_restore` is set.
+    reset_row: Vec<f64>,
+    /// `vlabench_physical` (§4.2): settle on the ordinary reset, restore `start_row`, no settle after.
+    settle_before_restore: bool,
     pub evaluator: Box<dyn Evaluator>,
     /// Control steps since the evaluator reset.
     pub control_step: u64,
@@ -69,11 +76,16 @@ impl WorldPhysics {
         let qpos = start_qpos(&model, init_row.as_deref(), &placement)?;
         edit_model(&scene, &mut model, &qpos)?;
         let sim = Simulation::new(Arc::new(model))?;
+        let poses = suite.map_or(&[][..], |s| s.init_poses_in_body.as_slice());
+        let reset_row = posed_row(sim.model(), placement_row(&sim, &placement)?, &placement, poses)?;
+        let settle_steps = suite.map_or(0, |s| s.init_settle_steps);
         let start_row = match init_row {
             Some(row) => row,
-            None => placement_row(&sim, &placement)?,
+            None if settle_steps > 0 => settled_row(sim.model(), &reset_row, settle_steps)?,
+            None => reset_row.clone(),
         };
-        Ok(Self { scene, sim, start_row, evaluator, control_step: 0 })
+        let settle_before_restore = suite.is_some_and(|s| s.settle_before_restore);
+        Ok(Self { scene, sim, start_row, reset_row, settle_before_restore, evaluator, control_step: 0 })
     }
 
     pub fn model(&self) -> &Arc<MjModel> {
@@ -85,11 +97,20 @@ impl WorldPhysics {
     }
 
     /// §4.2: restore the start row, settle, reset the evaluator. `after_settle_step` sees every settle step.
+    /// `vlabench_physical`: settle the ordinary reset first (unrecorded), then restore the start row and do not settle.
     pub fn start(&mut self, mut after_settle_step: impl FnMut(&Simulation)) -> Result<(), EpisodeError> {
-        self.sim.set_init_state(&self.start_row)?;
-        for _ in 0..SETTLE_STEPS {
-            self.sim.step([0.0; 7])?;
-            after_settle_step(&self.sim);
+        if self.settle_before_restore {
+            self.sim.set_init_state(&self.reset_row)?;
+            for _ in 0..SETTLE_STEPS {
+                self.sim.step([0.0; 7])?;
+            }
+            self.sim.set_init_state(&self.start_row)?;
+        } else {
+            self.sim.set_init_state(&self.start_row)?;
+            for _ in 0..SETTLE_STEPS {
+                self.sim.step([0.0; 7])?;
+                after_settle_step(&self.sim);
+            }
         }
         self.control_step = 0;
         let tick = self.tick(None);
@@ -135,6 +156,50 @@ fn start_qpos(model: &MjModel, init_row: Option<&[f64]>, placement: &Placement) 
             Ok(qpos)
         }
     }
+}
+
+/// `row` (the seeded placement) with `poses` applied: objects moved to fixed poses in the frame of a body of the
+/// placed scene, where an unavailable trusted state put them (T30's carton on the seesaw's low end).
+fn posed_row(model: &Arc<MjModel>, mut row: Vec<f64>, placement: &Placement, poses: &[PoseInBody]) -> Result<Vec<f64>, EpisodeError> {
+    if poses.is_empty() {
+        return Ok(row);
+    }
+    let mut scratch = Simulation::new(model.clone())?;
+    scratch.set_init_state(&row)?;
+    for p in poses {
+        let body = model
+            .name_to_id(MjtObjBase::mjOBJ_BODY, &p.body)
+            .ok_or_else(|| EpisodeError::Task(format!("init pose: model has no body {:?}", p.body)))?;
+        let joint = placement
+            .objects
+            .iter()
+            .find(|o| o.name == p.object)
+            .and_then(|o| model.name_to_id(MjtObjBase::mjOBJ_JOINT, &o.joint))
+            .ok_or_else(|| EpisodeError::Task(format!("init pose: {:?} is not a placed object", p.object)))?;
+        let (xpos, xmat, xquat) = {
+            let d = scratch.data();
+            (d.xpos()[body], d.xmat()[body], d.xquat()[body])
+        };
+        let a = 1 + model.jnt_qposadr()[joint] as usize;
+        for k in 0..3 {
+            row[a + k] = xpos[k] + (0..3).map(|j| xmat[3 * k + j] * p.pos_m[j]).sum::<f64>();
+        }
+        let q = |v: [f64; 4]| nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(v[0], v[1], v[2], v[3]));
+        let world = q(xquat) * q(p.quat_wxyz);
+        row[a + 3..a + 7].copy_from_slice(&[world.w, world.i, world.j, world.k]);
+    }
+    Ok(row)
+}
+
+/// `row` after `steps` zero-action control steps, on a scratch simulation: the start state of a task whose trusted
+/// state is unavailable and whose objects must come to rest first (T30's carton leaning in the seesaw's cage).
+fn settled_row(model: &Arc<MjModel>, row: &[f64], steps: u32) -> Result<Vec<f64>, EpisodeError> {
+    let mut scratch = Simulation::new(model.clone())?;
+    scratch.set_init_state(row)?;
+    for _ in 0..steps {
+        scratch.step([0.0; 7])?;
+    }
+    Ok(scratch.state_row())
 }
 
 /// The state row of the seeded placement, for tasks without trusted init states: the objects' free joints

@@ -21,6 +21,12 @@ pub struct SuiteTask {
     pub init_index: usize,
     /// Placement seed fixed by the task (RoboMemArena: 100), else the episode seed is used.
     pub placement_seed: Option<u32>,
+    /// Zero-action control steps that turn the seeded placement into the start state (catalog `init`).
+    pub init_settle_steps: u32,
+    /// Object poses set on the placement before those settle steps (catalog `init.poses_in_body`).
+    pub init_poses_in_body: Vec<libero_tasks::catalog::PoseInBody>,
+    /// `vlabench_physical`: settle on the ordinary reset, then restore the start state, no settle after (§4.2).
+    pub settle_before_restore: bool,
 }
 
 /// A resolved task. Private: the BDDL path and init file never reach the workspace.
@@ -76,7 +82,12 @@ fn resolve_suite_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, Episod
     let catalog = Catalog::discover().map_err(|e| EpisodeError::Task(e.to_string()))?;
     let entry = catalog.get(id).ok_or_else(|| EpisodeError::Task(format!("no release task {id}: expected T01–T30")))?;
     let files = catalog.files(entry, paths).map_err(|e| EpisodeError::Task(e.to_string()))?;
-    Ok(TaskSource {
+    Ok(suite_task_source(entry, files))
+}
+
+/// The source of a catalog task from its resolved files.
+pub fn suite_task_source(entry: &libero_tasks::TaskEntry, files: libero_tasks::catalog::TaskFiles) -> TaskSource {
+    TaskSource {
         task_ref: entry.id.clone(),
         bddl: files.bddl,
         init_states: files.init_states,
@@ -87,9 +98,12 @@ fn resolve_suite_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, Episod
             checker: entry.checker.clone(),
             init_index: files.init_index,
             placement_seed: files.placement_seed,
+            init_settle_steps: files.init_settle_steps,
+            init_poses_in_body: files.init_poses_in_body,
+            settle_before_restore: files.settle_before_restore,
         }),
         task_reference: files.task_reference.map(|(path, _)| path),
-    })
+    }
 }
 
 fn from_bddl_path(id: &str, path: &Path, paths: &AssetPaths) -> TaskSource {

@@ -74,9 +74,29 @@ pub struct InitRef {
     pub index: usize,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u32>,
+    /// Seeded placement only: the start state is the placement after this many zero-action control steps (a stand-in
+    /// for a trusted state captured on a settled scene, where objects rest on tilted or moving parts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settle_control_steps: Option<u32>,
+    /// Seeded placement only: objects moved, after the placement and before settling, to a fixed pose in a body's
+    /// frame (a documented stand-in for where an unavailable trusted state put them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub poses_in_body: Vec<PoseInBody>,
     /// How this start differs from the release, where it does.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+}
+
+/// An object's start pose given in the frame of a body of the placed scene.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseInBody {
+    /// Object instance (moved by its free joint).
+    pub object: String,
+    /// MuJoCo body whose frame `pos_m` / `quat_wxyz` are given in.
+    pub body: String,
+    pub pos_m: [f64; 3],
+    pub quat_wxyz: [f64; 4],
 }
 
 /// Evaluator type and its private parameters (operator-visible only; never sent to agents).
@@ -162,7 +182,17 @@ pub struct TaskFiles {
     pub placement_seed: Option<u32>,
     /// The task's reference image and its semantics (protocol §3.9), checked to exist.
     pub task_reference: Option<(PathBuf, String)>,
+    /// Zero-action control steps that turn the seeded placement into the start state (0: the placement itself).
+    pub init_settle_steps: u32,
+    /// Object poses set after the placement, before the settle steps.
+    pub init_poses_in_body: Vec<PoseInBody>,
+    /// `vlabench_physical` (protocol §4.2): the settle steps run on the ordinary reset *before* the start state is
+    /// restored, and none after it (so an object resting on the seesaw board is not disturbed).
+    pub settle_before_restore: bool,
 }
+
+/// The one source suite whose episodes settle before restoring the init state (protocol §4.1/§4.2).
+pub const SETTLE_BEFORE_RESTORE_SUITE: &str = "vlabench_physical";
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Manifest {
@@ -239,7 +269,16 @@ impl Catalog {
             }
         }
         let task_reference = reference.zip(task.task_reference.as_ref().map(|r| r.semantics.clone()));
-        Ok(TaskFiles { bddl, init_states, init_index: task.init.index, placement_seed: task.init.seed, task_reference })
+        Ok(TaskFiles {
+            bddl,
+            init_states,
+            init_index: task.init.index,
+            placement_seed: task.init.seed,
+            init_settle_steps: task.init.settle_control_steps.unwrap_or(0),
+            init_poses_in_body: task.init.poses_in_body.clone(),
+            settle_before_restore: task.source.suite == SETTLE_BEFORE_RESTORE_SUITE,
+            task_reference,
+        })
     }
 }
 

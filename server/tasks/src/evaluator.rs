@@ -265,6 +265,8 @@ pub enum FailureReason {
     ExtraPour,
     /// A forbidden contact was seen (T25: a bowl touched the tabletop).
     ForbiddenContact,
+    /// T30: the target rose with the board tilted before both counterweights were placed.
+    PrematureLiftDetected,
 }
 
 impl FailureReason {

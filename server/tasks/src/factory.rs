@@ -11,6 +11,7 @@ use crate::evaluator::Evaluator;
 use crate::goal::GoalChecker;
 use crate::hammer_contact::{self, HammerContact};
 use crate::pour::{self, PourWine};
+use crate::seesaw::{self, PhysicalSeesaw};
 use crate::staged::{self, StagedEvaluator};
 use crate::tube_insertion::{self, TubeInsertion};
 use crate::weighing::{self, PhysicalWeighing};
@@ -30,6 +31,7 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     staged::CHECKER_BUFFER_ROTATION,
     weighing::CHECKER,
     hammer_contact::CHECKER,
+    seesaw::CHECKER,
 ];
 
 /// The scene's BDDL goal (a diagnostic for private evaluators) and its first-commitment tracker.
@@ -122,6 +124,11 @@ pub fn build_evaluator(
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(HammerContact::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        seesaw::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PhysicalSeesaw::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

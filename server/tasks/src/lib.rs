@@ -13,6 +13,7 @@ pub mod goal;
 pub mod hammer_contact;
 pub mod pour;
 pub mod predicates;
+pub mod seesaw;
 pub mod staged;
 pub mod tube_insertion;
 pub mod weighing;

@@ -170,6 +170,10 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // predicate reads the nail joint, the private evaluator does)
     ("metaworld_hammer", "objects/metaworld_hammer/metaworld_hammer.xml", 0.0),
     ("metaworld_hammer_block", "objects/metaworld_hammer_block/metaworld_hammer_block.xml", 0.0),
+    // T30 (task catalog §6.1): the VLABench seesaw primitive (fixture; hinge `seesaw_hinge`, far-end site
+    // `seesaw_right_region`) and its 0.08 kg counterweight
+    ("vlabench_seesaw", "objects/vlabench_seesaw/vlabench_seesaw.xml", 0.0),
+    ("vlabench_seesaw_weight", "objects/vlabench_seesaw_weight/vlabench_seesaw_weight.xml", 0.0),
 ];
 
 /// The latched door fixture of T28: only its `hinge` is an articulation joint (catalog §2.2).

@@ -16,6 +16,7 @@ pub mod motion;
 mod objects;
 mod perception;
 mod robomem;
+mod seesaw;
 mod stock;
 mod vlabench;
 
@@ -107,6 +108,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
         .or_else(|| bowls::behaviours(task_id))
         .or_else(|| cooking::behaviours(task_id))
         .or_else(|| perception::behaviours(task_id))
+        .or_else(|| seesaw::behaviours(task_id))
 }
 
 /// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`behaviours`]) on this scene.
@@ -142,6 +144,8 @@ pub fn expert_for(
         bowls::build(task_id, behaviour, &refs)
     } else if cooking::behaviours(task_id).is_some() {
         cooking::build(task_id, behaviour, &refs)
+    } else if seesaw::behaviours(task_id).is_some() {
+        seesaw::build(task_id, behaviour, &refs)
     } else {
         perception::build(task_id, behaviour, &refs)
     }
