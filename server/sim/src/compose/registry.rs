@@ -65,6 +65,12 @@ pub enum AssetEdit {
 /// Categories derived from a LIBERO category by declared edits (RoboMemArena's asset variants, task catalog §6.9):
 /// the LIBERO file in the asset cache is loaded and edited at compose time, so no LIBERO mesh or MJCF is copied
 /// into the repository. Key, base category, edits; everything else (rotation, articulation) is the base's.
+/// Close range of the raised cabinet's slides: LIBERO's `[0, 0.005]` capped below the slide value (≈ 0.0025 m) past
+/// which the bottom drawer's front panel, whose top edge overlaps the shelf above it by 0.6 mm in the LIBERO asset,
+/// slides under that shelf's front edge; that stiff contact (solref 0.001) then presses with ≈ 0.3 MN and the drawer
+/// does not move under a 10 kN pull, so a task that must open it could never be solved from such a start.
+pub const TALL_CABINET_CLOSE_RANGE_M: [f64; 2] = [0.0, 0.002];
+
 const DERIVED: &[(&str, &str, &[AssetEdit])] = &[
     // T23, T27: the wooden cabinet raised 5 cm on a visual plinth; drawers, joints and sites unchanged relative to
     // the raised body (roof site `top_side` ends at z 0.27152)
@@ -212,7 +218,15 @@ pub fn category(key: &str) -> Option<Category> {
         edits: &[],
     };
     if let Some(&(k, base, edits)) = DERIVED.iter().find(|(k, _, _)| *k == key) {
-        return category(base).map(|c| Category { key: k, edits, ..c });
+        return category(base).map(|c| {
+            let mut c = Category { key: k, edits, ..c };
+            if k == "wooden_cabinet_tall_bottom"
+                && let Some(a) = c.articulation.as_mut()
+            {
+                a.close = Some(TALL_CABINET_CLOSE_RANGE_M);
+            }
+            c
+        });
     }
     if let Some(&(k, file, rotation_z)) = PROJECT.iter().find(|(k, _, _)| *k == key) {
         let mut c = Category { root: AssetRoot::Project, ..mk(k, file.to_owned(), range(rotation_z, rotation_z, 'z')) };
