@@ -1,31 +1,14 @@
 //! The staged evaluator's RoboMemArena atoms on constructed states of the real T23/T24 scenes (drawer joints and
 //! object poses written into qpos, no physics stepping): the occupied-drawer binding, the pour counter shared by two
 //! stages and the extra-pour monitor, and the drainer union (`any`).
-use std::path::Path;
-use std::sync::Arc;
-
-use libero_sim::compose::{ComposedScene, compose_file};
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
-use libero_sim::placement::Placement;
-use libero_sim::{AssetPaths, Simulation};
+use libero_sim::Simulation;
 use libero_tasks::evaluator::FailureReason;
 use libero_tasks::{Catalog, Evaluator, Tick, build_evaluator};
 use nalgebra::{UnitQuaternion, Vector3};
 
-fn scene_and_sim(bddl: &Path) -> (ComposedScene, Simulation) {
-    let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
-    let scene = compose_file(bddl, &paths).unwrap();
-    let mut model = scene.compile().unwrap();
-    let placement = Placement::sample(&scene, 100, Some(&model)).unwrap();
-    placement.apply(&mut model).unwrap();
-    let mut qpos = model.qpos0().to_vec();
-    placement.write_qpos(&model, &mut qpos).unwrap();
-    let mut sim = Simulation::new(Arc::new(model)).unwrap();
-    let mut row = sim.state_row();
-    row[1..1 + qpos.len()].copy_from_slice(&qpos);
-    sim.set_init_state(&row).unwrap();
-    (scene, sim)
-}
+mod common;
+use common::scene_and_sim;
 
 struct Rig {
     sim: Simulation,

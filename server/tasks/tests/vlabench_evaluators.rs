@@ -1,32 +1,16 @@
 //! `private_tube_insertion` (T18) and `private_button_press` (T13) on constructed states of their real scenes:
 //! the tube put into the slot by editing qpos (upright, tilted, beside, moving, hovering), the button pressed by the
 //! gripper (the T13 expert script, played on a bare simulation) and by an object resting on the cap.
-use std::path::Path;
-use std::sync::Arc;
-
-use libero_sim::compose::{ComposedScene, compose_file};
+use libero_sim::compose::ComposedScene;
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
-use libero_sim::placement::Placement;
-use libero_sim::{AssetPaths, Simulation};
+use libero_sim::Simulation;
 use libero_tasks::button_press::{ButtonPress, ButtonPressParams, PRESSED_CAP_RGBA};
 use libero_tasks::commitment::CommitmentKind;
 use libero_tasks::tube_insertion::{TubeInsertion, TubeInsertionParams};
 use libero_tasks::{Catalog, Evaluator, Tick, expert};
 
-fn scene_and_sim(bddl: &Path) -> (ComposedScene, Simulation) {
-    let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
-    let scene = compose_file(bddl, &paths).unwrap();
-    let mut model = scene.compile().unwrap();
-    let placement = Placement::sample(&scene, 100, Some(&model)).unwrap();
-    placement.apply(&mut model).unwrap();
-    let mut qpos = model.qpos0().to_vec();
-    placement.write_qpos(&model, &mut qpos).unwrap();
-    let mut sim = Simulation::new(Arc::new(model)).unwrap();
-    let mut row = sim.state_row();
-    row[1..1 + qpos.len()].copy_from_slice(&qpos);
-    sim.set_init_state(&row).unwrap();
-    (scene, sim)
-}
+mod common;
+use common::scene_and_sim;
 
 fn task_bddl(id: &str) -> (std::path::PathBuf, serde_json::Value) {
     let catalog = Catalog::discover().unwrap();
