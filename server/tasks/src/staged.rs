@@ -871,9 +871,13 @@ impl StagedEvaluator {
         self.stages.iter().map(|s| s.holds(&ctx)).collect()
     }
 
-    fn observe_unordered(&mut self, data: &SimData, tick: Tick) {
-        let all: Vec<usize> = (0..self.stages.len()).collect();
-        self.feed_pours(&all, data, tick);
+    /// Every goal is evaluated each tick, so every pour counter a goal names is live; counters update at control
+    /// steps only (`control`), like the ordered mode's.
+    fn observe_unordered(&mut self, data: &SimData, tick: Tick, control: bool) {
+        if control && !self.pours.is_empty() {
+            let all: Vec<usize> = (0..self.stages.len()).collect();
+            self.feed_pours(&all, data, tick);
+        }
         let now = self.holding_now(data);
         self.goals.observe(&now, tick);
     }
@@ -949,7 +953,7 @@ impl StagedEvaluator {
             return;
         }
         if self.order == OrderMode::Unordered {
-            self.observe_unordered(data, tick);
+            self.observe_unordered(data, tick, control);
         } else {
             self.observe_ordered(data, tick, control);
         }
