@@ -4,7 +4,7 @@
 // steps with the keyboard, scrubs the timeline, opens a deep link and shows the observation the agent got, and
 // the tasks page shows a rendered thumbnail. Prints JSON lines: {"event":"live-ready"} once the live page is
 // connected (the test then starts the agent), finally {"ok":true,...}. Screenshots go to ARTIFACTS.
-const { launch, say, shotter, check, text } = require('./common.cjs');
+const { launch, say, shotter, check, text, login } = require('./common.cjs');
 
 const [base, episode, artifacts, unimplemented] = process.argv.slice(2);
 const shot = shotter(artifacts);
@@ -12,6 +12,7 @@ const shot = shotter(artifacts);
 async function main() {
   const browser = await launch();
   const context = await browser.newContext({ viewport: { width: 1500, height: 1100 } });
+  await login(context, base);
   const report = {};
   const errors = [];
   try {

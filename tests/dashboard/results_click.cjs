@@ -2,7 +2,7 @@
 // table, clicks the first rollout link of task TASK and expects that episode's review page to load with its
 // result record. Usage: node results_click.cjs BASE TASK ARTIFACTS. Prints one JSON line, {"ok":true,...} or
 // {"ok":false,"error":...}. Screenshots go to ARTIFACTS.
-const { launch, say, shotter, check } = require('./common.cjs');
+const { launch, say, shotter, check, login } = require('./common.cjs');
 
 const [base, task, artifacts] = process.argv.slice(2);
 const shot = shotter(artifacts);
@@ -11,7 +11,9 @@ async function main() {
   const browser = await launch();
   const errors = [];
   try {
-    const page = await browser.newPage({ viewport: { width: 1500, height: 1000 } });
+    const context = await browser.newContext({ viewport: { width: 1500, height: 1000 } });
+    await login(context, base);
+    const page = await context.newPage();
     page.on('pageerror', (e) => errors.push(`${page.url()}: ${e}`));
     await page.goto(`${base}/results`);
     check(await page.locator('#main-table tbody tr').count() > 0, 'the main table has rows');

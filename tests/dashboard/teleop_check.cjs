@@ -3,7 +3,7 @@
 // change, the control step advances, the latency and achieved-rate labels fill in, saves the demonstration and
 // reads the verdict, then opens the Demos page (the bundle is listed, its video loads) and exports it to LeRobot.
 // Prints one JSON line {"ok":true, "bundle":"T14/ep-…", ...}. Screenshots go to ARTIFACTS.
-const { launch, say, shotter, check, text } = require('./common.cjs');
+const { launch, say, shotter, check, text, login } = require('./common.cjs');
 
 const [base, task, artifacts] = process.argv.slice(2);
 const shot = shotter(artifacts);
@@ -18,6 +18,7 @@ async function hold(page, key, ms) {
 async function main() {
   const browser = await launch();
   const context = await browser.newContext({ viewport: { width: 1500, height: 1100 } });
+  await login(context, base);
   const report = {};
   const errors = [];
   try {

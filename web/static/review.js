@@ -232,8 +232,18 @@ requestAnimationFrame(animate);
 // ---- load
 
 async function load() {
-  const resp = await fetch(`/api/episodes/${encodeURIComponent(id)}/review`);
-  data = await resp.json();
+  const api = `/api/episodes/${encodeURIComponent(id)}/review`;
+  data = await (await fetch(api)).json();
+  // Long episodes come in pages: follow each part's cursor to its end.
+  for (const part of ['calls', 'telemetry']) {
+    let next = data[`${part}_next`];
+    while (next) {
+      const q = new URLSearchParams({ part, from: next.from, control_step: next.control_step ?? 0 });
+      const page = await (await fetch(`${api}?${q}`)).json();
+      data[part].push(...page[part]);
+      next = page[`${part}_next`];
+    }
+  }
   fps = data.video_fps || 20;
   byFrame = new Map(data.telemetry.filter((r) => r.video_frame != null).map((r) => [r.video_frame, r]));
   for (const c of data.calls) {

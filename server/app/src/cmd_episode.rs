@@ -1,14 +1,11 @@
 //! `libero-agent episode prepare`: asks a running server to prepare an episode and prints its JSON
 //! (episode_id, mcp_url, mcp_headers, workspace, prompt_file, …).
 use std::path::PathBuf;
-use std::time::Duration;
-
-use anyhow::{Context, bail};
 
 use libero_episode::demo::DemoCondition;
 
 use crate::serve::episodes::PrepareRequest;
-use crate::serve::http_client::{HttpUrl, request};
+use crate::serve::client::prepare_episode;
 
 #[derive(clap::Args, Debug)]
 pub struct EpisodeArgs {
@@ -54,7 +51,7 @@ pub struct PrepareArgs {
     /// Batch the episode belongs to.
     #[arg(long)]
     pub batch: Option<String>,
-    /// File holding the server's operator token (needed when the server listens beyond loopback).
+    /// File holding the server's operator token (default: the token the server registered for this user).
     #[arg(long)]
     pub operator_token_file: Option<PathBuf>,
     /// Demonstration at `benchmark_inputs/expert_demo/`: none, video (§7.4 video_only) or video+traj (video plus
@@ -98,25 +95,10 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         batch: p.batch,
         demo: p.demo,
     };
-    let base = p.server.trim_end_matches('/');
-    let url = HttpUrl::parse(&format!("{base}/api/episodes"))?;
-    let body = serde_json::to_vec(&req)?;
-    let mut headers = vec![("Content-Type".to_owned(), "application/json".to_owned())];
     if let Some(file) = &p.operator_token_file {
-        let token = std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
-        headers.push(("Authorization".to_owned(), format!("Bearer {}", token.trim())));
+        crate::serve::credential::use_token_file(file);
     }
-    let resp = request("POST", &url, &headers, &body, Duration::from_secs(300))
-        .with_context(|| format!("is `libero-agent serve` running at {base}?"))?;
-    let text = String::from_utf8_lossy(&resp.body);
-    if resp.status != 201 {
-        let msg = serde_json::from_str::<serde_json::Value>(&text)
-            .ok()
-            .and_then(|v| v["error"].as_str().map(str::to_owned))
-            .unwrap_or_else(|| text.into_owned());
-        bail!("the server refused to prepare the episode (HTTP {}): {msg}", resp.status);
-    }
-    let v: serde_json::Value = serde_json::from_str(&text).context("server sent invalid JSON")?;
-    println!("{}", serde_json::to_string_pretty(&v)?);
+    let prepared = prepare_episode(&p.server, &req)?;
+    println!("{}", serde_json::to_string_pretty(&prepared)?);
     Ok(())
 }

@@ -13,9 +13,13 @@ pub struct McpStdioArgs {
     /// The episode's MCP endpoint (`mcp_url` from `episode prepare`).
     #[arg(long)]
     pub url: String,
-    /// Extra header, e.g. `Authorization: Bearer <token>`; repeatable.
+    /// Extra header, e.g. `X-Trace: 1`; repeatable. Secrets belong in `--bearer-env`, not on a command line
+    /// that every process of the machine can read.
     #[arg(long = "header", value_name = "K:V")]
     pub headers: Vec<String>,
+    /// Environment variable holding the episode token, sent as `Authorization: Bearer <token>`.
+    #[arg(long = "bearer-env", value_name = "VAR")]
+    pub bearer_env: Option<String>,
 }
 
 /// JSON-RPC messages of one HTTP reply: a JSON body, or the `data:` events of an SSE stream.
@@ -45,6 +49,10 @@ pub fn run_mcp_stdio(args: McpStdioArgs) -> anyhow::Result<()> {
     for h in &args.headers {
         let (k, v) = h.split_once(':').with_context(|| format!("--header must be K:V, got {h:?}"))?;
         headers.push((k.trim().to_owned(), v.trim().to_owned()));
+    }
+    if let Some(var) = &args.bearer_env {
+        let token = std::env::var(var).with_context(|| format!("--bearer-env {var}: the variable is not set"))?;
+        headers.push(("Authorization".into(), format!("Bearer {}", token.trim())));
     }
     let mut session: Option<String> = None;
     let mut protocol: Option<String> = None;

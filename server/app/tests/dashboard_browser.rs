@@ -52,6 +52,8 @@ struct Server {
     child: Child,
     url: String,
     port: u16,
+    /// The operator token `serve` keeps in `<data>/operator_token`.
+    token: String,
 }
 
 impl Server {
@@ -70,7 +72,13 @@ impl Server {
         let url = v["url"].as_str().expect("url").to_owned();
         let port = url.rsplit(':').next().and_then(|p| p.parse().ok()).expect("port");
         let stderr = child.stderr.take();
-        (Self { child, url, port }, stderr)
+        let token = std::fs::read_to_string(data.join("operator_token")).expect("serve keeps its operator token").trim().to_owned();
+        (Self { child, url, port, token }, stderr)
+    }
+
+    /// `Authorization: Bearer <operator token>`.
+    fn op(&self) -> String {
+        format!("Bearer {}", self.token)
     }
 
     /// Loopback URL of the server (it may listen on 0.0.0.0).
@@ -195,7 +203,8 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
     let tmp = tempfile::tempdir().unwrap();
     let (server, _stderr) = Server::start(&tmp.path().join("data"), "127.0.0.1:0", &[]);
     let ws = tmp.path().join("ws");
-    let prepared = prepare(&server.url, &[], &ws);
+    let op = server.op();
+    let prepared = prepare(&server.url, &[("Authorization", &op)], &ws);
     let episode = prepared["episode_id"].as_str().unwrap().to_owned();
     let artifacts = artifacts_dir();
 
@@ -207,6 +216,7 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
         .arg(first_unimplemented_task())
         .env("NODE_PATH", &node_modules)
         .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .env("LIBERO_OPERATOR_TOKEN", &server.token)
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
@@ -245,11 +255,11 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
 
     // The private video answers range requests (the browser's seeking relies on them).
     let video = format!("{}/episodes/{episode}/video.mp4", server.url);
-    let (status, head, body) = http("GET", &video, &[("Range", "bytes=0-99")], b"");
+    let (status, head, body) = http("GET", &video, &[("Range", "bytes=0-99"), ("Authorization", &op)], b"");
     assert_eq!((status, body.len()), (206, 100), "{head}");
     assert!(head.to_ascii_lowercase().contains("content-range: bytes 0-99/"), "{head}");
     // Telemetry was recorded per control step: 80 accepted actions after step 0.
-    let (status, _, body) = http("GET", &format!("{}/api/episodes/{episode}/review", server.url), &[], b"");
+    let (status, _, body) = http("GET", &format!("{}/api/episodes/{episode}/review", server.url), &[("Authorization", &op)], b"");
     assert_eq!(status, 200);
     let review: Value = serde_json::from_slice(&body).unwrap();
     let telemetry = review["telemetry"].as_array().unwrap();
@@ -258,10 +268,10 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
     assert_eq!(review["calls"].as_array().unwrap().len(), 7, "start, 4 sequences, 1 rejected, finish");
     // No path tricks into the run directory.
     for bad in ["..%2Fresult.json", "obs_000001/..%2F..%2Fresult.json", "%2Fetc%2Fpasswd"] {
-        let (status, _, _) = http("GET", &format!("{}/episodes/{episode}/observations/{bad}", server.url), &[], b"");
+        let (status, _, _) = http("GET", &format!("{}/episodes/{episode}/observations/{bad}", server.url), &[("Authorization", &op)], b"");
         assert_eq!(status, 404, "{bad}");
     }
-    let (status, _, _) = http("GET", &format!("{}/episodes/{episode}/observations/obs_000001/head/rgb.png", server.url), &[], b"");
+    let (status, _, _) = http("GET", &format!("{}/episodes/{episode}/observations/obs_000001/head/rgb.png", server.url), &[("Authorization", &op)], b"");
     assert_eq!(status, 200);
     // The agent's workspace holds nothing of the live view or the private records.
     let files = files_under(&ws);
@@ -272,7 +282,7 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
     let upgrade = [("Connection", "Upgrade"), ("Upgrade", "websocket"), ("Sec-WebSocket-Version", "13"),
         ("Sec-WebSocket-Key", "dGhlIHNhbXBsZSBub25jZQ==")];
     let local_origin = format!("http://127.0.0.1:{}", server.port);
-    let (status, _, _) = http("GET", &format!("{}/ws/episodes", server.url), &[&upgrade[..], &[("Origin", local_origin.as_str())]].concat(), b"");
+    let (status, _, _) = http("GET", &format!("{}/ws/episodes", server.url), &[&upgrade[..], &[("Origin", local_origin.as_str()), ("Authorization", op.as_str())]].concat(), b"");
     assert_eq!(status, 101, "the dashboard's own pages connect");
     let (status, _, _) = http("GET", &format!("{}/ws/episodes", server.url), &[&upgrade[..], &[("Origin", "http://evil.example")]].concat(), b"");
     assert_eq!(status, 403, "cross-site WebSocket refused");
@@ -282,7 +292,8 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
     // Pages never show the agent's token.
     let token = agent_token(&prepared);
     for page in ["/", &format!("/episodes/{episode}/review"), &format!("/api/episodes/{episode}/review"), "/api/episodes"] {
-        let (_, _, body) = http("GET", &format!("{}{page}", server.url), &[], b"");
+        let (status, _, body) = http("GET", &format!("{}{page}", server.url), &[("Authorization", &op)], b"");
+        assert_eq!(status, 200, "{page}");
         assert!(!String::from_utf8_lossy(&body).contains(&token), "{page} shows the agent token");
     }
 }
@@ -304,6 +315,7 @@ fn chromium_teleoperates_t14_and_saves_a_bundle_that_validates() {
         .arg(&artifacts)
         .env("NODE_PATH", &node_modules)
         .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .env("LIBERO_OPERATOR_TOKEN", &server.token)
         .stderr(Stdio::inherit())
         .output()
         .expect("run node");
@@ -327,78 +339,132 @@ fn chromium_teleoperates_t14_and_saves_a_bundle_that_validates() {
     let (status, _, _) = http("POST", &delete, &[("Origin", "http://evil.example")], b"");
     assert_eq!(status, 403, "cross-site delete refused");
     assert!(dir.is_dir());
-    let (status, _, _) = http("POST", &format!("{}/api/demos/T14/..%2F..%2Fruns/delete", server.url), &[], b"");
+    let op = server.op();
+    let (status, _, _) = http("POST", &format!("{}/api/demos/T14/..%2F..%2Fruns/delete", server.url), &[("Authorization", &op)], b"");
     assert_eq!(status, 404, "no path tricks");
-    let (status, _, body) = http("POST", &delete, &[], b"");
+    let (status, _, _) = http("POST", &delete, &[], b"");
+    assert_eq!(status, 401, "deleting needs the operator credential");
+    let (status, _, body) = http("POST", &delete, &[("Authorization", &op)], b"");
     assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
     assert!(!dir.exists(), "deleted");
 }
 
+/// Issue 17: on loopback too, every page, API and stream needs the operator credential; the login link `serve`
+/// prints opens a browser session (a random id, not the token); a foreign `Host` is refused before any handler;
+/// a second server on the same data directory refuses to start.
 #[test]
-fn beyond_loopback_the_dashboard_needs_the_operator_token_and_agent_tokens_never_open_it() {
+fn on_loopback_every_route_needs_the_operator_credential_and_the_login_link_opens_a_session() {
     let tmp = tempfile::tempdir().unwrap();
-    // Generated and printed once to stderr when bound beyond loopback without a token file.
-    let (server, stderr) = Server::start(&tmp.path().join("gen"), "0.0.0.0:0", &[]);
+    let data = tmp.path().join("gen");
+    let (server, stderr) = Server::start(&data, "127.0.0.1:0", &[]);
     let (tx, rx) = mpsc::channel();
     let mut stderr = BufReader::new(stderr.expect("stderr"));
     std::thread::spawn(move || {
-        let mut text = String::new();
-        while stderr.read_line(&mut text).is_ok_and(|n| n > 0) {
-            if text.contains("operator token") && text.lines().count() >= 2 {
-                let _ = tx.send(text.clone());
+        let mut line = String::new();
+        while stderr.read_line(&mut line).is_ok_and(|n| n > 0) {
+            if line.contains("?token=") {
+                let _ = tx.send(line.trim().to_owned());
             }
+            line.clear();
         }
     });
-    let announced = rx.recv_timeout(Duration::from_secs(20)).expect("the generated token on stderr");
-    let generated = announced.lines().nth(1).expect("token line").trim().to_owned();
-    assert!(generated.len() >= 32, "{announced}");
-    let base = server.local();
-    let (status, head, _) = http("GET", &format!("{base}/"), &[], b"");
-    assert_eq!(status, 303, "pages redirect to the login form: {head}");
-    assert!(head.contains("location: /login") || head.contains("Location: /login"), "{head}");
-    let bearer = format!("Bearer {generated}");
-    let (status, _, _) = http("GET", &format!("{base}/api/episodes"), &[("Authorization", &bearer)], b"");
-    assert_eq!(status, 200);
-    drop(server);
-
-    // With a token file: cookie login, bearer, and an agent token that opens nothing but its MCP endpoint.
-    let token = "0123456789abcdef-operator-secret";
-    let file = tmp.path().join("operator.token");
-    std::fs::write(&file, format!("{token}\n")).unwrap();
-    let (server, _stderr) = Server::start(&tmp.path().join("file"), "0.0.0.0:0", &["--operator-token-file", file.to_str().unwrap()]);
-    let base = server.local();
-    let (status, _, _) = http("GET", &format!("{base}/api/health"), &[], b"");
-    assert_eq!(status, 200, "health stays open");
-    let (status, _, body) = http("GET", &format!("{base}/login"), &[], b"");
-    assert_eq!(status, 200);
-    assert!(String::from_utf8_lossy(&body).contains("Operator token"));
-    let bearer = format!("Bearer {token}");
-    let prepared = prepare(&base, &[("Authorization", &bearer)], &tmp.path().join("ws"));
+    let link = rx.recv_timeout(Duration::from_secs(20)).expect("the login link on stderr");
+    assert_eq!(link, format!("{}/?token={}", server.url, server.token), "the link holds the generated token");
+    assert!(server.token.len() >= 32);
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(data.join("operator_token")).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o600, "the token file is private");
+    let base = server.url.clone();
+    let prepared = prepare(&base, &[("Authorization", &server.op())], &tmp.path().join("ws"));
+    let episode = prepared["episode_id"].as_str().unwrap().to_owned();
     let agent = format!("Bearer {}", agent_token(&prepared));
-    let episode = prepared["episode_id"].as_str().unwrap();
-    for path in ["/api/episodes", "/", "/tasks", &format!("/episodes/{episode}/review"), &format!("/api/episodes/{episode}/review")] {
-        let (status, _, _) = http("GET", &format!("{base}{path}"), &[("Authorization", &agent)], b"");
-        assert!(status == 401 || status == 303, "the agent token opened {path}: {status}");
-        let (status, _, _) = http("GET", &format!("{base}{path}"), &[("Authorization", &bearer)], b"");
-        assert_eq!(status, 200, "the operator token opens {path}");
+    let pages = ["/", "/tasks", "/results", "/demos", &format!("/episodes/{episode}"), &format!("/episodes/{episode}/review"), "/teleop/T14"];
+    let apis = ["/api/episodes", &format!("/api/episodes/{episode}"), &format!("/api/episodes/{episode}/review"), "/api/results", "/api/tasks",
+        "/api/demos", &format!("/episodes/{episode}/video.mp4"), &format!("/episodes/{episode}/observations/obs_000000/observation.json"),
+        "/tasks/T14/thumbnail.png", "/ws/episodes", &format!("/ws/episodes/{episode}")];
+    for path in pages.iter().chain(apis.iter()) {
+        for auth in [None, Some(agent.as_str())] {
+            let headers: Vec<(&str, &str)> = auth.map(|a| vec![("Authorization", a)]).unwrap_or_default();
+            let (status, head, _) = http("GET", &format!("{base}{path}"), &headers, b"");
+            let refused = status == 401 || (status == 303 && head.to_ascii_lowercase().contains("location: /login"));
+            assert!(refused, "{path} with {auth:?} answered {status}: {head}");
+        }
     }
-    let (status, _, _) =
-        http("POST", &format!("{base}/api/episodes"), &[("Authorization", &agent), ("Content-Type", "application/json")], b"{}");
-    assert_eq!(status, 401, "agents cannot prepare episodes");
-    let (status, _, _) = http("POST", &format!("{base}/login"), &[("Content-Type", "application/x-www-form-urlencoded")], format!("token={}", agent_token(&prepared)).as_bytes());
-    assert_eq!(status, 401, "the agent token is no login");
-    let (status, head, _) =
-        http("POST", &format!("{base}/login"), &[("Content-Type", "application/x-www-form-urlencoded")], format!("token={token}").as_bytes());
+    for (path, body) in [("/api/episodes", r#"{"task":"T14"}"#.to_owned()), (&format!("/api/episodes/{episode}/abort"), r#"{"reason":"x"}"#.to_owned()),
+        ("/api/teleop", r#"{"task":"T14"}"#.to_owned())] {
+        let (status, _, _) = http("POST", &format!("{base}{path}"), &[("Authorization", &agent), ("Content-Type", "application/json")], body.as_bytes());
+        assert_eq!(status, 401, "POST {path} with the agent token");
+    }
+    // The login link: a session cookie that is not the token, and a redirect without the token.
+    let (status, head, _) = http("GET", &format!("{base}/tasks?token={}", server.token), &[], b"");
     assert_eq!(status, 303, "{head}");
+    assert!(head.lines().any(|l| l.trim().eq_ignore_ascii_case("location: /tasks")), "{head}");
     let cookie_line = head.lines().find(|l| l.to_ascii_lowercase().starts_with("set-cookie:")).expect("a cookie");
-    assert!(cookie_line.contains("HttpOnly") && cookie_line.contains("SameSite=Strict"), "{cookie_line}");
+    assert!(cookie_line.contains("HttpOnly") && cookie_line.contains("SameSite=Strict") && !cookie_line.contains(&server.token), "{cookie_line}");
     let cookie = cookie_line.split_once(':').unwrap().1.split(';').next().unwrap().trim().to_owned();
     let (status, _, body) = http("GET", &format!("{base}/"), &[("Cookie", &cookie)], b"");
     assert_eq!(status, 200);
-    assert!(String::from_utf8_lossy(&body).contains(episode), "the home page lists the episode");
-    assert!(!String::from_utf8_lossy(&body).contains(&agent_token(&prepared)), "no agent token on pages");
-    let (status, _, _) = http("GET", &format!("{base}/ws/episodes"), &[("Authorization", &agent)], b"");
-    assert_eq!(status, 401, "live streams are guarded too");
+    assert!(String::from_utf8_lossy(&body).contains(&episode), "the home page lists the episode");
+    let (status, _, _) = http("GET", &format!("{base}/?token={}", agent_token(&prepared)), &[], b"");
+    assert_eq!(status, 401, "the agent token is no login link");
+    let forged = format!("libero_session={}", server.token);
+    let (status, _, _) = http("GET", &format!("{base}/api/episodes"), &[("Cookie", &forged)], b"");
+    assert_eq!(status, 401, "the token itself is no session id");
+    // Host allow-list, before any handler: DNS rebinding names and foreign hosts get 421.
+    let port = server.port;
+    for host in ["evil.example", &format!("evil.example:{port}"), &format!("127.0.0.1.nip.io:{port}"), &format!("127.0.0.1:{}", port.wrapping_add(1))] {
+        for path in ["/api/health", "/", &format!("/mcp/{episode}")] {
+            let (status, _, _) = http_host("GET", &format!("{base}{path}"), host, &[("Authorization", &server.op())]);
+            assert_eq!(status, 421, "Host {host} {path}");
+        }
+    }
+    let (status, _, _) = http_host("GET", &format!("{base}/api/health"), &format!("localhost:{port}"), &[]);
+    assert_eq!(status, 200, "loopback names of the bound port are allowed");
+    // A second server on the same data directory refuses instead of marking this one's episodes aborted.
+    let second = Command::new(bin()).args(["serve", "--addr", "127.0.0.1:0", "--data"]).arg(&data).output().expect("second serve");
+    assert!(!second.status.success());
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert!(err.contains("another libero-agent server") && err.contains(&server.child.id().to_string()), "{err}");
+    let (status, _, body) = http("GET", &format!("{base}/api/episodes/{episode}"), &[("Authorization", &server.op())], b"");
+    assert_eq!(status, 200);
+    let row: Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(row["state"], "prepared", "the first server's episode is untouched: {row}");
+    drop(server);
+
+    // A token file and a public host name beyond loopback.
+    let token = "0123456789abcdef-operator-secret";
+    let file = tmp.path().join("operator.token");
+    std::fs::write(&file, format!("{token}\n")).unwrap();
+    let (server, _stderr) =
+        Server::start(&tmp.path().join("file"), "0.0.0.0:0", &["--operator-token-file", file.to_str().unwrap(), "--public-host", "bench.lab"]);
+    assert_eq!(server.token, token);
+    let base = server.local();
+    let (status, _, _) = http("GET", &format!("{base}/api/health"), &[], b"");
+    assert_eq!(status, 200, "health stays open");
+    let (status, _, _) = http_host("GET", &format!("{base}/api/episodes"), &format!("bench.lab:{}", server.port), &[("Authorization", &server.op())]);
+    assert_eq!(status, 200, "the public host name is allowed");
+    let (status, _, _) =
+        http("POST", &format!("{base}/login"), &[("Content-Type", "application/x-www-form-urlencoded")], format!("token={token}").as_bytes());
+    assert_eq!(status, 303, "the login form opens a session too");
+}
+
+/// As [`http`] with another `Host` header (what a DNS-rebinding page's requests carry).
+fn http_host(method: &str, url: &str, host: &str, headers: &[(&str, &str)]) -> (u16, String, Vec<u8>) {
+    let rest = url.strip_prefix("http://").expect("http url");
+    let (addr, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
+    let mut stream = std::net::TcpStream::connect(addr).expect("connect");
+    stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+    let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\nContent-Length: 0\r\n");
+    for (k, v) in headers {
+        head.push_str(&format!("{k}: {v}\r\n"));
+    }
+    head.push_str("\r\n");
+    stream.write_all(head.as_bytes()).unwrap();
+    let mut raw = Vec::new();
+    stream.read_to_end(&mut raw).unwrap();
+    let text = String::from_utf8_lossy(&raw).into_owned();
+    let status = text.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("status");
+    (status, text, Vec::new())
 }
 
 /// A task the catalog lists as not implemented (the tasks page must say so), from `tasks list --json`; `-` when

@@ -142,6 +142,7 @@ fn chromium_clicks_a_results_cell_through_to_the_review() {
         .arg(&artifacts)
         .env("NODE_PATH", &node_modules)
         .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .env("LIBERO_OPERATOR_TOKEN", &server.token)
         .output()
         .expect("run node (Debian: apt-get install nodejs)");
     let stdout = String::from_utf8_lossy(&out.stdout);

@@ -132,6 +132,29 @@ impl EpisodeHandle {
             let _ = rx.recv();
         }
     }
+
+    /// Asks the episode to end as [`EpisodeHandle::stop`] does, without waiting: what a shutdown sends to every
+    /// episode at once before waiting for all of them against one deadline.
+    pub fn request_stop(&self, reason: &str) -> PendingStop {
+        let (done, rx) = mpsc::channel();
+        let sent = self.tx.send(Command::Stop { reason: reason.to_owned(), done }).is_ok();
+        PendingStop { rx: sent.then_some(rx) }
+    }
+}
+
+/// A stop that was asked for; the episode thread answers once its records are written.
+pub struct PendingStop {
+    rx: Option<mpsc::Receiver<()>>,
+}
+
+impl PendingStop {
+    /// True once the episode ended (or its thread is gone); false if it did not answer by `deadline` (stuck).
+    pub fn wait_until(&self, deadline: Instant) -> bool {
+        match &self.rx {
+            None => true,
+            Some(rx) => !matches!(rx.recv_timeout(deadline.saturating_duration_since(Instant::now())), Err(RecvTimeoutError::Timeout)),
+        }
+    }
 }
 
 /// The phase without its data, for matching while `self` is borrowed mutably.

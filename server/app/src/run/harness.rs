@@ -72,7 +72,7 @@ impl Harness {
     /// The stdout file name in the rollout directory (JSON lines where the CLI streams JSON).
     pub fn stdout_file(self) -> String {
         let ext = match self {
-            Harness::ClaudeCode | Harness::KimiCode | Harness::QwenCode => "jsonl",
+            Harness::ClaudeCode | Harness::KimiCode | Harness::QwenCode | Harness::Codex => "jsonl",
             _ => "log",
         };
         format!("{}_stdout.{ext}", self.as_str())
@@ -258,7 +258,8 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             } else {
                 a.extend([s("--sandbox"), s("workspace-write"), s("--config"), s("approval_policy=\"never\"")]);
             }
-            a.extend([s("--skip-git-repo-check"), s("--color"), s("never"), s("--model"), s(ctx.model)]);
+            // `--json`: events (token counts included) on stdout, which the runner captures out of the agent's reach.
+            a.extend([s("--skip-git-repo-check"), s("--color"), s("never"), s("--json"), s("--model"), s(ctx.model)]);
             a.extend([s("--config"), format!("model_reasoning_effort=\"{}\"", ctx.effort)]);
             if let Some(b) = c.openai_base() {
                 a.extend([s("--config"), format!("openai_base_url=\"{b}\"")]);
@@ -343,7 +344,7 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             }
             let base = c.openai_base().context("the DeepSeek harness needs an API base URL (APIURL=…)")?;
             let relay = [
-                s("mcp-stdio"), s("--url"), s(ctx.mcp_url), s("--header"), format!("Authorization: Bearer {}", ctx.mcp_token),
+                s("mcp-stdio"), s("--url"), s(ctx.mcp_url), s("--bearer-env"), s("LIBERO_MCP_TOKEN"),
             ];
             let patch = format!(
                 "- plugin: llm-deepseek\n  config:\n    apiKeyEnv: DEEPSEEK_API_KEY\n    baseURL: {base}\n    thinking: enabled\n    \

@@ -4,7 +4,7 @@
 use std::fs;
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::process::CommandExt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
@@ -117,38 +117,29 @@ fn kill_group(child: &mut Child) {
 }
 
 /// Session files the harness wrote under its home (JSON lines), for token accounting.
-fn jsonl_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(rd) = fs::read_dir(dir) else { return };
-    for e in rd.flatten() {
-        let p = e.path();
-        if p.is_dir() && !p.ends_with("node_modules") && !p.ends_with("_npx") {
-            jsonl_files(&p, out);
-        } else if p.extension().is_some_and(|x| x == "jsonl") {
-            out.push(p);
-        }
-    }
-}
+/// Most bytes of a harness's stdout read for token usage.
+const MAX_USAGE_LOG_BYTES: u64 = 256 << 20;
 
-fn usage_of(harness: Harness, stdout: &Path, home: &Path, workspace: &Path) -> Usage {
-    let mut files = Vec::new();
-    jsonl_files(home, &mut files);
-    match harness {
-        Harness::Codex => {
-            let texts: Vec<String> = files.iter().filter_map(|f| fs::read_to_string(f).ok()).collect();
-            usage_from_codex_session(texts.iter().map(String::as_str))
-        }
-        Harness::Command => Usage::default(),
-        _ => {
-            if harness == Harness::Deepseek {
-                jsonl_files(workspace, &mut files);
-            }
-            if stdout.extension().is_some_and(|x| x == "jsonl") {
-                files.push(stdout.to_path_buf());
-            }
-            let texts: Vec<String> = files.iter().filter_map(|f| fs::read_to_string(f).ok()).collect();
-            usage_from_jsonl(texts.iter().map(String::as_str))
+/// Token usage from what the harness itself printed on stdout, which the runner captures into the rollout
+/// directory outside the sandbox: the one channel the agent cannot write to. Session logs in the agent's home or
+/// workspace are never read (the agent could forge them, or plant links and FIFOs there). Codex prints its
+/// events on stdout with `--json`: the last `token_count` total if present, else its per-turn `usage` records.
+fn usage_of(harness: Harness, stdout: &Path) -> Usage {
+    if harness == Harness::Command {
+        return Usage::default();
+    }
+    let mut text = String::new();
+    if let Ok(f) = fs::File::open(stdout) {
+        use std::io::Read;
+        let _ = f.take(MAX_USAGE_LOG_BYTES).read_to_string(&mut text);
+    }
+    if harness == Harness::Codex {
+        let totals = usage_from_codex_session([text.as_str()]);
+        if totals.available {
+            return totals;
         }
     }
+    usage_from_jsonl([text.as_str()])
 }
 
 /// Runs one rollout to its record.
@@ -324,7 +315,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     rec.infrastructure_error = infra;
     rec.harness_elapsed_s = Some(elapsed_s);
     rec.agent_exit_code = exit_code;
-    rec.usage = Some(usage_of(ctx.harness, &stdout_path, &home, &prepared.workspace));
+    rec.usage = Some(usage_of(ctx.harness, &stdout_path));
     // Scrub what the agent printed: the API key, sk-… keys, bearer tokens (ours included).
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
     for p in [&stdout_path, &stderr_path] {

@@ -35,7 +35,7 @@ fn int(m: &Map<String, Value>, keys: &[&str]) -> Option<u64> {
 }
 
 fn record_of(u: &Map<String, Value>) -> Option<Record> {
-    let cache_read = int(u, &["cache_read_input_tokens", "cache_read_tokens", "cached_tokens", "cacheReadInputTokens", "inputCacheRead"]);
+    let cache_read = int(u, &["cache_read_input_tokens", "cache_read_tokens", "cached_tokens", "cached_input_tokens", "cacheReadInputTokens", "inputCacheRead"]);
     let mut input = int(u, &["input_tokens", "prompt_tokens", "inputTokens"]);
     if input.is_none() {
         // Kimi: `inputOther` excludes the cached part.

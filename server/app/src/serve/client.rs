@@ -10,7 +10,7 @@ use serde_json::{Value, json};
 
 use super::episodes::{PrepareRequest, Prepared};
 use super::http_client::{HttpUrl, request};
-use super::{ServeArgs, serve_until};
+use super::{ServeArgs, credential, start};
 use crate::cmd_mcp_stdio::messages_of;
 
 /// Per-request timeout (a debug build under load can take seconds per call; a call never outlives an episode).
@@ -95,12 +95,25 @@ impl McpClient {
     }
 }
 
+/// `request` to the operator API at `base` with the operator credential this user can find; a 401 says how
+/// to pass one.
+fn operator_request(method: &str, base: &str, path: &str, body: &[u8], timeout: Duration) -> anyhow::Result<super::http_client::HttpResponse> {
+    let base = base.trim_end_matches('/');
+    let url = HttpUrl::parse(&format!("{base}{path}"))?;
+    let mut headers = credential::operator_headers(base)?;
+    if !body.is_empty() {
+        headers.push(("Content-Type".to_owned(), "application/json".to_owned()));
+    }
+    let resp = request(method, &url, &headers, body, timeout).with_context(|| format!("is `libero-agent serve` running at {base}?"))?;
+    if resp.status == 401 {
+        bail!("{}", credential::missing_token_hint(base));
+    }
+    Ok(resp)
+}
+
 /// Prepares one episode on the server at `base` (`POST /api/episodes`).
 pub fn prepare_episode(base: &str, req: &PrepareRequest) -> anyhow::Result<Prepared> {
-    let url = HttpUrl::parse(&format!("{}/api/episodes", base.trim_end_matches('/')))?;
-    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
-    let resp = request("POST", &url, &headers, &serde_json::to_vec(req)?, CALL_TIMEOUT)
-        .with_context(|| format!("is `libero-agent serve` running at {base}?"))?;
+    let resp = operator_request("POST", base, "/api/episodes", &serde_json::to_vec(req)?, CALL_TIMEOUT)?;
     let v: Value = serde_json::from_slice(&resp.body).context("prepare reply is not JSON")?;
     if resp.status != 201 {
         let msg = v["error"].as_str().map(str::to_owned).unwrap_or_else(|| v.to_string());
@@ -109,18 +122,15 @@ pub fn prepare_episode(base: &str, req: &PrepareRequest) -> anyhow::Result<Prepa
     serde_json::from_value(v).context("prepare reply does not describe an episode")
 }
 
-/// `GET <base><path>` as JSON (status, body).
+/// `GET <base><path>` of the operator API as JSON (status, body).
 pub fn get_json(base: &str, path: &str) -> anyhow::Result<(u16, Value)> {
-    let url = HttpUrl::parse(&format!("{}{path}", base.trim_end_matches('/')))?;
-    let resp = request("GET", &url, &[], b"", Duration::from_secs(30))?;
+    let resp = operator_request("GET", base, path, b"", Duration::from_secs(30))?;
     Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
 }
 
-/// `POST <base><path>` with a JSON body (status, body).
+/// `POST <base><path>` of the operator API with a JSON body (status, body).
 pub fn post_json(base: &str, path: &str, body: &Value) -> anyhow::Result<(u16, Value)> {
-    let url = HttpUrl::parse(&format!("{}{path}", base.trim_end_matches('/')))?;
-    let headers = [("Content-Type".to_owned(), "application/json".to_owned())];
-    let resp = request("POST", &url, &headers, body.to_string().as_bytes(), CALL_TIMEOUT)?;
+    let resp = operator_request("POST", base, path, body.to_string().as_bytes(), CALL_TIMEOUT)?;
     Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
 }
 
@@ -133,26 +143,39 @@ pub struct InProcessServer {
 }
 
 impl InProcessServer {
+    /// Starts the server on a free loopback port with a fresh operator token of its own, known to this
+    /// process's client calls and to no agent (it is in no environment and on no command line).
     pub fn start(data: PathBuf, stop_reason: &str) -> anyhow::Result<Self> {
-        let (url_tx, url_rx) = mpsc::channel::<String>();
+        let (url_tx, url_rx) = mpsc::channel::<anyhow::Result<String>>();
         let (stop_tx, stop_rx) = mpsc::channel::<()>();
         let stop_reason = stop_reason.to_owned();
         let thread = std::thread::spawn(move || -> anyhow::Result<()> {
             let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-            runtime.block_on(async move {
-                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data), operator_token_file: None, batches: vec![] };
+            let result = runtime.block_on(async move {
+                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data), operator_token_file: None, public_hosts: vec![], batches: vec![] };
+                let bound = match start(&args).await {
+                    Ok(b) => b,
+                    Err(e) => {
+                        let _ = url_tx.send(Err(anyhow::anyhow!("{e:#}")));
+                        return Err(e);
+                    }
+                };
+                credential::remember_in_process(bound.url(), bound.operator_token());
                 let stop = async move {
                     let _ = tokio::task::spawn_blocking(move || stop_rx.recv()).await;
                     stop_reason
                 };
                 let listening = move |v: Value| {
-                    let _ = url_tx.send(v["url"].as_str().unwrap_or_default().to_owned());
+                    let _ = url_tx.send(Ok(v["url"].as_str().unwrap_or_default().to_owned()));
                 };
-                serve_until(args, listening, stop).await
-            })
+                bound.serve(listening, stop).await
+            });
+            runtime.shutdown_timeout(Duration::from_secs(1));
+            result
         });
         match url_rx.recv() {
-            Ok(url) if !url.is_empty() => Ok(Self { url, stop: Some(stop_tx), thread: Some(thread) }),
+            Ok(Ok(url)) if !url.is_empty() => Ok(Self { url, stop: Some(stop_tx), thread: Some(thread) }),
+            Ok(Err(e)) => Err(e.context("the server did not start")),
             _ => match thread.join() {
                 Ok(Err(e)) => Err(e.context("the server did not start")),
                 _ => bail!("the server did not start"),
@@ -166,6 +189,7 @@ impl InProcessServer {
     }
 
     fn shutdown(&mut self) -> anyhow::Result<()> {
+        credential::forget_in_process(&self.url);
         if let Some(s) = self.stop.take() {
             let _ = s.send(());
         }

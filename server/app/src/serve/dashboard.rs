@@ -413,16 +413,33 @@ async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Res
 }
 
 fn read_jsonl(path: &FsPath) -> Vec<Value> {
-    std::fs::read_to_string(path)
-        .map(|t| t.lines().filter_map(|l| serde_json::from_str(l).ok()).collect())
-        .unwrap_or_default()
+    read_jsonl_page(path, 0, usize::MAX).0
+}
+
+/// Lines `from..from + limit` of a JSON-lines file, read as a stream (a long episode's file is never held
+/// whole), and the index of the next line if the file goes on.
+fn read_jsonl_page(path: &FsPath, from: u64, limit: usize) -> (Vec<Value>, Option<u64>) {
+    use std::io::BufRead;
+    let Ok(file) = std::fs::File::open(path) else { return (Vec::new(), None) };
+    let mut out = Vec::new();
+    let mut lines = std::io::BufReader::new(file).lines().skip(usize::try_from(from).unwrap_or(usize::MAX));
+    for line in lines.by_ref() {
+        let Ok(line) = line else { break };
+        if let Ok(v) = serde_json::from_str(&line) {
+            out.push(v);
+        }
+        if out.len() >= limit {
+            let more = lines.next().is_some();
+            return (out, more.then_some(from + limit as u64));
+        }
+    }
+    (out, None)
 }
 
 /// The calls of `actions.jsonl`, each with the control steps it covered (start = step 0; an accepted
-/// `osc_sequence` of n actions advances n steps).
-fn timeline_calls(actions: &[Value]) -> Vec<Value> {
-    let mut control_step = 0u64;
-    actions
+/// `osc_sequence` of n actions advances n steps), counting on from `control_step` (where the previous page ended).
+fn timeline_calls(actions: &[Value], mut control_step: u64) -> (Vec<Value>, u64) {
+    let calls = actions
         .iter()
         .map(|e| {
             let (req, resp) = (&e["request"], &e["response"]);
@@ -443,35 +460,72 @@ fn timeline_calls(actions: &[Value]) -> Vec<Value> {
                 "control_step_end": control_step,
             })
         })
-        .collect()
+        .collect();
+    (calls, control_step)
 }
 
-/// Everything the review page shows, from the private run directory. Operator-only.
-async fn review_data(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+/// Lines per page of the review API's long parts (calls, telemetry).
+const REVIEW_PAGE_LINES: usize = 5000;
+
+/// `?part=calls&from=N&control_step=S` or `?part=telemetry&from=N`: the next page of a long part.
+#[derive(serde::Deserialize, Default)]
+struct ReviewQuery {
+    part: Option<String>,
+    #[serde(default)]
+    from: u64,
+    #[serde(default)]
+    control_step: u64,
+}
+
+/// One page of calls: the calls, and where the next page starts (line and control step), if any.
+fn calls_page(run: &RunDir, from: u64, control_step: u64) -> Value {
+    let (lines, next) = read_jsonl_page(&run.actions_jsonl(), from, REVIEW_PAGE_LINES);
+    let (calls, step) = timeline_calls(&lines, control_step);
+    json!({"calls": calls, "calls_next": next.map(|n| json!({"from": n, "control_step": step}))})
+}
+
+fn telemetry_page(run: &RunDir, from: u64) -> Value {
+    let (lines, next) = read_jsonl_page(&run.telemetry_jsonl(), from, REVIEW_PAGE_LINES);
+    json!({"telemetry": lines, "telemetry_next": next.map(|n| json!({"from": n}))})
+}
+
+/// Everything the review page shows, from the private run directory, with the long parts (calls, telemetry)
+/// in pages the page follows through `calls_next` / `telemetry_next`. Operator-only.
+async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ReviewQuery>) -> Response {
     let run = match stored_row(&app, &id).await {
         Ok(row) => RunDir::new(row.episode.run_dir),
         Err(resp) => return resp,
     };
-    let data = tokio::task::spawn_blocking(move || {
-        let result = read_result(&run);
-        let mut stage_events = read_jsonl(&run.stage_events_jsonl());
-        if let Some(events) = result.as_ref().and_then(|r| r["private_evaluation"]["events"].as_array()) {
-            stage_events.extend(events.iter().cloned());
+    let data = tokio::task::spawn_blocking(move || match q.part.as_deref() {
+        Some("calls") => Ok(calls_page(&run, q.from, q.control_step)),
+        Some("telemetry") => Ok(telemetry_page(&run, q.from)),
+        Some(other) => Err(format!("part must be calls or telemetry (got {other:?})")),
+        None => {
+            let result = read_result(&run);
+            let mut stage_events = read_jsonl(&run.stage_events_jsonl());
+            if let Some(events) = result.as_ref().and_then(|r| r["private_evaluation"]["events"].as_array()) {
+                stage_events.extend(events.iter().cloned());
+            }
+            stage_events.sort_by_key(|e| e["control_step"].as_u64().unwrap_or(0));
+            let mut v = json!({
+                "ok": true,
+                "stage_events": stage_events,
+                "result": result,
+                "video": run.continuous_video().is_file(),
+                "video_fps": 20.0,
+            });
+            for part in [calls_page(&run, 0, 0), telemetry_page(&run, 0)] {
+                if let (Some(obj), Value::Object(p)) = (v.as_object_mut(), part) {
+                    obj.extend(p);
+                }
+            }
+            Ok(v)
         }
-        stage_events.sort_by_key(|e| e["control_step"].as_u64().unwrap_or(0));
-        json!({
-            "ok": true,
-            "calls": timeline_calls(&read_jsonl(&run.actions_jsonl())),
-            "stage_events": stage_events,
-            "telemetry": read_jsonl(&run.telemetry_jsonl()),
-            "result": result,
-            "video": run.continuous_video().is_file(),
-            "video_fps": 20.0,
-        })
     })
     .await;
     match data {
-        Ok(v) => axum::Json(v).into_response(),
+        Ok(Ok(v)) => axum::Json(v).into_response(),
+        Ok(Err(msg)) => json_error(StatusCode::BAD_REQUEST, msg),
         Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("review: {e}")),
     }
 }

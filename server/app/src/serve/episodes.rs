@@ -92,6 +92,44 @@ impl PrepareRequest {
     }
 }
 
+/// Longest wall-clock budget an episode may be given (a week; the protocol's default is 1800 s).
+pub const MAX_WALL_TIME_S: f64 = 7.0 * 24.0 * 3600.0;
+/// Longest task reference, harness, model or batch name accepted.
+const MAX_NAME_CHARS: usize = 512;
+/// Largest init-state index (LIBERO's init files hold 50 states).
+const MAX_INIT_INDEX: usize = 100_000;
+
+impl PrepareRequest {
+    /// Range checks of every number and size from outside, before anything is built.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        Level::from_number(self.level).with_context(|| format!("level must be 1, 2 or 3 (got {})", self.level))?;
+        if !(self.wall_time_s.is_finite() && self.wall_time_s > 0.0 && self.wall_time_s <= MAX_WALL_TIME_S) {
+            bail!("wall_time_s must be a number of seconds in (0, {MAX_WALL_TIME_S}] (got {})", self.wall_time_s);
+        }
+        if self.max_agent_steps == 0 || self.max_agent_steps > MAX_AGENT_STEPS_CAP {
+            bail!("max_agent_steps must be between 1 and {MAX_AGENT_STEPS_CAP} (got {})", self.max_agent_steps);
+        }
+        if self.seed > u64::from(u32::MAX) {
+            bail!("seed must be between 0 and {} (NumPy's seed range; got {})", u32::MAX, self.seed);
+        }
+        if self.init_index > MAX_INIT_INDEX {
+            bail!("init_index must be at most {MAX_INIT_INDEX} (got {})", self.init_index);
+        }
+        if self.task.trim().is_empty() {
+            bail!("task must name a task (T14, libero_90/<name> or a .bddl path)");
+        }
+        let names = [("task", Some(&self.task)), ("harness", self.harness.as_ref()), ("model", self.model.as_ref()), ("batch", self.batch.as_ref())];
+        for (field, value) in names {
+            if let Some(v) = value
+                && (v.chars().count() > MAX_NAME_CHARS || v.chars().any(char::is_control))
+            {
+                bail!("{field} must be at most {MAX_NAME_CHARS} characters without control characters");
+            }
+        }
+        Ok(())
+    }
+}
+
 fn default_level() -> u8 {
     3
 }
@@ -328,12 +366,14 @@ impl Episodes {
         }
     }
 
-    /// Records every unfinished episode as aborted with `reason` (server shutdown).
-    pub fn stop_all(&self, reason: &str) {
+    /// Records every unfinished episode as aborted with `reason` (server shutdown), waiting at most `timeout`
+    /// in all: an episode thread stuck in the simulation is left behind (the process is ending) rather than
+    /// holding the shutdown. Returns how many did not answer in time.
+    pub fn stop_all(&self, reason: &str, timeout: std::time::Duration) -> usize {
         let entries: Vec<Arc<Entry>> = self.map.read().map(|m| m.values().cloned().collect()).unwrap_or_default();
-        for e in entries {
-            e.handle.stop(reason);
-        }
+        let deadline = std::time::Instant::now() + timeout;
+        let pending: Vec<_> = entries.iter().map(|e| e.handle.request_stop(reason)).collect();
+        pending.into_iter().filter(|p| !p.wait_until(deadline)).count()
     }
 
     /// After a crash or kill: every run directory with an episode record but no result becomes an aborted
@@ -362,13 +402,8 @@ impl Episodes {
     /// Prepares an episode: resolves the task, builds its world on a new episode thread, writes the private
     /// run directory and the workspace, and registers the MCP endpoint.
     pub fn prepare(&self, req: PrepareRequest) -> anyhow::Result<Prepared> {
-        let level = Level::from_number(req.level).with_context(|| format!("level must be 1, 2 or 3 (got {})", req.level))?;
-        if !(req.wall_time_s.is_finite() && req.wall_time_s > 0.0) {
-            bail!("wall_time_s must be a positive number of seconds");
-        }
-        if req.max_agent_steps == 0 || req.max_agent_steps > MAX_AGENT_STEPS_CAP {
-            bail!("max_agent_steps must be between 1 and {MAX_AGENT_STEPS_CAP}");
-        }
+        req.validate()?;
+        let level = Level::from_number(req.level).context("level")?;
         let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
         let task: TaskSource = resolve_task(&req.task, &paths)?;
         let demo_source = match req.demo {

@@ -5,6 +5,7 @@
 //! (`dashboard`), fed live by each episode's event bus (`live`), behind the operator guard (`auth`).
 pub mod auth;
 pub mod client;
+pub mod credential;
 pub mod dashboard;
 pub mod episodes;
 pub mod http_client;
@@ -21,7 +22,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use axum::Router;
 use axum::body::Body;
 use axum::extract::{Path, Query, Request, State};
@@ -45,10 +46,15 @@ pub struct ServeArgs {
     /// ~/.local/share/libero-agent).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// File holding the operator token for the dashboard and operator API. Without it, a server bound
-    /// beyond loopback generates one and prints it once to stderr; on loopback the dashboard is then open.
+    /// File holding the operator token for the dashboard and operator API (at least 16 characters). Without
+    /// it, a fresh random token is generated at every start. Either way it is kept in `<data>/operator_token`
+    /// (0600) and registered for this user's client commands; the login URL is printed once to stderr.
     #[arg(long)]
     pub operator_token_file: Option<PathBuf>,
+    /// A host name (or `name:port`) besides the loopback names under which this server is reached, e.g. behind
+    /// a reverse proxy; requests naming any other `Host` are refused with 421. Repeatable.
+    #[arg(long = "public-host", value_name = "NAME")]
+    pub public_hosts: Vec<String>,
     /// More batch directories for the Results page, besides `<data>/batches/`: a batch directory itself or a
     /// folder of them (e.g. `./agent_runs`, where `run` puts batches by default). Repeatable.
     #[arg(long = "batches", value_name = "DIR")]
@@ -71,7 +77,9 @@ pub struct App {
     synced: Mutex<HashMap<String, EpisodeState>>,
     /// Live events of the episodes this process runs, for the dashboard.
     pub hubs: Arc<live::LiveHubs>,
-    pub operator: auth::OperatorToken,
+    pub operator: auth::Operator,
+    /// The `Host` names this server answers to.
+    pub hosts: auth::AllowedHosts,
     /// Task thumbnails render one at a time.
     thumbnail_lock: tokio::sync::Mutex<()>,
     /// Where the Results page looks for batch directories (`results::batch_roots`).
@@ -79,6 +87,8 @@ pub struct App {
     /// Episodes the operator drives from the teleop page; only these accept actions from the operator's socket,
     /// so an agent's benchmark episode can never be steered from the dashboard.
     pub teleop: Mutex<HashMap<String, String>>,
+    /// Tool-call reports for the store sync, taken when serving begins.
+    calls_rx: Mutex<Option<UnboundedReceiver<String>>>,
 }
 
 type AppState = Arc<App>;
@@ -119,18 +129,32 @@ impl App {
         Ok(())
     }
 
-    /// Stores a prepared episode's row. The run directory's record is written; the row follows it (restart
-    /// reconciles a lost write).
-    pub async fn insert_prepared(&self, prepared: &episodes::Prepared) {
-        match NewEpisode::from_record(&RunDir::new(&prepared.run_dir)) {
-            Some(new) => {
-                if let Err(e) = self.store.insert_prepared(&new).await {
-                    eprintln!("warning: {e:#}");
-                }
-                self.hubs.notify();
-            }
-            None => eprintln!("warning: episode {} has no readable episode record", prepared.episode_id),
+    /// Stores a prepared episode's row. The run directory's record is written first; a row that cannot be
+    /// stored is a failure of the preparation (the caller ends the episode), never a log line.
+    pub async fn insert_prepared(&self, prepared: &episodes::Prepared) -> anyhow::Result<()> {
+        let new = NewEpisode::from_record(&RunDir::new(&prepared.run_dir))
+            .with_context(|| format!("episode {} has no readable episode record", prepared.episode_id))?;
+        self.store.insert_prepared(&new).await?;
+        self.hubs.notify();
+        Ok(())
+    }
+
+    /// Prepares an episode and stores its row; an episode whose row cannot be stored is stopped again.
+    pub async fn prepare_stored(&self, req: PrepareRequest) -> Result<episodes::Prepared, Response> {
+        req.validate().map_err(|e| json_error(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+        let eps = self.episodes.clone();
+        let prepared = match tokio::task::spawn_blocking(move || eps.prepare(req)).await {
+            Ok(Ok(p)) => p,
+            Ok(Err(e)) => return Err(json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}"))),
+            Err(e) => return Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("prepare failed: {e}"))),
+        };
+        if let Err(e) = self.insert_prepared(&prepared).await {
+            let eps = self.episodes.clone();
+            let id = prepared.episode_id.clone();
+            let _ = tokio::task::spawn_blocking(move || eps.stop(&id, "the episode store refused its row")).await;
+            return Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("cannot store the episode: {e:#}")));
         }
+        Ok(prepared)
     }
 
     /// Syncs every episode whose last stored state is not final.
@@ -163,30 +187,92 @@ async fn store_sync(app: Arc<App>, mut calls: UnboundedReceiver<String>) {
     }
 }
 
+/// How long shutdown waits for episode threads to record their end, and then for open connections.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
 /// Runs the server until SIGINT/SIGTERM; unfinished episodes are then recorded as aborted (INVALID).
 pub fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
     let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-    runtime.block_on(serve(args))
+    let result = runtime.block_on(serve(args));
+    // A request still waiting on a stuck episode thread must not keep the process alive.
+    runtime.shutdown_timeout(Duration::from_secs(1));
+    result
 }
 
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     serve_until(args, |listening| println!("{listening}"), shutdown_signal()).await
 }
 
-/// The server: binds, recovers interrupted episodes (files, then the store), reports `listening` (the
-/// JSON line `serve` prints), serves until `shutdown` yields a stop reason, then records every open
-/// episode as aborted with it.
+/// An exclusive lock on a data directory, held while a server uses it: a second `serve` on the same
+/// directory would otherwise record the first one's live episodes as interrupted.
+pub struct DataLock {
+    _file: std::fs::File,
+}
+
+impl DataLock {
+    pub fn acquire(data: &std::path::Path) -> anyhow::Result<Self> {
+        use std::io::{Read, Seek, Write};
+        use std::os::unix::fs::OpenOptionsExt;
+        let path = data.join("serve.lock");
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .mode(0o600)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
+            .open(&path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
+        // SAFETY: flock on a descriptor this function owns.
+        if unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&file), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            let mut holder = String::new();
+            let _ = file.read_to_string(&mut holder);
+            bail!(
+                "another libero-agent server (pid {}) is using the data directory {}; stop it or pass another --data",
+                holder.trim().parse::<u32>().map(|p| p.to_string()).unwrap_or_else(|_| "unknown".into()),
+                data.display()
+            );
+        }
+        file.set_len(0)?;
+        file.seek(std::io::SeekFrom::Start(0))?;
+        write!(file, "{}", std::process::id())?;
+        Ok(Self { _file: file })
+    }
+}
+
+/// The server: locks the data directory, binds, recovers interrupted episodes (files, then the store),
+/// reports `listening` (the JSON line `serve` prints), serves until `shutdown` yields a stop reason, then
+/// records every open episode as aborted with it, waiting a bounded time for each part.
 pub async fn serve_until(
     args: ServeArgs,
     listening: impl FnOnce(Value),
     shutdown: impl Future<Output = String> + Send + 'static,
 ) -> anyhow::Result<()> {
+    let running = start(&args).await?;
+    running.serve(listening, shutdown).await
+}
+
+/// A bound server, before it serves: its URL and operator token are known.
+pub struct Bound {
+    app: Arc<App>,
+    listener: tokio::net::TcpListener,
+    base_url: String,
+    recovered: usize,
+    reconciled: u64,
+    _lock: DataLock,
+    _registration: Option<credential::Registration>,
+}
+
+/// Locks the data directory, binds and opens everything a server needs.
+pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     let data = args.data.clone().unwrap_or_else(default_data_dir);
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create data directory {}", data.display()))?;
-    let operator = auth::OperatorToken::for_server(args.addr, args.operator_token_file.as_deref())?;
+    let lock = DataLock::acquire(&data)?;
+    let operator = auth::Operator::for_server(&data, args.operator_token_file.as_deref())?;
     let listener = tokio::net::TcpListener::bind(args.addr).await.with_context(|| format!("cannot bind {}", args.addr))?;
     let local = listener.local_addr()?;
     let base_url = format!("http://{local}");
+    let registration = credential::Registration::register(local, operator.token());
     let (calls_tx, calls_rx) = unbounded_channel();
     let hubs = Arc::new(live::LiveHubs::default());
     let episodes = Arc::new(Episodes::new(data.clone(), base_url.clone())?.with_call_reports(calls_tx).with_live(hubs.clone()));
@@ -199,29 +285,68 @@ pub async fn serve_until(
         synced: Mutex::new(HashMap::new()),
         hubs,
         operator,
+        hosts: auth::AllowedHosts::new(local, &args.public_hosts),
         thumbnail_lock: tokio::sync::Mutex::new(()),
         batch_roots: results::batch_roots(&data, &args.batches),
         teleop: Mutex::new(HashMap::new()),
+        calls_rx: Mutex::new(Some(calls_rx)),
     });
-    let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
-    listening(json!({
-        "event": "listening", "url": base_url, "data": data,
-        "recovered_invalid_episodes": recovered, "store_rows_closed_at_start": reconciled,
-        "dashboard": format!("{base_url}/"), "batch_roots": app.batch_roots, "operator_token_required": app.operator.0.is_some(),
-    }));
-    let stop = {
-        let app = app.clone();
-        async move {
-            let reason = shutdown.await;
-            let episodes = app.episodes.clone();
-            let _ = tokio::task::spawn_blocking(move || episodes.stop_all(&reason)).await;
+    Ok(Bound { app, listener, base_url, recovered, reconciled, _lock: lock, _registration: registration })
+}
+
+impl Bound {
+    pub fn url(&self) -> &str {
+        &self.base_url
+    }
+
+    pub fn operator_token(&self) -> &str {
+        self.app.operator.token()
+    }
+
+    /// Serves until `shutdown` yields a stop reason (see [`serve_until`]).
+    pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = String> + Send + 'static) -> anyhow::Result<()> {
+        let Bound { app, listener, base_url, recovered, reconciled, _lock, _registration } = self;
+        let calls_rx = app.calls_rx.lock().ok().and_then(|mut c| c.take()).context("the server was started twice")?;
+        let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
+        let data = app.episodes.data_dir().to_path_buf();
+        listening(json!({
+            "event": "listening", "url": base_url, "data": data,
+            "recovered_invalid_episodes": recovered, "store_rows_closed_at_start": reconciled,
+            "dashboard": format!("{base_url}/"), "batch_roots": app.batch_roots,
+            "operator_token_file": data.join(credential::TOKEN_FILE),
+        }));
+        eprintln!(
+            "libero-agent serve: open the dashboard with this one-time login link (it holds the operator token; \
+             client commands of this user find the token themselves):\n  {base_url}/?token={}",
+            app.operator.token()
+        );
+        let (stopped_tx, stopped_rx) = tokio::sync::oneshot::channel::<()>();
+        let stop = {
+            let app = app.clone();
+            async move {
+                let reason = shutdown.await;
+                let episodes = app.episodes.clone();
+                let stuck = tokio::task::spawn_blocking(move || episodes.stop_all(&reason, SHUTDOWN_GRACE)).await.unwrap_or(0);
+                if stuck > 0 {
+                    eprintln!("warning: {stuck} episode thread(s) did not end within {SHUTDOWN_GRACE:?}; stopping anyway");
+                }
+                let _ = stopped_tx.send(());
+            }
+        };
+        let server = axum::serve(listener, router(app.clone())).with_graceful_shutdown(stop);
+        let grace_over = async {
+            let _ = stopped_rx.await;
+            tokio::time::sleep(SHUTDOWN_GRACE).await;
+        };
+        tokio::select! {
+            served = server => served?,
+            () = grace_over => eprintln!("warning: requests still open {SHUTDOWN_GRACE:?} after the stop; closing them"),
         }
-    };
-    axum::serve(listener, router(app.clone())).with_graceful_shutdown(stop).await?;
-    sync_task.abort();
-    app.sync_all().await;
-    app.store.close().await;
-    Ok(())
+        sync_task.abort();
+        app.sync_all().await;
+        app.store.close().await;
+        Ok(())
+    }
 }
 
 async fn shutdown_signal() -> String {
@@ -262,6 +387,7 @@ pub fn router(state: AppState) -> Router {
         )
         .merge(dashboard::static_routes().layer(CompressionLayer::new()))
         .merge(operator)
+        .layer(axum::middleware::from_fn_with_state(state.hosts.clone(), auth::check_host))
         .layer(tower_http::trace::TraceLayer::new_for_http())
         .with_state(state)
 }
@@ -279,14 +405,9 @@ async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> Respon
         Ok(r) => r,
         Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("invalid prepare request: {e}")),
     };
-    let eps = app.episodes.clone();
-    match tokio::task::spawn_blocking(move || eps.prepare(req)).await {
-        Ok(Ok(prepared)) => {
-            app.insert_prepared(&prepared).await;
-            (StatusCode::CREATED, axum::Json(prepared)).into_response()
-        }
-        Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("prepare failed: {e}")),
+    match app.prepare_stored(req).await {
+        Ok(prepared) => (StatusCode::CREATED, axum::Json(prepared)).into_response(),
+        Err(resp) => resp,
     }
 }
 

@@ -214,8 +214,12 @@ impl Store {
             .with_context(|| format!("cannot open the episode store {}", path.display()))?;
         sqlx::query(SCHEMA).execute(&pool).await.context("cannot create the episodes table")?;
         for (name, kind) in ADDED_COLUMNS {
-            // Fails only where the column exists already (a store written by this version).
-            let _ = sqlx::query(&format!("ALTER TABLE episodes ADD COLUMN {name} {kind}")).execute(&pool).await;
+            // A store written by this version has the column already; any other failure is one.
+            if let Err(e) = sqlx::query(&format!("ALTER TABLE episodes ADD COLUMN {name} {kind}")).execute(&pool).await
+                && !e.to_string().to_ascii_lowercase().contains("duplicate column")
+            {
+                return Err(anyhow::Error::from(e).context(format!("cannot add column {name} to the episode store {}", path.display())));
+            }
         }
         Ok(Self { pool })
     }

@@ -115,24 +115,27 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
         model: Some("human".into()),
         ..PrepareRequest::new(task.clone())
     };
+    let prepared = match app.prepare_stored(prepare).await {
+        Ok(p) => p,
+        Err(resp) => return resp,
+    };
     let eps = app.episodes.clone();
-    let started = tokio::task::spawn_blocking(move || -> anyhow::Result<_> {
-        let prepared = eps.prepare(prepare)?;
-        let handle = eps.handle(&prepared.episode_id).ok_or_else(|| anyhow::anyhow!("the episode vanished"))?;
+    let id = prepared.episode_id.clone();
+    let started = tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
+        let handle = eps.handle(&id).ok_or_else(|| anyhow::anyhow!("the episode vanished"))?;
         let answer = handle.call("start_episode", None);
         if answer["ok"] != true {
             handle.stop("teleop start failed");
             anyhow::bail!("start_episode failed: {}", answer["error"]);
         }
-        Ok(prepared)
+        Ok(())
     })
     .await;
-    let prepared = match started {
-        Ok(Ok(p)) => p,
+    match started {
+        Ok(Ok(())) => {}
         Ok(Err(e)) => return json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
         Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("teleop start: {e}")),
-    };
-    app.insert_prepared(&prepared).await;
+    }
     if let Ok(mut m) = app.teleop.lock() {
         m.insert(prepared.episode_id.clone(), task.clone());
     }

@@ -24,6 +24,15 @@ pub fn bin() -> &'static str {
 pub struct Server {
     pub child: Child,
     pub url: String,
+    /// The operator token `serve` keeps in `<data>/operator_token`.
+    pub token: String,
+}
+
+/// Operator tokens of the servers this test process started, by URL: `http_get_*` send them.
+static TOKENS: std::sync::Mutex<Vec<(String, String)>> = std::sync::Mutex::new(Vec::new());
+
+fn token_for(url: &str) -> Option<String> {
+    TOKENS.lock().ok()?.iter().find(|(base, _)| url.starts_with(base.as_str())).map(|(_, t)| t.clone())
 }
 
 impl Server {
@@ -44,7 +53,10 @@ impl Server {
         let mut line = String::new();
         BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("listening line");
         let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad listening line {line:?}: {e}"));
-        Self { child, url: v["url"].as_str().expect("url").to_owned() }
+        let url = v["url"].as_str().expect("url").to_owned();
+        let token = std::fs::read_to_string(data.join("operator_token")).expect("serve keeps its operator token").trim().to_owned();
+        TOKENS.lock().unwrap().push((url.clone(), token.clone()));
+        Self { child, url, token }
     }
 
     pub fn kill(&mut self) {
@@ -59,12 +71,13 @@ impl Drop for Server {
     }
 }
 
-/// `GET` of a loopback URL (status, body as text).
+/// `GET` of a loopback URL (status, body as text), with the operator token of the test's server.
 pub fn http_get_text(url: &str) -> (u16, String) {
     let rest = url.strip_prefix("http://").expect("http url");
     let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
     let mut stream = std::net::TcpStream::connect(host).expect("connect");
-    write!(stream, "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
+    let auth = token_for(url).map(|t| format!("Authorization: Bearer {t}\r\n")).unwrap_or_default();
+    write!(stream, "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n{auth}\r\n").unwrap();
     let mut text = String::new();
     stream.read_to_string(&mut text).unwrap();
     let status = text.split_whitespace().nth(1).and_then(|s| s.parse().ok()).expect("status");
