@@ -43,3 +43,26 @@ function connect() {
 }
 
 connect();
+
+// Getting started: prepare an episode and show the MCP configuration an agent needs.
+document.getElementById('prepare-episode')?.addEventListener('click', async (ev) => {
+  const button = ev.currentTarget;
+  button.disabled = true;
+  button.textContent = 'Preparing…';
+  try {
+    const r = await fetch('/api/episodes', { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify({ task: 'T14' }) });
+    const p = await r.json();
+    if (!r.ok) throw new Error(p.error || r.statusText);
+    const config = { mcpServers: { libero: { type: 'http', url: p.mcp_url, headers: p.mcp_headers } } };
+    document.getElementById('mcp-config').textContent = JSON.stringify(config, null, 2);
+    document.getElementById('prepared-workspace').textContent = p.workspace;
+    document.getElementById('prepared-prompt').textContent = p.prompt_file;
+    document.getElementById('reference-agent').textContent = `${document.getElementById('getting-started').dataset.exe} agent --workspace '${p.workspace}'`;
+    document.getElementById('prepared').hidden = false;
+    button.textContent = `Prepared ${p.episode_id}`;
+  } catch (err) {
+    button.disabled = false;
+    button.textContent = 'Prepare a T14 episode';
+    button.after(el('p', { class: 'error' }, `cannot prepare: ${err.message}`));
+  }
+});

@@ -349,6 +349,37 @@ fn chromium_teleoperates_t14_and_saves_a_bundle_that_validates() {
     assert!(!dir.exists(), "deleted");
 }
 
+/// Issue 19's newcomer: a fresh server's home page says what to do next and prepares an episode whose MCP
+/// configuration it shows, in Chromium with screenshots.
+#[test]
+fn a_fresh_console_guides_a_newcomer_and_prepares_an_episode_to_connect() {
+    let (chromium, node_modules, _python) = browser_prerequisites();
+    let tmp = tempfile::tempdir().unwrap();
+    let (server, _stderr) = Server::start(&tmp.path().join("data"), "127.0.0.1:0", &[]);
+    let artifacts = artifacts_dir();
+    let out = Command::new("node")
+        .arg(repo_root().join("tests/dashboard/onboarding_check.cjs"))
+        .arg(&server.url)
+        .arg(&artifacts)
+        .env("NODE_PATH", &node_modules)
+        .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .env("LIBERO_OPERATOR_TOKEN", &server.token)
+        .stderr(Stdio::inherit())
+        .output()
+        .expect("run node");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let report: Value = stdout.lines().rev().find_map(|l| serde_json::from_str(l).ok()).unwrap_or(Value::Null);
+    assert!(out.status.success() && report["ok"] == true, "onboarding checks failed: {stdout}");
+    for shot in ["onboarding-empty", "onboarding-prepared"] {
+        assert!(artifacts.join(format!("{shot}.png")).is_file(), "screenshot {shot}.png");
+    }
+    let (status, _, body) = http("GET", &format!("{}/api/episodes", server.url), &[("Authorization", &server.op())], b"");
+    assert_eq!(status, 200);
+    let list: Value = serde_json::from_slice(&body).unwrap();
+    let id = report["mcp_url"].as_str().unwrap().rsplit('/').next().unwrap().to_owned();
+    assert!(list["episodes"].as_array().unwrap().iter().any(|e| e["id"] == id.as_str()), "the page's episode is in the store: {list}");
+}
+
 /// Issue 17: on loopback too, every page, API and stream needs the operator credential; the login link `serve`
 /// prints opens a browser session (a random id, not the token); a foreign `Host` is refused before any handler;
 /// a second server on the same data directory refuses to start.

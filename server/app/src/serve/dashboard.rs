@@ -174,6 +174,9 @@ async fn results_api(State(app): State<AppState>, RawQuery(query): RawQuery) -> 
 #[derive(Template)]
 #[template(path = "home.html")]
 struct HomePage {
+    /// This server as the browser reached it, and this binary: the getting-started commands are copied as is.
+    base_url: String,
+    exe: String,
     filter_task: String,
     filter_outcome: String,
     filter_batch: String,
@@ -246,14 +249,19 @@ async fn episode_list(app: &App, filter: &EpisodeFilter) -> anyhow::Result<Vec<V
         .collect())
 }
 
-async fn home(State(app): State<AppState>, Query(filter): Query<EpisodeFilter>) -> Response {
+async fn home(State(app): State<AppState>, headers: axum::http::HeaderMap, Query(filter): Query<EpisodeFilter>) -> Response {
     let filter = filter.normalized();
     let list = match episode_list(&app, &filter).await {
         Ok(l) => l,
         Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
     };
     let tasks = libero_tasks::Catalog::discover().map(|c| c.tasks().iter().map(|t| t.id.clone()).collect()).unwrap_or_default();
+    // The Host header passed the allow-list, so it names this server.
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("127.0.0.1:8080");
+    let exe = std::env::current_exe().map(|p| p.display().to_string()).unwrap_or_else(|_| "libero-agent".into());
     page(HomePage {
+        base_url: format!("http://{host}"),
+        exe,
         rows: list.iter().map(HomeRow::of).collect(),
         filter_task: filter.task.unwrap_or_default(),
         filter_outcome: filter.outcome.unwrap_or_default(),
