@@ -309,19 +309,7 @@ fn chromium_teleoperates_t14_and_saves_a_bundle_that_validates() {
     let (server, _stderr) = Server::start(&data, "127.0.0.1:0", &[]);
     let artifacts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/teleop");
     std::fs::create_dir_all(&artifacts).expect("artifacts dir");
-    let out = Command::new("node")
-        .arg(repo_root().join("tests/dashboard/teleop_check.cjs"))
-        .args([server.url.as_str(), "T14"])
-        .arg(&artifacts)
-        .env("NODE_PATH", &node_modules)
-        .env("LIBERO_AGENT_CHROMIUM", &chromium)
-        .env("LIBERO_OPERATOR_TOKEN", &server.token)
-        .stderr(Stdio::inherit())
-        .output()
-        .expect("run node");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let report: Value = stdout.lines().rev().find_map(|l| serde_json::from_str(l).ok()).unwrap_or(Value::Null);
-    assert!(out.status.success() && report["ok"] == true, "teleop browser checks failed: {stdout}");
+    let report = browser_script("teleop_check.cjs", &[server.url.as_ref(), "T14".as_ref(), artifacts.as_os_str()], &server, &chromium, &node_modules);
     eprintln!("teleop report: {report}");
     for shot in ["teleop-driving", "teleop-saved", "demos"] {
         assert!(artifacts.join(format!("{shot}.png")).is_file(), "screenshot {shot}.png");
@@ -349,6 +337,24 @@ fn chromium_teleoperates_t14_and_saves_a_bundle_that_validates() {
     assert!(!dir.exists(), "deleted");
 }
 
+/// Runs `tests/dashboard/<script>` in node with an operator session for `server`; its last JSON line, which
+/// must say `ok: true`.
+fn browser_script(script: &str, args: &[&std::ffi::OsStr], server: &Server, chromium: &Path, node_modules: &Path) -> Value {
+    let out = Command::new("node")
+        .arg(repo_root().join("tests/dashboard").join(script))
+        .args(args)
+        .env("NODE_PATH", node_modules)
+        .env("LIBERO_AGENT_CHROMIUM", chromium)
+        .env("LIBERO_OPERATOR_TOKEN", &server.token)
+        .stderr(Stdio::inherit())
+        .output()
+        .expect("run node");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let report: Value = stdout.lines().rev().find_map(|l| serde_json::from_str(l).ok()).unwrap_or(Value::Null);
+    assert!(out.status.success() && report["ok"] == true, "{script} checks failed: {stdout}");
+    report
+}
+
 /// Issue 19's newcomer: a fresh server's home page says what to do next and prepares an episode whose MCP
 /// configuration it shows, in Chromium with screenshots.
 #[test]
@@ -357,19 +363,7 @@ fn a_fresh_console_guides_a_newcomer_and_prepares_an_episode_to_connect() {
     let tmp = tempfile::tempdir().unwrap();
     let (server, _stderr) = Server::start(&tmp.path().join("data"), "127.0.0.1:0", &[]);
     let artifacts = artifacts_dir();
-    let out = Command::new("node")
-        .arg(repo_root().join("tests/dashboard/onboarding_check.cjs"))
-        .arg(&server.url)
-        .arg(&artifacts)
-        .env("NODE_PATH", &node_modules)
-        .env("LIBERO_AGENT_CHROMIUM", &chromium)
-        .env("LIBERO_OPERATOR_TOKEN", &server.token)
-        .stderr(Stdio::inherit())
-        .output()
-        .expect("run node");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let report: Value = stdout.lines().rev().find_map(|l| serde_json::from_str(l).ok()).unwrap_or(Value::Null);
-    assert!(out.status.success() && report["ok"] == true, "onboarding checks failed: {stdout}");
+    let report = browser_script("onboarding_check.cjs", &[server.url.as_ref(), artifacts.as_os_str()], &server, &chromium, &node_modules);
     for shot in ["onboarding-empty", "onboarding-prepared"] {
         assert!(artifacts.join(format!("{shot}.png")).is_file(), "screenshot {shot}.png");
     }
