@@ -454,6 +454,21 @@ fn on_loopback_every_route_needs_the_operator_credential_and_the_login_link_open
     assert_eq!(status, 200);
     let row: Value = serde_json::from_slice(&body).unwrap();
     assert_eq!(row["state"], "prepared", "the first server's episode is untouched: {row}");
+    // SIGTERM: the server records its open episode as aborted and exits within seconds.
+    let mut server = server;
+    // SAFETY: signalling the child this test started.
+    unsafe { libc::kill(server.child.id() as i32, libc::SIGTERM) };
+    let asked = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = server.child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(asked.elapsed() < Duration::from_secs(20), "serve ignored SIGTERM for 20 s");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "serve exits cleanly on SIGTERM: {status}");
+    let result: Value = serde_json::from_slice(&std::fs::read(data.join("runs").join(&episode).join("result.json")).unwrap()).unwrap();
+    assert_eq!(result["status"], "aborted", "{result}");
     drop(server);
 
     // A token file and a public host name beyond loopback.
