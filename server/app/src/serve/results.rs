@@ -77,13 +77,16 @@ impl Selection {
             let v = percent_decode(v);
             match k {
                 "batch" if !v.trim().is_empty() && !s.batches.contains(&v) => s.batches.push(v),
-                "reps" => s.reps = v.parse().ok().filter(|&n| n > 0),
+                "reps" => s.reps = v.parse().ok().filter(|&n| (1..=MAX_REPS).contains(&n)),
                 _ => {}
             }
         }
         s
     }
 }
+
+/// Largest `?reps=` the Results page accepts (the paper uses 3).
+const MAX_REPS: usize = 100;
 
 /// The rule's repetition count for `b`: the request's, else the batch's `--reps`, else the paper's 3.
 fn reps_of(b: &LoadedBatch, sel: &Selection) -> usize {
