@@ -6,6 +6,7 @@ use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use serde_json::{Map, Value};
+use sha2::{Digest, Sha256};
 
 /// `value` with every object's keys in sorted order (whatever map backend serde_json was built with).
 pub fn sorted(value: &Value) -> Value {
@@ -32,6 +33,16 @@ pub fn pretty_sorted(value: &Value) -> String {
 /// One compact line with sorted keys (no newline).
 pub fn compact_sorted(value: &Value) -> String {
     serde_json::to_string(&sorted(value)).unwrap_or_else(|_| "null".to_owned())
+}
+
+/// Lower-case hex of `bytes`.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SHA-256 of `bytes` in lower-case hex (the digests of records and manifests).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex(&Sha256::digest(bytes))
 }
 
 /// Writes `bytes` to `path` durably and atomically: temp file in the same directory, fsync, rename,
