@@ -1,12 +1,12 @@
 //! Evaluator-private records in the run directory (§4.9): the append-only action log (one fsync per
 //! line, so a killed server loses nothing it answered) and `result.json`, plus the outcome rule of §4.8.
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
-use crate::json::{compact_sorted, sha256_hex, utc_now_iso, write_json_file};
+use crate::json::{compact_sorted, open_jsonl_for_append, sha256_hex, utc_now_iso, write_json_file};
 
 pub const ACTION_EVENT_SCHEMA: &str = "libero.agent_action_event.v1";
 pub const RESULT_SCHEMA: &str = "libero.agent_run_result.v1";
@@ -89,11 +89,11 @@ pub struct ActionLog {
 }
 
 impl ActionLog {
-    /// Opens (creating or appending to) the log; `event_index` continues after existing lines.
+    /// Opens (creating or appending to) the log; `event_index` continues after existing lines. A line torn
+    /// by a crash keeps its index and is ended, so the next event starts on a line of its own.
     pub fn open(path: &Path) -> std::io::Result<Self> {
-        let existing = std::fs::read_to_string(path).map(|s| s.lines().count() as u64).unwrap_or(0);
-        let file = OpenOptions::new().create(true).append(true).open(path)?;
-        Ok(Self { file, next_index: existing })
+        let (file, lines) = open_jsonl_for_append(path)?;
+        Ok(Self { file, next_index: lines })
     }
 
     /// Appends one event and fsyncs it before returning. Oversized request fields and responses are
@@ -185,13 +185,18 @@ pub fn read_result(run: &RunDir) -> Option<Value> {
 mod tests {
     use super::*;
 
+    /// A closed log holding one `start` event.
+    fn log_with_a_start_event(dir: &Path) -> PathBuf {
+        let path = dir.join("actions.jsonl");
+        let mut log = ActionLog::open(&path).unwrap();
+        log.append(&json!({"command": "start"}), &json!({"ok": true}), 1).unwrap();
+        path
+    }
+
     #[test]
     fn action_log_lines_are_sorted_compact_and_indexed_across_reopen() {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("actions.jsonl");
-        let mut log = ActionLog::open(&path).unwrap();
-        log.append(&json!({"command": "start"}), &json!({"ok": true}), 1).unwrap();
-        drop(log);
+        let path = log_with_a_start_event(dir.path());
         let mut log = ActionLog::open(&path).unwrap();
         log.append(&Value::Null, &json!({"ok": false, "error": "x"}), 1).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
@@ -200,6 +205,25 @@ mod tests {
         assert_eq!(lines[1]["event_index"], 1);
         assert_eq!(lines[1]["request"], Value::Null);
         assert!(text.lines().next().unwrap().starts_with(r#"{"attempt_index":1,"event_index":0,"#));
+    }
+
+    #[test]
+    fn append_after_a_torn_line_starts_a_new_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = log_with_a_start_event(dir.path());
+        // A crash in the middle of the second event's write.
+        let mut f = std::fs::OpenOptions::new().append(true).open(&path).unwrap();
+        f.write_all(br#"{"attempt_index":1,"event_index":1,"req"#).unwrap();
+        drop(f);
+        let mut log = ActionLog::open(&path).unwrap();
+        assert_eq!(log.events_written(), 2, "the torn event keeps its index");
+        log.append(&json!({"command": "finish"}), &json!({"ok": true}), 1).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 3);
+        assert!(serde_json::from_str::<Value>(lines[1]).is_err(), "the torn line stays as it was");
+        let last: Value = serde_json::from_str(lines[2]).expect("the next event is a whole line");
+        assert_eq!(last["event_index"], 2);
     }
 
     /// The longest valid `osc_sequence` arguments: 50 actions whose every component has the longest JSON
