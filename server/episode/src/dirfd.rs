@@ -50,6 +50,15 @@ pub fn make_dir_at(dir: BorrowedFd<'_>, name: &str, mode: u32) -> std::io::Resul
     open_dir_at(dir, name)
 }
 
+/// Creates the directory `name` in `dir` unless an entry of that name exists (whatever it is: opening it
+/// with [`open_dir_at`] tells).
+pub fn ensure_dir_at(dir: BorrowedFd<'_>, name: &str, mode: u32) -> std::io::Result<()> {
+    match rustix::fs::mkdirat(dir, name, Mode::from_raw_mode(mode)) {
+        Ok(()) | Err(Errno::EXIST) => Ok(()),
+        Err(e) => Err(e.into()),
+    }
+}
+
 /// Creates the file `name` in `dir` (failing with `EEXIST` if any entry has that name, a symlink
 /// included), writes `bytes` and fsyncs it.
 pub fn write_new_file_at(dir: BorrowedFd<'_>, name: &str, bytes: &[u8]) -> std::io::Result<()> {

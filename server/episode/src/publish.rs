@@ -11,11 +11,12 @@
 use std::os::fd::{AsFd, BorrowedFd, OwnedFd};
 use std::path::{Path, PathBuf};
 
+use rustix::fs::{Mode, OFlags};
 use rustix::io::Errno;
 use serde_json::Value;
 
 use crate::dirfd::{
-    exchange_at, is_interference, make_dir_at, open_dir_at, open_dir_path, random_name, remove_at,
+    ensure_dir_at, exchange_at, is_interference, make_dir_at, open_dir_at, open_dir_path, random_name, remove_at,
     rename_noreplace_at, sync_dir_fd, write_new_file_at,
 };
 use crate::observation::{EncodedObservation, Frame, Level, encode_observation, write_encoded_dir};
@@ -46,18 +47,11 @@ impl SiblingStaging {
         })?;
         let parent_path = workspace_path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         // The parent is the operator's (the server made the workspace in it): following a link there is fine.
-        let parent = rustix::fs::open(
-            parent_path,
-            rustix::fs::OFlags::RDONLY | rustix::fs::OFlags::DIRECTORY | rustix::fs::OFlags::CLOEXEC,
-            rustix::fs::Mode::empty(),
-        )?;
+        let parent = rustix::fs::open(parent_path, OFlags::RDONLY | OFlags::DIRECTORY | OFlags::CLOEXEC, Mode::empty())?;
         let name = format!(".{ws_name}{STAGING_SUFFIX}");
-        match rustix::fs::mkdirat(&parent, name.as_str(), rustix::fs::Mode::from_raw_mode(0o700)) {
-            Ok(()) | Err(Errno::EXIST) => {}
-            Err(e) => return Err(e.into()),
-        }
+        ensure_dir_at(parent.as_fd(), &name, 0o700)?;
         let dir = open_dir_at(parent.as_fd(), &name)?;
-        rustix::fs::fchmod(&dir, rustix::fs::Mode::from_raw_mode(0o700))?; // one left by a crash is made private again
+        rustix::fs::fchmod(&dir, Mode::from_raw_mode(0o700))?; // one left by a crash is made private again
         if rustix::fs::fstat(&dir)?.st_dev != rustix::fs::fstat(workspace)?.st_dev {
             return Err(Errno::XDEV.into()); // the exchange would fail: stage in the workspace instead
         }
@@ -169,10 +163,7 @@ impl ObservationPublisher {
                 Err(e) if matches!(errno(&e), Some(Errno::LOOP | Errno::NOTDIR)) => remove_at(ws, BENCHMARK_INPUTS)?,
                 Err(e) => return Err(e),
             }
-            match rustix::fs::mkdirat(ws, BENCHMARK_INPUTS, rustix::fs::Mode::from_raw_mode(0o777)) {
-                Ok(()) | Err(Errno::EXIST) => {}
-                Err(e) => return Err(e.into()),
-            }
+            ensure_dir_at(ws, BENCHMARK_INPUTS, 0o777)?;
         }
         Err(std::io::Error::other(format!("{BENCHMARK_INPUTS} kept being replaced")))
     }
@@ -356,8 +347,7 @@ mod tests {
     }
 
     fn fifo(path: &Path) {
-        let mode = rustix::fs::Mode::from_raw_mode(0o600);
-        rustix::fs::mknodat(rustix::fs::CWD, path, rustix::fs::FileType::Fifo, mode, 0).unwrap();
+        rustix::fs::mknodat(rustix::fs::CWD, path, rustix::fs::FileType::Fifo, Mode::from_raw_mode(0o600), 0).unwrap();
     }
 
     /// Every file of a private archive entry, by relative path.
