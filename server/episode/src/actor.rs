@@ -15,10 +15,10 @@ use crate::call::{MicroAction, ToolCall, ToolError, validate_actions};
 use crate::json::{compact_sorted, utc_now_iso};
 use crate::live::{LiveEvent, LiveSink, unix_now_s};
 use crate::observation::{Frame, Level, observation_id};
-use crate::publish::publish_observation;
+use crate::publish::ObservationPublisher;
 use crate::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, aborted_result, classify, write_result};
 use crate::tools::{MAX_AGENT_STEPS_CAP, ToolName};
-use crate::workspace::{OBSERVATION_FILE, WorkspaceLayout};
+use crate::workspace::OBSERVATION_FILE;
 
 /// How often an idle active episode checks its wall clock (the original polled every 0.5 s).
 pub const IDLE_POLL: Duration = Duration::from_millis(500);
@@ -194,7 +194,8 @@ struct Actor<W: World> {
     latest_id: Option<String>,
     log: ActionLog,
     run: RunDir,
-    workspace: WorkspaceLayout,
+    /// Holds the workspace root open for the episode's life.
+    publisher: ObservationPublisher,
     status: Arc<Mutex<EpisodeStatus>>,
     /// The operator's live view (calls, the end); never the agent's.
     live: Option<LiveSink>,
@@ -221,6 +222,9 @@ where
     let run = RunDir::new(&config.run_dir);
     std::fs::create_dir_all(&run.root)?;
     let log = ActionLog::open(&run.actions_jsonl())?;
+    // The server creates the workspace root (the app fills it after the episode exists) and keeps it open.
+    std::fs::create_dir_all(&config.workspace)?;
+    let publisher = ObservationPublisher::open(&config.workspace)?;
     let config = Arc::new(config);
     let status = Arc::new(Mutex::new(EpisodeStatus {
         state: EpisodeState::Prepared,
@@ -249,7 +253,7 @@ where
             };
             let _ = ready_tx.send(Ok(()));
             let mut actor = Actor {
-                workspace: WorkspaceLayout::new(&actor_config.workspace),
+                publisher,
                 config: actor_config,
                 world: Some(world),
                 phase: Phase::Prepared,
@@ -439,9 +443,9 @@ impl<W: World> Actor<W> {
     fn publish(&mut self) -> Result<String, ToolError> {
         let index = self.frame_index;
         let frame = self.with_world(|w| w.frame(index))?;
-        let (bi, private) = (self.workspace.benchmark_inputs(), self.run.private_observations());
+        let private = self.run.private_observations();
         let level = self.config.level;
-        publish_observation(&bi, &frame, level, Some(&private)).map_err(|e| self.fault(e.into()))?;
+        self.publisher.publish(&frame, level, Some(&private)).map_err(|e| self.fault(e.into()))?;
         let id = observation_id(index);
         self.latest_id = Some(id.clone());
         Ok(id)
@@ -579,6 +583,9 @@ impl<W: World> Actor<W> {
             Phase::Finished | Phase::Expired { .. } => EpisodeState::Finished,
             Phase::Aborted => EpisodeState::Aborted,
         };
+        if matches!(state, EpisodeState::Finished | EpisodeState::Aborted) {
+            self.publisher.release_staging();
+        }
         let outcome = match state {
             EpisodeState::Finished | EpisodeState::Aborted => {
                 Some(classify(crate::records::read_result(&self.run).as_ref()))

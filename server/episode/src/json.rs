@@ -1,11 +1,12 @@
 //! JSON and file-writing conventions of the original runtime: keys sorted, `indent=2` files with a
 //! trailing newline, compact lines for logs, ISO-8601 UTC timestamps, atomic replace-by-rename.
 use std::fs::{self, File, OpenOptions};
-use std::io::Write;
-use std::path::Path;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use serde_json::{Map, Value};
+use sha2::{Digest, Sha256};
 
 /// `value` with every object's keys in sorted order (whatever map backend serde_json was built with).
 pub fn sorted(value: &Value) -> Value {
@@ -34,19 +35,67 @@ pub fn compact_sorted(value: &Value) -> String {
     serde_json::to_string(&sorted(value)).unwrap_or_else(|_| "null".to_owned())
 }
 
+/// Lower-case hex of `bytes`.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SHA-256 of `bytes` in lower-case hex (the digests of records and manifests).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex(&Sha256::digest(bytes))
+}
+
 /// Writes `bytes` to `path` durably and atomically: temp file in the same directory, fsync, rename,
-/// fsync of the directory. Readers see the old file or the new one, never a prefix.
+/// fsync of the directory. Readers see the old file or the new one, never a prefix. The temp file has a
+/// name no other writer (thread or process) uses and is created exclusively, so two writers never share it.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let dir = path.parent().unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    {
-        let mut f = OpenOptions::new().write(true).create(true).truncate(true).open(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
+    let (tmp, mut f) = create_temp(dir, &name)?;
+    let written = f.write_all(bytes).and_then(|()| f.sync_all()).and_then(|()| fs::rename(&tmp, path));
+    if written.is_err() {
+        let _ = fs::remove_file(&tmp);
     }
-    fs::rename(&tmp, path)?;
+    written?;
     sync_dir(dir)
+}
+
+/// A new file `.<name>.tmp-<pid>-<random>` in `dir`, created with `O_EXCL`.
+fn create_temp(dir: &Path, name: &str) -> std::io::Result<(PathBuf, File)> {
+    let prefix = format!(".{name}.tmp-{}-", std::process::id());
+    let mut last = None;
+    for _ in 0..4 {
+        let tmp = dir.join(crate::dirfd::random_name(&prefix)?);
+        match OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(f) => return Ok((tmp, f)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(e),
+            Err(e) => return Err(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| std::io::Error::other("no free temporary name")))
+}
+
+/// Opens a JSON-lines file for appending (creating it) and returns it with its number of lines. A last line
+/// torn by a crash (no final newline) is ended first, so the next line starts on a line of its own; it
+/// counts as a line.
+pub fn open_jsonl_for_append(path: &Path) -> std::io::Result<(File, u64)> {
+    let mut file = OpenOptions::new().create(true).read(true).append(true).open(path)?;
+    let (mut lines, mut last_byte) = (0u64, None);
+    let mut buf = vec![0u8; 64 * 1024];
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        lines += buf[..n].iter().filter(|&&b| b == b'\n').count() as u64;
+        last_byte = Some(buf[n - 1]);
+    }
+    if last_byte.is_some_and(|b| b != b'\n') {
+        file.write_all(b"\n")?;
+        file.sync_data()?;
+        lines += 1;
+    }
+    Ok((file, lines))
 }
 
 /// `pretty_sorted(value)` + newline, written atomically.
@@ -124,6 +173,46 @@ mod tests {
         let t = UNIX_EPOCH + Duration::from_micros(1_700_000_000_123_456);
         assert_eq!(iso_from_system_time(t), "2023-11-14T22:13:20.123456+00:00");
         assert_eq!(iso_from_system_time(UNIX_EPOCH + Duration::from_secs(951_782_400)), "2000-02-29T00:00:00.000000+00:00");
+    }
+
+    #[test]
+    fn jsonl_open_ends_a_torn_line_and_counts_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("log.jsonl");
+        // Torn inside a UTF-8 sequence: line counting must not need valid text.
+        std::fs::write(&path, b"{\"a\":1}\n{\"b\":\xc3").unwrap();
+        let (mut f, lines) = open_jsonl_for_append(&path).unwrap();
+        assert_eq!(lines, 2, "the torn line counts");
+        f.write_all(b"{\"c\":3}\n").unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(bytes.ends_with(b"\xc3\n{\"c\":3}\n"), "{:?}", String::from_utf8_lossy(&bytes));
+        let (_, lines) = open_jsonl_for_append(&path).unwrap();
+        assert_eq!(lines, 3, "an intact file gains nothing");
+        let (_, empty) = open_jsonl_for_append(&dir.path().join("new.jsonl")).unwrap();
+        assert_eq!(empty, 0);
+    }
+
+    #[test]
+    fn atomic_writes_from_many_threads_never_share_a_temp_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("result.json");
+        let writers: Vec<_> = (0..8u8)
+            .map(|t| {
+                let path = path.clone();
+                std::thread::spawn(move || {
+                    for _ in 0..20 {
+                        write_atomic(&path, &[t; 4096]).unwrap();
+                    }
+                })
+            })
+            .collect();
+        for w in writers {
+            w.join().unwrap();
+        }
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(bytes.len() == 4096 && bytes.iter().all(|&b| b == bytes[0]), "one writer's whole content");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, ["result.json"], "no temporary file left");
     }
 
     #[test]

@@ -5,6 +5,7 @@ pub mod actor;
 pub mod call;
 #[cfg(feature = "world")]
 pub mod demo;
+pub mod dirfd;
 pub mod error;
 pub mod expert_run;
 pub mod json;

@@ -1,7 +1,7 @@
 //! The public observation (§3.5–§3.8): what one frame holds, how it is projected to levels 1–3, and the
 //! files it becomes. Allow-list by construction: only the fields below can ever reach the workspace.
 use std::fs::{self, File};
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::Path;
 
 use serde_json::{Value, json};
@@ -295,31 +295,36 @@ pub fn observation_json(frame: &Frame, level: Level, previews: Option<(&DepthPre
     doc
 }
 
-/// Writes an 8-bit PNG (`channels` 1 = grayscale, 3 = RGB), fsync'd.
-pub fn write_png(path: &Path, width: u32, height: u32, channels: u8, data: &[u8]) -> std::io::Result<()> {
+/// An 8-bit PNG (`channels` 1 = grayscale, 3 = RGB) encoded in memory.
+pub fn encode_png(width: u32, height: u32, channels: u8, data: &[u8]) -> std::io::Result<Vec<u8>> {
     let expected = width as usize * height as usize * channels as usize;
     if data.len() != expected {
         return Err(std::io::Error::other(format!(
-            "{}: {} bytes for a {width}×{height}×{channels} image (expected {expected})",
-            path.display(),
+            "{} bytes for a {width}×{height}×{channels} image (expected {expected})",
             data.len()
         )));
     }
-    let file = File::create(path)?;
-    let mut enc = png::Encoder::new(BufWriter::new(&file), width, height);
+    let mut bytes = Vec::new();
+    let mut enc = png::Encoder::new(&mut bytes, width, height);
     enc.set_color(if channels == 1 { png::ColorType::Grayscale } else { png::ColorType::Rgb });
     enc.set_depth(png::BitDepth::Eight);
     enc.set_compression(png::Compression::Fast);
     let mut w = enc.write_header().map_err(std::io::Error::other)?;
     w.write_image_data(data).map_err(std::io::Error::other)?;
     w.finish().map_err(std::io::Error::other)?;
-    file.sync_all()
+    Ok(bytes)
 }
 
-/// Writes a NumPy `.npy` v1.0 file of little-endian float32, C order, fsync'd.
-pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
+/// Writes an 8-bit PNG (`channels` 1 = grayscale, 3 = RGB), fsync'd.
+pub fn write_png(path: &Path, width: u32, height: u32, channels: u8, data: &[u8]) -> std::io::Result<()> {
+    let bytes = encode_png(width, height, channels, data).map_err(|e| std::io::Error::other(format!("{}: {e}", path.display())))?;
+    write_synced(path, &bytes)
+}
+
+/// A NumPy `.npy` v1.0 file of little-endian float32, C order, encoded in memory.
+pub fn npy_f32_bytes(shape: &[usize], data: &[f32]) -> std::io::Result<Vec<u8>> {
     if shape.iter().product::<usize>() != data.len() {
-        return Err(std::io::Error::other(format!("{}: shape {shape:?} does not hold {} values", path.display(), data.len())));
+        return Err(std::io::Error::other(format!("shape {shape:?} does not hold {} values", data.len())));
     }
     let dims = match shape {
         [n] => format!("({n},)"),
@@ -330,56 +335,119 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Res
     let unpadded = 10 + header.len() + 1;
     header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
     header.push('\n');
-    let file = File::create(path)?;
-    let mut w = BufWriter::new(&file);
-    w.write_all(b"\x93NUMPY\x01\x00")?;
-    w.write_all(&(header.len() as u16).to_le_bytes())?;
-    w.write_all(header.as_bytes())?;
+    let mut bytes = Vec::with_capacity(10 + header.len() + 4 * data.len());
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
     for v in data {
-        w.write_all(&v.to_le_bytes())?;
+        bytes.extend_from_slice(&v.to_le_bytes());
     }
-    w.flush()?;
-    drop(w);
+    Ok(bytes)
+}
+
+/// Writes a NumPy `.npy` v1.0 file of little-endian float32, C order, fsync'd.
+pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
+    let bytes = npy_f32_bytes(shape, data).map_err(|e| std::io::Error::other(format!("{}: {e}", path.display())))?;
+    write_synced(path, &bytes)
+}
+
+fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut file = File::create(path)?;
+    file.write_all(bytes)?;
     file.sync_all()
 }
 
-/// Writes the whole observation directory for `frame` at `level` into the empty directory `dir`; returns
-/// the observation document.
-pub fn write_observation_dir(dir: &Path, frame: &Frame, level: Level) -> std::io::Result<Value> {
+/// One file of an encoded observation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EncodedFile {
+    /// `/`-separated path inside the observation directory, e.g. `head/rgb.png` (at most one directory).
+    pub rel_path: String,
+    pub bytes: Vec<u8>,
+}
+
+impl EncodedFile {
+    /// The directory part of `rel_path` (None for a top-level file) and the file name.
+    pub fn split(&self) -> (Option<&str>, &str) {
+        match self.rel_path.split_once('/') {
+            Some((dir, name)) => (Some(dir), name),
+            None => (None, &self.rel_path),
+        }
+    }
+}
+
+/// A frame encoded once, in memory, so the workspace and the private archive get the same bytes and the
+/// server never reads back a directory the agent can write.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EncodedObservation {
+    pub observation_id: String,
+    /// The `observation.json` document.
+    pub document: Value,
+    /// In writing order; `observation.json` last, so a reader that finds it finds every file it names.
+    pub files: Vec<EncodedFile>,
+}
+
+impl EncodedObservation {
+    /// The subdirectories the files live in, in first-use order.
+    pub fn dirs(&self) -> Vec<&str> {
+        let mut dirs: Vec<&str> = Vec::new();
+        for dir in self.files.iter().filter_map(|f| f.split().0) {
+            if !dirs.contains(&dir) {
+                dirs.push(dir);
+            }
+        }
+        dirs
+    }
+}
+
+/// Encodes the observation directory of `frame` at `level`: PNGs, depth `.npy` and `observation.json`.
+pub fn encode_observation(frame: &Frame, level: Level) -> std::io::Result<EncodedObservation> {
+    let file = |rel_path: String, bytes: Vec<u8>| EncodedFile { rel_path, bytes };
+    let mut files = Vec::new();
     let mut previews = Vec::new();
     for (name, cam) in [("head", &frame.head), ("wrist", &frame.wrist)] {
-        let cam_dir = dir.join(name);
-        fs::create_dir_all(&cam_dir)?;
         let (w, h) = (cam.image.width, cam.image.height);
-        write_png(&cam_dir.join("rgb.png"), w, h, 3, &cam.image.rgb)?;
+        files.push(file(format!("{name}/rgb.png"), encode_png(w, h, 3, &cam.image.rgb)?));
         if level >= Level::L3 {
             let valid = valid_mask(cam);
-            write_npy_f32(&cam_dir.join("depth_m.npy"), &[h as usize, w as usize], &cam.depth_m)?;
+            files.push(file(format!("{name}/depth_m.npy"), npy_f32_bytes(&[h as usize, w as usize], &cam.depth_m)?));
             let mask: Vec<u8> = valid.iter().map(|&v| if v { 255 } else { 0 }).collect();
-            write_png(&cam_dir.join("depth_valid_mask.png"), w, h, 1, &mask)?;
+            files.push(file(format!("{name}/depth_valid_mask.png"), encode_png(w, h, 1, &mask)?));
             let preview = depth_preview(&cam.depth_m, &valid);
-            write_png(&cam_dir.join("depth_visualization.png"), w, h, 1, &preview.pixels)?;
+            files.push(file(format!("{name}/depth_visualization.png"), encode_png(w, h, 1, &preview.pixels)?));
             previews.push(preview);
         }
-        crate::json::sync_dir(&cam_dir)?;
     }
     if let Some(reference) = &frame.task_reference {
-        let ref_dir = dir.join("task_reference");
-        fs::create_dir_all(&ref_dir)?;
-        write_png(&ref_dir.join("rgb.png"), reference.width, reference.height, 3, &reference.rgb)?;
-        crate::json::sync_dir(&ref_dir)?;
+        files.push(file("task_reference/rgb.png".into(), encode_png(reference.width, reference.height, 3, &reference.rgb)?));
     }
-    let doc = observation_json(frame, level, (previews.len() == 2).then(|| (&previews[0], &previews[1])));
-    let mut text = crate::json::pretty_sorted(&doc);
+    let document = observation_json(frame, level, (previews.len() == 2).then(|| (&previews[0], &previews[1])));
+    let mut text = crate::json::pretty_sorted(&document);
     text.push('\n');
-    let path = dir.join("observation.json");
-    {
-        let mut f = File::create(&path)?;
-        f.write_all(text.as_bytes())?;
-        f.sync_all()?;
+    files.push(file("observation.json".into(), text.into_bytes()));
+    Ok(EncodedObservation { observation_id: observation_id(frame.frame_index), document, files })
+}
+
+/// Writes `encoded` into `dir` (created with its parents) by path, creating every file new. Only for
+/// directories the agent cannot write (the private archive, tests): the workspace goes through
+/// [`crate::publish`]. Not fsync'd, like the copy it replaces: a crash ends the episode INVALID anyway.
+pub fn write_encoded_dir(dir: &Path, encoded: &EncodedObservation) -> std::io::Result<()> {
+    fs::create_dir_all(dir)?;
+    for sub in encoded.dirs() {
+        fs::create_dir(dir.join(sub))?;
     }
-    crate::json::sync_dir(dir)?;
-    Ok(doc)
+    for f in &encoded.files {
+        let mut out = fs::OpenOptions::new().write(true).create_new(true).open(dir.join(&f.rel_path))?;
+        out.write_all(&f.bytes)?;
+    }
+    Ok(())
+}
+
+/// Writes the whole observation directory for `frame` at `level` into `dir` (created if missing, holding
+/// none of these files); returns the observation document.
+pub fn write_observation_dir(dir: &Path, frame: &Frame, level: Level) -> std::io::Result<Value> {
+    let encoded = encode_observation(frame, level)?;
+    write_encoded_dir(dir, &encoded)?;
+    Ok(encoded.document)
 }
 
 #[cfg(test)]

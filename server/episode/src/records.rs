@@ -1,12 +1,12 @@
 //! Evaluator-private records in the run directory (§4.9): the append-only action log (one fsync per
 //! line, so a killed server loses nothing it answered) and `result.json`, plus the outcome rule of §4.8.
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
-use crate::json::{compact_sorted, utc_now_iso, write_json_file};
+use crate::json::{compact_sorted, open_jsonl_for_append, sha256_hex, utc_now_iso, write_json_file};
 
 pub const ACTION_EVENT_SCHEMA: &str = "libero.agent_action_event.v1";
 pub const RESULT_SCHEMA: &str = "libero.agent_run_result.v1";
@@ -50,6 +50,38 @@ impl RunDir {
     }
 }
 
+/// Serialized size above which a logged field is recorded as a digest and a prefix (see [`bounded_for_log`]).
+/// The largest valid call, 50 micro-actions of 7 numbers of at most 24 characters each, serializes to about
+/// 9 KiB, so accepted calls keep their full arguments (demonstration recording and replay read them back);
+/// only rejected calls can exceed it.
+pub const MAX_LOGGED_FIELD_BYTES: usize = 16 * 1024;
+/// How much of an oversized field's serialized JSON the log keeps.
+pub const LOGGED_PREFIX_BYTES: usize = 1024;
+
+/// `value` as the action log records it: unchanged up to [`MAX_LOGGED_FIELD_BYTES`] serialized, otherwise
+/// `{"truncated": true, "size_bytes", "sha256", "prefix"}` of its compact sorted JSON, so that an agent
+/// sending megabytes of rejected arguments cannot fill the disk with fsync'd copies.
+pub fn bounded_for_log(value: &Value) -> Value {
+    let text = compact_sorted(value);
+    if text.len() <= MAX_LOGGED_FIELD_BYTES {
+        return value.clone();
+    }
+    let mut end = LOGGED_PREFIX_BYTES;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    json!({"truncated": true, "size_bytes": text.len(), "sha256": sha256_hex(text.as_bytes()), "prefix": &text[..end]})
+}
+
+/// Each field of an object bounded on its own (so `tool` and `command` stay readable beside huge
+/// `arguments`); any other value bounded whole.
+fn bounded_fields(value: &Value) -> Value {
+    match value {
+        Value::Object(map) => Value::Object(map.iter().map(|(k, v)| (k.clone(), bounded_for_log(v))).collect()),
+        other => bounded_for_log(other),
+    }
+}
+
 /// `actions.jsonl`: every request and its response, errors included.
 pub struct ActionLog {
     file: File,
@@ -57,21 +89,22 @@ pub struct ActionLog {
 }
 
 impl ActionLog {
-    /// Opens (creating or appending to) the log; `event_index` continues after existing lines.
+    /// Opens (creating or appending to) the log; `event_index` continues after existing lines. A line torn
+    /// by a crash keeps its index and is ended, so the next event starts on a line of its own.
     pub fn open(path: &Path) -> std::io::Result<Self> {
-        let existing = std::fs::read_to_string(path).map(|s| s.lines().count() as u64).unwrap_or(0);
-        let file = OpenOptions::new().create(true).append(true).open(path)?;
-        Ok(Self { file, next_index: existing })
+        let (file, lines) = open_jsonl_for_append(path)?;
+        Ok(Self { file, next_index: lines })
     }
 
-    /// Appends one event and fsyncs it before returning.
+    /// Appends one event and fsyncs it before returning. Oversized request fields and responses are
+    /// recorded truncated ([`bounded_for_log`]).
     pub fn append(&mut self, request: &Value, response: &Value, attempt_index: u32) -> std::io::Result<()> {
         let event = json!({
             "schema_version": ACTION_EVENT_SCHEMA,
             "event_index": self.next_index,
             "recorded_at": utc_now_iso(),
-            "request": request,
-            "response": response,
+            "request": bounded_fields(request),
+            "response": bounded_for_log(response),
             "attempt_index": attempt_index,
         });
         let mut line = compact_sorted(&event);
@@ -152,13 +185,18 @@ pub fn read_result(run: &RunDir) -> Option<Value> {
 mod tests {
     use super::*;
 
+    /// A closed log holding one `start` event.
+    fn log_with_a_start_event(dir: &Path) -> PathBuf {
+        let path = dir.join("actions.jsonl");
+        let mut log = ActionLog::open(&path).unwrap();
+        log.append(&json!({"command": "start"}), &json!({"ok": true}), 1).unwrap();
+        path
+    }
+
     #[test]
     fn action_log_lines_are_sorted_compact_and_indexed_across_reopen() {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("actions.jsonl");
-        let mut log = ActionLog::open(&path).unwrap();
-        log.append(&json!({"command": "start"}), &json!({"ok": true}), 1).unwrap();
-        drop(log);
+        let path = log_with_a_start_event(dir.path());
         let mut log = ActionLog::open(&path).unwrap();
         log.append(&Value::Null, &json!({"ok": false, "error": "x"}), 1).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
@@ -167,6 +205,67 @@ mod tests {
         assert_eq!(lines[1]["event_index"], 1);
         assert_eq!(lines[1]["request"], Value::Null);
         assert!(text.lines().next().unwrap().starts_with(r#"{"attempt_index":1,"event_index":0,"#));
+    }
+
+    #[test]
+    fn append_after_a_torn_line_starts_a_new_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = log_with_a_start_event(dir.path());
+        // A crash in the middle of the second event's write.
+        let mut f = std::fs::OpenOptions::new().append(true).open(&path).unwrap();
+        f.write_all(br#"{"attempt_index":1,"event_index":1,"req"#).unwrap();
+        drop(f);
+        let mut log = ActionLog::open(&path).unwrap();
+        assert_eq!(log.events_written(), 2, "the torn event keeps its index");
+        log.append(&json!({"command": "finish"}), &json!({"ok": true}), 1).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 3);
+        assert!(serde_json::from_str::<Value>(lines[1]).is_err(), "the torn line stays as it was");
+        let last: Value = serde_json::from_str(lines[2]).expect("the next event is a whole line");
+        assert_eq!(last["event_index"], 2);
+    }
+
+    /// The longest valid `osc_sequence` arguments: 50 actions whose every component has the longest JSON
+    /// form a number in [-1, 1] can take.
+    fn maximal_valid_arguments() -> Value {
+        let longest = -2.2250738585072014e-308_f64; // 24 characters
+        assert_eq!(serde_json::to_string(&longest).unwrap().len(), 24);
+        json!({"actions": vec![[longest; 7]; crate::tools::MAX_MICRO_ACTIONS_PER_CALL]})
+    }
+
+    #[test]
+    fn the_largest_valid_call_is_logged_in_full() {
+        let args = maximal_valid_arguments();
+        assert!(crate::call::validate_actions(&args["actions"]).is_ok());
+        let size = compact_sorted(&args).len();
+        assert!(size * 3 / 2 < MAX_LOGGED_FIELD_BYTES, "{size} bytes: the limit must stay well above a valid call");
+        assert_eq!(bounded_for_log(&args), args);
+    }
+
+    #[test]
+    fn oversized_rejected_arguments_are_logged_truncated_with_sha256() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("actions.jsonl");
+        let mut log = ActionLog::open(&path).unwrap();
+        // 4 MiB of junk, with a multi-byte character straddling the prefix's end.
+        let junk = format!("{}é{}", "x".repeat(LOGGED_PREFIX_BYTES - 13), "y".repeat(4 << 20));
+        let arguments = json!({"actions": junk});
+        let request = json!({"tool": "osc_sequence", "command": "osc_sequence", "arguments": arguments});
+        let rejected = json!({"ok": false, "error_type": "ValueError", "error": "actions must be a rectangular numeric array"});
+        log.append(&request, &rejected, 1).unwrap();
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(size < 4096, "the line is {size} bytes");
+        let line: Value = serde_json::from_str(std::fs::read_to_string(&path).unwrap().trim_end()).unwrap();
+        let logged = &line["request"]["arguments"];
+        let full = compact_sorted(&arguments);
+        assert_eq!(logged["truncated"], true);
+        assert_eq!(logged["size_bytes"], full.len());
+        assert_eq!(logged["sha256"], sha256_hex(full.as_bytes()));
+        let prefix = logged["prefix"].as_str().unwrap();
+        assert!(full.starts_with(prefix) && prefix.len() <= LOGGED_PREFIX_BYTES && prefix.len() > LOGGED_PREFIX_BYTES - 4);
+        assert_eq!(line["request"]["tool"], "osc_sequence", "small fields stay whole");
+        assert_eq!(line["response"], rejected);
     }
 
     #[test]

@@ -2,6 +2,8 @@
 //! real writer from a fixed frame. Regenerate deliberately with `UPDATE_GOLDEN=1`.
 use std::path::PathBuf;
 
+use sha2::{Digest, Sha256};
+
 use libero_episode::observation::{CameraFrame, Frame, Level, RgbImage, RobotReadout, write_observation_dir};
 
 fn fixture(name: &str) -> PathBuf {
@@ -54,6 +56,39 @@ fn level3_observation_json_matches_the_golden_fixture() {
     let golden = std::fs::read_to_string(fixture("observation_level3.json")).unwrap();
     assert_eq!(text, golden, "observation.json wire format changed");
     assert!(text.ends_with("}\n"), "indent-2, sorted keys, trailing newline");
+}
+
+/// sha256 of every file of the fixed frame's level-3 directory (with a task reference image): the PNG and
+/// `.npy` bytes are part of the wire format too.
+#[test]
+fn level3_files_match_their_golden_digests() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut frame = fixed_frame();
+    frame.task_reference = Some(RgbImage { width: 2, height: 2, rgb: (0..12).map(|i| i * 20).collect() });
+    write_observation_dir(dir.path(), &frame, Level::L3).unwrap();
+    let mut digests = serde_json::Map::new();
+    for rel in [
+        "head/rgb.png",
+        "head/depth_m.npy",
+        "head/depth_valid_mask.png",
+        "head/depth_visualization.png",
+        "wrist/rgb.png",
+        "wrist/depth_m.npy",
+        "wrist/depth_valid_mask.png",
+        "wrist/depth_visualization.png",
+        "task_reference/rgb.png",
+        "observation.json",
+    ] {
+        let bytes = std::fs::read(dir.path().join(rel)).unwrap();
+        let hex: String = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
+        digests.insert(rel.to_owned(), serde_json::Value::String(hex));
+    }
+    let text = serde_json::to_string_pretty(&digests).unwrap() + "\n";
+    if std::env::var_os("UPDATE_GOLDEN").is_some() {
+        std::fs::write(fixture("observation_level3_files.json"), &text).unwrap();
+    }
+    let golden = std::fs::read_to_string(fixture("observation_level3_files.json")).unwrap();
+    assert_eq!(text, golden, "published file bytes changed");
 }
 
 #[test]

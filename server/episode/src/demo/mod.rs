@@ -10,7 +10,6 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
-use sha2::{Digest, Sha256};
 use thiserror::Error;
 
 use crate::EpisodeError;
@@ -25,6 +24,7 @@ pub mod validate;
 pub use project::{DemoCondition, ProjectionReceipt, project_bundle};
 pub use record::{BundleSummary, RecordOptions, SourceEpisode, record_bundle, verify_bundle};
 pub use validate::{Violation, validate_bundle};
+pub use crate::json::sha256_hex;
 
 /// Schema of a library bundle's `manifest.json`.
 pub const BUNDLE_SCHEMA: &str = "libero_agent.demonstration_bundle.v1";
@@ -113,10 +113,6 @@ pub fn artifact(root: &Path, rel: &str, media_type: &str) -> Result<Value, DemoE
     let mut v = file_record(root, rel)?;
     v["media_type"] = json!(media_type);
     Ok(v)
-}
-
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// Every regular file under `root` except `manifest.json`, as sorted relative POSIX paths.
