@@ -138,7 +138,8 @@ pub fn rollouts_jsonl(dir: &Path) -> PathBuf {
 
 /// Appends one record and syncs it (a killed runner loses no ended rollout).
 pub fn append_record(dir: &Path, record: &RolloutRecord) -> anyhow::Result<()> {
-    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(rollouts_jsonl(dir))?;
+    // A torn last line (a runner killed mid-write) is ended first, so this record starts on its own line.
+    let (mut f, _) = libero_episode::json::open_jsonl_for_append(&rollouts_jsonl(dir))?;
     let mut line = serde_json::to_string(record)?;
     line.push('\n');
     f.write_all(line.as_bytes())?;
@@ -232,5 +233,26 @@ mod tests {
         t.model = "other".into();
         assert_ne!(s.sha256(), t.sha256());
         assert_eq!(s.sha256().len(), 64);
+    }
+
+    #[test]
+    fn a_record_appended_after_a_torn_line_is_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(rollouts_jsonl(dir.path()), b"{\"rollout_id\": \"w1_t14_le").unwrap();
+        let plan = super::super::schedule::PlannedRollout {
+            rollout_id: "w1_t14_level3".into(),
+            task: "T14".into(),
+            task_number: 14,
+            task_name: "open_the_microwave".into(),
+            split: libero_metrics::Split::ShortHorizonEasy,
+            stage_count: 1,
+            repetition: 1,
+            level: 3,
+            demo: super::super::schedule::Demo::None,
+        };
+        append_record(dir.path(), &RolloutRecord::planned(&plan)).unwrap();
+        let records = read_records(dir.path()).unwrap();
+        assert_eq!(records.len(), 1, "the torn line is skipped, the new record is whole");
+        assert_eq!(records[0].rollout_id, "w1_t14_level3");
     }
 }
