@@ -144,6 +144,11 @@ fn a_red_team_agent_in_the_sandbox_reaches_nothing_but_its_own_endpoint() {
     assert!(report["oversized_bytes_sent"].as_u64().unwrap() > 3_000_000);
     assert!(actions < 64 * 1024, "actions.jsonl is {actions} bytes");
 
+    // A batch that ends normally waits for its episodes' private videos.
+    for batch in [&attacked, &clean] {
+        assert!(run_dir(batch).join("continuous_video.mp4").is_file(), "the video of {} is finalised", batch.display());
+    }
+
     // The same verdict as the same agent without the attacks.
     assert_eq!(rec["outcome"], records(&clean)[0]["outcome"]);
     assert_eq!(verdict(&attacked), verdict(&clean));

@@ -368,7 +368,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(s) = server {
         // Give the store a moment to record the last transitions, then stop.
         std::thread::sleep(Duration::from_millis(200));
-        s.stop()?;
+        // Interrupted: exit within seconds; done: wait for every episode's records and video.
+        if INTERRUPTED.load(Ordering::SeqCst) { s.stop_now()? } else { s.stop()? };
     }
     let p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
     let stopped = INTERRUPTED.load(Ordering::SeqCst) || failure.is_some();

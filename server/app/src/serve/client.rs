@@ -135,10 +135,11 @@ pub fn post_json(base: &str, path: &str, body: &Value) -> anyhow::Result<(u16, V
 }
 
 /// A server running in this process on a free loopback port; stops (recording open episodes as aborted with
-/// `stop_reason`) when [`InProcessServer::stop`] is called or it is dropped.
+/// `stop_reason`) when [`InProcessServer::stop`] is called (waiting for every episode's records and video) or
+/// [`InProcessServer::stop_now`] / drop (waiting only seconds: an interrupted batch must exit promptly).
 pub struct InProcessServer {
     pub url: String,
-    stop: Option<mpsc::Sender<()>>,
+    stop: Option<mpsc::Sender<Duration>>,
     thread: Option<std::thread::JoinHandle<anyhow::Result<()>>>,
 }
 
@@ -147,7 +148,7 @@ impl InProcessServer {
     /// process's client calls and to no agent (it is in no environment and on no command line).
     pub fn start(data: PathBuf, stop_reason: &str) -> anyhow::Result<Self> {
         let (url_tx, url_rx) = mpsc::channel::<anyhow::Result<String>>();
-        let (stop_tx, stop_rx) = mpsc::channel::<()>();
+        let (stop_tx, stop_rx) = mpsc::channel::<Duration>();
         let stop_reason = stop_reason.to_owned();
         let thread = std::thread::spawn(move || -> anyhow::Result<()> {
             let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
@@ -162,8 +163,8 @@ impl InProcessServer {
                 };
                 credential::remember_in_process(bound.url(), bound.operator_token());
                 let stop = async move {
-                    let _ = tokio::task::spawn_blocking(move || stop_rx.recv()).await;
-                    stop_reason
+                    let grace = tokio::task::spawn_blocking(move || stop_rx.recv()).await.ok().and_then(Result::ok);
+                    (stop_reason, grace.unwrap_or(super::SIGNAL_GRACE))
                 };
                 let listening = move |v: Value| {
                     let _ = url_tx.send(Ok(v["url"].as_str().unwrap_or_default().to_owned()));
@@ -183,15 +184,20 @@ impl InProcessServer {
         }
     }
 
-    /// Stops the server and waits for it.
+    /// Stops the server once every episode has written its records and video (bounded by [`super::DRAIN_GRACE`]).
     pub fn stop(mut self) -> anyhow::Result<()> {
-        self.shutdown()
+        self.shutdown(super::DRAIN_GRACE)
     }
 
-    fn shutdown(&mut self) -> anyhow::Result<()> {
+    /// Stops the server within seconds (an interrupted batch): a video still draining may stay partial.
+    pub fn stop_now(mut self) -> anyhow::Result<()> {
+        self.shutdown(super::SIGNAL_GRACE)
+    }
+
+    fn shutdown(&mut self, grace: Duration) -> anyhow::Result<()> {
         credential::forget_in_process(&self.url);
         if let Some(s) = self.stop.take() {
-            let _ = s.send(());
+            let _ = s.send(grace);
         }
         match self.thread.take() {
             Some(t) => t.join().map_err(|_| anyhow::anyhow!("the server thread panicked"))?,
@@ -202,6 +208,6 @@ impl InProcessServer {
 
 impl Drop for InProcessServer {
     fn drop(&mut self) {
-        let _ = self.shutdown();
+        let _ = self.shutdown(super::SIGNAL_GRACE);
     }
 }

@@ -187,8 +187,12 @@ async fn store_sync(app: Arc<App>, mut calls: UnboundedReceiver<String>) {
     }
 }
 
-/// How long shutdown waits for episode threads to record their end, and then for open connections.
-const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+/// How long a shutdown by signal waits for episode threads to record their end (and, after that, for open
+/// connections): a stuck episode must not keep the process alive.
+pub const SIGNAL_GRACE: Duration = Duration::from_secs(5);
+/// How long a planned stop (a batch or bench that is done) waits for episode threads to finish their records
+/// and private videos, which take tens of seconds to drain on a CPU renderer.
+pub const DRAIN_GRACE: Duration = Duration::from_secs(600);
 
 /// Runs the server until SIGINT/SIGTERM; unfinished episodes are then recorded as aborted (INVALID).
 pub fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
@@ -200,7 +204,8 @@ pub fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
 }
 
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
-    serve_until(args, |listening| println!("{listening}"), shutdown_signal()).await
+    let shutdown = async { (shutdown_signal().await, SIGNAL_GRACE) };
+    serve_until(args, |listening| println!("{listening}"), shutdown).await
 }
 
 /// An exclusive lock on a data directory, held while a server uses it: a second `serve` on the same
@@ -241,12 +246,12 @@ impl DataLock {
 }
 
 /// The server: locks the data directory, binds, recovers interrupted episodes (files, then the store),
-/// reports `listening` (the JSON line `serve` prints), serves until `shutdown` yields a stop reason, then
-/// records every open episode as aborted with it, waiting a bounded time for each part.
+/// reports `listening` (the JSON line `serve` prints), serves until `shutdown` yields a stop reason and how long
+/// to wait for the episodes, then records every open episode as aborted with it.
 pub async fn serve_until(
     args: ServeArgs,
     listening: impl FnOnce(Value),
-    shutdown: impl Future<Output = String> + Send + 'static,
+    shutdown: impl Future<Output = (String, Duration)> + Send + 'static,
 ) -> anyhow::Result<()> {
     let running = start(&args).await?;
     running.serve(listening, shutdown).await
@@ -304,7 +309,7 @@ impl Bound {
     }
 
     /// Serves until `shutdown` yields a stop reason (see [`serve_until`]).
-    pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = String> + Send + 'static) -> anyhow::Result<()> {
+    pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = (String, Duration)> + Send + 'static) -> anyhow::Result<()> {
         let Bound { app, listener, base_url, recovered, reconciled, _lock, _registration } = self;
         let calls_rx = app.calls_rx.lock().ok().and_then(|mut c| c.take()).context("the server was started twice")?;
         let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
@@ -324,11 +329,11 @@ impl Bound {
         let stop = {
             let app = app.clone();
             async move {
-                let reason = shutdown.await;
+                let (reason, grace) = shutdown.await;
                 let episodes = app.episodes.clone();
-                let stuck = tokio::task::spawn_blocking(move || episodes.stop_all(&reason, SHUTDOWN_GRACE)).await.unwrap_or(0);
+                let stuck = tokio::task::spawn_blocking(move || episodes.stop_all(&reason, grace)).await.unwrap_or(0);
                 if stuck > 0 {
-                    eprintln!("warning: {stuck} episode thread(s) did not end within {SHUTDOWN_GRACE:?}; stopping anyway");
+                    eprintln!("warning: {stuck} episode thread(s) did not end within {grace:?}; stopping anyway");
                 }
                 let _ = stopped_tx.send(());
             }
@@ -336,11 +341,11 @@ impl Bound {
         let server = axum::serve(listener, router(app.clone())).with_graceful_shutdown(stop);
         let grace_over = async {
             let _ = stopped_rx.await;
-            tokio::time::sleep(SHUTDOWN_GRACE).await;
+            tokio::time::sleep(SIGNAL_GRACE).await;
         };
         tokio::select! {
             served = server => served?,
-            () = grace_over => eprintln!("warning: requests still open {SHUTDOWN_GRACE:?} after the stop; closing them"),
+            () = grace_over => eprintln!("warning: requests still open {SIGNAL_GRACE:?} after the stop; closing them"),
         }
         sync_task.abort();
         app.sync_all().await;
