@@ -19,7 +19,7 @@ use super::batch::RolloutRecord;
 use super::harness::{Harness, LaunchContext, build_launch};
 use super::sandbox::{SandboxSpec, cli_install_paths, own_binary_files};
 use super::schedule::{Demo, PlannedRollout};
-use super::usage::{Usage, usage_from_codex_session, usage_from_jsonl};
+use super::usage::{Usage, usage_from_codex_exec, usage_from_jsonl};
 use super::{INTERRUPTED, RunContext};
 use crate::serve::client::{get_json, post_json, prepare_episode};
 use crate::serve::episodes::PrepareRequest;
@@ -116,14 +116,13 @@ fn kill_group(child: &mut Child) {
     let _ = child.wait();
 }
 
-/// Session files the harness wrote under its home (JSON lines), for token accounting.
 /// Most bytes of a harness's stdout read for token usage.
 const MAX_USAGE_LOG_BYTES: u64 = 256 << 20;
 
 /// Token usage from what the harness itself printed on stdout, which the runner captures into the rollout
 /// directory outside the sandbox: the one channel the agent cannot write to. Session logs in the agent's home or
 /// workspace are never read (the agent could forge them, or plant links and FIFOs there). Codex prints its
-/// events on stdout with `--json`: the last `token_count` total if present, else its per-turn `usage` records.
+/// events on stdout with `--json`, one `turn.completed` usage per turn.
 fn usage_of(harness: Harness, stdout: &Path) -> Usage {
     if harness == Harness::Command {
         return Usage::default();
@@ -134,10 +133,7 @@ fn usage_of(harness: Harness, stdout: &Path) -> Usage {
         let _ = f.take(MAX_USAGE_LOG_BYTES).read_to_string(&mut text);
     }
     if harness == Harness::Codex {
-        let totals = usage_from_codex_session([text.as_str()]);
-        if totals.available {
-            return totals;
-        }
+        return usage_from_codex_exec(&text);
     }
     usage_from_jsonl([text.as_str()])
 }
