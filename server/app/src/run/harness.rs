@@ -42,16 +42,6 @@ impl Harness {
         }
     }
 
-    /// The program run (for the install paths the sandbox exposes and the version probe).
-    pub fn program(self) -> &'static str {
-        match self {
-            Harness::Codex => "codex",
-            Harness::ClaudeCode => "claude",
-            Harness::KimiCode | Harness::QwenCode | Harness::Deepseek => "npx",
-            Harness::Command => "sh",
-        }
-    }
-
     /// `<program> --version` argv (None for `command`).
     pub fn version_probe(self) -> Option<Vec<String>> {
         let npx = |pkg: &str| vec!["npx".to_owned(), "--yes".into(), pkg.into(), "--version".into()];

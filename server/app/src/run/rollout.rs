@@ -16,8 +16,8 @@ use libero_metrics::Outcome;
 use serde_json::{Value, json};
 
 use super::batch::RolloutRecord;
-use super::harness::{Harness, LaunchContext, build_launch};
-use super::sandbox::{SandboxSpec, cli_install_paths, own_binary_files};
+use super::harness::{Harness, Launch, LaunchContext, build_launch};
+use super::sandbox::{Sandbox, SandboxSpec, cli_install_paths, own_binary_files};
 use super::schedule::{Demo, PlannedRollout};
 use super::usage::{Usage, usage_from_codex_exec, usage_from_jsonl};
 use super::{INTERRUPTED, RunContext};
@@ -138,6 +138,30 @@ fn usage_of(harness: Harness, stdout: &Path) -> Usage {
     usage_from_jsonl([text.as_str()])
 }
 
+/// Writes the files a launch needs first (CLI configuration, 0600 where it holds a token or key).
+pub fn write_launch_files(launch: &Launch) -> anyhow::Result<()> {
+    for (path, content, mode) in &launch.files {
+        if let Some(p) = path.parent() {
+            fs::create_dir_all(p)?;
+        }
+        fs::write(path, content)?;
+        fs::set_permissions(path, fs::Permissions::from_mode(*mode))?;
+    }
+    Ok(())
+}
+
+/// The argv the runner starts: `argv` inside the sandbox when there is one, writing only the workspace and the
+/// session home and reading, besides the system directories, this binary and the install of the program `argv`
+/// runs as the child's own `PATH` (in `env`) finds it.
+pub fn contained_argv(sandbox: Option<&Sandbox>, argv: &[String], env: &[(String, String)], workspace: &Path, home: &Path) -> Vec<String> {
+    let Some(sb) = sandbox else { return argv.to_vec() };
+    let path = env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
+    let mut readable = own_binary_files();
+    readable.extend(argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
+    let spec = SandboxSpec { writable: vec![workspace.to_path_buf(), home.to_path_buf()], readable, cwd: workspace.to_path_buf() };
+    sb.command(argv, &spec)
+}
+
 /// Runs one rollout to its record.
 pub fn run_rollout(ctx: &RunContext, plan: &PlannedRollout) -> RolloutRecord {
     let mut rec = RolloutRecord::planned(plan);
@@ -192,22 +216,8 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         sandboxed: ctx.sandbox.is_some(),
     };
     let launch = build_launch(&lctx)?;
-    for (path, content, mode) in &launch.files {
-        if let Some(p) = path.parent() {
-            fs::create_dir_all(p)?;
-        }
-        fs::write(path, content)?;
-        fs::set_permissions(path, fs::Permissions::from_mode(*mode))?;
-    }
-    let argv = match &ctx.sandbox {
-        Some(sb) => {
-            let mut readable = own_binary_files();
-            readable.extend(cli_install_paths(ctx.harness.program()));
-            let spec = SandboxSpec { writable: vec![prepared.workspace.clone(), home.clone()], readable, cwd: prepared.workspace.clone() };
-            sb.command(&launch.argv, &spec)
-        }
-        None => launch.argv.clone(),
-    };
+    write_launch_files(&launch)?;
+    let argv = contained_argv(ctx.sandbox.as_ref(), &launch.argv, &launch.env, &prepared.workspace, &home);
     let stdout_path = dir.join(ctx.harness.stdout_file());
     let stderr_path = dir.join(format!("{}_stderr.log", ctx.harness.as_str()));
     let mut manifest = json!({
