@@ -268,6 +268,11 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             env.push((s("ANTHROPIC_API_KEY"), c.api_key.clone()));
             env.push((s("CLAUDE_CONFIG_DIR"), home_s.clone()));
             env.push((s("CLAUDE_CODE_DISABLE_NONESSENTIAL_TRAFFIC"), s("1")));
+            if ctx.sandboxed {
+                // Claude Code's own marker for "inside bubblewrap": without it, bypassPermissions is refused to
+                // root (the uid a CI container runs as), although our sandbox is exactly the isolation it asks for.
+                env.push((s("CLAUDE_CODE_BUBBLEWRAP"), s("1")));
+            }
             vec![
                 s("claude"), s("--bare"), s("--strict-mcp-config"), s("--mcp-config"), cfg.to_string_lossy().into_owned(),
                 s("--print"), s("--output-format"), s("stream-json"), s("--verbose"), s("--model"), s(ctx.model),
@@ -305,13 +310,14 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
         }
         Harness::QwenCode => {
             let c = creds()?;
-            let cfg = home.join("mcp.json");
-            files.push((cfg.clone(), serde_json::to_string_pretty(&qwen_mcp_config(ctx.mcp_url, ctx.mcp_token))?, 0o600));
+            // QWEN_HOME is Qwen's settings directory itself: `<home>/settings.json` is its user settings, so the
+            // episode's server lives there (not in `--mcp-config`), where `qwen mcp list` reads and checks it too.
             let settings = json!({"security": {"auth": {"selectedType": "openai"}},
                 "model": {"name": ctx.model, "reasoningEffort": ctx.effort},
                 "privacy": {"usageStatisticsEnabled": false},
-                "telemetry": {"enabled": false, "logPrompts": false, "includeSensitiveSpanAttributes": false}});
-            files.push((home.join(".qwen/settings.json"), serde_json::to_string_pretty(&settings)?, 0o600));
+                "telemetry": {"enabled": false, "logPrompts": false, "includeSensitiveSpanAttributes": false},
+                "mcpServers": qwen_mcp_config(ctx.mcp_url, ctx.mcp_token)["mcpServers"]});
+            files.push((home.join("settings.json"), serde_json::to_string_pretty(&settings)?, 0o600));
             env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
             if let Some(b) = c.openai_base() {
                 env.push((s("OPENAI_BASE_URL"), b));
@@ -323,7 +329,7 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             }
             vec![
                 s("npx"), s("--yes"), s(QWEN_PACKAGE), s("--auth-type"), s("openai"), s("--model"), s(ctx.model),
-                s("--mcp-config"), cfg.to_string_lossy().into_owned(), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
+                s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
                 s("--approval-mode"), s("yolo"), s("--chat-recording"), s("--output-format"), s("stream-json"), prompt,
             ]
         }
