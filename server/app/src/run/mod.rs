@@ -4,6 +4,8 @@
 //! retries. Progress goes to stderr; `batch.json` and `rollouts.jsonl` in the batch directory are what the
 //! report and the dashboard read.
 pub mod batch;
+#[cfg(test)]
+mod cli_checks;
 pub mod harness;
 pub mod rollout;
 pub mod sandbox;
