@@ -129,8 +129,8 @@ pub fn own_binary_files() -> Vec<PathBuf> {
     out
 }
 
-/// The install of a CLI named `program`: the path found on the search path `path`, the links to the executable, the executable
-/// and, for npm-installed JavaScript CLIs, the package directory above it; for a script, the same for the
+/// The install of a CLI named `program`: the path found on the search path `path`, the links to the executable, the
+/// executable and, for npm-installed CLIs, its package directory and its dependencies'; for a script, the same for the
 /// interpreter its `#!` line names (`#!/usr/bin/env node` → the `node` on `path`, e.g. a Node 22 installed next to
 /// the CLI). Paths inside the system directories are visible anyway.
 pub fn cli_install_paths(program: &str, path: &std::ffi::OsStr) -> Vec<PathBuf> {
@@ -143,7 +143,8 @@ pub fn cli_install_paths(program: &str, path: &std::ffi::OsStr) -> Vec<PathBuf> 
     out
 }
 
-/// `path`, every link on the way to the executable, the executable, and its npm package directory if any.
+/// `path`, every link on the way to the executable, the executable, and for an npm package its directory and
+/// those of its dependencies.
 fn install_of(path: &Path) -> Vec<PathBuf> {
     let mut out = vec![path.to_path_buf()];
     let mut at = path.to_path_buf();
@@ -152,11 +153,41 @@ fn install_of(path: &Path) -> Vec<PathBuf> {
         out.push(at.clone());
     }
     let resolved = std::fs::canonicalize(path).unwrap_or(at);
-    if let Some(pkg) = resolved.ancestors().find(|a| a.parent().is_some_and(|p| p.ends_with("node_modules"))) {
+    if let Some(pkg) = npm_package_dir(&resolved) {
         out.push(pkg.to_path_buf());
+        out.extend(npm_dependency_dirs(pkg));
     }
     out.push(resolved);
     out.dedup();
+    out
+}
+
+/// The npm package a file belongs to: `…/node_modules/<name>` or `…/node_modules/@scope/<name>`.
+fn npm_package_dir(file: &Path) -> Option<&Path> {
+    file.ancestors().find(|a| match a.parent() {
+        Some(p) if p.ends_with("node_modules") => true,
+        Some(p) => p.file_name().is_some_and(|n| n.to_string_lossy().starts_with('@')) && p.parent().is_some_and(|g| g.ends_with("node_modules")),
+        None => false,
+    })
+}
+
+/// The directories of a package's dependencies and optional dependencies, transitively, found as Node finds them:
+/// the package's own `node_modules` first, then each ancestor's (npm hoists most of them to the top).
+fn npm_dependency_dirs(pkg: &Path) -> Vec<PathBuf> {
+    let (mut out, mut todo) = (Vec::<PathBuf>::new(), vec![pkg.to_path_buf()]);
+    while let Some(dir) = todo.pop() {
+        let Ok(text) = std::fs::read_to_string(dir.join("package.json")) else { continue };
+        let Ok(manifest) = serde_json::from_str::<serde_json::Value>(&text) else { continue };
+        for key in ["dependencies", "optionalDependencies"] {
+            for name in manifest[key].as_object().into_iter().flat_map(|m| m.keys()) {
+                let found = dir.ancestors().map(|a| a.join("node_modules").join(name)).find(|p| p.is_dir());
+                if let Some(found) = found.filter(|f| !out.contains(f)) {
+                    out.push(found.clone());
+                    todo.push(found);
+                }
+            }
+        }
+    }
     out
 }
 
@@ -204,10 +235,19 @@ mod tests {
         std::fs::create_dir_all(nm.join("@scope/tool/bin")).unwrap();
         std::fs::create_dir_all(nm.join(".bin")).unwrap();
         std::fs::write(nm.join("@scope/tool/bin/cli.js"), "#!/usr/bin/env -S node --no-warnings\nimport './x.js'\n").unwrap();
+        std::fs::write(nm.join("@scope/tool/package.json"), r#"{"dependencies": {"ws": "^8"}, "optionalDependencies": {"pty": "1"}}"#).unwrap();
+        std::fs::create_dir_all(nm.join("ws/lib")).unwrap();
+        std::fs::write(nm.join("ws/package.json"), r#"{"dependencies": {"nested": "1"}}"#).unwrap();
+        std::fs::create_dir_all(nm.join("ws/node_modules/nested")).unwrap();
+        std::fs::create_dir_all(nm.join("unrelated")).unwrap();
         std::os::unix::fs::symlink("../@scope/tool/bin/cli.js", nm.join(".bin/tool")).unwrap();
         let paths = install_of(&nm.join(".bin/tool"));
         assert_eq!(paths[0], nm.join(".bin/tool"));
-        assert!(paths.contains(&nm.join("@scope")), "the package's scope directory: {paths:?}");
+        // The package and its dependency closure (hoisted, nested; a missing optional one skipped), nothing else.
+        for dir in ["@scope/tool", "ws", "ws/node_modules/nested"] {
+            assert!(paths.contains(&nm.join(dir)), "{dir}: {paths:?}");
+        }
+        assert!(!paths.iter().any(|p| p.ends_with("unrelated") || p.ends_with("pty") || *p == nm.join("@scope")), "{paths:?}");
         assert_eq!(script_interpreter(&nm.join("@scope/tool/bin/cli.js")).as_deref(), Some("node"));
         std::fs::write(dir.path().join("native"), b"\x7fELF\x02\x01").unwrap();
         assert_eq!(script_interpreter(&dir.path().join("native")), None);
@@ -216,6 +256,6 @@ mod tests {
         let spec = SandboxSpec { readable: paths, cwd: "/".into(), ..Default::default() };
         let joined = s.command(&["tool".into()], &spec).join(" ");
         assert!(joined.contains(&format!("--symlink ../@scope/tool/bin/cli.js {}", nm.join(".bin/tool").display())), "{joined}");
-        assert!(joined.contains(&format!("--ro-bind-try {0} {0}", nm.join("@scope").display())), "{joined}");
+        assert!(joined.contains(&format!("--ro-bind-try {0} {0}", nm.join("@scope/tool").display())), "{joined}");
     }
 }
