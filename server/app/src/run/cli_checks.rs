@@ -78,6 +78,7 @@ impl Episode {
             agent_cmd: None,
             self_exe: Path::new("/nonexistent/libero-agent"),
             sandboxed: true,
+            npm_cli_installed: true,
         };
         let mut launch = build_launch(&ctx).unwrap();
         for (k, v) in &mut launch.env {
@@ -185,6 +186,7 @@ fn qwen_code_health_check_connects_to_the_episode_from_inside_the_sandbox() {
     require_cli("qwen");
     let ep = Episode::start();
     let launch = ep.launch(Harness::QwenCode);
+    assert_eq!(launch.argv[0], "qwen", "the installed pinned CLI, not npx");
     let version = ep.run_contained(&launch, &["qwen", "--version"]);
     let pinned = QWEN_PACKAGE.rsplit('@').next().unwrap_or_default();
     assert_eq!(String::from_utf8_lossy(&version.stdout).trim(), pinned, "the installed Qwen Code is the one the launch names");

@@ -42,16 +42,27 @@ impl Harness {
         }
     }
 
-    /// `<program> --version` argv (None for `command`).
-    pub fn version_probe(self) -> Option<Vec<String>> {
-        let npx = |pkg: &str| vec!["npx".to_owned(), "--yes".into(), pkg.into(), "--version".into()];
+    /// `<program> --version` argv (None for `command`), the npm CLIs through `npx` unless installed.
+    pub fn version_probe(self, npm_cli_installed: bool) -> Option<Vec<String>> {
         match self {
             Harness::Codex => Some(vec!["codex".into(), "--version".into()]),
             Harness::ClaudeCode => Some(vec!["claude".into(), "--version".into()]),
-            Harness::KimiCode => Some(npx(KIMI_PACKAGE)),
-            Harness::QwenCode => Some(npx(QWEN_PACKAGE)),
-            Harness::Deepseek => Some(npx(DSH_PACKAGE)),
             Harness::Command => None,
+            _ => {
+                let mut a = npm_cli_command(self, npm_cli_installed);
+                a.push("--version".into());
+                Some(a)
+            }
+        }
+    }
+
+    /// The pinned npm package and the command it installs, for the harnesses the paper ran through `npx`.
+    pub fn npm_cli(self) -> Option<(&'static str, &'static str)> {
+        match self {
+            Harness::KimiCode => Some((KIMI_PACKAGE, "kimi")),
+            Harness::QwenCode => Some((QWEN_PACKAGE, "qwen")),
+            Harness::Deepseek => Some((DSH_PACKAGE, "dsh")),
+            _ => None,
         }
     }
 
@@ -75,6 +86,25 @@ impl Harness {
             Harness::Command => "none",
             _ => "openai_chat",
         }
+    }
+}
+
+/// Whether `harness`'s pinned npm CLI is installed on PATH at exactly the pinned version. Then the runner runs it
+/// directly; otherwise `npx --yes <package>@<version>`, which downloads it into each rollout's fresh home.
+pub fn pinned_npm_cli_installed(harness: Harness) -> bool {
+    let Some((package, command)) = harness.npm_cli() else { return false };
+    let Some(path) = super::sandbox::which(command) else { return false };
+    let pinned = package.rsplit('@').next().unwrap_or_default();
+    let out = std::process::Command::new(path).arg("--version").stdin(std::process::Stdio::null()).output();
+    out.is_ok_and(|o| o.status.success() && String::from_utf8_lossy(&o.stdout).split_whitespace().any(|w| w.trim_start_matches('v') == pinned))
+}
+
+/// How an npm harness is started: its installed command, or `npx --yes <package>@<version>`.
+fn npm_cli_command(harness: Harness, installed: bool) -> Vec<String> {
+    match harness.npm_cli() {
+        Some((_, command)) if installed => vec![command.to_owned()],
+        Some((package, _)) => vec!["npx".to_owned(), "--yes".to_owned(), package.to_owned()],
+        None => Vec::new(),
     }
 }
 
@@ -157,6 +187,8 @@ pub struct LaunchContext<'a> {
     pub self_exe: &'a Path,
     /// Whether our sandbox isolates the agent (then Codex's own sandbox is not nested inside it).
     pub sandboxed: bool,
+    /// Whether the harness's pinned npm CLI is installed ([`pinned_npm_cli_installed`]): run it without `npx`.
+    pub npm_cli_installed: bool,
 }
 
 /// A launch: argv, the child's whole environment, files to write first (path, content, mode).
@@ -303,10 +335,12 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
                 env.push((s(k), s(v)));
             }
             env.push((s("KIMI_CODE_HOME"), home_s.clone()));
-            vec![
-                s("npx"), s("--yes"), s(KIMI_PACKAGE), s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
+            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            a.extend([
+                s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
                 s("--skills-dir"), format!("{home_s}/empty-skills"), s("--prompt"), prompt,
-            ]
+            ]);
+            a
         }
         Harness::QwenCode => {
             let c = creds()?;
@@ -327,11 +361,12 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             {
                 env.push((s(k), s(v)));
             }
-            vec![
-                s("npx"), s("--yes"), s(QWEN_PACKAGE), s("--auth-type"), s("openai"), s("--model"), s(ctx.model),
-                s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
+            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            a.extend([
+                s("--auth-type"), s("openai"), s("--model"), s(ctx.model), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
                 s("--approval-mode"), s("yolo"), s("--chat-recording"), s("--output-format"), s("stream-json"), prompt,
-            ]
+            ]);
+            a
         }
         Harness::Deepseek => {
             let c = creds()?;
@@ -366,8 +401,9 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             {
                 env.push((s(k), s(v)));
             }
-            vec![s("npx"), s("--yes"), s(DSH_PACKAGE), s("--profile"), s("headless"), s("--patch"),
-                patch_file.to_string_lossy().into_owned(), prompt]
+            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            a.extend([s("--profile"), s("headless"), s("--patch"), patch_file.to_string_lossy().into_owned(), prompt]);
+            a
         }
         Harness::Command => {
             let template = ctx.agent_cmd.context("--harness command needs --agent-cmd \"…\"")?;
@@ -404,6 +440,7 @@ mod tests {
             agent_cmd: Some("run {workspace} {libero_agent}"),
             self_exe: Path::new("/opt/libero-agent"),
             sandboxed: true,
+            npm_cli_installed: false,
         }
     }
 
@@ -436,6 +473,10 @@ mod tests {
         let joined = codex.argv.join(" ");
         assert!(joined.contains("mcp_servers.libero.url=\"http://127.0.0.1:9/mcp/ep-1\""));
         assert!(joined.contains("bearer_token_env_var=\"LIBERO_MCP_TOKEN\"") && !joined.contains("tok123"));
+        let qwen = build_launch(&ctx(Harness::QwenCode, Some(&c))).unwrap();
+        assert_eq!(qwen.argv[..3], ["npx", "--yes", QWEN_PACKAGE], "the paper's launch through npx");
+        let installed = build_launch(&LaunchContext { npm_cli_installed: true, ..ctx(Harness::QwenCode, Some(&c)) }).unwrap();
+        assert_eq!((installed.argv[0].as_str(), &installed.argv[1..]), ("qwen", &qwen.argv[3..]), "or the installed pinned CLI");
         let claude = build_launch(&ctx(Harness::ClaudeCode, Some(&c))).unwrap();
         let cfg: Value = serde_json::from_str(&claude.files[0].1).unwrap();
         assert_eq!(cfg["mcpServers"]["libero"]["headers"]["Authorization"], "Bearer tok123");

@@ -214,6 +214,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         agent_cmd: ctx.settings.agent_cmd.as_deref(),
         self_exe: &ctx.self_exe,
         sandboxed: ctx.sandbox.is_some(),
+        npm_cli_installed: ctx.npm_cli_installed,
     };
     let launch = build_launch(&lctx)?;
     write_launch_files(&launch)?;
