@@ -323,9 +323,10 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     rec.harness_elapsed_s = Some(elapsed_s);
     rec.agent_exit_code = exit_code;
     rec.usage = Some(usage_of(ctx.harness, &stdout_path));
-    // Scrub what the agent printed: the API key, sk-… keys, bearer tokens (ours included).
+    // Scrub what the agent printed (the API key, sk-… keys, bearer tokens, ours included) and the launch's own
+    // files, which stay in the batch's session home: Kimi's config.toml holds the key, the MCP configs the token.
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
-    for p in [&stdout_path, &stderr_path] {
+    for p in [&stdout_path, &stderr_path].into_iter().chain(launch.files.iter().map(|f| &f.0)) {
         if let Ok(t) = fs::read_to_string(p) {
             let _ = fs::write(p, scrub(&t, &secrets));
         }
