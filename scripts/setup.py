@@ -13,7 +13,7 @@ Usage: setup.py [--test] [--no-apt]
   --test    also the test extras: Debian packages for browser tests and MuJoCo's software renderer,
             a Python venv with mujoco/numpy/pillow/mcp/pyarrow/av (independent peers of some tests), and from
             npm: playwright-core for the browser tests (they drive Debian's chromium; no browser download), the
-            agent CLIs the runner launches (Claude Code, Codex, Qwen Code) and the MCP Inspector for the real-CLI
+            agent CLIs the runner launches (Claude Code, Codex, Qwen Code, Kimi Code) and the MCP Inspector for the real-CLI
             tests, and the Node.js 22 runtime those CLIs need (Debian 12 ships Node 18).
 """
 import hashlib
@@ -232,7 +232,7 @@ def check_node_clis(node: Path) -> None:
     is put in place by its install script; a skipped script leaves a stub)."""
     bin_dir = node / "node_modules" / ".bin"
     env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}")
-    for cmd in ["node", "claude", "codex", "qwen", "mcp-inspector"]:
+    for cmd in ["node", "claude", "codex", "qwen", "kimi", "mcp-inspector"]:
         if subprocess.call([str(bin_dir / cmd), "--version"], env=env, stdout=subprocess.DEVNULL) != 0:
             fail(f"{bin_dir / cmd} --version failed after npm install")
 
