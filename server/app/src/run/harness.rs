@@ -42,26 +42,27 @@ impl Harness {
         }
     }
 
-    /// The program run (for the install paths the sandbox exposes and the version probe).
-    pub fn program(self) -> &'static str {
-        match self {
-            Harness::Codex => "codex",
-            Harness::ClaudeCode => "claude",
-            Harness::KimiCode | Harness::QwenCode | Harness::Deepseek => "npx",
-            Harness::Command => "sh",
-        }
-    }
-
-    /// `<program> --version` argv (None for `command`).
-    pub fn version_probe(self) -> Option<Vec<String>> {
-        let npx = |pkg: &str| vec!["npx".to_owned(), "--yes".into(), pkg.into(), "--version".into()];
+    /// `<program> --version` argv (None for `command`), the npm CLIs through `npx` unless installed.
+    pub fn version_probe(self, npm_cli_installed: bool) -> Option<Vec<String>> {
         match self {
             Harness::Codex => Some(vec!["codex".into(), "--version".into()]),
             Harness::ClaudeCode => Some(vec!["claude".into(), "--version".into()]),
-            Harness::KimiCode => Some(npx(KIMI_PACKAGE)),
-            Harness::QwenCode => Some(npx(QWEN_PACKAGE)),
-            Harness::Deepseek => Some(npx(DSH_PACKAGE)),
             Harness::Command => None,
+            _ => {
+                let mut a = npm_cli_command(self, npm_cli_installed);
+                a.push("--version".into());
+                Some(a)
+            }
+        }
+    }
+
+    /// The pinned npm package and the command it installs, for the harnesses the paper ran through `npx`.
+    pub fn npm_cli(self) -> Option<(&'static str, &'static str)> {
+        match self {
+            Harness::KimiCode => Some((KIMI_PACKAGE, "kimi")),
+            Harness::QwenCode => Some((QWEN_PACKAGE, "qwen")),
+            Harness::Deepseek => Some((DSH_PACKAGE, "dsh")),
+            _ => None,
         }
     }
 
@@ -85,6 +86,25 @@ impl Harness {
             Harness::Command => "none",
             _ => "openai_chat",
         }
+    }
+}
+
+/// Whether `harness`'s pinned npm CLI is installed on PATH at exactly the pinned version. Then the runner runs it
+/// directly; otherwise `npx --yes <package>@<version>`, which downloads it into each rollout's fresh home.
+pub fn pinned_npm_cli_installed(harness: Harness) -> bool {
+    let Some((package, command)) = harness.npm_cli() else { return false };
+    let Some(path) = super::sandbox::which(command) else { return false };
+    let pinned = package.rsplit('@').next().unwrap_or_default();
+    let out = std::process::Command::new(path).arg("--version").stdin(std::process::Stdio::null()).output();
+    out.is_ok_and(|o| o.status.success() && String::from_utf8_lossy(&o.stdout).split_whitespace().any(|w| w.trim_start_matches('v') == pinned))
+}
+
+/// How an npm harness is started: its installed command, or `npx --yes <package>@<version>`.
+fn npm_cli_command(harness: Harness, installed: bool) -> Vec<String> {
+    match harness.npm_cli() {
+        Some((_, command)) if installed => vec![command.to_owned()],
+        Some((package, _)) => vec!["npx".to_owned(), "--yes".to_owned(), package.to_owned()],
+        None => Vec::new(),
     }
 }
 
@@ -167,6 +187,8 @@ pub struct LaunchContext<'a> {
     pub self_exe: &'a Path,
     /// Whether our sandbox isolates the agent (then Codex's own sandbox is not nested inside it).
     pub sandboxed: bool,
+    /// Whether the harness's pinned npm CLI is installed ([`pinned_npm_cli_installed`]): run it without `npx`.
+    pub npm_cli_installed: bool,
 }
 
 /// A launch: argv, the child's whole environment, files to write first (path, content, mode).
@@ -278,6 +300,11 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             env.push((s("ANTHROPIC_API_KEY"), c.api_key.clone()));
             env.push((s("CLAUDE_CONFIG_DIR"), home_s.clone()));
             env.push((s("CLAUDE_CODE_DISABLE_NONESSENTIAL_TRAFFIC"), s("1")));
+            if ctx.sandboxed {
+                // Claude Code's own marker for "inside bubblewrap": without it, bypassPermissions is refused to
+                // root (the uid a CI container runs as), although our sandbox is exactly the isolation it asks for.
+                env.push((s("CLAUDE_CODE_BUBBLEWRAP"), s("1")));
+            }
             vec![
                 s("claude"), s("--bare"), s("--strict-mcp-config"), s("--mcp-config"), cfg.to_string_lossy().into_owned(),
                 s("--print"), s("--output-format"), s("stream-json"), s("--verbose"), s("--model"), s(ctx.model),
@@ -308,20 +335,23 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
                 env.push((s(k), s(v)));
             }
             env.push((s("KIMI_CODE_HOME"), home_s.clone()));
-            vec![
-                s("npx"), s("--yes"), s(KIMI_PACKAGE), s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
+            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            a.extend([
+                s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
                 s("--skills-dir"), format!("{home_s}/empty-skills"), s("--prompt"), prompt,
-            ]
+            ]);
+            a
         }
         Harness::QwenCode => {
             let c = creds()?;
-            let cfg = home.join("mcp.json");
-            files.push((cfg.clone(), serde_json::to_string_pretty(&qwen_mcp_config(ctx.mcp_url, ctx.mcp_token))?, 0o600));
+            // QWEN_HOME is Qwen's settings directory itself: `<home>/settings.json` is its user settings, so the
+            // episode's server lives there (not in `--mcp-config`), where `qwen mcp list` reads and checks it too.
             let settings = json!({"security": {"auth": {"selectedType": "openai"}},
                 "model": {"name": ctx.model, "reasoningEffort": ctx.effort},
                 "privacy": {"usageStatisticsEnabled": false},
-                "telemetry": {"enabled": false, "logPrompts": false, "includeSensitiveSpanAttributes": false}});
-            files.push((home.join(".qwen/settings.json"), serde_json::to_string_pretty(&settings)?, 0o600));
+                "telemetry": {"enabled": false, "logPrompts": false, "includeSensitiveSpanAttributes": false},
+                "mcpServers": qwen_mcp_config(ctx.mcp_url, ctx.mcp_token)["mcpServers"]});
+            files.push((home.join("settings.json"), serde_json::to_string_pretty(&settings)?, 0o600));
             env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
             if let Some(b) = c.openai_base() {
                 env.push((s("OPENAI_BASE_URL"), b));
@@ -331,11 +361,12 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             {
                 env.push((s(k), s(v)));
             }
-            vec![
-                s("npx"), s("--yes"), s(QWEN_PACKAGE), s("--auth-type"), s("openai"), s("--model"), s(ctx.model),
-                s("--mcp-config"), cfg.to_string_lossy().into_owned(), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
+            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            a.extend([
+                s("--auth-type"), s("openai"), s("--model"), s(ctx.model), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
                 s("--approval-mode"), s("yolo"), s("--chat-recording"), s("--output-format"), s("stream-json"), prompt,
-            ]
+            ]);
+            a
         }
         Harness::Deepseek => {
             let c = creds()?;
@@ -370,8 +401,9 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             {
                 env.push((s(k), s(v)));
             }
-            vec![s("npx"), s("--yes"), s(DSH_PACKAGE), s("--profile"), s("headless"), s("--patch"),
-                patch_file.to_string_lossy().into_owned(), prompt]
+            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            a.extend([s("--profile"), s("headless"), s("--patch"), patch_file.to_string_lossy().into_owned(), prompt]);
+            a
         }
         Harness::Command => {
             let template = ctx.agent_cmd.context("--harness command needs --agent-cmd \"…\"")?;
@@ -408,6 +440,7 @@ mod tests {
             agent_cmd: Some("run {workspace} {libero_agent}"),
             self_exe: Path::new("/opt/libero-agent"),
             sandboxed: true,
+            npm_cli_installed: false,
         }
     }
 
@@ -422,12 +455,15 @@ mod tests {
         assert!(!format!("{c:?}").contains("sk-bare"), "Debug never prints the key");
     }
 
+    /// Neither the API key nor the episode token is ever on a command line (where `/proc/<pid>/cmdline` shows it to
+    /// every process of the machine): they travel in the environment or in 0600 files of the session home.
     #[test]
-    fn every_launch_names_the_model_and_keeps_the_key_off_argv() {
+    fn every_launch_names_the_model_and_keeps_the_key_and_token_off_argv() {
         let c = Credentials { api_base: Some("https://api.test".into()), api_key: "sk-secret-key".into(), source: "/c".into() };
         for h in [Harness::Codex, Harness::ClaudeCode, Harness::KimiCode, Harness::QwenCode, Harness::Deepseek] {
             let l = build_launch(&ctx(h, Some(&c))).unwrap();
-            assert!(l.argv.iter().all(|a| !a.contains("sk-secret-key")), "{h:?}");
+            assert!(l.argv.iter().all(|a| !a.contains("sk-secret-key") && !a.contains("tok123")), "{h:?}");
+            assert!(l.files.iter().filter(|f| f.1.contains("tok123") || f.1.contains("sk-secret-key")).all(|f| f.2 == 0o600), "{h:?}");
             assert!(l.argv.iter().any(|a| a.contains("m-1")) || l.files.iter().any(|f| f.1.contains("m-1")), "{h:?}");
             assert_eq!(l.argv.last().unwrap(), "open the drawer\n\n\nA LIBERO episode…", "{h:?}: prompt last");
             assert!(l.public_argv(ctx(h, None).prompt).contains(&"<task-prompt>".to_owned()));
@@ -437,6 +473,10 @@ mod tests {
         let joined = codex.argv.join(" ");
         assert!(joined.contains("mcp_servers.libero.url=\"http://127.0.0.1:9/mcp/ep-1\""));
         assert!(joined.contains("bearer_token_env_var=\"LIBERO_MCP_TOKEN\"") && !joined.contains("tok123"));
+        let qwen = build_launch(&ctx(Harness::QwenCode, Some(&c))).unwrap();
+        assert_eq!(qwen.argv[..3], ["npx", "--yes", QWEN_PACKAGE], "the paper's launch through npx");
+        let installed = build_launch(&LaunchContext { npm_cli_installed: true, ..ctx(Harness::QwenCode, Some(&c)) }).unwrap();
+        assert_eq!((installed.argv[0].as_str(), &installed.argv[1..]), ("qwen", &qwen.argv[3..]), "or the installed pinned CLI");
         let claude = build_launch(&ctx(Harness::ClaudeCode, Some(&c))).unwrap();
         let cfg: Value = serde_json::from_str(&claude.files[0].1).unwrap();
         assert_eq!(cfg["mcpServers"]["libero"]["headers"]["Authorization"], "Bearer tok123");
@@ -448,71 +488,5 @@ mod tests {
         let l = build_launch(&ctx(Harness::Command, None)).unwrap();
         assert_eq!(l.argv[2], "run '/tmp/ws/w1_t14_level3' '/opt/libero-agent'");
         assert_eq!(shell_quote("a'b"), r"'a'\''b'");
-    }
-
-    /// The MCP configuration the runner writes is understood by the real CLIs, without any model call:
-    /// Codex parses our `--config` overrides into a streamable-HTTP server with the bearer-token variable, and
-    /// Claude Code, given our server entry, connects to a live episode endpoint with its token ("Connected").
-    /// Skipped (with a note) where a CLI is not installed (`npm install -g @openai/codex @anthropic-ai/claude-code`).
-    #[test]
-    fn installed_clis_understand_the_mcp_configuration() {
-        use crate::serve::client::{InProcessServer, prepare_episode};
-        use crate::serve::episodes::PrepareRequest;
-        let have = |p: &str| crate::run::sandbox::which(p).is_some();
-        if !have("codex") && !have("claude") {
-            eprintln!("note: neither codex nor claude is installed; skipped");
-            return;
-        }
-        let dir = tempfile::tempdir().unwrap();
-        let server = InProcessServer::start(dir.path().join("data"), "test_finished").unwrap();
-        let req = PrepareRequest {
-            level: 3,
-            workspace: Some(dir.path().join("ws")),
-            wall_time_s: 60.0,
-            max_agent_steps: 10,
-            ..PrepareRequest::new("T14")
-        };
-        let p = prepare_episode(&server.url, &req).unwrap();
-        let token = p.mcp_headers["Authorization"].trim_start_matches("Bearer ").to_owned();
-        // Not under /tmp: Codex refuses to create its helper links in a temporary CODEX_HOME.
-        let home = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target/cli-config-test-home");
-        let _ = std::fs::remove_dir_all(&home);
-        std::fs::create_dir_all(&home).unwrap();
-        if have("codex") {
-            let mut args: Vec<String> = codex_mcp_args(&p.mcp_url).into_iter().map(|a| if a == "--config" { "-c".into() } else { a }).collect();
-            args.extend(["mcp".into(), "get".into(), "libero".into(), "--json".into()]);
-            let out = std::process::Command::new("codex").args(&args).env("CODEX_HOME", &home).env("LIBERO_MCP_TOKEN", &token)
-                .output().unwrap();
-            let text = String::from_utf8_lossy(&out.stdout);
-            assert!(out.status.success(), "codex: {text} {}", String::from_utf8_lossy(&out.stderr));
-            let v: Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("codex mcp get --json: {e}: {text}"));
-            let t = &v["transport"];
-            assert_eq!((t["type"].as_str(), t["url"].as_str()), (Some("streamable_http"), Some(p.mcp_url.as_str())), "{v}");
-            assert_eq!(t["bearer_token_env_var"], "LIBERO_MCP_TOKEN", "{v}");
-            assert_eq!(v["enabled_tools"], json!(tool_names()), "{v}");
-        } else {
-            eprintln!("note: codex is not installed; its check skipped");
-        }
-        if have("claude") {
-            let entry = claude_mcp_config(&p.mcp_url, &token)["mcpServers"]["libero"].to_string();
-            let claude = |args: &[&str]| {
-                std::process::Command::new("claude").args(args).current_dir(&home).env("HOME", &home)
-                    .env("CLAUDE_CONFIG_DIR", &home).output().unwrap()
-            };
-            assert!(claude(&["mcp", "add-json", "libero", &entry]).status.success());
-            let out = claude(&["mcp", "list"]);
-            let text = String::from_utf8_lossy(&out.stdout);
-            assert!(text.contains("libero") && text.contains("Connected"), "claude mcp list: {text}");
-            // A wrong token is refused: the check really reached the episode endpoint.
-            let bad = claude_mcp_config(&p.mcp_url, "wrong")["mcpServers"]["libero"].to_string();
-            assert!(claude(&["mcp", "remove", "libero", "-s", "local"]).status.success());
-            assert!(claude(&["mcp", "add-json", "libero", &bad]).status.success());
-            let text = String::from_utf8_lossy(&claude(&["mcp", "list"]).stdout).into_owned();
-            assert!(!text.contains("Connected"), "a wrong token must not connect: {text}");
-        } else {
-            eprintln!("note: claude is not installed; its check skipped");
-        }
-        let _ = std::fs::remove_dir_all(&home);
-        server.stop().unwrap();
     }
 }

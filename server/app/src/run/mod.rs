@@ -4,6 +4,8 @@
 //! retries. Progress goes to stderr; `batch.json` and `rollouts.jsonl` in the batch directory are what the
 //! report and the dashboard read.
 pub mod batch;
+#[cfg(test)]
+mod cli_checks;
 pub mod harness;
 pub mod rollout;
 pub mod sandbox;
@@ -109,6 +111,8 @@ pub struct RunContext {
     pub sandbox: Option<Sandbox>,
     pub harness_version: Value,
     pub self_exe: PathBuf,
+    /// The harness's pinned npm CLI is installed: launched directly, not through `npx`.
+    pub npm_cli_installed: bool,
 }
 
 fn parse_tasks(tasks: &[String]) -> anyhow::Result<Vec<u32>> {
@@ -135,8 +139,8 @@ fn settings_of(args: &RunArgs, tasks: &[u32]) -> BatchSettings {
 }
 
 /// `<program> --version` (90 s), first version-looking word of the output.
-fn probe_version(harness: Harness) -> Value {
-    let Some(argv) = harness.version_probe() else {
+fn probe_version(harness: Harness, npm_cli_installed: bool) -> Value {
+    let Some(argv) = harness.version_probe(npm_cli_installed) else {
         return json!({"requested": null, "observed": null, "probe_output": null});
     };
     let out = std::process::Command::new(&argv[0]).args(&argv[1..]).stdin(std::process::Stdio::null()).output();
@@ -278,7 +282,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&workspace_root)?;
     let self_exe = std::env::current_exe()?;
-    let harness_version = probe_version(args.harness);
+    let npm_cli_installed = harness::pinned_npm_cli_installed(args.harness);
+    let harness_version = probe_version(args.harness, npm_cli_installed);
     // Rollouts with a directory but no record were running when an earlier runner died: INTERRUPTED, no retry.
     let mut finished: BTreeSet<String> = done_records.iter().map(|r| r.rollout_id.clone()).collect();
     for r in &schedule {
@@ -315,6 +320,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         sandbox,
         harness_version,
         self_exe,
+        npm_cli_installed,
     });
     // SAFETY: installing an async-signal-safe handler that only stores to an atomic.
     unsafe {

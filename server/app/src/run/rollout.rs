@@ -16,10 +16,10 @@ use libero_metrics::Outcome;
 use serde_json::{Value, json};
 
 use super::batch::RolloutRecord;
-use super::harness::{Harness, LaunchContext, build_launch};
-use super::sandbox::{SandboxSpec, cli_install_paths, own_binary_files};
+use super::harness::{Harness, Launch, LaunchContext, build_launch};
+use super::sandbox::{Sandbox, SandboxSpec, cli_install_paths, own_binary_files};
 use super::schedule::{Demo, PlannedRollout};
-use super::usage::{Usage, usage_from_codex_session, usage_from_jsonl};
+use super::usage::{Usage, usage_from_codex_exec, usage_from_jsonl};
 use super::{INTERRUPTED, RunContext};
 use crate::serve::client::{get_json, post_json, prepare_episode};
 use crate::serve::episodes::PrepareRequest;
@@ -116,14 +116,13 @@ fn kill_group(child: &mut Child) {
     let _ = child.wait();
 }
 
-/// Session files the harness wrote under its home (JSON lines), for token accounting.
 /// Most bytes of a harness's stdout read for token usage.
 const MAX_USAGE_LOG_BYTES: u64 = 256 << 20;
 
 /// Token usage from what the harness itself printed on stdout, which the runner captures into the rollout
 /// directory outside the sandbox: the one channel the agent cannot write to. Session logs in the agent's home or
 /// workspace are never read (the agent could forge them, or plant links and FIFOs there). Codex prints its
-/// events on stdout with `--json`: the last `token_count` total if present, else its per-turn `usage` records.
+/// events on stdout with `--json`, one `turn.completed` usage per turn.
 fn usage_of(harness: Harness, stdout: &Path) -> Usage {
     if harness == Harness::Command {
         return Usage::default();
@@ -134,12 +133,33 @@ fn usage_of(harness: Harness, stdout: &Path) -> Usage {
         let _ = f.take(MAX_USAGE_LOG_BYTES).read_to_string(&mut text);
     }
     if harness == Harness::Codex {
-        let totals = usage_from_codex_session([text.as_str()]);
-        if totals.available {
-            return totals;
-        }
+        return usage_from_codex_exec(&text);
     }
     usage_from_jsonl([text.as_str()])
+}
+
+/// Writes the files a launch needs first (CLI configuration, 0600 where it holds a token or key).
+pub fn write_launch_files(launch: &Launch) -> anyhow::Result<()> {
+    for (path, content, mode) in &launch.files {
+        if let Some(p) = path.parent() {
+            fs::create_dir_all(p)?;
+        }
+        fs::write(path, content)?;
+        fs::set_permissions(path, fs::Permissions::from_mode(*mode))?;
+    }
+    Ok(())
+}
+
+/// The argv the runner starts: `argv` inside the sandbox when there is one, writing only the workspace and the
+/// session home and reading, besides the system directories, this binary and the install of the program `argv`
+/// runs as the child's own `PATH` (in `env`) finds it.
+pub fn contained_argv(sandbox: Option<&Sandbox>, argv: &[String], env: &[(String, String)], workspace: &Path, home: &Path) -> Vec<String> {
+    let Some(sb) = sandbox else { return argv.to_vec() };
+    let path = env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
+    let mut readable = own_binary_files();
+    readable.extend(argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
+    let spec = SandboxSpec { writable: vec![workspace.to_path_buf(), home.to_path_buf()], readable, cwd: workspace.to_path_buf() };
+    sb.command(argv, &spec)
 }
 
 /// Runs one rollout to its record.
@@ -194,24 +214,11 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         agent_cmd: ctx.settings.agent_cmd.as_deref(),
         self_exe: &ctx.self_exe,
         sandboxed: ctx.sandbox.is_some(),
+        npm_cli_installed: ctx.npm_cli_installed,
     };
     let launch = build_launch(&lctx)?;
-    for (path, content, mode) in &launch.files {
-        if let Some(p) = path.parent() {
-            fs::create_dir_all(p)?;
-        }
-        fs::write(path, content)?;
-        fs::set_permissions(path, fs::Permissions::from_mode(*mode))?;
-    }
-    let argv = match &ctx.sandbox {
-        Some(sb) => {
-            let mut readable = own_binary_files();
-            readable.extend(cli_install_paths(ctx.harness.program()));
-            let spec = SandboxSpec { writable: vec![prepared.workspace.clone(), home.clone()], readable, cwd: prepared.workspace.clone() };
-            sb.command(&launch.argv, &spec)
-        }
-        None => launch.argv.clone(),
-    };
+    write_launch_files(&launch)?;
+    let argv = contained_argv(ctx.sandbox.as_ref(), &launch.argv, &launch.env, &prepared.workspace, &home);
     let stdout_path = dir.join(ctx.harness.stdout_file());
     let stderr_path = dir.join(format!("{}_stderr.log", ctx.harness.as_str()));
     let mut manifest = json!({
@@ -316,9 +323,10 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     rec.harness_elapsed_s = Some(elapsed_s);
     rec.agent_exit_code = exit_code;
     rec.usage = Some(usage_of(ctx.harness, &stdout_path));
-    // Scrub what the agent printed: the API key, sk-… keys, bearer tokens (ours included).
+    // Scrub what the agent printed (the API key, sk-… keys, bearer tokens, ours included) and the launch's own
+    // files, which stay in the batch's session home: Kimi's config.toml holds the key, the MCP configs the token.
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
-    for p in [&stdout_path, &stderr_path] {
+    for p in [&stdout_path, &stderr_path].into_iter().chain(launch.files.iter().map(|f| &f.0)) {
         if let Ok(t) = fs::read_to_string(p) {
             let _ = fs::write(p, scrub(&t, &secrets));
         }

@@ -31,14 +31,15 @@ pub struct SandboxSpec {
 
 /// Finds `name` on `PATH` (or takes it as a path).
 pub fn which(name: &str) -> Option<PathBuf> {
+    which_in(name, &std::env::var_os("PATH").unwrap_or_default())
+}
+
+/// Finds `name` on the search path `path` (or takes it as a path).
+pub fn which_in(name: &str, path: &std::ffi::OsStr) -> Option<PathBuf> {
     if name.contains('/') {
         return Path::new(name).is_file().then(|| PathBuf::from(name));
     }
-    std::env::var_os("PATH")
-        .into_iter()
-        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
-        .map(|d| d.join(name))
-        .find(|p| p.is_file())
+    std::env::split_paths(path).map(|d| d.join(name)).find(|p| p.is_file())
 }
 
 impl Sandbox {
@@ -89,11 +90,16 @@ impl Sandbox {
             }
         }
         push(&["--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp", "--tmpfs", "/run"]);
-        // Later mounts win: system first, then the extras, then the writable directories.
+        // Later mounts win: system first, then the extras, then the writable directories. A link stays a link
+        // (npm's `node_modules/.bin/x -> ../pkg/cli.js`): a script finds its modules relative to its real path.
         for p in &spec.readable {
             let s = p.to_string_lossy();
-            if !SYSTEM_DIRS.iter().any(|d| p.starts_with(d)) {
-                push(&["--ro-bind-try", &s, &s]);
+            if SYSTEM_DIRS.iter().any(|d| p.starts_with(d)) {
+                continue;
+            }
+            match std::fs::read_link(p) {
+                Ok(target) => push(&["--symlink", &target.to_string_lossy(), &s]),
+                Err(_) => push(&["--ro-bind-try", &s, &s]),
             }
         }
         for p in &spec.writable {
@@ -123,16 +129,77 @@ pub fn own_binary_files() -> Vec<PathBuf> {
     out
 }
 
-/// The install of a CLI named `program`: the resolved executable and, for npm-installed JavaScript CLIs, the
-/// package directory above it (outside `/usr` only; `/usr` is visible anyway).
-pub fn cli_install_paths(program: &str) -> Vec<PathBuf> {
-    let Some(found) = which(program) else { return Vec::new() };
-    let resolved = std::fs::canonicalize(&found).unwrap_or(found.clone());
-    let mut out = vec![found, resolved.clone()];
-    if let Some(pkg) = resolved.ancestors().find(|a| a.parent().is_some_and(|p| p.ends_with("node_modules"))) {
-        out.push(pkg.to_path_buf());
+/// The install of a CLI named `program`: the path found on the search path `path`, the links to the executable, the
+/// executable and, for npm-installed CLIs, its package directory and its dependencies'; for a script, the same for the
+/// interpreter its `#!` line names (`#!/usr/bin/env node` → the `node` on `path`, e.g. a Node 22 installed next to
+/// the CLI). Paths inside the system directories are visible anyway.
+pub fn cli_install_paths(program: &str, path: &std::ffi::OsStr) -> Vec<PathBuf> {
+    let Some(found) = which_in(program, path) else { return Vec::new() };
+    let mut out = install_of(&found);
+    let resolved = std::fs::canonicalize(&found).unwrap_or(found);
+    if let Some(interpreter) = script_interpreter(&resolved).and_then(|i| which_in(&i, path)) {
+        out.extend(install_of(&interpreter).into_iter().filter(|p| !out.contains(p)).collect::<Vec<_>>());
     }
     out
+}
+
+/// `path`, every link on the way to the executable, the executable, and for an npm package its directory and
+/// those of its dependencies.
+fn install_of(path: &Path) -> Vec<PathBuf> {
+    let mut out = vec![path.to_path_buf()];
+    let mut at = path.to_path_buf();
+    while let Ok(target) = std::fs::read_link(&at) {
+        at = at.parent().map(|d| d.join(&target)).unwrap_or(target);
+        out.push(at.clone());
+    }
+    let resolved = std::fs::canonicalize(path).unwrap_or(at);
+    if let Some(pkg) = npm_package_dir(&resolved) {
+        out.push(pkg.to_path_buf());
+        out.extend(npm_dependency_dirs(pkg));
+    }
+    out.push(resolved);
+    out.dedup();
+    out
+}
+
+/// The npm package a file belongs to: `…/node_modules/<name>` or `…/node_modules/@scope/<name>`.
+fn npm_package_dir(file: &Path) -> Option<&Path> {
+    file.ancestors().find(|a| match a.parent() {
+        Some(p) if p.ends_with("node_modules") => true,
+        Some(p) => p.file_name().is_some_and(|n| n.to_string_lossy().starts_with('@')) && p.parent().is_some_and(|g| g.ends_with("node_modules")),
+        None => false,
+    })
+}
+
+/// The directories of a package's dependencies and optional dependencies, transitively, found as Node finds them:
+/// the package's own `node_modules` first, then each ancestor's (npm hoists most of them to the top).
+fn npm_dependency_dirs(pkg: &Path) -> Vec<PathBuf> {
+    let (mut out, mut todo) = (Vec::<PathBuf>::new(), vec![pkg.to_path_buf()]);
+    while let Some(dir) = todo.pop() {
+        let Ok(text) = std::fs::read_to_string(dir.join("package.json")) else { continue };
+        let Ok(manifest) = serde_json::from_str::<serde_json::Value>(&text) else { continue };
+        for key in ["dependencies", "optionalDependencies"] {
+            for name in manifest[key].as_object().into_iter().flat_map(|m| m.keys()) {
+                let found = dir.ancestors().map(|a| a.join("node_modules").join(name)).find(|p| p.is_dir());
+                if let Some(found) = found.filter(|f| !out.contains(f)) {
+                    out.push(found.clone());
+                    todo.push(found);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The program a script's `#!` line runs: `#!/usr/bin/env node` → `node`, `#!/opt/x/bin/node` → that path.
+fn script_interpreter(script: &Path) -> Option<String> {
+    use std::io::Read;
+    let mut head = [0u8; 256];
+    let n = std::fs::File::open(script).ok()?.read(&mut head).ok()?;
+    let line = std::str::from_utf8(&head[..n]).ok()?.strip_prefix("#!")?.lines().next()?.to_owned();
+    let mut words = line.split_whitespace().filter(|w| !w.starts_with('-'));
+    let first = words.next()?;
+    if first.ends_with("/env") { words.next().map(str::to_owned) } else { Some(first.to_owned()) }
 }
 
 #[cfg(test)]
@@ -158,5 +225,37 @@ mod tests {
         let tmpfs = a.iter().position(|x| x == "/tmp").unwrap();
         let bind = a.iter().position(|x| x == "/tmp/ws/w1").unwrap();
         assert!(tmpfs < bind);
+    }
+
+    /// An npm install as the runner sees it: `.bin/tool -> ../@scope/tool/cli.js`, a script run by `node`.
+    #[test]
+    fn an_npm_cli_is_exposed_as_its_links_package_and_interpreter() {
+        let dir = tempfile::tempdir().unwrap();
+        let nm = dir.path().join("node_modules");
+        std::fs::create_dir_all(nm.join("@scope/tool/bin")).unwrap();
+        std::fs::create_dir_all(nm.join(".bin")).unwrap();
+        std::fs::write(nm.join("@scope/tool/bin/cli.js"), "#!/usr/bin/env -S node --no-warnings\nimport './x.js'\n").unwrap();
+        std::fs::write(nm.join("@scope/tool/package.json"), r#"{"dependencies": {"ws": "^8"}, "optionalDependencies": {"pty": "1"}}"#).unwrap();
+        std::fs::create_dir_all(nm.join("ws/lib")).unwrap();
+        std::fs::write(nm.join("ws/package.json"), r#"{"dependencies": {"nested": "1"}}"#).unwrap();
+        std::fs::create_dir_all(nm.join("ws/node_modules/nested")).unwrap();
+        std::fs::create_dir_all(nm.join("unrelated")).unwrap();
+        std::os::unix::fs::symlink("../@scope/tool/bin/cli.js", nm.join(".bin/tool")).unwrap();
+        let paths = install_of(&nm.join(".bin/tool"));
+        assert_eq!(paths[0], nm.join(".bin/tool"));
+        // The package and its dependency closure (hoisted, nested; a missing optional one skipped), nothing else.
+        for dir in ["@scope/tool", "ws", "ws/node_modules/nested"] {
+            assert!(paths.contains(&nm.join(dir)), "{dir}: {paths:?}");
+        }
+        assert!(!paths.iter().any(|p| p.ends_with("unrelated") || p.ends_with("pty") || *p == nm.join("@scope")), "{paths:?}");
+        assert_eq!(script_interpreter(&nm.join("@scope/tool/bin/cli.js")).as_deref(), Some("node"));
+        std::fs::write(dir.path().join("native"), b"\x7fELF\x02\x01").unwrap();
+        assert_eq!(script_interpreter(&dir.path().join("native")), None);
+        // Inside the sandbox the link is recreated as a link, so the script resolves its modules where it lives.
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new() };
+        let spec = SandboxSpec { readable: paths, cwd: "/".into(), ..Default::default() };
+        let joined = s.command(&["tool".into()], &spec).join(" ");
+        assert!(joined.contains(&format!("--symlink ../@scope/tool/bin/cli.js {}", nm.join(".bin/tool").display())), "{joined}");
+        assert!(joined.contains(&format!("--ro-bind-try {0} {0}", nm.join("@scope/tool").display())), "{joined}");
     }
 }

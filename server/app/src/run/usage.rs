@@ -1,8 +1,7 @@
 //! Token usage from harness logs (protocol §6.6–§6.7): every JSON line is walked recursively and each mapping
 //! with a `usage` mapping yields a record (aliases normalised across providers); when some records come from
 //! `result`-type lines only those count; consecutive identical records (the same message streamed in parts)
-//! collapse; the rest are summed. Codex reports cumulative totals instead: its session log's last
-//! `token_count` event's `info.total_token_usage`.
+//! collapse; the rest are summed. Codex (`exec --json`) reports one `turn.completed` usage per turn.
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
@@ -108,33 +107,26 @@ pub fn usage_from_jsonl<'a>(texts: impl IntoIterator<Item = &'a str>) -> Usage {
     sum(&chosen, lines)
 }
 
-/// Codex session logs: the last `token_count` event's cumulative `total_token_usage`.
-pub fn usage_from_codex_session<'a>(texts: impl IntoIterator<Item = &'a str>) -> Usage {
-    let (mut last, mut lines, mut events) = (None, 0u64, 0u64);
-    for text in texts {
-        for line in text.lines().filter(|l| !l.trim().is_empty()) {
-            lines += 1;
-            let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
-            if v["type"] == "event_msg"
-                && v["payload"]["type"] == "token_count"
-                && let Some(Value::Object(u)) = v.pointer("/payload/info/total_token_usage")
-            {
-                let mut u = u.clone();
-                // Codex names: cached_input_tokens, reasoning_output_tokens.
-                if let Some(c) = u.get("cached_input_tokens").cloned() {
-                    u.insert("cache_read_input_tokens".into(), c);
-                }
-                if let Some(r) = u.get("reasoning_output_tokens").cloned() {
-                    u.insert("reasoning_tokens".into(), r);
-                }
-                last = record_of(&u).or(last);
-                events += 1;
+/// Codex `exec --json` on stdout: each turn ends with a `turn.completed` event carrying that turn's usage summed
+/// over its model requests (`input_tokens` includes `cached_input_tokens`; `reasoning_output_tokens` is part of
+/// `output_tokens`); the turns of a run add up.
+pub fn usage_from_codex_exec(text: &str) -> Usage {
+    let (mut records, mut lines) = (Vec::new(), 0u64);
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        lines += 1;
+        let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
+        if v["type"] != "turn.completed" {
+            continue;
+        }
+        if let Some(Value::Object(u)) = v.get("usage") {
+            let mut u = u.clone();
+            if let Some(r) = u.get("reasoning_output_tokens").cloned() {
+                u.insert("reasoning_tokens".into(), r);
             }
+            records.extend(record_of(&u));
         }
     }
-    let mut u = sum(&last.into_iter().collect::<Vec<_>>(), lines);
-    u.requests_with_usage = events;
-    u
+    sum(&records, lines)
 }
 
 #[cfg(test)]
@@ -199,16 +191,21 @@ not json at all
     }
 
     #[test]
-    fn codex_session_takes_the_last_cumulative_count() {
-        let log = r#"{"timestamp":"2026-05-02T10:00:00.000Z","type":"session_meta","payload":{"id":"0197","cwd":"/tmp/ws","originator":"codex_exec","cli_version":"0.154.0"}}
-{"timestamp":"2026-05-02T10:00:05.000Z","type":"event_msg","payload":{"type":"token_count","info":null,"rate_limits":null}}
-{"timestamp":"2026-05-02T10:00:09.000Z","type":"event_msg","payload":{"type":"token_count","info":{"total_token_usage":{"input_tokens":12000,"cached_input_tokens":8000,"output_tokens":300,"reasoning_output_tokens":120,"total_tokens":12300},"last_token_usage":{"input_tokens":12000,"cached_input_tokens":8000,"output_tokens":300,"reasoning_output_tokens":120,"total_tokens":12300},"model_context_window":272000}}}
-{"timestamp":"2026-05-02T10:01:09.000Z","type":"event_msg","payload":{"type":"token_count","info":{"total_token_usage":{"input_tokens":30500,"cached_input_tokens":24000,"output_tokens":1100,"reasoning_output_tokens":400,"total_tokens":31600},"last_token_usage":{"input_tokens":18500,"cached_input_tokens":16000,"output_tokens":800,"reasoning_output_tokens":280,"total_tokens":19300},"model_context_window":272000}}}
-{"timestamp":"2026-05-02T10:01:10.000Z","type":"response_item","payload":{"type":"message","role":"assistant","content":[{"type":"output_text","text":"done"}]}}"#;
-        let u = usage_from_codex_session([log]);
-        assert_eq!((u.total_tokens, u.input_tokens, u.output_tokens), (Some(31600), Some(30500), Some(1100)));
-        assert_eq!((u.cache_read_input_tokens, u.reasoning_tokens), (Some(24000), Some(400)));
-        assert_eq!(u.requests_with_usage, 2);
-        assert!(!usage_from_codex_session(["{}"]).available);
+    fn codex_exec_json_sums_its_turns() {
+        // Captured from `codex exec --json` 0.169.0 against the scripted endpoint of tests/real_clis.rs (shortened).
+        let log = r#"{"type":"thread.started","thread_id":"01a20be2-85c6-7dd1-925d-8c34d3b12771"}
+{"type":"item.completed","item":{"id":"item_0","type":"error","message":"Model metadata for `scripted` not found."}}
+{"type":"turn.started"}
+{"type":"item.completed","item":{"id":"item_1","type":"mcp_tool_call","server":"libero","tool":"start_episode","arguments":{},"result":{"content":[{"type":"text","text":"{}"}]},"error":null,"status":"completed"}}
+{"type":"item.completed","item":{"id":"item_5","type":"agent_message","text":"The episode is finished."}}
+{"type":"turn.completed","usage":{"input_tokens":6000,"cached_input_tokens":2000,"cache_write_input_tokens":0,"output_tokens":150,"reasoning_output_tokens":40}}
+{"type":"turn.started"}
+{"type":"turn.completed","usage":{"input_tokens":1000,"cached_input_tokens":0,"output_tokens":10,"reasoning_output_tokens":0}}"#;
+        let u = usage_from_codex_exec(log);
+        assert!(u.available);
+        assert_eq!((u.requests_with_usage, u.lines_scanned), (2, 8));
+        assert_eq!((u.input_tokens, u.cache_read_input_tokens, u.output_tokens), (Some(7000), Some(2000), Some(160)));
+        assert_eq!((u.reasoning_tokens, u.total_tokens), (Some(40), Some(7160)));
+        assert!(!usage_from_codex_exec(r#"{"type":"turn.failed","error":{"message":"x"}}"#).available);
     }
 }
