@@ -134,6 +134,29 @@ impl Drop for ViewerGuard {
     }
 }
 
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicUsize;
+
+    use super::*;
+
+    #[test]
+    fn viewers_are_counted_while_their_guards_live_and_every_change_wakes_the_renderer() {
+        let viewers = LiveViewers::new();
+        let wakes = Arc::new(AtomicUsize::new(0));
+        let w = wakes.clone();
+        viewers.on_change(Arc::new(move || {
+            w.fetch_add(1, Ordering::AcqRel);
+        }));
+        let (a, b) = (viewers.watch(), viewers.clone().watch());
+        assert_eq!((viewers.count(), wakes.load(Ordering::Acquire)), (2, 2));
+        drop(a);
+        assert_eq!(viewers.count(), 1);
+        drop(b);
+        assert_eq!((viewers.count(), wakes.load(Ordering::Acquire)), (0, 4));
+    }
+}
+
 #[cfg(feature = "world")]
 pub use live_renderer::{LiveRenderer, LiveState};
 #[cfg(feature = "world")]
@@ -370,6 +393,10 @@ mod live_renderer {
                 if t.join().is_err() {
                     log::error!("the live renderer thread panicked");
                 }
+            }
+            // The hub's viewer count outlives the world and holds the wake-up: leave no pose snapshot there.
+            if let Ok(mut slot) = self.shared.slot.lock() {
+                slot.newest = None;
             }
         }
     }
