@@ -2,7 +2,8 @@
 //! in-process server creates an operator episode (`POST /api/teleop`), and the bench opens the teleop
 //! control socket and the live frame socket exactly as the teleop page does, sends action batches at the
 //! 20 Hz control rate (at most two in flight, as the page), and measures from each send to the first frame
-//! whose control step covers that batch.
+//! whose control step covers that batch. Beside it, `ack_ms` (send to the control socket's answer: the
+//! episode executed the batch) says how much of that latency is the simulation and how much the live view.
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -56,11 +57,20 @@ struct FrameSeen {
     control_step: Option<u64>,
 }
 
-/// A batch as it left: when, and the control step its last action reaches.
+/// A batch as it left: its sequence number, when, and the control step its last action reaches.
 #[derive(Debug, Clone, Copy)]
 struct BatchSent {
+    seq: u64,
     at: Instant,
     last_step: u64,
+}
+
+/// What the drive saw: batches sent, frames received, answers `(seq, when)` and the actions executed.
+struct Drive {
+    sent: Vec<BatchSent>,
+    frames: Vec<FrameSeen>,
+    acks: Vec<(u64, Instant)>,
+    acked_actions: usize,
 }
 
 pub fn run(args: &BenchTeleopArgs) -> anyhow::Result<()> {
@@ -94,10 +104,15 @@ fn drive(base_url: &str, args: &BenchTeleopArgs) -> anyhow::Result<Value> {
         bail!("POST /api/teleop answered HTTP {status}: {created}");
     };
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
-    let (sent, frames, acked) = runtime.block_on(drive_sockets(base_url, id, args))?;
-    let mut latencies_ms = key_to_frame_ms(&sent, &frames);
-    let measured = latencies_ms.len();
-    let (p50, p95) = (percentile_ms(&mut latencies_ms, 50.0), percentile_ms(&mut latencies_ms, 95.0));
+    let Drive { sent, frames, acks, acked_actions } = runtime.block_on(drive_sockets(base_url, id, args))?;
+    let summary = |mut ms: Vec<f64>| {
+        let n = ms.len();
+        json!({"p50": percentile_ms(&mut ms, 50.0), "p95": percentile_ms(&mut ms, 95.0), "n": n})
+    };
+    let ack_ms: Vec<f64> = sent
+        .iter()
+        .filter_map(|b| acks.iter().find(|(seq, _)| *seq == b.seq).map(|(_, at)| at.duration_since(b.at).as_secs_f64() * 1000.0))
+        .collect();
     Ok(json!({
         "bench": "teleop",
         "task": args.task,
@@ -105,10 +120,12 @@ fn drive(base_url: &str, args: &BenchTeleopArgs) -> anyhow::Result<Value> {
         "seconds": args.seconds,
         "batch_actions": args.batch,
         "batches_sent": sent.len(),
-        "actions_acked": acked,
+        "actions_acked": acked_actions,
+        "achieved_actions_per_s": acked_actions as f64 / args.seconds,
         "frames_received": frames.len(),
         "frames_per_s": frames.len() as f64 / args.seconds,
-        "key_to_frame_ms": {"p50": p50, "p95": p95, "n": measured},
+        "key_to_frame_ms": summary(key_to_frame_ms(&sent, &frames)),
+        "ack_ms": summary(ack_ms),
         "build": if cfg!(debug_assertions) { "debug" } else { "release" },
     }))
 }
@@ -150,7 +167,7 @@ fn action(tick: u64) -> [f64; 7] {
     [0.3 * sign, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]
 }
 
-async fn drive_sockets(base_url: &str, id: &str, args: &BenchTeleopArgs) -> anyhow::Result<(Vec<BatchSent>, Vec<FrameSeen>, usize)> {
+async fn drive_sockets(base_url: &str, id: &str, args: &BenchTeleopArgs) -> anyhow::Result<Drive> {
     let live = open_socket(base_url, &format!("/ws/episodes/{id}")).await?;
     let control = open_socket(base_url, &format!("/ws/teleop/{id}")).await?;
     let frames: Arc<Mutex<Vec<FrameSeen>>> = Arc::default();
@@ -158,11 +175,16 @@ async fn drive_sockets(base_url: &str, id: &str, args: &BenchTeleopArgs) -> anyh
     let (mut control_tx, mut control_rx) = control.split();
     let in_flight = Arc::new(AtomicUsize::new(0));
     let acked = Arc::new(AtomicUsize::new(0));
+    let answers: Arc<Mutex<Vec<(u64, Instant)>>> = Arc::default();
     let acks = {
-        let (in_flight, acked) = (in_flight.clone(), acked.clone());
+        let (in_flight, acked, answers) = (in_flight.clone(), acked.clone(), answers.clone());
         tokio::spawn(async move {
             while let Some(Ok(Message::Text(text))) = control_rx.next().await {
+                let at = Instant::now();
                 let ack: Value = serde_json::from_str(&text).unwrap_or(Value::Null);
+                if let (Some(seq), Ok(mut a)) = (ack["seq"].as_u64(), answers.lock()) {
+                    a.push((seq, at));
+                }
                 if ack["ok"] == true {
                     acked.fetch_add(ack["actions"].as_u64().unwrap_or(0) as usize, Ordering::AcqRel);
                 } else {
@@ -189,7 +211,7 @@ async fn drive_sockets(base_url: &str, id: &str, args: &BenchTeleopArgs) -> anyh
         in_flight.fetch_add(1, Ordering::AcqRel);
         let at = Instant::now();
         control_tx.send(Message::Text(json!({"seq": seq, "actions": actions}).to_string().into())).await?;
-        sent.push(BatchSent { at, last_step: tick });
+        sent.push(BatchSent { seq, at, last_step: tick });
     }
     let drained = Instant::now();
     while drained.elapsed() < DRAIN_LIMIT {
@@ -202,7 +224,8 @@ async fn drive_sockets(base_url: &str, id: &str, args: &BenchTeleopArgs) -> anyh
     reader.abort();
     acks.abort();
     let frames = frames.lock().map(|f| f.clone()).unwrap_or_default();
-    Ok((sent, frames, acked.load(Ordering::Acquire)))
+    let acks = answers.lock().map(|a| a.clone()).unwrap_or_default();
+    Ok(Drive { sent, frames, acks, acked_actions: acked.load(Ordering::Acquire) })
 }
 
 /// Records every frame's arrival on the live socket.
@@ -225,7 +248,8 @@ mod tests {
     fn a_batch_is_covered_by_the_first_later_frame_that_reaches_its_last_step() {
         let t0 = Instant::now();
         let ms = |n| t0 + Duration::from_millis(n);
-        let sent = [BatchSent { at: ms(0), last_step: 4 }, BatchSent { at: ms(200), last_step: 8 }, BatchSent { at: ms(400), last_step: 12 }];
+        let batch = |seq: u64, at| BatchSent { seq, at, last_step: 4 * seq };
+        let sent = [batch(1, ms(0)), batch(2, ms(200)), batch(3, ms(400))];
         let frames = [
             FrameSeen { at: ms(100), control_step: Some(3) },
             FrameSeen { at: ms(250), control_step: Some(8) },
