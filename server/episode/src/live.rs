@@ -389,10 +389,10 @@ mod live_renderer {
                 slot.closed = true;
                 self.shared.wake.notify_all();
             }
-            if let Some(t) = self.thread.take() {
-                if t.join().is_err() {
-                    log::error!("the live renderer thread panicked");
-                }
+            if let Some(t) = self.thread.take()
+                && t.join().is_err()
+            {
+                log::error!("the live renderer thread panicked");
             }
             // The hub's viewer count outlives the world and holds the wake-up: leave no pose snapshot there.
             if let Ok(mut slot) = self.shared.slot.lock() {
