@@ -15,7 +15,7 @@ function showFrame(buf) {
   showBlob(img, blob);
   $('frame-step').textContent = header.control_step ?? 'settle';
   $('frame-time').textContent = fmtS(header.sim_time_s);
-  $('frame-index').textContent = header.video_frame;
+  $('frame-index').textContent = header.video_frame ?? '–';
   $('frame-count').textContent = ++frames;
 }
 

@@ -8,6 +8,8 @@ mod cmd_tasks;
 #[cfg(feature = "episode-serve")]
 mod bench_mcp;
 #[cfg(feature = "episode-serve")]
+mod bench_teleop;
+#[cfg(feature = "episode-serve")]
 mod cmd_demo;
 #[cfg(feature = "episode-serve")]
 mod cmd_episode;
@@ -82,6 +84,9 @@ enum BenchCommand {
     /// `osc_sequence` latency over MCP for 1, 4 and 8 concurrent episodes vs simulation + one render.
     #[cfg(feature = "episode-serve")]
     Mcp(bench_mcp::BenchMcpArgs),
+    /// Teleop key-to-frame latency over the real WebSocket path (control socket → episode → live frame).
+    #[cfg(feature = "episode-serve")]
+    Teleop(bench_teleop::BenchTeleopArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -93,6 +98,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(BenchCommand::Render(a)) => bench_render::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Mcp(a)) => bench_mcp::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Teleop(a)) => bench_teleop::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Serve(a) => serve::run_serve(a),
         #[cfg(feature = "episode-serve")]

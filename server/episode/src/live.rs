@@ -3,10 +3,15 @@
 //! sink must return at once (the server fans out through a broadcast channel); the episode thread never waits
 //! for a viewer. Nothing here reaches the agent's workspace: private evaluator progress is for operators only.
 //!
+//! Frames are rendered on demand: the server counts who watches ([`LiveViewers`]); with nobody watching no
+//! frame is rendered, and with viewers the episode's live renderer (`world` feature: [`LiveRenderer`]) renders
+//! the newest simulation state, skipping states it had no time for, so a viewer never sees a backlog.
+//!
 //! With the `world` feature: [`WorldTap`] (per control step: `telemetry.jsonl` in the run directory, step and
-//! stage events) and [`FrameTap`] (the video recorder's head | wrist frames, throttled to
-//! [`LIVE_FRAME_MIN_INTERVAL`] and JPEG-encoded once per emitted frame).
-use std::sync::Arc;
+//! stage events) and [`LiveRenderer`] (head | wrist of the newest state, at most every
+//! [`LIVE_FRAME_MIN_INTERVAL`], JPEG-encoded once per frame for all viewers).
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 
 use serde::Serialize;
 use serde_json::Value;
@@ -20,8 +25,8 @@ pub struct LiveFrame {
     /// Control steps since the evaluator reset (0 = the settled start); `None` for settle steps.
     pub control_step: Option<u64>,
     pub sim_time_s: f64,
-    /// Index of this frame in `continuous_video.mp4`.
-    pub video_frame: u64,
+    /// Index of the same state's frame in `continuous_video.mp4` (`None` without a video or before the reset).
+    pub video_frame: Option<u64>,
     pub width_px: u32,
     pub height_px: u32,
     pub jpeg: Arc<[u8]>,
@@ -74,8 +79,88 @@ pub fn unix_now_s() -> f64 {
 /// `telemetry.jsonl` beside the other private records: one line per control step.
 pub const TELEMETRY_FILE: &str = "telemetry.jsonl";
 
+/// Called when the number of viewers changes (the live renderer wakes up on it).
+type ViewersChanged = Arc<dyn Fn() + Send + Sync>;
+
+/// How many viewers watch an episode's frames: the server's hub holds one [`ViewerGuard`] per frame
+/// subscriber, the episode's live renderer renders only while the count is above zero. Cloning shares it.
+#[derive(Clone, Default)]
+pub struct LiveViewers(Arc<ViewersInner>);
+
+#[derive(Default)]
+struct ViewersInner {
+    count: AtomicUsize,
+    on_change: Mutex<Option<ViewersChanged>>,
+}
+
+impl LiveViewers {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn count(&self) -> usize {
+        self.0.count.load(Ordering::Acquire)
+    }
+
+    /// Counts one viewer until the guard is dropped.
+    pub fn watch(&self) -> ViewerGuard {
+        self.0.count.fetch_add(1, Ordering::AcqRel);
+        self.changed();
+        ViewerGuard(self.clone())
+    }
+
+    /// Installs the wake-up of the one renderer that serves these viewers (replacing any earlier one).
+    pub fn on_change(&self, wake: ViewersChanged) {
+        if let Ok(mut slot) = self.0.on_change.lock() {
+            *slot = Some(wake);
+        }
+    }
+
+    fn changed(&self) {
+        let wake = self.0.on_change.lock().ok().and_then(|w| w.clone());
+        if let Some(wake) = wake {
+            wake();
+        }
+    }
+}
+
+/// One viewer, counted in its [`LiveViewers`] while it lives.
+pub struct ViewerGuard(LiveViewers);
+
+impl Drop for ViewerGuard {
+    fn drop(&mut self) {
+        self.0.0.count.fetch_sub(1, Ordering::AcqRel);
+        self.0.changed();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicUsize;
+
+    use super::*;
+
+    #[test]
+    fn viewers_are_counted_while_their_guards_live_and_every_change_wakes_the_renderer() {
+        let viewers = LiveViewers::new();
+        let wakes = Arc::new(AtomicUsize::new(0));
+        let w = wakes.clone();
+        viewers.on_change(Arc::new(move || {
+            w.fetch_add(1, Ordering::AcqRel);
+        }));
+        let (a, b) = (viewers.watch(), viewers.clone().watch());
+        assert_eq!((viewers.count(), wakes.load(Ordering::Acquire)), (2, 2));
+        drop(a);
+        assert_eq!(viewers.count(), 1);
+        drop(b);
+        assert_eq!((viewers.count(), wakes.load(Ordering::Acquire)), (0, 4));
+    }
+}
+
 #[cfg(feature = "world")]
-pub use world_taps::{FrameTap, LIVE_FRAME_MIN_INTERVAL, TelemetryRow, WorldTap, encode_jpeg};
+pub use live_renderer::{LiveRenderer, LiveState};
+#[cfg(feature = "world")]
+pub use world_taps::{LIVE_FRAME_MIN_INTERVAL, TelemetryRow, WorldTap, encode_jpeg};
 
 #[cfg(feature = "world")]
 mod world_taps {
@@ -84,15 +169,15 @@ mod world_taps {
     use std::path::Path;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicU64, Ordering};
-    use std::time::{Duration, Instant};
+    use std::time::Duration;
 
     use libero_tasks::evaluator::PrivateEvent;
     use serde::Serialize;
 
-    use super::{LiveEvent, LiveFrame, LiveSink};
+    use super::{LiveEvent, LiveSink};
     use crate::observation::RobotReadout;
 
-    /// At most 20 frames a second reach viewers; the video keeps every control step.
+    /// At most 20 live frames a second (the control rate) are rendered, however many viewers watch.
     pub const LIVE_FRAME_MIN_INTERVAL: Duration = Duration::from_millis(50);
     /// JPEG quality of live frames: small enough for many viewers, sharp enough to read the scene.
     const JPEG_QUALITY: u8 = 80;
@@ -146,12 +231,8 @@ mod world_taps {
             self.video_frames.clone()
         }
 
-        /// The frame tap for the video recorder, sharing this tap's control-step origin.
-        pub fn frame_tap(&self) -> FrameTap {
-            FrameTap { sink: self.sink.clone(), origin: self.origin.clone(), last_sent: None, pending: None }
-        }
-
-        fn video_frame(&self, control_step: u64) -> Option<u64> {
+        /// Index of control step `control_step`'s frame in the video (`None` without one or before the reset).
+        pub fn video_frame(&self, control_step: u64) -> Option<u64> {
             let origin = self.origin.load(Ordering::Acquire);
             (origin != NOT_STARTED && self.video_frames.load(Ordering::Acquire) > 0)
                 .then(|| (origin + control_step).saturating_sub(1))
@@ -208,69 +289,6 @@ mod world_taps {
         }
     }
 
-    /// A frame waiting for its turn under the rate limit.
-    struct Pending {
-        rgb: Vec<u8>,
-        width_px: u32,
-        height_px: u32,
-        video_frame: u64,
-        sim_time_s: f64,
-    }
-
-    /// The video recorder's side: keeps the newest rendered frame and sends it at most every
-    /// [`LIVE_FRAME_MIN_INTERVAL`]; only frames actually sent are JPEG-encoded.
-    pub struct FrameTap {
-        sink: LiveSink,
-        origin: Arc<AtomicU64>,
-        last_sent: Option<Instant>,
-        pending: Option<Pending>,
-    }
-
-    impl FrameTap {
-        /// Offers the frame just rendered (`rgb` is `width × height × 3`, rows top to bottom).
-        pub fn offer(&mut self, rgb: &[u8], width_px: u32, height_px: u32, video_frame: u64, sim_time_s: f64) {
-            let mut buf = self.pending.take().map(|p| p.rgb).unwrap_or_default();
-            buf.clear();
-            buf.extend_from_slice(rgb);
-            self.pending = Some(Pending { rgb: buf, width_px, height_px, video_frame, sim_time_s });
-            if self.due().is_none() {
-                self.flush();
-            }
-        }
-
-        /// How long until the pending frame may be sent (`None`: now, or nothing pending).
-        pub fn due(&self) -> Option<Duration> {
-            self.pending.as_ref()?;
-            let wait = LIVE_FRAME_MIN_INTERVAL.saturating_sub(self.last_sent?.elapsed());
-            (!wait.is_zero()).then_some(wait)
-        }
-
-        pub fn has_pending(&self) -> bool {
-            self.pending.is_some()
-        }
-
-        /// Sends the pending frame now.
-        pub fn flush(&mut self) {
-            let Some(p) = self.pending.take() else { return };
-            self.last_sent = Some(Instant::now());
-            let origin = self.origin.load(Ordering::Acquire);
-            // Frame f shows the state after video step f + 1; control step c was frame origin + c - 1.
-            let control_step = (origin != NOT_STARTED && p.video_frame + 1 >= origin).then(|| p.video_frame + 1 - origin);
-            match encode_jpeg(&p.rgb, p.width_px, p.height_px) {
-                Ok(jpeg) => (self.sink)(LiveEvent::Frame(LiveFrame {
-                    control_step,
-                    sim_time_s: p.sim_time_s,
-                    video_frame: p.video_frame,
-                    width_px: p.width_px,
-                    height_px: p.height_px,
-                    jpeg: jpeg.into(),
-                })),
-                Err(e) => log::warn!("live frame {}: {e}", p.video_frame),
-            }
-            self.pending = None;
-        }
-    }
-
     /// Baseline JPEG of an RGB image.
     pub fn encode_jpeg(rgb: &[u8], width_px: u32, height_px: u32) -> Result<Vec<u8>, String> {
         let (w, h) = (u16::try_from(width_px).map_err(|e| e.to_string())?, u16::try_from(height_px).map_err(|e| e.to_string())?);
@@ -280,46 +298,183 @@ mod world_taps {
             .map_err(|e| e.to_string())?;
         Ok(out)
     }
+}
 
-    #[cfg(test)]
-    mod tests {
-        use std::sync::Mutex;
+#[cfg(feature = "world")]
+mod live_renderer {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::{Arc, Condvar, Mutex};
+    use std::thread::JoinHandle;
+    use std::time::Instant;
 
-        use super::*;
+    use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
 
-        fn collecting() -> (LiveSink, Arc<Mutex<Vec<LiveEvent>>>) {
-            let seen = Arc::new(Mutex::new(Vec::new()));
-            let s = seen.clone();
-            (Arc::new(move |e| s.lock().unwrap().push(e)), seen)
+    use super::world_taps::{LIVE_FRAME_MIN_INTERVAL, encode_jpeg};
+    use super::{LiveEvent, LiveFrame, LiveSink, LiveViewers};
+    use crate::video::{VideoCameras, side_by_side};
+
+    /// The newest simulation state as the world leaves it after a control step (poses only: no rendering).
+    pub struct LiveState {
+        pub state: FrameState,
+        /// `None` before the evaluator reset (settling).
+        pub control_step: Option<u64>,
+        pub sim_time_s: f64,
+        pub video_frame: Option<u64>,
+    }
+
+    /// The one-state mailbox between the episode thread and the live renderer: a newer state replaces an
+    /// unrendered one, so the renderer never works through a backlog.
+    struct Slot {
+        newest: Option<LiveState>,
+        closed: bool,
+    }
+
+    struct Shared {
+        slot: Mutex<Slot>,
+        wake: Condvar,
+    }
+
+    impl Shared {
+        /// Wakes the renderer; taking the lock first means a wake-up between its check and its wait is not lost.
+        fn notify(&self) {
+            let _slot = self.slot.lock();
+            self.wake.notify_all();
+        }
+    }
+
+    /// An episode's live renderer thread: renders head | wrist of the newest published state while at least one
+    /// viewer watches, at most every [`LIVE_FRAME_MIN_INTERVAL`], on the renderer's normal lane (the video keeps
+    /// to its background lane), and hands the JPEG to the sink. Dropping it ends the thread; a state still
+    /// waiting then is rendered first if someone watches, so viewers always end on the final state.
+    pub struct LiveRenderer {
+        shared: Arc<Shared>,
+        renders: Arc<AtomicU64>,
+        thread: Option<JoinHandle<()>>,
+    }
+
+    impl LiveRenderer {
+        pub fn spawn(
+            renderer: Renderer,
+            model: ModelHandle,
+            cameras: VideoCameras,
+            sink: LiveSink,
+            viewers: LiveViewers,
+        ) -> std::io::Result<Self> {
+            let shared = Arc::new(Shared { slot: Mutex::new(Slot { newest: None, closed: false }), wake: Condvar::new() });
+            let waker = shared.clone();
+            viewers.on_change(Arc::new(move || waker.notify()));
+            let renders = Arc::new(AtomicU64::new(0));
+            let job = Job { shared: shared.clone(), viewers, renderer, model, cameras, sink, renders: renders.clone(), failed: false };
+            let thread = std::thread::Builder::new().name("live-render".into()).spawn(move || job.run())?;
+            Ok(Self { shared, renders, thread: Some(thread) })
         }
 
-        #[test]
-        fn frames_are_rate_limited_keep_the_newest_and_carry_control_steps_after_the_reset() {
-            let (sink, seen) = collecting();
-            let tap = WorldTap::new(sink, None).unwrap();
-            let mut frames = tap.frame_tap();
-            let rgb = vec![128u8; 16 * 8 * 3];
-            frames.offer(&rgb, 16, 8, 0, 0.05); // a settle step, sent at once
-            tap.origin.store(10, Ordering::Release); // the reset after 10 settle frames
-            frames.offer(&rgb, 16, 8, 10, 0.55);
-            frames.offer(&rgb, 16, 8, 11, 0.60); // replaces frame 10 while rate-limited
-            assert!(frames.due().is_some_and(|d| d <= LIVE_FRAME_MIN_INTERVAL));
-            frames.flush();
-            let got: Vec<(Option<u64>, u64)> = seen
-                .lock()
-                .unwrap()
-                .iter()
-                .filter_map(|e| match e {
-                    LiveEvent::Frame(f) => Some((f.control_step, f.video_frame)),
-                    _ => None,
+        /// Offers the newest state, replacing one not yet rendered. Never waits for a render.
+        pub fn publish(&self, state: LiveState) {
+            if let Ok(mut slot) = self.shared.slot.lock() {
+                slot.newest = Some(state);
+                self.shared.wake.notify_all();
+            }
+        }
+
+        /// Frames rendered so far (a test hook: zero while nobody watches).
+        pub fn render_counter(&self) -> Arc<AtomicU64> {
+            self.renders.clone()
+        }
+    }
+
+    impl Drop for LiveRenderer {
+        fn drop(&mut self) {
+            if let Ok(mut slot) = self.shared.slot.lock() {
+                slot.closed = true;
+                self.shared.wake.notify_all();
+            }
+            if let Some(t) = self.thread.take()
+                && t.join().is_err()
+            {
+                log::error!("the live renderer thread panicked");
+            }
+            // The hub's viewer count outlives the world and holds the wake-up: leave no pose snapshot there.
+            if let Ok(mut slot) = self.shared.slot.lock() {
+                slot.newest = None;
+            }
+        }
+    }
+
+    /// The thread's side.
+    struct Job {
+        shared: Arc<Shared>,
+        viewers: LiveViewers,
+        renderer: Renderer,
+        model: ModelHandle,
+        cameras: VideoCameras,
+        sink: LiveSink,
+        renders: Arc<AtomicU64>,
+        /// A render failure is logged once, not at frame rate.
+        failed: bool,
+    }
+
+    impl Job {
+        fn run(mut self) {
+            let mut last_render: Option<Instant> = None;
+            while let Some(state) = self.next(last_render) {
+                last_render = Some(Instant::now());
+                self.render(state);
+            }
+        }
+
+        /// Waits for a state worth rendering: one not rendered yet, while someone watches, no sooner than the
+        /// rate cap allows. `None` once the world is gone and nothing is left to show.
+        fn next(&self, last_render: Option<Instant>) -> Option<LiveState> {
+            let mut slot = self.shared.slot.lock().ok()?;
+            loop {
+                let wanted = slot.newest.is_some() && self.viewers.count() > 0;
+                if slot.closed {
+                    return if wanted { slot.newest.take() } else { None };
+                }
+                if !wanted {
+                    slot = self.shared.wake.wait(slot).ok()?;
+                    continue;
+                }
+                let wait = last_render.map(|t| LIVE_FRAME_MIN_INTERVAL.saturating_sub(t.elapsed())).unwrap_or_default();
+                if wait.is_zero() {
+                    return slot.newest.take();
+                }
+                slot = self.shared.wake.wait_timeout(slot, wait).ok()?.0;
+            }
+        }
+
+        fn render(&mut self, live: LiveState) {
+            self.renders.fetch_add(1, Ordering::AcqRel);
+            let size = self.cameras.size_px;
+            let requests = [
+                CameraRequest::named(&self.cameras.head, size, size, Outputs::RGB),
+                CameraRequest::named(&self.cameras.wrist, size, size, Outputs::RGB),
+            ];
+            let jpeg = self
+                .renderer
+                .render(&self.model, &live.state, &requests, &RenderOptions::default())
+                .map_err(|e| e.to_string())
+                .and_then(|views| match views.as_slice() {
+                    [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize).map_err(|e| e.to_string()),
+                    other => Err(format!("expected 2 camera images, got {}", other.len())),
                 })
-                .collect();
-            assert_eq!(got, [(None, 0), (Some(2), 11)]);
-            let jpeg = match &seen.lock().unwrap()[0] {
-                LiveEvent::Frame(f) => f.jpeg.clone(),
-                _ => unreachable!(),
-            };
-            assert_eq!(&jpeg[..2], [0xFF, 0xD8], "a JPEG");
+                .and_then(|rgb| encode_jpeg(&rgb, 2 * size, size));
+            match jpeg {
+                Ok(jpeg) => (self.sink)(LiveEvent::Frame(LiveFrame {
+                    control_step: live.control_step,
+                    sim_time_s: live.sim_time_s,
+                    video_frame: live.video_frame,
+                    width_px: 2 * size,
+                    height_px: size,
+                    jpeg: jpeg.into(),
+                })),
+                Err(e) if !self.failed => {
+                    self.failed = true;
+                    log::warn!("live frame at control step {:?}: {e} (later failures are not logged)", live.control_step);
+                }
+                Err(_) => {}
+            }
         }
     }
 }

@@ -8,9 +8,8 @@
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{self, RecvTimeoutError, SyncSender};
+use std::sync::mpsc::{self, SyncSender};
 use std::thread::JoinHandle;
-use std::time::Duration;
 
 use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
 use libero_sim::mujoco_rs::prelude::MjModel;
@@ -22,8 +21,6 @@ use openh264::encoder::{
 };
 use openh264::formats::{RgbSliceU8, YUVBuffer};
 use thiserror::Error;
-
-use crate::live::FrameTap;
 
 /// Frames per second of the video: one frame per 20 Hz control step, so video time equals sim time.
 pub const VIDEO_FPS: f64 = 20.0;
@@ -199,30 +196,14 @@ pub struct VideoRecorder {
     broken: bool,
 }
 
-/// One queued control step: the poses to render and the simulation time they belong to.
-struct Snapshot {
-    state: FrameState,
-    sim_time_s: f64,
-}
-
-/// How long the recorder waits for the next snapshot when no live frame is pending.
-const IDLE_WAIT: Duration = Duration::from_secs(3600);
+/// One queued control step: the poses to render.
+type Snapshot = FrameState;
 
 impl VideoRecorder {
-    /// Starts the recorder thread for `path` (created at the first frame).
+    /// Starts the recorder thread for `path` (created at the first frame). It does not feed the live view:
+    /// it renders every control step in the background lane and may fall behind the simulation, which a
+    /// viewer must never see (live frames come from the world's own on-demand renderer).
     pub fn spawn(path: &Path, renderer: Renderer, model: ModelHandle, cameras: VideoCameras) -> Result<Self, VideoError> {
-        Self::spawn_with_tap(path, renderer, model, cameras, None)
-    }
-
-    /// As [`spawn`](Self::spawn), also offering every rendered head | wrist frame to `tap` (the operator's live
-    /// view), so live frames cost no render of their own.
-    pub fn spawn_with_tap(
-        path: &Path,
-        renderer: Renderer,
-        model: ModelHandle,
-        cameras: VideoCameras,
-        mut tap: Option<FrameTap>,
-    ) -> Result<Self, VideoError> {
         let size = cameras.size_px;
         let mut writer = Mp4Writer::new(path, 2 * size, size)?;
         let (tx, rx) = mpsc::sync_channel::<Snapshot>(VIDEO_QUEUE_FRAMES);
@@ -234,23 +215,10 @@ impl VideoRecorder {
             ];
             let options = RenderOptions::default();
             let mut failure = None;
-            loop {
-                // A live frame held back by the rate limit goes out when its time comes, even if no step follows.
-                let wait = tap.as_ref().and_then(|t| t.has_pending().then(|| t.due().unwrap_or_default()));
-                let Snapshot { state, sim_time_s } = match rx.recv_timeout(wait.unwrap_or(IDLE_WAIT)) {
-                    Ok(s) => s,
-                    Err(RecvTimeoutError::Timeout) => {
-                        if let Some(t) = tap.as_mut() {
-                            t.flush();
-                        }
-                        continue;
-                    }
-                    Err(RecvTimeoutError::Disconnected) => break,
-                };
+            while let Ok(state) = rx.recv() {
                 if failure.is_some() {
                     continue; // keep draining so the episode thread never blocks on a dead recorder
                 }
-                let video_frame = writer.frames();
                 // Background: an episode's observation render never queues behind video frames.
                 let frame = renderer
                     .render_background(&model, &state, &requests, &options)
@@ -259,19 +227,10 @@ impl VideoRecorder {
                         [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize),
                         other => Err(VideoError::Render(format!("expected 2 camera images, got {}", other.len()))),
                     })
-                    .and_then(|rgb| {
-                        writer.push_rgb(&rgb)?;
-                        if let Some(t) = tap.as_mut() {
-                            t.offer(&rgb, 2 * size, size, video_frame, sim_time_s);
-                        }
-                        Ok(())
-                    });
+                    .and_then(|rgb| writer.push_rgb(&rgb));
                 if let Err(e) = frame {
                     failure = Some(e);
                 }
-            }
-            if let Some(t) = tap.as_mut() {
-                t.flush();
             }
             match failure {
                 // The partial file stays under its temporary name: incomplete, and visibly so.
@@ -284,13 +243,8 @@ impl VideoRecorder {
 
     /// Queues one frame; waits when the encoder is [`VIDEO_QUEUE_FRAMES`] behind.
     pub fn record(&mut self, state: FrameState) {
-        self.record_at(state, f64::NAN);
-    }
-
-    /// Queues one frame of simulation time `sim_time_s` (shown on live frames).
-    pub fn record_at(&mut self, state: FrameState, sim_time_s: f64) {
         let Some(tx) = &self.tx else { return };
-        if tx.send(Snapshot { state, sim_time_s }).is_err() && !self.broken {
+        if tx.send(state).is_err() && !self.broken {
             self.broken = true;
             log::error!("video {}: the recorder thread has stopped; later frames are lost", self.path.display());
         }
@@ -298,7 +252,7 @@ impl VideoRecorder {
 
     /// A simulation hook that records every control step into this video.
     pub fn into_step_observer(mut self) -> StepObserver {
-        Box::new(move |model: &MjModel, data: &SimData| self.record_at(FrameState::from_mujoco(model, data), data.ffi().time))
+        Box::new(move |model: &MjModel, data: &SimData| self.record(FrameState::from_mujoco(model, data)))
     }
 
     /// Drains the queue, finalises the MP4 and renames it into place.

@@ -11,7 +11,7 @@ use libero_sim::placement::{TurnOnSites, update_visual_sites};
 use crate::EpisodeError;
 use crate::actor::{Verdict, World};
 use crate::call::MicroAction;
-use crate::live::{LiveSink, WorldTap};
+use crate::live::{LiveRenderer, LiveSink, LiveState, LiveViewers, WorldTap};
 use crate::observation::{CameraFrame, Frame, Level, RgbImage};
 pub use crate::physics::{SETTLE_STEPS, WorldSpec};
 use crate::physics::WorldPhysics;
@@ -34,6 +34,8 @@ pub struct LiberoWorld {
     toggles: VisualToggles,
     /// The operator's live view and telemetry (see [`LiberoWorld::set_live`]); `None` costs nothing.
     live: Option<WorldTap>,
+    /// Renders the newest state for the live view while someone watches (see [`LiberoWorld::set_live`]).
+    live_frames: Option<LiveRenderer>,
     /// The task's reference image, published with every frame (protocol §3.9).
     task_reference: Option<RgbImage>,
 }
@@ -90,7 +92,7 @@ impl LiberoWorld {
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
         let toggles = VisualToggles::new(&physics.scene, &model)?;
         let task_reference = spec.task.task_reference.as_deref().map(RgbImage::read_png).transpose()?;
-        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None, task_reference })
+        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None, live_frames: None, task_reference })
     }
 
     /// Whether the next image shows a turned-on fixture's visual site (the stove's burner ring).
@@ -118,12 +120,8 @@ impl LiberoWorld {
         Ok(())
     }
 
-    fn render(&self) -> Result<(CameraFrame, CameraFrame), EpisodeError> {
-        let outputs = if self.level >= Level::L3 { Outputs::RGB_DEPTH } else { Outputs::RGB };
-        let requests = [
-            CameraRequest::named(HEAD_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
-            CameraRequest::named(WRIST_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
-        ];
+    /// The poses and colours an image of the current state shows (burner rings, evaluator highlights).
+    fn frame_state(&self) -> FrameState {
         let sim = &self.physics.sim;
         let mut state = FrameState::from_mujoco(sim.model(), sim.data());
         self.toggles.apply(&mut state);
@@ -132,6 +130,16 @@ impl LiberoWorld {
                 *slot = rgba;
             }
         }
+        state
+    }
+
+    fn render(&self) -> Result<(CameraFrame, CameraFrame), EpisodeError> {
+        let outputs = if self.level >= Level::L3 { Outputs::RGB_DEPTH } else { Outputs::RGB };
+        let requests = [
+            CameraRequest::named(HEAD_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
+            CameraRequest::named(WRIST_CAMERA, RESOLUTION_PX, RESOLUTION_PX, outputs),
+        ];
+        let state = self.frame_state();
         let mut frames = self
             .renderer
             .render(&self.gpu_model, &state, &requests, &RenderOptions::default())
@@ -206,10 +214,8 @@ impl LiberoWorld {
     /// Records every later control step into `path` (§6.1). The video is finalised and renamed into
     /// place when the world is dropped (episode finished, expired or aborted) or at [`Self::end_video`].
     pub fn record_video(&mut self, path: &std::path::Path) -> Result<(), EpisodeError> {
-        let cameras = VideoCameras { head: HEAD_CAMERA.into(), wrist: WRIST_CAMERA.into(), size_px: RESOLUTION_PX };
-        let tap = self.live.as_ref().map(WorldTap::frame_tap);
         let counter = self.live.as_ref().map(WorldTap::frame_counter);
-        let recorder = VideoRecorder::spawn_with_tap(path, self.renderer.clone(), self.gpu_model.clone(), cameras, tap)
+        let recorder = VideoRecorder::spawn(path, self.renderer.clone(), self.gpu_model.clone(), head_wrist_cameras())
             .map_err(|e| EpisodeError::Render(e.to_string()))?;
         let mut observe = recorder.into_step_observer();
         match counter {
@@ -228,17 +234,42 @@ impl LiberoWorld {
     }
 }
 
-/// The operator's live view, apart from the protocol methods: step and private stage events to a sink, and
-/// `telemetry.jsonl` (end-effector position, gripper, wrist force per control step) for the review page.
+/// The cameras of the video and of live frames: head | wrist at the episode resolution.
+fn head_wrist_cameras() -> VideoCameras {
+    VideoCameras { head: HEAD_CAMERA.into(), wrist: WRIST_CAMERA.into(), size_px: RESOLUTION_PX }
+}
+
+/// The operator's live view, apart from the protocol methods: step and private stage events to a sink,
+/// `telemetry.jsonl` (end-effector position, gripper, wrist force per control step) for the review page, and
+/// head | wrist frames of the newest state rendered on demand while `viewers` watch.
 impl LiberoWorld {
-    /// Sends this world's live events to `sink` and writes `telemetry` (the run directory's
-    /// `telemetry.jsonl`). Call before [`Self::record_video`], whose frames then feed the live view too.
-    pub fn set_live(&mut self, sink: LiveSink, telemetry: Option<&std::path::Path>) -> Result<(), EpisodeError> {
-        self.live = Some(WorldTap::new(sink, telemetry)?);
+    /// Sends this world's live events to `sink`, writes `telemetry` (the run directory's `telemetry.jsonl`)
+    /// and starts the live renderer, which renders only while `viewers` counts someone. Call before
+    /// [`Self::record_video`] so telemetry rows name their video frames.
+    pub fn set_live(&mut self, sink: LiveSink, viewers: LiveViewers, telemetry: Option<&std::path::Path>) -> Result<(), EpisodeError> {
+        self.live = Some(WorldTap::new(sink.clone(), telemetry)?);
+        let frames = LiveRenderer::spawn(self.renderer.clone(), self.gpu_model.clone(), head_wrist_cameras(), sink, viewers)
+            .map_err(|e| EpisodeError::Render(format!("live renderer thread: {e}")))?;
+        // Before the start a viewer sees the composed scene (a settle state, `control_step` null).
+        let sim_time_s = self.physics.sim.time_s();
+        frames.publish(LiveState { state: self.frame_state(), control_step: None, sim_time_s, video_frame: None });
+        self.live_frames = Some(frames);
         Ok(())
     }
 
+    /// Test hook: how many live frames this world has rendered (`None` without [`Self::set_live`]).
+    #[doc(hidden)]
+    pub fn live_render_counter(&self) -> Option<std::sync::Arc<std::sync::atomic::AtomicU64>> {
+        self.live_frames.as_ref().map(LiveRenderer::render_counter)
+    }
+
+    /// After every control step: events and telemetry, then the state for live frames.
     fn report_live(&mut self) {
+        self.report_events();
+        self.publish_live_state();
+    }
+
+    fn report_events(&mut self) {
         let Some(tap) = self.live.as_mut() else { return };
         let sim = &self.physics.sim;
         let robot = robot_readout(sim, &BasePose::of(sim, self.base_body));
@@ -250,6 +281,18 @@ impl LiberoWorld {
         } else {
             tap.after_step(control_step, &robot, &events, progress);
         }
+    }
+
+    /// Leaves the newest state for the live renderer: a pose snapshot, no rendering.
+    fn publish_live_state(&self) {
+        let (Some(frames), Some(tap)) = (self.live_frames.as_ref(), self.live.as_ref()) else { return };
+        let control_step = self.physics.control_step;
+        frames.publish(LiveState {
+            state: self.frame_state(),
+            control_step: Some(control_step),
+            sim_time_s: self.physics.sim.time_s(),
+            video_frame: tap.video_frame(control_step),
+        });
     }
 }
 

@@ -1,33 +1,43 @@
 //! The operator's live view of a real episode: the actor reports calls and the end, the world reports every
-//! control step and its telemetry, and the video recorder's own frames reach the sink rate-limited, labelled
-//! with the control step they show, the last one always delivered. Nothing of it lands in the workspace.
+//! control step and its telemetry, and live frames are rendered on demand: none while nobody watches, the
+//! newest state (never a backlog) while someone does, labelled with the control step they show, the last one
+//! always delivered. Nothing of it lands in the workspace.
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use libero_episode::records::RunDir;
 use libero_episode::task::resolve_task;
 use libero_episode::world::{LiberoWorld, SETTLE_STEPS, WorldSpec};
-use libero_episode::{EpisodeConfig, Level, LiveEvent, LiveSink, spawn_episode_live};
+use libero_episode::live::{LIVE_FRAME_MIN_INTERVAL, LiveViewers};
+use libero_episode::{EpisodeConfig, EpisodeHandle, Level, LiveEvent, LiveSink, spawn_episode_live};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
 use serde_json::{Value, json};
 
 const TASK: &str = "libero_90/KITCHEN_SCENE10_close_the_top_drawer_of_the_cabinet";
 
-#[test]
-fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
-    let dir = tempfile::tempdir().unwrap();
+/// The world and episode configuration of a level-1 episode of [`TASK`] under `dir` (workspace made).
+fn level1_episode(dir: &std::path::Path, episode_id: &str, max_agent_steps: u64) -> (WorldSpec, EpisodeConfig) {
     let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
     let spec = WorldSpec { task: resolve_task(TASK, &paths).unwrap(), level: Level::L1, seed: 100, init_index: 0, paths };
     let cfg = EpisodeConfig {
-        episode_id: "live".into(),
+        episode_id: episode_id.into(),
         instruction: "close the top drawer of the cabinet".into(),
         level: Level::L1,
-        max_agent_steps: 100,
+        max_agent_steps,
         max_wall_time_s: 600.0,
-        workspace: dir.path().join("ws"),
-        run_dir: dir.path().join("run"),
+        workspace: dir.join("ws"),
+        run_dir: dir.join("run"),
     };
     std::fs::create_dir_all(cfg.workspace.join("benchmark_inputs")).unwrap();
+    (spec, cfg)
+}
+
+#[test]
+fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let (spec, cfg) = level1_episode(dir.path(), "live", 100);
     let run = RunDir::new(&cfg.run_dir);
     let (video, telemetry) = (run.continuous_video(), run.telemetry_jsonl());
     let seen: Arc<Mutex<Vec<LiveEvent>>> = Arc::default();
@@ -36,10 +46,12 @@ fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
         Arc::new(move |e| seen.lock().unwrap().push(e))
     };
     let world_sink = sink.clone();
+    let viewers = LiveViewers::new();
+    let _viewer = viewers.watch();
     let renderer = Renderer::new().expect("a renderer");
     let handle = spawn_episode_live(cfg.clone(), Some(sink), move || {
         let mut w = LiberoWorld::new(&spec, renderer)?;
-        w.set_live(world_sink, Some(&telemetry))?;
+        w.set_live(world_sink, viewers, Some(&telemetry))?;
         w.record_video(&video)?;
         Ok(w)
     })
@@ -71,7 +83,7 @@ fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
     assert_eq!(finished.len(), 1, "the end is reported once");
     assert_eq!(finished[0]["outcome"], "FAIL");
 
-    let frames: Vec<(Option<u64>, u64)> = events
+    let frames: Vec<(Option<u64>, Option<u64>)> = events
         .iter()
         .filter_map(|e| match e {
             LiveEvent::Frame(f) => Some((f.control_step, f.video_frame)),
@@ -79,12 +91,12 @@ fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
         })
         .collect();
     assert!(!frames.is_empty(), "frames reach the sink");
-    assert!(frames.windows(2).all(|w| w[0].1 < w[1].1), "frames in video order: {frames:?}");
+    assert!(frames.windows(2).all(|w| w[0].0 < w[1].0), "frames in step order: {frames:?}");
     let last_video_frame = (SETTLE_STEPS + 25 - 1) as u64;
-    assert_eq!(frames.last(), Some(&(Some(25), last_video_frame)), "the newest frame is always delivered");
+    assert_eq!(frames.last(), Some(&(Some(25), Some(last_video_frame))), "the newest frame is always delivered");
     for (step, video_frame) in &frames {
         if let Some(c) = step {
-            assert_eq!(*video_frame, c + SETTLE_STEPS as u64 - 1, "label matches the video frame");
+            assert_eq!(*video_frame, Some(c + SETTLE_STEPS as u64 - 1), "label matches the video frame");
         }
     }
 
@@ -112,4 +124,124 @@ fn walk(dir: &std::path::Path) -> Vec<String> {
         }
     }
     out
+}
+
+/// A live episode of [`TASK`] with its video on, whose sink collects events (frame events take `frame_delay`
+/// each, as a slow viewer would) and whose live renderer counts its renders.
+struct Watched {
+    handle: EpisodeHandle,
+    seen: Arc<Mutex<Vec<LiveEvent>>>,
+    viewers: LiveViewers,
+    renders: Arc<AtomicU64>,
+    _dir: tempfile::TempDir,
+}
+
+fn watched_episode(frame_delay: Duration) -> Watched {
+    let dir = tempfile::tempdir().unwrap();
+    let (spec, cfg) = level1_episode(dir.path(), "on-demand", 1000);
+    let video = RunDir::new(&cfg.run_dir).continuous_video();
+    let seen: Arc<Mutex<Vec<LiveEvent>>> = Arc::default();
+    let sink: LiveSink = {
+        let seen = seen.clone();
+        Arc::new(move |e| {
+            if matches!(e, LiveEvent::Frame(_)) {
+                std::thread::sleep(frame_delay);
+            }
+            seen.lock().unwrap().push(e)
+        })
+    };
+    let viewers = LiveViewers::new();
+    let (world_viewers, world_sink) = (viewers.clone(), sink.clone());
+    let counter: Arc<Mutex<Option<Arc<AtomicU64>>>> = Arc::default();
+    let world_counter = counter.clone();
+    let renderer = Renderer::new().expect("a renderer");
+    let handle = spawn_episode_live(cfg, Some(sink), move || {
+        let mut w = LiberoWorld::new(&spec, renderer)?;
+        w.set_live(world_sink, world_viewers, None)?;
+        w.record_video(&video)?;
+        *world_counter.lock().unwrap() = w.live_render_counter();
+        Ok(w)
+    })
+    .expect("episode");
+    assert_eq!(handle.call("start_episode", None)["ok"], true);
+    let renders = counter.lock().unwrap().clone().expect("the live renderer's counter");
+    Watched { handle, seen, viewers, renders, _dir: dir }
+}
+
+impl Watched {
+    fn act(&self, n: usize) {
+        let actions = json!({"actions": vec![[0.2, 0.0, -0.1, 0.0, 0.0, 0.0, -1.0]; n]});
+        assert_eq!(self.handle.call("osc_sequence", actions.as_object().cloned())["ok"], true);
+    }
+
+    fn frame_steps(&self) -> Vec<Option<u64>> {
+        let seen = self.seen.lock().unwrap();
+        seen.iter()
+            .filter_map(|e| match e {
+                LiveEvent::Frame(f) => Some(f.control_step),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Waits (up to `limit`) for a frame of control step `step`; how long it took.
+    fn wait_for_frame(&self, step: u64, limit: Duration) -> Option<Duration> {
+        let t0 = Instant::now();
+        while t0.elapsed() < limit {
+            if self.frame_steps().contains(&Some(step)) {
+                return Some(t0.elapsed());
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        None
+    }
+}
+
+#[test]
+fn no_live_frame_is_rendered_while_nobody_watches() {
+    let ep = watched_episode(Duration::ZERO);
+    ep.act(20);
+    ep.act(20);
+    assert_eq!(ep.handle.call("finish_episode", None)["ok"], true);
+    ep.handle.stop("test over");
+    assert_eq!(ep.renders.load(Ordering::Acquire), 0, "no viewer, no render (the video does not feed the live view)");
+    assert!(ep.frame_steps().is_empty());
+}
+
+#[test]
+fn a_viewer_arriving_mid_episode_gets_the_newest_state_in_its_first_frame() {
+    let ep = watched_episode(Duration::ZERO);
+    ep.act(10);
+    std::thread::sleep(LIVE_FRAME_MIN_INTERVAL * 2);
+    assert_eq!(ep.renders.load(Ordering::Acquire), 0);
+    let viewer = ep.viewers.watch();
+    let waited = ep.wait_for_frame(10, Duration::from_secs(20)).expect("a frame of the newest state");
+    eprintln!("first frame for a new viewer after {waited:?}");
+    assert_eq!(ep.frame_steps(), [Some(10)], "one render, of the newest state (not an older one first)");
+    // Idle simulation, one viewer: nothing newer to render, so nothing is rendered.
+    std::thread::sleep(LIVE_FRAME_MIN_INTERVAL * 4);
+    assert_eq!(ep.renders.load(Ordering::Acquire), 1);
+    drop(viewer);
+    ep.act(5);
+    std::thread::sleep(LIVE_FRAME_MIN_INTERVAL * 4);
+    assert_eq!(ep.renders.load(Ordering::Acquire), 1, "the viewer left: no more renders");
+    ep.handle.stop("test over");
+}
+
+#[test]
+fn a_slow_viewer_gets_far_fewer_renders_than_steps_and_always_the_newest_state() {
+    let ep = watched_episode(Duration::from_millis(150));
+    let _viewer = ep.viewers.watch();
+    let steps = 200;
+    for _ in 0..4 {
+        ep.act(50);
+    }
+    ep.wait_for_frame(steps, Duration::from_secs(20)).expect("the final state is rendered");
+    let renders = ep.renders.load(Ordering::Acquire);
+    let frames = ep.frame_steps();
+    eprintln!("{steps} control steps, {renders} renders: {frames:?}");
+    assert!(renders * 4 < steps, "skip to the latest: {renders} renders for {steps} steps");
+    assert_eq!(renders as usize, frames.len());
+    assert!(frames.windows(2).all(|w| w[0] < w[1]), "never an older state after a newer one: {frames:?}");
+    ep.handle.stop("test over");
 }

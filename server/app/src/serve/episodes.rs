@@ -464,15 +464,15 @@ impl Episodes {
         let record_video = req.video;
         let make_world = move || {
             let mut world = LiberoWorld::new(&spec, renderer)?;
-            if let Some(sink) = world_live {
-                world.set_live(sink, Some(&telemetry))?;
+            if let Some((sink, viewers)) = world_live {
+                world.set_live(sink, viewers, Some(&telemetry))?;
             }
             if record_video {
                 world.record_video(&video)?;
             }
             Ok(world)
         };
-        let handle = spawn_episode_live(config, live, make_world)
+        let handle = spawn_episode_live(config, live.map(|(sink, _)| sink), make_world)
             .with_context(|| format!("cannot build the simulation for {}", task.task_ref))?;
         let layout = WorkspaceLayout::new(&workspace);
         let contract = WorkspaceContract {

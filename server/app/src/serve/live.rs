@@ -2,10 +2,13 @@
 //! serialises an event once, appends it to the catch-up history and broadcasts it; frames go through a
 //! `watch` channel that holds only the newest one. Neither call waits for a viewer: a slow viewer misses
 //! frames (it always gets the newest) and, if it falls behind the event channel, is re-sent the history.
+//! Each subscription counts as a viewer of the episode's [`LiveViewers`] while it lives: frames are rendered
+//! only while someone watches.
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, RwLock};
 
 use axum::body::Bytes;
+use libero_episode::live::{LiveViewers, ViewerGuard};
 use libero_episode::{LiveEvent, LiveFrame, LiveSink};
 use serde_json::{Value, json};
 use tokio::sync::{broadcast, watch};
@@ -36,6 +39,7 @@ pub struct Hub {
     events: broadcast::Sender<EventText>,
     frames: watch::Sender<Option<Bytes>>,
     state: Mutex<CatchUp>,
+    viewers: LiveViewers,
 }
 
 /// A viewer's subscription, taken together with the history so nothing is missed or sent twice.
@@ -44,6 +48,10 @@ pub struct Subscription {
     pub latest_step: Option<EventText>,
     pub events: broadcast::Receiver<EventText>,
     pub frames: watch::Receiver<Option<Bytes>>,
+    /// Keeps this subscriber counted as a viewer (the episode renders frames for it) until dropped; held for
+    /// its drop, never read.
+    #[allow(dead_code)]
+    pub viewer: ViewerGuard,
 }
 
 impl Hub {
@@ -92,6 +100,7 @@ impl Hub {
             latest_step: state.latest_step.clone(),
             events: self.events.subscribe(),
             frames: self.frames.subscribe(),
+            viewer: self.viewers.watch(),
         })
     }
 
@@ -145,21 +154,24 @@ impl Default for LiveHubs {
 }
 
 impl LiveHubs {
-    /// Creates `id`'s hub and returns the sink the episode reports to.
-    pub fn open(self: &Arc<Self>, id: &str, max_agent_steps: u64, max_wall_time_s: f64) -> LiveSink {
+    /// Creates `id`'s hub and returns the sink the episode reports to and its viewer count, for the world's
+    /// live renderer.
+    pub fn open(self: &Arc<Self>, id: &str, max_agent_steps: u64, max_wall_time_s: f64) -> (LiveSink, LiveViewers) {
+        let viewers = LiveViewers::new();
         let hub = Arc::new(Hub {
             max_agent_steps,
             max_wall_time_s,
             events: broadcast::channel(EVENT_CHANNEL_CAPACITY).0,
             frames: watch::channel(None).0,
             state: Mutex::new(CatchUp::default()),
+            viewers: viewers.clone(),
         });
         if let Ok(mut map) = self.map.write() {
             map.insert(id.to_owned(), hub.clone());
         }
         self.notify();
         let changes = self.changes.clone();
-        Arc::new(move |event| hub.publish(event, &changes))
+        (Arc::new(move |event| hub.publish(event, &changes)), viewers)
     }
 
     pub fn get(&self, id: &str) -> Option<Arc<Hub>> {
@@ -185,16 +197,17 @@ mod tests {
     #[test]
     fn late_viewers_get_history_and_the_newest_frame_and_slow_ones_never_block_the_sender() {
         let hubs = StdArc::new(LiveHubs::default());
-        let sink = hubs.open("ep", 10, 60.0);
+        let (sink, viewers) = hubs.open("ep", 10, 60.0);
         sink(LiveEvent::CallReceived { tool: "start_episode".into(), actions: None, at_unix_s: 0.0 });
         for c in 0..5000u64 {
             sink(LiveEvent::Step { control_step: c, sim_time_s: c as f64 * 0.05 });
         }
-        let frame = |c| LiveFrame { control_step: Some(c), sim_time_s: 0.0, video_frame: c, width_px: 2, height_px: 1, jpeg: vec![1, 2, 3].into() };
+        let frame = |c| LiveFrame { control_step: Some(c), sim_time_s: 0.0, video_frame: Some(c), width_px: 2, height_px: 1, jpeg: vec![1, 2, 3].into() };
         sink(LiveEvent::Frame(frame(1)));
         sink(LiveEvent::Frame(frame(2)));
         let hub = hubs.get("ep").unwrap();
         let sub = hub.subscribe().unwrap();
+        assert_eq!(viewers.count(), 1, "a subscriber is a viewer");
         assert_eq!(sub.history.len(), 1, "step events are not history");
         assert!(sub.latest_step.as_deref().unwrap().contains("\"control_step\":4999"));
         let newest = sub.frames.borrow().clone().unwrap();
@@ -207,5 +220,7 @@ mod tests {
             sink(LiveEvent::Step { control_step: c, sim_time_s: 0.0 });
         }
         assert!(matches!(events.try_recv(), Err(broadcast::error::TryRecvError::Lagged(_))));
+        drop(sub.viewer);
+        assert_eq!(viewers.count(), 0, "a dropped subscription is no longer a viewer");
     }
 }

@@ -95,7 +95,8 @@ fn default_seed() -> u64 {
     DEFAULT_SEED
 }
 
-/// Prepares and starts an operator episode (level 1, private video on, so the live frames flow); a reset is
+/// Prepares and starts an operator episode (level 1, private video on for the bundle; live frames are rendered
+/// on demand while the page watches); a reset is
 /// simply a new one of the same task and seed, which starts from the same init state.
 async fn create(State(app): State<AppState>, body: Bytes) -> Response {
     let req: CreateRequest = match serde_json::from_slice(&body) {
