@@ -414,18 +414,27 @@ mod live_renderer {
         failed: bool,
     }
 
+    /// When the next live render may start after one that ran from `started` to `ended`: at the rate cap, and
+    /// after an idle time as long as the render took, so that watching never takes more than half a core from
+    /// the simulation on a CPU renderer (a render there costs about as much as many control steps).
+    fn next_render_at(started: Instant, ended: Instant) -> Instant {
+        let cost = ended.saturating_duration_since(started);
+        (started + LIVE_FRAME_MIN_INTERVAL).max(ended + cost)
+    }
+
     impl Job {
         fn run(mut self) {
-            let mut last_render: Option<Instant> = None;
-            while let Some(state) = self.next(last_render) {
-                last_render = Some(Instant::now());
+            let mut not_before: Option<Instant> = None;
+            while let Some(state) = self.next(not_before) {
+                let started = Instant::now();
                 self.render(state);
+                not_before = Some(next_render_at(started, Instant::now()));
             }
         }
 
-        /// Waits for a state worth rendering: one not rendered yet, while someone watches, no sooner than the
-        /// rate cap allows. `None` once the world is gone and nothing is left to show.
-        fn next(&self, last_render: Option<Instant>) -> Option<LiveState> {
+        /// Waits for a state worth rendering: one not rendered yet, while someone watches, no sooner than
+        /// `not_before`. `None` once the world is gone and nothing is left to show.
+        fn next(&self, not_before: Option<Instant>) -> Option<LiveState> {
             let mut slot = self.shared.slot.lock().ok()?;
             loop {
                 let wanted = slot.newest.is_some() && self.viewers.count() > 0;
@@ -436,7 +445,7 @@ mod live_renderer {
                     slot = self.shared.wake.wait(slot).ok()?;
                     continue;
                 }
-                let wait = last_render.map(|t| LIVE_FRAME_MIN_INTERVAL.saturating_sub(t.elapsed())).unwrap_or_default();
+                let wait = not_before.map(|t| t.saturating_duration_since(Instant::now())).unwrap_or_default();
                 if wait.is_zero() {
                     return slot.newest.take();
                 }
@@ -475,6 +484,23 @@ mod live_renderer {
                 }
                 Err(_) => {}
             }
+        }
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use std::time::Duration;
+
+        use super::*;
+
+        #[test]
+        fn live_renders_leave_the_simulation_at_least_half_a_core() {
+            let t0 = Instant::now();
+            // A cheap render waits for the rate cap.
+            assert_eq!(next_render_at(t0, t0 + Duration::from_millis(10)), t0 + LIVE_FRAME_MIN_INTERVAL);
+            // A costly one (a CPU renderer) idles as long as it took.
+            let ended = t0 + Duration::from_millis(200);
+            assert_eq!(next_render_at(t0, ended), ended + Duration::from_millis(200));
         }
     }
 }
