@@ -5,6 +5,7 @@ use std::fs;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, RwLock};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use libero_episode::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
@@ -20,10 +21,12 @@ use libero_episode::world::{LiberoWorld, WorldSpec};
 use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode_live};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
+use rmcp::transport::streamable_http_server::session::SessionManager;
 use rmcp::transport::streamable_http_server::session::local::LocalSessionManager;
 use rmcp::transport::streamable_http_server::{StreamableHttpServerConfig, StreamableHttpService};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
+use sha2::{Digest, Sha256};
 
 use super::live::LiveHubs;
 use super::mcp::EpisodeMcp;
@@ -32,6 +35,10 @@ pub type McpService = StreamableHttpService<EpisodeMcp, LocalSessionManager>;
 
 /// Largest accepted MCP request body (the original's 1 MiB protocol limit).
 const MAX_REQUEST_BYTES: usize = 1 << 20;
+/// Most MCP sessions one episode keeps open at once (an agent needs one; a relay or a reconnect a few more).
+pub const MAX_SESSIONS_PER_EPISODE: usize = 8;
+/// How long an ended episode keeps its MCP sessions: long enough for its last reply to reach the client.
+pub const RELEASE_GRACE: Duration = Duration::from_secs(2);
 
 /// `POST /api/episodes` body and the CLI's `episode prepare` options.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -121,10 +128,60 @@ pub struct Prepared {
     pub level: u8,
 }
 
+/// One running episode's MCP service, with what its session cap needs.
+#[derive(Clone)]
+pub struct LiveMcp {
+    pub service: McpService,
+    sessions: Arc<LocalSessionManager>,
+    /// Held from a session count to the `initialize` it admits, so concurrent ones cannot pass the cap together.
+    admitting: Arc<tokio::sync::Mutex<()>>,
+}
+
+impl LiveMcp {
+    fn new(mcp: EpisodeMcp) -> Self {
+        let config = StreamableHttpServerConfig::default()
+            .disable_allowed_hosts() // the per-episode token is the guard; hosts vary behind proxies
+            .with_max_request_body_bytes(MAX_REQUEST_BYTES);
+        let sessions = Arc::new(LocalSessionManager::default());
+        let service = StreamableHttpService::new(move || Ok(mcp.clone()), sessions.clone(), config);
+        Self { service, sessions, admitting: Arc::default() }
+    }
+
+    /// Waits for the right to admit one new session; holding the guard, count with [`Self::open_sessions`].
+    pub async fn admit(&self) -> tokio::sync::OwnedMutexGuard<()> {
+        self.admitting.clone().lock_owned().await
+    }
+
+    pub async fn open_sessions(&self) -> usize {
+        self.sessions.sessions.read().await.len()
+    }
+
+    /// Closes every session: their workers end and let go of the episode's handler. Dropping the service alone
+    /// would not do it, as each session worker holds the session manager until its 5-minute idle timeout.
+    async fn close_all(&self) {
+        let ids: Vec<_> = self.sessions.sessions.read().await.keys().cloned().collect();
+        for id in ids {
+            if let Err(e) = self.sessions.close_session(&id).await {
+                log::warn!("closing MCP session {id}: {e}");
+            }
+        }
+    }
+}
+
+/// What `/mcp/{id}` serves to a caller holding the episode's token.
+pub enum McpAccess {
+    Live(LiveMcp),
+    /// The episode ended and its sessions were released; the handle answers from the episode's end record.
+    Ended(EpisodeHandle),
+}
+
+/// An episode this process served. Once it has ended and its MCP sessions are closed, only a tombstone is left:
+/// the token's digest and the handle, whose thread and world are gone (a few hundred bytes).
 struct Entry {
-    token: String,
-    service: McpService,
+    token_sha256: [u8; 32],
     handle: EpisodeHandle,
+    /// `None` once released.
+    mcp: Option<LiveMcp>,
 }
 
 pub struct Episodes {
@@ -140,6 +197,8 @@ pub struct Episodes {
     live: Option<Arc<LiveHubs>>,
     /// Serialises recording missing demonstrations, so concurrent rollouts of one task record one bundle.
     demo_recording: Mutex<()>,
+    /// When each ended, not yet released episode was first seen ended (see [`RELEASE_GRACE`]).
+    ending: Mutex<HashMap<String, Instant>>,
 }
 
 pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
@@ -150,7 +209,16 @@ pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
 
 /// Equal-time comparison, so response timing does not leak how much of a token was right.
 pub(crate) fn tokens_equal(a: &str, b: &str) -> bool {
-    a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    bytes_equal(a.as_bytes(), b.as_bytes())
+}
+
+fn bytes_equal(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// What an entry keeps of its token: the token itself never outlives the prepare reply.
+fn token_digest(token: &str) -> [u8; 32] {
+    Sha256::digest(token.as_bytes()).into()
 }
 
 fn is_within(child: &Path, parent: &Path) -> bool {
@@ -194,6 +262,7 @@ impl Episodes {
             calls: None,
             live: None,
             demo_recording: Mutex::new(()),
+            ending: Mutex::new(HashMap::new()),
         })
     }
 
@@ -293,16 +362,53 @@ impl Episodes {
         Ok(verify_bundle(dir, &paths)?)
     }
 
+    /// Episodes this process serves that have not ended.
     pub fn count(&self) -> usize {
-        self.map.read().map(|m| m.len()).unwrap_or(0)
+        self.map.read().map(|m| m.values().filter(|e| e.handle.ended().is_none()).count()).unwrap_or(0)
     }
 
-    /// The episode's MCP service if `token` is its token.
-    pub fn authorize(&self, id: &str, token: Option<&str>) -> Option<McpService> {
-        let token = token?;
+    /// What the episode's MCP endpoint serves if `token` is its token.
+    pub fn mcp_access(&self, id: &str, token: Option<&str>) -> Option<McpAccess> {
+        let digest = token_digest(token?);
         let map = self.map.read().ok()?;
         let entry = map.get(id)?;
-        tokens_equal(&entry.token, token).then(|| entry.service.clone())
+        if !bytes_equal(&entry.token_sha256, &digest) {
+            return None;
+        }
+        Some(match &entry.mcp {
+            Some(live) => McpAccess::Live(live.clone()),
+            None => McpAccess::Ended(entry.handle.clone()),
+        })
+    }
+
+    /// Releases what episodes that ended at least [`RELEASE_GRACE`] ago, and whose threads have exited, still hold
+    /// here: their MCP sessions and their live views. Returns the ids released. Called periodically.
+    pub async fn release_ended(&self) -> Vec<String> {
+        let due = self.retire_due(Instant::now());
+        for (id, live) in &due {
+            live.close_all().await;
+            if let Some(hubs) = &self.live {
+                hubs.close(id);
+            }
+        }
+        due.into_iter().map(|(id, _)| id).collect()
+    }
+
+    /// Turns the entries of episodes ended for [`RELEASE_GRACE`] into tombstones; returns their MCP services.
+    fn retire_due(&self, now: Instant) -> Vec<(String, LiveMcp)> {
+        let (Ok(mut map), Ok(mut ending)) = (self.map.write(), self.ending.lock()) else { return Vec::new() };
+        let mut due = Vec::new();
+        for (id, entry) in map.iter_mut() {
+            let ended = entry.handle.ended().is_some() && entry.handle.is_released();
+            let Some(live) = entry.mcp.as_ref().filter(|_| ended) else { continue };
+            let since = *ending.entry(id.clone()).or_insert(now);
+            if now.duration_since(since) >= RELEASE_GRACE {
+                due.push((id.clone(), live.clone()));
+                *entry = Arc::new(Entry { token_sha256: entry.token_sha256, handle: entry.handle.clone(), mcp: None });
+                ending.remove(id);
+            }
+        }
+        due
     }
 
     /// The in-process handle of an episode (for the CLI's own agents, never for requests).
@@ -462,12 +568,8 @@ impl Episodes {
             }
         }
         fs::copy(layout.prompt_file(), run.agent_prompt())?;
-        let mcp = EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() };
-        let config = StreamableHttpServerConfig::default()
-            .disable_allowed_hosts() // the per-episode token is the guard; hosts vary behind proxies
-            .with_max_request_body_bytes(MAX_REQUEST_BYTES);
-        let service = StreamableHttpService::new(move || Ok(mcp.clone()), LocalSessionManager::default().into(), config);
-        let entry = Arc::new(Entry { token, service, handle });
+        let mcp = LiveMcp::new(EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() });
+        let entry = Arc::new(Entry { token_sha256: token_digest(&token), handle, mcp: Some(mcp) });
         self.map
             .write()
             .map_err(|_| anyhow::anyhow!("episode registry lock poisoned"))?

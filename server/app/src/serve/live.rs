@@ -36,6 +36,8 @@ pub struct Hub {
     events: broadcast::Sender<EventText>,
     frames: watch::Sender<Option<Bytes>>,
     state: Mutex<CatchUp>,
+    /// Set when the server lets go of the hub (the episode ended): viewers still streaming it then close.
+    closed: watch::Sender<bool>,
 }
 
 /// A viewer's subscription, taken together with the history so nothing is missed or sent twice.
@@ -44,6 +46,8 @@ pub struct Subscription {
     pub latest_step: Option<EventText>,
     pub events: broadcast::Receiver<EventText>,
     pub frames: watch::Receiver<Option<Bytes>>,
+    /// Changes to true when the hub is closed.
+    pub closed: watch::Receiver<bool>,
 }
 
 impl Hub {
@@ -92,6 +96,7 @@ impl Hub {
             latest_step: state.latest_step.clone(),
             events: self.events.subscribe(),
             frames: self.frames.subscribe(),
+            closed: self.closed.subscribe(),
         })
     }
 
@@ -153,6 +158,7 @@ impl LiveHubs {
             events: broadcast::channel(EVENT_CHANNEL_CAPACITY).0,
             frames: watch::channel(None).0,
             state: Mutex::new(CatchUp::default()),
+            closed: watch::channel(false).0,
         });
         if let Ok(mut map) = self.map.write() {
             map.insert(id.to_owned(), hub.clone());
@@ -164,6 +170,15 @@ impl LiveHubs {
 
     pub fn get(&self, id: &str) -> Option<Arc<Hub>> {
         self.map.read().ok()?.get(id).cloned()
+    }
+
+    /// Drops `id`'s hub (history, newest frame) once its episode has ended; viewers still on it are told to close.
+    /// Pages of the episode then read its records from the run directory and the store.
+    pub fn close(&self, id: &str) {
+        let hub = self.map.write().ok().and_then(|mut m| m.remove(id));
+        if let Some(hub) = hub {
+            hub.closed.send_replace(true);
+        }
     }
 
     /// Tells home pages to refresh their list.
