@@ -243,6 +243,7 @@ fn absolute(p: &Path) -> std::io::Result<PathBuf> {
 
 impl Episodes {
     pub fn new(data: PathBuf, base_url: String) -> anyhow::Result<Self> {
+        super::memory::tune_for_long_runs();
         let data = absolute(&data)?;
         fs::create_dir_all(data.join("runs"))?;
         fs::create_dir_all(data.join("workspaces"))?;
@@ -382,7 +383,8 @@ impl Episodes {
     }
 
     /// Releases what episodes that ended at least [`RELEASE_GRACE`] ago, and whose threads have exited, still hold
-    /// here: their MCP sessions and their live views. Returns the ids released. Called periodically.
+    /// here: their MCP sessions and their live views; then hands the memory their worlds freed back to the OS.
+    /// Returns the ids released. Called periodically.
     pub async fn release_ended(&self) -> Vec<String> {
         let due = self.retire_due(Instant::now());
         for (id, live) in &due {
@@ -390,6 +392,9 @@ impl Episodes {
             if let Some(hubs) = &self.live {
                 hubs.close(id);
             }
+        }
+        if !due.is_empty() {
+            let _ = tokio::task::spawn_blocking(super::memory::return_freed_memory).await;
         }
         due.into_iter().map(|(id, _)| id).collect()
     }

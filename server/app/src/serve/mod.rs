@@ -11,6 +11,7 @@ pub mod http_client;
 pub mod live;
 pub mod mcp;
 pub mod mcp_gate;
+pub mod memory;
 pub mod results;
 pub mod store;
 pub mod teleop;
