@@ -8,6 +8,8 @@ mod cmd_tasks;
 #[cfg(feature = "episode-serve")]
 mod bench_mcp;
 #[cfg(feature = "episode-serve")]
+mod bench_soak;
+#[cfg(feature = "episode-serve")]
 mod cmd_demo;
 #[cfg(feature = "episode-serve")]
 mod cmd_episode;
@@ -82,6 +84,9 @@ enum BenchCommand {
     /// `osc_sequence` latency over MCP for 1, 4 and 8 concurrent episodes vs simulation + one render.
     #[cfg(feature = "episode-serve")]
     Mcp(bench_mcp::BenchMcpArgs),
+    /// Many short episodes over MCP: resident memory, threads and open files before, at the peak and after.
+    #[cfg(feature = "episode-serve")]
+    Soak(bench_soak::BenchSoakArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -93,6 +98,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(BenchCommand::Render(a)) => bench_render::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Mcp(a)) => bench_mcp::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Soak(a)) => bench_soak::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Serve(a) => serve::run_serve(a),
         #[cfg(feature = "episode-serve")]
