@@ -5,7 +5,7 @@
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::PathBuf;
 use std::sync::mpsc::{self, RecvTimeoutError};
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Condvar, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use serde_json::{Map, Value, json};
@@ -128,8 +128,43 @@ pub struct EpisodeHandle {
     /// Set when the episode ends, before its thread lets go of the command channel; from then on calls are
     /// answered here, without the thread (which exits, releasing the world).
     ended: Arc<OnceLock<Ended>>,
-    /// Alive while the episode thread is: it drops the only strong reference after everything it owned.
-    thread_alive: std::sync::Weak<()>,
+    /// Set by the episode thread as it exits, after everything it owned was dropped.
+    exited: Arc<ExitSignal>,
+}
+
+/// Sets its signal when dropped.
+struct SetOnDrop(Arc<ExitSignal>);
+
+impl Drop for SetOnDrop {
+    fn drop(&mut self) {
+        self.0.set();
+    }
+}
+
+/// A flag that can be waited for: the episode thread has exited.
+#[derive(Default)]
+struct ExitSignal {
+    exited: Mutex<bool>,
+    changed: Condvar,
+}
+
+impl ExitSignal {
+    fn set(&self) {
+        let mut exited = self.exited.lock().unwrap_or_else(|p| p.into_inner());
+        *exited = true;
+        self.changed.notify_all();
+    }
+
+    fn is_set(&self) -> bool {
+        *self.exited.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn wait(&self) {
+        let mut exited = self.exited.lock().unwrap_or_else(|p| p.into_inner());
+        while !*exited {
+            exited = self.changed.wait(exited).unwrap_or_else(|p| p.into_inner());
+        }
+    }
 }
 
 impl EpisodeHandle {
@@ -165,7 +200,7 @@ impl EpisodeHandle {
     /// Whether the episode thread has exited, having dropped its world (simulation, GPU model, video recorder
     /// and its thread), action log and live sink.
     pub fn is_released(&self) -> bool {
-        self.thread_alive.strong_count() == 0
+        self.exited.is_set()
     }
 
     /// The answer to a call after the end (argument errors first, as the actor checks them), if it has ended.
@@ -184,12 +219,14 @@ impl EpisodeHandle {
         }
     }
 
-    /// Ends the episode: an unfinished one is recorded as aborted with `reason`. Waits for the records.
+    /// Ends the episode: an unfinished one is recorded as aborted with `reason`. Waits for the records and until
+    /// the episode thread has released its world (the private video is final then).
     pub fn stop(&self, reason: &str) {
         let (done, rx) = mpsc::channel();
         if self.tx.send(Command::Stop { reason: reason.to_owned(), done }).is_ok() {
             let _ = rx.recv();
         }
+        self.exited.wait();
     }
 }
 
@@ -253,11 +290,13 @@ where
     let actor_status = status.clone();
     let ended: Arc<OnceLock<Ended>> = Arc::default();
     let actor_ended = ended.clone();
-    let alive = Arc::new(());
-    let thread_alive = Arc::downgrade(&alive);
+    let exited: Arc<ExitSignal> = Arc::default();
+    let thread_exited = exited.clone();
     std::thread::Builder::new()
         .name(format!("episode-{}", config.episode_id))
         .spawn(move || {
+            // Dropped last, on a panic too, so `stop` never waits for a thread that is gone.
+            let _exited = SetOnDrop(thread_exited);
             let world = match catch_unwind(AssertUnwindSafe(make_world)) {
                 Ok(Ok(w)) => w,
                 Ok(Err(e)) => {
@@ -288,10 +327,9 @@ where
             actor.run(rx);
             // The world (simulation, GPU model, video recorder), the action log and the live sink go first.
             drop(actor);
-            drop(alive);
         })?;
     match ready_rx.recv() {
-        Ok(Ok(())) => Ok(EpisodeHandle { tx, status, config, ended, thread_alive }),
+        Ok(Ok(())) => Ok(EpisodeHandle { tx, status, config, ended, exited }),
         Ok(Err(e)) => {
             let _ = write_result(&RunDir::new(&config.run_dir), &aborted_result(&format!("environment construction failed: {e}"), config.max_wall_time_s, None));
             Err(e)
@@ -732,8 +770,23 @@ mod tests {
         assert_eq!(error_text(&h.call("start_episode", None)), START_TWICE_TEXT);
         let bad = h.call("osc_sequence", None);
         assert_eq!((bad["error_type"].as_str(), error_text(&bad)), (Some("ValueError"), "osc_sequence requires only the actions argument"));
-        h.stop("too late"); // returns at once: nobody is left to stop
+        h.stop("too late"); // nobody is left to stop: returns once the thread is gone
         assert_eq!(h.status().state, EpisodeState::Finished);
+    }
+
+    #[test]
+    fn stop_returns_once_the_world_is_gone_whether_the_episode_was_open_or_had_just_finished() {
+        let dir = tempfile::tempdir().unwrap();
+        let (open, dropped) = spawn(&dir.path().join("open"), 600.0, false);
+        assert_eq!(open.call("start_episode", None)["ok"], true);
+        open.stop("server_received_signal_15_before_finish");
+        assert!(dropped.load(Ordering::SeqCst) && open.is_released());
+        assert_eq!(open.ended(), Some(&Ended::Aborted));
+        let (finished, dropped) = spawn(&dir.path().join("finished"), 600.0, false);
+        assert_eq!(finished.call("start_episode", None)["ok"], true);
+        assert_eq!(finished.call("finish_episode", None)["ok"], true);
+        finished.stop("test over");
+        assert!(dropped.load(Ordering::SeqCst) && finished.is_released());
     }
 
     #[test]
