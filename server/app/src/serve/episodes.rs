@@ -389,14 +389,19 @@ impl Episodes {
         let due = self.retire_due(Instant::now());
         for (id, live) in &due {
             live.close_all().await;
-            if let Some(hubs) = &self.live {
-                hubs.close(id);
-            }
+            self.close_live(id);
         }
         if !due.is_empty() {
             let _ = tokio::task::spawn_blocking(super::memory::return_freed_memory).await;
         }
         due.into_iter().map(|(id, _)| id).collect()
+    }
+
+    /// Drops `id`'s live view (an episode that will never be served).
+    fn close_live(&self, id: &str) {
+        if let Some(hubs) = &self.live {
+            hubs.close(id);
+        }
     }
 
     /// Turns the entries of episodes ended for [`RELEASE_GRACE`] into tombstones; returns their MCP services.
@@ -548,8 +553,13 @@ impl Episodes {
             }
             Ok(world)
         };
-        let handle = spawn_episode_live(config, live, make_world)
-            .with_context(|| format!("cannot build the simulation for {}", task.task_ref))?;
+        let handle = match spawn_episode_live(config, live, make_world) {
+            Ok(h) => h,
+            Err(e) => {
+                self.close_live(&episode_id);
+                return Err(e).with_context(|| format!("cannot build the simulation for {}", task.task_ref));
+            }
+        };
         let layout = WorkspaceLayout::new(&workspace);
         let contract = WorkspaceContract {
             instruction: task.instruction.clone(),
@@ -559,20 +569,13 @@ impl Episodes {
             mcp_headers: headers.clone(),
             demo: req.demo.prompt_notice().map(|notice| DemoNotice { icl_condition: req.demo.icl_condition().into(), notice }),
         };
-        if let Err(e) = create_workspace(&layout, &contract) {
-            handle.stop(&format!("workspace creation failed: {e}"));
-            return Err(e).with_context(|| format!("cannot create the workspace {}", workspace.display()));
+        let demo = demo_source.as_deref().map(|source| (source, req.demo));
+        if let Err(e) = place_workspace(&layout, &contract, demo, &run) {
+            // Nobody will ever call this episode: end it now, so its thread and world go.
+            handle.stop(&format!("workspace set-up failed: {e:#}"));
+            self.close_live(&episode_id);
+            return Err(e);
         }
-        if let Some(source) = &demo_source {
-            match project_bundle(source, &layout.expert_demo(), req.demo, &task.instruction) {
-                Ok(receipt) => write_json_file(&run_dir.join("icl_projection_receipt.json"), &serde_json::to_value(&receipt)?)?,
-                Err(e) => {
-                    handle.stop(&format!("demonstration placement failed: {e}"));
-                    return Err(e).context("cannot place the demonstration in the workspace");
-                }
-            }
-        }
-        fs::copy(layout.prompt_file(), run.agent_prompt())?;
         let mcp = LiveMcp::new(EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() });
         let entry = Arc::new(Entry { token_sha256: token_digest(&token), handle, mcp: Some(mcp) });
         self.map
@@ -618,6 +621,23 @@ impl Episodes {
         fs::rename(&partial, &path)?;
         Ok(path)
     }
+}
+
+/// The agent's workspace (prompt, MCP config, the demonstration if any) and the prompt's private copy.
+fn place_workspace(
+    layout: &WorkspaceLayout,
+    contract: &WorkspaceContract,
+    demo: Option<(&Path, DemoCondition)>,
+    run: &RunDir,
+) -> anyhow::Result<()> {
+    create_workspace(layout, contract).with_context(|| format!("cannot create the workspace {}", layout.root.display()))?;
+    if let Some((source, condition)) = demo {
+        let receipt = project_bundle(source, &layout.expert_demo(), condition, &contract.instruction)
+            .context("cannot place the demonstration in the workspace")?;
+        write_json_file(&run.root.join("icl_projection_receipt.json"), &serde_json::to_value(&receipt)?)?;
+    }
+    fs::copy(layout.prompt_file(), run.agent_prompt()).context("cannot keep a private copy of the prompt")?;
+    Ok(())
 }
 
 /// `YYYYMMDDTHHMMSSZ` for episode ids (sortable by creation time).
