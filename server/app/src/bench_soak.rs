@@ -13,6 +13,7 @@ use anyhow::{Context, bail};
 use serde::Serialize;
 use serde_json::{Value, json};
 
+use crate::bench_mcp::percentile_ms;
 use crate::serve::client::{InProcessServer, McpClient, prepare_episode};
 use crate::serve::episodes::PrepareRequest;
 
@@ -186,9 +187,12 @@ impl PeakSampler {
 }
 
 /// One episode as an agent drives it: prepare, initialize, start, `calls` short `osc_sequence` calls, finish.
-fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> anyhow::Result<()> {
+/// Returns how long preparing took (the world is built then: compose, compile, place, upload to the renderer).
+fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> anyhow::Result<f64> {
     let req = PrepareRequest { level: args.level, seed: 100 + index as u64, video: !args.no_video, ..PrepareRequest::new(&args.task) };
+    let t = Instant::now();
     let prepared = prepare_episode(base, &req)?;
+    let prepare_ms = t.elapsed().as_secs_f64() * 1e3;
     let token = prepared.mcp_headers.get("Authorization").context("no token")?.trim_start_matches("Bearer ").to_owned();
     let mut client = McpClient::connect_with_token(&prepared.mcp_url, &token, "libero-agent-soak")?;
     client.call_tool("start_episode", json!({}))?;
@@ -201,31 +205,33 @@ fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> anyhow::Result
     if finished["status"] != "finished" {
         bail!("episode {}: finish_episode answered {finished}", prepared.episode_id);
     }
-    Ok(())
+    Ok(prepare_ms)
 }
 
-/// Runs episodes `range` with `concurrent` client threads.
-fn run_episodes(base: &str, args: &BenchSoakArgs, range: std::ops::Range<usize>, concurrent: usize) -> anyhow::Result<()> {
+/// Runs episodes `range` with `concurrent` client threads; returns each one's prepare time (ms).
+fn run_episodes(base: &str, args: &BenchSoakArgs, range: std::ops::Range<usize>, concurrent: usize) -> anyhow::Result<Vec<f64>> {
     let next = Arc::new(AtomicUsize::new(range.start));
     let end = range.end;
     let workers: Vec<_> = (0..concurrent.min(range.len()).max(1))
         .map(|_| {
             let (next, base, args) = (next.clone(), base.to_owned(), args.clone());
-            std::thread::spawn(move || -> anyhow::Result<()> {
+            std::thread::spawn(move || -> anyhow::Result<Vec<f64>> {
+                let mut prepare_ms = Vec::new();
                 loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     if i >= end {
-                        return Ok(());
+                        return Ok(prepare_ms);
                     }
-                    one_episode(&base, &args, i).with_context(|| format!("episode {}", i + 1))?;
+                    prepare_ms.push(one_episode(&base, &args, i).with_context(|| format!("episode {}", i + 1))?);
                 }
             })
         })
         .collect();
+    let mut prepare_ms = Vec::new();
     for w in workers {
-        w.join().map_err(|_| anyhow::anyhow!("a client thread panicked"))??;
+        prepare_ms.extend(w.join().map_err(|_| anyhow::anyhow!("a client thread panicked"))??);
     }
-    Ok(())
+    Ok(prepare_ms)
 }
 
 /// Waits until the ended episodes' threads are gone, then `settle`; returns the sample and how long the
@@ -255,16 +261,16 @@ fn soak(base: &str, args: &BenchSoakArgs, start: Sample) -> anyhow::Result<Value
     let half = (args.episodes / 2).max(1);
     let peak = PeakSampler::start();
     let t0 = Instant::now();
-    run_episodes(base, args, 0..1, 1)?;
+    let mut prepare_ms = run_episodes(base, args, 0..1, 1)?;
     let (first, first_gone_s) = sample_after_release(settle)?;
     progress(args, "after the first episode", &first);
     let (first_threads, first_files) = (threads_by_kind(), open_files_by_kind());
     let t1 = Instant::now();
-    run_episodes(base, args, 1..half, args.concurrent)?;
+    prepare_ms.extend(run_episodes(base, args, 1..half, args.concurrent)?);
     let (mid, _) = sample_after_release(settle)?;
     progress(args, &format!("after {half} episodes"), &mid);
     let t2 = Instant::now();
-    run_episodes(base, args, half..args.episodes, args.concurrent)?;
+    prepare_ms.extend(run_episodes(base, args, half..args.episodes, args.concurrent)?);
     let driving_s = (t1.duration_since(t0) + t2.elapsed()).as_secs_f64();
     let (last, last_gone_s) = sample_after_release(settle)?;
     let peak = peak.finish();
@@ -283,6 +289,8 @@ fn soak(base: &str, args: &BenchSoakArgs, start: Sample) -> anyhow::Result<Value
         "threads_by_kind": {"after_first_episode": first_threads, "after_last_episode": threads_by_kind()},
         "open_files_by_kind": {"after_first_episode": first_files, "after_last_episode": open_files_by_kind()},
         "driving_s": driving_s,
+        "prepare_ms": {"first": prepare_ms[0], "p50": percentile_ms(&mut prepare_ms.clone(), 50.0),
+            "max": percentile_ms(&mut prepare_ms, 100.0)},
     }))
 }
 
