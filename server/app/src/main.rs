@@ -10,6 +10,8 @@ mod bench_mcp;
 #[cfg(feature = "episode-serve")]
 mod bench_teleop;
 #[cfg(feature = "episode-serve")]
+mod bench_soak;
+#[cfg(feature = "episode-serve")]
 mod cmd_demo;
 #[cfg(feature = "episode-serve")]
 mod cmd_episode;
@@ -87,6 +89,9 @@ enum BenchCommand {
     /// Teleop key-to-frame latency over the real WebSocket path (control socket → episode → live frame).
     #[cfg(feature = "episode-serve")]
     Teleop(bench_teleop::BenchTeleopArgs),
+    /// Many short episodes over MCP: resident memory, threads and open files before, at the peak and after.
+    #[cfg(feature = "episode-serve")]
+    Soak(bench_soak::BenchSoakArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -100,6 +105,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(BenchCommand::Mcp(a)) => bench_mcp::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Teleop(a)) => bench_teleop::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Soak(a)) => bench_soak::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Serve(a) => serve::run_serve(a),
         #[cfg(feature = "episode-serve")]

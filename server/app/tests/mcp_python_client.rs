@@ -88,7 +88,12 @@ fn python_sdk_drives_a_level3_episode_over_http_and_the_workspace_stays_public()
     let log = std::fs::read_to_string(run.join("actions.jsonl")).unwrap();
     assert!(log.lines().count() >= 15, "every request is logged, errors included");
     assert!(run.join("private_observations/obs_000001/observation.json").is_file());
-    // The episode has ended (finish), so its private video is complete under its final name.
+    // The episode has ended (finish): its thread, no longer serving calls, finalises the private video within
+    // seconds, under its final name.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while !run.join("continuous_video.mp4").is_file() && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
     let video = std::fs::read(run.join("continuous_video.mp4")).expect("continuous_video.mp4");
     assert_eq!(&video[4..8], b"ftyp");
     assert!(!run.join("continuous_video.mp4.partial").exists());

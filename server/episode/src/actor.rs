@@ -5,7 +5,7 @@
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::PathBuf;
 use std::sync::mpsc::{self, RecvTimeoutError};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use serde_json::{Map, Value, json};
@@ -24,6 +24,9 @@ use crate::workspace::OBSERVATION_FILE;
 pub const IDLE_POLL: Duration = Duration::from_millis(500);
 const BUDGET_SCOPE: &str = "per_episode_across_resets";
 const EXPIRY_REASON: &str = "episode_wall_time_budget_exhausted";
+const FINISHED_TEXT: &str = "the episode is already finished; finish_episode was called and no further commands are accepted";
+const ABORTED_TEXT: &str = "the episode was stopped by the server and accepts no further commands";
+const START_TWICE_TEXT: &str = "start may be called exactly once";
 
 /// The official verdict at finish (or the evaluator snapshot at expiry).
 #[derive(Debug, Clone, PartialEq)]
@@ -94,12 +97,87 @@ enum Command {
     Stop { reason: String, done: mpsc::Sender<()> },
 }
 
+/// How an episode ended, kept after its thread and world are gone: enough to answer any later call exactly as
+/// the actor would have.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Ended {
+    Finished,
+    /// Every later call gets the expiry payload (§2.10).
+    Expired { payload: Value },
+    Aborted,
+}
+
+impl Ended {
+    /// The answer to `call` after the end (the same order of checks as the actor's dispatch).
+    fn answer(&self, call: &ToolCall) -> Value {
+        match self {
+            Self::Expired { payload } => payload.clone(),
+            _ if matches!(call, ToolCall::Start) => ToolError::runtime_error(START_TWICE_TEXT).payload(),
+            Self::Finished => ToolError::runtime_error(FINISHED_TEXT).payload(),
+            Self::Aborted => ToolError::runtime_error(ABORTED_TEXT).payload(),
+        }
+    }
+}
+
 /// The server's side of an episode: cheap to clone, usable from any thread.
 #[derive(Clone)]
 pub struct EpisodeHandle {
     tx: mpsc::Sender<Command>,
     status: Arc<Mutex<EpisodeStatus>>,
     config: Arc<EpisodeConfig>,
+    /// Set when the episode ends, before its thread lets go of the command channel; from then on calls are
+    /// answered here, without the thread (which exits, releasing the world).
+    ended: Arc<OnceLock<Ended>>,
+    /// Set by the episode thread as it exits, after everything it owned was dropped.
+    exited: Arc<ExitSignal>,
+}
+
+/// Sets its signal when dropped.
+struct SetOnDrop(Arc<ExitSignal>);
+
+impl Drop for SetOnDrop {
+    fn drop(&mut self) {
+        self.0.set();
+    }
+}
+
+/// A flag that can be waited for: the episode thread has exited.
+#[derive(Default)]
+struct ExitSignal {
+    exited: Mutex<bool>,
+    changed: Condvar,
+}
+
+impl ExitSignal {
+    fn set(&self) {
+        let mut exited = self.exited.lock().unwrap_or_else(|p| p.into_inner());
+        *exited = true;
+        self.changed.notify_all();
+    }
+
+    fn is_set(&self) -> bool {
+        *self.exited.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn wait(&self) {
+        let mut exited = self.exited.lock().unwrap_or_else(|p| p.into_inner());
+        while !*exited {
+            exited = self.changed.wait(exited).unwrap_or_else(|p| p.into_inner());
+        }
+    }
+
+    /// As [`Self::wait`], giving up at `deadline`; whether the thread exited.
+    fn wait_until(&self, deadline: Instant) -> bool {
+        let mut exited = self.exited.lock().unwrap_or_else(|p| p.into_inner());
+        while !*exited {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return false;
+            }
+            exited = self.changed.wait_timeout(exited, left).map(|(g, _)| g).unwrap_or_else(|p| p.into_inner().0);
+        }
+        true
+    }
 }
 
 impl EpisodeHandle {
@@ -110,12 +188,41 @@ impl EpisodeHandle {
     /// Runs one tool call to completion and returns its payload (`ok` true or false). Blocks the calling
     /// thread (from async code, call it inside `spawn_blocking`).
     pub fn call(&self, name: &str, arguments: Option<Map<String, Value>>) -> Value {
-        let (reply, rx) = mpsc::channel();
-        let cmd = Command::Call { name: name.to_owned(), arguments, reply };
-        if self.tx.send(cmd).is_err() {
-            return ToolError::runtime_error("the episode is no longer being served").payload();
+        if let Some(answer) = self.answer_after_end(name, arguments.as_ref()) {
+            return answer;
         }
-        rx.recv().unwrap_or_else(|_| ToolError::environment().payload())
+        let (reply, rx) = mpsc::channel();
+        let cmd = Command::Call { name: name.to_owned(), arguments: arguments.clone(), reply };
+        if self.tx.send(cmd).is_err() {
+            return self
+                .answer_after_end(name, arguments.as_ref())
+                .unwrap_or_else(|| ToolError::runtime_error("the episode is no longer being served").payload());
+        }
+        // A call queued just as the episode ended is dropped with the channel; it gets the after-end answer.
+        rx.recv()
+            .ok()
+            .or_else(|| self.answer_after_end(name, arguments.as_ref()))
+            .unwrap_or_else(|| ToolError::environment().payload())
+    }
+
+    /// How the episode ended, once it has.
+    pub fn ended(&self) -> Option<&Ended> {
+        self.ended.get()
+    }
+
+    /// Whether the episode thread has exited, having dropped its world (simulation, GPU model, video recorder
+    /// and its thread), action log and live sink.
+    pub fn is_released(&self) -> bool {
+        self.exited.is_set()
+    }
+
+    /// The answer to a call after the end (argument errors first, as the actor checks them), if it has ended.
+    fn answer_after_end(&self, name: &str, arguments: Option<&Map<String, Value>>) -> Option<Value> {
+        let ended = self.ended.get()?;
+        Some(match ToolCall::parse(name, arguments) {
+            Err(e) => e.payload(),
+            Ok(call) => ended.answer(&call),
+        })
     }
 
     pub fn status(&self) -> EpisodeStatus {
@@ -125,12 +232,14 @@ impl EpisodeHandle {
         }
     }
 
-    /// Ends the episode: an unfinished one is recorded as aborted with `reason`. Waits for the records.
+    /// Ends the episode: an unfinished one is recorded as aborted with `reason`. Waits for the records and until
+    /// the episode thread has released its world (the private video is final then).
     pub fn stop(&self, reason: &str) {
         let (done, rx) = mpsc::channel();
         if self.tx.send(Command::Stop { reason: reason.to_owned(), done }).is_ok() {
             let _ = rx.recv();
         }
+        self.exited.wait();
     }
 
     /// Asks the episode to end as [`EpisodeHandle::stop`] does, without waiting: what a shutdown sends to every
@@ -138,42 +247,27 @@ impl EpisodeHandle {
     pub fn request_stop(&self, reason: &str) -> PendingStop {
         let (done, rx) = mpsc::channel();
         let sent = self.tx.send(Command::Stop { reason: reason.to_owned(), done }).is_ok();
-        PendingStop { rx: sent.then_some(rx) }
+        PendingStop { rx: sent.then_some(rx), exited: self.exited.clone() }
     }
 }
 
-/// A stop that was asked for; the episode thread answers once its records are written.
+/// A stop that was asked for; the episode thread answers once its records are written, then exits once its
+/// world (and the private video) is released.
 pub struct PendingStop {
     rx: Option<mpsc::Receiver<()>>,
+    exited: Arc<ExitSignal>,
 }
 
 impl PendingStop {
-    /// True once the episode ended (or its thread is gone); false if it did not answer by `deadline` (stuck).
+    /// True once the episode thread has ended and released its world; false if it had not by `deadline`
+    /// (stuck in the simulation, or still finishing its video).
     pub fn wait_until(&self, deadline: Instant) -> bool {
-        match &self.rx {
-            None => true,
-            Some(rx) => !matches!(rx.recv_timeout(deadline.saturating_duration_since(Instant::now())), Err(RecvTimeoutError::Timeout)),
+        if let Some(rx) = &self.rx
+            && matches!(rx.recv_timeout(deadline.saturating_duration_since(Instant::now())), Err(RecvTimeoutError::Timeout))
+        {
+            return false;
         }
-    }
-}
-
-/// The phase without its data, for matching while `self` is borrowed mutably.
-#[derive(Clone, Copy)]
-enum PhaseKind {
-    Prepared,
-    Active,
-    Finished,
-    Aborted,
-}
-
-impl PhaseKind {
-    fn of(p: &Phase) -> Self {
-        match p {
-            Phase::Prepared => Self::Prepared,
-            Phase::Active { .. } => Self::Active,
-            Phase::Finished | Phase::Expired { .. } => Self::Finished,
-            Phase::Aborted => Self::Aborted,
-        }
+        self.exited.wait_until(deadline)
     }
 }
 
@@ -201,6 +295,8 @@ struct Actor<W: World> {
     live: Option<LiveSink>,
     /// Whether the end was reported to `live` already.
     end_reported: bool,
+    /// Shared with the handles: how the episode ended, for calls after this thread is gone.
+    ended: Arc<OnceLock<Ended>>,
 }
 
 /// Starts an episode thread. `make_world` runs on that thread; if it fails, the episode is recorded as
@@ -237,9 +333,15 @@ where
     let (ready_tx, ready_rx) = mpsc::channel::<Result<(), EpisodeError>>();
     let actor_config = config.clone();
     let actor_status = status.clone();
+    let ended: Arc<OnceLock<Ended>> = Arc::default();
+    let actor_ended = ended.clone();
+    let exited: Arc<ExitSignal> = Arc::default();
+    let thread_exited = exited.clone();
     std::thread::Builder::new()
         .name(format!("episode-{}", config.episode_id))
         .spawn(move || {
+            // Dropped last, on a panic too, so `stop` never waits for a thread that is gone.
+            let _exited = SetOnDrop(thread_exited);
             let world = match catch_unwind(AssertUnwindSafe(make_world)) {
                 Ok(Ok(w)) => w,
                 Ok(Err(e)) => {
@@ -265,11 +367,14 @@ where
                 status: actor_status,
                 live,
                 end_reported: false,
+                ended: actor_ended,
             };
             actor.run(rx);
+            // The world (simulation, GPU model, video recorder), the action log and the live sink go first.
+            drop(actor);
         })?;
     match ready_rx.recv() {
-        Ok(Ok(())) => Ok(EpisodeHandle { tx, status, config }),
+        Ok(Ok(())) => Ok(EpisodeHandle { tx, status, config, ended, exited }),
         Ok(Err(e)) => {
             let _ = write_result(&RunDir::new(&config.run_dir), &aborted_result(&format!("environment construction failed: {e}"), config.max_wall_time_s, None));
             Err(e)
@@ -286,42 +391,58 @@ fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
 }
 
 impl<W: World> Actor<W> {
+    /// Serves commands until the episode ends (finish, expiry, abort, stop); then hands later calls to the
+    /// handles ([`Ended`]) and returns, so the thread and everything it owns are released.
     fn run(&mut self, rx: mpsc::Receiver<Command>) {
-        loop {
-            let msg = match self.phase {
-                Phase::Active { started } => {
-                    let deadline = started + Duration::from_secs_f64(self.config.max_wall_time_s.max(0.0));
-                    let wait = deadline.saturating_duration_since(Instant::now()).min(IDLE_POLL);
-                    rx.recv_timeout(wait)
-                }
-                _ => rx.recv().map_err(|_| RecvTimeoutError::Disconnected),
-            };
-            match msg {
-                Ok(Command::Call { name, arguments, reply }) => {
-                    let payload = self.handle_call(&name, arguments);
-                    let _ = reply.send(payload);
-                    // The verdict is on its way; only now release the world, whose drop waits for the private
-                    // video to drain and finalise (seconds on a CPU renderer), so the agent never waits for it.
-                    if matches!(self.phase, Phase::Finished) {
-                        self.world = None;
-                    }
-                }
-                Ok(Command::Stop { reason, done }) => {
-                    self.abort_if_unfinished(&reason);
-                    let _ = done.send(());
-                    return;
-                }
-                Err(RecvTimeoutError::Timeout) => {
-                    if self.deadline_passed() {
-                        self.expire();
-                    }
-                }
-                Err(RecvTimeoutError::Disconnected) => {
-                    self.abort_if_unfinished("server_stopped_before_finish");
-                    return;
+        while self.serve_one(&rx) {}
+        if let Some(ended) = self.ended_phase() {
+            let _ = self.ended.set(ended);
+        }
+    }
+
+    /// How the episode ended, if it has.
+    fn ended_phase(&self) -> Option<Ended> {
+        match &self.phase {
+            Phase::Prepared | Phase::Active { .. } => None,
+            Phase::Finished => Some(Ended::Finished),
+            Phase::Expired { payload } => Some(Ended::Expired { payload: payload.clone() }),
+            Phase::Aborted => Some(Ended::Aborted),
+        }
+    }
+
+    /// Handles one command or idle tick; false once the episode has ended (or nobody can call any more).
+    fn serve_one(&mut self, rx: &mpsc::Receiver<Command>) -> bool {
+        let msg = match self.phase {
+            Phase::Active { started } => {
+                let deadline = started + Duration::from_secs_f64(self.config.max_wall_time_s.max(0.0));
+                let wait = deadline.saturating_duration_since(Instant::now()).min(IDLE_POLL);
+                rx.recv_timeout(wait)
+            }
+            _ => rx.recv().map_err(|_| RecvTimeoutError::Disconnected),
+        };
+        match msg {
+            // The reply goes out before the thread releases the world, whose drop waits for the private video
+            // to drain and finalise (seconds on a CPU renderer), so the agent never waits for it.
+            Ok(Command::Call { name, arguments, reply }) => {
+                let payload = self.handle_call(&name, arguments);
+                let _ = reply.send(payload);
+            }
+            Ok(Command::Stop { reason, done }) => {
+                self.abort_if_unfinished(&reason);
+                let _ = done.send(());
+                return false;
+            }
+            Err(RecvTimeoutError::Timeout) => {
+                if self.deadline_passed() {
+                    self.expire();
                 }
             }
+            Err(RecvTimeoutError::Disconnected) => {
+                self.abort_if_unfinished("server_stopped_before_finish");
+                return false;
+            }
         }
+        self.ended_phase().is_none()
     }
 
     fn deadline_passed(&self) -> bool {
@@ -394,25 +515,18 @@ impl<W: World> Actor<W> {
         if self.deadline_passed() {
             self.expire();
         }
-        if let Phase::Expired { payload } = &self.phase {
-            return Ok(payload.clone());
+        if let Some(ended) = self.ended_phase() {
+            return Ok(ended.answer(&call));
         }
-        let tool = call.tool();
-        let phase = PhaseKind::of(&self.phase);
-        match (phase, call) {
-            (PhaseKind::Prepared, ToolCall::Start) => self.start(),
-            (_, ToolCall::Start) => Err(ToolError::runtime_error("start may be called exactly once")),
-            (PhaseKind::Prepared, _) => Err(ToolError::runtime_error(format!(
+        let prepared = matches!(self.phase, Phase::Prepared);
+        match call {
+            ToolCall::Start if prepared => self.start(),
+            ToolCall::Start => Err(ToolError::runtime_error(START_TWICE_TEXT)),
+            call if prepared => Err(ToolError::runtime_error(format!(
                 "{} requires one active episode; call start_episode first",
-                if tool == ToolName::FinishEpisode { "finish" } else { "osc_sequence" }
+                if call.tool() == ToolName::FinishEpisode { "finish" } else { "osc_sequence" }
             ))),
-            (PhaseKind::Finished, _) => Err(ToolError::runtime_error(
-                "the episode is already finished; finish_episode was called and no further commands are accepted",
-            )),
-            (PhaseKind::Aborted, _) => Err(ToolError::runtime_error(
-                "the episode was stopped by the server and accepts no further commands",
-            )),
-            (PhaseKind::Active, ToolCall::OscSequence { actions }) => {
+            ToolCall::OscSequence { actions } => {
                 let limit = self.config.agent_step_limit();
                 if self.accepted >= limit {
                     return Err(ToolError::runtime_error(format!("agent step limit reached ({limit})")));
@@ -420,7 +534,7 @@ impl<W: World> Actor<W> {
                 let actions = validate_actions(&actions)?;
                 self.execute(&actions)
             }
-            (PhaseKind::Active, ToolCall::Finish) => self.finish(),
+            ToolCall::Finish => self.finish(),
         }
     }
 
@@ -614,5 +728,128 @@ impl<W: World> Actor<W> {
         self.end_reported = true;
         let state = serde_json::to_value(state).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default();
         live(LiveEvent::Finished { state, outcome: Some(outcome.as_str().to_owned()), reason });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    use super::*;
+    use crate::observation::{CameraFrame, RgbImage, RobotReadout};
+
+    /// A world that does nothing and says when it is dropped.
+    struct FakeWorld {
+        dropped: Arc<AtomicBool>,
+        fail_start: bool,
+    }
+
+    impl Drop for FakeWorld {
+        fn drop(&mut self) {
+            self.dropped.store(true, Ordering::SeqCst);
+        }
+    }
+
+    fn camera() -> CameraFrame {
+        let identity = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+        CameraFrame {
+            image: RgbImage { width: 2, height: 2, rgb: vec![0; 12] },
+            depth_m: vec![1.0; 4],
+            depth_valid: vec![true; 4],
+            intrinsic_matrix_3x3: [[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]],
+            t_robot_base_from_camera: identity,
+        }
+    }
+
+    impl World for FakeWorld {
+        fn start(&mut self) -> Result<(), EpisodeError> {
+            if self.fail_start { Err(EpisodeError::Thread("start failed on purpose".into())) } else { Ok(()) }
+        }
+        fn step(&mut self, _: &MicroAction) -> Result<(), EpisodeError> {
+            Ok(())
+        }
+        fn frame(&mut self, frame_index: u64) -> Result<Frame, EpisodeError> {
+            Ok(Frame { frame_index, robot: RobotReadout::default(), head: camera(), wrist: camera(), task_reference: None })
+        }
+        fn verdict(&mut self) -> Result<Verdict, EpisodeError> {
+            Ok(Verdict { success: false, private_evaluation: json!({}), stage_events: vec![] })
+        }
+    }
+
+    fn spawn(dir: &std::path::Path, wall_s: f64, fail_start: bool) -> (EpisodeHandle, Arc<AtomicBool>) {
+        let config = EpisodeConfig {
+            episode_id: "fake".into(),
+            instruction: "do nothing".into(),
+            level: Level::L1,
+            max_agent_steps: 10,
+            max_wall_time_s: wall_s,
+            workspace: dir.join("ws"),
+            run_dir: dir.join("run"),
+        };
+        std::fs::create_dir_all(config.workspace.join("benchmark_inputs")).unwrap();
+        let dropped = Arc::new(AtomicBool::new(false));
+        let world = FakeWorld { dropped: dropped.clone(), fail_start };
+        (spawn_episode(config, move || Ok(world)).unwrap(), dropped)
+    }
+
+    fn wait_released(h: &EpisodeHandle) {
+        let t = Instant::now();
+        while !h.is_released() {
+            assert!(t.elapsed() < Duration::from_secs(10), "the episode thread did not exit");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    fn error_text(payload: &Value) -> &str {
+        payload["error"].as_str().unwrap_or_default()
+    }
+
+    #[test]
+    fn a_finished_episode_releases_its_thread_and_world_and_later_calls_get_the_same_answers() {
+        let dir = tempfile::tempdir().unwrap();
+        let (h, dropped) = spawn(dir.path(), 600.0, false);
+        assert_eq!(h.call("start_episode", None)["ok"], true);
+        assert!(!h.is_released() && h.ended().is_none());
+        assert_eq!(h.call("finish_episode", None)["status"], "finished");
+        wait_released(&h);
+        assert!(dropped.load(Ordering::SeqCst), "the world is dropped with the thread");
+        assert_eq!(h.ended(), Some(&Ended::Finished));
+        assert_eq!(error_text(&h.call("finish_episode", None)), FINISHED_TEXT);
+        assert_eq!(error_text(&h.call("start_episode", None)), START_TWICE_TEXT);
+        let bad = h.call("osc_sequence", None);
+        assert_eq!((bad["error_type"].as_str(), error_text(&bad)), (Some("ValueError"), "osc_sequence requires only the actions argument"));
+        h.stop("too late"); // nobody is left to stop: returns once the thread is gone
+        assert_eq!(h.status().state, EpisodeState::Finished);
+    }
+
+    #[test]
+    fn stop_returns_once_the_world_is_gone_whether_the_episode_was_open_or_had_just_finished() {
+        let dir = tempfile::tempdir().unwrap();
+        let (open, dropped) = spawn(&dir.path().join("open"), 600.0, false);
+        assert_eq!(open.call("start_episode", None)["ok"], true);
+        open.stop("server_received_signal_15_before_finish");
+        assert!(dropped.load(Ordering::SeqCst) && open.is_released());
+        assert_eq!(open.ended(), Some(&Ended::Aborted));
+        let (finished, dropped) = spawn(&dir.path().join("finished"), 600.0, false);
+        assert_eq!(finished.call("start_episode", None)["ok"], true);
+        assert_eq!(finished.call("finish_episode", None)["ok"], true);
+        finished.stop("test over");
+        assert!(dropped.load(Ordering::SeqCst) && finished.is_released());
+    }
+
+    #[test]
+    fn a_faulted_episode_and_an_expired_one_release_theirs_too() {
+        let dir = tempfile::tempdir().unwrap();
+        let (faulted, dropped) = spawn(&dir.path().join("faulted"), 600.0, true);
+        assert_eq!(faulted.call("start_episode", None)["error_type"], "EnvironmentCommandError");
+        wait_released(&faulted);
+        assert!(dropped.load(Ordering::SeqCst));
+        assert_eq!(error_text(&faulted.call("finish_episode", None)), ABORTED_TEXT);
+        let (expiring, dropped) = spawn(&dir.path().join("expiring"), 0.2, false);
+        assert_eq!(expiring.call("start_episode", None)["ok"], true);
+        wait_released(&expiring);
+        assert!(dropped.load(Ordering::SeqCst));
+        let late = expiring.call("finish_episode", None);
+        assert_eq!((late["ok"].clone(), late["termination_reason"].clone()), (json!(true), json!(EXPIRY_REASON)));
     }
 }

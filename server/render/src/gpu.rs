@@ -284,7 +284,29 @@ struct Inner {
     next_model_id: AtomicU64,
     /// Foreground renders waiting for `frame`; background renders (the private video) let them go first.
     foreground_waiting: AtomicUsize,
-    model_cache: Mutex<HashMap<usize, (Weak<MjModel>, ModelHandle)>>,
+    /// Uploads by compiled model, held weakly on both sides: an upload lives exactly as long as a world, a
+    /// recorder or a caller holds its handle, so ended episodes leave no GPU memory behind.
+    model_cache: Mutex<HashMap<usize, CachedUpload>>,
+}
+
+/// One entry of [`Inner::model_cache`].
+struct CachedUpload {
+    model: Weak<MjModel>,
+    id: u64,
+    gpu: Weak<GpuModel>,
+}
+
+impl CachedUpload {
+    /// The upload, if it is still alive and was made for `model` (not for a freed model at the same address).
+    fn handle_for(&self, model: &Arc<MjModel>) -> Option<ModelHandle> {
+        let same_model = self.model.upgrade().is_some_and(|m| Arc::ptr_eq(&m, model));
+        let gpu = self.gpu.upgrade().filter(|_| same_model)?;
+        Some(ModelHandle { id: self.id, gpu })
+    }
+
+    fn is_dead(&self) -> bool {
+        self.model.strong_count() == 0 || self.gpu.strong_count() == 0
+    }
 }
 
 /// Headless renderer. `Clone` shares the same device; `Send + Sync`.
@@ -525,15 +547,15 @@ impl Renderer {
     pub fn prepare_model(&self, model: &Arc<MjModel>) -> Result<ModelHandle, RenderError> {
         let key = Arc::as_ptr(model) as usize;
         if let Ok(cache) = self.inner.model_cache.lock()
-            && let Some((weak, handle)) = cache.get(&key)
-            && weak.upgrade().is_some_and(|m| Arc::ptr_eq(&m, model))
+            && let Some(handle) = cache.get(&key).and_then(|c| c.handle_for(model))
         {
-            return Ok(handle.clone());
+            return Ok(handle);
         }
         let handle = self.prepare_scene(Arc::new(SceneModel::from_mujoco(model)?))?;
         if let Ok(mut cache) = self.inner.model_cache.lock() {
-            cache.retain(|_, (w, _)| w.strong_count() > 0);
-            cache.insert(key, (Arc::downgrade(model), handle.clone()));
+            cache.retain(|_, c| !c.is_dead());
+            let entry = CachedUpload { model: Arc::downgrade(model), id: handle.id, gpu: Arc::downgrade(&handle.gpu) };
+            cache.insert(key, entry);
         }
         Ok(handle)
     }

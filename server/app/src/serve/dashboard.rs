@@ -335,8 +335,33 @@ async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Respo
 }
 
 async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
-    let Some(hub) = app.hubs.get(&id) else { return json_error(StatusCode::NOT_FOUND, format!("episode {id} is not live here")) };
-    ws.on_upgrade(move |socket| episode_stream(socket, hub))
+    if let Some(hub) = app.hubs.get(&id) {
+        return ws.on_upgrade(move |socket| episode_stream(socket, hub));
+    }
+    // Ended and released (or run before a restart): the viewer gets the final state from the records.
+    let row = match stored_row(&app, &id).await {
+        Ok(r) => r,
+        Err(resp) => return resp,
+    };
+    ws.on_upgrade(move |socket| ended_stream(socket, row))
+}
+
+/// What a viewer of an episode without a live hub gets: `hello` with the budgets, the final state as a
+/// `finished` event (the live page then stops reconnecting), then the socket closes.
+async fn ended_stream(mut socket: WebSocket, row: super::store::EpisodeRow) {
+    let record: Value = std::fs::read_to_string(RunDir::new(&row.episode.run_dir).episode_record())
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or(Value::Null);
+    let hello = json!({"type": "hello", "max_agent_steps": record["max_agent_steps"], "max_wall_time_s": record["max_wall_time_seconds"]});
+    let state = if row.outcome.is_some() { "ended" } else { "not live on this server" };
+    let finished = json!({"type": "finished", "state": state, "outcome": row.outcome, "reason": row.reason});
+    for message in [hello, finished] {
+        if !send_text(&mut socket, &message.to_string()).await {
+            return;
+        }
+    }
+    let _ = socket.send(Message::Close(None)).await;
 }
 
 async fn send_text(socket: &mut WebSocket, text: &str) -> bool {
@@ -357,7 +382,7 @@ async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>) {
             return;
         }
     }
-    let (mut events, mut frames) = (sub.events, sub.frames);
+    let (mut events, mut frames, mut closed) = (sub.events, sub.frames, sub.closed);
     let newest = frames.borrow_and_update().clone();
     if let Some(frame) = newest {
         if socket.send(Message::Binary(frame)).await.is_err() {
@@ -378,6 +403,8 @@ async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>) {
                 }
                 Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
             },
+            // The server let go of the hub (the episode ended a while ago): the page has its `finished` event.
+            _ = closed.changed() => return,
             changed = frames.changed() => {
                 if changed.is_err() { return }
                 let frame = frames.borrow_and_update().clone();

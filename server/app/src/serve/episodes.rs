@@ -5,6 +5,7 @@ use std::fs;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, RwLock};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use libero_episode::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
@@ -20,10 +21,12 @@ use libero_episode::world::{LiberoWorld, WorldSpec};
 use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode_live};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
+use rmcp::transport::streamable_http_server::session::SessionManager;
 use rmcp::transport::streamable_http_server::session::local::LocalSessionManager;
 use rmcp::transport::streamable_http_server::{StreamableHttpServerConfig, StreamableHttpService};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
+use sha2::{Digest, Sha256};
 
 use super::live::LiveHubs;
 use super::mcp::EpisodeMcp;
@@ -32,6 +35,10 @@ pub type McpService = StreamableHttpService<EpisodeMcp, LocalSessionManager>;
 
 /// Largest accepted MCP request body (the original's 1 MiB protocol limit).
 const MAX_REQUEST_BYTES: usize = 1 << 20;
+/// Most MCP sessions one episode keeps open at once (an agent needs one; a relay or a reconnect a few more).
+pub const MAX_SESSIONS_PER_EPISODE: usize = 8;
+/// How long an ended episode keeps its MCP sessions: long enough for its last reply to reach the client.
+pub const RELEASE_GRACE: Duration = Duration::from_secs(2);
 
 /// `POST /api/episodes` body and the CLI's `episode prepare` options.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -159,10 +166,60 @@ pub struct Prepared {
     pub level: u8,
 }
 
+/// One running episode's MCP service, with what its session cap needs.
+#[derive(Clone)]
+pub struct LiveMcp {
+    pub service: McpService,
+    sessions: Arc<LocalSessionManager>,
+    /// Held from a session count to the `initialize` it admits, so concurrent ones cannot pass the cap together.
+    admitting: Arc<tokio::sync::Mutex<()>>,
+}
+
+impl LiveMcp {
+    fn new(mcp: EpisodeMcp) -> Self {
+        let config = StreamableHttpServerConfig::default()
+            .disable_allowed_hosts() // the per-episode token is the guard; hosts vary behind proxies
+            .with_max_request_body_bytes(MAX_REQUEST_BYTES);
+        let sessions = Arc::new(LocalSessionManager::default());
+        let service = StreamableHttpService::new(move || Ok(mcp.clone()), sessions.clone(), config);
+        Self { service, sessions, admitting: Arc::default() }
+    }
+
+    /// Waits for the right to admit one new session; holding the guard, count with [`Self::open_sessions`].
+    pub async fn admit(&self) -> tokio::sync::OwnedMutexGuard<()> {
+        self.admitting.clone().lock_owned().await
+    }
+
+    pub async fn open_sessions(&self) -> usize {
+        self.sessions.sessions.read().await.len()
+    }
+
+    /// Closes every session: their workers end and let go of the episode's handler. Dropping the service alone
+    /// would not do it, as each session worker holds the session manager until its 5-minute idle timeout.
+    async fn close_all(&self) {
+        let ids: Vec<_> = self.sessions.sessions.read().await.keys().cloned().collect();
+        for id in ids {
+            if let Err(e) = self.sessions.close_session(&id).await {
+                log::warn!("closing MCP session {id}: {e}");
+            }
+        }
+    }
+}
+
+/// What `/mcp/{id}` serves to a caller holding the episode's token.
+pub enum McpAccess {
+    Live(LiveMcp),
+    /// The episode ended and its sessions were released; the handle answers from the episode's end record.
+    Ended(EpisodeHandle),
+}
+
+/// An episode this process served. Once it has ended and its MCP sessions are closed, only a tombstone is left:
+/// the token's digest and the handle, whose thread and world are gone (a few hundred bytes).
 struct Entry {
-    token: String,
-    service: McpService,
+    token_sha256: [u8; 32],
     handle: EpisodeHandle,
+    /// `None` once released.
+    mcp: Option<LiveMcp>,
 }
 
 pub struct Episodes {
@@ -178,6 +235,8 @@ pub struct Episodes {
     live: Option<Arc<LiveHubs>>,
     /// Serialises recording missing demonstrations, so concurrent rollouts of one task record one bundle.
     demo_recording: Mutex<()>,
+    /// When each ended, not yet released episode was first seen ended (see [`RELEASE_GRACE`]).
+    ending: Mutex<HashMap<String, Instant>>,
 }
 
 pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
@@ -188,7 +247,16 @@ pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
 
 /// Equal-time comparison, so response timing does not leak how much of a token was right.
 pub(crate) fn tokens_equal(a: &str, b: &str) -> bool {
-    a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    bytes_equal(a.as_bytes(), b.as_bytes())
+}
+
+fn bytes_equal(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// What an entry keeps of its token: the token itself never outlives the prepare reply.
+fn token_digest(token: &str) -> [u8; 32] {
+    Sha256::digest(token.as_bytes()).into()
 }
 
 fn is_within(child: &Path, parent: &Path) -> bool {
@@ -213,6 +281,7 @@ fn absolute(p: &Path) -> std::io::Result<PathBuf> {
 
 impl Episodes {
     pub fn new(data: PathBuf, base_url: String) -> anyhow::Result<Self> {
+        super::memory::tune_for_long_runs();
         let data = absolute(&data)?;
         fs::create_dir_all(data.join("runs"))?;
         fs::create_dir_all(data.join("workspaces"))?;
@@ -232,6 +301,7 @@ impl Episodes {
             calls: None,
             live: None,
             demo_recording: Mutex::new(()),
+            ending: Mutex::new(HashMap::new()),
         })
     }
 
@@ -331,16 +401,62 @@ impl Episodes {
         Ok(verify_bundle(dir, &paths)?)
     }
 
+    /// Episodes this process serves that have not ended.
     pub fn count(&self) -> usize {
-        self.map.read().map(|m| m.len()).unwrap_or(0)
+        self.map.read().map(|m| m.values().filter(|e| e.handle.ended().is_none()).count()).unwrap_or(0)
     }
 
-    /// The episode's MCP service if `token` is its token.
-    pub fn authorize(&self, id: &str, token: Option<&str>) -> Option<McpService> {
-        let token = token?;
+    /// What the episode's MCP endpoint serves if `token` is its token.
+    pub fn mcp_access(&self, id: &str, token: Option<&str>) -> Option<McpAccess> {
+        let digest = token_digest(token?);
         let map = self.map.read().ok()?;
         let entry = map.get(id)?;
-        tokens_equal(&entry.token, token).then(|| entry.service.clone())
+        if !bytes_equal(&entry.token_sha256, &digest) {
+            return None;
+        }
+        Some(match &entry.mcp {
+            Some(live) => McpAccess::Live(live.clone()),
+            None => McpAccess::Ended(entry.handle.clone()),
+        })
+    }
+
+    /// Releases what episodes that ended at least [`RELEASE_GRACE`] ago, and whose threads have exited, still hold
+    /// here: their MCP sessions and their live views; then hands the memory their worlds freed back to the OS.
+    /// Returns the ids released. Called periodically.
+    pub async fn release_ended(&self) -> Vec<String> {
+        let due = self.retire_due(Instant::now());
+        for (id, live) in &due {
+            live.close_all().await;
+            self.close_live(id);
+        }
+        if !due.is_empty() {
+            let _ = tokio::task::spawn_blocking(super::memory::return_freed_memory).await;
+        }
+        due.into_iter().map(|(id, _)| id).collect()
+    }
+
+    /// Drops `id`'s live view (an episode that will never be served).
+    fn close_live(&self, id: &str) {
+        if let Some(hubs) = &self.live {
+            hubs.close(id);
+        }
+    }
+
+    /// Turns the entries of episodes ended for [`RELEASE_GRACE`] into tombstones; returns their MCP services.
+    fn retire_due(&self, now: Instant) -> Vec<(String, LiveMcp)> {
+        let (Ok(mut map), Ok(mut ending)) = (self.map.write(), self.ending.lock()) else { return Vec::new() };
+        let mut due = Vec::new();
+        for (id, entry) in map.iter_mut() {
+            let ended = entry.handle.ended().is_some() && entry.handle.is_released();
+            let Some(live) = entry.mcp.as_ref().filter(|_| ended) else { continue };
+            let since = *ending.entry(id.clone()).or_insert(now);
+            if now.duration_since(since) >= RELEASE_GRACE {
+                due.push((id.clone(), live.clone()));
+                *entry = Arc::new(Entry { token_sha256: entry.token_sha256, handle: entry.handle.clone(), mcp: None });
+                ending.remove(id);
+            }
+        }
+        due
     }
 
     /// The in-process handle of an episode (for the CLI's own agents, never for requests).
@@ -472,8 +588,13 @@ impl Episodes {
             }
             Ok(world)
         };
-        let handle = spawn_episode_live(config, live.map(|(sink, _)| sink), make_world)
-            .with_context(|| format!("cannot build the simulation for {}", task.task_ref))?;
+        let handle = match spawn_episode_live(config, live.map(|(sink, _)| sink), make_world) {
+            Ok(h) => h,
+            Err(e) => {
+                self.close_live(&episode_id);
+                return Err(e).with_context(|| format!("cannot build the simulation for {}", task.task_ref));
+            }
+        };
         let layout = WorkspaceLayout::new(&workspace);
         let contract = WorkspaceContract {
             instruction: task.instruction.clone(),
@@ -483,26 +604,15 @@ impl Episodes {
             mcp_headers: headers.clone(),
             demo: req.demo.prompt_notice().map(|notice| DemoNotice { icl_condition: req.demo.icl_condition().into(), notice }),
         };
-        if let Err(e) = create_workspace(&layout, &contract) {
-            handle.stop(&format!("workspace creation failed: {e}"));
-            return Err(e).with_context(|| format!("cannot create the workspace {}", workspace.display()));
+        let demo = demo_source.as_deref().map(|source| (source, req.demo));
+        if let Err(e) = place_workspace(&layout, &contract, demo, &run) {
+            // Nobody will ever call this episode: end it now, so its thread and world go.
+            handle.stop(&format!("workspace set-up failed: {e:#}"));
+            self.close_live(&episode_id);
+            return Err(e);
         }
-        if let Some(source) = &demo_source {
-            match project_bundle(source, &layout.expert_demo(), req.demo, &task.instruction) {
-                Ok(receipt) => write_json_file(&run_dir.join("icl_projection_receipt.json"), &serde_json::to_value(&receipt)?)?,
-                Err(e) => {
-                    handle.stop(&format!("demonstration placement failed: {e}"));
-                    return Err(e).context("cannot place the demonstration in the workspace");
-                }
-            }
-        }
-        fs::copy(layout.prompt_file(), run.agent_prompt())?;
-        let mcp = EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() };
-        let config = StreamableHttpServerConfig::default()
-            .disable_allowed_hosts() // the per-episode token is the guard; hosts vary behind proxies
-            .with_max_request_body_bytes(MAX_REQUEST_BYTES);
-        let service = StreamableHttpService::new(move || Ok(mcp.clone()), LocalSessionManager::default().into(), config);
-        let entry = Arc::new(Entry { token, service, handle });
+        let mcp = LiveMcp::new(EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() });
+        let entry = Arc::new(Entry { token_sha256: token_digest(&token), handle, mcp: Some(mcp) });
         self.map
             .write()
             .map_err(|_| anyhow::anyhow!("episode registry lock poisoned"))?
@@ -546,6 +656,23 @@ impl Episodes {
         fs::rename(&partial, &path)?;
         Ok(path)
     }
+}
+
+/// The agent's workspace (prompt, MCP config, the demonstration if any) and the prompt's private copy.
+fn place_workspace(
+    layout: &WorkspaceLayout,
+    contract: &WorkspaceContract,
+    demo: Option<(&Path, DemoCondition)>,
+    run: &RunDir,
+) -> anyhow::Result<()> {
+    create_workspace(layout, contract).with_context(|| format!("cannot create the workspace {}", layout.root.display()))?;
+    if let Some((source, condition)) = demo {
+        let receipt = project_bundle(source, &layout.expert_demo(), condition, &contract.instruction)
+            .context("cannot place the demonstration in the workspace")?;
+        write_json_file(&run.root.join("icl_projection_receipt.json"), &serde_json::to_value(&receipt)?)?;
+    }
+    fs::copy(layout.prompt_file(), run.agent_prompt()).context("cannot keep a private copy of the prompt")?;
+    Ok(())
 }
 
 /// `YYYYMMDDTHHMMSSZ` for episode ids (sortable by creation time).

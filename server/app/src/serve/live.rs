@@ -40,6 +40,8 @@ pub struct Hub {
     frames: watch::Sender<Option<Bytes>>,
     state: Mutex<CatchUp>,
     viewers: LiveViewers,
+    /// Set when the server lets go of the hub (the episode ended): viewers still streaming it then close.
+    closed: watch::Sender<bool>,
 }
 
 /// A viewer's subscription, taken together with the history so nothing is missed or sent twice.
@@ -52,6 +54,8 @@ pub struct Subscription {
     /// its drop, never read.
     #[allow(dead_code)]
     pub viewer: ViewerGuard,
+    /// Changes to true when the hub is closed.
+    pub closed: watch::Receiver<bool>,
 }
 
 impl Hub {
@@ -101,6 +105,7 @@ impl Hub {
             events: self.events.subscribe(),
             frames: self.frames.subscribe(),
             viewer: self.viewers.watch(),
+            closed: self.closed.subscribe(),
         })
     }
 
@@ -165,6 +170,7 @@ impl LiveHubs {
             frames: watch::channel(None).0,
             state: Mutex::new(CatchUp::default()),
             viewers: viewers.clone(),
+            closed: watch::channel(false).0,
         });
         if let Ok(mut map) = self.map.write() {
             map.insert(id.to_owned(), hub.clone());
@@ -176,6 +182,15 @@ impl LiveHubs {
 
     pub fn get(&self, id: &str) -> Option<Arc<Hub>> {
         self.map.read().ok()?.get(id).cloned()
+    }
+
+    /// Drops `id`'s hub (history, newest frame) once its episode has ended; viewers still on it are told to close.
+    /// Pages of the episode then read its records from the run directory and the store.
+    pub fn close(&self, id: &str) {
+        let hub = self.map.write().ok().and_then(|mut m| m.remove(id));
+        if let Some(hub) = hub {
+            hub.closed.send_replace(true);
+        }
     }
 
     /// Tells home pages to refresh their list.

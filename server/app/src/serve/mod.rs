@@ -11,6 +11,8 @@ pub mod episodes;
 pub mod http_client;
 pub mod live;
 pub mod mcp;
+pub mod mcp_gate;
+pub mod memory;
 pub mod results;
 pub mod store;
 pub mod teleop;
@@ -182,7 +184,10 @@ async fn store_sync(app: Arc<App>, mut calls: UnboundedReceiver<String>) {
                 Some(id) => app.sync(&id).await,
                 None => return,
             },
-            _ = tick.tick() => app.sync_all().await,
+            _ = tick.tick() => {
+                app.sync_all().await;
+                app.episodes.release_ended().await;
+            }
         }
     }
 }
@@ -487,11 +492,8 @@ fn bearer(headers: &HeaderMap) -> Option<&str> {
 }
 
 /// The token check happens here, before rmcp sees any byte; unknown episode and wrong token look the same.
-/// Largest MCP request body read; a 50-action `osc_sequence` is a few kilobytes.
-const MAX_MCP_BODY_BYTES: usize = 4 << 20;
-
 async fn mcp_endpoint(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
-    let Some(service) = app.episodes.authorize(&id, bearer(req.headers())) else {
+    let Some(access) = app.episodes.mcp_access(&id, bearer(req.headers())) else {
         // The body is not read: close the connection so a keep-alive client never reuses it mid-body.
         return (
             StatusCode::UNAUTHORIZED,
@@ -500,25 +502,5 @@ async fn mcp_endpoint(State(app): State<AppState>, Path(id): Path<String>, req: 
         )
             .into_response();
     };
-    // Read the whole body before the MCP service sees it: the service may answer early (415, 413) without
-    // reading it, which would leave the rest on a kept-alive connection and break the client's next request.
-    let (parts, body) = req.into_parts();
-    let bytes = match axum::body::to_bytes(body, MAX_MCP_BODY_BYTES).await {
-        Ok(b) => b,
-        Err(_) => {
-            return (
-                StatusCode::PAYLOAD_TOO_LARGE,
-                [(header::CONNECTION, "close")],
-                axum::Json(json!({"ok": false, "error": format!("request body over {MAX_MCP_BODY_BYTES} bytes")})),
-            )
-                .into_response();
-        }
-    };
-    let req = Request::from_parts(parts, Body::from(bytes));
-    use tower_service::Service;
-    let mut service = service;
-    match service.call(req).await {
-        Ok(resp) => resp.into_response(),
-        Err(never) => match never {},
-    }
+    mcp_gate::serve(access, &id, req).await
 }
