@@ -425,6 +425,7 @@ fn on_loopback_every_route_needs_the_operator_credential_and_the_login_link_open
 
 /// As [`http`] with another `Host` header (what a DNS-rebinding page's requests carry).
 fn http_host(method: &str, url: &str, host: &str, headers: &[(&str, &str)]) -> (u16, String, Vec<u8>) {
+    use std::io::{Read, Write};
     let rest = url.strip_prefix("http://").expect("http url");
     let (addr, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
     let mut stream = std::net::TcpStream::connect(addr).expect("connect");
