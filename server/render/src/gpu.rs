@@ -111,6 +111,7 @@ pub struct ModelHandle {
 }
 
 impl ModelHandle {
+    /// The uploaded scene's description, without mesh vertices and texture pixels ([`SceneModel::without_bulk_data`]).
     pub fn scene(&self) -> &Arc<SceneModel> {
         &self.gpu.scene
     }
@@ -657,7 +658,15 @@ impl Renderer {
         self.take_errors()?;
         Ok(ModelHandle {
             id: inner.next_model_id.fetch_add(1, Ordering::Relaxed),
-            gpu: Arc::new(GpuModel { scene, vertices: vbuf, indices: ibuf, geom_shapes, site_shapes, texture_groups, skybox }),
+            gpu: Arc::new(GpuModel {
+                scene: Arc::new(scene.without_bulk_data()),
+                vertices: vbuf,
+                indices: ibuf,
+                geom_shapes,
+                site_shapes,
+                texture_groups,
+                skybox,
+            }),
         })
     }
 
