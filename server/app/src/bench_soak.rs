@@ -273,6 +273,7 @@ fn soak(base: &str, args: &BenchSoakArgs, start: Sample) -> anyhow::Result<Value
     prepare_ms.extend(run_episodes(base, args, half..args.episodes, args.concurrent)?);
     let driving_s = (t1.duration_since(t0) + t2.elapsed()).as_secs_f64();
     let (last, last_gone_s) = sample_after_release(settle)?;
+    let (last_threads, last_files) = (threads_by_kind(), open_files_by_kind());
     let peak = peak.finish();
     progress(args, &format!("after {} episodes", args.episodes), &last);
     Ok(json!({
@@ -286,8 +287,8 @@ fn soak(base: &str, args: &BenchSoakArgs, start: Sample) -> anyhow::Result<Value
         "threads_over_baseline": last.threads as i64 - first.threads as i64,
         "open_files_over_baseline": last.open_files as i64 - first.open_files as i64,
         "episode_threads_gone_after_s": {"first": first_gone_s, "last": last_gone_s},
-        "threads_by_kind": {"after_first_episode": first_threads, "after_last_episode": threads_by_kind()},
-        "open_files_by_kind": {"after_first_episode": first_files, "after_last_episode": open_files_by_kind()},
+        "threads_by_kind": {"after_first_episode": first_threads, "after_last_episode": last_threads},
+        "open_files_by_kind": {"after_first_episode": first_files, "after_last_episode": last_files},
         "driving_s": driving_s,
         "prepare_ms": {"first": prepare_ms[0], "p50": percentile_ms(&mut prepare_ms.clone(), 50.0),
             "max": percentile_ms(&mut prepare_ms, 100.0)},

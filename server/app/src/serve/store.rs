@@ -193,6 +193,9 @@ impl NewEpisode {
     }
 }
 
+/// SQLite connections of the store.
+const STORE_CONNECTIONS: u32 = 4;
+
 #[derive(Clone)]
 pub struct Store {
     pool: SqlitePool,
@@ -208,7 +211,10 @@ impl Store {
             // WAL: readers (the API) never block the writer; a killed process loses no committed row.
             .journal_mode(SqliteJournalMode::Wal);
         let pool = SqlitePoolOptions::new()
-            .max_connections(4)
+            .max_connections(STORE_CONNECTIONS)
+            // All open from the start: a connection is a thread and three files, and a pool that grew under
+            // load would keep them for its 10-minute idle timeout, so the server's baseline depended on past load.
+            .min_connections(STORE_CONNECTIONS)
             .connect_with(options)
             .await
             .with_context(|| format!("cannot open the episode store {}", path.display()))?;
