@@ -59,7 +59,9 @@ struct Episode {
 impl Episode {
     fn prepare(server: &Server, ws: &Path) -> Self {
         let req = json!({"task": TASK, "level": 1, "video": false, "workspace": ws});
-        let (status, _, body) = http("POST", &format!("{}/api/episodes", server.url), &[("Content-Type", "application/json")], req.to_string().as_bytes());
+        let op = format!("Bearer {}", server.token);
+        let headers = [("Content-Type", "application/json"), ("Authorization", op.as_str())];
+        let (status, _, body) = http("POST", &format!("{}/api/episodes", server.url), &headers, req.to_string().as_bytes());
         let p: Value = serde_json::from_slice(&body).unwrap();
         assert_eq!(status, 201, "{p}");
         let token = p["mcp_headers"]["Authorization"].as_str().unwrap().trim_start_matches("Bearer ").to_owned();
@@ -93,7 +95,7 @@ impl Episode {
 }
 
 /// The text messages a WebSocket sends until it closes (frames from a server are unmasked).
-fn websocket_texts(url: &str) -> Vec<Value> {
+fn websocket_texts(url: &str, operator_token: &str) -> Vec<Value> {
     let rest = url.strip_prefix("http://").unwrap();
     let (host, path) = rest.split_at(rest.find('/').unwrap());
     let mut s = TcpStream::connect(host).unwrap();
@@ -101,7 +103,7 @@ fn websocket_texts(url: &str) -> Vec<Value> {
     write!(
         s,
         "GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n\
-         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n"
+         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nAuthorization: Bearer {operator_token}\r\n\r\n"
     )
     .unwrap();
     let mut raw = Vec::new();
@@ -197,10 +199,11 @@ fn an_ended_episode_answers_clearly_for_its_token_only_and_caps_its_sessions() {
     // The official Python SDK shows the server's message.
     assert_eq!(python_sdk_error(&ep.url, &ep.token), format!("MCPError: {ended}"));
     // The dashboard: a viewer of the ended episode gets its budgets and final state, then the socket closes.
-    let texts = websocket_texts(&format!("{}/ws/episodes/{}", server.url, ep.id));
+    let texts = websocket_texts(&format!("{}/ws/episodes/{}", server.url, ep.id), &server.token);
     assert_eq!(texts.len(), 2, "{texts:?}");
     assert_eq!((&texts[0]["type"], &texts[0]["max_wall_time_s"]), (&json!("hello"), &json!(1800.0)), "{texts:?}");
     assert_eq!((&texts[1]["type"], &texts[1]["outcome"]), (&json!("finished"), &json!("FAIL")), "{texts:?}");
-    let (status, _, _) = http("GET", &format!("{}/episodes/{}/review", server.url, ep.id), &[], b"");
+    let op = format!("Bearer {}", server.token);
+    let (status, _, _) = http("GET", &format!("{}/episodes/{}/review", server.url, ep.id), &[("Authorization", op.as_str())], b"");
     assert_eq!(status, 200, "the review page reads the run directory and the store");
 }
