@@ -389,6 +389,10 @@ async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>) {
             return;
         }
     }
+    // Closed while this viewer subscribed: the history it was sent ends with `finished`.
+    if *closed.borrow_and_update() {
+        return;
+    }
     loop {
         tokio::select! {
             event = events.recv() => match event {

@@ -214,7 +214,7 @@ pub enum McpAccess {
 }
 
 /// An episode this process served. Once it has ended and its MCP sessions are closed, only a tombstone is left:
-/// the token's digest and the handle, whose thread and world are gone (a few hundred bytes).
+/// the token's digest and the handle, whose thread and world are gone (about a kilobyte).
 struct Entry {
     token_sha256: [u8; 32],
     handle: EpisodeHandle,
@@ -235,7 +235,7 @@ pub struct Episodes {
     live: Option<Arc<LiveHubs>>,
     /// Serialises recording missing demonstrations, so concurrent rollouts of one task record one bundle.
     demo_recording: Mutex<()>,
-    /// When each ended, not yet released episode was first seen ended (see [`RELEASE_GRACE`]).
+    /// When each ended episode was first seen with its thread gone, until it is released (see [`RELEASE_GRACE`]).
     ending: Mutex<HashMap<String, Instant>>,
 }
 
