@@ -54,11 +54,7 @@ impl Operator {
 
     /// Whether `headers` carry the operator token (bearer) or an open browser session (cookie).
     pub fn admits(&self, headers: &HeaderMap) -> bool {
-        let bearer = headers
-            .get(header::AUTHORIZATION)
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "))
-            .map(str::trim);
+        let bearer = super::bearer(headers);
         if bearer.is_some_and(|t| tokens_equal(t, &self.token)) {
             return true;
         }
@@ -196,7 +192,7 @@ fn split_token_query(query: Option<&str>) -> Option<(String, String)> {
 /// everything else answers 401.
 pub async fn require_operator(State(op): State<Operator>, req: Request, next: Next) -> Response {
     if cross_site(req.headers()) {
-        return refusal(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
+        return super::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
     }
     let path = req.uri().path().to_owned();
     let is_page = req.method() == axum::http::Method::GET && !path.starts_with("/api/") && !path.starts_with("/ws/");
@@ -205,7 +201,7 @@ pub async fn require_operator(State(op): State<Operator>, req: Request, next: Ne
             return (StatusCode::UNAUTHORIZED, axum::response::Html(super::dashboard::login_page(true))).into_response();
         }
         let Some(cookie) = op.open_session() else {
-            return refusal(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session");
+            return super::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session");
         };
         let location = if rest.is_empty() { path } else { format!("{path}?{rest}") };
         return (StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, location)]).into_response();
@@ -216,13 +212,9 @@ pub async fn require_operator(State(op): State<Operator>, req: Request, next: Ne
     if is_page {
         return Redirect::to("/login").into_response();
     }
-    let mut resp = refusal(StatusCode::UNAUTHORIZED, "operator token required");
+    let mut resp = super::json_error(StatusCode::UNAUTHORIZED, "operator token required");
     resp.headers_mut().insert(header::WWW_AUTHENTICATE, header::HeaderValue::from_static("Bearer"));
     resp
-}
-
-fn refusal(status: StatusCode, message: &str) -> Response {
-    (status, axum::Json(serde_json::json!({"ok": false, "error": message}))).into_response()
 }
 
 #[derive(serde::Deserialize)]
@@ -233,14 +225,14 @@ pub struct LoginForm {
 /// `POST /login`: the right token opens a session (HttpOnly, SameSite=Strict cookie).
 pub async fn login(State(op): State<Operator>, headers: HeaderMap, axum::Form(form): axum::Form<LoginForm>) -> Response {
     if cross_site(&headers) {
-        return refusal(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
+        return super::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
     }
     if !op.token_matches(&form.token) {
         return (StatusCode::UNAUTHORIZED, axum::response::Html(super::dashboard::login_page(true))).into_response();
     }
     match op.open_session() {
         Some(cookie) => (StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, "/".to_owned())]).into_response(),
-        None => refusal(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session"),
+        None => super::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session"),
     }
 }
 

@@ -89,8 +89,6 @@ pub struct App {
     /// Episodes the operator drives from the teleop page; only these accept actions from the operator's socket,
     /// so an agent's benchmark episode can never be steered from the dashboard.
     pub teleop: Mutex<HashMap<String, String>>,
-    /// Tool-call reports for the store sync, taken when serving begins.
-    calls_rx: Mutex<Option<UnboundedReceiver<String>>>,
 }
 
 type AppState = Arc<App>;
@@ -269,6 +267,8 @@ pub struct Bound {
     base_url: String,
     recovered: usize,
     reconciled: u64,
+    /// Tool-call reports for the store sync, which starts when serving begins.
+    calls_rx: UnboundedReceiver<String>,
     _lock: DataLock,
     _registration: Option<credential::Registration>,
 }
@@ -299,9 +299,8 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         thumbnail_lock: tokio::sync::Mutex::new(()),
         batch_roots: results::batch_roots(&data, &args.batches),
         teleop: Mutex::new(HashMap::new()),
-        calls_rx: Mutex::new(Some(calls_rx)),
     });
-    Ok(Bound { app, listener, base_url, recovered, reconciled, _lock: lock, _registration: registration })
+    Ok(Bound { app, listener, base_url, recovered, reconciled, calls_rx, _lock: lock, _registration: registration })
 }
 
 impl Bound {
@@ -315,8 +314,7 @@ impl Bound {
 
     /// Serves until `shutdown` yields a stop reason (see [`serve_until`]).
     pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = (String, Duration)> + Send + 'static) -> anyhow::Result<()> {
-        let Bound { app, listener, base_url, recovered, reconciled, _lock, _registration } = self;
-        let calls_rx = app.calls_rx.lock().ok().and_then(|mut c| c.take()).context("the server was started twice")?;
+        let Bound { app, listener, base_url, recovered, reconciled, calls_rx, _lock, _registration } = self;
         let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
         let data = app.episodes.data_dir().to_path_buf();
         listening(json!({
@@ -406,7 +404,7 @@ async fn health(State(app): State<AppState>) -> Response {
     axum::Json(json!({"ok": true, "episodes": app.episodes.count(), "version": env!("CARGO_PKG_VERSION")})).into_response()
 }
 
-fn json_error(status: StatusCode, message: impl Into<String>) -> Response {
+pub(crate) fn json_error(status: StatusCode, message: impl Into<String>) -> Response {
     (status, axum::Json(json!({"ok": false, "error": message.into()}))).into_response()
 }
 
@@ -487,7 +485,7 @@ async fn abort_episode(State(app): State<AppState>, Path(id): Path<String>, body
 }
 
 /// `Authorization: Bearer <token>`, if present.
-fn bearer(headers: &HeaderMap) -> Option<&str> {
+pub(crate) fn bearer(headers: &HeaderMap) -> Option<&str> {
     headers.get(header::AUTHORIZATION)?.to_str().ok()?.strip_prefix("Bearer ").map(str::trim)
 }
 
