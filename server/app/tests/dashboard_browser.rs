@@ -69,9 +69,7 @@ impl Server {
             .stderr(Stdio::piped())
             .spawn()
             .expect("start libero-agent serve");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("listening line");
-        let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad listening line {line:?}: {e}"));
+        let v = common::first_json_line(&mut child);
         let url = v["url"].as_str().expect("url").to_owned();
         let port = url.rsplit(':').next().and_then(|p| p.parse().ok()).expect("port");
         let stderr = child.stderr.take();

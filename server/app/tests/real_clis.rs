@@ -11,7 +11,6 @@
 //! batch or the workspace, the episode token in no log or record). The MCP Inspector's CLI plays one whole
 //! episode from the workspace's own `.libero/mcp.json`, a second independent client beside the Python SDK.
 //! A missing CLI fails the test with the command that installs it.
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 
@@ -70,9 +69,7 @@ impl ScriptedModel {
             .stderr(Stdio::inherit())
             .spawn()
             .expect("start the scripted model");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("port line");
-        let port = serde_json::from_str::<Value>(&line).ok().and_then(|v| v["port"].as_u64()).expect("port") as u16;
+        let port = common::first_json_line(&mut child)["port"].as_u64().expect("port") as u16;
         Self { child, port, log }
     }
 

@@ -21,6 +21,13 @@ pub fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
 }
 
+/// The first line a child prints on its piped stdout, as JSON (what `serve` and the scripted model announce).
+pub fn first_json_line(child: &mut Child) -> Value {
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("a first line");
+    serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad first line {line:?}: {e}"))
+}
+
 /// A running `libero-agent serve` on a free loopback port; killed on drop.
 pub struct Server {
     pub child: Child,
@@ -51,9 +58,7 @@ impl Server {
             .stderr(Stdio::inherit())
             .spawn()
             .expect("start libero-agent serve");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("listening line");
-        let v: Value = serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad listening line {line:?}: {e}"));
+        let v = first_json_line(&mut child);
         let url = v["url"].as_str().expect("url").to_owned();
         let token = std::fs::read_to_string(data.join("operator_token")).expect("serve keeps its operator token").trim().to_owned();
         TOKENS.lock().unwrap().push((url.clone(), token.clone()));
