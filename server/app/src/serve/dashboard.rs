@@ -485,7 +485,7 @@ fn timeline_calls(actions: &[Value], mut control_step: u64) -> (Vec<Value>, u64)
             let ok = resp["ok"] == json!(true);
             let steps = if ok { resp["execution"]["control_steps"].as_u64().unwrap_or(0) } else { 0 };
             let begin = control_step;
-            control_step += steps;
+            control_step = control_step.saturating_add(steps);
             json!({
                 "event_index": e["event_index"],
                 "recorded_at": e["recorded_at"],
