@@ -37,12 +37,15 @@ def http(method, path, headers=None, body=b"", host=None, read_limit=1 << 16):
     head = f"{method} {path} HTTP/1.1\r\nHost: {host or HOSTPORT}\r\nConnection: close\r\nContent-Length: {len(body)}\r\n"
     for k, v in (headers or {}).items():
         head += f"{k}: {v}\r\n"
-    s.sendall(head.encode() + b"\r\n" + body)
     raw = b""
+    try:
+        s.sendall(head.encode() + b"\r\n" + body)
+    except OSError as e:  # the server may answer and close before reading a refused body to its end
+        print(f"redteam: {method} {path}: {e}", file=sys.stderr, flush=True)
     while len(raw) < read_limit:
         try:
             chunk = s.recv(65536)
-        except socket.timeout:
+        except OSError:
             break
         if not chunk:
             break
@@ -226,8 +229,14 @@ def main():
     try_other_endpoints()
     sent = oversized_rejected_calls()
     report = {"attempts": attempts, "oversized_bytes_sent": sent, "episode": EPISODE}
-    with open(os.path.join(WS, "redteam.json"), "w") as f:
+    # Written whole or not at all (a temporary name, fsync, rename), and said on stderr for the test's message.
+    tmp = os.path.join(WS, "scratch", "redteam.json.partial")
+    with open(tmp, "w") as f:
         json.dump(report, f, indent=1)
+        f.flush()
+        os.fsync(f.fileno())
+    os.rename(tmp, os.path.join(WS, "redteam.json"))
+    print(f"redteam: {len(attempts)} attempts recorded, {sent} oversized bytes sent", file=sys.stderr, flush=True)
     # The watcher outlives this script: it plants while the reference agent plays the episode.
     if os.fork() == 0:
         os.setsid()

@@ -117,9 +117,14 @@ fn a_red_team_agent_in_the_sandbox_reaches_nothing_but_its_own_endpoint() {
     run_batch(&clean, &dir.path().join("ws-clean"), "exec {libero_agent} agent --workspace {workspace}", Duration::from_secs(900));
 
     let rec = &records(&attacked)[0];
-    assert_eq!(rec["agent_exit_code"], 0, "{rec}");
+    // What the red team printed, for any failure's message.
+    let agent_log = std::fs::read(attacked.join("rollouts/w1_t14_level3/command_stderr.log")).unwrap_or_default();
+    let agent_log = String::from_utf8_lossy(&agent_log[agent_log.len().saturating_sub(4000)..]).into_owned();
+    assert_eq!(rec["agent_exit_code"], 0, "{rec}\n{agent_log}");
     let ws = PathBuf::from(rec["workspace"].as_str().unwrap());
-    let report: Value = serde_json::from_slice(&std::fs::read(ws.join("redteam.json")).expect("the red team's report")).unwrap();
+    let report = std::fs::read(ws.join("redteam.json")).unwrap_or_default();
+    let report: Value = serde_json::from_slice(&report)
+        .unwrap_or_else(|e| panic!("the red team's report ({} bytes) does not parse: {e}\nits stderr:\n{agent_log}", report.len()));
     let attempts = report["attempts"].as_array().unwrap();
     assert!(attempts.len() >= 100, "{} attempts", attempts.len());
     let let_through: Vec<&Value> = attempts.iter().filter(|a| a["refused"] != true).collect();

@@ -62,8 +62,13 @@ pub fn ensure_dir_at(dir: BorrowedFd<'_>, name: &str, mode: u32) -> std::io::Res
 /// Creates the file `name` in `dir` (failing with `EEXIST` if any entry has that name, a symlink
 /// included), writes `bytes` and fsyncs it.
 pub fn write_new_file_at(dir: BorrowedFd<'_>, name: &str, bytes: &[u8]) -> std::io::Result<()> {
+    write_new_file_mode_at(dir, name, bytes, 0o666)
+}
+
+/// [`write_new_file_at`] with the file's permission bits (before the umask): 0600 for what holds a secret.
+pub fn write_new_file_mode_at(dir: BorrowedFd<'_>, name: &str, bytes: &[u8], mode: u32) -> std::io::Result<()> {
     let flags = OFlags::WRONLY | OFlags::CREATE | OFlags::EXCL | OFlags::NOFOLLOW | OFlags::CLOEXEC;
-    let fd = rustix::fs::openat(dir, name, flags, Mode::from_raw_mode(0o666))?;
+    let fd = rustix::fs::openat(dir, name, flags, Mode::from_raw_mode(mode))?;
     let mut file = std::fs::File::from(fd);
     file.write_all(bytes)?;
     file.sync_all()

@@ -150,6 +150,39 @@ pub fn write_launch_files(launch: &Launch) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Replaces the launch's files in the session home with what the runner wrote there, secrets scrubbed. What is
+/// there now is never read: the home is the agent's to write, and any entry in it may have become a link to a
+/// host file or a FIFO. Entries are reached through directory handles that refuse links.
+fn scrub_launch_files(home: &Path, launch: &Launch, secrets: &[&str]) {
+    for (path, content, mode) in &launch.files {
+        if let Err(e) = replace_file_under(home, path, scrub(content, secrets).as_bytes(), *mode) {
+            eprintln!("libero-agent: cannot scrub {}: {e}", path.display());
+        }
+    }
+}
+
+/// Puts a new file with `bytes` at `path` (below `root`), whatever entry was there, following no link on the way.
+pub fn replace_file_under(root: &Path, path: &Path, bytes: &[u8], mode: u32) -> std::io::Result<()> {
+    use libero_episode::dirfd;
+    use std::os::fd::AsFd;
+    let outside = || std::io::Error::other(format!("{} is not a plain path below {}", path.display(), root.display()));
+    let rel = path.strip_prefix(root).map_err(|_| outside())?;
+    let mut names = Vec::new();
+    for c in rel.components() {
+        match c {
+            std::path::Component::Normal(n) => names.push(n.to_str().ok_or_else(outside)?),
+            _ => return Err(outside()),
+        }
+    }
+    let name = names.pop().ok_or_else(outside)?;
+    let mut dir = dirfd::open_dir_path(root)?;
+    for n in names {
+        dir = dirfd::open_dir_at(dir.as_fd(), n)?;
+    }
+    dirfd::remove_at(dir.as_fd(), name)?;
+    dirfd::write_new_file_mode_at(dir.as_fd(), name, bytes, mode)
+}
+
 /// The argv the runner starts: `argv` inside the sandbox when there is one, writing only the workspace and the
 /// session home and reading, besides the system directories, this binary and the install of the program `argv`
 /// runs as the child's own `PATH` (in `env`) finds it.
@@ -326,11 +359,12 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     // Scrub what the agent printed (the API key, sk-… keys, bearer tokens, ours included) and the launch's own
     // files, which stay in the batch's session home: Kimi's config.toml holds the key, the MCP configs the token.
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
-    for p in [&stdout_path, &stderr_path].into_iter().chain(launch.files.iter().map(|f| &f.0)) {
+    for p in [&stdout_path, &stderr_path] {
         if let Ok(t) = fs::read_to_string(p) {
             let _ = fs::write(p, scrub(&t, &secrets));
         }
     }
+    scrub_launch_files(&home, &launch, &secrets);
     if let Some(m) = manifest.as_object_mut() {
         m.insert("finished_at".into(), json!(utc_now_iso()));
         m.insert("elapsed_seconds".into(), json!(elapsed_s));
@@ -348,6 +382,37 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn scrubbing_the_session_home_replaces_planted_links_and_fifos_without_following_them() {
+        let t = tempfile::tempdir().unwrap();
+        let home = t.path().join("home");
+        let host = t.path().join("host-file");
+        fs::write(&host, "host secret Bearer abcdefghijkl\n").unwrap();
+        fs::create_dir_all(home.join(".codex")).unwrap();
+        std::os::unix::fs::symlink(&host, home.join("mcp.json")).unwrap();
+        assert!(Command::new("mkfifo").arg(home.join(".codex/config.toml")).status().unwrap().success());
+        // A directory replaced by a link to a host directory: nothing is written through it.
+        fs::create_dir(t.path().join("host-dir")).unwrap();
+        std::os::unix::fs::symlink(t.path().join("host-dir"), home.join("sub")).unwrap();
+        let launch = Launch {
+            files: vec![
+                (home.join("mcp.json"), "{\"Authorization\": \"Bearer tok-123456789\"}".into(), 0o600),
+                (home.join(".codex/config.toml"), "key = \"MYSECRETKEY\"".into(), 0o600),
+                (home.join("sub/x.json"), "x".into(), 0o600),
+            ],
+            argv: vec![],
+            env: vec![],
+        };
+        scrub_launch_files(&home, &launch, &["MYSECRETKEY"]);
+        assert_eq!(fs::read_to_string(&host).unwrap(), "host secret Bearer abcdefghijkl\n", "the host file is untouched");
+        assert!(fs::read_dir(t.path().join("host-dir")).unwrap().next().is_none(), "nothing written through the link");
+        let meta = fs::symlink_metadata(home.join("mcp.json")).unwrap();
+        assert!(meta.is_file());
+        assert_eq!(meta.permissions().mode() & 0o777, 0o600);
+        assert_eq!(fs::read_to_string(home.join("mcp.json")).unwrap(), "{\"Authorization\": \"Bearer <redacted>\"}");
+        assert_eq!(fs::read_to_string(home.join(".codex/config.toml")).unwrap(), "key = \"<redacted>\"");
+    }
 
     #[test]
     fn outcomes_follow_section_4_8() {
