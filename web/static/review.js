@@ -231,6 +231,31 @@ requestAnimationFrame(animate);
 
 // ---- load
 
+// The private video is rendered from the episode's state record after it ends: say how far it is, then show it.
+function videoStatusText(st) {
+  if (!st) return 'This episode records no video.';
+  if (st.state === 'failed') return `The video could not be rendered: ${st.error}`;
+  if (st.state === 'queued') return 'video rendering, 0 % (queued)';
+  return `video rendering, ${st.percent ?? 0} %`;
+}
+
+function awaitVideo(api, status) {
+  const note = el('p', { id: 'video-status', class: status && status.state === 'failed' ? 'error' : '' }, videoStatusText(status));
+  video.replaceWith(note);
+  if (!status || status.state === 'failed') return;
+  const poll = async () => {
+    const v = await (await fetch(`${api}?part=video`)).json();
+    if (v.video) {
+      note.replaceWith(video);
+      video.load();
+      return;
+    }
+    note.textContent = videoStatusText(v.video_status);
+    if (v.video_status && v.video_status.state !== 'failed') setTimeout(poll, 1000);
+  };
+  setTimeout(poll, 1000);
+}
+
 async function load() {
   const api = `/api/episodes/${encodeURIComponent(id)}/review`;
   data = await (await fetch(api)).json();
@@ -254,7 +279,7 @@ async function load() {
   const last = data.telemetry.reduce((m, r) => Math.max(m, r.video_frame ?? 0), 0);
   duration = (last + 1) / fps;
   $('result').textContent = JSON.stringify(data.result, null, 2);
-  if (!data.video) video.replaceWith(el('p', { class: 'error' }, 'The video is finalised when the episode ends.'));
+  if (!data.video) awaitVideo(api, data.video_status);
   buildEvents();
   buildStages();
   const t = Number(new URL(location.href).searchParams.get('t'));

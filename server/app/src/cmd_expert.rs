@@ -3,6 +3,7 @@
 //! run's result record as one JSON object per line. With `--server`, the episodes are prepared on that server and
 //! driven over MCP, so they show in its dashboard; otherwise they run in this process under `--data`.
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use libero_episode::demo::record::RecordOptions;
@@ -11,6 +12,7 @@ use libero_episode::expert_run::{IDLE, ToolPort, run_expert, run_replica_only};
 use libero_episode::physics::WorldSpec;
 use libero_episode::records::read_result;
 use libero_episode::task::resolve_task;
+use libero_episode::video_queue::VideoProgress;
 use libero_episode::{EpisodeError, Level, RunDir};
 use libero_sim::AssetPaths;
 use libero_tasks::expert;
@@ -19,6 +21,9 @@ use serde_json::{Value, json};
 use crate::serve::default_data_dir;
 use crate::serve::episodes::{Episodes, PrepareRequest};
 use crate::serve::client::{McpClient, prepare_episode};
+
+/// The longest `expert` waits for an episode's private video (a long episode on a software renderer).
+const VIDEO_WAIT: Duration = Duration::from_secs(3600);
 
 #[derive(clap::Args, Debug)]
 pub struct ExpertArgs {
@@ -125,13 +130,29 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     let mut failures = 0;
     for run_index in 1..=args.runs {
         let progress = |line: &str| eprintln!("[{task_id} {} run {run_index}/{}] {line}", args.behaviour, args.runs);
+        let mut timing = json!({"episode_wall_time_s": null, "video_ready_s": null});
         let (episode_id, outcome, record, run_dir) = match (&local, &args.server) {
             (Some(episodes), _) => {
                 let prepared = episodes.prepare(request.clone())?;
                 let mut handle = episodes.handle(&prepared.episode_id).context("prepared episode vanished")?;
                 let outcome = run_expert(&mut handle, &spec, &task_id, &args.behaviour, args.max_actions, progress);
                 handle.stop("expert run over");
-                let record = read_result(&RunDir::new(&prepared.run_dir)).and_then(|r| r.get("private_evaluation").cloned());
+                let run = RunDir::new(&prepared.run_dir);
+                let ended = Instant::now();
+                let result = read_result(&run);
+                timing = json!({"episode_wall_time_s": result.as_ref().and_then(|r| r["wall_time_seconds"].as_f64())});
+                if request.video {
+                    let frames = libero_episode::state_record::StateRecordReader::open(&run.state_record()).map(|r| r.frames()).unwrap_or(0);
+                    progress(&format!("waiting for the private video ({frames} frames, rendered in the background)"));
+                    let status = episodes.wait_for_video(&run, VIDEO_WAIT);
+                    timing["video_ready_s"] = json!(ended.elapsed().as_secs_f64());
+                    timing["video_frames"] = json!(frames);
+                    match status {
+                        Some(VideoProgress::Ready) => progress(&format!("video ready {:.1} s after the episode", ended.elapsed().as_secs_f64())),
+                        other => bail!("the private video of {} did not complete: {other:?}", prepared.episode_id),
+                    }
+                }
+                let record = result.and_then(|r| r.get("private_evaluation").cloned());
                 (prepared.episode_id, outcome, record, Some(prepared.run_dir))
             }
             (None, Some(server)) => {
@@ -180,6 +201,8 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "osc_sequence_calls": run.osc_calls,
             "actions": run.actions,
             "demo": demo,
+            "episode_wall_time_s": timing["episode_wall_time_s"],
+            "video_ready_s": timing["video_ready_s"],
         });
         println!("{line}");
     }

@@ -166,6 +166,11 @@ fn a_killed_server_leaves_its_open_episode_invalid_with_a_reason_on_restart_and_
     assert_eq!((row["outcome"].clone(), row["level"].clone(), row["seed"].clone()), (Value::Null, 3.into(), 100.into()));
     let run = PathBuf::from(prepared["run_dir"].as_str().unwrap());
     server.kill(); // SIGKILL: no chance to write anything
+    // Whether or not the background worker had finished the ended episode's video, it is as if it had not: the
+    // restarted server rebuilds it from the state record.
+    for name in ["continuous_video.mp4", "continuous_video.mp4.partial"] {
+        let _ = std::fs::remove_file(ended_run.join(name));
+    }
     assert!(!run.join("result.json").exists());
     assert!(data.join("episodes.sqlite").is_file());
     let restarted = Server::start(&data);
@@ -190,6 +195,30 @@ fn a_killed_server_leaves_its_open_episode_invalid_with_a_reason_on_restart_and_
     }
     let (status, _) = http_get_json(&format!("{}/api/episodes/ep-nonexistent", restarted.url));
     assert_eq!(status, 404);
+
+    // The review API says how far the rebuilt video is until it is there; the never-started episode has none.
+    let (_, open_video) = http_get_json(&format!("{}/api/episodes/{open_id}/review?part=video", restarted.url));
+    assert_eq!((open_video["video"].clone(), open_video["video_status"].clone()), (Value::Bool(false), Value::Null), "{open_video}");
+    let started = std::time::Instant::now();
+    let mut states = Vec::new();
+    loop {
+        let (status, v) = http_get_json(&format!("{}/api/episodes/{ended_id}/review?part=video", restarted.url));
+        assert_eq!(status, 200, "{v}");
+        let state = v["video_status"]["state"].as_str().unwrap_or_default().to_owned();
+        assert!(["queued", "rendering", "ready"].contains(&state.as_str()), "{v}");
+        assert!(v["video_status"]["percent"].as_u64().is_some_and(|p| p <= 100), "{v}");
+        if states.last() != Some(&state) {
+            states.push(state.clone());
+        }
+        if v["video"] == true {
+            assert_eq!(state, "ready");
+            break;
+        }
+        assert!(started.elapsed() < std::time::Duration::from_secs(300), "the video was not rebuilt: {states:?}");
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    assert!(std::fs::metadata(ended_run.join("state_record.bin")).unwrap().len() > 32, "frames were recorded");
+    assert!(std::fs::metadata(ended_run.join("continuous_video.mp4")).unwrap().len() > 1000, "{states:?}");
 }
 
 #[test]

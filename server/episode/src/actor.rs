@@ -383,6 +383,30 @@ where
     }
 }
 
+/// Tool calls being handled right now, by any episode of this process: background work (the private videos)
+/// waits while there are some, so that on a CPU renderer it takes only cores the episodes leave idle.
+static CALLS_IN_FLIGHT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// Whether any episode of this process is handling a tool call.
+pub fn calls_in_flight() -> usize {
+    CALLS_IN_FLIGHT.load(std::sync::atomic::Ordering::Acquire)
+}
+
+struct CallInFlight;
+
+impl CallInFlight {
+    fn enter() -> Self {
+        CALLS_IN_FLIGHT.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
+        CallInFlight
+    }
+}
+
+impl Drop for CallInFlight {
+    fn drop(&mut self) {
+        CALLS_IN_FLIGHT.fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
+    }
+}
+
 fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
     p.downcast_ref::<&str>()
         .map(|s| (*s).to_owned())
@@ -421,10 +445,12 @@ impl<W: World> Actor<W> {
             _ => rx.recv().map_err(|_| RecvTimeoutError::Disconnected),
         };
         match msg {
-            // The reply goes out before the thread releases the world, whose drop waits for the private video
-            // to drain and finalise (seconds on a CPU renderer), so the agent never waits for it.
+            // The reply goes out before the thread releases the world (which queues the private video).
             Ok(Command::Call { name, arguments, reply }) => {
-                let payload = self.handle_call(&name, arguments);
+                let payload = {
+                    let _busy = CallInFlight::enter();
+                    self.handle_call(&name, arguments)
+                };
                 let _ = reply.send(payload);
             }
             Ok(Command::Stop { reason, done }) => {

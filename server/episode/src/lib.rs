@@ -15,10 +15,14 @@ pub mod physics;
 pub mod publish;
 pub mod readout;
 pub mod records;
+#[cfg(feature = "world")]
+pub mod state_record;
 pub mod task;
 pub mod tools;
 #[cfg(feature = "world")]
 pub mod video;
+#[cfg(feature = "world")]
+pub mod video_queue;
 pub mod workspace;
 #[cfg(feature = "world")]
 pub mod world;

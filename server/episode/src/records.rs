@@ -41,6 +41,10 @@ impl RunDir {
     pub fn continuous_video(&self) -> PathBuf {
         self.root.join("continuous_video.mp4")
     }
+    /// What the private video is rendered from (see `state_record`).
+    pub fn state_record(&self) -> PathBuf {
+        self.root.join("state_record.bin")
+    }
     pub fn agent_prompt(&self) -> PathBuf {
         self.root.join("agent_prompt.txt")
     }

@@ -13,7 +13,7 @@ use std::thread::JoinHandle;
 
 use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
 use libero_sim::mujoco_rs::prelude::MjModel;
-use libero_sim::{SimData, StepObserver};
+use libero_sim::{PoseReplay, SimData, StepObserver};
 use muxide::api::{Muxer, MuxerBuilder, VideoCodec};
 use openh264::OpenH264API;
 use openh264::encoder::{
@@ -21,6 +21,8 @@ use openh264::encoder::{
 };
 use openh264::formats::{RgbSliceU8, YUVBuffer};
 use thiserror::Error;
+
+use crate::state_record::StateRecordReader;
 
 /// Frames per second of the video: one frame per 20 Hz control step, so video time equals sim time.
 pub const VIDEO_FPS: f64 = 20.0;
@@ -50,6 +52,11 @@ pub enum VideoError {
     Io(#[from] std::io::Error),
     #[error("video recorder thread: {0}")]
     Thread(String),
+    #[error("video source: {0}")]
+    Source(String),
+    /// The server is stopping; the video is left to be rebuilt from its state record at the next start.
+    #[error("video rendering stopped before the end")]
+    Stopped,
 }
 
 /// What a finished video holds.
@@ -252,7 +259,7 @@ impl VideoRecorder {
 
     /// A simulation hook that records every control step into this video.
     pub fn into_step_observer(mut self) -> StepObserver {
-        Box::new(move |model: &MjModel, data: &SimData| self.record(FrameState::from_mujoco(model, data)))
+        Box::new(move |model: &MjModel, data: &SimData, _: &[f64]| self.record(FrameState::from_mujoco(model, data)))
     }
 
     /// Drains the queue, finalises the MP4 and renames it into place.
@@ -273,6 +280,55 @@ impl Drop for VideoRecorder {
             Err(e) => log::error!("video {}: {e}", self.path.display()),
         }
     }
+}
+
+/// Renders the private video at `video` from the state record at `record` (see [`crate::state_record`]): one
+/// frame per recorded control step, drawn from the poses [`PoseReplay`] recomputes, which are bit for bit the
+/// poses the episode stepped through, so the frames are those a recorder rendering during the episode makes.
+/// `progress(done, total)` hears every frame and stops the work by returning `false`.
+pub fn render_video_from_record(
+    record: &Path,
+    video: &Path,
+    model: &std::sync::Arc<MjModel>,
+    renderer: &Renderer,
+    gpu_model: &ModelHandle,
+    cameras: &VideoCameras,
+    mut progress: impl FnMut(u64, u64) -> bool,
+) -> Result<Option<VideoSummary>, VideoError> {
+    let mut reader = StateRecordReader::open(record).map_err(|e| VideoError::Source(e.to_string()))?;
+    let mut poses = PoseReplay::new(model.clone());
+    if poses.sizes() != (reader.nq, reader.nmocap) {
+        return Err(VideoError::Source(format!(
+            "{} records {} qpos and {} mocap bodies; the model has {:?}",
+            record.display(),
+            reader.nq,
+            reader.nmocap,
+            poses.sizes()
+        )));
+    }
+    let size = cameras.size_px;
+    let mut writer = Mp4Writer::new(video, 2 * size, size)?;
+    let requests = [
+        CameraRequest::named(&cameras.head, size, size, Outputs::RGB),
+        CameraRequest::named(&cameras.wrist, size, size, Outputs::RGB),
+    ];
+    let options = RenderOptions::default();
+    let total = reader.frames();
+    while let Some((qpos, mocap)) = reader.next_frame().map_err(|e| VideoError::Source(e.to_string()))? {
+        if !progress(writer.frames(), total) {
+            return Err(VideoError::Stopped);
+        }
+        let data = poses.pose(&qpos, &mocap).map_err(|e| VideoError::Source(e.to_string()))?;
+        let state = FrameState::from_mujoco(model, data);
+        let views = renderer.render_background(gpu_model, &state, &requests, &options).map_err(|e| VideoError::Render(e.to_string()))?;
+        let rgb = match views.as_slice() {
+            [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize)?,
+            other => return Err(VideoError::Render(format!("expected 2 camera images, got {}", other.len()))),
+        };
+        writer.push_rgb(&rgb)?;
+    }
+    progress(writer.frames(), total);
+    writer.finish()
 }
 
 #[cfg(test)]

@@ -16,7 +16,9 @@ use crate::observation::{CameraFrame, Frame, Level, RgbImage};
 pub use crate::physics::{SETTLE_STEPS, WorldSpec};
 use crate::physics::WorldPhysics;
 use crate::readout::{BasePose, robot_base_body, robot_readout};
-use crate::video::{VideoCameras, VideoRecorder};
+use crate::state_record::StateRecordWriter;
+use crate::video::VideoCameras;
+use crate::video_queue::{VideoJob, VideoQueue};
 
 /// Release image size (square, per camera).
 pub const RESOLUTION_PX: u32 = 256;
@@ -38,6 +40,8 @@ pub struct LiberoWorld {
     live_frames: Option<LiveRenderer>,
     /// The task's reference image, published with every frame (protocol §3.9).
     task_reference: Option<RgbImage>,
+    /// The private video being recorded (see [`LiberoWorld::record_video`]).
+    video: Option<PendingVideo>,
 }
 
 /// LIBERO's `_post_process` after every control step ([`TurnOnSites`]: the stove's burner ring shows iff it is
@@ -92,7 +96,7 @@ impl LiberoWorld {
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
         let toggles = VisualToggles::new(&physics.scene, &model)?;
         let task_reference = spec.task.task_reference.as_deref().map(RgbImage::read_png).transpose()?;
-        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None, live_frames: None, task_reference })
+        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None, live_frames: None, task_reference, video: None })
     }
 
     /// Whether the next image shows a turned-on fixture's visual site (the stove's burner ring).
@@ -208,34 +212,69 @@ impl World for LiberoWorld {
     }
 }
 
-/// The private video hook, apart from the protocol methods: the simulation reports every control step
-/// (settle steps included) to a recorder thread that renders and encodes off the reply path.
+/// The private video, apart from the protocol methods: the simulation reports every control step (settle steps
+/// included) and the world appends its poses' `qpos` to the run directory's state record, microseconds a step.
+/// When the world goes (episode finished, expired or aborted) the video is queued on the background worker,
+/// which renders it from the record.
 impl LiberoWorld {
-    /// Records every later control step into `path` (§6.1). The video is finalised and renamed into
-    /// place when the world is dropped (episode finished, expired or aborted) or at [`Self::end_video`].
-    pub fn record_video(&mut self, path: &std::path::Path) -> Result<(), EpisodeError> {
+    /// Records every later control step into `record` and queues `video` on `queue` when the world ends (§6.1).
+    pub fn record_video(&mut self, video: &std::path::Path, record: &std::path::Path, queue: VideoQueue) -> Result<(), EpisodeError> {
         let counter = self.live.as_ref().map(WorldTap::frame_counter);
-        let recorder = VideoRecorder::spawn(path, self.renderer.clone(), self.gpu_model.clone(), head_wrist_cameras())
-            .map_err(|e| EpisodeError::Render(e.to_string()))?;
-        let mut observe = recorder.into_step_observer();
-        match counter {
-            None => self.physics.sim.set_step_observer(Some(observe)),
-            Some(counter) => self.physics.sim.set_step_observer(Some(Box::new(move |model: &MjModel, data: &libero_sim::SimData| {
-                observe(model, data);
-                counter.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
-            }))),
-        }
+        let model = self.physics.model().clone();
+        let nmocap = model.ffi().nmocap as usize;
+        let mut writer = StateRecordWriter::create(record, model.ffi().nq as usize, nmocap)
+            .map_err(|e| EpisodeError::Io(std::io::Error::other(e.to_string())))?;
+        let mut failed = false;
+        let observe = move |model: &MjModel, data: &libero_sim::SimData, pose_qpos: &[f64]| {
+            let mocap = if nmocap == 0 { Vec::new() } else { libero_sim::pose_replay::mocap_of(model, data) };
+            if let Err(e) = writer.push(pose_qpos, &mocap) {
+                if !failed {
+                    log::error!("{e}: later frames of the private video are lost");
+                    failed = true;
+                }
+            }
+            if let Some(c) = &counter {
+                c.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
+            }
+        };
+        self.physics.sim.set_step_observer(Some(Box::new(observe)));
+        self.video = Some(PendingVideo { video: video.to_owned(), record: record.to_owned(), queue });
         Ok(())
     }
 
-    /// Stops recording and finalises the video now (waits for the encoder to drain).
+    /// The simulation model and its renderer upload, which a video of this world is drawn with.
+    pub fn video_models(&self) -> (std::sync::Arc<MjModel>, ModelHandle) {
+        (self.physics.model().clone(), self.gpu_model.clone())
+    }
+
+    /// Stops recording and queues the video (the world's end does this too).
     pub fn end_video(&mut self) {
+        // Dropping the observer closes the record; its frames are on disk (one write each), synced here.
         self.physics.sim.set_step_observer(None);
+        let Some(p) = self.video.take() else { return };
+        if let Ok(f) = std::fs::File::open(&p.record) {
+            let _ = f.sync_data();
+        }
+        let (model, gpu_model) = (self.physics.model().clone(), self.gpu_model.clone());
+        p.queue.submit(VideoJob { record: p.record, video: p.video, source: Box::new(move || Ok((model, gpu_model))) });
+    }
+}
+
+/// A video to queue when the world ends.
+struct PendingVideo {
+    video: std::path::PathBuf,
+    record: std::path::PathBuf,
+    queue: VideoQueue,
+}
+
+impl Drop for LiberoWorld {
+    fn drop(&mut self) {
+        self.end_video();
     }
 }
 
 /// The cameras of the video and of live frames: head | wrist at the episode resolution.
-fn head_wrist_cameras() -> VideoCameras {
+pub fn head_wrist_cameras() -> VideoCameras {
     VideoCameras { head: HEAD_CAMERA.into(), wrist: WRIST_CAMERA.into(), size_px: RESOLUTION_PX }
 }
 

@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use libero_episode::records::RunDir;
 use libero_episode::task::resolve_task;
-use libero_episode::world::{LiberoWorld, SETTLE_STEPS, WorldSpec};
+use libero_episode::video_queue::VideoQueue;
+use libero_episode::world::{LiberoWorld, SETTLE_STEPS, WorldSpec, head_wrist_cameras};
 use libero_episode::live::{LIVE_FRAME_MIN_INTERVAL, LiveViewers};
 use libero_episode::{EpisodeConfig, EpisodeHandle, Level, LiveEvent, LiveSink, spawn_episode_live};
 use libero_render::Renderer;
@@ -52,7 +53,7 @@ fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
     let handle = spawn_episode_live(cfg.clone(), Some(sink), move || {
         let mut w = LiberoWorld::new(&spec, renderer)?;
         w.set_live(world_sink, viewers, Some(&telemetry))?;
-        w.record_video(&video)?;
+        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(Renderer::new().expect("a renderer"), head_wrist_cameras()).expect("video worker"))?;
         Ok(w)
     })
     .expect("episode");
@@ -62,7 +63,7 @@ fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
     let bad = json!({"actions": [[3, 0, 0, 0, 0, 0, 0]]});
     assert_eq!(handle.call("osc_sequence", bad.as_object().cloned())["ok"], false);
     assert_eq!(handle.call("finish_episode", None)["ok"], true);
-    handle.stop("test over"); // waits until the world (and its video recorder) is gone
+    handle.stop("test over"); // waits until the world is gone
 
     let events = seen.lock().unwrap();
     let kinds: Vec<Value> = events.iter().filter(|e| !matches!(e, LiveEvent::Frame(_))).map(|e| json!(e)).collect();
@@ -158,7 +159,7 @@ fn watched_episode(frame_delay: Duration) -> Watched {
     let handle = spawn_episode_live(cfg, Some(sink), move || {
         let mut w = LiberoWorld::new(&spec, renderer)?;
         w.set_live(world_sink, world_viewers, None)?;
-        w.record_video(&video)?;
+        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(Renderer::new().expect("a renderer"), head_wrist_cameras()).expect("video worker"))?;
         *world_counter.lock().unwrap() = w.live_render_counter();
         Ok(w)
     })

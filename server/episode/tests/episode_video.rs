@@ -6,8 +6,13 @@ use std::time::{Duration, Instant};
 
 use libero_episode::records::RunDir;
 use libero_episode::task::resolve_task;
-use libero_episode::video::partial_path;
-use libero_episode::world::{LiberoWorld, SETTLE_STEPS, WorldSpec};
+use libero_episode::physics::WorldPhysics;
+use libero_episode::state_record::{StateRecordReader, StateRecordWriter};
+use libero_episode::video::{VideoRecorder, partial_path, render_video_from_record};
+use libero_episode::video_queue::{VideoProgress, VideoQueue};
+use libero_episode::world::{LiberoWorld, SETTLE_STEPS, WorldSpec, head_wrist_cameras};
+use libero_render::FrameState;
+use libero_sim::mujoco_rs::prelude::MjModel;
 use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeState, Level, spawn_episode};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
@@ -15,7 +20,7 @@ use serde_json::{Map, Value, json};
 
 const TASK: &str = "libero_object/pick_up_the_ketchup_and_place_it_in_the_basket";
 
-fn video_episode(dir: &Path, name: &str, wall_s: f64, renderer: &Renderer) -> EpisodeHandle {
+fn video_episode(dir: &Path, name: &str, wall_s: f64, renderer: &Renderer) -> (EpisodeHandle, VideoQueue) {
     let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
     let spec = WorldSpec { task: resolve_task(TASK, &paths).unwrap(), level: Level::L1, seed: 100, init_index: 0, paths };
     let cfg = EpisodeConfig {
@@ -28,14 +33,23 @@ fn video_episode(dir: &Path, name: &str, wall_s: f64, renderer: &Renderer) -> Ep
         run_dir: dir.join(name).join("run"),
     };
     std::fs::create_dir_all(cfg.workspace.join("benchmark_inputs")).unwrap();
-    let video = RunDir::new(&cfg.run_dir).continuous_video();
-    let r = renderer.clone();
-    spawn_episode(cfg, move || {
+    let run = RunDir::new(&cfg.run_dir);
+    let (video, record) = (run.continuous_video(), run.state_record());
+    let queue = VideoQueue::start(renderer.clone(), head_wrist_cameras()).expect("video worker");
+    let (r, q) = (renderer.clone(), queue.clone());
+    let handle = spawn_episode(cfg, move || {
         let mut w = LiberoWorld::new(&spec, r)?;
-        w.record_video(&video)?;
+        w.record_video(&video, &record, q)?;
         Ok(w)
     })
-    .expect("episode")
+    .expect("episode");
+    (handle, queue)
+}
+
+/// Waits for the background worker to finish the episode's video.
+fn wait_for_video(queue: &VideoQueue, run: &RunDir) {
+    let state = queue.wait(&run.continuous_video(), Duration::from_secs(300));
+    assert_eq!(state, Some(VideoProgress::Ready), "the video of {}", run.root.display());
 }
 
 fn actions(n: usize) -> Option<Map<String, Value>> {
@@ -205,7 +219,11 @@ fn decode_all(bytes: &[u8], facts: &VideoFacts) -> Vec<Decoded> {
 }
 
 fn check_video(run: &RunDir, control_steps: usize) {
-    let path = run.continuous_video();
+    check_video_file(&run.continuous_video(), control_steps);
+}
+
+fn check_video_file(path: &Path, control_steps: usize) {
+    let path = path.to_owned();
     assert!(!partial_path(&path).exists(), "the temporary file was renamed away");
     let bytes = std::fs::read(&path).expect("continuous_video.mp4 exists once the episode has ended");
     let facts = read_mp4(&bytes);
@@ -240,19 +258,20 @@ fn wait_for_state(h: &EpisodeHandle, state: EpisodeState, within: Duration) {
 fn the_video_has_one_decodable_512x256_frame_per_control_step_when_the_episode_finishes() {
     let dir = tempfile::tempdir().unwrap();
     let renderer = Renderer::new().expect("renderer");
-    let h = video_episode(dir.path(), "finish", 600.0, &renderer);
+    let (h, queue) = video_episode(dir.path(), "finish", 600.0, &renderer);
     let run = RunDir::new(&h.config().run_dir);
-    assert!(!run.continuous_video().exists() && !partial_path(&run.continuous_video()).exists(), "created lazily");
+    assert!(!run.continuous_video().exists() && !partial_path(&run.continuous_video()).exists(), "made after the episode");
     assert_eq!(h.call("start_episode", None)["ok"], true);
     assert_eq!(h.call("osc_sequence", actions(5))["ok"], true);
     assert_eq!(h.call("osc_sequence", actions(3))["ok"], true);
     // A refused call runs no control step and adds no frame.
     assert_eq!(h.call("osc_sequence", json!({"actions": [[2, 0, 0, 0, 0, 0, 0]]}).as_object().cloned())["ok"], false);
-    // finish ends the episode whatever the verdict; the reply comes first and the actor finalises the video
-    // right after it, before it takes the next command (so `stop` returns once the file is in place).
+    // finish ends the episode whatever the verdict; the reply comes first, then the world goes and queues
+    // its video, which the background worker renders from the state record.
     let _ = h.call("finish_episode", None);
     assert_ne!(h.status().state, EpisodeState::Active);
     h.stop("test over");
+    wait_for_video(&queue, &run);
     check_video(&run, SETTLE_STEPS + 8);
 }
 
@@ -260,9 +279,81 @@ fn the_video_has_one_decodable_512x256_frame_per_control_step_when_the_episode_f
 fn the_video_is_finalised_when_the_wall_clock_expires() {
     let dir = tempfile::tempdir().unwrap();
     let renderer = Renderer::new().expect("renderer");
-    let h = video_episode(dir.path(), "expiry", 3.0, &renderer);
+    let (h, queue) = video_episode(dir.path(), "expiry", 3.0, &renderer);
     assert_eq!(h.call("start_episode", None)["ok"], true);
     assert_eq!(h.call("osc_sequence", actions(2))["ok"], true);
     wait_for_state(&h, EpisodeState::Finished, Duration::from_secs(30));
-    check_video(&RunDir::new(&h.config().run_dir), SETTLE_STEPS + 2);
+    let run = RunDir::new(&h.config().run_dir);
+    wait_for_video(&queue, &run);
+    check_video(&run, SETTLE_STEPS + 2);
+}
+
+/// Issue 19's proof: the video rendered afterwards from the state record is the video a recorder rendering
+/// during the episode makes. The same simulation feeds both — today's recorder, which snapshots the poses in
+/// MuJoCo's data at every control step, and the state record — over settle steps, pushes, a grasp and a
+/// gripper toggle; the recomputed poses equal the snapshots bit for bit and the two MP4 files are identical.
+#[test]
+fn the_video_from_the_state_record_is_the_recorders_video_frame_for_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let renderer = Renderer::new().expect("renderer");
+    let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
+    let spec = WorldSpec { task: resolve_task(TASK, &paths).unwrap(), level: Level::L1, seed: 7, init_index: 2, paths };
+    let mut physics = WorldPhysics::build(&spec, |_, _, _| Ok(())).unwrap();
+    let model = physics.model().clone();
+    let gpu_model = renderer.prepare_model(&model).unwrap();
+    let recorded = dir.path().join("recorder.mp4");
+    let recorder = VideoRecorder::spawn(&recorded, renderer.clone(), gpu_model.clone(), head_wrist_cameras()).unwrap();
+    let mut to_recorder = recorder.into_step_observer();
+    let record = dir.path().join("state_record.bin");
+    let nq = model.ffi().nq as usize;
+    let mut writer = StateRecordWriter::create(&record, nq, model.ffi().nmocap as usize).unwrap();
+    let snapshots = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let seen = snapshots.clone();
+    physics.sim.set_step_observer(Some(Box::new(move |m: &MjModel, d: &libero_sim::SimData, pose_qpos: &[f64]| {
+        to_recorder(m, d, pose_qpos);
+        seen.lock().unwrap().push(FrameState::from_mujoco(m, d));
+        writer.push(pose_qpos, &libero_sim::pose_replay::mocap_of(m, d)).unwrap();
+    })));
+    physics.start(|_| {}).unwrap();
+    let mut actions: Vec<[f64; 7]> = vec![[0.4, 0.1, -0.3, 0.0, 0.0, 0.1, -1.0]; 15];
+    actions.extend(vec![[0.0, 0.0, -0.5, 0.2, 0.0, 0.0, 1.0]; 10]);
+    actions.extend(vec![[-0.3, 0.2, 0.5, 0.0, -0.2, 0.0, -1.0]; 10]);
+    for a in &actions {
+        physics.step(a).unwrap();
+    }
+    physics.sim.set_step_observer(None); // drains and finalises the recorder's video
+    let frames = SETTLE_STEPS + actions.len();
+
+    let mut replay = libero_sim::PoseReplay::new(model.clone());
+    let mut reader = StateRecordReader::open(&record).unwrap();
+    assert_eq!(reader.frames(), frames as u64);
+    let bits = |v: &[[f64; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let bits9 = |v: &[[f64; 9]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for (i, live) in snapshots.lock().unwrap().iter().enumerate() {
+        let (qpos, mocap) = reader.next_frame().unwrap().unwrap();
+        let again = FrameState::from_mujoco(&model, replay.pose(&qpos, &mocap).unwrap());
+        assert_eq!(bits(&again.geom_xpos), bits(&live.geom_xpos), "frame {i}: geom positions");
+        assert_eq!(bits9(&again.geom_xmat), bits9(&live.geom_xmat), "frame {i}: geom orientations");
+        assert_eq!(bits(&again.cam_xpos), bits(&live.cam_xpos), "frame {i}: camera positions");
+        assert_eq!(bits9(&again.cam_xmat), bits9(&live.cam_xmat), "frame {i}: camera orientations");
+        assert_eq!(bits(&again.site_xpos), bits(&live.site_xpos), "frame {i}: site positions");
+        assert_eq!(bits(&again.light_xpos), bits(&live.light_xpos), "frame {i}: light positions");
+        assert_eq!(bits(&again.light_xdir), bits(&live.light_xdir), "frame {i}: light directions");
+        assert_eq!(again.robot_base_pose, live.robot_base_pose, "frame {i}: robot base");
+    }
+
+    let from_record = dir.path().join("from_record.mp4");
+    let mut progress = Vec::new();
+    let summary = render_video_from_record(&record, &from_record, &model, &renderer, &gpu_model, &head_wrist_cameras(), |done, total| {
+        progress.push((done, total));
+        true
+    })
+    .unwrap()
+    .unwrap();
+    assert_eq!(summary.frames, frames as u64);
+    assert_eq!(progress.first(), Some(&(0, frames as u64)));
+    assert_eq!(progress.last(), Some(&(frames as u64, frames as u64)));
+    let (a, b) = (std::fs::read(&recorded).unwrap(), std::fs::read(&from_record).unwrap());
+    assert!(a == b, "the two videos differ ({} and {} bytes)", a.len(), b.len());
+    check_video_file(&from_record, frames);
 }

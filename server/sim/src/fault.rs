@@ -127,6 +127,9 @@ pub mod ffi {
         pub fn mj_step2(m: *const mjModel, d: *mut mjData);
         pub fn mj_forward(m: *const mjModel, d: *mut mjData);
         pub fn mj_resetData(m: *const mjModel, d: *mut mjData);
+        pub fn mj_kinematics(m: *const mjModel, d: *mut mjData);
+        pub fn mj_comPos(m: *const mjModel, d: *mut mjData);
+        pub fn mj_camlight(m: *const mjModel, d: *mut mjData);
         pub fn mj_getState(m: *const mjModel, d: *const mjData, state: *mut mjtNum, sig: std::os::raw::c_int);
     }
 }

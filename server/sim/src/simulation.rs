@@ -120,10 +120,15 @@ pub struct Simulation {
     poisoned: Option<String>,
     /// Called after every completed control step (the private video records each one, settle steps included).
     step_observer: Option<StepObserver>,
+    /// `qpos` as the last substep's `mj_step1` saw it (kept only while a step observer is installed).
+    pose_qpos: Vec<f64>,
 }
 
-/// A hook on every completed control step: model and data after the step's last substep.
-pub type StepObserver = Box<dyn FnMut(&MjModel, &SimData) + Send>;
+/// A hook on every completed control step: model and data after the step's last substep, and the `qpos` that
+/// data's poses (`xpos`, `geom_xpos`, cameras, lights) were computed from. `mj_step2` integrates `qpos` after
+/// `mj_step1` computed the kinematics, so the two differ by one substep; [`crate::PoseReplay`] recomputes the
+/// same poses, bit for bit, from this `qpos` alone.
+pub type StepObserver = Box<dyn FnMut(&MjModel, &SimData, &[f64]) + Send>;
 
 fn non_finite(xs: &[f64]) -> Option<usize> {
     xs.iter().position(|x| !x.is_finite())
@@ -156,6 +161,7 @@ impl Simulation {
             warnings_seen: [0; 7],
             poisoned: None,
             step_observer: None,
+            pose_qpos: Vec::new(),
         };
         sim.reset()?;
         Ok(sim)
@@ -290,6 +296,10 @@ impl Simulation {
                     }
                 }
                 self.arm_torques_nm = tau.into();
+                if k + 1 == SUBSTEPS_PER_ACTION && self.step_observer.is_some() {
+                    self.pose_qpos.clear();
+                    self.pose_qpos.extend_from_slice(self.data.qpos());
+                }
                 // SAFETY: as above.
                 unsafe { mj_step2(model.ffi(), self.data.ffi_mut()) };
                 self.substep_checks()?;
@@ -304,7 +314,7 @@ impl Simulation {
         match result {
             Ok(Ok(())) => {
                 if let Some(observe) = self.step_observer.as_mut() {
-                    observe(&self.model, &self.data);
+                    observe(&self.model, &self.data, &self.pose_qpos);
                 }
                 Ok(StepOutcome { time_s: self.data.ffi().time, observation_substep })
             }

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use askama::Template;
+use libero_episode::video_queue::VideoProgress;
 use axum::Router;
 use axum::body::Body;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
@@ -528,6 +529,17 @@ fn telemetry_page(run: &RunDir, from: u64) -> Value {
     json!({"telemetry": lines, "telemetry_next": next.map(|n| json!({"from": n}))})
 }
 
+/// Whether the private video is there (`video`), and where its rendering stands (`video_status`: `state`
+/// queued, rendering, ready or failed, `percent`, frames); `video_status` is null for an episode without one.
+fn video_part(episodes: &crate::serve::episodes::Episodes, run: &RunDir) -> Value {
+    let status = episodes.video_progress(run);
+    let mut st = serde_json::to_value(&status).unwrap_or(Value::Null);
+    if let (Some(obj), Some(p)) = (st.as_object_mut(), status.as_ref()) {
+        obj.insert("percent".into(), json!(p.percent()));
+    }
+    json!({"video": status == Some(VideoProgress::Ready), "video_status": st})
+}
+
 /// Everything the review page shows, from the private run directory, with the long parts (calls, telemetry)
 /// in pages the page follows through `calls_next` / `telemetry_next`. Operator-only.
 async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ReviewQuery>) -> Response {
@@ -535,10 +547,12 @@ async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(
         Ok(row) => RunDir::new(row.episode.run_dir),
         Err(resp) => return resp,
     };
+    let episodes = app.episodes.clone();
     let data = tokio::task::spawn_blocking(move || match q.part.as_deref() {
         Some("calls") => Ok(calls_page(&run, q.from, q.control_step)),
         Some("telemetry") => Ok(telemetry_page(&run, q.from)),
-        Some(other) => Err(format!("part must be calls or telemetry (got {other:?})")),
+        Some("video") => Ok(video_part(&episodes, &run)),
+        Some(other) => Err(format!("part must be calls, telemetry or video (got {other:?})")),
         None => {
             let result = read_result(&run);
             let mut stage_events = read_jsonl(&run.stage_events_jsonl());
@@ -550,10 +564,9 @@ async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(
                 "ok": true,
                 "stage_events": stage_events,
                 "result": result,
-                "video": run.continuous_video().is_file(),
                 "video_fps": 20.0,
             });
-            for part in [calls_page(&run, 0, 0), telemetry_page(&run, 0)] {
+            for part in [video_part(&episodes, &run), calls_page(&run, 0, 0), telemetry_page(&run, 0)] {
                 if let (Some(obj), Value::Object(p)) = (v.as_object_mut(), part) {
                     obj.extend(p);
                 }
@@ -584,7 +597,18 @@ async fn run_dir_of(app: &App, id: &str) -> Option<RunDir> {
 async fn video(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
     match run_dir_of(&app, &id).await {
         Some(run) if run.continuous_video().is_file() => serve_file(run.continuous_video(), req).await,
-        Some(_) => json_error(StatusCode::NOT_FOUND, "the video is not finalised yet (it is complete once the episode ends)"),
+        Some(run) => {
+            let status = app.episodes.video_progress(&run);
+            let message = match status.as_ref().and_then(|p| p.percent().map(|pc| (p, pc))) {
+                Some((VideoProgress::Queued, _)) => "the video is queued for rendering (video rendering, 0 %)".to_owned(),
+                Some((_, percent)) => format!("the video is not ready yet (video rendering, {percent} %)"),
+                None => match status {
+                    Some(VideoProgress::Failed { error }) => format!("the video could not be rendered: {error}"),
+                    _ => "this episode records no video".to_owned(),
+                },
+            };
+            json_error(StatusCode::NOT_FOUND, message)
+        }
         None => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
     }
 }

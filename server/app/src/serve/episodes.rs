@@ -17,7 +17,8 @@ use libero_episode::records::{aborted_result, read_result, write_result};
 use libero_episode::task::{TaskSource, resolve_task};
 use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
 use libero_episode::workspace::{DemoNotice, WorkspaceContract, WorkspaceLayout, create_workspace};
-use libero_episode::world::{LiberoWorld, WorldSpec};
+use libero_episode::video_queue::{VideoJob, VideoProgress, VideoQueue};
+use libero_episode::world::{LiberoWorld, WorldSpec, head_wrist_cameras};
 use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode_live};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
@@ -237,6 +238,8 @@ pub struct Episodes {
     demo_recording: Mutex<()>,
     /// When each ended episode was first seen with its thread gone, until it is released (see [`RELEASE_GRACE`]).
     ending: Mutex<HashMap<String, Instant>>,
+    /// The background worker that renders private videos from state records (started with the renderer).
+    videos: Mutex<Option<VideoQueue>>,
 }
 
 pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
@@ -302,7 +305,99 @@ impl Episodes {
             live: None,
             demo_recording: Mutex::new(()),
             ending: Mutex::new(HashMap::new()),
+            videos: Mutex::new(None),
         })
+    }
+
+    /// The video worker, started at first use.
+    fn video_queue(&self) -> anyhow::Result<VideoQueue> {
+        let renderer = self.renderer()?;
+        let mut slot = self.videos.lock().map_err(|_| anyhow::anyhow!("video queue lock poisoned"))?;
+        if let Some(q) = slot.as_ref() {
+            return Ok(q.clone());
+        }
+        let q = VideoQueue::start(renderer, head_wrist_cameras()).context("cannot start the video worker")?;
+        *slot = Some(q.clone());
+        Ok(q)
+    }
+
+    fn started_video_queue(&self) -> Option<VideoQueue> {
+        self.videos.lock().ok().and_then(|q| q.clone())
+    }
+
+    /// Where the private video of `run` stands: `None` when the episode records none.
+    pub fn video_progress(&self, run: &RunDir) -> Option<VideoProgress> {
+        let video = run.continuous_video();
+        if let Some(p) = self.started_video_queue().and_then(|q| q.progress(&video)) {
+            return Some(p);
+        }
+        if video.is_file() {
+            Some(VideoProgress::Ready)
+        } else if recorded_frames(run) > 0 {
+            // Recorded, not yet handed to the worker (the episode is running, or the server restarted).
+            Some(VideoProgress::Queued)
+        } else {
+            None
+        }
+    }
+
+    /// Waits until every queued video is rendered, at most `timeout`; `progress` hears about each waiting second.
+    /// Whether they all were.
+    pub fn wait_for_videos(&self, timeout: Duration, mut progress: impl FnMut(usize, Option<f64>)) -> bool {
+        let Some(q) = self.started_video_queue() else { return true };
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if q.wait_idle(left.min(Duration::from_secs(1))) {
+                return true;
+            }
+            if left.is_zero() {
+                return false;
+            }
+            progress(q.pending(), q.render_rate_fps());
+        }
+    }
+
+    /// Waits until the private video of `run` is ready or failed, at most `timeout`; where it stands then.
+    pub fn wait_for_video(&self, run: &RunDir, timeout: Duration) -> Option<VideoProgress> {
+        match self.started_video_queue() {
+            Some(q) => q.wait(&run.continuous_video(), timeout),
+            None => self.video_progress(run),
+        }
+    }
+
+    /// Stops the video worker after its current frame; unfinished videos are rebuilt at the next start.
+    pub fn stop_videos(&self) {
+        if let Some(q) = self.started_video_queue() {
+            q.stop();
+        }
+    }
+
+    /// After a restart: queues every private video that has a state record but no file (the server stopped
+    /// before the worker finished it). Each job rebuilds the episode's model from its record when its turn
+    /// comes. Returns how many.
+    pub fn rebuild_missing_videos(&self) -> usize {
+        let Ok(dirs) = fs::read_dir(self.runs_dir()) else { return 0 };
+        let held: std::collections::HashSet<String> = self.ids().into_iter().collect();
+        let mut n = 0;
+        for d in dirs.flatten() {
+            let run = RunDir::new(d.path());
+            let id = d.file_name().to_string_lossy().into_owned();
+            if held.contains(&id) || recorded_frames(&run) == 0 || run.continuous_video().is_file() {
+                continue;
+            }
+            let (Some(paths), Ok(queue)) = (self.paths.clone(), self.video_queue()) else { return n };
+            let Ok(renderer) = self.renderer() else { return n };
+            let record = run.episode_record();
+            let source = Box::new(move || -> Result<_, String> {
+                let spec = spec_from_record(&record, paths).map_err(|e| format!("{e:#}"))?;
+                let world = LiberoWorld::new(&spec, renderer).map_err(|e| e.to_string())?;
+                Ok(world.video_models())
+            });
+            queue.submit(VideoJob { record: run.state_record(), video: run.continuous_video(), source });
+            n += 1;
+        }
+        n
     }
 
     /// Reports every served tool call's episode id on `calls`.
@@ -573,18 +668,18 @@ impl Episodes {
         };
         let spec = WorldSpec { task: task.clone(), level, seed: req.seed, init_index: req.init_index, paths };
         let renderer = self.renderer()?;
-        let video = run.continuous_video();
+        let video_queue = if req.video { Some(self.video_queue()?) } else { None };
+        let (video, state_record) = (run.continuous_video(), run.state_record());
         let telemetry = run.telemetry_jsonl();
         let live = self.live.as_ref().map(|hubs| hubs.open(&episode_id, config.agent_step_limit(), config.max_wall_time_s));
         let world_live = live.clone();
-        let record_video = req.video;
         let make_world = move || {
             let mut world = LiberoWorld::new(&spec, renderer)?;
             if let Some((sink, viewers)) = world_live {
                 world.set_live(sink, viewers, Some(&telemetry))?;
             }
-            if record_video {
-                world.record_video(&video)?;
+            if let Some(queue) = video_queue {
+                world.record_video(&video, &state_record, queue)?;
             }
             Ok(world)
         };
@@ -656,6 +751,21 @@ impl Episodes {
         fs::rename(&partial, &path)?;
         Ok(path)
     }
+}
+
+/// Control steps in the state record of `run` (0 without one: an episode never started records no frame).
+fn recorded_frames(run: &RunDir) -> u64 {
+    libero_episode::state_record::StateRecordReader::open(&run.state_record()).map(|r| r.frames()).unwrap_or(0)
+}
+
+/// The world an episode ran on, from its private record (`task.task_ref`, `level`, `seed`, `init_state_index`).
+fn spec_from_record(record: &Path, paths: AssetPaths) -> anyhow::Result<WorldSpec> {
+    let v: serde_json::Value = serde_json::from_slice(&fs::read(record).with_context(|| format!("cannot read {}", record.display()))?)?;
+    let task_ref = v["task"]["task_ref"].as_str().context("the episode record names no task")?;
+    let level = v["level"].as_u64().and_then(|l| Level::from_number(u8::try_from(l).ok()?)).context("the episode record has no level")?;
+    let seed = v["seed"].as_u64().context("the episode record has no seed")?;
+    let init_index = v["init_state_index"].as_u64().context("the episode record has no init state index")?;
+    Ok(WorldSpec { task: resolve_task(task_ref, &paths)?, level, seed, init_index: usize::try_from(init_index)?, paths })
 }
 
 /// The agent's workspace (prompt, MCP config, the demonstration if any) and the prompt's private copy.

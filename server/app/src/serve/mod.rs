@@ -287,6 +287,10 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     let hubs = Arc::new(live::LiveHubs::default());
     let episodes = Arc::new(Episodes::new(data.clone(), base_url.clone())?.with_call_reports(calls_tx).with_live(hubs.clone()));
     let recovered = episodes.recover_interrupted();
+    let rebuilding = episodes.rebuild_missing_videos();
+    if rebuilding > 0 {
+        eprintln!("libero-agent serve: rebuilding {rebuilding} private video(s) from their state records in the background");
+    }
     let store = Store::open(&episodes.data_dir().join(STORE_FILE)).await?;
     let reconciled = store.reconcile(&episodes.runs_dir()).await?;
     let app = Arc::new(App {
@@ -334,7 +338,26 @@ impl Bound {
             async move {
                 let (reason, grace) = shutdown.await;
                 let episodes = app.episodes.clone();
-                let stuck = tokio::task::spawn_blocking(move || episodes.stop_all(&reason, grace)).await.unwrap_or(0);
+                let stuck = tokio::task::spawn_blocking(move || {
+                    let stuck = episodes.stop_all(&reason, grace);
+                    // The ended episodes' videos get the same grace; what is left is rebuilt at the next start.
+                    let mut said: Option<(usize, std::time::Instant)> = None;
+                    let done = episodes.wait_for_videos(grace, |pending, rate| {
+                        if said.is_some_and(|(n, at)| n == pending && at.elapsed() < Duration::from_secs(10)) {
+                            return;
+                        }
+                        said = Some((pending, std::time::Instant::now()));
+                        let rate = rate.map(|r| format!(" at {r:.1} frames/s")).unwrap_or_default();
+                        eprintln!("libero-agent serve: waiting for {pending} private video(s) to finish rendering{rate}");
+                    });
+                    if !done {
+                        eprintln!("libero-agent serve: unfinished private videos will be rebuilt from their state records at the next start");
+                    }
+                    episodes.stop_videos();
+                    stuck
+                })
+                .await
+                .unwrap_or(0);
                 if stuck > 0 {
                     eprintln!("warning: {stuck} episode thread(s) did not end within {grace:?}; stopping anyway");
                 }

@@ -1,0 +1,253 @@
+//! The background video worker (issue 19): private videos are rendered from their state records after the
+//! episode, one at a time, on a thread with a lower CPU priority than the episodes, so no observation render
+//! and no agent reply ever waits for a video. Each video's progress is kept while it is queued, rendering or
+//! failed; a finished video is simply its file. A stopped worker leaves the rest for the next server start,
+//! which rebuilds them from their records.
+use std::collections::{HashMap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use libero_render::{ModelHandle, Renderer};
+use libero_sim::mujoco_rs::prelude::MjModel;
+use serde::Serialize;
+
+use crate::video::{VideoCameras, VideoError, render_video_from_record};
+
+/// Builds the models a job renders with (the episode's own when it just ended; rebuilt from the episode's record
+/// after a restart).
+pub type ModelSource = Box<dyn FnOnce() -> Result<(Arc<MjModel>, ModelHandle), String> + Send>;
+
+/// How much the worker thread's nice value is raised above the server's.
+const WORKER_NICENESS: i32 = 10;
+/// The longest a video frame waits for episodes' calls to end.
+const MAX_YIELD: Duration = Duration::from_secs(2);
+/// Failed videos remembered for the API (oldest forgotten first).
+const MAX_REMEMBERED_FAILURES: usize = 1024;
+
+pub struct VideoJob {
+    pub record: PathBuf,
+    pub video: PathBuf,
+    pub source: ModelSource,
+}
+
+/// Where one video stands.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum VideoProgress {
+    Queued,
+    Rendering { frames_done: u64, frames_total: u64 },
+    Ready,
+    Failed { error: String },
+}
+
+impl VideoProgress {
+    /// Whole percent rendered (0 while queued, 100 when ready); `None` for a failure.
+    pub fn percent(&self) -> Option<u64> {
+        match self {
+            VideoProgress::Queued => Some(0),
+            VideoProgress::Rendering { frames_done, frames_total } => Some(frames_done * 100 / (*frames_total).max(1)),
+            VideoProgress::Ready => Some(100),
+            VideoProgress::Failed { .. } => None,
+        }
+    }
+
+    pub fn is_settled(&self) -> bool {
+        matches!(self, VideoProgress::Ready | VideoProgress::Failed { .. })
+    }
+}
+
+/// A handle on the worker; clones share it.
+#[derive(Clone)]
+pub struct VideoQueue {
+    shared: Arc<Shared>,
+}
+
+struct Shared {
+    state: Mutex<QueueState>,
+    changed: Condvar,
+}
+
+#[derive(Default)]
+struct QueueState {
+    jobs: VecDeque<VideoJob>,
+    /// Queued, rendering and failed videos by path.
+    progress: HashMap<PathBuf, VideoProgress>,
+    failures: VecDeque<PathBuf>,
+    busy: bool,
+    stopping: bool,
+    frames_rendered: u64,
+    render_seconds: f64,
+}
+
+impl VideoQueue {
+    /// Starts the worker thread, which renders `cameras` with `renderer`.
+    pub fn start(renderer: Renderer, cameras: VideoCameras) -> std::io::Result<Self> {
+        let shared = Arc::new(Shared { state: Mutex::new(QueueState::default()), changed: Condvar::new() });
+        let weak = Arc::downgrade(&shared);
+        std::thread::Builder::new().name("video-worker".into()).spawn(move || {
+            lower_this_threads_priority();
+            worker(weak, renderer, cameras)
+        })?;
+        Ok(Self { shared })
+    }
+
+    fn lock(&self) -> MutexGuard<'_, QueueState> {
+        self.shared.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Queues a video (a job for a video already queued or rendering is ignored).
+    pub fn submit(&self, job: VideoJob) {
+        let mut s = self.lock();
+        if s.stopping || matches!(s.progress.get(&job.video), Some(VideoProgress::Queued | VideoProgress::Rendering { .. })) {
+            return;
+        }
+        s.progress.insert(job.video.clone(), VideoProgress::Queued);
+        s.jobs.push_back(job);
+        self.shared.changed.notify_all();
+    }
+
+    /// Where `video` stands: its queue entry, or `Ready` when the file exists, or `None` when this worker
+    /// never heard of it and it does not exist.
+    pub fn progress(&self, video: &Path) -> Option<VideoProgress> {
+        if let Some(p) = self.lock().progress.get(video) {
+            return Some(p.clone());
+        }
+        video.is_file().then_some(VideoProgress::Ready)
+    }
+
+    /// Waits until `video` is ready or failed, at most `timeout`; returns where it stands then.
+    pub fn wait(&self, video: &Path, timeout: Duration) -> Option<VideoProgress> {
+        let deadline = Instant::now() + timeout;
+        let mut s = self.lock();
+        loop {
+            let now = match s.progress.get(video) {
+                Some(p) => Some(p.clone()),
+                None => video.is_file().then_some(VideoProgress::Ready),
+            };
+            let left = deadline.saturating_duration_since(Instant::now());
+            if now.as_ref().is_none_or(VideoProgress::is_settled) || left.is_zero() || s.stopping {
+                return now;
+            }
+            s = self.shared.changed.wait_timeout(s, left.min(Duration::from_millis(500))).map(|r| r.0).unwrap_or_else(|p| p.into_inner().0);
+        }
+    }
+
+    /// Waits until nothing is queued or rendering, at most `timeout`; whether it got there.
+    pub fn wait_idle(&self, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        let mut s = self.lock();
+        loop {
+            if s.jobs.is_empty() && !s.busy {
+                return true;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() || s.stopping {
+                return false;
+            }
+            s = self.shared.changed.wait_timeout(s, left.min(Duration::from_millis(500))).map(|r| r.0).unwrap_or_else(|p| p.into_inner().0);
+        }
+    }
+
+    /// Videos queued or rendering.
+    pub fn pending(&self) -> usize {
+        let s = self.lock();
+        s.jobs.len() + usize::from(s.busy)
+    }
+
+    /// Frames rendered per second of rendering so far (`None` before the first video).
+    pub fn render_rate_fps(&self) -> Option<f64> {
+        let s = self.lock();
+        (s.render_seconds > 0.0).then(|| s.frames_rendered as f64 / s.render_seconds)
+    }
+
+    /// Stops after the frame being rendered; what is left stays for the next start (rebuilt from the records).
+    pub fn stop(&self) {
+        let mut s = self.lock();
+        s.stopping = true;
+        s.jobs.clear();
+        self.shared.changed.notify_all();
+    }
+}
+
+/// Waits while an episode handles a tool call (at most [`MAX_YIELD`] at a time, so a stream of calls slows
+/// videos down without starving them). A lower nice value alone is not enough: a software renderer draws on its
+/// own pool of threads, which the video shares with the episodes' observations.
+fn yield_to_episodes(shared: &Shared) {
+    let start = Instant::now();
+    while crate::actor::calls_in_flight() > 0 && start.elapsed() < MAX_YIELD {
+        if shared.state.lock().map(|s| s.stopping).unwrap_or(true) {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+fn lower_this_threads_priority() {
+    let tid = rustix::thread::gettid();
+    let now = rustix::process::getpriority_process(Some(tid)).unwrap_or(0);
+    if let Err(e) = rustix::process::setpriority_process(Some(tid), now + WORKER_NICENESS) {
+        log::warn!("video worker: cannot lower its priority: {e}");
+    }
+}
+
+fn worker(weak: std::sync::Weak<Shared>, renderer: Renderer, cameras: VideoCameras) {
+    loop {
+        let Some(shared) = weak.upgrade() else { return };
+        let job = {
+            let mut s = shared.state.lock().unwrap_or_else(|p| p.into_inner());
+            if s.stopping {
+                return;
+            }
+            match s.jobs.pop_front() {
+                Some(job) => {
+                    s.busy = true;
+                    Some(job)
+                }
+                None => {
+                    // Idle: wait a little, then let go of the queue so that dropping every handle ends the thread.
+                    drop(shared.changed.wait_timeout(s, Duration::from_secs(1)));
+                    None
+                }
+            }
+        };
+        let Some(job) = job else { continue };
+        let started = Instant::now();
+        let video = job.video.clone();
+        let result = (job.source)().map_err(VideoError::Source).and_then(|(model, gpu_model)| {
+            render_video_from_record(&job.record, &job.video, &model, &renderer, &gpu_model, &cameras, |done, total| {
+                yield_to_episodes(&shared);
+                let mut s = shared.state.lock().unwrap_or_else(|p| p.into_inner());
+                s.progress.insert(video.clone(), VideoProgress::Rendering { frames_done: done, frames_total: total });
+                shared.changed.notify_all();
+                !s.stopping
+            })
+        });
+        let mut s = shared.state.lock().unwrap_or_else(|p| p.into_inner());
+        s.busy = false;
+        match result {
+            Ok(summary) => {
+                s.progress.remove(&video);
+                if let Some(v) = summary {
+                    s.frames_rendered += v.frames;
+                    s.render_seconds += started.elapsed().as_secs_f64();
+                    log::info!("video {}: {} frames in {:.1} s", video.display(), v.frames, started.elapsed().as_secs_f64());
+                }
+            }
+            Err(VideoError::Stopped) => {
+                s.progress.remove(&video);
+            }
+            Err(e) => {
+                log::error!("video {}: {e}", video.display());
+                s.progress.insert(video.clone(), VideoProgress::Failed { error: e.to_string() });
+                s.failures.push_back(video);
+                if s.failures.len() > MAX_REMEMBERED_FAILURES
+                    && let Some(old) = s.failures.pop_front()
+                {
+                    s.progress.remove(&old);
+                }
+            }
+        }
+        shared.changed.notify_all();
+    }
+}
