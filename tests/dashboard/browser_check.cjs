@@ -67,14 +67,18 @@ async function main() {
     // Review: video, keyboard stepping, timeline scrub, deep link, the observation the agent received.
     const review = await context.newPage();
     review.on('pageerror', (e) => errors.push(`review: ${e}`));
-    let video = null;
-    for (let attempt = 0; attempt < 30; attempt += 1) { // the video is finalised just after the end
-      await review.goto(`${base}/episodes/${episode}/review`);
-      await review.waitForSelector('body[data-ready="true"]', { timeout: 30000 });
-      if (await review.locator('video#video').count()) { video = review.locator('video#video'); break; }
-      await new Promise((r) => setTimeout(r, 1000));
+    // The video is rendered from the state record after the episode: until it is there the page says how far
+    // it is, and it puts the video in place by itself (no reload) once it is ready.
+    await review.goto(`${base}/episodes/${episode}/review`);
+    await review.waitForSelector('body[data-ready="true"]', { timeout: 30000 });
+    if (await review.locator('#video-status').count()) {
+      report.videoStatus = await text(review, '#video-status');
+      check(/^video rendering, \d+ %/.test(report.videoStatus), `the rendering state: ${report.videoStatus}`);
+      await shot(review, 'review-video-rendering');
     }
-    check(video, 'the review page has the video');
+    await review.locator('video#video').waitFor({ state: 'attached', timeout: 600000 });
+    const video = review.locator('video#video');
+    check(await video.count(), 'the review page has the video');
     // Metadata first (duration); playing below needs the data, which a loaded machine may deliver slowly.
     const videoState = () => video.evaluate((v) => JSON.stringify({ readyState: v.readyState, networkState: v.networkState,
       error: v.error && v.error.message, currentTime: v.currentTime, paused: v.paused, buffered: v.buffered.length }));

@@ -1,6 +1,6 @@
 //! `libero-agent bench soak`: many short episodes through the real MCP path against an in-process server, to show
-//! that what an episode holds (thread, simulation, renderer uploads, video recorder, MCP sessions, live view) is
-//! released when it ends. Resident memory, threads and open files of this process are read from `/proc/self` at
+//! that what an episode holds (thread, simulation, renderer uploads, state record, MCP sessions, live view) is
+//! released when it ends (its private video, rendered after it from its state record, included). Resident memory, threads and open files of this process are read from `/proc/self` at
 //! the start, after the first episode, half way, at the peak and after the last episode, each "after" once the
 //! episodes' threads are gone and `--settle-s` more have passed (release grace, tokio's idle blocking threads).
 use std::collections::BTreeMap;
@@ -14,7 +14,10 @@ use serde::Serialize;
 use serde_json::{Value, json};
 
 use crate::bench_mcp::percentile_ms;
-use crate::serve::client::{InProcessServer, McpClient, prepare_episode};
+use crate::serve::client::{InProcessServer, McpClient, get_json, prepare_episode};
+
+/// The longest one episode's video may take (a software renderer behind several episodes).
+const VIDEO_TIMEOUT: Duration = Duration::from_secs(900);
 use crate::serve::episodes::PrepareRequest;
 
 /// Arguments of `bench soak`.
@@ -205,7 +208,26 @@ fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> anyhow::Result
     if finished["status"] != "finished" {
         bail!("episode {}: finish_episode answered {finished}", prepared.episode_id);
     }
+    if req.video {
+        wait_for_video(base, &prepared.episode_id)?;
+    }
     Ok(prepare_ms)
+}
+
+/// An episode's cost includes its private video, rendered after it ends: waits until the review API says it is
+/// there.
+fn wait_for_video(base: &str, episode_id: &str) -> anyhow::Result<()> {
+    let t = Instant::now();
+    loop {
+        let (status, v) = get_json(base, &format!("/api/episodes/{episode_id}/review?part=video"))?;
+        if status == 200 && v["video"] == true {
+            return Ok(());
+        }
+        if v["video_status"]["state"] == "failed" || v["video_status"].is_null() || t.elapsed() > VIDEO_TIMEOUT {
+            bail!("episode {episode_id}: the video did not complete: {v}");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
 }
 
 /// Runs episodes `range` with `concurrent` client threads; returns each one's prepare time (ms).

@@ -85,7 +85,7 @@ impl VideoQueue {
     pub fn start(renderer: Renderer, cameras: VideoCameras) -> std::io::Result<Self> {
         let shared = Arc::new(Shared { state: Mutex::new(QueueState::default()), changed: Condvar::new() });
         let weak = Arc::downgrade(&shared);
-        std::thread::Builder::new().name("video-worker".into()).spawn(move || {
+        std::thread::Builder::new().name("videos".into()).spawn(move || {
             lower_this_threads_priority();
             worker(weak, renderer, cameras)
         })?;
