@@ -153,3 +153,26 @@ fn expert_runs_on_a_running_server_are_recorded_there() {
     assert_eq!(row["outcome"], "SUCCESS", "{row}");
     assert_eq!(row["state"], "finished", "{row}");
 }
+
+/// With the private video on, `expert` waits for the background worker to render each run's video from its state
+/// record, says so, and reports the episode's own wall time and how long after its end the video was complete.
+#[test]
+fn an_expert_run_with_the_video_waits_for_it_and_reports_both_times() {
+    let data = tempfile::tempdir().unwrap();
+    let out = bin().args(["expert", "--task", "T14", "--runs", "1", "--data"]).arg(data.path()).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("waiting for the private video") && err.contains("video ready"), "{err}");
+    let line: Value = serde_json::from_slice(&out.stdout).expect("one JSON record");
+    let wall = line["episode_wall_time_s"].as_f64().unwrap_or_else(|| panic!("episode_wall_time_s: {line}"));
+    let ready = line["video_ready_s"].as_f64().unwrap_or_else(|| panic!("video_ready_s: {line}"));
+    assert!(wall > 0.0 && ready >= 0.0, "{line}");
+    let run = data.path().join("runs").join(line["episode_id"].as_str().unwrap());
+    assert!(run.join("continuous_video.mp4").is_file() && run.join("state_record.bin").is_file());
+    // Without the video there is neither a record nor a wait.
+    let out = bin().args(["expert", "--task", "T14", "--runs", "1", "--no-video", "--data"]).arg(data.path()).output().unwrap();
+    let line: Value = serde_json::from_slice(&out.stdout).expect("one JSON record");
+    assert!(line["episode_wall_time_s"].as_f64().is_some() && line["video_ready_s"].is_null(), "{line}");
+    let run = data.path().join("runs").join(line["episode_id"].as_str().unwrap());
+    assert!(!run.join("state_record.bin").exists() && !run.join("continuous_video.mp4").exists());
+}
