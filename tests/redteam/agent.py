@@ -208,9 +208,13 @@ def watch_and_plant(seconds):
                     pass
         if not buf:
             time.sleep(0.0005)
+        # Replaced whole (temporary name, rename): the sandbox's PID namespace kills this process with SIGKILL
+        # when the agent exits, at any instruction, and a file truncated then would read as empty.
         try:
-            with open(os.path.join(WS, "scratch", "watcher.json"), "w") as f:
+            tmp = os.path.join(WS, "scratch", "watcher.json.partial")
+            with open(tmp, "w") as f:
                 json.dump({"planted": planted, "inotify_events": events}, f)
+            os.replace(tmp, os.path.join(WS, "scratch", "watcher.json"))
         except OSError:
             pass
 

@@ -129,7 +129,9 @@ fn a_red_team_agent_in_the_sandbox_reaches_nothing_but_its_own_endpoint() {
     assert!(attempts.len() >= 100, "{} attempts", attempts.len());
     let let_through: Vec<&Value> = attempts.iter().filter(|a| a["refused"] != true).collect();
     assert!(let_through.is_empty(), "the boundary let these through: {let_through:#?}");
-    let watcher: Value = serde_json::from_slice(&std::fs::read(ws.join("scratch/watcher.json")).expect("the watcher ran")).unwrap();
+    let watcher = std::fs::read(ws.join("scratch/watcher.json")).expect("the watcher ran");
+    let watcher: Value = serde_json::from_slice(&watcher)
+        .unwrap_or_else(|e| panic!("the watcher's report ({} bytes) does not parse: {e}\nthe red team's stderr:\n{agent_log}", watcher.len()));
     assert!(watcher["inotify_events"].as_u64().unwrap() > 0, "the watcher saw publications: {watcher}");
 
     // Nothing of the secret in any record, observation archive, video or log; the secret is untouched.
