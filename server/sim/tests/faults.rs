@@ -112,15 +112,27 @@ fn the_step_observer_sees_each_completed_step_and_no_faulted_one() {
     let seen = Arc::new(AtomicUsize::new(0));
     let times = Arc::new(std::sync::Mutex::new(Vec::new()));
     let (s, t) = (seen.clone(), times.clone());
-    sim.set_step_observer(Some(Box::new(move |_, data| {
+    let poses = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let p = poses.clone();
+    sim.set_step_observer(Some(Box::new(move |_, data, pose_qpos: &[f64]| {
         s.fetch_add(1, Ordering::SeqCst);
         t.lock().unwrap().push(data.ffi().time);
+        // The poses in data come from the qpos before the last substep's integration, not from data's qpos.
+        assert_eq!(pose_qpos.len(), data.qpos().len());
+        p.lock().unwrap().push((pose_qpos.to_vec(), data.qpos().to_vec(), data.xpos().to_vec()));
     })));
     for _ in 0..3 {
         let outcome = sim.step([0.1, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]).expect("a normal step");
         assert_eq!(times.lock().unwrap().last().copied(), Some(outcome.time_s), "observed after the last substep");
     }
     assert_eq!(seen.load(Ordering::SeqCst), 3);
+    let mut replay = libero_sim::PoseReplay::new(sim.model().clone());
+    for (pose_qpos, qpos, xpos) in poses.lock().unwrap().iter() {
+        assert_ne!(pose_qpos, qpos, "a moving arm's qpos changes in the last substep");
+        let again = replay.pose(pose_qpos, &[]).expect("replayed pose");
+        assert_eq!(again.xpos().iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>(), xpos.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>(), "the poses are recomputed bit for bit");
+    }
+    assert!(replay.pose(&[0.0; 3], &[]).is_err(), "a pose of the wrong size is refused");
     sim.inject_qvel(2, f64::NAN);
     assert!(sim.step([0.0; 7]).is_err());
     assert_eq!(seen.load(Ordering::SeqCst), 3, "a faulted step is not observed");
