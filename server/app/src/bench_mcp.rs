@@ -156,7 +156,7 @@ fn video_cost_ms(world: &mut LiberoWorld, renderer: &Renderer, actions: usize) -
     let dir = std::env::temp_dir().join(format!("libero-agent-bench-video-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let (record, video) = (dir.join("state_record.bin"), dir.join("video.mp4"));
-    let queue = VideoQueue::start(renderer.clone(), head_wrist_cameras())?;
+    let queue = VideoQueue::start(head_wrist_cameras())?;
     let t = Instant::now();
     world.record_video(&video, &record, queue.clone())?;
     for action in bench_actions(actions, 0) {

@@ -320,6 +320,9 @@ mod live_renderer {
         pub control_step: Option<u64>,
         pub sim_time_s: f64,
         pub video_frame: Option<u64>,
+        /// Head and wrist RGB of this state already rendered at the live size (an observation the episode made
+        /// of it): the live frame reuses them instead of rendering the state again.
+        pub rendered: Option<(Vec<u8>, Vec<u8>)>,
     }
 
     /// The one-state mailbox between the episode thread and the live renderer: a newer state replaces an
@@ -454,21 +457,24 @@ mod live_renderer {
         }
 
         fn render(&mut self, live: LiveState) {
-            self.renders.fetch_add(1, Ordering::AcqRel);
             let size = self.cameras.size_px;
-            let requests = [
-                CameraRequest::named(&self.cameras.head, size, size, Outputs::RGB),
-                CameraRequest::named(&self.cameras.wrist, size, size, Outputs::RGB),
-            ];
-            let jpeg = self
-                .renderer
-                .render(&self.model, &live.state, &requests, &RenderOptions::default())
-                .map_err(|e| e.to_string())
-                .and_then(|views| match views.as_slice() {
-                    [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize).map_err(|e| e.to_string()),
-                    other => Err(format!("expected 2 camera images, got {}", other.len())),
-                })
-                .and_then(|rgb| encode_jpeg(&rgb, 2 * size, size));
+            let side_by_side = if let Some((head, wrist)) = &live.rendered {
+                side_by_side(head, wrist, size as usize, size as usize).map_err(|e| e.to_string())
+            } else {
+                self.renders.fetch_add(1, Ordering::AcqRel);
+                let requests = [
+                    CameraRequest::named(&self.cameras.head, size, size, Outputs::RGB),
+                    CameraRequest::named(&self.cameras.wrist, size, size, Outputs::RGB),
+                ];
+                self.renderer
+                    .render(&self.model, &live.state, &requests, &RenderOptions::default())
+                    .map_err(|e| e.to_string())
+                    .and_then(|views| match views.as_slice() {
+                        [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize).map_err(|e| e.to_string()),
+                        other => Err(format!("expected 2 camera images, got {}", other.len())),
+                    })
+            };
+            let jpeg = side_by_side.and_then(|rgb| encode_jpeg(&rgb, 2 * size, size));
             match jpeg {
                 Ok(jpeg) => (self.sink)(LiveEvent::Frame(LiveFrame {
                     control_step: live.control_step,

@@ -14,9 +14,12 @@ use serde::Serialize;
 
 use crate::video::{VideoCameras, VideoError, render_video_from_record};
 
+/// What a video is drawn with: the simulation model, the renderer and that renderer's upload of the model.
+pub type VideoModels = (Arc<MjModel>, Renderer, ModelHandle);
+
 /// Builds the models a job renders with (the episode's own when it just ended; rebuilt from the episode's record
-/// after a restart).
-pub type ModelSource = Box<dyn FnOnce() -> Result<(Arc<MjModel>, ModelHandle), String> + Send>;
+/// after a restart). The upload travels with the renderer that made it: a handle is only valid on its device.
+pub type ModelSource = Box<dyn FnOnce() -> Result<VideoModels, String> + Send>;
 
 /// How much the worker thread's nice value is raised above the server's.
 const WORKER_NICENESS: i32 = 10;
@@ -81,13 +84,13 @@ struct QueueState {
 }
 
 impl VideoQueue {
-    /// Starts the worker thread, which renders `cameras` with `renderer`.
-    pub fn start(renderer: Renderer, cameras: VideoCameras) -> std::io::Result<Self> {
+    /// Starts the worker thread, which renders `cameras` of each job with the job's renderer.
+    pub fn start(cameras: VideoCameras) -> std::io::Result<Self> {
         let shared = Arc::new(Shared { state: Mutex::new(QueueState::default()), changed: Condvar::new() });
         let weak = Arc::downgrade(&shared);
         std::thread::Builder::new().name("videos".into()).spawn(move || {
             lower_this_threads_priority();
-            worker(weak, renderer, cameras)
+            worker(weak, cameras)
         })?;
         Ok(Self { shared })
     }
@@ -191,7 +194,7 @@ fn lower_this_threads_priority() {
     }
 }
 
-fn worker(weak: std::sync::Weak<Shared>, renderer: Renderer, cameras: VideoCameras) {
+fn worker(weak: std::sync::Weak<Shared>, cameras: VideoCameras) {
     loop {
         let Some(shared) = weak.upgrade() else { return };
         let job = {
@@ -214,7 +217,7 @@ fn worker(weak: std::sync::Weak<Shared>, renderer: Renderer, cameras: VideoCamer
         let Some(job) = job else { continue };
         let started = Instant::now();
         let video = job.video.clone();
-        let result = (job.source)().map_err(VideoError::Source).and_then(|(model, gpu_model)| {
+        let result = (job.source)().map_err(VideoError::Source).and_then(|(model, renderer, gpu_model)| {
             render_video_from_record(&job.record, &job.video, &model, &renderer, &gpu_model, &cameras, |done, total| {
                 yield_to_episodes(&shared);
                 let mut s = shared.state.lock().unwrap_or_else(|p| p.into_inner());

@@ -199,6 +199,7 @@ impl World for LiberoWorld {
         let base = BasePose::of(&self.physics.sim, self.base_body);
         let robot = robot_readout(&self.physics.sim, &base);
         let (head, wrist) = self.render()?;
+        self.offer_observation_to_live(&head, &wrist);
         Ok(Frame { frame_index, robot, head, wrist, task_reference: self.task_reference.clone() })
     }
 
@@ -242,9 +243,9 @@ impl LiberoWorld {
         Ok(())
     }
 
-    /// The simulation model and its renderer upload, which a video of this world is drawn with.
-    pub fn video_models(&self) -> (std::sync::Arc<MjModel>, ModelHandle) {
-        (self.physics.model().clone(), self.gpu_model.clone())
+    /// The simulation model, the renderer and its upload of the model: what a video of this world is drawn with.
+    pub fn video_models(&self) -> crate::video_queue::VideoModels {
+        (self.physics.model().clone(), self.renderer.clone(), self.gpu_model.clone())
     }
 
     /// Stops recording and queues the video (the world's end does this too).
@@ -255,8 +256,8 @@ impl LiberoWorld {
         if let Ok(f) = std::fs::File::open(&p.record) {
             let _ = f.sync_data();
         }
-        let (model, gpu_model) = (self.physics.model().clone(), self.gpu_model.clone());
-        p.queue.submit(VideoJob { record: p.record, video: p.video, source: Box::new(move || Ok((model, gpu_model))) });
+        let models = self.video_models();
+        p.queue.submit(VideoJob { record: p.record, video: p.video, source: Box::new(move || Ok(models)) });
     }
 }
 
@@ -291,7 +292,7 @@ impl LiberoWorld {
             .map_err(|e| EpisodeError::Render(format!("live renderer thread: {e}")))?;
         // Before the start a viewer sees the composed scene (a settle state, `control_step` null).
         let sim_time_s = self.physics.sim.time_s();
-        frames.publish(LiveState { state: self.frame_state(), control_step: None, sim_time_s, video_frame: None });
+        frames.publish(LiveState { state: self.frame_state(), control_step: None, sim_time_s, video_frame: None, rendered: None });
         self.live_frames = Some(frames);
         Ok(())
     }
@@ -324,6 +325,21 @@ impl LiberoWorld {
 
     /// Leaves the newest state for the live renderer: a pose snapshot, no rendering.
     fn publish_live_state(&self) {
+        self.publish_live(None);
+    }
+
+    /// Hands the live view the images an observation just rendered of the newest state (the live cameras at
+    /// the live size), so that a watched episode's frame after each call costs a JPEG, not another render:
+    /// teleop's key-to-frame latency is one render shorter.
+    fn offer_observation_to_live(&self, head: &CameraFrame, wrist: &CameraFrame) {
+        let live_size = head_wrist_cameras().size_px;
+        let sized = |f: &CameraFrame| f.image.width == live_size && f.image.height == live_size;
+        if sized(head) && sized(wrist) {
+            self.publish_live(Some((head.image.rgb.clone(), wrist.image.rgb.clone())));
+        }
+    }
+
+    fn publish_live(&self, rendered: Option<(Vec<u8>, Vec<u8>)>) {
         let (Some(frames), Some(tap)) = (self.live_frames.as_ref(), self.live.as_ref()) else { return };
         let control_step = self.physics.control_step;
         frames.publish(LiveState {
@@ -331,6 +347,7 @@ impl LiberoWorld {
             control_step: Some(control_step),
             sim_time_s: self.physics.sim.time_s(),
             video_frame: tap.video_frame(control_step),
+            rendered,
         });
     }
 }

@@ -53,7 +53,7 @@ fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
     let handle = spawn_episode_live(cfg.clone(), Some(sink), move || {
         let mut w = LiberoWorld::new(&spec, renderer)?;
         w.set_live(world_sink, viewers, Some(&telemetry))?;
-        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(Renderer::new().expect("a renderer"), head_wrist_cameras()).expect("video worker"))?;
+        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(head_wrist_cameras()).expect("video worker"))?;
         Ok(w)
     })
     .expect("episode");
@@ -159,7 +159,7 @@ fn watched_episode(frame_delay: Duration) -> Watched {
     let handle = spawn_episode_live(cfg, Some(sink), move || {
         let mut w = LiberoWorld::new(&spec, renderer)?;
         w.set_live(world_sink, world_viewers, None)?;
-        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(Renderer::new().expect("a renderer"), head_wrist_cameras()).expect("video worker"))?;
+        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(head_wrist_cameras()).expect("video worker"))?;
         *world_counter.lock().unwrap() = w.live_render_counter();
         Ok(w)
     })
@@ -218,14 +218,17 @@ fn a_viewer_arriving_mid_episode_gets_the_newest_state_in_its_first_frame() {
     let viewer = ep.viewers.watch();
     let waited = ep.wait_for_frame(10, Duration::from_secs(20)).expect("a frame of the newest state");
     eprintln!("first frame for a new viewer after {waited:?}");
-    assert_eq!(ep.frame_steps(), [Some(10)], "one render, of the newest state (not an older one first)");
-    // Idle simulation, one viewer: nothing newer to render, so nothing is rendered.
+    assert_eq!(ep.frame_steps(), [Some(10)], "one frame, of the newest state (not an older one first)");
+    // The newest state is the one the call's observation showed: its images are reused, nothing is rendered.
+    assert_eq!(ep.renders.load(Ordering::Acquire), 0);
+    // Idle simulation, one viewer: nothing newer to show, so no frame.
     std::thread::sleep(LIVE_FRAME_MIN_INTERVAL * 4);
-    assert_eq!(ep.renders.load(Ordering::Acquire), 1);
+    assert_eq!(ep.frame_steps().len(), 1);
     drop(viewer);
     ep.act(5);
     std::thread::sleep(LIVE_FRAME_MIN_INTERVAL * 4);
-    assert_eq!(ep.renders.load(Ordering::Acquire), 1, "the viewer left: no more renders");
+    assert_eq!(ep.frame_steps().len(), 1, "the viewer left: no more frames");
+    assert_eq!(ep.renders.load(Ordering::Acquire), 0, "the viewer left: no render");
     ep.handle.stop("test over");
 }
 
@@ -241,8 +244,25 @@ fn a_slow_viewer_gets_far_fewer_renders_than_steps_and_always_the_newest_state()
     let renders = ep.renders.load(Ordering::Acquire);
     let frames = ep.frame_steps();
     eprintln!("{steps} control steps, {renders} renders: {frames:?}");
-    assert!(renders * 4 < steps, "skip to the latest: {renders} renders for {steps} steps");
-    assert_eq!(renders as usize, frames.len());
+    assert!(frames.len() as u64 * 4 < steps, "skip to the latest: {} frames ({renders} rendered) for {steps} steps", frames.len());
+    assert!(renders as usize <= frames.len(), "each render is delivered");
     assert!(frames.windows(2).all(|w| w[0] < w[1]), "never an older state after a newer one: {frames:?}");
+    ep.handle.stop("test over");
+}
+
+/// A watched episode's frame after each call comes from the observation the call rendered (same state, same
+/// cameras, same size), not from a second render: more frames arrive than the live renderer renders, and the
+/// call's last control step is always among them.
+#[test]
+fn the_frame_after_a_call_reuses_the_observation_it_rendered() {
+    let ep = watched_episode(Duration::ZERO);
+    let _viewer = ep.viewers.watch();
+    for call in 1..=6u64 {
+        ep.act(1);
+        assert!(ep.wait_for_frame(call, Duration::from_secs(30)).is_some(), "a frame of control step {call}");
+    }
+    let frames = ep.frame_steps().len() as u64;
+    let renders = ep.renders.load(Ordering::Acquire);
+    assert!(frames > renders, "{frames} frames from {renders} renders: the observations' images were not reused");
     ep.handle.stop("test over");
 }

@@ -35,7 +35,7 @@ fn video_episode(dir: &Path, name: &str, wall_s: f64, renderer: &Renderer) -> (E
     std::fs::create_dir_all(cfg.workspace.join("benchmark_inputs")).unwrap();
     let run = RunDir::new(&cfg.run_dir);
     let (video, record) = (run.continuous_video(), run.state_record());
-    let queue = VideoQueue::start(renderer.clone(), head_wrist_cameras()).expect("video worker");
+    let queue = VideoQueue::start(head_wrist_cameras()).expect("video worker");
     let (r, q) = (renderer.clone(), queue.clone());
     let handle = spawn_episode(cfg, move || {
         let mut w = LiberoWorld::new(&spec, r)?;

@@ -311,12 +311,11 @@ impl Episodes {
 
     /// The video worker, started at first use.
     fn video_queue(&self) -> anyhow::Result<VideoQueue> {
-        let renderer = self.renderer()?;
         let mut slot = self.videos.lock().map_err(|_| anyhow::anyhow!("video queue lock poisoned"))?;
         if let Some(q) = slot.as_ref() {
             return Ok(q.clone());
         }
-        let q = VideoQueue::start(renderer, head_wrist_cameras()).context("cannot start the video worker")?;
+        let q = VideoQueue::start(head_wrist_cameras()).context("cannot start the video worker")?;
         *slot = Some(q.clone());
         Ok(q)
     }
