@@ -137,7 +137,7 @@ fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Value> {
         render_ms.push(ms(all - stepped));
         total_ms.push(ms(all));
     }
-    let (record_ms, video_ms) = video_cost_ms(&mut world, renderer, args.actions)?;
+    let (record_ms, video_ms) = video_cost_ms(&mut world, args.actions)?;
     Ok(json!({
         "calls": total_ms.len(),
         "sim_steps_with_state_record_ms": record_ms,
@@ -152,7 +152,7 @@ fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Value> {
 /// What the private video costs per call off the reply path: `actions` control steps recorded as state by
 /// the episode thread (timed on its own: what a reply carries), then rendered from the record by the
 /// background worker's function (both cameras, side by side, H.264, MP4), timed to the finished file.
-fn video_cost_ms(world: &mut LiberoWorld, renderer: &Renderer, actions: usize) -> anyhow::Result<(f64, f64)> {
+fn video_cost_ms(world: &mut LiberoWorld, actions: usize) -> anyhow::Result<(f64, f64)> {
     let dir = std::env::temp_dir().join(format!("libero-agent-bench-video-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let (record, video) = (dir.join("state_record.bin"), dir.join("video.mp4"));

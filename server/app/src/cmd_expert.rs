@@ -130,7 +130,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     let mut failures = 0;
     for run_index in 1..=args.runs {
         let progress = |line: &str| eprintln!("[{task_id} {} run {run_index}/{}] {line}", args.behaviour, args.runs);
-        let mut timing = json!({"episode_wall_time_s": null, "video_ready_s": null});
+        let (mut episode_wall_time_s, mut video_ready_s) = (None, None);
         let (episode_id, outcome, record, run_dir) = match (&local, &args.server) {
             (Some(episodes), _) => {
                 let prepared = episodes.prepare(request.clone())?;
@@ -140,15 +140,16 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
                 let run = RunDir::new(&prepared.run_dir);
                 let ended = Instant::now();
                 let result = read_result(&run);
-                timing = json!({"episode_wall_time_s": result.as_ref().and_then(|r| r["wall_time_seconds"].as_f64())});
+                episode_wall_time_s = result.as_ref().and_then(|r| r["wall_time_seconds"].as_f64());
                 if request.video {
                     let frames = libero_episode::state_record::StateRecordReader::open(&run.state_record()).map(|r| r.frames()).unwrap_or(0);
                     progress(&format!("waiting for the private video ({frames} frames, rendered in the background)"));
-                    let status = episodes.wait_for_video(&run, VIDEO_WAIT);
-                    timing["video_ready_s"] = json!(ended.elapsed().as_secs_f64());
-                    timing["video_frames"] = json!(frames);
-                    match status {
-                        Some(VideoProgress::Ready) => progress(&format!("video ready {:.1} s after the episode", ended.elapsed().as_secs_f64())),
+                    match episodes.wait_for_video(&run, VIDEO_WAIT) {
+                        Some(VideoProgress::Ready) => {
+                            let ready_s = ended.elapsed().as_secs_f64();
+                            video_ready_s = Some(ready_s);
+                            progress(&format!("video ready {ready_s:.1} s after the episode"));
+                        }
                         other => bail!("the private video of {} did not complete: {other:?}", prepared.episode_id),
                     }
                 }
@@ -201,8 +202,8 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
             "osc_sequence_calls": run.osc_calls,
             "actions": run.actions,
             "demo": demo,
-            "episode_wall_time_s": timing["episode_wall_time_s"],
-            "video_ready_s": timing["video_ready_s"],
+            "episode_wall_time_s": episode_wall_time_s,
+            "video_ready_s": video_ready_s,
         });
         println!("{line}");
     }

@@ -307,11 +307,11 @@ mod live_renderer {
     use std::thread::JoinHandle;
     use std::time::Instant;
 
-    use libero_render::{CameraRequest, FrameState, ModelHandle, Outputs, RenderOptions, Renderer};
+    use libero_render::{FrameState, ModelHandle, Renderer};
 
     use super::world_taps::{LIVE_FRAME_MIN_INTERVAL, encode_jpeg};
     use super::{LiveEvent, LiveFrame, LiveSink, LiveViewers};
-    use crate::video::{VideoCameras, side_by_side};
+    use crate::video::{Lane, VideoCameras, render_head_wrist, side_by_side};
 
     /// The newest simulation state as the world leaves it after a control step (poses only: no rendering).
     pub struct LiveState {
@@ -458,23 +458,13 @@ mod live_renderer {
 
         fn render(&mut self, live: LiveState) {
             let size = self.cameras.size_px;
-            let side_by_side = if let Some((head, wrist)) = &live.rendered {
-                side_by_side(head, wrist, size as usize, size as usize).map_err(|e| e.to_string())
+            let rgb = if let Some((head, wrist)) = &live.rendered {
+                side_by_side(head, wrist, size as usize, size as usize)
             } else {
                 self.renders.fetch_add(1, Ordering::AcqRel);
-                let requests = [
-                    CameraRequest::named(&self.cameras.head, size, size, Outputs::RGB),
-                    CameraRequest::named(&self.cameras.wrist, size, size, Outputs::RGB),
-                ];
-                self.renderer
-                    .render(&self.model, &live.state, &requests, &RenderOptions::default())
-                    .map_err(|e| e.to_string())
-                    .and_then(|views| match views.as_slice() {
-                        [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize).map_err(|e| e.to_string()),
-                        other => Err(format!("expected 2 camera images, got {}", other.len())),
-                    })
+                render_head_wrist(&self.renderer, &self.model, &live.state, &self.cameras, Lane::Normal)
             };
-            let jpeg = side_by_side.and_then(|rgb| encode_jpeg(&rgb, 2 * size, size));
+            let jpeg = rgb.map_err(|e| e.to_string()).and_then(|rgb| encode_jpeg(&rgb, 2 * size, size));
             match jpeg {
                 Ok(jpeg) => (self.sink)(LiveEvent::Frame(LiveFrame {
                     control_step: live.control_step,

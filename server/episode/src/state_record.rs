@@ -88,6 +88,15 @@ impl StateRecordWriter {
     }
 }
 
+/// The episode's end: every frame durable before the video is queued.
+impl Drop for StateRecordWriter {
+    fn drop(&mut self) {
+        if let Err(e) = self.sync() {
+            log::warn!("{e}");
+        }
+    }
+}
+
 /// Reads a record frame by frame.
 #[derive(Debug)]
 pub struct StateRecordReader {

@@ -185,6 +185,40 @@ pub fn side_by_side(head: &[u8], wrist: &[u8], width_px: usize, height_px: usize
     Ok(out)
 }
 
+/// Which of the renderer's lanes a render waits in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lane {
+    /// Observations and live frames.
+    Normal,
+    /// The private video: an episode's observation render never queues behind video frames.
+    Background,
+}
+
+/// Head | wrist RGB of `state`, side by side: one frame of the video or of the live view.
+pub fn render_head_wrist(
+    renderer: &Renderer,
+    model: &ModelHandle,
+    state: &FrameState,
+    cameras: &VideoCameras,
+    lane: Lane,
+) -> Result<Vec<u8>, VideoError> {
+    let size = cameras.size_px;
+    let requests = [
+        CameraRequest::named(&cameras.head, size, size, Outputs::RGB),
+        CameraRequest::named(&cameras.wrist, size, size, Outputs::RGB),
+    ];
+    let options = RenderOptions::default();
+    let views = match lane {
+        Lane::Normal => renderer.render(model, state, &requests, &options),
+        Lane::Background => renderer.render_background(model, state, &requests, &options),
+    }
+    .map_err(|e| VideoError::Render(e.to_string()))?;
+    match views.as_slice() {
+        [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize),
+        other => Err(VideoError::Render(format!("expected 2 camera images, got {}", other.len()))),
+    }
+}
+
 /// The cameras a video frame shows, at `size_px` square each.
 #[derive(Debug, Clone)]
 pub struct VideoCameras {
@@ -216,25 +250,12 @@ impl VideoRecorder {
         let (tx, rx) = mpsc::sync_channel::<Snapshot>(VIDEO_QUEUE_FRAMES);
         let name = format!("video-{}", path.parent().and_then(|p| p.file_name()).map(|n| n.to_string_lossy()).unwrap_or_default());
         let thread = std::thread::Builder::new().name(name).spawn(move || {
-            let requests = [
-                CameraRequest::named(&cameras.head, size, size, Outputs::RGB),
-                CameraRequest::named(&cameras.wrist, size, size, Outputs::RGB),
-            ];
-            let options = RenderOptions::default();
             let mut failure = None;
             while let Ok(state) = rx.recv() {
                 if failure.is_some() {
                     continue; // keep draining so the episode thread never blocks on a dead recorder
                 }
-                // Background: an episode's observation render never queues behind video frames.
-                let frame = renderer
-                    .render_background(&model, &state, &requests, &options)
-                    .map_err(|e| VideoError::Render(e.to_string()))
-                    .and_then(|views| match views.as_slice() {
-                        [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize),
-                        other => Err(VideoError::Render(format!("expected 2 camera images, got {}", other.len()))),
-                    })
-                    .and_then(|rgb| writer.push_rgb(&rgb));
+                let frame = render_head_wrist(&renderer, &model, &state, &cameras, Lane::Background).and_then(|rgb| writer.push_rgb(&rgb));
                 if let Err(e) = frame {
                     failure = Some(e);
                 }
@@ -308,11 +329,6 @@ pub fn render_video_from_record(
     }
     let size = cameras.size_px;
     let mut writer = Mp4Writer::new(video, 2 * size, size)?;
-    let requests = [
-        CameraRequest::named(&cameras.head, size, size, Outputs::RGB),
-        CameraRequest::named(&cameras.wrist, size, size, Outputs::RGB),
-    ];
-    let options = RenderOptions::default();
     let total = reader.frames();
     while let Some((qpos, mocap)) = reader.next_frame().map_err(|e| VideoError::Source(e.to_string()))? {
         if !progress(writer.frames(), total) {
@@ -320,12 +336,7 @@ pub fn render_video_from_record(
         }
         let data = poses.pose(&qpos, &mocap).map_err(|e| VideoError::Source(e.to_string()))?;
         let state = FrameState::from_mujoco(model, data);
-        let views = renderer.render_background(gpu_model, &state, &requests, &options).map_err(|e| VideoError::Render(e.to_string()))?;
-        let rgb = match views.as_slice() {
-            [head, wrist] => side_by_side(&head.rgb, &wrist.rgb, size as usize, size as usize)?,
-            other => return Err(VideoError::Render(format!("expected 2 camera images, got {}", other.len()))),
-        };
-        writer.push_rgb(&rgb)?;
+        writer.push_rgb(&render_head_wrist(renderer, gpu_model, &state, cameras, Lane::Background)?)?;
     }
     progress(writer.frames(), total);
     writer.finish()

@@ -113,43 +113,29 @@ impl VideoQueue {
     /// Where `video` stands: its queue entry, or `Ready` when the file exists, or `None` when this worker
     /// never heard of it and it does not exist.
     pub fn progress(&self, video: &Path) -> Option<VideoProgress> {
-        if let Some(p) = self.lock().progress.get(video) {
-            return Some(p.clone());
-        }
-        video.is_file().then_some(VideoProgress::Ready)
+        standing(&self.lock(), video)
     }
 
     /// Waits until `video` is ready or failed, at most `timeout`; returns where it stands then.
     pub fn wait(&self, video: &Path, timeout: Duration) -> Option<VideoProgress> {
-        let deadline = Instant::now() + timeout;
-        let mut s = self.lock();
-        loop {
-            let now = match s.progress.get(video) {
-                Some(p) => Some(p.clone()),
-                None => video.is_file().then_some(VideoProgress::Ready),
-            };
-            let left = deadline.saturating_duration_since(Instant::now());
-            if now.as_ref().is_none_or(VideoProgress::is_settled) || left.is_zero() || s.stopping {
-                return now;
-            }
-            s = self.shared.changed.wait_timeout(s, left.min(Duration::from_millis(500))).map(|r| r.0).unwrap_or_else(|p| p.into_inner().0);
-        }
+        let s = self.wait_while(timeout, |s| standing(s, video).is_some_and(|p| !p.is_settled()));
+        standing(&s, video)
     }
 
     /// Waits until nothing is queued or rendering, at most `timeout`; whether it got there.
     pub fn wait_idle(&self, timeout: Duration) -> bool {
-        let deadline = Instant::now() + timeout;
-        let mut s = self.lock();
-        loop {
-            if s.jobs.is_empty() && !s.busy {
-                return true;
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() || s.stopping {
-                return false;
-            }
-            s = self.shared.changed.wait_timeout(s, left.min(Duration::from_millis(500))).map(|r| r.0).unwrap_or_else(|p| p.into_inner().0);
-        }
+        let s = self.wait_while(timeout, |s| !s.jobs.is_empty() || s.busy);
+        s.jobs.is_empty() && !s.busy
+    }
+
+    /// The state once `busy` is false, the worker stops or `timeout` has passed.
+    fn wait_while(&self, timeout: Duration, mut busy: impl FnMut(&QueueState) -> bool) -> MutexGuard<'_, QueueState> {
+        let guard = self.lock();
+        self.shared
+            .changed
+            .wait_timeout_while(guard, timeout, |s| !s.stopping && busy(s))
+            .map(|r| r.0)
+            .unwrap_or_else(|p| p.into_inner().0)
     }
 
     /// Videos queued or rendering.
@@ -170,6 +156,14 @@ impl VideoQueue {
         s.stopping = true;
         s.jobs.clear();
         self.shared.changed.notify_all();
+    }
+}
+
+/// Where `video` stands in `s`, or `Ready` when its file exists.
+fn standing(s: &QueueState, video: &Path) -> Option<VideoProgress> {
+    match s.progress.get(video) {
+        Some(p) => Some(p.clone()),
+        None => video.is_file().then_some(VideoProgress::Ready),
     }
 }
 

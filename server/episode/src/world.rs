@@ -250,12 +250,9 @@ impl LiberoWorld {
 
     /// Stops recording and queues the video (the world's end does this too).
     pub fn end_video(&mut self) {
-        // Dropping the observer closes the record; its frames are on disk (one write each), synced here.
+        // Dropping the observer drops the record's writer, which syncs it.
         self.physics.sim.set_step_observer(None);
         let Some(p) = self.video.take() else { return };
-        if let Ok(f) = std::fs::File::open(&p.record) {
-            let _ = f.sync_data();
-        }
         let models = self.video_models();
         p.queue.submit(VideoJob { record: p.record, video: p.video, source: Box::new(move || Ok(models)) });
     }
@@ -335,11 +332,11 @@ impl LiberoWorld {
         let live_size = head_wrist_cameras().size_px;
         let sized = |f: &CameraFrame| f.image.width == live_size && f.image.height == live_size;
         if sized(head) && sized(wrist) {
-            self.publish_live(Some((head.image.rgb.clone(), wrist.image.rgb.clone())));
+            self.publish_live(Some((&head.image.rgb, &wrist.image.rgb)));
         }
     }
 
-    fn publish_live(&self, rendered: Option<(Vec<u8>, Vec<u8>)>) {
+    fn publish_live(&self, rendered: Option<(&Vec<u8>, &Vec<u8>)>) {
         let (Some(frames), Some(tap)) = (self.live_frames.as_ref(), self.live.as_ref()) else { return };
         let control_step = self.physics.control_step;
         frames.publish(LiveState {
@@ -347,7 +344,7 @@ impl LiberoWorld {
             control_step: Some(control_step),
             sim_time_s: self.physics.sim.time_s(),
             video_frame: tap.video_frame(control_step),
-            rendered,
+            rendered: rendered.map(|(head, wrist)| (head.clone(), wrist.clone())),
         });
     }
 }

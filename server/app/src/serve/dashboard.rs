@@ -598,14 +598,11 @@ async fn video(State(app): State<AppState>, Path(id): Path<String>, req: Request
     match run_dir_of(&app, &id).await {
         Some(run) if run.continuous_video().is_file() => serve_file(run.continuous_video(), req).await,
         Some(run) => {
-            let status = app.episodes.video_progress(&run);
-            let message = match status.as_ref().and_then(|p| p.percent().map(|pc| (p, pc))) {
-                Some((VideoProgress::Queued, _)) => "the video is queued for rendering (video rendering, 0 %)".to_owned(),
-                Some((_, percent)) => format!("the video is not ready yet (video rendering, {percent} %)"),
-                None => match status {
-                    Some(VideoProgress::Failed { error }) => format!("the video could not be rendered: {error}"),
-                    _ => "this episode records no video".to_owned(),
-                },
+            let message = match app.episodes.video_progress(&run) {
+                Some(VideoProgress::Queued) => "the video is queued for rendering (video rendering, 0 %)".to_owned(),
+                Some(VideoProgress::Failed { error }) => format!("the video could not be rendered: {error}"),
+                Some(p) => format!("the video is not ready yet (video rendering, {} %)", p.percent().unwrap_or(0)),
+                None => "this episode records no video".to_owned(),
             };
             json_error(StatusCode::NOT_FOUND, message)
         }
