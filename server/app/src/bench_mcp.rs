@@ -5,6 +5,11 @@
 //! render)_p50` says what the protocol, publishing and records (the private video's state record included)
 //! add; the video's own cost per call (render + encode from the record, on the background worker) is measured
 //! beside it, and the same steps with the state record on (`sim_steps_with_state_record_ms`).
+//!
+//! With n episodes the n clients call back to back, so the episodes share this machine's cores and no server
+//! could answer faster than n worlds stepping and rendering side by side. That peer is measured too, in the
+//! same run: n threads, each with its own world, doing the same calls without the server
+//! (`peer_same_concurrency_p50_ms`, `overhead_ratio_vs_same_concurrency_peer`).
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -115,15 +120,20 @@ fn run_concurrent(base: &str, args: &BenchMcpArgs, episodes: usize) -> anyhow::R
     Ok(all)
 }
 
-/// The same calls without the server: 50 simulator steps, then one observation frame (both cameras).
-fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Value> {
+/// The world a peer thread drives: the bench's task and level, one seed per thread (as the served episodes).
+fn peer_world(args: &BenchMcpArgs, renderer: &Renderer, seed: u64) -> anyhow::Result<LiberoWorld> {
     let paths = libero_sim::AssetPaths::discover()?;
     let level = Level::from_number(args.level).with_context(|| format!("level must be 1, 2 or 3 (got {})", args.level))?;
-    let spec = WorldSpec { task: resolve_task(&args.task, &paths)?, level, seed: 100, init_index: 0, paths };
+    let spec = WorldSpec { task: resolve_task(&args.task, &paths)?, level, seed, init_index: 0, paths };
     let mut world = LiberoWorld::new(&spec, renderer.clone())?;
     world.start()?;
     world.frame(0)?; // first render pays pipeline/texture setup, as the server's start_episode does
-    let (mut sim_ms, mut render_ms, mut total_ms) = (Vec::new(), Vec::new(), Vec::new());
+    Ok(world)
+}
+
+/// The timed calls without the server: per call (sim steps, render, both) in ms.
+fn peer_calls(world: &mut LiberoWorld, args: &BenchMcpArgs) -> anyhow::Result<Vec<(f64, f64, f64)>> {
+    let mut out = Vec::with_capacity(args.calls);
     for call in 0..args.calls.max(1) {
         let a = bench_actions(args.actions, call);
         let t = Instant::now();
@@ -133,9 +143,43 @@ fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Value> {
         let stepped = t.elapsed();
         world.frame(call as u64 + 1)?;
         let all = t.elapsed();
-        sim_ms.push(ms(stepped));
-        render_ms.push(ms(all - stepped));
-        total_ms.push(ms(all));
+        out.push((ms(stepped), ms(all - stepped), ms(all)));
+    }
+    Ok(out)
+}
+
+/// `episodes` worlds doing the timed calls side by side, one thread each, starting together: what n
+/// concurrent episodes cost on this machine with no server at all. Returns every call's total latency.
+fn concurrent_peer(args: &BenchMcpArgs, renderer: &Renderer, episodes: usize) -> anyhow::Result<Vec<f64>> {
+    let barrier = std::sync::Barrier::new(episodes);
+    std::thread::scope(|scope| {
+        let threads: Vec<_> = (0..episodes)
+            .map(|i| {
+                let barrier = &barrier;
+                scope.spawn(move || -> anyhow::Result<Vec<f64>> {
+                    // Every thread reaches the barrier, even when its world failed, so none waits forever.
+                    let world = peer_world(args, renderer, 100 + i as u64);
+                    barrier.wait();
+                    Ok(peer_calls(&mut world?, args)?.into_iter().map(|(_, _, total)| total).collect())
+                })
+            })
+            .collect();
+        let mut all = Vec::new();
+        for t in threads {
+            all.extend(t.join().map_err(|_| anyhow::anyhow!("a peer thread panicked"))??);
+        }
+        Ok(all)
+    })
+}
+
+/// The same calls without the server: 50 simulator steps, then one observation frame (both cameras).
+fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Value> {
+    let mut world = peer_world(args, renderer, 100)?;
+    let (mut sim_ms, mut render_ms, mut total_ms) = (Vec::new(), Vec::new(), Vec::new());
+    for (sim, render, total) in peer_calls(&mut world, args)? {
+        sim_ms.push(sim);
+        render_ms.push(render);
+        total_ms.push(total);
     }
     let (record_ms, video_ms) = video_cost_ms(&mut world, args.actions)?;
     Ok(json!({
@@ -185,7 +229,6 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
     };
     let renderer = Renderer::new().context("cannot open a GPU for rendering")?;
     let base = baseline(args, &renderer)?;
-    drop(renderer);
     let reference_ms = base["sim_plus_render_ms_p50"].as_f64().unwrap_or(f64::NAN);
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
     let server = InProcessServer::start(data.clone(), "bench_finished_before_finish")?;
@@ -193,18 +236,31 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
     let mut runs = Vec::new();
     let mut failure = None;
     for &n in &args.episodes {
-        match run_concurrent(&url, args, n) {
-            Ok(mut lat) => {
+        // The peer runs before the served episodes of the same count, never beside them.
+        let measured = concurrent_peer(args, &renderer, n)
+            .context("the peer without the server")
+            .and_then(|peer| Ok((peer, run_concurrent(&url, args, n)?)));
+        match measured {
+            Ok((mut peer, mut lat)) => {
                 let p50 = percentile_ms(&mut lat, 50.0);
                 let p95 = percentile_ms(&mut lat, 95.0);
+                let peer_p50 = percentile_ms(&mut peer, 50.0);
                 // Clients call back to back, so n episodes share this machine's cores: even with no overhead at
                 // all a call could not come back faster than n / cores of the one-episode figure.
                 let saturation_floor = (n as f64 / cores as f64).max(1.0);
                 runs.push(json!({"concurrent_episodes": n, "calls": lat.len(), "mcp_p50_ms": p50, "mcp_p95_ms": p95,
                     "overhead_ratio": p50 / reference_ms, "cpu_saturation_floor_ratio": saturation_floor,
-                    "overhead_over_floor": p50 / reference_ms / saturation_floor}));
+                    "overhead_over_floor": p50 / reference_ms / saturation_floor,
+                    "peer_same_concurrency_p50_ms": peer_p50,
+                    "peer_same_concurrency_p95_ms": percentile_ms(&mut peer, 95.0),
+                    "overhead_ratio_vs_same_concurrency_peer": p50 / peer_p50}));
                 if !args.json {
-                    eprintln!("{n} concurrent episode(s): p50 {p50:.1} ms, p95 {p95:.1} ms, {:.2}x sim+render", p50 / reference_ms);
+                    eprintln!(
+                        "{n} concurrent episode(s): p50 {p50:.1} ms, p95 {p95:.1} ms, {:.2}x sim+render of one episode, \
+                         {:.2}x {n} worlds side by side without the server ({peer_p50:.1} ms)",
+                        p50 / reference_ms,
+                        p50 / peer_p50
+                    );
                 }
             }
             Err(e) => {
@@ -213,6 +269,7 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
             }
         }
     }
+    drop(renderer);
     // The served episodes' videos are rendering in the background; they are not what is measured here.
     let served = server.stop_now();
     if remove_data {

@@ -244,5 +244,11 @@ fn bench_mcp_prints_latency_percentiles_and_overhead_for_each_concurrency() {
         assert!(0.0 < p50 && p50 <= p95, "{run}");
         let ratio = run["overhead_ratio"].as_f64().unwrap();
         assert!((ratio - p50 / reference).abs() < 1e-9, "{run}");
+        // The peer at the same concurrency: n worlds side by side without the server, every call timed.
+        let (peer50, peer95) =
+            (run["peer_same_concurrency_p50_ms"].as_f64().unwrap(), run["peer_same_concurrency_p95_ms"].as_f64().unwrap());
+        assert!(0.0 < peer50 && peer50 <= peer95, "{run}");
+        let vs_peer = run["overhead_ratio_vs_same_concurrency_peer"].as_f64().unwrap();
+        assert!((vs_peer - p50 / peer50).abs() < 1e-9, "{run}");
     }
 }
