@@ -83,7 +83,7 @@ impl ToolPort for McpPort {
 fn list() -> anyhow::Result<()> {
     let catalog = libero_tasks::Catalog::discover()?;
     for entry in catalog.tasks() {
-        if let Some(b) = expert::behaviours(&entry.id) {
+        if let Some(b) = libero_tasks::expert_behaviours(&entry.id) {
             let all: Vec<&str> = [expert::SOLVE, IDLE].into_iter().chain(b.iter().copied()).collect();
             let line = json!({"task": entry.id, "behaviours": all});
             println!("{line}");
@@ -97,7 +97,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         return list();
     }
     let task_id = args.task.as_deref().unwrap_or_default().trim().to_ascii_uppercase();
-    if expert::behaviours(&task_id).is_none() {
+    if libero_tasks::expert_behaviours(&task_id).is_none() {
         bail!("task {task_id} has no scripted expert (see `libero-agent expert --list`)");
     }
     if args.runs == 0 {

@@ -4,7 +4,7 @@
 //! most 50 actions, `finish_episode`. Whether the tools are served in-process or over MCP is the caller's port.
 use serde_json::{Value, json};
 
-use libero_tasks::expert::{self, Expert};
+use libero_tasks::expert::Expert;
 
 use crate::EpisodeError;
 use crate::actor::EpisodeHandle;
@@ -71,7 +71,7 @@ pub fn run_expert(
         None
     } else {
         Some(
-            expert::expert_for(task_id, behaviour, &replica.scene, replica.model())
+            libero_tasks::expert_for(task_id, behaviour, &replica.scene, replica.model())
                 .map_err(|e| EpisodeError::Task(e.to_string()))?,
         )
     };
@@ -132,7 +132,7 @@ pub fn run_replica_only(
 ) -> Result<Value, EpisodeError> {
     let mut replica = WorldPhysics::build(spec, |_, _, _| Ok(()))?;
     let mut expert =
-        expert::expert_for(task_id, behaviour, &replica.scene, replica.model()).map_err(|e| EpisodeError::Task(e.to_string()))?;
+        libero_tasks::expert_for(task_id, behaviour, &replica.scene, replica.model()).map_err(|e| EpisodeError::Task(e.to_string()))?;
     replica.start(|_| {})?;
     for step in 1..=max_actions {
         let phase = expert.phase();

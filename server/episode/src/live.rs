@@ -171,7 +171,7 @@ mod world_taps {
     use std::sync::atomic::{AtomicU64, Ordering};
     use std::time::Duration;
 
-    use libero_tasks::evaluator::PrivateEvent;
+    use libero_tasks::judge::evaluator::PrivateEvent;
     use serde::Serialize;
 
     use super::{LiveEvent, LiveSink};

@@ -364,7 +364,7 @@ pub fn render_goal_image(
     spec.task.task_reference = None;
     let mut world = LiberoWorld::new(&spec, renderer)?;
     world.start()?;
-    let mut expert = libero_tasks::expert::expert_for(task_id, behaviour, &world.physics.scene, world.physics.model())
+    let mut expert = libero_tasks::expert_for(task_id, behaviour, &world.physics.scene, world.physics.model())
         .map_err(|e| EpisodeError::Task(e.to_string()))?;
     for _ in 0..max_actions {
         let Some(a) = expert.act(&world.physics.sim) else { break };

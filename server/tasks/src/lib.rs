@@ -1,27 +1,20 @@
-//! Tasks: the LIBERO goal predicates on a composed scene, the private evaluators that judge an episode, and the
-//! catalog of the 30 release tasks (`tasks/manifest.json`). No I/O servers and no rendering here.
-pub mod bddl_terminal;
-pub mod button_press;
+//! Tasks: the LIBERO goal predicates on a composed scene, the private evaluators that judge an episode, the scripted
+//! experts that prove each task solvable, and the catalog of the release tasks (`tasks/manifest.json`). No I/O
+//! servers and no rendering here.
+//!
+//! Layout: `judge` is the shared machinery every evaluator builds on and imports no family; `expert` is the same
+//! for the scripted experts; `families/<family>` holds a task family's evaluators and experts; `registry` is the one
+//! place that knows every checker kind and every family's experts.
 pub mod catalog;
-pub mod commitment;
-pub mod diagnostics;
 pub mod error;
-pub mod evaluator;
 pub mod expert;
-pub mod factory;
-pub mod goal;
-pub mod hammer_contact;
-pub mod pour;
-pub mod predicates;
-pub mod seesaw;
-pub mod staged;
-pub mod tube_insertion;
-pub mod weighing;
-pub mod wipe;
+pub mod families;
+pub mod judge;
+pub mod registry;
 
-pub use error::TasksError;
 pub use catalog::{Catalog, TaskEntry};
-pub use evaluator::{EvaluationRecord, Evaluator, Tick};
-pub use factory::{apply_private_model_edits, build_evaluator};
-pub use goal::{GoalChecker, GoalReport, PredicateValue};
-pub use predicates::{ArticulationRule, EntityRef, JointTest, PredicateKind, SceneIndex, articulation_rule};
+pub use error::TasksError;
+pub use judge::evaluator::{EvaluationRecord, Evaluator, Tick};
+pub use judge::goal::{GoalChecker, GoalReport, PredicateValue};
+pub use judge::predicates::{ArticulationRule, EntityRef, JointTest, PredicateKind, SceneIndex, articulation_rule};
+pub use registry::{apply_private_model_edits, build_evaluator, expert_behaviours, expert_for};

@@ -6,9 +6,9 @@ use libero_sim::compose::compose_file;
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, InitStates, Simulation};
-use libero_tasks::bddl_terminal::BddlTerminal;
-use libero_tasks::commitment::{CommitmentKind, CommitmentTracker};
-use libero_tasks::evaluator::EventKind;
+use libero_tasks::families::libero::bddl_terminal::BddlTerminal;
+use libero_tasks::judge::commitment::{CommitmentKind, CommitmentTracker};
+use libero_tasks::judge::evaluator::EventKind;
 use libero_tasks::{Evaluator, GoalChecker, Tick};
 
 fn microwave_scene() -> (Simulation, BddlTerminal, usize, usize) {

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
 use libero_sim::scene_setup::PreparedScene;
 use libero_sim::{AssetPaths, Simulation};
-use libero_tasks::evaluator::{EventKind, FailureReason};
+use libero_tasks::judge::evaluator::{EventKind, FailureReason};
 use libero_tasks::{Catalog, EvaluationRecord, Evaluator, Tick, build_evaluator};
 
 struct World {

@@ -10,7 +10,7 @@ use libero_sim::compose::compose_file;
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, Simulation};
 use libero_tasks::GoalChecker;
-use libero_tasks::predicates::CompiledAtom;
+use libero_tasks::judge::predicates::CompiledAtom;
 use serde::Deserialize;
 
 #[derive(Deserialize)]

@@ -3,7 +3,7 @@
 //! stages and the extra-pour monitor, and the drainer union (`any`).
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
 use libero_sim::Simulation;
-use libero_tasks::evaluator::FailureReason;
+use libero_tasks::judge::evaluator::FailureReason;
 use libero_tasks::{Catalog, Evaluator, Tick, build_evaluator};
 use nalgebra::{UnitQuaternion, Vector3};
 

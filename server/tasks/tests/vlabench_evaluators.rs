@@ -4,9 +4,9 @@
 use libero_sim::compose::ComposedScene;
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
 use libero_sim::Simulation;
-use libero_tasks::button_press::{ButtonPress, ButtonPressParams, PRESSED_CAP_RGBA};
-use libero_tasks::commitment::CommitmentKind;
-use libero_tasks::tube_insertion::{TubeInsertion, TubeInsertionParams};
+use libero_tasks::families::vlabench::button_press::{ButtonPress, ButtonPressParams, PRESSED_CAP_RGBA};
+use libero_tasks::judge::commitment::CommitmentKind;
+use libero_tasks::families::vlabench::tube_insertion::{TubeInsertion, TubeInsertionParams};
 use libero_tasks::{Catalog, Evaluator, Tick, expert};
 
 mod common;
@@ -143,7 +143,7 @@ fn the_gripper_pressing_the_cap_for_1_5_s_is_a_press_and_the_first_commitment() 
     let (bddl, _) = task_bddl("T13");
     let (scene, mut sim) = scene_and_sim(&bddl);
     let mut ev = button_eval(&scene, &sim);
-    let mut script = expert::expert_for("T13", expert::SOLVE, &scene, sim.model()).unwrap();
+    let mut script = libero_tasks::expert_for("T13", expert::SOLVE, &scene, sim.model()).unwrap();
     ev.reset(sim.data(), tick(&sim, 0));
     assert!(ev.geom_rgba_overrides().is_empty(), "nothing touches the cap at the start");
     let (mut n, mut green_seen) = (0, false);

@@ -7,7 +7,7 @@ use libero_sim::compose::compose_file;
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, Simulation};
 use libero_tasks::catalog::CheckerSpec;
-use libero_tasks::weighing::WeighingParams;
+use libero_tasks::families::perception::weighing::WeighingParams;
 use libero_tasks::{Catalog, apply_private_model_edits, expert};
 
 #[test]
@@ -34,13 +34,13 @@ fn the_wrist_force_after_lift_and_hold_orders_the_mugs_by_mass() {
     let norm = |f: [f64; 3]| (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
     let empty = sim.robot_state().wrist_force_n;
 
-    let mut script = expert::expert_for("T08", expert::SOLVE, &scene, sim.model()).unwrap();
+    let mut script = libero_tasks::expert_for("T08", expert::SOLVE, &scene, sim.model()).unwrap();
     let mut readings = Vec::new();
     let mut last_phase = script.phase();
     let mut steps = 0;
     while let Some(a) = script.act(&sim) {
         // the hold phase just ended: the mug has hung still in the hand for WEIGH_HOLD_STEPS
-        if last_phase == Some(expert::perception_weigh_hold_phase()) && script.phase() != last_phase {
+        if last_phase == Some(libero_tasks::families::perception::weigh_hold_phase()) && script.phase() != last_phase {
             let f = sim.robot_state().wrist_force_n;
             readings.push(norm([f[0] - empty[0], f[1] - empty[1], f[2] - empty[2]]));
         }

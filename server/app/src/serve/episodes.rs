@@ -451,7 +451,7 @@ impl Episodes {
             return Ok(b);
         }
         let task_ref = task.task_ref.as_str();
-        if libero_tasks::expert::behaviours(task_ref).is_none() {
+        if libero_tasks::expert_behaviours(task_ref).is_none() {
             bail!(
                 "no verified demonstration of {task_ref} in {} and no scripted expert to record one (record one with \
                  `libero-agent expert --task {task_ref} --demo-out {}`, or by teleoperation)",

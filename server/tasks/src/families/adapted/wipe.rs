@@ -1,0 +1,341 @@
+//! `private_ordered_physical_wipe` (T19 wipe_spill_from_table; task catalog §4 T19, §6.6): pick up the sponge, wipe
+//! every brown spill marker while pressing the sponge on the tabletop, release it on the blue rest pad.
+//!
+//! Sampled at every control step **and** every physics substep (the same rule at both rates). Stages, in order
+//! (only the current stage is tested; at most one completes per tick; completed stages stay completed):
+//! 1. `01_Grasp_Sponge` — Grasped(sponge): both finger pads touch the sponge's contact geoms.
+//! 2. `02_Wipe_All_Spill_Markers` — all 7 markers covered.
+//! 3. `03_Release_Sponge_On_Blue_Rest_Area` — `On(sponge, spill_patch_1_sponge_rest_region)` (site rule plus contact
+//!    with the spill patch's collision geoms, i.e. the rest pad) AND Released-and-clear(sponge): not grasped and the
+//!    sponge origin ≥ 0.055 m from the grip site.
+//!
+//! Coverage (latched, independent of the stage index): at any tick where the sponge is grasped AND in body contact
+//! with the `table` body (a contact between the two body subtrees with distance ≤ 1 mm — touching the blue pad does
+//! not count), every marker whose world centre is within 0.052 m (xy) of the sponge origin becomes covered. Covered
+//! markers vanish from the agent's images ([`Evaluator::geom_rgba_overrides`]: alpha 0; uncovered markers are drawn
+//! at alpha 0.92, as the original evaluator set them at reset).
+//!
+//! Success at finish ⇔ all 3 stages completed AND all markers covered AND the rest predicate and Released-and-clear
+//! both hold on the final state.
+use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::simulation::SimData;
+use serde::Deserialize;
+
+use crate::TasksError;
+use crate::judge::commitment::CommitmentTracker;
+use crate::judge::evaluator::{
+    EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
+};
+use crate::judge::goal::GoalChecker;
+use crate::judge::predicates::{CompiledAtom, SceneIndex, SubtreeContact};
+
+pub const CHECKER: &str = "private_ordered_physical_wipe";
+pub const STAGES: [&str; 3] = ["01_Grasp_Sponge", "02_Wipe_All_Spill_Markers", "03_Release_Sponge_On_Blue_Rest_Area"];
+/// Alpha of an uncovered marker (set at reset) and of a covered one.
+pub const MARKER_ALPHA_UNCOVERED: f32 = 0.92;
+pub const MARKER_ALPHA_COVERED: f32 = 0.0;
+/// Body contact counts only with a penetration/gap distance at most this (catalog §0 "Body contact").
+pub const BODY_CONTACT_MAX_DIST_M: f64 = 1e-3;
+
+/// The manifest's `checker.params` (defaults = the catalog's values).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default)]
+pub struct WipeParams {
+    pub sponge: String,
+    pub spill_patch: String,
+    pub markers: usize,
+    pub cover_radius_m: f64,
+    pub rest_region: String,
+    pub release_clear_distance_m: f64,
+    pub table_body: String,
+    pub stages: Vec<String>,
+}
+
+impl Default for WipeParams {
+    fn default() -> Self {
+        Self {
+            sponge: "sponge_1".into(),
+            spill_patch: "spill_patch_1".into(),
+            markers: 7,
+            cover_radius_m: 0.052,
+            rest_region: "spill_patch_1_sponge_rest_region".into(),
+            release_clear_distance_m: 0.055,
+            table_body: "table".into(),
+            stages: STAGES.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+}
+
+/// Which markers a sponge at `sponge_xy` covers: those whose centre is within `radius` (xy).
+pub fn markers_under(sponge_xy: [f64; 2], markers_xy: &[[f64; 2]], radius: f64) -> impl Iterator<Item = usize> + '_ {
+    markers_xy
+        .iter()
+        .enumerate()
+        .filter(move |(_, m)| (m[0] - sponge_xy[0]).hypot(m[1] - sponge_xy[1]) <= radius)
+        .map(|(i, _)| i)
+}
+
+/// The coverage rule on one tick: returns the markers newly covered (and latches them in `covered`).
+pub fn cover(
+    covered: &mut [bool],
+    grasped: bool,
+    touching_table: bool,
+    sponge_xy: [f64; 2],
+    markers_xy: &[[f64; 2]],
+    radius: f64,
+) -> Vec<usize> {
+    if !(grasped && touching_table) {
+        return Vec::new();
+    }
+    let new: Vec<usize> = markers_under(sponge_xy, markers_xy, radius).filter(|&i| !covered[i]).collect();
+    for &i in &new {
+        covered[i] = true;
+    }
+    new
+}
+
+pub struct SpillWipe {
+    params: WipeParams,
+    index: std::sync::Arc<SceneIndex>,
+    goal: GoalChecker,
+    commitment: CommitmentTracker,
+    task_id: Option<String>,
+    sponge: usize,
+    /// Geom ids of the markers and their model colours.
+    marker_geoms: Vec<(usize, [f32; 4])>,
+    /// Body contact(sponge, table).
+    sponge_on_table: SubtreeContact,
+    rest_on: CompiledAtom,
+    covered: Vec<bool>,
+    grasp_seen: bool,
+    stages: StageTracker,
+    events: Vec<PrivateEvent>,
+    control_steps: u64,
+    substeps: u64,
+}
+
+impl SpillWipe {
+    pub fn new(
+        params: WipeParams,
+        goal: GoalChecker,
+        commitment: CommitmentTracker,
+        model: &MjModel,
+        task_id: Option<String>,
+    ) -> Result<Self, TasksError> {
+        let index = goal.index().clone();
+        let sponge = index.instance(&params.sponge).ok_or_else(|| TasksError::Scene(format!("no object {}", params.sponge)))?;
+        let id = |kind, name: &str| {
+            model.name_to_id(kind, name).ok_or_else(|| TasksError::Scene(format!("model has no {kind:?} {name:?}")))
+        };
+        let table = id(MjtObjBase::mjOBJ_BODY, &params.table_body)?;
+        let ngeom = model.ffi().ngeom as usize;
+        let mut marker_geoms = Vec::with_capacity(params.markers);
+        for i in 0..params.markers {
+            let suffix = format!("spill_marker_{i}");
+            let g = (0..ngeom)
+                .find(|&g| model.id_to_name(MjtObjBase::mjOBJ_GEOM, g).is_some_and(|n| n.ends_with(&suffix)))
+                .ok_or_else(|| TasksError::Scene(format!("model has no geom named *{suffix}")))?;
+            let c = model.geom_rgba()[g];
+            marker_geoms.push((g, [c[0], c[1], c[2], c[3]]));
+        }
+        let sponge_on_table = SubtreeContact::new(model, index.instances[sponge].body, table, BODY_CONTACT_MAX_DIST_M);
+        let atom = libero_bddl::Atom { predicate: "On".into(), args: vec![params.sponge.clone(), params.rest_region.clone()], pos: Default::default() };
+        let rest_on = CompiledAtom::compile(&index, &atom)?;
+        let stages = StageTracker::new(params.stages.iter().map(StageSpec::required).collect());
+        let covered = vec![false; params.markers];
+        Ok(Self {
+            params,
+            index,
+            goal,
+            commitment,
+            task_id,
+            sponge,
+            marker_geoms,
+            sponge_on_table,
+            rest_on,
+            covered,
+            grasp_seen: false,
+            stages,
+            events: Vec::new(),
+            control_steps: 0,
+            substeps: 0,
+        })
+    }
+
+    fn grasped(&self, data: &SimData) -> bool {
+        self.commitment.grasped(&self.index, data, self.sponge)
+    }
+
+    fn sponge_pos(&self, data: &SimData) -> [f64; 3] {
+        data.xpos()[self.index.instances[self.sponge].body]
+    }
+
+    /// Body contact(sponge, table): some contact between the two subtrees with distance ≤ 1 mm.
+    fn touching_table(&self, data: &SimData) -> bool {
+        self.sponge_on_table.holds(data)
+    }
+
+    fn released_and_clear(&self, data: &SimData) -> bool {
+        self.commitment.released_and_clear(&self.index, data, self.sponge, self.params.release_clear_distance_m)
+    }
+
+    fn rest_holds(&self, data: &SimData) -> bool {
+        self.rest_on.evaluate(&self.index, data)
+    }
+
+    fn markers_xy(&self, data: &SimData) -> Vec<[f64; 2]> {
+        self.marker_geoms.iter().map(|(g, _)| {
+            let p = data.geom_xpos()[*g];
+            [p[0], p[1]]
+        }).collect()
+    }
+
+    fn stage_holds(&self, data: &SimData, i: usize) -> bool {
+        match i {
+            0 => self.grasped(data),
+            1 => self.covered.iter().all(|c| *c),
+            _ => self.rest_holds(data) && self.released_and_clear(data),
+        }
+    }
+
+    fn sample(&mut self, data: &SimData, tick: Tick) {
+        let grasped = self.grasped(data);
+        self.grasp_seen |= grasped;
+        if self.grasp_seen && grasped {
+            let p = self.sponge_pos(data);
+            let markers = self.markers_xy(data);
+            let touching = self.touching_table(data);
+            for i in cover(&mut self.covered, grasped, touching, [p[0], p[1]], &markers, self.params.cover_radius_m) {
+                let event = PrivateEvent {
+                    subject: Some(format!("{}_spill_marker_{i}", self.params.spill_patch)),
+                    ..PrivateEvent::new(EventKind::SpillMarkerCovered, tick)
+                };
+                self.events.push(event);
+            }
+        }
+        // ordered: only the current stage is tested (the earlier stages' conditions are their prerequisites)
+        let holds: [bool; STAGES.len()] = std::array::from_fn(|i| self.stage_holds(data, i));
+        self.stages.advance(tick, |i| holds[i]);
+        self.stages.track_regressions(tick, |i| holds[i]);
+    }
+}
+
+impl Evaluator for SpillWipe {
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        crate::judge::evaluator::merged_events(&self.stages, &self.events)
+    }
+
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        Some((self.stages.completed_required_count(), self.stages.required_count()))
+    }
+
+    fn checker(&self) -> &str {
+        CHECKER
+    }
+
+    fn samples_substeps(&self) -> bool {
+        true
+    }
+
+    fn reset(&mut self, data: &SimData, _tick: Tick) {
+        self.covered.iter_mut().for_each(|c| *c = false);
+        self.grasp_seen = false;
+        self.stages = StageTracker::new(self.params.stages.iter().map(StageSpec::required).collect());
+        self.events.clear();
+        self.control_steps = 0;
+        self.substeps = 0;
+        self.commitment.reset(&self.index, data);
+    }
+
+    fn observe_substep(&mut self, data: &SimData, tick: Tick) {
+        self.substeps += 1;
+        self.sample(data, tick);
+    }
+
+    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps += 1;
+        self.sample(data, tick);
+        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+    }
+
+    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
+        let all_covered = self.covered.iter().all(|c| *c);
+        let rest = self.rest_holds(data);
+        let released = self.released_and_clear(data);
+        let mut record = EvaluationRecord::new(CHECKER);
+        self.stages.write_into(&mut record);
+        record.task_id = self.task_id.clone();
+        let covered_count = self.covered.iter().filter(|c| **c).count();
+        record.terminal_state_checks = vec![
+            TerminalCheck { name: format!("all_spill_markers_covered ({covered_count}/{})", self.covered.len()), passed: all_covered },
+            TerminalCheck { name: format!("(on {} {})", self.params.sponge, self.params.rest_region), passed: rest },
+            TerminalCheck { name: format!("released_and_clear {}", self.params.sponge), passed: released },
+        ];
+        record.terminal_state_success = all_covered && rest && released;
+        let stages_done = self.stages.all_required_completed();
+        record.success = stages_done && record.terminal_state_success;
+        let counts = (self.control_steps, self.substeps);
+        crate::judge::support::fill_history(&mut record, counts, &self.events, &self.commitment, &self.goal, data);
+        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
+        record
+    }
+
+    fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {
+        self.marker_geoms
+            .iter()
+            .zip(&self.covered)
+            .map(|((g, c), covered)| {
+                (*g, [c[0], c[1], c[2], if *covered { MARKER_ALPHA_COVERED } else { MARKER_ALPHA_UNCOVERED }])
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// World marker centres with the patch root at (0, 0.10) (catalog §4 T19).
+    const MARKERS: [[f64; 2]; 7] = [
+        [-0.080, 0.065],
+        [-0.040, 0.115],
+        [0.005, 0.075],
+        [0.050, 0.125],
+        [0.090, 0.080],
+        [-0.095, 0.140],
+        [0.105, 0.145],
+    ];
+
+    #[test]
+    fn coverage_needs_grasp_and_table_contact_and_latches() {
+        let mut covered = [false; 7];
+        assert!(cover(&mut covered, false, true, [-0.08, 0.065], &MARKERS, 0.052).is_empty(), "not grasped");
+        assert!(cover(&mut covered, true, false, [-0.08, 0.065], &MARKERS, 0.052).is_empty(), "lifted off the table");
+        assert_eq!(cover(&mut covered, true, true, [-0.08, 0.065], &MARKERS, 0.052), [0]);
+        assert!(cover(&mut covered, true, true, [-0.08, 0.065], &MARKERS, 0.052).is_empty(), "already covered");
+        // leaving the marker does not uncover it
+        assert!(cover(&mut covered, true, true, [0.5, 0.5], &MARKERS, 0.052).is_empty());
+        assert!(covered[0]);
+    }
+
+    #[test]
+    fn coverage_radius_is_0_052_from_the_sponge_origin() {
+        let mut covered = [false; 7];
+        // 0.051 m from marker 4, farther from all others
+        let new = cover(&mut covered, true, true, [0.090 + 0.051, 0.080], &MARKERS, 0.052);
+        assert_eq!(new, [4]);
+        let mut covered = [false; 7];
+        assert!(cover(&mut covered, true, true, [0.090 + 0.053, 0.080 - 0.001], &MARKERS, 0.052).iter().all(|&i| i != 4));
+    }
+
+    #[test]
+    fn two_strokes_along_the_marker_rows_cover_everything() {
+        let mut covered = [false; 7];
+        for k in 0..=40 {
+            let x = -0.10 + 0.21 * k as f64 / 40.0;
+            cover(&mut covered, true, true, [x, 0.075], &MARKERS, 0.052);
+            cover(&mut covered, true, true, [x, 0.135], &MARKERS, 0.052);
+        }
+        assert!(covered.iter().all(|c| *c), "{covered:?}");
+    }
+}

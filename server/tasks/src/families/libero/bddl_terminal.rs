@@ -1,0 +1,120 @@
+//! `bddl_terminal` (and `bddl_terminal_open`): success is the BDDL goal conjunction on the final state; nothing
+//! is latched (task catalog §1.3 step 5, §1.4: K = 1, completed = success). The goal is also sampled at every control
+//! step, only to record diagnostic "goal became true/false" events and the first commitment.
+//!
+//! Perception tasks judged by the terminal goal (the bin family T01–T05, T07) name their private target in the
+//! manifest (`params.judgment_target`); the record then carries `judgment_correct`: the first object grasped and
+//! lifted ≥ 0.04 m is the target (task catalog §8.6).
+use libero_sim::simulation::SimData;
+
+use crate::judge::commitment::CommitmentTracker;
+use crate::judge::evaluator::{
+    EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
+};
+use crate::judge::goal::GoalChecker;
+
+pub const CHECKER: &str = "bddl_terminal";
+/// The single stage of a terminal task.
+pub const STAGE_NAME: &str = "01_BDDL_Goal_At_Finish";
+
+/// The manifest's `checker.params` (all optional).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BddlTerminalParams {
+    /// Perception tasks: the instance the agent must identify (private).
+    #[serde(default)]
+    pub judgment_target: Option<String>,
+}
+
+pub struct BddlTerminal {
+    checker: String,
+    judgment_target: Option<String>,
+    goal: GoalChecker,
+    commitment: CommitmentTracker,
+    task_id: Option<String>,
+    control_steps: u64,
+    last_goal: Option<bool>,
+    events: Vec<PrivateEvent>,
+}
+
+impl BddlTerminal {
+    /// `checker` is the manifest's checker name (`bddl_terminal` or `bddl_terminal_open`; same rule).
+    pub fn new(checker: impl Into<String>, goal: GoalChecker, commitment: CommitmentTracker, task_id: Option<String>) -> Self {
+        Self {
+            checker: checker.into(),
+            judgment_target: None,
+            goal,
+            commitment,
+            task_id,
+            control_steps: 0,
+            last_goal: None,
+            events: Vec::new(),
+        }
+    }
+
+    /// Judges target identification against `target` (an instance of the scene).
+    pub fn with_judgment_target(mut self, target: Option<String>) -> Self {
+        self.judgment_target = target;
+        self
+    }
+
+    fn note_goal(&mut self, data: &SimData, tick: Tick) {
+        let now = self.goal.holds(data);
+        if self.last_goal.is_some_and(|was| was != now) {
+            let kind = if now { EventKind::GoalSatisfied } else { EventKind::GoalUnsatisfied };
+            self.events.push(PrivateEvent::new(kind, tick));
+        }
+        self.last_goal = Some(now);
+    }
+}
+
+impl Evaluator for BddlTerminal {
+    fn checker(&self) -> &str {
+        &self.checker
+    }
+
+    fn reset(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps = 0;
+        self.events.clear();
+        self.last_goal = None;
+        self.commitment.reset(self.goal.index(), data);
+        self.note_goal(data, tick);
+    }
+
+    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps += 1;
+        self.note_goal(data, tick);
+        self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
+    }
+
+    fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord {
+        let report = self.goal.evaluate(data);
+        let mut stages = StageTracker::new(vec![StageSpec::required(STAGE_NAME)]);
+        stages.advance(tick, |_| report.success);
+        let mut record = EvaluationRecord::new(self.checker.clone());
+        stages.write_into(&mut record);
+        record.task_id = self.task_id.clone();
+        record.success = report.success;
+        record.terminal_state_success = report.success;
+        record.terminal_state_checks =
+            report.predicates.iter().map(|p| TerminalCheck { name: p.predicate.clone(), passed: p.value }).collect();
+        record.control_steps_observed = self.control_steps;
+        record.events = self.events.clone();
+        record.first_commitment = self.commitment.first().cloned();
+        record.judgment_correct =
+            self.judgment_target.as_deref().map(|t| crate::judge::evaluator::judged_target(record.first_commitment.as_ref(), t));
+        record.bddl_final_goal_success = Some(report.success);
+        record.bddl_goal = Some(report);
+        record.failure_reason = (!record.success).then_some(FailureReason::TerminalStateInvalid);
+        record
+    }
+
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        self.events.clone()
+    }
+
+    /// K = 1: the goal holding now is the stage that finish would complete.
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        Some((usize::from(self.last_goal == Some(true)), 1))
+    }
+}

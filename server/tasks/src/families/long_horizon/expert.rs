@@ -1,0 +1,122 @@
+//! Experts for T26 (RoboMemArena task 19, cabinet to cabinet) and T27 (task 12, two objects into the middle
+//! drawer). Like every long-horizon expert, each has `solve`, `partial_<n>` behaviours that complete exactly n stages
+//! and stop, and `undo`, which completes a stage and then undoes it (the evaluator must record the regression).
+use std::sync::Arc;
+
+use libero_sim::Simulation;
+use nalgebra::Vector3;
+
+use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script, body_dir, open_along, vec3};
+use crate::expert::skills::{
+    MIDDLE_HANDLE_LOCAL_M, RotFn, TargetFn, main_box, memo, narrow_axis, partial_count, pick_place, pick_place_turned, pos,
+    pull_drawer, push_drawer,
+};
+use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::TasksError;
+
+pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
+    Some(match task_id {
+        "T26" => &["partial_1", "partial_2", "undo"],
+        "T27" => &["partial_1", "partial_2", "partial_3", "undo"],
+        _ => return None,
+    })
+}
+
+pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
+    match task_id {
+        "T26" => cabinet_transfer(refs, behaviour),
+        "T27" => drawer_pack(refs, behaviour),
+        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
+    }
+}
+
+/// T26: move tomato sauce, milk and orange juice from cabinet 1's roof to cabinet 2's roof, each to the spot it had
+/// relative to cabinet 1 (the sampler spread them over the roof without overlap). `partial_<n>` moves the first n;
+/// `undo` moves the tomato sauce over and then back to where it started.
+fn cabinet_transfer(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+    let cab1 = refs.instance_body("wooden_cabinet_1")?;
+    let cab2 = refs.instance_body("wooden_cabinet_2")?;
+    let objects = ["tomato_sauce_1", "milk_1", "orange_juice_1"];
+    let n = match behaviour {
+        SOLVE => 3,
+        "undo" => 1,
+        b => partial_count(b).filter(|&n| n <= 3).ok_or_else(|| TasksError::Scene(format!("T26: unknown behaviour {b}")))?,
+    };
+    let mut phases = Vec::new();
+    for name in &objects[..n] {
+        let body = refs.instance_body(name)?;
+        // offset of the object's root from cabinet 1's root at the start
+        let offset = Arc::new(memo(move |sim: &Simulation| pos(sim, body) - pos(sim, cab1)));
+        let start = Arc::new(memo(move |sim: &Simulation| pos(sim, body)));
+        let (o1, s1) = (offset.clone(), start.clone());
+        // touch the memos before anything moves
+        phases.push(Phase::new("note_start", move |sim, ctx| {
+            o1(sim);
+            s1(sim);
+            Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
+        }));
+        let o2 = offset.clone();
+        let to_cab2: TargetFn = Arc::new(move |sim| pos(sim, cab2) + o2(sim));
+        pick_place(&mut phases, body, OBJECT_GRASP_DZ_M, CARRY_Z_M, to_cab2);
+        if behaviour == "undo" {
+            let s2 = start.clone();
+            let back: TargetFn = Arc::new(move |sim| s2(sim));
+            pick_place(&mut phases, body, OBJECT_GRASP_DZ_M, CARRY_Z_M, back);
+        }
+    }
+    Ok(Box::new(Script::new(phases)))
+}
+
+/// Fingers close this far above a HOPE object's root (its upper half).
+const OBJECT_GRASP_DZ_M: f64 = 0.02;
+/// Root height while carrying between the cabinets' roofs.
+const CARRY_Z_M: f64 = 0.85;
+
+/// T27: pull the middle drawer open, put the cookies and then the chocolate pudding into it (side by side along the
+/// drawer's width), push it closed. `partial_<n>` stops after the first n of these four steps; `undo` opens the
+/// drawer and pushes it shut again (stage 1 regresses).
+fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+    let drawer = refs.body("wooden_cabinet_1_cabinet_middle")?;
+    let (q_adr, _) = refs.joint("wooden_cabinet_1_middle_level")?;
+    let region = refs.site("wooden_cabinet_1_middle_region")?;
+    let n = match behaviour {
+        SOLVE => 4,
+        "undo" => 1,
+        b => partial_count(b).filter(|&n| n <= 4).ok_or_else(|| TasksError::Scene(format!("T27: unknown behaviour {b}")))?,
+    };
+    let mut phases = Vec::new();
+    pull_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, -0.152);
+    if behaviour == "undo" {
+        push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
+    }
+    let items = [("cookies_1", -0.045), ("chocolate_pudding_1", 0.05)];
+    for (name, across_m) in &items[..n.saturating_sub(1).min(2)] {
+        let body = refs.instance_body(name)?;
+        let (geom, half) = main_box(refs, name)?;
+        let across_m = *across_m;
+        // root resting height above its table contact, kept when set down in the drawer
+        let rest = Arc::new(memo(move |sim: &Simulation| pos(sim, body).z));
+        let target: TargetFn = Arc::new(move |sim| {
+            let c = vec3(&sim.data().site_xpos()[region]);
+            // across the drawer = the drawer's local x
+            let x_dir = body_dir(sim, drawer, [1.0, 0.0, 0.0]);
+            let _ = rest(sim);
+            c + x_dir * across_m - Vector3::z() * 0.01
+        });
+        let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
+        // back over the middle of the table first: from the drawer the arm cannot swing straight down to objects
+        // near its base
+        phases.push(
+            Phase::new("via_middle", move |_, _| Goal::at(Vector3::new(0.0, 0.0, 0.70), GRIPPER_OPEN)).until_reached(0.03).max_steps(80),
+        );
+        pick_place_turned(&mut phases, body, Vector3::zeros(), DRAWER_CARRY_Z_M, target, rot);
+    }
+    if n == 4 {
+        push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
+    }
+    Ok(Box::new(Script::new(phases)))
+}
+
+/// Root height while carrying objects over to the drawer (above the cabinet's middle drawer, below the top one's
+/// reach problems: the cabinet top is ≈ 0.27 m above the table).
+const DRAWER_CARRY_Z_M: f64 = 0.75;

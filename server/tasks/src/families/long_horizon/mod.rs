@@ -1,0 +1,28 @@
+//! long_horizon_v2 and RoboMemArena: the staged evaluator (ordered, unordered and buffer-rotation stages, pour
+//! counters, drawers, cabinets) and the experts of T21–T27.
+pub mod staged;
+mod expert;
+mod robomem_expert;
+mod bowls_expert;
+mod cooking_expert;
+
+use crate::TasksError;
+use crate::expert::{Expert, SceneRefs};
+
+/// The tasks this family scripts, with their near-miss behaviours.
+pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
+    expert::behaviours(task_id).or_else(|| robomem_expert::behaviours(task_id)).or_else(|| bowls_expert::behaviours(task_id)).or_else(|| cooking_expert::behaviours(task_id))
+}
+
+/// This family's expert for `task_id` (one of [`behaviours`]).
+pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
+    if robomem_expert::behaviours(task_id).is_some() {
+        robomem_expert::build(task_id, behaviour, refs)
+    } else if bowls_expert::behaviours(task_id).is_some() {
+        bowls_expert::build(task_id, behaviour, refs)
+    } else if cooking_expert::behaviours(task_id).is_some() {
+        cooking_expert::build(task_id, behaviour, refs)
+    } else {
+        expert::build(task_id, behaviour, refs)
+    }
+}

@@ -1,0 +1,498 @@
+//! `private_ordered_physical_seesaw` (T30 basic_seesaw_usage; task catalog §5 T30, §6.1, VLABenchSeesawEvaluator):
+//! put both counterweights on the seesaw's far end, let the board tilt and raise the hidden target out of its guard
+//! cage, then put the target in the basket.
+//!
+//! Sampled at control steps only. Per sample:
+//! * far-end anchor f = world position of the site `far_end_site` (fallbacks `<seesaw>_horizontal_radius_site`,
+//!   `<seesaw>_top_site`, then the body carrying the hinge);
+//! * weight w *on the far end* ⇔ ‖w_xy − f_xy‖ ≤ `weight_xy_max_m` AND `weight_dz_range_m` holds for w_z − f_z;
+//!   *supported* ⇔ on the far end AND some contact between w's body subtree and the subtree of the body that carries
+//!   the hinge (the moving board: the static rest block and base do not count; no distance filter, as in the
+//!   release's seesaw helper); *released* ⇔ supported AND not Grasped(w);
+//! * hinge delta = qpos(hinge) − qpos at reset; target lift = z(target root) − z at reset.
+//!
+//! Stages, in order, at most one per sample ([`SeesawProgress`]): `01_Place_First_Counterweight` (≥ 1 weight
+//! released), `02_Place_Second_Counterweight` (all weights released at once; completing it resets the post-placement
+//! maxima to max(0, current value)), `03_Physical_Lift_Of_Target` (no premature lift AND all weights released AND
+//! post-placement max hinge delta ≥ `hinge_lift_rad` AND max target lift ≥ `target_lift_m`),
+//! `04_Place_Target_In_Basket` (BDDL `In(target, basket region)`).
+//!
+//! Premature-lift guard: while stage 2 is not complete, a sample with hinge delta ≥ `hinge_lift_rad` AND target lift
+//! ≥ `target_lift_m` latches `premature_lift_detected` (failure): the target must not be pulled out by hand or the
+//! board pressed down before both weights are on.
+//!
+//! Success at finish ⇔ all stages completed AND target In the basket region AND the lift event (stage 3) seen AND
+//! every weight still released on the far end AND no premature lift.
+use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::simulation::SimData;
+use serde::Deserialize;
+
+use crate::TasksError;
+use crate::judge::commitment::CommitmentTracker;
+use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
+use crate::judge::support::missing_in_model;
+use crate::judge::goal::GoalChecker;
+use crate::judge::predicates::{CompiledAtom, SceneIndex, in_subtree};
+
+pub const CHECKER: &str = "private_ordered_physical_seesaw";
+pub const STAGES: [&str; 4] = [
+    "01_Place_First_Counterweight",
+    "02_Place_Second_Counterweight",
+    "03_Physical_Lift_Of_Target",
+    "04_Place_Target_In_Basket",
+];
+
+/// The manifest's `checker.params` (defaults = the catalog's values).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SeesawParams {
+    pub seesaw: String,
+    pub hinge_joint: String,
+    pub far_end_site: String,
+    pub target: String,
+    pub weights: Vec<String>,
+    pub basket_region: String,
+    pub weight_xy_max_m: f64,
+    pub weight_dz_range_m: [f64; 2],
+    pub hinge_lift_rad: f64,
+    pub target_lift_m: f64,
+    pub stages: Vec<String>,
+}
+
+impl Default for SeesawParams {
+    fn default() -> Self {
+        Self {
+            seesaw: "seesaw_1".into(),
+            hinge_joint: "seesaw_1_seesaw_hinge".into(),
+            far_end_site: "seesaw_1_seesaw_right_region".into(),
+            target: "target_1".into(),
+            weights: vec!["weight_1".into(), "weight_2".into()],
+            basket_region: "basket_1_contain_region".into(),
+            weight_xy_max_m: 0.12,
+            weight_dz_range_m: [-0.15, 0.20],
+            hinge_lift_rad: 0.12,
+            target_lift_m: 0.04,
+            stages: STAGES.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+}
+
+/// What one sample measured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SeesawSample {
+    /// Weights released (supported on the far end and not grasped).
+    pub released: usize,
+    pub weights: usize,
+    pub hinge_delta_rad: f64,
+    pub target_lift_m: f64,
+    pub target_in_basket: bool,
+}
+
+impl SeesawSample {
+    fn all_released(&self) -> bool {
+        self.weights > 0 && self.released == self.weights
+    }
+}
+
+/// The stage logic on measured samples (no simulator): ordered stages, post-placement maxima and the premature-lift
+/// latch.
+#[derive(Debug, Clone)]
+pub struct SeesawProgress {
+    hinge_lift_rad: f64,
+    target_lift_m: f64,
+    pub stages: StageTracker,
+    /// Largest hinge delta / target lift since stage 2 completed (`None` before).
+    post_max: Option<(f64, f64)>,
+    premature_lift: Option<Tick>,
+    lift_event: Option<Tick>,
+}
+
+impl SeesawProgress {
+    pub fn new(names: &[String], hinge_lift_rad: f64, target_lift_m: f64) -> Self {
+        Self {
+            hinge_lift_rad,
+            target_lift_m,
+            stages: StageTracker::new(names.iter().map(StageSpec::required).collect()),
+            post_max: None,
+            premature_lift: None,
+            lift_event: None,
+        }
+    }
+
+    fn lifted(&self, hinge_delta_rad: f64, target_lift_m: f64) -> bool {
+        hinge_delta_rad >= self.hinge_lift_rad && target_lift_m >= self.target_lift_m
+    }
+
+    fn holds(&self, s: &SeesawSample, i: usize) -> bool {
+        match i {
+            0 => s.released >= 1,
+            1 => s.all_released(),
+            2 => {
+                self.premature_lift.is_none()
+                    && s.all_released()
+                    && self.post_max.is_some_and(|(h, l)| self.lifted(h, l))
+            }
+            _ => s.target_in_basket,
+        }
+    }
+
+    /// One sample: guard (before the stages, so a lift seen at the step that completes stage 2 is premature), maxima,
+    /// then the current stage.
+    pub fn observe(&mut self, s: &SeesawSample, tick: Tick) {
+        let second_done = self.post_max.is_some();
+        if !second_done && self.premature_lift.is_none() && self.lifted(s.hinge_delta_rad, s.target_lift_m) {
+            self.premature_lift = Some(tick);
+        }
+        if let Some((h, l)) = &mut self.post_max {
+            *h = h.max(s.hinge_delta_rad);
+            *l = l.max(s.target_lift_m);
+        }
+        let completed = {
+            let this = &*self;
+            let holds: [bool; STAGES.len()] = std::array::from_fn(|i| this.holds(s, i));
+            let done = self.stages.advance(tick, |i| holds.get(i).copied().unwrap_or(false));
+            self.stages.track_regressions(tick, |i| holds.get(i).copied().unwrap_or(false));
+            done
+        };
+        match completed {
+            Some(1) => self.post_max = Some((s.hinge_delta_rad.max(0.0), s.target_lift_m.max(0.0))),
+            Some(2) => self.lift_event = Some(tick),
+            _ => {}
+        }
+    }
+
+    pub fn premature_lift(&self) -> Option<Tick> {
+        self.premature_lift
+    }
+
+    pub fn lift_event(&self) -> Option<Tick> {
+        self.lift_event
+    }
+
+    pub fn post_max(&self) -> Option<(f64, f64)> {
+        self.post_max
+    }
+}
+
+pub struct PhysicalSeesaw {
+    params: SeesawParams,
+    index: std::sync::Arc<SceneIndex>,
+    goal: GoalChecker,
+    commitment: CommitmentTracker,
+    task_id: Option<String>,
+    target: usize,
+    weights: Vec<usize>,
+    hinge_qpos_adr: usize,
+    /// Where the far-end anchor is read.
+    anchor: Anchor,
+    /// Per geom: `Some(k)` in weight k's subtree, `Some(BOARD)` in the hinge body's subtree.
+    geom_side: Vec<Option<usize>>,
+    in_basket: CompiledAtom,
+    hinge0_rad: f64,
+    target_z0_m: f64,
+    progress: SeesawProgress,
+    events: Vec<PrivateEvent>,
+    control_steps: u64,
+}
+
+/// `geom_side` tag of the moving board's geoms.
+const BOARD: usize = usize::MAX;
+
+#[derive(Debug, Clone, Copy)]
+enum Anchor {
+    Site(usize),
+    Body(usize),
+}
+
+impl PhysicalSeesaw {
+    pub fn new(
+        params: SeesawParams,
+        goal: GoalChecker,
+        commitment: CommitmentTracker,
+        model: &MjModel,
+        task_id: Option<String>,
+    ) -> Result<Self, TasksError> {
+        let index = goal.index().clone();
+        let instance = |n: &str| index.instance(n).ok_or_else(|| missing_in_model(CHECKER, "instance", n));
+        let target = instance(&params.target)?;
+        let weights = params.weights.iter().map(|w| instance(w)).collect::<Result<Vec<_>, _>>()?;
+        let hinge = model
+            .name_to_id(MjtObjBase::mjOBJ_JOINT, &params.hinge_joint)
+            .ok_or_else(|| missing_in_model(CHECKER, "joint", &params.hinge_joint))?;
+        let board = model.jnt_bodyid()[hinge] as usize;
+        let site = |n: &str| model.name_to_id(MjtObjBase::mjOBJ_SITE, n);
+        let anchor = [
+            params.far_end_site.clone(),
+            format!("{}_horizontal_radius_site", params.seesaw),
+            format!("{}_top_site", params.seesaw),
+        ]
+        .iter()
+        .find_map(|n| site(n))
+        .map_or(Anchor::Body(board), Anchor::Site);
+        let (parents, geom_body) = (model.body_parentid(), model.geom_bodyid());
+        let weight_bodies: Vec<usize> = weights.iter().map(|&w| index.instances[w].body).collect();
+        let geom_side = (0..model.ffi().ngeom as usize)
+            .map(|g| {
+                let b = geom_body[g] as usize;
+                if in_subtree(parents, b, board) {
+                    return Some(BOARD);
+                }
+                weight_bodies.iter().position(|&w| in_subtree(parents, b, w))
+            })
+            .collect();
+        let atom = libero_bddl::Atom {
+            predicate: "In".into(),
+            args: vec![params.target.clone(), params.basket_region.clone()],
+            pos: Default::default(),
+        };
+        let in_basket = CompiledAtom::compile(&index, &atom)?;
+        let progress = SeesawProgress::new(&params.stages, params.hinge_lift_rad, params.target_lift_m);
+        Ok(Self {
+            hinge_qpos_adr: model.jnt_qposadr()[hinge] as usize,
+            params,
+            index,
+            goal,
+            commitment,
+            task_id,
+            target,
+            weights,
+            anchor,
+            geom_side,
+            in_basket,
+            hinge0_rad: 0.0,
+            target_z0_m: 0.0,
+            progress,
+            events: Vec::new(),
+            control_steps: 0,
+        })
+    }
+
+    fn far_end(&self, data: &SimData) -> [f64; 3] {
+        match self.anchor {
+            Anchor::Site(s) => data.site_xpos()[s],
+            Anchor::Body(b) => data.xpos()[b],
+        }
+    }
+
+    fn on_far_end(&self, data: &SimData, k: usize) -> bool {
+        let f = self.far_end(data);
+        let w = data.xpos()[self.index.instances[self.weights[k]].body];
+        let [lo, hi] = self.params.weight_dz_range_m;
+        let dz = w[2] - f[2];
+        (w[0] - f[0]).hypot(w[1] - f[1]) <= self.params.weight_xy_max_m && (lo..=hi).contains(&dz)
+    }
+
+    /// Some contact between weight k's subtree and the board's.
+    fn touches_board(&self, data: &SimData, k: usize) -> bool {
+        data.contact().iter().any(|c| {
+            let (a, b) = (self.geom_side[c.geom[0] as usize], self.geom_side[c.geom[1] as usize]);
+            (a, b) == (Some(k), Some(BOARD)) || (a, b) == (Some(BOARD), Some(k))
+        })
+    }
+
+    fn released(&self, data: &SimData, k: usize) -> bool {
+        self.on_far_end(data, k)
+            && self.touches_board(data, k)
+            && !self.commitment.grasped(&self.index, data, self.weights[k])
+    }
+
+    fn sample(&self, data: &SimData) -> SeesawSample {
+        SeesawSample {
+            released: (0..self.weights.len()).filter(|&k| self.released(data, k)).count(),
+            weights: self.weights.len(),
+            hinge_delta_rad: data.qpos()[self.hinge_qpos_adr] - self.hinge0_rad,
+            target_lift_m: data.xpos()[self.index.instances[self.target].body][2] - self.target_z0_m,
+            target_in_basket: self.in_basket.evaluate(&self.index, data),
+        }
+    }
+}
+
+impl Evaluator for PhysicalSeesaw {
+    fn checker(&self) -> &str {
+        CHECKER
+    }
+
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        crate::judge::evaluator::merged_events(&self.progress.stages, &self.events)
+    }
+
+    fn stage_progress(&self) -> Option<(usize, usize)> {
+        Some((self.progress.stages.completed_required_count(), self.progress.stages.required_count()))
+    }
+
+    fn reset(&mut self, data: &SimData, _tick: Tick) {
+        self.hinge0_rad = data.qpos()[self.hinge_qpos_adr];
+        self.target_z0_m = data.xpos()[self.index.instances[self.target].body][2];
+        self.progress = SeesawProgress::new(&self.params.stages, self.params.hinge_lift_rad, self.params.target_lift_m);
+        self.events.clear();
+        self.control_steps = 0;
+        self.commitment.reset(&self.index, data);
+    }
+
+    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps += 1;
+        let s = self.sample(data);
+        self.progress.observe(&s, tick);
+        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+    }
+
+    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
+        let s = self.sample(data);
+        let mut record = EvaluationRecord::new(CHECKER);
+        self.progress.stages.write_into(&mut record);
+        record.task_id = self.task_id.clone();
+        let premature = self.progress.premature_lift();
+        let lift_seen = self.progress.lift_event().is_some();
+        let weights_released = s.all_released();
+        record.terminal_state_checks = vec![
+            TerminalCheck { name: format!("(in {} {})", self.params.target, self.params.basket_region), passed: s.target_in_basket },
+            TerminalCheck { name: "lift_event_seen".into(), passed: lift_seen },
+            TerminalCheck {
+                name: format!("counterweights_released_on_far_end ({}/{})", s.released, s.weights),
+                passed: weights_released,
+            },
+            TerminalCheck { name: "no_premature_lift".into(), passed: premature.is_none() },
+        ];
+        record.terminal_state_success = record.terminal_state_checks.iter().all(|c| c.passed);
+        let stages_done = self.progress.stages.all_required_completed();
+        record.success = stages_done && record.terminal_state_success;
+        crate::judge::support::fill_history(&mut record, (self.control_steps, 0), &self.events, &self.commitment, &self.goal, data);
+        record.failure_reason = if record.success {
+            None
+        } else if premature.is_some() {
+            Some(FailureReason::PrematureLiftDetected)
+        } else if !stages_done {
+            Some(FailureReason::IncompleteStage)
+        } else {
+            Some(FailureReason::TerminalStateInvalid)
+        };
+        record.details = Some(serde_json::json!({
+            "hinge_delta_rad": s.hinge_delta_rad,
+            "target_lift_m": s.target_lift_m,
+            "post_placement_max_hinge_delta_rad": self.progress.post_max().map(|m| m.0),
+            "post_placement_max_target_lift_m": self.progress.post_max().map(|m| m.1),
+            "premature_lift_detected_at": premature,
+            "lift_event_at": self.progress.lift_event(),
+            "weights_released_at_finish": s.released,
+        }));
+        record
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tick(step: u64) -> Tick {
+        Tick::at_control_step(step, step as f64 * 0.05)
+    }
+
+    fn progress() -> SeesawProgress {
+        let names: Vec<String> = STAGES.iter().map(|s| s.to_string()).collect();
+        SeesawProgress::new(&names, 0.12, 0.04)
+    }
+
+    fn sample(released: usize, hinge: f64, lift: f64, in_basket: bool) -> SeesawSample {
+        SeesawSample { released, weights: 2, hinge_delta_rad: hinge, target_lift_m: lift, target_in_basket: in_basket }
+    }
+
+    fn completed(p: &SeesawProgress) -> usize {
+        p.stages.completed_required_count()
+    }
+
+    #[test]
+    fn full_run_completes_the_four_stages_one_per_step() {
+        let mut p = progress();
+        p.observe(&sample(1, 0.05, 0.01, false), tick(1));
+        assert_eq!(completed(&p), 1);
+        // both weights down and the target already in the basket: stage 2 only, at most one stage per step
+        p.observe(&sample(2, 0.06, 0.015, true), tick(2));
+        assert_eq!(completed(&p), 2);
+        assert_eq!(p.post_max(), Some((0.06, 0.015)));
+        p.observe(&sample(2, 0.40, 0.09, true), tick(3));
+        assert_eq!(completed(&p), 3);
+        assert_eq!(p.lift_event(), Some(tick(3)));
+        p.observe(&sample(2, 0.40, 0.09, true), tick(4));
+        assert_eq!(completed(&p), 4);
+        assert!(p.premature_lift().is_none());
+    }
+
+    #[test]
+    fn a_lift_at_the_step_that_places_the_second_weight_is_premature() {
+        // the guard is tested before the stages: the lift must follow the placement
+        let mut p = progress();
+        p.observe(&sample(1, 0.05, 0.01, false), tick(1));
+        p.observe(&sample(2, 0.40, 0.09, false), tick(2));
+        assert_eq!(completed(&p), 2);
+        assert_eq!(p.premature_lift(), Some(tick(2)));
+    }
+
+    #[test]
+    fn lifting_before_both_weights_are_placed_latches_the_guard_and_blocks_stage_3() {
+        let mut p = progress();
+        p.observe(&sample(1, 0.05, 0.0, false), tick(1));
+        // the board pressed down by hand while only one weight is on: both thresholds at once
+        p.observe(&sample(1, 0.13, 0.05, false), tick(2));
+        assert_eq!(p.premature_lift(), Some(tick(2)));
+        p.observe(&sample(2, 0.40, 0.09, false), tick(3));
+        assert_eq!(completed(&p), 2, "stages 1 and 2 still complete");
+        for k in 4..10 {
+            p.observe(&sample(2, 0.40, 0.09, true), tick(k));
+        }
+        assert_eq!(completed(&p), 2, "stage 3 never completes after a premature lift");
+    }
+
+    #[test]
+    fn the_guard_needs_both_thresholds_and_is_off_after_stage_2() {
+        let mut p = progress();
+        p.observe(&sample(0, 0.20, 0.039, false), tick(1));
+        p.observe(&sample(0, 0.119, 0.20, false), tick(2));
+        assert!(p.premature_lift().is_none(), "one threshold alone is no lift");
+        p.observe(&sample(1, 0.0, 0.0, false), tick(3));
+        p.observe(&sample(2, 0.0, 0.0, false), tick(4));
+        p.observe(&sample(2, 0.30, 0.08, false), tick(5));
+        assert!(p.premature_lift().is_none(), "after stage 2 the lift is the intended one");
+        assert_eq!(completed(&p), 3);
+    }
+
+    #[test]
+    fn stage_2_resets_the_maxima_so_an_earlier_tilt_does_not_count() {
+        let mut p = progress();
+        p.observe(&sample(1, 0.0, 0.0, false), tick(1));
+        // a tilt without lift before stage 2 (no premature lift: the target did not rise)
+        p.observe(&sample(1, 0.50, 0.0, false), tick(2));
+        // stage 2 completes while the board is back: maxima start from the current (negative → 0) values
+        p.observe(&sample(2, -0.02, -0.01, false), tick(3));
+        assert_eq!(completed(&p), 2);
+        assert_eq!(p.post_max(), Some((0.0, 0.0)));
+        p.observe(&sample(2, 0.10, 0.05, false), tick(4));
+        assert_eq!(completed(&p), 2, "0.10 rad is below the hinge threshold");
+        // the maxima are running maxima: the hinge peak and the lift peak may come at different steps
+        p.observe(&sample(2, 0.13, 0.01, false), tick(5));
+        assert_eq!(completed(&p), 3);
+        assert_eq!(p.post_max(), Some((0.13, 0.05)));
+    }
+
+    #[test]
+    fn stage_3_needs_both_weights_still_released() {
+        let mut p = progress();
+        p.observe(&sample(1, 0.0, 0.0, false), tick(1));
+        p.observe(&sample(2, 0.0, 0.0, false), tick(2));
+        p.observe(&sample(1, 0.40, 0.09, false), tick(3));
+        assert_eq!(completed(&p), 2, "a weight was taken off again");
+        p.observe(&sample(2, 0.30, 0.05, false), tick(4));
+        assert_eq!(completed(&p), 3, "the maxima were kept while the weight was off");
+    }
+
+    #[test]
+    fn taking_a_weight_off_records_a_regression() {
+        let mut p = progress();
+        p.observe(&sample(1, 0.0, 0.0, false), tick(1));
+        p.observe(&sample(0, 0.0, 0.0, false), tick(2));
+        let mut r = EvaluationRecord::new(CHECKER);
+        p.stages.write_into(&mut r);
+        assert_eq!(r.completed_required_stage_count, 1);
+        assert_eq!(r.stage_regressions.len(), 1);
+        assert_eq!(r.stage_regressions[0].stage_name, STAGES[0]);
+    }
+}

@@ -1,0 +1,220 @@
+//! `private_tube_insertion` (T18; ChemistryTubePrecisionEvaluator, task catalog §4 T18). Terminal only: success ⇔
+//! all five checks hold on the final state at finish, with
+//! * p = world position of the tube's root body, s = the slot site, r = the rack's root body;
+//! * a = the long axis of the tube: the local y axis (second column of the rotation) of `<tube>_tube_axis`;
+//! * v = MuJoCo `cvel` of the tube's root body (angular part first, linear part last).
+//!
+//! | check | rule |
+//! |---|---|
+//! | `lateral_error` | ‖p_xy − s_xy‖ ≤ 0.018 m |
+//! | `insertion_depth` | p_z − r_z ∈ [0.032, 0.085] m (from the rack root, not the tabletop) |
+//! | `verticality` | \|a · ẑ\| ≥ 0.97 (≈ 14°) |
+//! | `stability` | ‖v_lin‖ ≤ 0.08 m/s and ‖v_ang‖ ≤ 0.60 rad/s |
+//! | `tube_rack_contact` | a contact between the tube's and the rack's body subtrees with distance ≤ 1e-3 m |
+//!
+//! Control-rate observe only counts how many control steps satisfied all five (a diagnostic). The BDDL goal
+//! (`In(tube, slot)`) is reported as a diagnostic. Names are resolved when the evaluator is built, so a lookup
+//! error fails the episode before it starts rather than at finish.
+use libero_sim::compose::ComposedScene;
+use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::simulation::SimData;
+use serde::{Deserialize, Serialize};
+
+use crate::TasksError;
+use crate::judge::commitment::CommitmentTracker;
+use crate::judge::evaluator::{
+    EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
+};
+use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
+use crate::judge::goal::GoalChecker;
+
+pub const CHECKER: &str = "private_tube_insertion";
+pub const STAGE_NAME: &str = "01_Tube_Inserted_At_Finish";
+
+/// The manifest's `checker.params`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TubeInsertionParams {
+    pub tube: String,
+    pub slot_site: String,
+    pub rack_root: String,
+    pub lateral_max_m: f64,
+    pub depth_range_m: [f64; 2],
+    pub verticality_min: f64,
+    pub linear_speed_max_m_s: f64,
+    pub angular_speed_max_rad_s: f64,
+    pub contact_distance_max_m: f64,
+}
+
+/// What the checks measured on one state.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TubeMeasures {
+    pub lateral_error_m: f64,
+    pub insertion_depth_m: f64,
+    /// |a · ẑ|
+    pub verticality: f64,
+    pub linear_speed_m_s: f64,
+    pub angular_speed_rad_s: f64,
+    pub tube_rack_contact: bool,
+}
+
+pub struct TubeInsertion {
+    params: TubeInsertionParams,
+    task_id: Option<String>,
+    goal: GoalChecker,
+    commitment: CommitmentTracker,
+    tube_body: usize,
+    axis_body: usize,
+    slot_site: usize,
+    rack_body: usize,
+    /// `in_tube[b]` / `in_rack[b]`: body b belongs to the tube's / the rack's subtree.
+    in_tube: Vec<bool>,
+    in_rack: Vec<bool>,
+    geom_body: Vec<usize>,
+    control_steps: u64,
+    steps_all_checks_passed: u64,
+    events: Vec<PrivateEvent>,
+}
+
+/// `<name>`, `<name>_main`, `<name>_object`, in that order (catalog §2.4).
+fn lookup_body(model: &MjModel, name: &str) -> Option<usize> {
+    [name.to_owned(), format!("{name}_main"), format!("{name}_object")]
+        .iter()
+        .find_map(|n| model.name_to_id(MjtObjBase::mjOBJ_BODY, n))
+}
+
+fn subtree(model: &MjModel, root: usize) -> Vec<bool> {
+    let parent = model.body_parentid();
+    let nbody = model.ffi().nbody as usize;
+    // parents precede children in MuJoCo's body order
+    let mut inside = vec![false; nbody];
+    for b in 0..nbody {
+        inside[b] = b == root || (b != 0 && inside[parent[b] as usize]);
+    }
+    inside
+}
+
+fn norm3(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+impl TubeInsertion {
+    pub fn new(
+        params: TubeInsertionParams,
+        scene: &ComposedScene,
+        model: &MjModel,
+        task_id: Option<String>,
+    ) -> Result<Self, TasksError> {
+        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+        let missing = |kind: &str, name: &str| missing_in_model(CHECKER, kind, name);
+        let tube_body = lookup_body(model, &params.tube).ok_or_else(|| missing("body", &params.tube))?;
+        let axis_name = format!("{}_tube_axis", params.tube);
+        let axis_body = model.name_to_id(MjtObjBase::mjOBJ_BODY, &axis_name).ok_or_else(|| missing("body", &axis_name))?;
+        let slot_site =
+            model.name_to_id(MjtObjBase::mjOBJ_SITE, &params.slot_site).ok_or_else(|| missing("site", &params.slot_site))?;
+        let rack_body = lookup_body(model, &params.rack_root).ok_or_else(|| missing("body", &params.rack_root))?;
+        Ok(Self {
+            in_tube: subtree(model, tube_body),
+            in_rack: subtree(model, rack_body),
+            geom_body: model.geom_bodyid().iter().map(|&b| b as usize).collect(),
+            params,
+            task_id,
+            goal,
+            commitment,
+            tube_body,
+            axis_body,
+            slot_site,
+            rack_body,
+            control_steps: 0,
+            steps_all_checks_passed: 0,
+            events: Vec::new(),
+        })
+    }
+
+    pub fn measure(&self, data: &SimData) -> TubeMeasures {
+        let p = data.xpos()[self.tube_body];
+        let s = data.site_xpos()[self.slot_site];
+        let r = data.xpos()[self.rack_body];
+        // xmat is row-major: the second column's z component (the world z of local y) is element [2][1]
+        let verticality = data.xmat()[self.axis_body][7].abs();
+        let v = data.cvel()[self.tube_body];
+        let body = |g: i32| self.geom_body[g as usize];
+        let contact = data.contact().iter().any(|c| {
+            let (b1, b2) = (body(c.geom[0]), body(c.geom[1]));
+            c.dist <= self.params.contact_distance_max_m
+                && ((self.in_tube[b1] && self.in_rack[b2]) || (self.in_tube[b2] && self.in_rack[b1]))
+        });
+        TubeMeasures {
+            lateral_error_m: ((p[0] - s[0]).powi(2) + (p[1] - s[1]).powi(2)).sqrt(),
+            insertion_depth_m: p[2] - r[2],
+            verticality,
+            angular_speed_rad_s: norm3(&v[0..3]),
+            linear_speed_m_s: norm3(&v[3..6]),
+            tube_rack_contact: contact,
+        }
+    }
+
+    /// The five named checks on `m`.
+    pub fn checks(&self, m: &TubeMeasures) -> Vec<TerminalCheck> {
+        let p = &self.params;
+        let check = |name: &str, passed: bool| TerminalCheck { name: name.to_owned(), passed };
+        vec![
+            check("lateral_error", m.lateral_error_m <= p.lateral_max_m),
+            check("insertion_depth", (p.depth_range_m[0]..=p.depth_range_m[1]).contains(&m.insertion_depth_m)),
+            check("verticality", m.verticality >= p.verticality_min),
+            check("stability", m.linear_speed_m_s <= p.linear_speed_max_m_s && m.angular_speed_rad_s <= p.angular_speed_max_rad_s),
+            check("tube_rack_contact", m.tube_rack_contact),
+        ]
+    }
+}
+
+impl Evaluator for TubeInsertion {
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        self.events.clone()
+    }
+
+    fn checker(&self) -> &str {
+        CHECKER
+    }
+
+    fn reset(&mut self, data: &SimData, _tick: Tick) {
+        self.control_steps = 0;
+        self.steps_all_checks_passed = 0;
+        self.events.clear();
+        self.commitment.reset(self.goal.index(), data);
+    }
+
+    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps += 1;
+        if self.checks(&self.measure(data)).iter().all(|c| c.passed) {
+            self.steps_all_checks_passed += 1;
+        }
+        self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
+    }
+
+    fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord {
+        let measures = self.measure(data);
+        let checks = self.checks(&measures);
+        let success = checks.iter().all(|c| c.passed);
+        let mut stages = StageTracker::new(vec![StageSpec::required(STAGE_NAME)]);
+        stages.advance(tick, |_| success);
+        let mut record = EvaluationRecord::new(CHECKER);
+        stages.write_into(&mut record);
+        record.task_id = self.task_id.clone();
+        record.success = success;
+        record.terminal_state_success = success;
+        record.terminal_state_checks = checks;
+        record.control_steps_observed = self.control_steps;
+        record.events = self.events.clone();
+        record.first_commitment = self.commitment.first().cloned();
+        let report = self.goal.evaluate(data);
+        record.bddl_final_goal_success = Some(report.success);
+        record.bddl_goal = Some(report);
+        record.failure_reason = (!success).then_some(FailureReason::TerminalStateInvalid);
+        record.details = Some(serde_json::json!({
+            "final": measures,
+            "control_steps_all_checks_passed": self.steps_all_checks_passed,
+        }));
+        record
+    }
+}

@@ -1,0 +1,167 @@
+//! The one place that knows every kind: which evaluator judges each checker type of the manifest, and which
+//! family's scripted expert plays each task. Adding a task family touches its folder under `families/`, this
+//! registry and the manifest; nothing else names a family.
+use libero_sim::compose::ComposedScene;
+use libero_sim::mujoco_rs::prelude::MjModel;
+
+use crate::TasksError;
+use crate::catalog::CheckerSpec;
+use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::families::adapted::hammer_contact::{self, HammerContact};
+use crate::families::adapted::pour_wine::{self as pour, PourWine};
+use crate::families::adapted::wipe::{self, SpillWipe};
+use crate::families::libero::bddl_terminal::{self, BddlTerminal};
+use crate::families::long_horizon::staged::{self, StagedEvaluator};
+use crate::families::perception::weighing::{self, PhysicalWeighing};
+use crate::families::vlabench::button_press::{self, ButtonPress};
+use crate::families::vlabench::seesaw::{self, PhysicalSeesaw};
+use crate::families::vlabench::tube_insertion::{self, TubeInsertion};
+use crate::families::{adapted, libero, long_horizon, perception, vlabench};
+use crate::judge::evaluator::Evaluator;
+use crate::judge::support::scene_goal_and_commitment;
+
+/// The checker types this build can judge (the catalog refuses an implemented task whose checker is not here).
+pub const EVALUATOR_KINDS: &[&str] = &[
+    bddl_terminal::CHECKER,
+    "bddl_terminal_open",
+    button_press::CHECKER,
+    button_press::GATED_CHECKER,
+    tube_insertion::CHECKER,
+    wipe::CHECKER,
+    pour::CHECKER,
+    staged::CHECKER_ORDERED,
+    staged::CHECKER_UNORDERED,
+    staged::CHECKER_BUFFER_ROTATION,
+    weighing::CHECKER,
+    hammer_contact::CHECKER,
+    seesaw::CHECKER,
+];
+
+/// The manifest's `checker.params` for `kind` (missing fields take the catalog's defaults where the type has them).
+fn params<T: serde::de::DeserializeOwned>(checker: Option<&CheckerSpec>, kind: &str, task_id: Option<&str>) -> Result<T, TasksError> {
+    let value = checker.map(|c| c.params.clone()).filter(|v| !v.is_null()).unwrap_or_else(|| serde_json::json!({}));
+    serde_json::from_value(value).map_err(|e| TasksError::Catalog {
+        path: task_id.unwrap_or("task").to_owned(),
+        message: format!("checker {kind}: bad params: {e}"),
+    })
+}
+
+/// Edits a task's private checker parameters make to the compiled model before the episode starts (T08: each
+/// mug's mass). Call before [`build_evaluator`] and before the model is frozen; a no-op for other checkers.
+pub fn apply_private_model_edits(checker: Option<&CheckerSpec>, task_id: Option<&str>, model: &mut MjModel) -> Result<(), TasksError> {
+    match checker.map(|c| c.kind.as_str()) {
+        Some(weighing::CHECKER) => weighing::apply_mug_masses(&params(checker, weighing::CHECKER, task_id)?, model),
+        _ => Ok(()),
+    }
+}
+
+/// The evaluator for `checker` on `scene` (compiled as `model`). `None` — a stock LIBERO task without a suite
+/// entry — is judged like `bddl_terminal`: the scene's own BDDL goal on the final state.
+pub fn build_evaluator(
+    checker: Option<&CheckerSpec>,
+    task_id: Option<&str>,
+    scene: &ComposedScene,
+    model: &MjModel,
+) -> Result<Box<dyn Evaluator>, TasksError> {
+    let kind = checker.map_or(bddl_terminal::CHECKER, |c| c.kind.as_str());
+    match kind {
+        "bddl_terminal" | "bddl_terminal_open" => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p: bddl_terminal::BddlTerminalParams = params(checker, kind, task_id)?;
+            if let Some(t) = &p.judgment_target
+                && goal.index().instance(t).is_none()
+            {
+                return Err(crate::judge::support::missing_in_model(kind, "instance", t));
+            }
+            let e = BddlTerminal::new(kind, goal, commitment, task_id.map(str::to_owned));
+            Ok(Box::new(e.with_judgment_target(p.judgment_target)))
+        }
+        button_press::CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(ButtonPress::new(p, scene, model, task_id.map(str::to_owned))?))
+        }
+        button_press::GATED_CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(ButtonPress::gated(p, scene, model, task_id.map(str::to_owned))?))
+        }
+        tube_insertion::CHECKER => {
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(TubeInsertion::new(p, scene, model, task_id.map(str::to_owned))?))
+        }
+        wipe::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(SpillWipe::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        pour::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PourWine::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        staged::CHECKER_ORDERED | staged::CHECKER_UNORDERED | staged::CHECKER_BUFFER_ROTATION => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(StagedEvaluator::new(kind, p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        weighing::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PhysicalWeighing::new(p, goal, commitment, task_id.map(str::to_owned))?))
+        }
+        hammer_contact::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(HammerContact::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        seesaw::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(PhysicalSeesaw::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        other => Err(TasksError::Catalog {
+            path: task_id.unwrap_or("task").to_owned(),
+            message: format!("no evaluator of type {other} in this build"),
+        }),
+    }
+}
+
+/// One family's experts: the tasks it scripts (with their near-miss behaviours) and how to build one.
+struct ExpertFamily {
+    behaviours: fn(&str) -> Option<&'static [&'static str]>,
+    build: fn(&str, &str, &SceneRefs) -> Result<Box<dyn Expert>, TasksError>,
+}
+
+/// Every family with scripted experts. A task id belongs to at most one family.
+const EXPERT_FAMILIES: &[ExpertFamily] = &[
+    ExpertFamily { behaviours: libero::behaviours, build: libero::build_expert },
+    ExpertFamily { behaviours: perception::behaviours, build: perception::build_expert },
+    ExpertFamily { behaviours: vlabench::behaviours, build: vlabench::build_expert },
+    ExpertFamily { behaviours: adapted::behaviours, build: adapted::build_expert },
+    ExpertFamily { behaviours: long_horizon::behaviours, build: long_horizon::build_expert },
+];
+
+/// The tasks that have an expert, with their near-miss behaviours.
+pub fn expert_behaviours(task_id: &str) -> Option<&'static [&'static str]> {
+    EXPERT_FAMILIES.iter().find_map(|f| (f.behaviours)(task_id))
+}
+
+/// The expert for `task_id` playing `behaviour` ([`SOLVE`] or one of [`expert_behaviours`]) on this scene.
+pub fn expert_for(
+    task_id: &str,
+    behaviour: &str,
+    scene: &ComposedScene,
+    model: &MjModel,
+) -> Result<Box<dyn Expert>, TasksError> {
+    let refs = SceneRefs::new(scene, model)?;
+    let (family, known) = EXPERT_FAMILIES
+        .iter()
+        .find_map(|f| (f.behaviours)(task_id).map(|known| (f, known)))
+        .ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))?;
+    if behaviour != SOLVE && !known.contains(&behaviour) {
+        return Err(TasksError::Scene(format!(
+            "task {task_id} has no expert behaviour {behaviour:?}; known: {SOLVE}, {}",
+            known.join(", ")
+        )));
+    }
+    (family.build)(task_id, behaviour, &refs)
+}
