@@ -40,8 +40,8 @@ pub struct BenchTeleopArgs {
     /// Seconds of driving.
     #[arg(long, default_value_t = 10.0)]
     pub seconds: f64,
-    /// Actions per batch (the page's default is 4: one batch every 200 ms).
-    #[arg(long, default_value_t = 4)]
+    /// Actions per batch (the page's default is 2: one batch, hence one live frame, every 100 ms).
+    #[arg(long, default_value_t = 2)]
     pub batch: usize,
     /// Data directory of the in-process server (default: a new temporary directory, removed afterwards).
     #[arg(long)]

@@ -160,7 +160,7 @@ mod tests {
 #[cfg(feature = "world")]
 pub use live_renderer::{LiveRenderer, LiveState};
 #[cfg(feature = "world")]
-pub use world_taps::{LIVE_FRAME_MIN_INTERVAL, TelemetryRow, WorldTap, encode_jpeg};
+pub use world_taps::{LIVE_FRAME_MIN_INTERVAL, LIVE_OBSERVATION_GRACE, TelemetryRow, WorldTap, encode_jpeg};
 
 #[cfg(feature = "world")]
 mod world_taps {
@@ -179,6 +179,11 @@ mod world_taps {
 
     /// At most 20 live frames a second (the control rate) are rendered, however many viewers watch.
     pub const LIVE_FRAME_MIN_INTERVAL: Duration = Duration::from_millis(50);
+    /// How long a state without images waits for an observation of a newer state before it is rendered. A call
+    /// ends with an observation, whose images the live view reuses for nothing; rendering the steps inside a
+    /// short call would only take the cores the call's own render needs and delay the frame after it (teleop's
+    /// batches). A call longer than this still shows motion while it runs.
+    pub const LIVE_OBSERVATION_GRACE: Duration = Duration::from_millis(150);
     /// JPEG quality of live frames: small enough for many viewers, sharp enough to read the scene.
     const JPEG_QUALITY: u8 = 80;
     /// `origin` before the evaluator reset: frames until then are settle steps.
@@ -305,11 +310,11 @@ mod live_renderer {
     use std::sync::atomic::{AtomicU64, Ordering};
     use std::sync::{Arc, Condvar, Mutex};
     use std::thread::JoinHandle;
-    use std::time::Instant;
+    use std::time::{Duration, Instant};
 
     use libero_render::{FrameState, ModelHandle, Renderer};
 
-    use super::world_taps::{LIVE_FRAME_MIN_INTERVAL, encode_jpeg};
+    use super::world_taps::{LIVE_FRAME_MIN_INTERVAL, LIVE_OBSERVATION_GRACE, encode_jpeg};
     use super::{LiveEvent, LiveFrame, LiveSink, LiveViewers};
     use crate::video::{Lane, VideoCameras, render_head_wrist, side_by_side};
 
@@ -329,6 +334,8 @@ mod live_renderer {
     /// unrendered one, so the renderer never works through a backlog.
     struct Slot {
         newest: Option<LiveState>,
+        /// When the slot last went from empty to holding a state: how long the pending frame has waited.
+        pending_since: Option<Instant>,
         closed: bool,
     }
 
@@ -363,7 +370,10 @@ mod live_renderer {
             sink: LiveSink,
             viewers: LiveViewers,
         ) -> std::io::Result<Self> {
-            let shared = Arc::new(Shared { slot: Mutex::new(Slot { newest: None, closed: false }), wake: Condvar::new() });
+            let shared = Arc::new(Shared {
+                slot: Mutex::new(Slot { newest: None, pending_since: None, closed: false }),
+                wake: Condvar::new(),
+            });
             let waker = shared.clone();
             viewers.on_change(Arc::new(move || waker.notify()));
             let renders = Arc::new(AtomicU64::new(0));
@@ -375,6 +385,9 @@ mod live_renderer {
         /// Offers the newest state, replacing one not yet rendered. Never waits for a render.
         pub fn publish(&self, state: LiveState) {
             if let Ok(mut slot) = self.shared.slot.lock() {
+                if slot.newest.is_none() {
+                    slot.pending_since = Some(Instant::now());
+                }
                 slot.newest = Some(state);
                 self.shared.wake.notify_all();
             }
@@ -425,6 +438,16 @@ mod live_renderer {
         (started + LIVE_FRAME_MIN_INTERVAL).max(ended + cost)
     }
 
+    /// How long the pending state must still wait before it is shown (see [`Job::next`]).
+    fn wait_before_showing(now: Instant, prerendered: bool, not_before: Option<Instant>, pending_since: Option<Instant>) -> Duration {
+        if prerendered {
+            return Duration::ZERO;
+        }
+        let paced = not_before.map_or(Duration::ZERO, |t| t.saturating_duration_since(now));
+        let grace = pending_since.map_or(Duration::ZERO, |t| (t + LIVE_OBSERVATION_GRACE).saturating_duration_since(now));
+        paced.max(grace)
+    }
+
     impl Job {
         fn run(mut self) {
             let mut not_before: Option<Instant> = None;
@@ -435,8 +458,11 @@ mod live_renderer {
             }
         }
 
-        /// Waits for a state worth rendering: one not rendered yet, while someone watches, no sooner than
-        /// `not_before`. `None` once the world is gone and nothing is left to show.
+        /// Waits for a state worth showing while someone watches. One that carries its images (an
+        /// observation's: only a JPEG to make) is taken at once, so the frame after a call never waits out the
+        /// pause a render earns; one without is rendered no sooner than `not_before` and once it has waited
+        /// [`LIVE_OBSERVATION_GRACE`] for an observation. `None` once the world is gone and nothing is left to
+        /// show.
         fn next(&self, not_before: Option<Instant>) -> Option<LiveState> {
             let mut slot = self.shared.slot.lock().ok()?;
             loop {
@@ -448,8 +474,10 @@ mod live_renderer {
                     slot = self.shared.wake.wait(slot).ok()?;
                     continue;
                 }
-                let wait = not_before.map(|t| t.saturating_duration_since(Instant::now())).unwrap_or_default();
+                let prerendered = slot.newest.as_ref().is_some_and(|s| s.rendered.is_some());
+                let wait = wait_before_showing(Instant::now(), prerendered, not_before, slot.pending_since);
                 if wait.is_zero() {
+                    slot.pending_since = None;
                     return slot.newest.take();
                 }
                 slot = self.shared.wake.wait_timeout(slot, wait).ok()?.0;
@@ -488,6 +516,24 @@ mod live_renderer {
         use std::time::Duration;
 
         use super::*;
+
+        #[test]
+        fn a_state_with_images_is_shown_at_once_and_one_without_waits_for_the_pace_and_an_observation() {
+            let t0 = Instant::now();
+            let ms = Duration::from_millis;
+            // An observation's images: no render to pace, nothing to wait for.
+            assert_eq!(wait_before_showing(t0, true, Some(t0 + ms(40)), Some(t0)), Duration::ZERO);
+            // A step inside a call: it waits for the call's observation.
+            assert_eq!(wait_before_showing(t0, false, None, Some(t0)), LIVE_OBSERVATION_GRACE);
+            assert_eq!(wait_before_showing(t0 + ms(100), false, None, Some(t0)), LIVE_OBSERVATION_GRACE - ms(100));
+            // A long call: once the grace is over, the newest step is rendered (motion while it runs)...
+            assert_eq!(wait_before_showing(t0 + LIVE_OBSERVATION_GRACE, false, None, Some(t0)), Duration::ZERO);
+            // ... at the pace renders earn.
+            let paced = t0 + LIVE_OBSERVATION_GRACE + ms(30);
+            assert_eq!(wait_before_showing(t0 + LIVE_OBSERVATION_GRACE, false, Some(paced), Some(t0)), ms(30));
+            // A state left from before anyone watched waited long ago: shown at once to a new viewer.
+            assert_eq!(wait_before_showing(t0 + ms(5000), false, None, Some(t0)), Duration::ZERO);
+        }
 
         #[test]
         fn live_renders_leave_the_simulation_at_least_half_a_core() {
