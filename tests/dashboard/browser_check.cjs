@@ -2,8 +2,8 @@
 // scripted agent runs episode EPISODE: the home page lists it live, the live page shows frames whose
 // control-step label changes, calls and evaluator progress as they happen, the review page plays the video,
 // steps with the keyboard, scrubs the timeline, opens a deep link and shows the observation the agent got, and
-// the tasks page shows a rendered thumbnail. Prints JSON lines: {"event":"live-ready"} once the live page is
-// connected (the test then starts the agent), finally {"ok":true,...}. Screenshots go to ARTIFACTS.
+// the tasks page shows a rendered thumbnail and filters the pool. Prints JSON lines: {"event":"live-ready"} once the
+// live page is connected (the test then starts the agent), finally {"ok":true,...}. Screenshots go to ARTIFACTS.
 const { launch, say, shotter, check, text, login } = require('./common.cjs');
 
 const [base, episode, artifacts, unimplemented] = process.argv.slice(2);
@@ -130,6 +130,20 @@ async function main() {
       check((await tasks.locator(`#${unimplemented}`).innerText()).includes('not implemented'), `${unimplemented} shows as not implemented`);
     }
     await shot(tasks, 'tasks');
+    // The pool: filter by suite and search by name through the page's own form; a stock entry renders its thumbnail.
+    await tasks.selectOption('select[name="suite"]', 'libero_90');
+    await tasks.fill('input[name="q"]', 'microwave');
+    await Promise.all([tasks.waitForNavigation(), tasks.click('form.task-filter button')]);
+    const ids = await tasks.locator('article.pool-task').evaluateAll((a) => a.map((e) => e.dataset.id));
+    check(ids.includes('libero_90/35') && ids.every((id) => id.startsWith('libero_90/')), `suite + search filter the pool (${ids.join(', ')})`);
+    await tasks.waitForFunction(() => document.querySelector('article[data-id="libero_90/35"] img').naturalWidth === 256, null, { timeout: 120000 });
+    check(/libero_90\/35/.test(await tasks.locator('article[data-id="libero_90/35"] a.teleop-link').getAttribute('href')), 'a stock entry links to teleop');
+    await tasks.goto(`${base}/tasks?suite=robomemarena&group=long_horizon`);
+    const t23 = await tasks.locator('article[data-id="robomemarena/4"]').innerText();
+    check(t23.includes('runs as T23'), 'a release-backed entry says what it runs as');
+    check((await tasks.locator('article[data-id="robomemarena/1"]').innerText()).includes('does not run here'), 'an unimplemented entry says so');
+    report.pool = { microwave: ids, summary: await text(tasks, '#task-summary') };
+    await shot(tasks, 'tasks-pool');
     check(errors.length === 0, `no page errors: ${errors.join('; ')}`);
     say({ ok: true, ...report });
   } finally {

@@ -1,16 +1,24 @@
-//! `libero-agent tasks list|show`: the release catalog (`tasks/manifest.json`) for operators. `show` prints the
+//! `libero-agent tasks list|show`: the release catalog (`tasks/manifest.json`) and the registered pool
+//! (`tasks/pool.json`) for operators. `show` prints the
 //! private checker parameters too: this is an operator tool, never reachable by an agent.
 use anyhow::Context;
-use libero_tasks::{Catalog, TaskEntry};
+use libero_tasks::pool::{GROUPS, REGISTERED_SUITES};
+use libero_tasks::{Catalog, Pool, PoolEntry, TaskEntry};
 
 #[derive(Debug, clap::Subcommand)]
 pub enum TasksCommand {
-    /// All 30 release tasks as a table (or JSON).
+    /// The 30 release tasks as a table (or JSON); with `--suite`, the registered pool (`tasks/pool.json`).
     List {
         #[arg(long)]
         json: bool,
+        /// A pool suite (`libero_90`, `robomemarena`, …) or `all`: every registered entry with its status.
+        #[arg(long)]
+        suite: Option<String>,
+        /// Only pool entries of this group (perception, short_horizon, long_horizon); implies `--suite all`.
+        #[arg(long)]
+        group: Option<String>,
     },
-    /// One task (`T16`, `t16` or `16`) in full.
+    /// One task in full: a release task (`T16`, `t16` or `16`) or a pool entry (`libero_90/35`, `suite/name`).
     Show {
         id: String,
         #[arg(long)]
@@ -31,8 +39,26 @@ pub enum TasksCommand {
 pub fn run(cmd: &TasksCommand) -> anyhow::Result<()> {
     let catalog = Catalog::discover().context("loading the task catalog")?;
     match cmd {
-        TasksCommand::List { json: true } => println!("{}", serde_json::to_string_pretty(catalog.tasks())?),
-        TasksCommand::List { json: false } => print!("{}", table(catalog.tasks())),
+        TasksCommand::List { json, suite: None, group: None } => {
+            if *json {
+                println!("{}", serde_json::to_string_pretty(catalog.tasks())?);
+            } else {
+                print!("{}", table(catalog.tasks()));
+            }
+        }
+        TasksCommand::List { json, suite, group } => {
+            let pool = Pool::discover().context("loading the task pool")?;
+            print!("{}", pool_list(&pool, suite.as_deref().unwrap_or("all"), group.as_deref(), *json)?);
+        }
+        TasksCommand::Show { id, json } if id.contains('/') => {
+            let pool = Pool::discover().context("loading the task pool")?;
+            let entry = pool.lookup(id).map_err(anyhow::Error::msg)?;
+            if *json {
+                println!("{}", serde_json::to_string_pretty(entry)?);
+            } else {
+                print!("{}", pool_details(entry));
+            }
+        }
         TasksCommand::Show { id, json } => {
             let task = catalog.get(id).with_context(|| format!("no release task {id:?} (expected T01–T30)"))?;
             if *json {
@@ -91,6 +117,25 @@ fn enum_text<T: serde::Serialize>(v: &T) -> String {
     serde_json::to_value(v).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default()
 }
 
+/// Left-aligned columns, two spaces apart.
+fn columns<const N: usize>(header: [&str; N], rows: &[[String; N]]) -> String {
+    let mut widths = header.map(str::len);
+    for r in rows {
+        for (w, c) in widths.iter_mut().zip(r) {
+            *w = (*w).max(c.chars().count());
+        }
+    }
+    let line = |cells: Vec<&str>| {
+        let padded: Vec<String> = cells.iter().zip(widths).map(|(c, w)| format!("{c:w$}")).collect();
+        format!("{}\n", padded.join("  ").trim_end())
+    };
+    let mut out = line(header.to_vec());
+    for r in rows {
+        out.push_str(&line(r.iter().map(String::as_str).collect()));
+    }
+    out
+}
+
 fn table(tasks: &[TaskEntry]) -> String {
     let rows: Vec<[String; 8]> = tasks
         .iter()
@@ -107,23 +152,64 @@ fn table(tasks: &[TaskEntry]) -> String {
             ]
         })
         .collect();
-    let header = ["ID", "NAME", "CATEGORY", "SPLIT", "DIFFICULTY", "CHECKER", "K", "IMPLEMENTED"];
-    let mut widths = header.map(str::len);
-    for r in &rows {
-        for (w, c) in widths.iter_mut().zip(r) {
-            *w = (*w).max(c.len());
+    let mut out = columns(["ID", "NAME", "CATEGORY", "SPLIT", "DIFFICULTY", "CHECKER", "K", "IMPLEMENTED"], &rows);
+    let implemented = tasks.iter().filter(|t| t.implemented).count();
+    out.push_str(&format!(
+        "{implemented} of {} tasks implemented; `tasks show <ID>` for details; `tasks list --suite all` for the pool\n",
+        tasks.len()
+    ));
+    out
+}
+
+/// The pool entries of `suite` (or `all`) and `group`, as a table with per-suite counts, or as JSON.
+fn pool_list(pool: &Pool, suite: &str, group: Option<&str>, json: bool) -> anyhow::Result<String> {
+    if suite != "all" && !REGISTERED_SUITES.iter().any(|(s, _)| *s == suite) {
+        anyhow::bail!("no pool suite {suite:?}; registered: all, {}", REGISTERED_SUITES.map(|(s, _)| s).join(", "));
+    }
+    if let Some(g) = group.filter(|g| !GROUPS.contains(g)) {
+        anyhow::bail!("no group {g:?}; groups: {}", GROUPS.join(", "));
+    }
+    let entries: Vec<&PoolEntry> = pool.select(suite, group).collect();
+    if json {
+        return Ok(format!("{}\n", serde_json::to_string_pretty(&entries)?));
+    }
+    let rows: Vec<[String; 7]> = entries
+        .iter()
+        .map(|e| {
+            let status = match (&e.runs_as, e.why_not()) {
+                (_, Some(_)) => enum_text(&e.status()).replace('_', " "),
+                (Some(t), None) => format!("runs (as {t})"),
+                (None, None) => "runs".into(),
+            };
+            [e.id(), e.name.clone(), e.group.clone(), e.source.clone(), e.checker.clone(), e.stage_count.to_string(), status]
+        })
+        .collect();
+    let mut out = columns(["ID", "NAME", "GROUP", "SOURCE", "CHECKER", "K", "STATUS"], &rows);
+    for c in pool.suite_counts().iter().filter(|c| suite == "all" || c.suite == suite) {
+        out.push_str(&format!(
+            "{}: {} registered, {} run, {} excluded, {} not implemented\n",
+            c.suite, c.registered, c.runs, c.excluded, c.not_implemented
+        ));
+    }
+    let runs = entries.iter().filter(|e| e.why_not().is_none()).count();
+    out.push_str(&format!("{runs} of {} listed entries run; `tasks show <suite>/<task id>` for details\n", entries.len()));
+    Ok(out)
+}
+
+fn pool_details(e: &PoolEntry) -> String {
+    let mut out = format!("{} {}\n", e.id(), e.name);
+    let mut kv = |k: &str, v: &str| out.push_str(&format!("  {k:<22}{v}\n"));
+    kv("instruction", &e.instruction);
+    kv("group", &e.group);
+    kv("source", &e.source);
+    kv("checker", &e.checker);
+    kv("K", &e.stage_count.to_string());
+    kv("status", &e.why_not().unwrap_or_else(|| "runs".into()));
+    for (k, v) in [("runs as", &e.runs_as), ("release task", &e.release_task), ("same definition as", &e.same_definition_as), ("notes", &e.notes)] {
+        if let Some(v) = v {
+            kv(k, v);
         }
     }
-    let line = |cells: Vec<&str>| {
-        let padded: Vec<String> = cells.iter().zip(widths).map(|(c, w)| format!("{c:w$}")).collect();
-        format!("{}\n", padded.join("  ").trim_end())
-    };
-    let mut out = line(header.to_vec());
-    for r in &rows {
-        out.push_str(&line(r.iter().map(String::as_str).collect()));
-    }
-    let implemented = tasks.iter().filter(|t| t.implemented).count();
-    out.push_str(&format!("{implemented} of {} tasks implemented; `tasks show <ID>` for details\n", tasks.len()));
     out
 }
 

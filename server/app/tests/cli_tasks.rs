@@ -1,4 +1,5 @@
-//! `libero-agent tasks list|show` print the release catalog: a table by default, the manifest entries with --json.
+//! `libero-agent tasks list|show` print the release catalog (a table by default, the manifest entries with --json)
+//! and, with `--suite`/`--group` or a `suite/id`, the registered pool.
 use std::process::Command;
 
 fn run(args: &[&str]) -> (bool, String, String) {
@@ -29,4 +30,45 @@ fn tasks_show_prints_one_task_and_rejects_unknown_ids() {
     assert_eq!((t["id"].as_str(), t["implemented"].as_bool(), t["stage_count"].as_u64()), (Some("T19"), Some(true), Some(3)));
     let (ok, _, err) = run(&["tasks", "show", "T99"]);
     assert!(!ok && err.contains("no release task \"T99\""), "{err}");
+}
+
+#[test]
+fn tasks_list_suite_shows_the_registered_pool_with_status_and_counts() {
+    let (ok, table, _) = run(&["tasks", "list", "--suite", "all"]);
+    assert!(ok, "{table}");
+    let rows: Vec<&str> = table.lines().filter(|l| l.split_once('/').is_some_and(|(s, _)| !s.contains(' '))).collect();
+    assert_eq!(rows.len(), 213, "{table}");
+    assert!(table.contains("libero_90: 90 registered, 90 run, 0 excluded, 0 not implemented"), "{table}");
+    assert!(table.contains("robomemarena: 26 registered, 5 run, 0 excluded, 21 not implemented"), "{table}");
+    let microwave = rows.iter().find(|l| l.starts_with("libero_90/35 ")).expect("libero_90/35");
+    assert!(microwave.contains("KITCHEN_SCENE7_open_the_microwave") && microwave.ends_with("runs"), "{microwave}");
+    assert!(rows.iter().any(|l| l.starts_with("robomemarena/4 ") && l.ends_with("runs (as T23)")), "{table}");
+    assert!(rows.iter().any(|l| l.starts_with("vlabench_world_knowledge/8 ") && l.ends_with("excluded")), "{table}");
+
+    let (ok, json, _) = run(&["tasks", "list", "--suite", "robomemarena", "--group", "long_horizon", "--json"]);
+    assert!(ok, "{json}");
+    let entries: Vec<serde_json::Value> = serde_json::from_str(&json).unwrap();
+    assert_eq!(entries.len(), 26);
+    assert_eq!(entries[0]["name"], "robomemarena_task_01");
+    let (ok, json, _) = run(&["tasks", "list", "--group", "perception", "--json"]);
+    let perception: Vec<serde_json::Value> = serde_json::from_str(&json).unwrap();
+    assert!(ok && perception.iter().all(|e| e["group"] == "perception") && perception.len() > 30, "{}", perception.len());
+
+    let (ok, _, err) = run(&["tasks", "list", "--suite", "libero_100"]);
+    assert!(!ok && err.contains("no pool suite \"libero_100\""), "{err}");
+    let (ok, _, err) = run(&["tasks", "list", "--group", "medium_horizon"]);
+    assert!(!ok && err.contains("no group"), "{err}");
+}
+
+#[test]
+fn tasks_show_prints_a_pool_entry_by_id_or_name() {
+    let (ok, text, _) = run(&["tasks", "show", "libero_goal/7"]);
+    assert!(ok && text.starts_with("libero_goal/7 turn_on_the_stove") && text.contains("release task          T17"), "{text}");
+    let (ok, same, _) = run(&["tasks", "show", "libero_goal/turn_on_the_stove"]);
+    assert!(ok);
+    assert_eq!(same, text);
+    let (ok, text, _) = run(&["tasks", "show", "vlabench_button/1"]);
+    assert!(ok && text.contains("Which object has the smallest mass?") && text.contains("not implemented in this build"), "{text}");
+    let (ok, _, err) = run(&["tasks", "show", "robomemarena/27"]);
+    assert!(!ok && err.contains("robomemarena has task ids 1–26"), "{err}");
 }

@@ -182,7 +182,7 @@ fn chromium_watches_a_live_t14_episode_then_reviews_it() {
     let status = browser.wait().expect("node exit");
     assert!(status.success() && report["ok"] == true, "browser checks failed: {report}");
     eprintln!("browser report: {report}");
-    for shot in ["live-running", "live-finished", "home", "review", "review-deeplink", "tasks"] {
+    for shot in ["live-running", "live-finished", "home", "review", "review-deeplink", "tasks", "tasks-pool"] {
         assert!(artifacts.join(format!("{shot}.png")).is_file(), "screenshot {shot}.png");
     }
 
@@ -336,10 +336,10 @@ fn on_loopback_every_route_needs_the_operator_credential_and_the_login_link_open
     let prepared = prepare(&base, &[("Authorization", &server.op())], &tmp.path().join("ws"));
     let episode = prepared["episode_id"].as_str().unwrap().to_owned();
     let agent = format!("Bearer {}", agent_token(&prepared));
-    let pages = ["/", "/tasks", "/results", "/demos", &format!("/episodes/{episode}"), &format!("/episodes/{episode}/review"), "/teleop/T14"];
+    let pages = ["/", "/tasks", "/results", "/demos", &format!("/episodes/{episode}"), &format!("/episodes/{episode}/review"), "/teleop/T14", "/teleop/libero_90/35"];
     let apis = ["/api/episodes", &format!("/api/episodes/{episode}"), &format!("/api/episodes/{episode}/review"), "/api/results", "/api/tasks",
         "/api/demos", &format!("/episodes/{episode}/video.mp4"), &format!("/episodes/{episode}/observations/obs_000000/observation.json"),
-        "/tasks/T14/thumbnail.png", "/ws/episodes", &format!("/ws/episodes/{episode}")];
+        "/tasks/T14/thumbnail.png", "/tasks/libero_90/35/thumbnail.png", "/ws/episodes", &format!("/ws/episodes/{episode}")];
     for path in pages.iter().chain(apis.iter()) {
         for auth in [None, Some(agent.as_str())] {
             let headers: Vec<(&str, &str)> = auth.map(|a| vec![("Authorization", a)]).unwrap_or_default();

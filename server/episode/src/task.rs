@@ -1,10 +1,11 @@
-//! Which task an episode runs: a release task (`T11`…`T30`, through the catalog in `tasks/manifest.json`) or a
-//! stock LIBERO task (`suite/name` or a BDDL path), resolved to its BDDL file, init-state file, the instruction
+//! Which task an episode runs: a release task (`T11`…`T30`, through the catalog in `tasks/manifest.json`), a pool
+//! entry (`suite/task_id`, through `tasks/pool.json`) or a stock LIBERO task (`suite/name` or a BDDL path), resolved to its BDDL file, init-state file, the instruction
 //! the agent sees and the evaluator that judges it.
 use std::path::{Path, PathBuf};
 
 use libero_sim::AssetPaths;
-use libero_tasks::Catalog;
+use libero_tasks::pool::Runs;
+use libero_tasks::{Catalog, Pool};
 use libero_tasks::catalog::CheckerSpec;
 
 use crate::EpisodeError;
@@ -45,7 +46,8 @@ pub struct TaskSource {
     pub task_reference: Option<PathBuf>,
 }
 
-/// Resolves `id`: `T01`…`T30` (suite tasks), `suite/name` (stock LIBERO) or a path to a `.bddl` file.
+/// Resolves `id`: `T01`…`T30` (suite tasks), `suite/name` (a stock LIBERO file), `suite/task_id` or `suite/name` of a
+/// pool entry (`tasks/pool.json`), or a path to a `.bddl` file.
 pub fn resolve_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeError> {
     let id = id.trim();
     if id.len() == 3 && id.starts_with(['T', 't']) && id[1..].chars().all(|c| c.is_ascii_digit()) {
@@ -59,9 +61,15 @@ pub fn resolve_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeE
         .split_once('/')
         .filter(|(s, n)| !s.is_empty() && !n.is_empty() && !n.contains('/') && !s.contains(".."))
         .ok_or_else(|| {
-            EpisodeError::Task(format!("unknown task {id:?}: expected T01–T30, <suite>/<task name> or a .bddl path"))
+            EpisodeError::Task(format!(
+                "unknown task {id:?}: expected T01–T30, <suite>/<task id or name> (`tasks list --suite all`) or a .bddl path"
+            ))
         })?;
     let name = name.strip_suffix(".bddl").unwrap_or(name);
+    let stock_suite = libero_tasks::pool::STOCK_SUITES.contains(&suite);
+    if !stock_suite || name.chars().all(|c| c.is_ascii_digit()) {
+        return resolve_pool_entry(&format!("{suite}/{name}"), paths);
+    }
     let bddl = paths.stock_bddl(suite, name);
     if !bddl.is_file() {
         return Err(EpisodeError::Task(format!("no stock LIBERO task {suite}/{name} ({} is missing)", bddl.display())));
@@ -77,6 +85,30 @@ pub fn resolve_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeE
     })
 }
 
+/// A pool entry (`tasks/pool.json`): a stock entry runs its stock files (as `suite/name`); any other runs on the
+/// release task it names, with its own registered instruction; excluded and unimplemented entries say why.
+fn resolve_pool_entry(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeError> {
+    let task_err = |e: libero_tasks::TasksError| EpisodeError::Task(e.to_string());
+    let pool = Pool::discover().map_err(task_err)?;
+    let entry = pool.lookup(id).map_err(EpisodeError::Task)?;
+    match entry.runs(paths).map_err(task_err)? {
+        Runs::Stock => resolve_task(&entry.reference(), paths),
+        Runs::Release(release) => {
+            let mut source = resolve_suite_task(release, paths)?;
+            if source.instruction != entry.instruction {
+                // same scene and evaluator, the entry's own language: recorded under the entry's name
+                source.task_ref = entry.reference();
+                source.instruction = entry.instruction.clone();
+            }
+            Ok(source)
+        }
+        Runs::Own(files, checker) => {
+            let id = entry.reference();
+            Ok(source_from_files(&id, &entry.name, &entry.instruction, checker, files))
+        }
+    }
+}
+
 /// `T11`…`T30` through the catalog; unimplemented tasks fail with the catalog's reason.
 fn resolve_suite_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeError> {
     let catalog = Catalog::discover().map_err(|e| EpisodeError::Task(e.to_string()))?;
@@ -87,15 +119,26 @@ fn resolve_suite_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, Episod
 
 /// The source of a catalog task from its resolved files.
 pub fn suite_task_source(entry: &libero_tasks::TaskEntry, files: libero_tasks::catalog::TaskFiles) -> TaskSource {
+    source_from_files(&entry.id, &entry.name, entry.agent_instruction(), entry.checker.clone(), files)
+}
+
+/// A task judged by its own evaluator (a release task or a pool entry's own definition), recorded as `id`.
+fn source_from_files(
+    id: &str,
+    name: &str,
+    instruction: &str,
+    checker: CheckerSpec,
+    files: libero_tasks::catalog::TaskFiles,
+) -> TaskSource {
     TaskSource {
-        task_ref: entry.id.clone(),
+        task_ref: id.to_owned(),
         bddl: files.bddl,
         init_states: files.init_states,
-        instruction: entry.agent_instruction().to_owned(),
+        instruction: instruction.to_owned(),
         suite: Some(SuiteTask {
-            id: entry.id.clone(),
-            name: entry.name.clone(),
-            checker: entry.checker.clone(),
+            id: id.to_owned(),
+            name: name.to_owned(),
+            checker,
             init_index: files.init_index,
             placement_seed: files.placement_seed,
             init_settle_steps: files.init_settle_steps,
@@ -157,5 +200,30 @@ mod tests {
         let err = catalog.files(&missing, &paths).unwrap_err().to_string();
         assert!(err.contains("T30 (basic_seesaw_usage) is not implemented in this build: the seesaw is being rebuilt"), "{err}");
         assert!(resolve_task("T31", &paths).unwrap_err().to_string().contains("no release task T31"));
+    }
+
+    #[test]
+    fn pool_entries_resolve_by_id_or_name_and_refuse_with_their_reason() {
+        let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
+        let by_id = resolve_task("libero_90/35", &paths).unwrap();
+        assert_eq!(by_id, resolve_task("libero_90/KITCHEN_SCENE7_open_the_microwave", &paths).unwrap());
+        assert_eq!((by_id.task_ref.as_str(), by_id.suite.is_none()), ("libero_90/KITCHEN_SCENE7_open_the_microwave", true));
+        // the release entry itself runs as its release task
+        let cola = resolve_task("perception_v2/6", &paths).unwrap();
+        assert_eq!(cola, resolve_task("T07", &paths).unwrap());
+        assert_eq!(resolve_task("vlabench_world_knowledge/select_cola_drink", &paths).unwrap(), cola);
+        // a re-used scene with its own registered language keeps its name
+        let marker = resolve_task("vlabench_perception/0", &paths).unwrap();
+        let t01 = resolve_task("T01", &paths).unwrap();
+        assert_eq!((marker.task_ref.as_str(), marker.bddl == t01.bddl), ("vlabench_perception/select_upright_marker", true));
+        assert_eq!(marker.suite.as_ref().map(|s| s.id.as_str()), Some("T01"));
+        assert!(marker.instruction.starts_with("Pick up the upright marker, rather than a fallen marker"));
+        assert_eq!(resolve_task(&marker.task_ref, &paths).unwrap(), marker, "an episode record re-resolves");
+        let err = resolve_task("vlabench_world_knowledge/8", &paths).unwrap_err().to_string();
+        assert!(err.contains("select_banana_fruit") && err.contains("excluded") && err.contains("banana"), "{err}");
+        let err = resolve_task("robomemarena/1", &paths).unwrap_err().to_string();
+        assert!(err.contains("not implemented in this build") && err.contains("basket"), "{err}");
+        let err = resolve_task("libero_90/90", &paths).unwrap_err().to_string();
+        assert!(err.contains("0–89"), "{err}");
     }
 }

@@ -247,36 +247,63 @@ impl Catalog {
 
     /// The BDDL and init files of an implemented task; a clear error naming why otherwise.
     pub fn files(&self, task: &TaskEntry, paths: &AssetPaths) -> Result<TaskFiles, TasksError> {
-        let fail = |message: String| TasksError::Catalog { path: task.id.clone(), message };
         if !task.implemented {
             let why = task.not_implemented_reason.as_deref().unwrap_or("no reason given");
-            return Err(fail(format!("{} ({}) is not implemented in this build: {why}", task.id, task.name)));
+            return Err(TasksError::Catalog {
+                path: task.id.clone(),
+                message: format!("{} ({}) is not implemented in this build: {why}", task.id, task.name),
+            });
         }
-        let bddl = match task.bddl.origin {
-            BddlOrigin::Stock => paths.libero_root.join("bddl_files").join(&task.bddl.path),
-            BddlOrigin::Repository => self.dir.join(&task.bddl.path),
-            BddlOrigin::ReleaseOnly => return Err(fail(format!("{} needs a release-only BDDL file", task.id))),
+        let definition = Definition {
+            id: &task.id,
+            suite: &task.source.suite,
+            bddl: &task.bddl,
+            init: &task.init,
+            task_reference: task.task_reference.as_ref(),
         };
-        let init_states = match (task.init.kind, &task.init.path) {
+        definition.files(&self.dir, paths)
+    }
+}
+
+/// Where a runnable task's scene and start come from: a release task's, or a pool entry's own.
+pub(crate) struct Definition<'a> {
+    pub id: &'a str,
+    /// The source suite (decides the settle order of `vlabench_physical`).
+    pub suite: &'a str,
+    pub bddl: &'a BddlRef,
+    pub init: &'a InitRef,
+    pub task_reference: Option<&'a TaskReference>,
+}
+
+impl Definition<'_> {
+    /// The files, checked to exist; repository paths are relative to `dir` (`tasks/`).
+    pub fn files(&self, dir: &Path, paths: &AssetPaths) -> Result<TaskFiles, TasksError> {
+        let fail = |message: String| TasksError::Catalog { path: self.id.to_owned(), message };
+        let bddl = match self.bddl.origin {
+            BddlOrigin::Stock => paths.libero_root.join("bddl_files").join(&self.bddl.path),
+            BddlOrigin::Repository => dir.join(&self.bddl.path),
+            BddlOrigin::ReleaseOnly => return Err(fail(format!("{} needs a release-only BDDL file", self.id))),
+        };
+        let init_states = match (self.init.kind, &self.init.path) {
             (InitKind::StockFile, Some(p)) => Some(paths.libero_root.join("init_files").join(p)),
             (InitKind::SeededPlacement, _) => None,
-            _ => return Err(fail(format!("{} has no usable init state", task.id))),
+            _ => return Err(fail(format!("{} has no usable init state", self.id))),
         };
-        let reference = task.task_reference.as_ref().map(|r| paths.project_assets.join(&r.path));
+        let reference = self.task_reference.map(|r| paths.project_assets.join(&r.path));
         for p in std::iter::once(&bddl).chain(&init_states).chain(&reference) {
             if !p.is_file() {
                 return Err(fail(format!("{} is missing", p.display())));
             }
         }
-        let task_reference = reference.zip(task.task_reference.as_ref().map(|r| r.semantics.clone()));
+        let task_reference = reference.zip(self.task_reference.map(|r| r.semantics.clone()));
         Ok(TaskFiles {
             bddl,
             init_states,
-            init_index: task.init.index,
-            placement_seed: task.init.seed,
-            init_settle_steps: task.init.settle_control_steps.unwrap_or(0),
-            init_poses_in_body: task.init.poses_in_body.clone(),
-            settle_before_restore: task.source.suite == SETTLE_BEFORE_RESTORE_SUITE,
+            init_index: self.init.index,
+            placement_seed: self.init.seed,
+            init_settle_steps: self.init.settle_control_steps.unwrap_or(0),
+            init_poses_in_body: self.init.poses_in_body.clone(),
+            settle_before_restore: self.suite == SETTLE_BEFORE_RESTORE_SUITE,
             task_reference,
         })
     }

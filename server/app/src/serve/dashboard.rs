@@ -53,6 +53,7 @@ pub fn raw_routes() -> Router<AppState> {
         .route("/episodes/{id}/video.mp4", get(video))
         .route("/episodes/{id}/observations/{*path}", get(observation_file))
         .route("/tasks/{id}/thumbnail.png", get(thumbnail))
+        .route("/tasks/{suite}/{task_id}/thumbnail.png", get(pool_thumbnail))
 }
 
 /// Static files, open to everyone (no data in them; the login page needs them).
@@ -672,16 +673,143 @@ fn task_cards() -> anyhow::Result<Vec<TaskCard>> {
         .collect())
 }
 
+/// A registered pool entry as the Tasks page shows it.
+#[derive(serde::Serialize)]
+struct PoolCard {
+    id: String,
+    name: String,
+    instruction: String,
+    group: String,
+    source: String,
+    checker: String,
+    k: usize,
+    /// `runs`, `runs as T07`, or why not.
+    status: String,
+    runs: bool,
+    /// Empty when the entry does not run.
+    thumbnail: String,
+    teleop: String,
+}
+
+fn pool_card(e: &libero_tasks::PoolEntry) -> PoolCard {
+    let why_not = e.why_not();
+    let runs = why_not.is_none();
+    let (thumbnail, status) = match (&e.runs_as, &why_not) {
+        (_, Some(why)) => (String::new(), why.clone()),
+        // the same scene at the same seed as its release task: one thumbnail
+        (Some(t), None) => (format!("/tasks/{t}/thumbnail.png"), format!("runs as {t}")),
+        (None, None) => (format!("/tasks/{}/thumbnail.png", e.id()), "runs".into()),
+    };
+    PoolCard {
+        id: e.id(),
+        name: e.name.clone(),
+        instruction: e.instruction.clone(),
+        group: e.group.clone(),
+        source: e.source.clone(),
+        checker: e.checker.clone(),
+        k: e.stage_count,
+        status,
+        runs,
+        thumbnail,
+        teleop: if runs { format!("/teleop/{}", e.id()) } else { String::new() },
+    }
+}
+
+/// `/tasks?suite=…&group=…&q=…`: the release tasks (default) or a pool suite (`all` for every entry).
+#[derive(serde::Deserialize, Default)]
+struct TasksQuery {
+    suite: Option<String>,
+    group: Option<String>,
+    q: Option<String>,
+}
+
+impl TasksQuery {
+    fn suite(&self) -> &str {
+        self.suite.as_deref().filter(|s| !s.is_empty()).unwrap_or(RELEASE_SUITE)
+    }
+
+    fn group(&self) -> Option<&str> {
+        self.group.as_deref().filter(|g| !g.is_empty())
+    }
+
+    fn query(&self) -> String {
+        self.q.as_deref().unwrap_or_default().trim().to_lowercase()
+    }
+
+    /// Whether a task with these texts passes the group and the search.
+    fn keeps(&self, group: &str, texts: [&str; 3]) -> bool {
+        let q = self.query();
+        self.group().is_none_or(|g| g == group) && (q.is_empty() || texts.iter().any(|t| t.to_lowercase().contains(&q)))
+    }
+}
+
+/// The Tasks page's name for the 30 release tasks in the suite filter.
+const RELEASE_SUITE: &str = "release";
+
+/// One option of the suite filter.
+struct SuiteOption {
+    value: String,
+    label: String,
+    selected: bool,
+}
+
 #[derive(Template)]
 #[template(path = "tasks.html")]
 struct TasksPage {
+    release: bool,
     tasks: Vec<TaskCard>,
+    pool: Vec<PoolCard>,
+    suites: Vec<SuiteOption>,
+    groups: Vec<(String, bool)>,
+    q: String,
+    summary: String,
 }
 
-async fn tasks_page() -> Response {
-    match task_cards() {
-        Ok(tasks) => page(TasksPage { tasks }),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+fn tasks_view(query: &TasksQuery) -> anyhow::Result<TasksPage> {
+    let pool = libero_tasks::Pool::discover()?;
+    let suite = query.suite();
+    let counts = pool.suite_counts();
+    let mut suites = vec![SuiteOption { value: RELEASE_SUITE.into(), label: "release (T01–T30)".into(), selected: suite == RELEASE_SUITE }];
+    let (runs, total): (usize, usize) = counts.iter().fold((0, 0), |(r, t), c| (r + c.runs, t + c.registered));
+    suites.push(SuiteOption { value: "all".into(), label: format!("all registered ({runs} of {total} run)"), selected: suite == "all" });
+    for c in &counts {
+        suites.push(SuiteOption {
+            value: c.suite.clone(),
+            label: format!("{} ({} of {} run)", c.suite, c.runs, c.registered),
+            selected: suite == c.suite,
+        });
+    }
+    if !suites.iter().any(|s| s.selected) {
+        anyhow::bail!("no suite {suite:?}: release, all, or one of {}", counts.iter().map(|c| c.suite.as_str()).collect::<Vec<_>>().join(", "));
+    }
+    let groups = libero_tasks::pool::GROUPS.iter().map(|g| ((*g).to_owned(), query.group() == Some(*g))).collect();
+    let release = suite == RELEASE_SUITE;
+    let (tasks, pool_cards) = if release {
+        let tasks: Vec<TaskCard> =
+            task_cards()?.into_iter().filter(|t| query.keeps(&t.group, [&t.id, &t.name, &t.instruction])).collect();
+        (tasks, Vec::new())
+    } else {
+        let cards = pool
+            .select(suite, None)
+            .filter(|e| query.keeps(&e.group, [&e.id(), &e.name, &e.instruction]))
+            .map(pool_card)
+            .collect();
+        (Vec::new(), cards)
+    };
+    let shown = tasks.len() + pool_cards.len();
+    let summary = if release {
+        format!("{shown} of the 30 release tasks")
+    } else {
+        let running = pool_cards.iter().filter(|c: &&PoolCard| c.runs).count();
+        format!("{shown} registered entries, {running} of them run here")
+    };
+    Ok(TasksPage { release, tasks, pool: pool_cards, suites, groups, q: query.q.clone().unwrap_or_default(), summary })
+}
+
+async fn tasks_page(Query(query): Query<TasksQuery>) -> Response {
+    match tasks_view(&query) {
+        Ok(view) => page(view),
+        Err(e) => json_error(StatusCode::BAD_REQUEST, format!("{e:#}")),
     }
 }
 
@@ -695,6 +823,15 @@ async fn tasks_json() -> Response {
 /// Renders once (seconds), then served from the cache; one render at a time so a page of thumbnails does not
 /// build thirty worlds at once.
 async fn thumbnail(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
+    thumbnail_of(app, id, req).await
+}
+
+/// `/tasks/{suite}/{task_id}/thumbnail.png`: a runnable pool entry.
+async fn pool_thumbnail(State(app): State<AppState>, Path((suite, task_id)): Path<(String, String)>, req: Request<Body>) -> Response {
+    thumbnail_of(app, format!("{suite}/{task_id}"), req).await
+}
+
+async fn thumbnail_of(app: AppState, id: String, req: Request<Body>) -> Response {
     let _one_at_a_time = app.thumbnail_lock.lock().await;
     let episodes = app.episodes.clone();
     match tokio::task::spawn_blocking(move || episodes.task_thumbnail(&id)).await {

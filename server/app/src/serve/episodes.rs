@@ -727,13 +727,24 @@ impl Episodes {
 }
 
 impl Episodes {
-    /// The settled initial head-camera view of task `id` as a PNG, rendered through the same world set-up as
-    /// an episode (placement, init state, settle) and cached in `<data>/thumbnails/` (rendered once).
+    /// The settled initial head-camera view of task `id` (`T14`, or a runnable pool entry `suite/task_id`) as a
+    /// PNG, rendered through the same world set-up as an episode (placement, init state, settle) and cached in
+    /// `<data>/thumbnails/` (rendered once).
     pub fn task_thumbnail(&self, id: &str) -> anyhow::Result<PathBuf> {
-        if !(id.len() <= 8 && id.chars().all(|c| c.is_ascii_alphanumeric())) {
-            bail!("bad task id {id:?}");
-        }
-        let path = self.data.join("thumbnails").join(format!("{id}.png"));
+        let file = match id.split_once('/') {
+            // only registered entries: the suite is one of fifteen fixed names, the task id a number
+            Some(_) => {
+                let pool = libero_tasks::Pool::discover()?;
+                let entry = pool.lookup(id).map_err(anyhow::Error::msg)?;
+                if let Some(why) = entry.why_not() {
+                    bail!("{} is {why}", entry.id());
+                }
+                format!("{}__{}.png", entry.suite, entry.task_id)
+            }
+            None if id.len() <= 8 && id.chars().all(|c| c.is_ascii_alphanumeric()) => format!("{id}.png"),
+            None => bail!("bad task id {id:?}"),
+        };
+        let path = self.data.join("thumbnails").join(file);
         if path.is_file() {
             return Ok(path);
         }

@@ -36,6 +36,7 @@ const DEFAULT_SEED: u64 = 100;
 pub fn compressed_routes() -> Router<AppState> {
     Router::new()
         .route("/teleop/{task}", get(teleop_page))
+        .route("/teleop/{suite}/{task_id}", get(pool_teleop_page))
         .route("/api/teleop", post(create))
         .route("/api/teleop/{id}/save", post(save))
         .route("/demos", get(demos_page))
@@ -56,8 +57,21 @@ fn ok_json(v: Value) -> Response {
     axum::Json(v).into_response()
 }
 
-/// An implemented catalog task's `(id, instruction, K)`, or why it cannot be driven.
+/// An implemented catalog task's or runnable pool entry's (`libero_90/35`) `(id, instruction, K)`, or why it
+/// cannot be driven.
 fn implemented_task(id: &str) -> Result<(String, String, usize), String> {
+    if id.contains('/') {
+        let pool = libero_tasks::Pool::discover().map_err(|e| format!("{e:#}"))?;
+        let e = pool.lookup(id)?;
+        if let Some(why) = e.why_not() {
+            return Err(format!("{} is {why}", e.id()));
+        }
+        // the reference its episodes record (`suite/name`, or the release task it is), so demonstrations of
+        // `libero_90/35` and of `libero_90/KITCHEN_SCENE7_open_the_microwave` are one task's
+        let paths = libero_sim::AssetPaths::discover().map_err(|e| format!("{e:#}"))?;
+        let source = libero_episode::task::resolve_task(&e.id(), &paths).map_err(|e| format!("{e:#}"))?;
+        return Ok((source.task_ref, source.instruction, e.stage_count));
+    }
     let catalog = libero_tasks::Catalog::discover().map_err(|e| format!("{e:#}"))?;
     let t = catalog.tasks().iter().find(|t| t.id == id).ok_or_else(|| format!("no task {id} in the catalog"))?;
     if !t.implemented {
@@ -78,7 +92,16 @@ struct TeleopPage {
 }
 
 async fn teleop_page(Path(task): Path<String>) -> Response {
-    match implemented_task(&task) {
+    teleop_page_of(&task)
+}
+
+/// `/teleop/{suite}/{task_id}`: a pool entry.
+async fn pool_teleop_page(Path((suite, task_id)): Path<(String, String)>) -> Response {
+    teleop_page_of(&format!("{suite}/{task_id}"))
+}
+
+fn teleop_page_of(task: &str) -> Response {
+    match implemented_task(task) {
         Ok((task, instruction, k)) => page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED }),
         Err(e) => json_error(StatusCode::NOT_FOUND, e),
     }

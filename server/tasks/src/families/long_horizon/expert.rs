@@ -1,4 +1,4 @@
-//! Experts for T26 (RoboMemArena task 19, cabinet to cabinet) and T27 (task 12, two objects into the middle
+//! Experts for T26 (RoboMemArena task 19, cabinet to cabinet; task 18 with two objects) and T27 (task 12, two objects into the middle
 //! drawer). Like every long-horizon expert, each has `solve`, `partial_<n>` behaviours that complete exactly n stages
 //! and stop, and `undo`, which completes a stage and then undoes it (the evaluator must record the regression).
 use std::sync::Arc;
@@ -14,9 +14,13 @@ use crate::expert::skills::{
 use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
 
+/// RoboMemArena task 18 as a pool entry of its own (`tasks/pool.json`): T26's scene with two objects.
+pub const ROBOMEM_TASK_18: &str = "robomemarena/robomemarena_task_18";
+
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     Some(match task_id {
         "T26" => &["partial_1", "partial_2", "undo"],
+        ROBOMEM_TASK_18 => &["partial_1", "undo"],
         "T27" => &["partial_1", "partial_2", "partial_3", "undo"],
         _ => return None,
     })
@@ -24,23 +28,25 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
 
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
     match task_id {
-        "T26" => cabinet_transfer(refs, behaviour),
+        "T26" => cabinet_transfer(refs, behaviour, task_id, &["tomato_sauce_1", "milk_1", "orange_juice_1"]),
+        ROBOMEM_TASK_18 => cabinet_transfer(refs, behaviour, task_id, &["chocolate_pudding_1", "butter_1"]),
         "T27" => drawer_pack(refs, behaviour),
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
 
-/// T26: move tomato sauce, milk and orange juice from cabinet 1's roof to cabinet 2's roof, each to the spot it had
-/// relative to cabinet 1 (the sampler spread them over the roof without overlap). `partial_<n>` moves the first n;
-/// `undo` moves the tomato sauce over and then back to where it started.
-fn cabinet_transfer(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+/// T26 and RoboMemArena task 18: move `objects` in order from cabinet 1's roof to cabinet 2's roof, each to the spot
+/// it had relative to cabinet 1 (the sampler spread them over the roof without overlap). `partial_<n>` moves the
+/// first n; `undo` moves the first over and then back to where it started.
+fn cabinet_transfer(refs: &SceneRefs, behaviour: &str, task_id: &str, objects: &[&str]) -> Result<Box<dyn Expert>, TasksError> {
     let cab1 = refs.instance_body("wooden_cabinet_1")?;
     let cab2 = refs.instance_body("wooden_cabinet_2")?;
-    let objects = ["tomato_sauce_1", "milk_1", "orange_juice_1"];
     let n = match behaviour {
-        SOLVE => 3,
+        SOLVE => objects.len(),
         "undo" => 1,
-        b => partial_count(b).filter(|&n| n <= 3).ok_or_else(|| TasksError::Scene(format!("T26: unknown behaviour {b}")))?,
+        b => partial_count(b)
+            .filter(|&n| n < objects.len())
+            .ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?,
     };
     let mut phases = Vec::new();
     for name in &objects[..n] {
@@ -57,11 +63,19 @@ fn cabinet_transfer(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>
         }));
         let o2 = offset.clone();
         let to_cab2: TargetFn = Arc::new(move |sim| pos(sim, cab2) + o2(sim));
-        pick_place(&mut phases, body, OBJECT_GRASP_DZ_M, CARRY_Z_M, to_cab2);
-        if behaviour == "undo" {
-            let s2 = start.clone();
-            let back: TargetFn = Arc::new(move |sim| s2(sim));
-            pick_place(&mut phases, body, OBJECT_GRASP_DZ_M, CARRY_Z_M, back);
+        let s2 = start.clone();
+        let back: TargetFn = Arc::new(move |sim| s2(sim));
+        let moves = if behaviour == "undo" { vec![to_cab2, back] } else { vec![to_cab2] };
+        for target in moves {
+            if task_id == "T26" {
+                // the bottles: fingers on the upper half, hand as at home
+                pick_place(&mut phases, body, OBJECT_GRASP_DZ_M, CARRY_Z_M, target);
+            } else {
+                // low boxes: fingers at the root, closing across the narrow side
+                let (geom, half) = main_box(refs, name)?;
+                let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
+                pick_place_turned(&mut phases, body, Vector3::zeros(), CARRY_Z_M, target, rot);
+            }
         }
     }
     Ok(Box::new(Script::new(phases)))
