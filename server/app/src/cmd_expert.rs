@@ -40,6 +40,9 @@ pub struct ExpertArgs {
     /// `libero_90`, or `stock` for all five stock suites); repeatable, or comma-separated.
     #[arg(long, value_delimiter = ',')]
     pub suite: Vec<String>,
+    /// With `--all`: only tasks whose id contains one of these (repeatable, or comma-separated).
+    #[arg(long, value_delimiter = ',', requires = "all")]
+    pub filter: Vec<String>,
     /// With `--all`: print only the JSON lines (the summary as a last JSON line), no table.
     #[arg(long)]
     pub json: bool,

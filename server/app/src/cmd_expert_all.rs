@@ -1,4 +1,4 @@
-//! `libero-agent expert --all [--suite S] [--runs N] [--no-video] [--json]`: the solvability table. Every release task
+//! `libero-agent expert --all [--suite S] [--filter PART] [--runs N] [--no-video] [--json]`: the solvability table. Every release task
 //! with a scripted expert and every stock LIBERO task (the generic expert, planned from its BDDL goal) runs its
 //! solving expert `--runs` times in this process; one JSON line per task, then a table and the summary line
 //! "N of M solved k/k". A stock task whose goal the generic expert cannot plan is listed as "no expert" with the atom
@@ -74,7 +74,13 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     }
     let level = Level::from_number(args.level).with_context(|| format!("--level must be 1, 2 or 3 (got {})", args.level))?;
     let paths = AssetPaths::discover().context("assets are missing; run `python3 scripts/setup.py`")?;
-    let tasks = selected_tasks(&args.suite, &paths)?;
+    let mut tasks = selected_tasks(&args.suite, &paths)?;
+    if !args.filter.is_empty() {
+        tasks.retain(|(_, id)| args.filter.iter().any(|f| id.contains(f.as_str())));
+    }
+    if tasks.is_empty() {
+        bail!("no task with an expert matches --suite {:?} --filter {:?}", args.suite, args.filter);
+    }
     let episodes = Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?;
     let mut rows = Vec::with_capacity(tasks.len());
     for (k, (suite, task_id)) in tasks.iter().enumerate() {

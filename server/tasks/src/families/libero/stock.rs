@@ -59,6 +59,8 @@ const KNOB_ON_Q_RAD: f64 = 0.9;
 const KNOB_OFF_Q_RAD: f64 = -0.004;
 const KNOB_SHORT_ON_Q_RAD: f64 = 0.2;
 const KNOB_SHORT_OFF_Q_RAD: f64 = 0.35;
+/// Control steps the hand waits at the end (1 s).
+const SETTLE_STEPS: u32 = 20;
 /// How far beyond its target `stop_short` lets the last object go (plus the region's half extent).
 const SHORT_OFFSET_M: f64 = 0.10;
 
@@ -254,6 +256,9 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
         };
         steps.push(ReadyStep { done, build: step_builder(refs, &index, p.step, short)? });
     }
+    // the hand waits, open and still, until what it let go comes to rest: the goal is judged on the final state
+    let settle: Build = Box::new(|_, _, _| vec![Phase::new("settle", |sim, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(grip_pose(sim).1)).for_steps(SETTLE_STEPS)]);
+    steps.push(ReadyStep { done: None, build: settle });
     let base = refs.scene.robot_base_pos;
     Ok(Box::new(StockExpert {
         ctx: Ctx { index, base_m: Vector3::new(base[0], base[1], base[2]) },
@@ -419,7 +424,7 @@ fn choose_grasp(category: &str, root: Vector3<f64>, lo: Vector3<f64>, hi: Vector
     }
     let z = (hi.z - 0.03).max(lo.z + 0.015).min(centre.z.max(lo.z + 0.015));
     let z = if hi.z - lo.z > 0.08 { hi.z - 0.035 } else { z };
-    Grasp { offset_m: Vector3::new(centre.x, centre.y, z) - root, rot: open_along(home, Vector3::new(-narrow.y, narrow.x, 0.0)) }
+    Grasp { offset_m: Vector3::new(centre.x, centre.y, z) - root, rot: open_along(home, narrow) }
 }
 
 /// Where the object's root should be let go: above the region's floor (`In`) or top (`On`) or the support object's
@@ -497,13 +502,29 @@ fn place_phases(
         .until(move |sim, _| xy_dist(pos(sim, body), target_now(sim)) < 0.008)
         .max_steps(200),
         Phase::new("lower", move |sim, _| Goal::at(carry(sim, body, target_now(sim) - Vector3::z() * 0.01), GRIPPER_CLOSED).slow(0.35).rotated(rot))
-            .until(move |sim, _| pos(sim, body).z < target_now(sim).z + 0.004)
+            .until(move |sim, ctx| pos(sim, body).z < target_now(sim).z + 0.004 || stalled(sim, ctx))
             .max_steps(70),
         Phase::new("open", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(rot)).for_steps(10),
         Phase::new("retreat", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * 0.12, GRIPPER_OPEN).rotated(rot))
             .until_reached(0.02)
             .max_steps(40),
     ]
+}
+
+/// Lowering has stalled: the object rests on something (its support is higher than the target guessed). Read from
+/// the object's vertical speed after the first steps of the phase.
+fn stalled(sim: &Simulation, ctx: &PhaseCtx) -> bool {
+    const STILL_M_PER_S: f64 = 0.004;
+    ctx.steps > 15 && grip_speed_z(sim).abs() < STILL_M_PER_S
+}
+
+/// The hand's vertical speed (m/s): the grip site's linear velocity along world z.
+fn grip_speed_z(sim: &Simulation) -> f64 {
+    let m = sim.model();
+    let site = sim.ids().grip_site;
+    let body = m.site_bodyid()[site] as usize;
+    // cvel: [angular(3), linear(3)] at the subtree's centre of mass frame; the linear part suffices to tell still
+    sim.data().cvel()[body][5]
 }
 
 /// LIBERO microwave door: a point on its outer face near the free edge, in the door body's frame (the handle side is
