@@ -209,17 +209,22 @@ pub fn stove_knob_phases_toward(refs: &SceneRefs, stove: &str, q_goal: f64) -> R
     let hand = HingeHand { body: knob, local_dir: [1.0, 0.0, 0.0], joint, q_adr };
     let rot_at = move |sim: &Simulation, ctx: &PhaseCtx, angle: f64| hand.rot(sim, ctx, angle);
     const LEAD_RAD: f64 = 0.3;
+    const OFF_HOLD_PAST_RAD: f64 = 0.15;
     let mut phases = reach_and_grip(["above_knob", "near_knob", "down_to_knob", "pinch_knob"], grasp, move |sim, ctx| {
         rot_at(sim, ctx, q(sim))
     });
-    let (d1, r1) = (dir, reached);
+    let (d1, d2, r1) = (dir.clone(), dir, reached);
     phases.extend([
         Phase::new("turn_knob", move |sim, ctx| {
             Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q(sim) + LEAD_RAD * d1(sim)))
         })
         .until(move |sim, _| r1(sim))
         .max_steps(200),
-        Phase::new("hold_still", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q_goal)))
+        // turning down, the knob springs back off its stop: hold the hand past the goal, against the stop
+        Phase::new("hold_still", move |sim, ctx| {
+            let past = if d2(sim) < 0.0 { OFF_HOLD_PAST_RAD } else { 0.0 };
+            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q_goal - past))
+        })
             .until(move |sim, ctx| ctx.steps >= 4 && sim.data().qvel()[dof].abs() < 0.02)
             .max_steps(40),
         Phase::new("release", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_OPEN).rotated(rot_at(sim, ctx, q(sim)))).for_steps(8),

@@ -23,7 +23,8 @@ use nalgebra::{Matrix3, Vector3};
 use crate::TasksError;
 use crate::expert::fixtures::{microwave_door_phases, stove_knob_phases_toward};
 use crate::expert::motion::{
-    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_point, grip_pose, mat3, open_along, rotation_error, vec3,
+    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, body_point, grip_pose, mat3, open_along, rotate_world,
+    rotation_error, vec3,
 };
 use crate::expert::skills::{
     BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, carry, pos, pull_drawer, push_drawer, xy_dist,
@@ -59,6 +60,12 @@ const KNOB_ON_Q_RAD: f64 = 0.9;
 const KNOB_OFF_Q_RAD: f64 = -0.004;
 const KNOB_SHORT_ON_Q_RAD: f64 = 0.2;
 const KNOB_SHORT_OFF_Q_RAD: f64 = 0.35;
+/// A footprint whose narrow side is at least this fraction of its wide side counts as round.
+const ROUND_RATIO: f64 = 0.8;
+/// How far toward an open drawer's front an object is put in (the region is ±7.6 cm deep).
+const DRAWER_FRONT_SHIFT_M: f64 = 0.055;
+/// A tall object (over 8 cm) is grasped this far below its top: deep enough that a heavy book does not slip out.
+const TALL_GRASP_BELOW_TOP_M: f64 = 0.05;
 /// Control steps the hand waits at the end (1 s).
 const SETTLE_STEPS: u32 = 20;
 /// How far beyond its target `stop_short` lets the last object go (plus the region's half extent).
@@ -353,8 +360,9 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, short: bool) -
     })
 }
 
-/// Height (world z, m) the open hand first rises to between steps: clear of whatever it just worked on.
-const TRAVEL_Z_M: f64 = 1.12;
+/// How far the open hand first rises between steps: clear of whatever it just worked on (scenes' tables stand at
+/// different heights, so relative to where it is).
+const RISE_M: f64 = 0.08;
 
 /// `phases` after a straight rise of the hand (it may end a step low in a drawer or at a knob).
 fn with_rise(phases: Vec<Phase>) -> Vec<Phase> {
@@ -364,7 +372,7 @@ fn with_rise(phases: Vec<Phase>) -> Vec<Phase> {
 }
 
 fn rise() -> Phase {
-    let up = |ctx: &PhaseCtx| Vector3::new(ctx.start_pos_m.x, ctx.start_pos_m.y, TRAVEL_Z_M.max(ctx.start_pos_m.z));
+    let up = |ctx: &PhaseCtx| Vector3::new(ctx.start_pos_m.x, ctx.start_pos_m.y, ctx.start_pos_m.z + RISE_M);
     Phase::new("rise", move |sim, ctx| Goal::at(up(ctx), GRIPPER_OPEN).rotated(grip_pose(sim).1))
         .until(move |sim, ctx| (grip_pose(sim).0 - up(ctx)).norm() < 0.03)
         .max_steps(60)
@@ -388,7 +396,8 @@ fn extent(sim: &Simulation, index: &SceneIndex, instance: usize) -> (Vector3<f64
     if lo.x.is_finite() { (lo, hi) } else { (pos(sim, index.instances[instance].body), pos(sim, index.instances[instance].body)) }
 }
 
-/// The horizontal direction along which the largest contact geom of `instance` is narrowest (fingers close across it).
+/// The horizontal direction along which the largest contact geom of `instance` is narrowest (fingers close across
+/// it); world y (the hand's home opening, no wrist turn) for a round or square footprint, where any direction fits.
 fn narrow_dir(sim: &Simulation, index: &SceneIndex, instance: usize) -> Vector3<f64> {
     let (model, data) = (sim.model(), sim.data());
     let aabb = model.geom_aabb();
@@ -399,10 +408,14 @@ fn narrow_dir(sim: &Simulation, index: &SceneIndex, instance: usize) -> Vector3<
         return Vector3::y();
     };
     let r = mat3(&data.geom_xmat()[g]);
-    (0..3)
-        .filter(|&k| r[(2, k)].abs() < 0.7)
-        .min_by(|&a, &b| aabb[g][3 + a].total_cmp(&aabb[g][3 + b]))
-        .map_or(Vector3::y(), |k| Vector3::new(r[(0, k)], r[(1, k)], 0.0).normalize())
+    let mut horizontal: Vec<usize> = (0..3).filter(|&k| r[(2, k)].abs() < 0.7).collect();
+    horizontal.sort_by(|&a, &b| aabb[g][3 + a].total_cmp(&aabb[g][3 + b]));
+    match horizontal[..] {
+        [narrow, wide] if aabb[g][3 + narrow] < ROUND_RATIO * aabb[g][3 + wide] => {
+            Vector3::new(r[(0, narrow)], r[(1, narrow)], 0.0).normalize()
+        }
+        _ => Vector3::y(),
+    }
 }
 
 /// How a placement holds its object: the grasp point's offset from the root (world) and the hand's orientation.
@@ -411,10 +424,41 @@ struct Grasp {
     rot: Matrix3<f64>,
 }
 
+/// Objects whose shape the bounding box does not tell well enough, grasped at a point of their own frame.
+struct Handle {
+    /// Grasp point in the object's body frame (m).
+    local_m: [f64; 3],
+    /// Body-frame direction the fingers open along.
+    fingers_local: [f64; 3],
+    /// The hand pitched forward of straight down (about world y) by this much: the wrist comes back toward the base.
+    pitch_rad: f64,
+    /// Added to the place target (world): keeps the fingers on a long handle clear of what stands near the target.
+    target_offset_m: [f64; 3],
+}
+
+/// Per-family tuning (as the cooking task's expert grasps them): the moka pot across its lid's knob, straight down;
+/// the frying pan across its handle 15 cm from its centre, the pan set down 4.5 cm beyond the target away from the
+/// robot so the fingers stay clear of the stove's knob.
+fn handle_of(category: &str) -> Option<Handle> {
+    match category {
+        "moka_pot" => Some(Handle { local_m: [0.0, 0.0, 0.075], fingers_local: [1.0, 0.0, 0.0], pitch_rad: 0.0, target_offset_m: [0.0; 3] }),
+        c if c.contains("frypan") => {
+            Some(Handle { local_m: [0.15, 0.0, 0.039], fingers_local: [0.0, 1.0, 0.0], pitch_rad: 0.35, target_offset_m: [0.045, 0.0, 0.0] })
+        }
+        _ => None,
+    }
+}
+
 /// Bowls and mugs are too wide for the hand: pinch the wall a little below the rim on the side along the narrower
 /// horizontal extent (a mug's handle sticks out along the wider one). Anything else: from above at the centre of its
 /// box, the fingers across its narrow side, a little below its top (not lower than 1.5 cm above its bottom).
-fn choose_grasp(category: &str, root: Vector3<f64>, lo: Vector3<f64>, hi: Vector3<f64>, narrow: Vector3<f64>, home: &Matrix3<f64>) -> Grasp {
+fn choose_grasp(sim: &Simulation, body: usize, category: &str, lo: Vector3<f64>, hi: Vector3<f64>, narrow: Vector3<f64>, home: &Matrix3<f64>) -> Grasp {
+    let root = pos(sim, body);
+    if let Some(h) = handle_of(category) {
+        let point = body_point(sim, body, h.local_m);
+        let rot = rotate_world(&open_along(home, body_dir(sim, body, h.fingers_local)), Vector3::y(), -h.pitch_rad);
+        return Grasp { offset_m: point - root, rot };
+    }
     let centre = (lo + hi) / 2.0;
     let half = (hi - lo) / 2.0;
     if category.contains("bowl") || category.contains("mug") || category.contains("cup") {
@@ -423,7 +467,7 @@ fn choose_grasp(category: &str, root: Vector3<f64>, lo: Vector3<f64>, hi: Vector
         return Grasp { offset_m: rim - root, rot: open_along(home, axis) };
     }
     let z = (hi.z - 0.03).max(lo.z + 0.015).min(centre.z.max(lo.z + 0.015));
-    let z = if hi.z - lo.z > 0.08 { hi.z - 0.035 } else { z };
+    let z = if hi.z - lo.z > 0.08 { hi.z - TALL_GRASP_BELOW_TOP_M } else { z };
     Grasp { offset_m: Vector3::new(centre.x, centre.y, z) - root, rot: open_along(home, narrow) }
 }
 
@@ -440,7 +484,10 @@ fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, root_above_bottom_m
             let h_z = r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
             let surface = if inside { c.z - h_z } else { c.z + h_z };
             let top = c.z + h_z;
-            (Vector3::new(c.x, c.y, surface + root_above_bottom_m + 0.012), top + root_above_bottom_m + 0.05)
+            // an open drawer's back part stays under the cabinet: aim at its front part (the site turns with the
+            // drawer body, which slides out along its local −y)
+            let front = if inside && !reg.joints.is_empty() { r * Vector3::new(0.0, -DRAWER_FRONT_SHIFT_M, 0.0) } else { Vector3::zeros() };
+            (Vector3::new(c.x + front.x, c.y + front.y, surface + root_above_bottom_m + 0.012), top + root_above_bottom_m + 0.05)
         }
         Target::Object(b) => {
             let (_, hi) = extent(sim, index, b);
@@ -463,8 +510,9 @@ fn place_phases(
     let body = ctx.index.instances[object].body;
     let root = pos(sim, body);
     let (lo, hi) = extent(sim, &ctx.index, object);
-    let grasp = choose_grasp(category, root, lo, hi, narrow_dir(sim, &ctx.index, object), home);
+    let grasp = choose_grasp(sim, body, category, lo, hi, narrow_dir(sim, &ctx.index, object), home);
     let (mut to, carry_top) = place_target(sim, ctx, target, root.z - lo.z);
+    to += Vector3::from(handle_of(category).map_or([0.0; 3], |h| h.target_offset_m));
     if short {
         let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
         let extra = match target {
