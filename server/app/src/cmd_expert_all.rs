@@ -50,7 +50,7 @@ fn selected_tasks(suites: &[String], paths: &AssetPaths) -> anyhow::Result<Vec<(
 }
 
 /// Whether the task's expert can plan its goal; `Err` says which atom it could not.
-fn plan(spec: &WorldSpec, task_id: &str) -> anyhow::Result<usize> {
+fn plan(spec: &WorldSpec, task_id: &str) -> anyhow::Result<Vec<String>> {
     let scene = libero_sim::compose::compose_file(&spec.task.bddl, &spec.paths)?;
     let model = scene.compile()?;
     Ok(libero_tasks::expert_plan(task_id, &scene, &model)?)
@@ -94,7 +94,9 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
                 row["no_expert"] = json!(format!("{e:#}"));
             }
             Ok(steps) => {
-                row["plan_steps"] = json!(steps);
+                if !steps.is_empty() {
+                    row["plan"] = json!(steps);
+                }
                 let request = prepare_request(args, task_id);
                 let (mut successes, mut failures, mut actions) = (0u32, Vec::new(), Vec::new());
                 for run_index in 1..=args.runs {

@@ -60,6 +60,8 @@ const KNOB_ON_Q_RAD: f64 = 0.9;
 const KNOB_OFF_Q_RAD: f64 = -0.004;
 const KNOB_SHORT_ON_Q_RAD: f64 = 0.2;
 const KNOB_SHORT_OFF_Q_RAD: f64 = 0.35;
+/// Objects sharing a region stand this fraction of its half size from its centre, either side.
+const SLOT_SPREAD: f64 = 0.6;
 /// A footprint whose narrow side is at least this fraction of its wide side counts as round.
 const ROUND_RATIO: f64 = 0.8;
 /// How far toward an open drawer's front an object is put in (the region is ±7.6 cm deep).
@@ -240,10 +242,27 @@ impl Expert for StockExpert {
     }
 }
 
-/// Why `task_id`'s goal cannot be planned, if it cannot (for `expert --all`'s "no expert" rows).
-pub fn plan_check(refs: &SceneRefs) -> Result<usize, TasksError> {
-    let goal = GoalChecker::new(Arc::new(refs.index.clone()), &refs.scene.problem)?;
-    Ok(plan(&refs.index, &goal)?.len())
+/// The plan of this scene's goal, one line per step (`open wooden_cabinet_1_top_region (implicit)`, `place butter_1
+/// in wooden_cabinet_1_top_region`, …), or which atom cannot be planned (for `expert --all`'s "no expert" rows).
+pub fn plan_check(refs: &SceneRefs) -> Result<Vec<String>, TasksError> {
+    let index = &refs.index;
+    let goal = GoalChecker::new(Arc::new(index.clone()), &refs.scene.problem)?;
+    let describe = |p: &Planned| {
+        let line = match p.step {
+            Step::Place { object, target } => {
+                let to = match target {
+                    Target::Region { region, inside } => format!("{} {}", if inside { "in" } else { "on" }, index.regions[region].key),
+                    Target::Object(b) => format!("on {}", index.instances[b].name),
+                };
+                format!("place {} {to}", index.instances[object].name)
+            }
+            Step::Drawer { region, open } => format!("{} {}", if open { "open" } else { "close" }, index.regions[region].key),
+            Step::Door { instance, open } => format!("{} {}", if open { "open" } else { "close" }, index.instances[instance].name),
+            Step::Knob { instance, on } => format!("turn {} {}", if on { "on" } else { "off" }, index.instances[instance].name),
+        };
+        if p.atom.is_none() { format!("{line} (implicit)") } else { line }
+    };
+    Ok(plan(index, &goal)?.iter().map(describe).collect())
 }
 
 pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
@@ -253,6 +272,7 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
     let short = behaviour != SOLVE;
     let last = planned.len().saturating_sub(1);
     let mut steps = Vec::with_capacity(planned.len());
+    let targets: Vec<Option<Target>> = planned.iter().map(|p| if let Step::Place { target, .. } = p.step { Some(target) } else { None }).collect();
     for (k, p) in planned.into_iter().enumerate() {
         let short = short && k == last;
         // the near miss's last step always runs (it must act even where its atom holds already)
@@ -261,7 +281,8 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
             (false, Some(atom)) => Some(atom_done(&index, atom)),
             (false, None) => implicit_done(&index, &p.step),
         };
-        steps.push(ReadyStep { done, build: step_builder(refs, &index, p.step, short)? });
+        let slot = slot_of(&targets, k);
+        steps.push(ReadyStep { done, build: step_builder(refs, &index, p.step, slot, short)? });
     }
     // the hand waits, open and still, until what it let go comes to rest: the goal is judged on the final state
     let settle: Build = Box::new(|_, _, _| vec![Phase::new("settle", |sim, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(grip_pose(sim).1)).for_steps(SETTLE_STEPS)]);
@@ -295,8 +316,20 @@ fn implicit_done(index: &SceneIndex, step: &Step) -> Option<Done> {
     Some(Box::new(move |sim| joints.iter().any(|j| test.holds(sim.data().qpos()[j.qpos_adr]))))
 }
 
+/// The `k`-th of `n` placements onto the same target.
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    k: usize,
+    n: usize,
+}
+
+fn slot_of(targets: &[Option<Target>], step: usize) -> Slot {
+    let same = |t: &Option<Target>| t.is_some() && *t == targets[step];
+    Slot { k: targets[..step].iter().filter(|t| same(t)).count(), n: targets.iter().filter(|t| same(t)).count() }
+}
+
 /// The script builder of one step (fixture ids resolved now, geometry read when it starts).
-fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, short: bool) -> Result<Build, TasksError> {
+fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, short: bool) -> Result<Build, TasksError> {
     Ok(match step {
         Step::Place { object, target } => {
             let body = index.instances[object].body;
@@ -309,7 +342,7 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, short: bool) -
                     return Ok(Box::new(move |_, _, _| phases));
                 }
             }
-            Box::new(move |sim, ctx, home| place_phases(sim, ctx, home, object, &category, target, short))
+            Box::new(move |sim, ctx, home| place_phases(sim, ctx, home, object, &category, target, slot, short))
         }
         Step::Drawer { region, open } => {
             let joint = index.regions[region].joints.first().ok_or_else(|| TasksError::Scene("drawer region without a joint".into()))?;
@@ -473,7 +506,7 @@ fn choose_grasp(sim: &Simulation, body: usize, category: &str, lo: Vector3<f64>,
 
 /// Where the object's root should be let go: above the region's floor (`In`) or top (`On`) or the support object's
 /// top, by the root's height above the object's bottom; and the height the root is carried at.
-fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, root_above_bottom_m: f64) -> (Vector3<f64>, f64) {
+fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Slot, root_above_bottom_m: f64, half_width_m: f64) -> (Vector3<f64>, f64) {
     let index = &ctx.index;
     match target {
         Target::Region { region, inside } => {
@@ -486,7 +519,18 @@ fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, root_above_bottom_m
             let top = c.z + h_z;
             // an open drawer's back part stays under the cabinet: aim at its front part (the site turns with the
             // drawer body, which slides out along its local −y)
-            let front = if inside && !reg.joints.is_empty() { r * Vector3::new(0.0, -DRAWER_FRONT_SHIFT_M, 0.0) } else { Vector3::zeros() };
+            // (as far as the object's width leaves room before the drawer's front wall)
+            let shift = (reg.half_size_m[1] - half_width_m - 0.01).clamp(0.0, DRAWER_FRONT_SHIFT_M);
+            let front = if inside && !reg.joints.is_empty() { r * Vector3::new(0.0, -shift, 0.0) } else { Vector3::zeros() };
+            // several objects on one region (two moka pots on one burner) side by side along its axis nearest world y
+            let side = if slot.n > 1 && !inside {
+                let k = if r[(1, 0)].abs() > r[(1, 1)].abs() { 0 } else { 1 };
+                let f = 2.0 * (slot.k as f64 + 0.5) / slot.n as f64 - 1.0;
+                Vector3::new(r[(0, k)], r[(1, k)], 0.0) * (f * SLOT_SPREAD * reg.half_size_m[k])
+            } else {
+                Vector3::zeros()
+            };
+            let front = front + side;
             (Vector3::new(c.x + front.x, c.y + front.y, surface + root_above_bottom_m + 0.012), top + root_above_bottom_m + 0.05)
         }
         Target::Object(b) => {
@@ -505,13 +549,15 @@ fn place_phases(
     object: usize,
     category: &str,
     target: Target,
+    slot: Slot,
     short: bool,
 ) -> Vec<Phase> {
     let body = ctx.index.instances[object].body;
     let root = pos(sim, body);
     let (lo, hi) = extent(sim, &ctx.index, object);
     let grasp = choose_grasp(sim, body, category, lo, hi, narrow_dir(sim, &ctx.index, object), home);
-    let (mut to, carry_top) = place_target(sim, ctx, target, root.z - lo.z);
+    let half_width_m = (hi.x - lo.x).max(hi.y - lo.y) / 2.0;
+    let (mut to, carry_top) = place_target(sim, ctx, target, slot, root.z - lo.z, half_width_m);
     to += Vector3::from(handle_of(category).map_or([0.0; 3], |h| h.target_offset_m));
     if short {
         let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
