@@ -2,6 +2,9 @@
 //! privileged expert as ordinary episodes (recorded like any other: action log, result, video) and prints each
 //! run's result record as one JSON object per line. With `--server`, the episodes are prepared on that server and
 //! driven over MCP, so they show in its dashboard; otherwise they run in this process under `--data`.
+//!
+//! `expert --all [--suite S] [--runs N]`: every task with an expert (the release tasks and the 130 stock LIBERO
+//! tasks of the generic expert), one JSON line per task, then a table and the line "N of M solved k/k".
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -27,9 +30,23 @@ const VIDEO_WAIT: Duration = Duration::from_secs(3600);
 
 #[derive(clap::Args, Debug)]
 pub struct ExpertArgs {
-    /// Release task (`T14`, …).
-    #[arg(long, required_unless_present = "list")]
+    /// Release task (`T14`, …), stock LIBERO task (`libero_90/KITCHEN_SCENE3_turn_on_the_stove`) or pool entry
+    /// (`libero_90/35`, `robomemarena/18`).
+    #[arg(long, required_unless_present_any = ["list", "all"])]
     pub task: Option<String>,
+    /// Run the solving expert of every task that has one (see `--suite`) and print a table.
+    #[arg(long, conflicts_with_all = ["task", "list", "server", "trace", "demo_out"])]
+    pub all: bool,
+    /// With `--all`: only this suite (`release`, `libero_spatial`, `libero_object`, `libero_goal`, `libero_10`,
+    /// `libero_90`, or `stock` for all five stock suites); repeatable, or comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    pub suite: Vec<String>,
+    /// With `--all`: only tasks whose id contains one of these (repeatable, or comma-separated).
+    #[arg(long, value_delimiter = ',', requires = "all")]
+    pub filter: Vec<String>,
+    /// With `--all`: print only the JSON lines (the summary as a last JSON line), no table.
+    #[arg(long)]
+    pub json: bool,
     /// How many episodes to run.
     #[arg(long, default_value_t = 1)]
     pub runs: u32,
@@ -92,30 +109,48 @@ fn list() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `t14` → `T14`; stock ids (`suite/NAME`) and paths as given.
+fn normalize_task_id(id: &str) -> String {
+    let id = id.trim();
+    if id.contains('/') || id.ends_with(".bddl") { id.to_owned() } else { id.to_ascii_uppercase() }
+}
+
+/// The expert's id and the task for `asked`: a task with an expert as given (`T14`, `libero_90/NAME`), or a pool
+/// address (`libero_90/35`, `robomemarena/18`) played by the expert of the definition it resolves to.
+fn expert_task(asked: &str, paths: &AssetPaths) -> anyhow::Result<(String, libero_episode::task::TaskSource)> {
+    if libero_tasks::expert_behaviours(asked).is_some() {
+        return Ok((asked.to_owned(), resolve_task(asked, paths)?));
+    }
+    let resolved = resolve_task(asked, paths).ok().map(|task| {
+        let id = task.suite.as_ref().map_or_else(|| task.task_ref.clone(), |s| s.id.clone());
+        (id, task)
+    });
+    match resolved {
+        Some((id, task)) if libero_tasks::expert_behaviours(&id).is_some() => Ok((id, task)),
+        _ => bail!("task {asked} has no scripted expert (see `libero-agent expert --list`)"),
+    }
+}
+
 pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     if args.list {
         return list();
     }
-    let task_id = args.task.as_deref().unwrap_or_default().trim().to_ascii_uppercase();
-    if libero_tasks::expert_behaviours(&task_id).is_none() {
-        bail!("task {task_id} has no scripted expert (see `libero-agent expert --list`)");
+    if args.all {
+        return crate::cmd_expert_all::run_all(args);
     }
+    let asked = normalize_task_id(args.task.as_deref().unwrap_or_default());
     if args.runs == 0 {
         bail!("--runs must be at least 1");
     }
     let level = Level::from_number(args.level).with_context(|| format!("--level must be 1, 2 or 3 (got {})", args.level))?;
     let paths = AssetPaths::discover().context("assets are missing; run `python3 scripts/setup.py`")?;
-    let spec = WorldSpec { task: resolve_task(&task_id, &paths)?, level, seed: args.seed, init_index: 0, paths };
+    let (task_id, task) = expert_task(&asked, &paths)?;
+    let spec = WorldSpec { task, level, seed: args.seed, init_index: 0, paths };
     if args.trace {
         return trace(args, &spec, &task_id);
     }
-    let request = PrepareRequest {
-        level: args.level,
-        seed: args.seed,
-        max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
-        video: !args.no_video,
-        ..PrepareRequest::new(task_id.clone())
-    };
+    // the episode is the address's (a pool entry keeps its own instruction); the expert is its definition's
+    let request = prepare_request(args, &spec.task.task_ref);
     if args.demo_out.is_some() && args.server.is_some() {
         bail!("--demo-out needs the run directories here: run without --server");
     }
@@ -133,28 +168,9 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         let (mut episode_wall_time_s, mut video_ready_s) = (None, None);
         let (episode_id, outcome, record, run_dir) = match (&local, &args.server) {
             (Some(episodes), _) => {
-                let prepared = episodes.prepare(request.clone())?;
-                let mut handle = episodes.handle(&prepared.episode_id).context("prepared episode vanished")?;
-                let outcome = run_expert(&mut handle, &spec, &task_id, &args.behaviour, args.max_actions, progress);
-                handle.stop("expert run over");
-                let run = RunDir::new(&prepared.run_dir);
-                let ended = Instant::now();
-                let result = read_result(&run);
-                episode_wall_time_s = result.as_ref().and_then(|r| r["wall_time_seconds"].as_f64());
-                if request.video {
-                    let frames = libero_episode::state_record::StateRecordReader::open(&run.state_record()).map(|r| r.frames()).unwrap_or(0);
-                    progress(&format!("waiting for the private video ({frames} frames, rendered in the background)"));
-                    match episodes.wait_for_video(&run, VIDEO_WAIT) {
-                        Some(VideoProgress::Ready) => {
-                            let ready_s = ended.elapsed().as_secs_f64();
-                            video_ready_s = Some(ready_s);
-                            progress(&format!("video ready {ready_s:.1} s after the episode"));
-                        }
-                        other => bail!("the private video of {} did not complete: {other:?}", prepared.episode_id),
-                    }
-                }
-                let record = result.and_then(|r| r.get("private_evaluation").cloned());
-                (prepared.episode_id, outcome, record, Some(prepared.run_dir))
+                let r = run_local(episodes, &request, &spec, &task_id, &args.behaviour, args.max_actions, &progress)?;
+                (episode_wall_time_s, video_ready_s) = (r.episode_wall_time_s, r.video_ready_s);
+                (r.episode_id, r.outcome, r.record, Some(r.run_dir))
             }
             (None, Some(server)) => {
                 let prepared = prepare_episode(server, &request)?;
@@ -173,7 +189,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         failures += u32::from(!success && args.behaviour == expert::SOLVE);
         let demo = match (&args.demo_out, &renderer, &run_dir) {
             (Some(lib), Some(renderer), Some(run_dir)) if success => {
-                let out = library::bundle_dir(lib, &task_id, &episode_id);
+                let out = library::bundle_dir(lib, &spec.task.task_ref, &episode_id);
                 let options = RecordOptions {
                     source_type: "scripted_expert".into(),
                     source_desc: format!("libero-agent expert --behaviour {}", args.behaviour),
@@ -211,6 +227,63 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         bail!("the {task_id} expert failed {failures} of {} runs", args.runs);
     }
     Ok(())
+}
+
+/// The episode an expert run of `task_id` prepares (the agent step cap, so that budgets never end a run early).
+pub(crate) fn prepare_request(args: &ExpertArgs, task_id: &str) -> PrepareRequest {
+    PrepareRequest {
+        level: args.level,
+        seed: args.seed,
+        max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
+        video: !args.no_video,
+        ..PrepareRequest::new(task_id.to_owned())
+    }
+}
+
+/// One in-process expert episode.
+pub(crate) struct LocalRun {
+    pub episode_id: String,
+    pub outcome: Result<libero_episode::expert_run::ExpertRun, EpisodeError>,
+    /// The episode's own evaluation record (`private_evaluation` of its result).
+    pub record: Option<Value>,
+    pub run_dir: PathBuf,
+    pub episode_wall_time_s: Option<f64>,
+    pub video_ready_s: Option<f64>,
+}
+
+/// Prepares an episode on `episodes`, plays `behaviour` on it, and waits for its private video when it records one.
+pub(crate) fn run_local(
+    episodes: &Episodes,
+    request: &PrepareRequest,
+    spec: &WorldSpec,
+    task_id: &str,
+    behaviour: &str,
+    max_actions: u64,
+    progress: &dyn Fn(&str),
+) -> anyhow::Result<LocalRun> {
+    let prepared = episodes.prepare(request.clone())?;
+    let mut handle = episodes.handle(&prepared.episode_id).context("prepared episode vanished")?;
+    let outcome = run_expert(&mut handle, spec, task_id, behaviour, max_actions, progress);
+    handle.stop("expert run over");
+    let run = RunDir::new(&prepared.run_dir);
+    let ended = Instant::now();
+    let result = read_result(&run);
+    let episode_wall_time_s = result.as_ref().and_then(|r| r["wall_time_seconds"].as_f64());
+    let mut video_ready_s = None;
+    if request.video {
+        let frames = libero_episode::state_record::StateRecordReader::open(&run.state_record()).map(|r| r.frames()).unwrap_or(0);
+        progress(&format!("waiting for the private video ({frames} frames, rendered in the background)"));
+        match episodes.wait_for_video(&run, VIDEO_WAIT) {
+            Some(VideoProgress::Ready) => {
+                let ready_s = ended.elapsed().as_secs_f64();
+                video_ready_s = Some(ready_s);
+                progress(&format!("video ready {ready_s:.1} s after the episode"));
+            }
+            other => bail!("the private video of {} did not complete: {other:?}", prepared.episode_id),
+        }
+    }
+    let record = result.and_then(|r| r.get("private_evaluation").cloned());
+    Ok(LocalRun { episode_id: prepared.episode_id, outcome, record, run_dir: prepared.run_dir, episode_wall_time_s, video_ready_s })
 }
 
 /// `(name, id)` of each named model object of `kind` (warning about names the model lacks).

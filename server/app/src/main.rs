@@ -17,6 +17,7 @@ mod cmd_demo;
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
 mod cmd_expert;
+mod cmd_expert_all;
 #[cfg(feature = "episode-serve")]
 mod cmd_mcp_stdio;
 #[cfg(feature = "episode-serve")]

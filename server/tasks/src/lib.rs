@@ -19,4 +19,4 @@ pub use pool::{Pool, PoolEntry};
 pub use judge::evaluator::{EvaluationRecord, Evaluator, Tick};
 pub use judge::goal::{GoalChecker, GoalReport, PredicateValue};
 pub use judge::predicates::{ArticulationRule, EntityRef, JointTest, PredicateKind, SceneIndex, articulation_rule};
-pub use registry::{apply_private_model_edits, build_evaluator, expert_behaviours, expert_for};
+pub use registry::{STOCK_SUITES, apply_private_model_edits, build_evaluator, expert_behaviours, expert_for, expert_plan};

@@ -165,3 +165,16 @@ pub fn expert_for(
     }
     (family.build)(task_id, behaviour, &refs)
 }
+
+/// Whether the expert of `task_id` can plan this scene's goal: `Ok(steps)` for a scripted task (the generic stock
+/// expert's plan, one line per step; empty for a hand-written script), or why not (which goal atom has no skill).
+pub fn expert_plan(task_id: &str, scene: &ComposedScene, model: &MjModel) -> Result<Vec<String>, TasksError> {
+    if libero::stock::is_stock_id(task_id) {
+        return libero::stock::plan_check(&SceneRefs::new(scene, model)?);
+    }
+    expert_behaviours(task_id).map(|_| Vec::new()).ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))
+}
+
+/// The stock LIBERO suites the generic expert plays (`suite/NAME` ids).
+pub use crate::pool::STOCK_SUITES;
+

@@ -186,25 +186,45 @@ pub fn turn_on_stove(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert
 
 /// The phases of [`turn_on_stove`] for the LIBERO flat stove `stove`, turning its knob up to `q_goal` (rad).
 pub fn stove_knob_phases(refs: &SceneRefs, stove: &str, q_goal: f64) -> Result<Vec<Phase>, TasksError> {
+    stove_knob_phases_toward(refs, stove, q_goal)
+}
+
+/// As [`stove_knob_phases`], turning the knob toward `q_goal` from wherever it is when the turn starts: up (on) or
+/// down (off, a knob left on).
+pub fn stove_knob_phases_toward(refs: &SceneRefs, stove: &str, q_goal: f64) -> Result<Vec<Phase>, TasksError> {
     let knob = refs.body(&format!("{stove}_button"))?;
     let (q_adr, joint) = refs.joint(&format!("{stove}_button"))?;
     let dof = refs.model.jnt_dofadr()[joint] as usize;
     let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
+    // +1 turns up, −1 down; fixed when the turn starts
+    let sign = std::sync::Arc::new(std::sync::Mutex::new(None::<f64>));
+    let s = sign.clone();
+    let dir = move |sim: &Simulation| *s.lock().unwrap_or_else(std::sync::PoisonError::into_inner).get_or_insert_with(|| if q(sim) <= q_goal { 1.0 } else { -1.0 });
+    let reached = {
+        let dir = dir.clone();
+        move |sim: &Simulation| (q(sim) - q_goal) * dir(sim) >= 0.0
+    };
     let grasp = move |sim: &Simulation| body_point(sim, knob, KNOB_GRASP_LOCAL_M);
     // fingers open across the ridge (the knob's local x)
     let hand = HingeHand { body: knob, local_dir: [1.0, 0.0, 0.0], joint, q_adr };
     let rot_at = move |sim: &Simulation, ctx: &PhaseCtx, angle: f64| hand.rot(sim, ctx, angle);
     const LEAD_RAD: f64 = 0.3;
+    const OFF_HOLD_PAST_RAD: f64 = 0.15;
     let mut phases = reach_and_grip(["above_knob", "near_knob", "down_to_knob", "pinch_knob"], grasp, move |sim, ctx| {
         rot_at(sim, ctx, q(sim))
     });
+    let (d1, d2, r1) = (dir.clone(), dir, reached);
     phases.extend([
         Phase::new("turn_knob", move |sim, ctx| {
-            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q(sim) + LEAD_RAD))
+            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q(sim) + LEAD_RAD * d1(sim)))
         })
-        .until(move |sim, _| q(sim) >= q_goal)
+        .until(move |sim, _| r1(sim))
         .max_steps(200),
-        Phase::new("hold_still", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q_goal)))
+        // turning down, the knob springs back off its stop: hold the hand past the goal, against the stop
+        Phase::new("hold_still", move |sim, ctx| {
+            let past = if d2(sim) < 0.0 { OFF_HOLD_PAST_RAD } else { 0.0 };
+            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q_goal - past))
+        })
             .until(move |sim, ctx| ctx.steps >= 4 && sim.data().qvel()[dof].abs() < 0.02)
             .max_steps(40),
         Phase::new("release", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_OPEN).rotated(rot_at(sim, ctx, q(sim)))).for_steps(8),

@@ -95,6 +95,12 @@ pub fn push_plate(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, 
     let plate = refs.instance_body("plate_1")?;
     let zone = refs.site("main_table_stove_front_region")?;
     let stop_m = if behaviour == SOLVE { 0.012 } else { 0.09 };
+    Ok(Box::new(Script::new(push_plate_phases(plate, zone, stop_m))))
+}
+
+/// The phases of [`push_plate`]: push the plate (root body `plate`) until its centre is within `stop_m` of the
+/// region site `zone`'s centre.
+pub fn push_plate_phases(plate: usize, zone: usize, stop_m: f64) -> Vec<Phase> {
     let plate_pos = move |sim: &Simulation| body_pos(sim, plate);
     let centre = move |sim: &Simulation| vec3(&sim.data().site_xpos()[zone]);
     let dir = move |sim: &Simulation| {
@@ -114,7 +120,7 @@ pub fn push_plate(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, 
     const PUSH_UP_M: f64 = 0.02;
     const BEHIND_M: f64 = 0.02;
     let rot = move |sim: &Simulation, ctx: &PhaseCtx| open_along(&ctx.home_rot, across(sim));
-    Ok(Box::new(Script::new(vec![
+    vec![
         Phase::new("above_plate", move |sim, ctx| Goal::at(over(sim, BEHIND_M, 0.12), GRIPPER_OPEN).rotated(rot(sim, ctx)))
             .until_reached(0.01)
             .max_steps(150),
@@ -138,5 +144,5 @@ pub fn push_plate(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, 
         })
         .until_reached(0.02)
         .max_steps(40),
-    ])))
+    ]
 }

@@ -1,0 +1,98 @@
+//! The generic expert of the stock LIBERO tasks through the real binary (`libero-agent expert`, episodes prepared
+//! like any other, judged by the task's BDDL goal on the final state). The full table over the 130 tasks is one
+//! command (`expert --all --suite stock`, minutes in a release build); CI runs a sample, one task per skill family:
+//! a pick-and-place into a basket (libero_object), a bowl onto a plate (libero_spatial), a drawer opening and a stove
+//! knob (libero_goal), and checks that an idle run and the `stop_short` near miss fail.
+use std::process::Command;
+
+use serde_json::Value;
+
+mod common;
+
+fn bin() -> Command {
+    let mut c = Command::new(common::bin());
+    c.env("XDG_RUNTIME_DIR", std::env::temp_dir());
+    c
+}
+
+/// One task per skill family of the generic expert.
+const SAMPLE: [&str; 4] = [
+    "libero_object/pick_up_the_butter_and_place_it_in_the_basket",
+    "libero_spatial/pick_up_the_black_bowl_from_table_center_and_place_it_on_the_plate",
+    "libero_goal/open_the_middle_drawer_of_the_cabinet",
+    "libero_goal/turn_on_the_stove",
+];
+
+/// `expert --all` over the sample (and one release task): one JSON line per task with 1 of 1 solved, then the table
+/// and the summary line.
+#[test]
+fn expert_all_solves_a_sample_of_stock_tasks_and_prints_the_table() {
+    let data = tempfile::tempdir().expect("tempdir");
+    let filter = SAMPLE.join(",") + ",T14";
+    let out = bin()
+        .args(["expert", "--all", "--suite", "release,libero_object,libero_spatial,libero_goal", "--filter", &filter])
+        .args(["--runs", "1", "--no-video", "--data"])
+        .arg(data.path())
+        .output()
+        .expect("run libero-agent expert --all");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let rows: Vec<Value> = stdout.lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
+    let tasks: Vec<&str> = rows.iter().filter_map(|r| r["task"].as_str()).collect();
+    assert_eq!(tasks.len(), SAMPLE.len() + 1, "{stdout}");
+    assert_eq!(tasks[0], "T14", "release tasks come first: {tasks:?}");
+    for task in SAMPLE {
+        assert!(tasks.contains(&task), "{task} missing: {tasks:?}");
+    }
+    for r in &rows {
+        assert_eq!(r["expert"], true, "{r}");
+        assert_eq!((r["runs"].as_u64(), r["successes"].as_u64()), (Some(1), Some(1)), "the expert must solve it: {r}");
+        assert!(r["actions"][0].as_u64().is_some_and(|n| n > 0), "{r}");
+    }
+    // progress on stderr, the table and the summary on stdout
+    assert!(stderr.contains("[5/5] "), "{stderr}");
+    assert!(stdout.lines().any(|l| l.starts_with("task ") && l.contains("solved")), "{stdout}");
+    assert_eq!(stdout.lines().last(), Some("5 of 5 solved 1/1"), "{stdout}");
+}
+
+/// Runs one behaviour of a stock task once; its printed record.
+fn run(task: &str, behaviour: &str) -> Value {
+    let data = tempfile::tempdir().expect("tempdir");
+    let out = bin()
+        .args(["expert", "--task", task, "--behaviour", behaviour, "--runs", "1", "--no-video", "--data"])
+        .arg(data.path())
+        .output()
+        .expect("run libero-agent expert");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(stdout.lines().next().unwrap_or_default())
+        .unwrap_or_else(|e| panic!("{task} {behaviour}: no record ({e}): {}", String::from_utf8_lossy(&out.stderr)))
+}
+
+/// An idle agent and the near miss (the object let go 10 cm short of the basket) fail the BDDL goal.
+#[test]
+fn idle_and_stop_short_runs_of_a_stock_task_fail() {
+    let task = SAMPLE[0];
+    let idle = run(task, "idle");
+    assert_eq!((idle["success"].as_bool(), idle["actions"].as_u64()), (Some(false), Some(0)), "{idle}");
+    let short = run(task, "stop_short");
+    assert_eq!(short["success"], false, "stop_short must fail: {short}");
+    assert!(short["actions"].as_u64().is_some_and(|n| n > 100), "stop_short must carry the object: {short}");
+    assert_eq!(short["failure_reason"], "terminal_state_invalid", "{short}");
+}
+
+/// Pool addresses run as episodes of their own and are played by the expert of the definition they resolve to: a
+/// stock entry by task id (`libero_object/6` is the butter task above) and RoboMemArena task 18, a pool entry with its
+/// own scene and stages (solved 2 of 2; `partial_1` completes exactly one).
+#[test]
+fn pool_addresses_are_played_by_the_expert_of_their_definition() {
+    let butter = run("libero_object/6", "solve");
+    assert_eq!(butter["success"], true, "{butter}");
+    let solved = run("robomemarena/18", "solve");
+    assert_eq!((solved["success"].as_bool(), solved["completed_stage_count"].as_u64()), (Some(true), Some(2)), "{solved}");
+    let partial = run("robomemarena/18", "partial_1");
+    assert_eq!((partial["success"].as_bool(), partial["completed_stage_count"].as_u64()), (Some(false), Some(1)), "{partial}");
+    let data = tempfile::tempdir().expect("tempdir");
+    let out = bin().args(["expert", "--task", "robomemarena/1", "--no-video", "--data"]).arg(data.path()).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("no scripted expert"));
+}
