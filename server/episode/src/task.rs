@@ -91,7 +91,7 @@ fn resolve_pool_entry(id: &str, paths: &AssetPaths) -> Result<TaskSource, Episod
     let task_err = |e: libero_tasks::TasksError| EpisodeError::Task(e.to_string());
     let pool = Pool::discover().map_err(task_err)?;
     let entry = pool.lookup(id).map_err(EpisodeError::Task)?;
-    match entry.runs(paths).map_err(task_err)? {
+    match pool.runs(entry, paths).map_err(task_err)? {
         Runs::Stock => resolve_task(&entry.reference(), paths),
         Runs::Release(release) => {
             let mut source = resolve_suite_task(release, paths)?;

@@ -4,7 +4,7 @@
 //! as a known-buggy asset family, or not implemented yet. Operator data: entries name checker kinds, never reach
 //! an agent beyond the instruction of the task it runs.
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -140,24 +140,6 @@ impl PoolEntry {
         }
     }
 
-    /// What this entry runs on, its files resolved and checked; why not otherwise.
-    pub fn runs(&self, paths: &AssetPaths) -> Result<Runs<'_>, TasksError> {
-        if let Some(why) = self.why_not() {
-            return Err(TasksError::Catalog { path: self.id(), message: format!("{} ({}) is {why}", self.id(), self.name) });
-        }
-        match (&self.runs_as, &self.definition) {
-            _ if self.is_stock() => Ok(Runs::Stock),
-            (Some(task), _) => Ok(Runs::Release(task)),
-            (None, Some(d)) => {
-                let id = self.reference();
-                let definition = Definition { id: &id, suite: &self.suite, bddl: &d.bddl, init: &d.init, task_reference: None };
-                let files = definition.files(&tasks_dir(), paths)?;
-                Ok(Runs::Own(files, CheckerSpec { kind: self.checker.clone(), params: d.checker_params.clone() }))
-            }
-            (None, None) => Err(TasksError::Catalog { path: self.id(), message: "names nothing to run".into() }),
-        }
-    }
-
     /// Why this entry cannot run, if it cannot.
     pub fn why_not(&self) -> Option<String> {
         match self.status() {
@@ -186,6 +168,8 @@ struct PoolFile {
 pub struct Pool {
     entries: Vec<PoolEntry>,
     excluded_families: Vec<String>,
+    /// The folder `pool.json` came from: entries' own definitions are relative to it.
+    dir: PathBuf,
 }
 
 /// Counts of one suite for `tasks list` and the Tasks page.
@@ -212,7 +196,7 @@ impl Pool {
         let bytes = std::fs::read(&path).map_err(|e| err(format!("cannot read: {e}")))?;
         let file: PoolFile = serde_json::from_slice(&bytes).map_err(|e| err(e.to_string()))?;
         validate(&file, catalog).map_err(err)?;
-        Ok(Self { entries: file.entries, excluded_families: file.excluded_families })
+        Ok(Self { entries: file.entries, excluded_families: file.excluded_families, dir: dir.to_path_buf() })
     }
 
     pub fn entries(&self) -> &[PoolEntry] {
@@ -221,6 +205,24 @@ impl Pool {
 
     pub fn excluded_families(&self) -> &[String] {
         &self.excluded_families
+    }
+
+    /// What entry `e` runs on, its files resolved (relative to this pool's folder) and checked; why not otherwise.
+    pub fn runs<'a>(&self, e: &'a PoolEntry, paths: &AssetPaths) -> Result<Runs<'a>, TasksError> {
+        if let Some(why) = e.why_not() {
+            return Err(TasksError::Catalog { path: e.id(), message: format!("{} ({}) is {why}", e.id(), e.name) });
+        }
+        match (&e.runs_as, &e.definition) {
+            _ if e.is_stock() => Ok(Runs::Stock),
+            (Some(task), _) => Ok(Runs::Release(task)),
+            (None, Some(d)) => {
+                let id = e.reference();
+                let definition = Definition { id: &id, suite: &e.suite, bddl: &d.bddl, init: &d.init, task_reference: None };
+                let files = definition.files(&self.dir, paths)?;
+                Ok(Runs::Own(files, CheckerSpec { kind: e.checker.clone(), params: d.checker_params.clone() }))
+            }
+            (None, None) => Err(TasksError::Catalog { path: e.id(), message: "names nothing to run".into() }),
+        }
     }
 
     /// `suite/task_id` or `suite/name` (a trailing `.bddl` is ignored).

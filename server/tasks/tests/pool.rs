@@ -107,7 +107,7 @@ fn an_entry_with_its_own_definition_runs_its_scene_and_is_judged_by_its_own_stag
     let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
     let pool = pool();
     let e = pool.get("robomemarena/18").unwrap();
-    let Runs::Own(files, checker) = e.runs(&paths).unwrap() else { panic!("robomemarena/18 runs on its own definition") };
+    let Runs::Own(files, checker) = pool.runs(e, &paths).unwrap() else { panic!("robomemarena/18 runs on its own definition") };
     assert!(files.bddl.ends_with("bddl/robomemarena_task_18.bddl") && files.init_states.is_none());
     assert_eq!((files.placement_seed, checker.kind.as_str()), (Some(100), "private_ordered_stages"));
     let (scene, mut sim) = common::scene_and_sim(&files.bddl);
@@ -139,9 +139,9 @@ fn an_entry_with_its_own_definition_runs_its_scene_and_is_judged_by_its_own_stag
     sim.set_init_state(&row).unwrap();
     let moved = judge(&sim, &mut evaluator, 3);
     assert_eq!((moved.success, moved.completed_required_stage_count), (true, 2), "{moved:?}");
-    assert_eq!(pool.get("libero_90/35").unwrap().runs(&paths).unwrap(), Runs::Stock);
-    assert_eq!(pool.get("perception_v2/6").unwrap().runs(&paths).unwrap(), Runs::Release("T07"));
-    let err = pool.get("robomemarena/1").unwrap().runs(&paths).unwrap_err().to_string();
+    assert_eq!(pool.runs(pool.get("libero_90/35").unwrap(), &paths).unwrap(), Runs::Stock);
+    assert_eq!(pool.runs(pool.get("perception_v2/6").unwrap(), &paths).unwrap(), Runs::Release("T07"));
+    let err = pool.runs(pool.get("robomemarena/1").unwrap(), &paths).unwrap_err().to_string();
     assert!(err.contains("not implemented in this build"), "{err}");
 }
 
@@ -186,7 +186,7 @@ fn play(entry: &str, behaviour: &str) -> libero_tasks::EvaluationRecord {
     let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
     let pool = pool();
     let e = pool.get(entry).unwrap();
-    let Runs::Own(files, checker) = e.runs(&paths).unwrap() else { panic!("{entry} runs on its own definition") };
+    let Runs::Own(files, checker) = pool.runs(e, &paths).unwrap() else { panic!("{entry} runs on its own definition") };
     let (scene, mut sim) = common::scene_and_sim(&files.bddl);
     for _ in 0..10 {
         sim.step([0.0; 7]).unwrap();
