@@ -20,8 +20,8 @@ use crate::serve::episodes::Episodes;
 /// The suite name `--suite release` selects (the 30 release tasks).
 const RELEASE: &str = "release";
 
-/// `(suite, task id)` of every task `--suite` selects, release tasks first, stock tasks by suite and name.
-fn selected_tasks(suites: &[String], paths: &AssetPaths) -> anyhow::Result<Vec<(String, String)>> {
+/// `(suite, task id)` of every task `--suite` selects, release tasks first, stock tasks by suite in task order.
+fn selected_tasks(suites: &[String]) -> anyhow::Result<Vec<(String, String)>> {
     let wanted = |s: &str| suites.is_empty() || suites.iter().any(|w| w == s || (w == "stock" && s != RELEASE));
     for w in suites {
         if w != RELEASE && w != "stock" && !libero_tasks::STOCK_SUITES.contains(&w.as_str()) {
@@ -37,14 +37,10 @@ fn selected_tasks(suites: &[String], paths: &AssetPaths) -> anyhow::Result<Vec<(
             }
         }
     }
+    // the stock entries of the pool, in the original's task order
+    let pool = libero_tasks::Pool::discover()?;
     for suite in libero_tasks::STOCK_SUITES.iter().filter(|s| wanted(s)) {
-        let dir = paths.stock_bddl(suite, "x").parent().map(std::path::Path::to_path_buf).context("stock BDDL folder")?;
-        let mut names: Vec<String> = std::fs::read_dir(&dir)
-            .with_context(|| format!("listing {}", dir.display()))?
-            .filter_map(|e| e.ok()?.file_name().to_str()?.strip_suffix(".bddl").map(str::to_owned))
-            .collect();
-        names.sort();
-        tasks.extend(names.into_iter().map(|n| (suite.to_string(), format!("{suite}/{n}"))));
+        tasks.extend(pool.select(suite, None).map(|e| (suite.to_string(), e.reference())));
     }
     Ok(tasks)
 }
@@ -74,7 +70,7 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     }
     let level = Level::from_number(args.level).with_context(|| format!("--level must be 1, 2 or 3 (got {})", args.level))?;
     let paths = AssetPaths::discover().context("assets are missing; run `python3 scripts/setup.py`")?;
-    let mut tasks = selected_tasks(&args.suite, &paths)?;
+    let mut tasks = selected_tasks(&args.suite)?;
     if !args.filter.is_empty() {
         tasks.retain(|(_, id)| args.filter.iter().any(|f| id.contains(f.as_str())));
     }

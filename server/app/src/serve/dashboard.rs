@@ -732,14 +732,14 @@ impl TasksQuery {
         self.group.as_deref().filter(|g| !g.is_empty())
     }
 
+    /// The search, lower-cased once per request.
     fn query(&self) -> String {
         self.q.as_deref().unwrap_or_default().trim().to_lowercase()
     }
 
-    /// Whether a task with these texts passes the group and the search.
-    fn keeps(&self, group: &str, texts: [&str; 3]) -> bool {
-        let q = self.query();
-        self.group().is_none_or(|g| g == group) && (q.is_empty() || texts.iter().any(|t| t.to_lowercase().contains(&q)))
+    /// Whether a task with these texts passes the group and the search `q` (from [`Self::query`]).
+    fn keeps(&self, q: &str, group: &str, texts: [&str; 3]) -> bool {
+        self.group().is_none_or(|g| g == group) && (q.is_empty() || texts.iter().any(|t| t.to_lowercase().contains(q)))
     }
 }
 
@@ -784,14 +784,15 @@ fn tasks_view(query: &TasksQuery) -> anyhow::Result<TasksPage> {
     }
     let groups = libero_tasks::pool::GROUPS.iter().map(|g| ((*g).to_owned(), query.group() == Some(*g))).collect();
     let release = suite == RELEASE_SUITE;
+    let q = query.query();
     let (tasks, pool_cards) = if release {
         let tasks: Vec<TaskCard> =
-            task_cards()?.into_iter().filter(|t| query.keeps(&t.group, [&t.id, &t.name, &t.instruction])).collect();
+            task_cards()?.into_iter().filter(|t| query.keeps(&q, &t.group, [&t.id, &t.name, &t.instruction])).collect();
         (tasks, Vec::new())
     } else {
         let cards = pool
             .select(suite, None)
-            .filter(|e| query.keeps(&e.group, [&e.id(), &e.name, &e.instruction]))
+            .filter(|e| query.keeps(&q, &e.group, [&e.id(), &e.name, &e.instruction]))
             .map(pool_card)
             .collect();
         (Vec::new(), cards)
