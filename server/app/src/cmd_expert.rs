@@ -38,7 +38,8 @@ pub struct ExpertArgs {
     #[arg(long, conflicts_with_all = ["task", "list", "server", "trace", "demo_out"])]
     pub all: bool,
     /// With `--all`: only this suite (`release`, `libero_spatial`, `libero_object`, `libero_goal`, `libero_10`,
-    /// `libero_90`, or `stock` for all five stock suites); repeatable, or comma-separated.
+    /// `libero_90`, `stock` for all five stock suites, or a pool suite such as `robomemarena` for its entries with a
+    /// definition and an expert of their own); repeatable, or comma-separated.
     #[arg(long, value_delimiter = ',')]
     pub suite: Vec<String>,
     /// With `--all`: only tasks whose id contains one of these (repeatable, or comma-separated).
@@ -121,14 +122,13 @@ fn expert_task(asked: &str, paths: &AssetPaths) -> anyhow::Result<(String, liber
     if libero_tasks::expert_behaviours(asked).is_some() {
         return Ok((asked.to_owned(), resolve_task(asked, paths)?));
     }
-    let resolved = resolve_task(asked, paths).ok().map(|task| {
-        let id = task.suite.as_ref().map_or_else(|| task.task_ref.clone(), |s| s.id.clone());
-        (id, task)
-    });
-    match resolved {
-        Some((id, task)) if libero_tasks::expert_behaviours(&id).is_some() => Ok((id, task)),
-        _ => bail!("task {asked} has no scripted expert (see `libero-agent expert --list`)"),
+    // a pool entry that does not run says why (excluded, or what it still needs)
+    let task = resolve_task(asked, paths)?;
+    let id = task.suite.as_ref().map_or_else(|| task.task_ref.clone(), |s| s.id.clone());
+    if libero_tasks::expert_behaviours(&id).is_none() {
+        bail!("task {asked} has no scripted expert (see `libero-agent expert --list`)");
     }
+    Ok((id, task))
 }
 
 pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {

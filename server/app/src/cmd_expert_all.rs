@@ -1,5 +1,6 @@
 //! `libero-agent expert --all [--suite S] [--filter PART] [--runs N] [--no-video] [--json]`: the solvability table. Every release task
-//! with a scripted expert and every stock LIBERO task (the generic expert, planned from its BDDL goal) runs its
+//! with a scripted expert, every stock LIBERO task (the generic expert, planned from its BDDL goal) and every pool
+//! entry with a definition of its own and an expert (RoboMemArena tasks, …) runs its
 //! solving expert `--runs` times in this process; one JSON line per task, then a table and the summary line
 //! "N of M solved k/k". A stock task whose goal the generic expert cannot plan is listed as "no expert" with the atom
 //! it could not plan.
@@ -20,12 +21,18 @@ use crate::serve::episodes::Episodes;
 /// The suite name `--suite release` selects (the 30 release tasks).
 const RELEASE: &str = "release";
 
-/// `(suite, task id)` of every task `--suite` selects, release tasks first, stock tasks by suite in task order.
+/// `(suite, task id)` of every task `--suite` selects: release tasks first, then stock tasks by suite in task
+/// order, then the pool's own definitions with an expert, by suite.
 fn selected_tasks(suites: &[String]) -> anyhow::Result<Vec<(String, String)>> {
-    let wanted = |s: &str| suites.is_empty() || suites.iter().any(|w| w == s || (w == "stock" && s != RELEASE));
+    let stock = |s: &str| libero_tasks::STOCK_SUITES.contains(&s);
+    let wanted = |s: &str| suites.is_empty() || suites.iter().any(|w| w == s || (w == "stock" && stock(s)));
+    let registered = |s: &str| libero_tasks::pool::REGISTERED_SUITES.iter().any(|(r, _)| *r == s);
     for w in suites {
-        if w != RELEASE && w != "stock" && !libero_tasks::STOCK_SUITES.contains(&w.as_str()) {
-            bail!("unknown suite {w:?}: expected {RELEASE}, stock or one of {}", libero_tasks::STOCK_SUITES.join(", "));
+        if w != RELEASE && w != "stock" && !registered(w) {
+            bail!(
+                "unknown suite {w:?}: expected {RELEASE}, stock or one of {}",
+                libero_tasks::pool::REGISTERED_SUITES.map(|(s, _)| s).join(", ")
+            );
         }
     }
     let mut tasks = Vec::new();
@@ -41,6 +48,13 @@ fn selected_tasks(suites: &[String]) -> anyhow::Result<Vec<(String, String)>> {
     let pool = libero_tasks::Pool::discover()?;
     for suite in libero_tasks::STOCK_SUITES.iter().filter(|s| wanted(s)) {
         tasks.extend(pool.select(suite, None).map(|e| (suite.to_string(), e.reference())));
+    }
+    // entries that run on a definition of their own (not a release task's, not a stock file) and have an expert
+    for e in pool.entries().iter().filter(|e| !stock(&e.suite) && wanted(&e.suite)) {
+        let own = e.definition.is_some() && e.status() == libero_tasks::pool::EntryStatus::Runs;
+        if own && libero_tasks::expert_behaviours(&e.reference()).is_some() {
+            tasks.push((e.suite.clone(), e.reference()));
+        }
     }
     Ok(tasks)
 }

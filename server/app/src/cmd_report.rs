@@ -6,10 +6,10 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::bail;
-use libero_metrics::{Proportion, Split, SuiteSummary, summarize};
+use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
 use serde_json::{Value, json};
 
-use crate::run::batch::{Condition, LoadedBatch, load_batch, metrics_rollouts};
+use crate::run::batch::{Condition, LoadedBatch, load_batch, metrics_rollouts, pool_rollouts};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
@@ -46,6 +46,11 @@ pub fn rows(batches: &[LoadedBatch], reps: usize) -> Vec<Row> {
         .collect()
 }
 
+/// Every agent's pool summary (rollouts of `run --experiment pool`), per suite; never part of the Score.
+pub fn pool_rows(batches: &[LoadedBatch], reps: usize) -> Vec<(String, PoolSummary)> {
+    pool_rollouts(batches).into_iter().map(|(agent, rs)| (agent, summarize_pool(&rs, reps))).collect()
+}
+
 /// The report as JSON: batches (settings, harness version, counts) and per-row summaries.
 pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
     let rows: Vec<Value> = rows(batches, reps)
@@ -58,7 +63,9 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
             "harness": b.batch["harness"], "sandbox": b.batch["sandbox"], "counts": b.batch["counts"],
             "outcomes": b.batch["outcomes"], "rollouts_recorded": b.records.len()}))
         .collect();
-    json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows})
+    let pool: Vec<Value> =
+        pool_rows(batches, reps).into_iter().map(|(agent, summary)| json!({"agent": agent, "summary": summary})).collect();
+    json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows, "pool": pool})
 }
 
 pub(crate) fn pct(x: Option<f64>) -> String {
@@ -155,11 +162,7 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize) -> String {
     let _ = writeln!(o, "|---|---|---|---|---|---|---|---|");
     for r in &rows {
         for t in &r.summary.tasks {
-            let stable = match t.stable_success {
-                Some(true) => "yes",
-                Some(false) => "no",
-                None => "incomplete",
-            };
+            let stable = stable_word(t.stable_success);
             let _ = writeln!(
                 o,
                 "| {} | T{:02} | {} | {} | {} | {} | {} | {} / {} |",
@@ -175,7 +178,46 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize) -> String {
             );
         }
     }
+    let pool = pool_rows(batches, reps);
+    if !pool.is_empty() {
+        let _ = writeln!(o, "\n## Task pool, per suite (`run --experiment pool`; not part of the Score)\n");
+        let _ = writeln!(o, "Stable SR: every one of the {reps} rollouts succeeded; stable SC: the minimum c/K, averaged over the suite's scored tasks.\n");
+        let _ = writeln!(o, "| Agent | Suite | Tasks (scored) | Stable SR | Stable SC | Mean c/K | Ordinary SR [95% Wilson] | Avg. time |");
+        let _ = writeln!(o, "|---|---|---|---|---|---|---|---|");
+        for (agent, p) in &pool {
+            for s in &p.suites {
+                let _ = writeln!(
+                    o,
+                    "| {agent} | {} | {} ({}) | {} | {} | {} | {} | {} min |",
+                    s.suite, s.tasks, s.tasks_scored, pct(s.stable_success), pct(s.stable_stage_completion),
+                    pct(s.mean_stage_completion), wilson(&s.ordinary), opt(s.avg_wall_time_min, 1),
+                );
+            }
+        }
+        let _ = writeln!(o, "\n### Pool tasks\n");
+        let _ = writeln!(o, "| Agent | Task | Suite | Valid | Excluded | Successes | Stable | Stage fraction (min / sum) |");
+        let _ = writeln!(o, "|---|---|---|---|---|---|---|---|");
+        for (agent, p) in &pool {
+            for t in &p.tasks {
+                let c = &t.counts;
+                let _ = writeln!(
+                    o,
+                    "| {agent} | {} | {} | {} | {} | {} | {} | {} / {} |",
+                    t.task, t.suite, c.valid_rollouts, c.excluded_rollouts, c.successes, stable_word(c.stable_success),
+                    opt(c.stable_stage_fraction, 2), opt(c.stage_fraction_sum, 2),
+                );
+            }
+        }
+    }
     o
+}
+
+pub(crate) fn stable_word(s: Option<bool>) -> &'static str {
+    match s {
+        Some(true) => "yes",
+        Some(false) => "no",
+        None => "incomplete",
+    }
 }
 
 pub fn csv(batches: &[LoadedBatch], reps: usize) -> String {
@@ -197,6 +239,17 @@ pub fn csv(batches: &[LoadedBatch], reps: usize) -> String {
             r.agent, r.condition.level, r.condition.demo.as_str(),
             s.score.map(|x| format!("{x:.4}")).unwrap_or_default()
         );
+    }
+    // Pool suites: `split` is `pool:<suite>`, member tasks are the suite's tasks in the batches.
+    for (agent, p) in pool_rows(batches, reps) {
+        for s in &p.suites {
+            let _ = writeln!(
+                o,
+                "{agent},3,none,pool:{},{},{},{},{},{},{},{}",
+                s.suite, s.tasks, s.tasks_scored, f(s.stable_success), s.ordinary.successes, s.ordinary.trials,
+                f(s.ordinary.wilson_low), f(s.ordinary.wilson_high)
+            );
+        }
     }
     o
 }

@@ -151,3 +151,88 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
     let out = libero(&as_refs(&run_args("reference", false)));
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--resume"));
 }
+
+/// `run --experiment pool` plays pool addresses next to a release id (a stock LIBERO task, RoboMemArena task 18
+/// on its own definition, T14) with the sandboxed reference agent, records each rollout with its suite, and
+/// `report` shows them per suite and never in the paper's table. Selectors that cannot run are refused before
+/// anything is launched, with their reason.
+#[test]
+fn a_pool_batch_runs_pool_addresses_and_reports_them_per_suite() {
+    let dir = tempfile::tempdir().unwrap();
+    let batch = dir.path().join("pool");
+    let workspaces = dir.path().join("workspaces");
+    let args = |tasks: &str, experiment: &str| -> Vec<String> {
+        [
+            "run", "--experiment", experiment, "--harness", "command", "--model", "reference", "--tasks", tasks, "--reps", "1",
+            "--concurrency", "2", "--agent-cmd", "exec {libero_agent} agent --workspace {workspace}", "--wall-time-s", "300",
+            "--batch", batch.to_str().unwrap(), "--workspace-root", workspaces.to_str().unwrap(),
+        ]
+        .map(str::to_owned)
+        .to_vec()
+    };
+
+    // Refused before launching: a pool address outside the pool experiment, an excluded and an unknown entry.
+    for (tasks, experiment, why) in [
+        ("libero_90/35", "main_table", "--experiment pool"),
+        ("libero_90/999", "pool", "libero_90 has task ids"),
+        ("suite:nope", "pool", "no pool suite"),
+    ] {
+        let out = libero(&as_refs(&args(tasks, experiment)));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(why), "{tasks}: {err}");
+    }
+    assert!(!batch.exists(), "nothing written");
+
+    // The schedule of a whole suite: every RoboMemArena entry that runs, the others named on stderr.
+    let mut dry = args("suite:robomemarena", "pool");
+    dry.extend(["--dry-run".into(), "--json".into()]);
+    let out = libero(&as_refs(&dry));
+    assert!(out.status.success());
+    let planned: Vec<Value> = String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(planned.iter().any(|p| p["task"] == "robomemarena/18" && p["suite"] == "robomemarena"), "{planned:?}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("left out"), "the entries that do not run are named");
+
+    // The batch.
+    let out = libero(&as_refs(&args("libero_object/0,robomemarena/18,T14", "pool")));
+    assert!(out.status.success(), "run failed");
+    let b: Value = serde_json::from_str(&std::fs::read_to_string(batch.join("batch.json")).unwrap()).unwrap();
+    assert_eq!((b["status"].as_str(), b["settings"]["experiment"].as_str()), (Some("finished"), Some("pool")));
+    assert_eq!(b["settings"]["pool_tasks"], serde_json::json!(["libero_object/0", "robomemarena/18", "T14"]));
+    let records: Vec<Value> = std::fs::read_to_string(batch.join("rollouts.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let mut seen: Vec<(String, String)> = records
+        .iter()
+        .map(|r| {
+            let outcome = r["outcome"].as_str().unwrap();
+            assert!(outcome == "FAIL" || outcome == "SUCCESS", "the sandboxed agent played its episode: {r}");
+            assert_eq!(r["accepted_agent_steps"], 4, "{r}");
+            (r["suite"].as_str().unwrap().to_owned(), r["rollout_id"].as_str().unwrap().to_owned())
+        })
+        .collect();
+    seen.sort();
+    assert_eq!(
+        seen,
+        [
+            ("libero_object".into(), "w1_libero_object_000_level3".into()),
+            ("release".into(), "w1_t14_level3".into()),
+            ("robomemarena".into(), "w1_robomemarena_018_level3".into()),
+        ]
+    );
+    let rma = records.iter().find(|r| r["suite"] == "robomemarena").unwrap();
+    assert_eq!(rma["stage_count"], 2);
+
+    // The report: per suite, nothing in the paper's rows.
+    let out = libero(&["report", batch.to_str().unwrap(), "--format", "json", "--reps", "1"]);
+    assert!(out.status.success());
+    let rep: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(rep["rows"], serde_json::json!([]));
+    let suites = rep["pool"][0]["summary"]["suites"].as_array().unwrap();
+    let names: Vec<&str> = suites.iter().filter_map(|s| s["suite"].as_str()).collect();
+    assert_eq!(names, ["libero_object", "release", "robomemarena"]);
+    assert!(suites.iter().all(|s| s["tasks"] == 1 && s["tasks_scored"] == 1 && s["ordinary"]["trials"] == 1), "{suites:?}");
+    let md = libero(&["report", batch.to_str().unwrap(), "--reps", "1"]);
+    assert!(String::from_utf8_lossy(&md.stdout).contains("## Task pool, per suite"));
+}

@@ -42,6 +42,36 @@ fn write_ablation_batch(dir: &Path) {
     std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
 }
 
+/// A finished pool batch: libero_90/35 twice (one success), robomemarena/18 twice (1 and 2 of 2 stages).
+fn write_pool_batch(dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    let batch = serde_json::json!({
+        "schema_version": "libero_agent.batch.v1", "status": "finished",
+        "settings": {"experiment": "pool", "harness": "command", "model": "pool-fixture", "effort": "high",
+            "reps": 2, "tasks": [], "pool_tasks": ["libero_90/35", "robomemarena/18"], "seed": 100, "wall_time_s": 300.0,
+            "max_agent_steps": 100, "agent_cmd": "true", "sandbox": false},
+        "rollout_count": 4, "counts": {"done": 4, "running": 0, "left": 0}, "running": [],
+        "outcomes": {"SUCCESS": 2, "FAIL": 2},
+    });
+    std::fs::write(dir.join("batch.json"), batch.to_string()).unwrap();
+    let mut lines = String::new();
+    for (suite, task, key, k, rep, outcome, c) in [
+        ("libero_90", "libero_90/35", "libero_90_035", 1, 1, "SUCCESS", 1),
+        ("libero_90", "libero_90/35", "libero_90_035", 1, 2, "FAIL", 0),
+        ("robomemarena", "robomemarena/18", "robomemarena_018", 2, 1, "FAIL", 1),
+        ("robomemarena", "robomemarena/18", "robomemarena_018", 2, 2, "SUCCESS", 2),
+    ] {
+        let r = serde_json::json!({
+            "schema_version": "libero_agent.rollout.v1", "rollout_id": format!("w{rep}_{key}_level3"), "task": task,
+            "task_number": if task == "libero_90/35" { 16 } else { 0 }, "split": null, "suite": suite, "stage_count": k,
+            "repetition": rep, "level": 3, "demo": "none", "outcome": outcome, "episode_id": format!("ep-pool-{key}-{rep}"),
+            "completed_stages": c, "wall_time_s": 90.0, "started_at": "2025-01-01T00:00:00Z", "finished_at": "2025-01-01T00:01:30Z",
+        });
+        lines.push_str(&format!("{r}\n"));
+    }
+    std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
+}
+
 /// A reference-agent T14 batch (2 rollouts) in `<data>/batches/main`, the ablation fixture under `extra/`, and a
 /// server that sees both.
 fn setup() -> (tempfile::TempDir, Server, PathBuf) {
@@ -57,6 +87,7 @@ fn setup() -> (tempfile::TempDir, Server, PathBuf) {
     assert!(out.status.success(), "run failed");
     let extra = dir.path().join("extra");
     write_ablation_batch(&extra.join("abl"));
+    write_pool_batch(&extra.join("pool"));
 
     let server = Server::start_with(&data, &["--batches", extra.to_str().unwrap()]);
     (dir, server, batch)
@@ -69,7 +100,7 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     // The JSON: both batches, the main one with exactly the report's rows.
     let (status, all) = http_get_json(&format!("{}/api/results", server.url));
     assert_eq!(status, 200, "{all}");
-    assert_eq!(all["available"], serde_json::json!(["abl", "main"]));
+    assert_eq!(all["available"], serde_json::json!(["abl", "main", "pool"]));
     let main = all["batches"].as_array().unwrap().iter().find(|b| b["name"] == "main").expect("main batch").clone();
     assert_eq!((main["reps"].as_u64(), main["status"].as_str()), (Some(2), Some("finished")));
     let out = libero(&["report", batch.to_str().unwrap(), "--format", "json", "--reps", "2"]);
@@ -117,6 +148,41 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     assert!(html.contains("<td>T14</td>") && !html.contains("<td>T11</td>") && !html.contains("http-equiv=\"refresh\""));
     let (status, _) = http_get_json(&format!("{}/api/results?batch=nope", server.url));
     assert_eq!(status, 404);
+}
+
+#[test]
+fn pool_batches_are_shown_per_suite_beside_and_never_inside_the_paper_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let pool_dir = dir.path().join("extra/pool");
+    write_pool_batch(&pool_dir);
+    let server = Server::start_with(&dir.path().join("data"), &["--batches", dir.path().join("extra").to_str().unwrap()]);
+    let (status, one) = http_get_json(&format!("{}/api/results?batch=pool", server.url));
+    assert_eq!(status, 200, "{one}");
+    let b = &one["batches"][0];
+    let out = libero(&["report", pool_dir.to_str().unwrap(), "--format", "json", "--reps", "2"]);
+    assert!(out.status.success());
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(b["report"]["pool"], report["pool"], "the dashboard and `report` disagree on the pool");
+    assert_eq!(report["rows"], serde_json::json!([]), "pool rollouts never enter the paper's table or Score");
+    let suites = report["pool"][0]["summary"]["suites"].as_array().unwrap();
+    let l90 = suites.iter().find(|s| s["suite"] == "libero_90").unwrap();
+    assert_eq!((l90["tasks_scored"].as_u64(), l90["stable_success"].as_f64()), (Some(1), Some(0.0)));
+    let rma = suites.iter().find(|s| s["suite"] == "robomemarena").unwrap();
+    assert_eq!((rma["stable_stage_completion"].as_f64(), rma["mean_stage_completion"].as_f64()), (Some(0.5), Some(0.75)));
+
+    let (status, html) = http_get_text(&format!("{}/results?batch=pool", server.url));
+    assert_eq!(status, 200, "{html}");
+    assert!(html.contains("id=\"pool-suites\"") && html.contains("<td>robomemarena</td>") && html.contains("<td>libero_90</td>"), "{html}");
+    assert!(!html.contains("id=\"main-table\""), "a pool-only selection has no paper table");
+    assert!(html.contains("id=\"pool-tasks\"") && html.contains("<td>robomemarena/18</td>") && html.contains("min c/K 0.50"), "{html}");
+    for key in ["libero_90_035-1", "libero_90_035-2", "robomemarena_018-1", "robomemarena_018-2"] {
+        assert!(html.contains(&format!("href=\"/episodes/ep-pool-{key}/review\"")), "a review link per pool rollout: {key}");
+    }
+    // Markdown and CSV carry the same per-suite lines.
+    let md = libero(&["report", pool_dir.to_str().unwrap(), "--reps", "2"]);
+    assert!(String::from_utf8_lossy(&md.stdout).contains("| command/pool-fixture | robomemarena | 1 (1) | 0.0 | 50.0 | 75.0 |"));
+    let csv = libero(&["report", pool_dir.to_str().unwrap(), "--format", "csv", "--reps", "2"]);
+    assert!(String::from_utf8_lossy(&csv.stdout).contains("command/pool-fixture,3,none,pool:libero_90,1,1,0.0000,1,2,"));
 }
 
 /// Chromium opens `/results` and clicks a T14 rollout through to its review page. Needs `python3

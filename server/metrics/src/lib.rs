@@ -14,7 +14,9 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+mod pool;
 mod wilson;
+pub use pool::{PoolRollout, PoolSuiteSummary, PoolSummary, PoolTaskSummary, summarize_pool};
 pub use wilson::{Proportion, wilson_interval};
 
 /// Rollouts per task in the paper's protocol.
@@ -165,17 +167,61 @@ impl Rollout {
 
     /// `c / K` in [0, 1].
     pub fn stage_fraction(&self) -> f64 {
-        let k = self.stage_count.max(1);
-        let c = self.completed_stages.unwrap_or(if self.success() { k } else { 0 }).min(k);
-        f64::from(c) / f64::from(k)
+        stage_fraction(self.completed_stages, self.stage_count, self.success())
     }
 }
 
-/// One task's numbers under the stable rule.
+/// `c / K` in [0, 1]; a rollout without a stage count has all stages when it succeeded and none otherwise.
+pub fn stage_fraction(completed_stages: Option<u32>, stage_count: u32, success: bool) -> f64 {
+    let k = stage_count.max(1);
+    let c = completed_stages.unwrap_or(if success { k } else { 0 }).min(k);
+    f64::from(c) / f64::from(k)
+}
+
+/// One task's numbers under the stable rule (the counts read through as `t.stable_success`, …).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TaskSummary {
     pub task_number: u32,
     pub split: Split,
+    #[serde(flatten)]
+    pub counts: StableCounts,
+}
+
+impl std::ops::Deref for TaskSummary {
+    type Target = StableCounts;
+    fn deref(&self) -> &StableCounts {
+        &self.counts
+    }
+}
+
+/// What the stable rule reads of one rollout: the paper's release rollouts ([`Rollout`]) and task-pool rollouts
+/// ([`PoolRollout`]) are judged by the same rule.
+pub trait Trial {
+    fn repetition(&self) -> u32;
+    fn outcome(&self) -> Outcome;
+    /// `c / K` in [0, 1].
+    fn stage_fraction(&self) -> f64;
+    fn judgment_correct(&self) -> Option<bool>;
+}
+
+impl Trial for Rollout {
+    fn repetition(&self) -> u32 {
+        self.repetition
+    }
+    fn outcome(&self) -> Outcome {
+        self.outcome
+    }
+    fn stage_fraction(&self) -> f64 {
+        Rollout::stage_fraction(self)
+    }
+    fn judgment_correct(&self) -> Option<bool> {
+        self.judgment_correct
+    }
+}
+
+/// The stable rule over one task's rollouts (the task-independent part of [`TaskSummary`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StableCounts {
     pub valid_rollouts: usize,
     pub excluded_rollouts: usize,
     /// Successes among all valid rollouts (the per-task "x out of 3" of the paper).
@@ -190,26 +236,29 @@ pub struct TaskSummary {
     pub stable_judgment: Option<bool>,
 }
 
-/// Applies the stable rule to one task's rollouts.
-pub fn summarize_task(task_number: u32, split: Split, rollouts: &[&Rollout], reps: usize) -> TaskSummary {
-    let mut valid: Vec<&Rollout> = rollouts.iter().copied().filter(|r| r.outcome.is_valid()).collect();
-    valid.sort_by_key(|r| r.repetition);
-    let excluded_rollouts = rollouts.len() - valid.len();
-    let successes = valid.iter().filter(|r| r.success()).count();
+/// Applies the stable rule: the first `reps` valid rollouts (by repetition) decide; fewer than `reps` valid
+/// rollouts give no stable value.
+pub fn stable_counts<T: Trial>(rollouts: &[&T], reps: usize) -> StableCounts {
+    let mut valid: Vec<&T> = rollouts.iter().copied().filter(|r| r.outcome().is_valid()).collect();
+    valid.sort_by_key(|r| r.repetition());
+    let successes = valid.iter().filter(|r| r.outcome() == Outcome::Success).count();
     let used = (valid.len() >= reps && reps > 0).then(|| &valid[..reps]);
-    TaskSummary {
-        task_number,
-        split,
+    StableCounts {
         valid_rollouts: valid.len(),
-        excluded_rollouts,
+        excluded_rollouts: rollouts.len() - valid.len(),
         successes,
-        stable_success: used.map(|u| u.iter().all(|r| r.success())),
+        stable_success: used.map(|u| u.iter().all(|r| r.outcome() == Outcome::Success)),
         stable_stage_fraction: used.map(|u| u.iter().map(|r| r.stage_fraction()).fold(f64::INFINITY, f64::min)),
         stage_fraction_sum: used.map(|u| u.iter().map(|r| r.stage_fraction()).sum()),
         stable_judgment: used.and_then(|u| {
-            u.iter().map(|r| r.judgment_correct).collect::<Option<Vec<bool>>>().map(|j| j.iter().all(|&x| x))
+            u.iter().map(|r| r.judgment_correct()).collect::<Option<Vec<bool>>>().map(|j| j.iter().all(|&x| x))
         }),
     }
+}
+
+/// Applies the stable rule to one task's rollouts.
+pub fn summarize_task(task_number: u32, split: Split, rollouts: &[&Rollout], reps: usize) -> TaskSummary {
+    TaskSummary { task_number, split, counts: stable_counts(rollouts, reps) }
 }
 
 /// One reporting subset.
@@ -292,12 +341,12 @@ impl SuiteSummary {
     }
 }
 
-fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+pub(crate) fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
     let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
     (n > 0).then(|| sum / n as f64)
 }
 
-fn rate(values: impl Iterator<Item = bool>) -> Option<f64> {
+pub(crate) fn rate(values: impl Iterator<Item = bool>) -> Option<f64> {
     mean(values.map(|b| if b { 1.0 } else { 0.0 }))
 }
 

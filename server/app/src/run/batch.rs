@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use libero_episode::json::write_json_file;
-use libero_metrics::{Outcome, Rollout, Split};
+use libero_metrics::{Outcome, PoolRollout, Rollout, Split};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use sha2::{Digest, Sha256};
@@ -28,6 +28,10 @@ pub struct BatchSettings {
     pub reps: u32,
     /// Task numbers given with `--tasks` (empty: every implemented task of the experiment).
     pub tasks: Vec<u32>,
+    /// The `pool` experiment's `--tasks` selectors (`suite:robomemarena`, `T11`, `libero_90/35`). Left out of
+    /// the JSON when empty, so the hash of every other experiment's settings is what it was.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pool_tasks: Vec<String>,
     pub seed: u64,
     pub wall_time_s: f64,
     pub max_agent_steps: u64,
@@ -52,7 +56,12 @@ pub struct RolloutRecord {
     pub rollout_id: String,
     pub task: String,
     pub task_number: u32,
-    pub split: Split,
+    /// The paper's split; `None` for a pool task that is not a release task.
+    pub split: Option<Split>,
+    /// The pool suite of a `pool` experiment's rollout; such rollouts are reported per suite, never in the
+    /// paper's tables.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub suite: Option<String>,
     pub stage_count: u32,
     pub repetition: u32,
     pub level: u8,
@@ -89,6 +98,7 @@ impl RolloutRecord {
             task: plan.task.clone(),
             task_number: plan.task_number,
             split: plan.split,
+            suite: plan.suite.clone(),
             stage_count: plan.stage_count,
             repetition: plan.repetition,
             level: plan.level,
@@ -113,10 +123,14 @@ impl RolloutRecord {
         }
     }
 
-    pub fn to_metrics(&self) -> Rollout {
-        Rollout {
+    /// The rollout as the paper's metrics see it; `None` for a pool rollout.
+    pub fn to_metrics(&self) -> Option<Rollout> {
+        if self.suite.is_some() {
+            return None;
+        }
+        Some(Rollout {
             task_number: self.task_number,
-            split: self.split,
+            split: self.split?,
             repetition: self.repetition,
             outcome: self.outcome,
             judgment_correct: self.judgment_correct,
@@ -125,7 +139,21 @@ impl RolloutRecord {
             wall_time_s: self.wall_time_s,
             total_tokens: self.usage.as_ref().and_then(|u| u.total_tokens),
             accepted_agent_steps: self.accepted_agent_steps,
-        }
+        })
+    }
+
+    /// The rollout as the pool summary sees it; `None` outside the pool experiment.
+    pub fn to_pool(&self) -> Option<PoolRollout> {
+        Some(PoolRollout {
+            suite: self.suite.clone()?,
+            task: self.task.clone(),
+            repetition: self.repetition,
+            outcome: self.outcome,
+            judgment_correct: self.judgment_correct,
+            completed_stages: self.completed_stages,
+            stage_count: self.stage_count,
+            wall_time_s: self.wall_time_s,
+        })
     }
 }
 
@@ -197,16 +225,34 @@ pub struct Condition {
 pub fn metrics_rollouts(batches: &[LoadedBatch]) -> BTreeMap<(String, Condition), Vec<Rollout>> {
     let mut out: BTreeMap<(String, Condition), Vec<Rollout>> = BTreeMap::new();
     for b in batches {
-        let agent = format!(
-            "{}/{}",
-            b.batch["settings"]["harness"].as_str().unwrap_or("?"),
-            b.batch["settings"]["model"].as_str().unwrap_or("?")
-        );
+        let agent = agent_of(b);
         for r in &b.records {
-            out.entry((agent.clone(), Condition { level: r.level, demo: r.demo })).or_default().push(r.to_metrics());
+            if let Some(m) = r.to_metrics() {
+                out.entry((agent.clone(), Condition { level: r.level, demo: r.demo })).or_default().push(m);
+            }
         }
     }
     out
+}
+
+/// The batches' pool rollouts, grouped by agent (`harness/model`).
+pub fn pool_rollouts(batches: &[LoadedBatch]) -> BTreeMap<String, Vec<PoolRollout>> {
+    let mut out: BTreeMap<String, Vec<PoolRollout>> = BTreeMap::new();
+    for b in batches {
+        for r in b.records.iter().filter_map(RolloutRecord::to_pool) {
+            out.entry(agent_of(b)).or_default().push(r);
+        }
+    }
+    out
+}
+
+/// `harness/model` of a batch.
+pub fn agent_of(b: &LoadedBatch) -> String {
+    format!(
+        "{}/{}",
+        b.batch["settings"]["harness"].as_str().unwrap_or("?"),
+        b.batch["settings"]["model"].as_str().unwrap_or("?")
+    )
 }
 
 #[cfg(test)]
@@ -222,6 +268,7 @@ mod tests {
             effort: "high".into(),
             reps: 3,
             tasks: vec![],
+            pool_tasks: vec![],
             seed: 100,
             wall_time_s: 1800.0,
             max_agent_steps: 1_000_000,
@@ -233,6 +280,23 @@ mod tests {
         t.model = "other".into();
         assert_ne!(s.sha256(), t.sha256());
         assert_eq!(s.sha256().len(), 64);
+        // Outside the pool experiment the settings JSON (and so an existing batch's hash) has no pool_tasks.
+        assert!(!serde_json::to_string(&s).unwrap().contains("pool_tasks"));
+        t.pool_tasks = vec!["suite:robomemarena".into()];
+        assert_ne!(s.sha256(), t.sha256());
+    }
+
+    #[test]
+    fn a_record_written_before_the_pool_reads_back_as_a_release_rollout() {
+        let line = r#"{"schema_version":"libero_agent.rollout.v1","rollout_id":"w1_t14_level3","task":"T14","task_number":14,
+            "split":"short_horizon_easy","stage_count":1,"repetition":1,"level":3,"demo":"none","outcome":"SUCCESS",
+            "episode_id":null,"workspace":null,"run_dir":null,"result_status":null,"success":true,"termination_reason":null,
+            "infrastructure_error":null,"wall_time_s":1.0,"harness_elapsed_s":null,"accepted_agent_steps":4,
+            "completed_stages":1,"judgment_correct":null,"agent_exit_code":0,"usage":null,"started_at":"x","finished_at":"y"}"#;
+        let r: RolloutRecord = serde_json::from_str(line).unwrap();
+        assert_eq!(r.suite, None);
+        assert_eq!(r.to_metrics().unwrap().split, libero_metrics::Split::ShortHorizonEasy);
+        assert!(r.to_pool().is_none());
     }
 
     #[test]
@@ -244,7 +308,8 @@ mod tests {
             task: "T14".into(),
             task_number: 14,
             task_name: "open_the_microwave".into(),
-            split: libero_metrics::Split::ShortHorizonEasy,
+            split: Some(libero_metrics::Split::ShortHorizonEasy),
+            suite: None,
             stage_count: 1,
             repetition: 1,
             level: 3,

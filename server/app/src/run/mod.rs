@@ -28,7 +28,7 @@ use serde_json::{Value, json};
 use batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord, append_record, read_records, write_batch_json};
 use harness::{Credentials, Harness, default_credentials_file};
 use sandbox::Sandbox;
-use schedule::{Experiment, PlannedRollout, plan};
+use schedule::{Experiment, PlannedRollout, plan, plan_pool};
 
 use crate::serve::client::InProcessServer;
 
@@ -42,7 +42,7 @@ extern "C" fn on_signal(_: libc::c_int) {
 #[derive(clap::Args, Debug, Clone)]
 pub struct RunArgs {
     /// main_table: T01–T30 at level 3; manip_observation: T11–T20 at levels 1 and 2; context: T21–T30 with
-    /// video and video+trajectory demonstrations.
+    /// video and video+trajectory demonstrations; pool: any tasks of the pool at level 3, reported per suite.
     #[arg(long, value_enum)]
     pub experiment: Experiment,
     #[arg(long, value_enum)]
@@ -55,7 +55,9 @@ pub struct RunArgs {
     pub effort: String,
     #[arg(long, default_value_t = 1)]
     pub concurrency: usize,
-    /// Only these tasks, e.g. `T11,T13` (default: every implemented task of the experiment).
+    /// Only these tasks, e.g. `T11,T13` (default: every implemented task of the experiment). With
+    /// `--experiment pool` also `suite:robomemarena`, `suite:release`, `group:long_horizon` and pool addresses
+    /// (`libero_90/35`, `libero_90/<name>`; see `tasks list --suite all`); default every entry that runs.
     #[arg(long, value_delimiter = ',')]
     pub tasks: Vec<String>,
     /// Rollouts per task and condition.
@@ -118,11 +120,32 @@ pub struct RunContext {
 fn parse_tasks(tasks: &[String]) -> anyhow::Result<Vec<u32>> {
     tasks
         .iter()
-        .map(|t| t.trim().trim_start_matches(['T', 't']).parse::<u32>().with_context(|| format!("not a task id: {t:?}")))
+        .map(|t| {
+            if t.contains(['/', ':']) {
+                bail!("{t:?} is a pool selector: pool tasks run with --experiment pool");
+            }
+            t.trim().trim_start_matches(['T', 't']).parse::<u32>().with_context(|| format!("not a task id: {t:?}"))
+        })
         .collect()
 }
 
-fn settings_of(args: &RunArgs, tasks: &[u32]) -> BatchSettings {
+/// The schedule of `args`, the tasks left out, and the `--tasks` as the settings record them.
+fn schedule_of(args: &RunArgs, catalog: &Catalog) -> anyhow::Result<(Vec<PlannedRollout>, Vec<String>, Vec<u32>, Vec<String>)> {
+    if args.experiment == Experiment::Pool {
+        let selectors: Vec<String> = args.tasks.iter().map(|t| t.trim().to_owned()).filter(|t| !t.is_empty()).collect();
+        if let Some(long) = selectors.iter().find(|t| t.len() > 200) {
+            bail!("--tasks entry of {} bytes: at most 200", long.len());
+        }
+        let pool = libero_tasks::pool::Pool::discover()?;
+        let (schedule, skipped) = plan_pool(&pool, catalog.tasks(), &selectors, args.reps)?;
+        return Ok((schedule, skipped, Vec::new(), selectors));
+    }
+    let only = parse_tasks(&args.tasks)?;
+    let (schedule, skipped) = plan(args.experiment, catalog.tasks(), (!only.is_empty()).then_some(&only[..]), args.reps)?;
+    Ok((schedule, skipped, only, Vec::new()))
+}
+
+fn settings_of(args: &RunArgs, tasks: &[u32], pool_tasks: &[String]) -> BatchSettings {
     BatchSettings {
         experiment: args.experiment.as_str().to_owned(),
         harness: args.harness.as_str().to_owned(),
@@ -130,6 +153,7 @@ fn settings_of(args: &RunArgs, tasks: &[u32]) -> BatchSettings {
         effort: args.effort.clone(),
         reps: args.reps,
         tasks: tasks.to_vec(),
+        pool_tasks: pool_tasks.to_vec(),
         seed: args.seed,
         wall_time_s: args.wall_time_s,
         max_agent_steps: args.max_agent_steps,
@@ -216,17 +240,20 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("--agent-cmd is required with --harness command and only allowed with it");
     }
     let catalog = Catalog::discover()?;
-    let only = parse_tasks(&args.tasks)?;
-    let (schedule, skipped) = plan(args.experiment, catalog.tasks(), (!only.is_empty()).then_some(&only[..]), args.reps)?;
+    let (schedule, skipped, only, pool_tasks) = schedule_of(&args, &catalog)?;
     if !skipped.is_empty() {
-        eprintln!("not implemented in this build, left out: {}", skipped.join(", "));
+        eprintln!(
+            "left out, {} tasks that do not run in this build (`libero-agent tasks show <task>` says why): {}",
+            skipped.len(),
+            skipped.join(", ")
+        );
     }
     if args.dry_run {
         for r in &schedule {
             if args.json {
                 println!("{}", serde_json::to_string(r)?);
             } else {
-                println!("{:<24} {} {:<34} level {} demo {}", r.rollout_id, r.task, r.task_name, r.level, r.demo.as_str());
+                println!("{:<30} {:<18} {:<40} level {} demo {}", r.rollout_id, r.task, r.task_name, r.level, r.demo.as_str());
             }
         }
         if !args.json {
@@ -238,7 +265,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if schedule.is_empty() {
         bail!("nothing to run");
     }
-    let settings = settings_of(&args, &only);
+    let settings = settings_of(&args, &only, &pool_tasks);
     let batch_dir = absolute(&args.batch.clone().unwrap_or_else(default_batch_dir))?;
     let existing = batch::batch_json(&batch_dir);
     let (created_at, done_records) = if existing.is_file() {

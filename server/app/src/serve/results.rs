@@ -11,6 +11,7 @@ use serde_json::{Value, json};
 
 use crate::cmd_report::{Row, coverage, pct, report_json, rows, wilson};
 use crate::run::batch::{LoadedBatch, RolloutRecord, load_batch};
+use crate::cmd_report::pool_rows;
 
 /// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
 pub fn batch_roots(data: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {
@@ -120,7 +121,7 @@ pub fn load_selected(roots: &[PathBuf], sel: &Selection) -> Result<(Vec<String>,
 
 fn episode_json(r: &RolloutRecord) -> Value {
     json!({
-        "rollout_id": r.rollout_id, "task": r.task, "task_number": r.task_number, "split": r.split,
+        "rollout_id": r.rollout_id, "task": r.task, "task_number": r.task_number, "split": r.split, "suite": r.suite,
         "repetition": r.repetition, "level": r.level, "demo": r.demo, "outcome": r.outcome,
         "completed_stages": r.completed_stages, "stage_count": r.stage_count, "episode_id": r.episode_id,
         "review": r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")),
@@ -219,8 +220,33 @@ pub struct Ablation {
     pub rows: Vec<Vec<String>>,
 }
 
+/// One suite of a pool batch (`run --experiment pool`).
+pub struct PoolSuiteRow {
+    pub batch: String,
+    pub agent: String,
+    pub suite: String,
+    pub tasks: String,
+    pub stable_sr: String,
+    pub stable_sc: String,
+    pub mean_sc: String,
+    pub ordinary: String,
+    pub time: String,
+}
+
+/// One pool task of a batch with its rollouts.
+pub struct PoolTaskRow {
+    pub batch: String,
+    pub task: String,
+    pub suite: String,
+    pub summary: String,
+    pub stable: String,
+    pub links: Vec<EpisodeLink>,
+}
+
 pub struct View {
     pub main: Vec<MainRow>,
+    pub pool: Vec<PoolSuiteRow>,
+    pub pool_tasks: Vec<PoolTaskRow>,
     pub progress: Vec<ProgressRow>,
     pub columns: Vec<String>,
     pub tasks: Vec<TaskRow>,
@@ -228,6 +254,7 @@ pub struct View {
     pub any_running: bool,
 }
 
+/// `harness + model`, as the page heads it.
 fn agent_of(b: &LoadedBatch) -> String {
     format!("{} + {}", b.batch["settings"]["harness"].as_str().unwrap_or("?"), b.batch["settings"]["model"].as_str().unwrap_or("?"))
 }
@@ -238,7 +265,16 @@ fn count(v: &Value) -> String {
 
 /// Everything the page shows, from the same rows the JSON carries.
 pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
-    let mut v = View { main: vec![], progress: vec![], columns: vec![], tasks: vec![], ablations: vec![], any_running: false };
+    let mut v = View {
+        main: vec![],
+        pool: vec![],
+        pool_tasks: vec![],
+        progress: vec![],
+        columns: vec![],
+        tasks: vec![],
+        ablations: vec![],
+        any_running: false,
+    };
     // (column index, batch, condition row) for the per-task table.
     let mut task_numbers = BTreeSet::new();
     let mut cols: Vec<(&LoadedBatch, Row)> = Vec::new();
@@ -295,6 +331,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             });
             task_numbers.extend(s.tasks.iter().map(|t| t.task_number));
         }
+        pool_view(&mut v, b, reps);
         if let Some(a) = ablation(&experiment, b, &batch_rows) {
             v.ablations.push(a);
         }
@@ -333,18 +370,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                             }
                         })
                         .unwrap_or_default(),
-                    links: recs
-                        .iter()
-                        .map(|x| {
-                            let c = x.completed_stages.map(|c| c.to_string()).unwrap_or_else(|| "?".into());
-                            EpisodeLink {
-                                href: x.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")).unwrap_or_default(),
-                                label: format!("{c}/{}", x.stage_count),
-                                outcome: x.outcome.as_str().to_owned(),
-                                title: format!("repetition {}: {} ({})", x.repetition, x.outcome.as_str(), x.rollout_id),
-                            }
-                        })
-                        .collect(),
+                    links: recs.iter().map(|x| episode_link(x)).collect(),
                 }
             })
             .collect();
@@ -355,6 +381,56 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
         });
     }
     v
+}
+
+/// A rollout as `c/K`, linked to its review.
+fn episode_link(x: &RolloutRecord) -> EpisodeLink {
+    let c = x.completed_stages.map(|c| c.to_string()).unwrap_or_else(|| "?".into());
+    EpisodeLink {
+        href: x.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")).unwrap_or_default(),
+        label: format!("{c}/{}", x.stage_count),
+        outcome: x.outcome.as_str().to_owned(),
+        title: format!("repetition {}: {} ({})", x.repetition, x.outcome.as_str(), x.rollout_id),
+    }
+}
+
+/// A pool batch's per-suite lines and per-task rows (the same summary as `report`'s pool section).
+fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
+    for (_, p) in pool_rows(std::slice::from_ref(b), reps) {
+        for s in &p.suites {
+            v.pool.push(PoolSuiteRow {
+                batch: b.name(),
+                agent: agent_of(b),
+                suite: s.suite.clone(),
+                tasks: format!("{} ({} scored)", s.tasks, s.tasks_scored),
+                stable_sr: pct(s.stable_success),
+                stable_sc: pct(s.stable_stage_completion),
+                mean_sc: pct(s.mean_stage_completion),
+                ordinary: wilson(&s.ordinary),
+                time: s.avg_wall_time_min.map(|m| format!("{m:.1} min")).unwrap_or_else(|| "—".into()),
+            });
+        }
+        for t in &p.tasks {
+            let mut recs: Vec<&RolloutRecord> =
+                b.records.iter().filter(|x| x.suite.as_deref() == Some(t.suite.as_str()) && x.task == t.task).collect();
+            recs.sort_by_key(|x| x.repetition);
+            let c = &t.counts;
+            let excluded = if c.excluded_rollouts > 0 { format!(" (+{} excluded)", c.excluded_rollouts) } else { String::new() };
+            v.pool_tasks.push(PoolTaskRow {
+                batch: b.name(),
+                task: t.task.clone(),
+                suite: t.suite.clone(),
+                summary: format!("{}/{}{excluded}", c.successes, c.valid_rollouts),
+                stable: match (c.stable_success, c.stable_stage_fraction) {
+                    (Some(true), _) => "stable".into(),
+                    (Some(false), Some(f)) if t.stage_count > 1 => format!("not stable, min c/K {f:.2}"),
+                    (Some(false), _) => "not stable".into(),
+                    (None, _) => "incomplete".into(),
+                },
+                links: recs.iter().map(|x| episode_link(x)).collect(),
+            });
+        }
+    }
 }
 
 /// The ablation tables of the paper: short-horizon manipulation by observation level, long-horizon context
