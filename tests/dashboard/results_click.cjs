@@ -1,5 +1,5 @@
 // Opens the Results page in Debian's chromium (headless, playwright-core), checks the main table and the per-task
-// table, clicks the first rollout link of task TASK and expects that episode's review page to load with its
+// table and the task-pool tables, clicks the first rollout link of task TASK and expects that episode's review page to load with its
 // result record. Usage: node results_click.cjs BASE TASK ARTIFACTS. Prints one JSON line, {"ok":true,...} or
 // {"ok":false,"error":...}. Screenshots go to ARTIFACTS.
 const { launch, say, shotter, check, login } = require('./common.cjs');
@@ -23,6 +23,10 @@ async function main() {
     const href = await link.getAttribute('href');
     check(/^\/episodes\/[^/]+\/review$/.test(href), `a review link, got ${href}`);
     await shot(page, 'results');
+    // the pool batch's per-suite table and per-task rows, beside the paper's table
+    check(await page.locator('#pool-suites tbody tr').count() >= 2, 'the task-pool table has a row per suite');
+    check(await page.locator('#pool-tasks a.outcome').count() >= 4, 'every pool rollout links to its review');
+    await page.locator('#pool-suites').screenshot({ path: require('path').join(artifacts, 'results-pool.png') });
     await Promise.all([page.waitForURL(`**${href}`, { timeout: 15000 }), link.click()]);
     await page.waitForSelector('body[data-ready="true"]', { timeout: 30000 });
     await page.waitForFunction(() => (document.getElementById('result') || {}).textContent?.includes('private_evaluation'), null, { timeout: 15000 });
