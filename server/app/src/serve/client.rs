@@ -153,7 +153,7 @@ impl InProcessServer {
         let thread = std::thread::spawn(move || -> anyhow::Result<()> {
             let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
             let result = runtime.block_on(async move {
-                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data), operator_token_file: None, public_hosts: vec![], batches: vec![] };
+                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data), operator_token_file: None, public_hosts: vec![], batches: vec![], store: None };
                 let bound = match start(&args).await {
                     Ok(b) => b,
                     Err(e) => {

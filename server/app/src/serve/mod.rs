@@ -61,6 +61,11 @@ pub struct ServeArgs {
     /// folder of them (e.g. `./agent_runs`, where `run` puts batches by default). Repeatable.
     #[arg(long = "batches", value_name = "DIR")]
     pub batches: Vec<PathBuf>,
+    /// The episode store: `sqlite://PATH` (default `<data>/episodes.sqlite`, embedded) or
+    /// `postgres://USER@HOST:PORT/DB`, one store several servers can share (the password may come from
+    /// `PGPASSWORD` or `~/.pgpass` instead of the URL). Also $LIBERO_AGENT_STORE.
+    #[arg(long, value_name = "URL", env = "LIBERO_AGENT_STORE")]
+    pub store: Option<String>,
 }
 
 pub fn default_data_dir() -> PathBuf {
@@ -291,7 +296,13 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     if rebuilding > 0 {
         eprintln!("libero-agent serve: rebuilding {rebuilding} private video(s) from their state records in the background");
     }
-    let store = Store::open(&episodes.data_dir().join(STORE_FILE)).await?;
+    let store = match &args.store {
+        Some(url) => Store::connect(url).await?,
+        None => Store::open(&episodes.data_dir().join(STORE_FILE)).await?,
+    };
+    if store.backend() == store::Backend::Postgres {
+        eprintln!("libero-agent serve: episode store {}", store::redact(args.store.as_deref().unwrap_or_default()));
+    }
     let reconciled = store.reconcile(&episodes.runs_dir()).await?;
     let app = Arc::new(App {
         episodes,

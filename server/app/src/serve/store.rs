@@ -1,11 +1,12 @@
 //! The episode store: one row per prepared episode (task, level, seed, init state, times, outcome of §4.8,
 //! reason, stage counts, run directory), written when an episode is prepared, when it starts and when it
-//! ends. SQLite through sqlx; the SQL is plain (`$n` placeholders, `BIGINT`/`BOOLEAN`/`TEXT`, `ON CONFLICT
-//! DO NOTHING`) so the same statements run on PostgreSQL. The run directories stay the source of truth:
-//! at startup [`Store::reconcile`] rebuilds any row the files know better (a crash between `result.json`
-//! and the store write loses nothing).
+//! ends. Two backends through sqlx's `Any` driver, chosen by URL (`--store`): `sqlite://PATH` (the embedded
+//! default, `<data>/episodes.sqlite`) or `postgres://…` (one store shared by several servers). The SQL is
+//! plain (`$n` placeholders, `BIGINT`/`BOOLEAN`/`TEXT`, `ON CONFLICT DO NOTHING`), the same statements on
+//! both. The run directories stay the source of truth: at startup [`Store::reconcile`] rebuilds any row the
+//! files know better (a crash between `result.json` and the store write loses nothing), and closes only the
+//! open rows of its own run directories (another server's running episodes in a shared store stay open).
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 
 use anyhow::Context;
 use libero_episode::json::utc_now_iso;
@@ -13,7 +14,8 @@ use libero_episode::records::{Outcome, RunDir, classify, read_result};
 use serde::Serialize;
 use serde_json::Value;
 use sqlx::Row;
-use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePool, SqlitePoolOptions, SqliteRow};
+use sqlx::AnyPool;
+use sqlx::any::{AnyPoolOptions, AnyRow};
 
 /// File name of the store inside the data directory.
 pub const STORE_FILE: &str = "episodes.sqlite";
@@ -43,8 +45,10 @@ const SCHEMA: &str = "CREATE TABLE IF NOT EXISTS episodes (
 const ADDED_COLUMNS: [(&str, &str); 4] =
     [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION")];
 
+/// The columns of a row as read back. `success` is read as a number: sqlx's `Any` driver decodes PostgreSQL's
+/// BOOLEAN but not SQLite's.
 const COLUMNS: &str = "id, task_ref, level, seed, init_index, created_at, started_at, finished_at, outcome, reason, \
-    success, accepted_agent_steps, completed_stage_count, required_stage_count, run_dir, harness, model, batch, \
+    CAST(CASE WHEN success THEN 1 WHEN NOT success THEN 0 END AS BIGINT) AS success, accepted_agent_steps, completed_stage_count, required_stage_count, run_dir, harness, model, batch, \
     wall_time_s";
 
 /// The dashboard's episode filters (`None`: any). Outcome `RUNNING` selects episodes without an outcome yet.
@@ -91,7 +95,7 @@ impl EpisodeRow {
         v
     }
 
-    fn from_row(r: &SqliteRow) -> Result<Self, sqlx::Error> {
+    fn from_row(r: &AnyRow) -> Result<Self, sqlx::Error> {
         let episode = NewEpisode {
             id: r.try_get("id")?,
             task_ref: r.try_get("task_ref")?,
@@ -110,7 +114,7 @@ impl EpisodeRow {
             finished_at: r.try_get("finished_at")?,
             outcome: r.try_get("outcome")?,
             reason: r.try_get("reason")?,
-            success: r.try_get("success")?,
+            success: r.try_get::<Option<i64>, _>("success")?.map(|v| v != 0),
             accepted_agent_steps: r.try_get("accepted_agent_steps")?,
             completed_stage_count: r.try_get("completed_stage_count")?,
             required_stage_count: r.try_get("required_stage_count")?,
@@ -193,41 +197,99 @@ impl NewEpisode {
     }
 }
 
-/// SQLite connections of the store.
+/// Connections of the store's pool.
 const STORE_CONNECTIONS: u32 = 4;
+
+/// Which engine a store URL names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backend {
+    Sqlite,
+    Postgres,
+}
+
+impl Backend {
+    pub fn of_url(url: &str) -> anyhow::Result<Self> {
+        match url.split_once(':').map(|(scheme, _)| scheme) {
+            Some("sqlite") => Ok(Backend::Sqlite),
+            Some("postgres" | "postgresql") => Ok(Backend::Postgres),
+            _ => anyhow::bail!("store URL {:?}: expected sqlite://PATH or postgres://USER@HOST:PORT/DB", redact(url)),
+        }
+    }
+}
+
+/// A store URL without its password, for messages.
+pub fn redact(url: &str) -> String {
+    match (url.find("://"), url.rfind('@')) {
+        (Some(s), Some(at)) if at > s => match url[s + 3..at].split_once(':') {
+            Some((user, _)) => format!("{}{user}:***{}", &url[..s + 3], &url[at..]),
+            None => url.to_owned(),
+        },
+        _ => url.to_owned(),
+    }
+}
+
+/// The URL of the embedded store at `path`, created when missing. The path is percent-encoded: a data directory
+/// may be named anything (`?`, `#`, `%`, spaces), and sqlx decodes the path part of the URL.
+pub fn sqlite_url(path: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let mut encoded = String::new();
+    for &b in path.as_os_str().as_bytes() {
+        if b.is_ascii_alphanumeric() || b"/-_.~".contains(&b) {
+            encoded.push(char::from(b));
+        } else {
+            encoded.push_str(&format!("%{b:02X}"));
+        }
+    }
+    format!("sqlite://{encoded}?mode=rwc")
+}
 
 #[derive(Clone)]
 pub struct Store {
-    pool: SqlitePool,
+    pool: AnyPool,
+    backend: Backend,
 }
 
 impl Store {
-    /// Opens (creating) the SQLite store at `path` and its table.
+    /// Opens (creating) the embedded SQLite store at `path` and its table.
     pub async fn open(path: &Path) -> anyhow::Result<Self> {
-        let url = format!("sqlite://{}", path.display());
-        let options = SqliteConnectOptions::from_str(&url)
-            .with_context(|| format!("store path {}", path.display()))?
-            .create_if_missing(true)
-            // WAL: readers (the API) never block the writer; a killed process loses no committed row.
-            .journal_mode(SqliteJournalMode::Wal);
-        let pool = SqlitePoolOptions::new()
+        Self::connect(&sqlite_url(path)).await
+    }
+
+    /// Opens the store a URL names (`sqlite://PATH?mode=rwc`, `postgres://…`) and creates or upgrades its table.
+    pub async fn connect(url: &str) -> anyhow::Result<Self> {
+        let backend = Backend::of_url(url)?;
+        sqlx::any::install_default_drivers();
+        let pool = AnyPoolOptions::new()
             .max_connections(STORE_CONNECTIONS)
             // All open from the start: a connection is a thread and three files, and a pool that grew under
             // load would keep them for its 10-minute idle timeout, so the server's baseline depended on past load.
             .min_connections(STORE_CONNECTIONS)
-            .connect_with(options)
+            .connect(url)
             .await
-            .with_context(|| format!("cannot open the episode store {}", path.display()))?;
+            .with_context(|| format!("cannot open the episode store {}", redact(url)))?;
+        if backend == Backend::Sqlite {
+            // WAL (kept in the file): readers (the API) never block the writer; a killed process loses no
+            // committed row.
+            sqlx::query("PRAGMA journal_mode=WAL").execute(&pool).await.context("cannot switch the store to WAL")?;
+        }
         sqlx::query(SCHEMA).execute(&pool).await.context("cannot create the episodes table")?;
         for (name, kind) in ADDED_COLUMNS {
-            // A store written by this version has the column already; any other failure is one.
-            if let Err(e) = sqlx::query(&format!("ALTER TABLE episodes ADD COLUMN {name} {kind}")).execute(&pool).await
+            let sql = match backend {
+                Backend::Postgres => format!("ALTER TABLE episodes ADD COLUMN IF NOT EXISTS {name} {kind}"),
+                // SQLite has no IF NOT EXISTS here: a store written by this version has the column already
+                Backend::Sqlite => format!("ALTER TABLE episodes ADD COLUMN {name} {kind}"),
+            };
+            if let Err(e) = sqlx::query(&sql).execute(&pool).await
                 && !e.to_string().to_ascii_lowercase().contains("duplicate column")
             {
-                return Err(anyhow::Error::from(e).context(format!("cannot add column {name} to the episode store {}", path.display())));
+                return Err(anyhow::Error::from(e).context(format!("cannot add column {name} to the episode store {}", redact(url))));
             }
         }
-        Ok(Self { pool })
+        Ok(Self { pool, backend })
+    }
+
+    pub fn backend(&self) -> Backend {
+        self.backend
     }
 
     /// The row of a newly prepared episode (kept as is if it already exists).
@@ -304,17 +366,34 @@ impl Store {
                 closed += u64::from(before.is_none());
             }
         }
-        let orphans = sqlx::query(
-            "UPDATE episodes SET finished_at = $1, outcome = $2, reason = $3, success = $4 WHERE outcome IS NULL",
-        )
-        .bind(utc_now_iso())
-        .bind(Outcome::Invalid.as_str())
-        .bind(MISSING_RUN_REASON)
-        .bind(false)
-        .execute(&self.pool)
-        .await
-        .context("store: cannot close orphaned rows")?;
-        Ok(closed + orphans.rows_affected())
+        // Rows of this server's run directories still open without their directory: the episode was lost with
+        // the server. Rows under other run directories (another server on a shared store) are not this one's.
+        let open = sqlx::query("SELECT id, run_dir FROM episodes WHERE outcome IS NULL")
+            .fetch_all(&self.pool)
+            .await
+            .context("store: cannot list open rows")?;
+        let mut orphans = 0;
+        for row in &open {
+            let (id, run_dir): (String, String) = (row.try_get("id")?, row.try_get("run_dir")?);
+            let run_dir = PathBuf::from(run_dir);
+            let foreign = self.backend == Backend::Postgres && run_dir.parent() != Some(runs_dir);
+            if foreign || run_dir.exists() {
+                continue;
+            }
+            let closed_row = sqlx::query(
+                "UPDATE episodes SET finished_at = $1, outcome = $2, reason = $3, success = $4 WHERE id = $5 AND outcome IS NULL",
+            )
+            .bind(utc_now_iso())
+            .bind(Outcome::Invalid.as_str())
+            .bind(MISSING_RUN_REASON)
+            .bind(false)
+            .bind(&id)
+            .execute(&self.pool)
+            .await
+            .context("store: cannot close an orphaned row")?;
+            orphans += closed_row.rows_affected();
+        }
+        Ok(closed + orphans)
     }
 
     pub async fn get(&self, id: &str) -> anyhow::Result<Option<EpisodeRow>> {
@@ -355,7 +434,12 @@ impl Store {
 }
 
 #[cfg(test)]
+#[path = "../../tests/common/postgres.rs"]
+mod test_postgres;
+
+#[cfg(test)]
 mod tests {
+    use super::test_postgres::TestPostgres;
     use super::*;
     use serde_json::json;
 
@@ -374,11 +458,73 @@ mod tests {
         }
     }
 
+    async fn sqlite_store(dir: &Path) -> Store {
+        Store::open(&dir.join(STORE_FILE)).await.unwrap()
+    }
+
     #[tokio::test]
-    async fn rows_follow_an_episode_from_prepare_to_its_end_and_keep_the_first_outcome() {
+    async fn sqlite_rows_follow_an_episode_from_prepare_to_its_end_and_keep_the_first_outcome() {
         let dir = tempfile::tempdir().unwrap();
-        let store = Store::open(&dir.path().join(STORE_FILE)).await.unwrap();
-        store.insert_prepared(&new_episode("ep-a", dir.path())).await.unwrap();
+        rows_follow_an_episode(sqlite_store(dir.path()).await, dir.path()).await;
+    }
+
+    #[tokio::test]
+    async fn postgres_rows_follow_an_episode_from_prepare_to_its_end_and_keep_the_first_outcome() {
+        let pg = TestPostgres::start();
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::connect(&pg.url).await.unwrap();
+        assert_eq!(store.backend(), Backend::Postgres);
+        rows_follow_an_episode(store.clone(), dir.path()).await;
+        store.close().await;
+        // Opening an existing store again (a second server, a restart) keeps its rows and columns.
+        let again = Store::connect(&pg.url).await.unwrap();
+        assert_eq!(again.list(10).await.unwrap().len(), 1);
+        again.close().await;
+    }
+
+    #[tokio::test]
+    async fn sqlite_reconcile_restores_ended_episodes_from_run_directories_and_closes_orphans() {
+        let dir = tempfile::tempdir().unwrap();
+        reconcile_restores_and_closes_orphans(sqlite_store(dir.path()).await, dir.path()).await;
+    }
+
+    #[tokio::test]
+    async fn postgres_reconcile_closes_only_its_own_orphans() {
+        let pg = TestPostgres::start();
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::connect(&pg.url).await.unwrap();
+        // Another server's open episode in the shared store: not this server's to close.
+        let other = dir.path().join("other-server/runs/ep-elsewhere");
+        store.insert_prepared(&new_episode("ep-elsewhere", &other)).await.unwrap();
+        reconcile_restores_and_closes_orphans(store.clone(), dir.path()).await;
+        assert_eq!(store.get("ep-elsewhere").await.unwrap().unwrap().outcome, None, "another server's episode stays open");
+        store.close().await;
+    }
+
+    #[tokio::test]
+    async fn the_embedded_store_opens_in_a_directory_whose_name_needs_quoting_in_a_url() {
+        let dir = tempfile::tempdir().unwrap();
+        let odd = dir.path().join("my data #1 ?x=y 100%");
+        std::fs::create_dir_all(&odd).unwrap();
+        let store = Store::open(&odd.join(STORE_FILE)).await.unwrap();
+        store.insert_prepared(&new_episode("ep-odd", &odd)).await.unwrap();
+        assert!(store.get("ep-odd").await.unwrap().is_some());
+        store.close().await;
+        assert!(odd.join(STORE_FILE).is_file(), "the file is where the path says, not at a truncated name");
+    }
+
+    #[test]
+    fn store_urls_name_their_backend_and_messages_hide_the_password() {
+        assert_eq!(Backend::of_url("sqlite:///tmp/x.sqlite").unwrap(), Backend::Sqlite);
+        assert_eq!(Backend::of_url("postgres://u:secret@h:5432/db").unwrap(), Backend::Postgres);
+        let err = Backend::of_url("mysql://u:secret@h/db").unwrap_err().to_string();
+        assert!(err.contains("postgres://") && !err.contains("secret"), "{err}");
+        assert_eq!(redact("postgres://u:secret@h:5432/db"), "postgres://u:***@h:5432/db");
+        assert_eq!(redact("sqlite:///a/b"), "sqlite:///a/b");
+    }
+
+    async fn rows_follow_an_episode(store: Store, dir: &Path) {
+        store.insert_prepared(&new_episode("ep-a", dir)).await.unwrap();
         let row = store.get("ep-a").await.unwrap().unwrap();
         assert_eq!((row.episode.level, row.episode.seed, row.episode.init_index), (3, 100, 2));
         assert_eq!(row.outcome, None);
@@ -407,17 +553,14 @@ mod tests {
         assert_eq!(row.episode.harness.as_deref(), Some("codex"));
     }
 
-    #[tokio::test]
-    async fn reconcile_restores_ended_episodes_from_run_directories_and_closes_orphans() {
-        let dir = tempfile::tempdir().unwrap();
-        let runs = dir.path().join("runs");
+    async fn reconcile_restores_and_closes_orphans(store: Store, dir: &Path) {
+        let runs = dir.join("runs");
         let run = RunDir::new(runs.join("ep-files"));
         std::fs::create_dir_all(&run.root).unwrap();
         let record = json!({"episode_id": "ep-files", "created_at": "2026-01-01T00:00:00+00:00",
             "task": {"task_ref": "libero_object/x"}, "level": 1, "seed": 5, "init_state_index": 0});
         std::fs::write(run.episode_record(), record.to_string()).unwrap();
         std::fs::write(run.result_json(), json!({"status": "finished", "success": true}).to_string()).unwrap();
-        let store = Store::open(&dir.path().join(STORE_FILE)).await.unwrap();
         // A row whose run directory vanished while it was open.
         store.insert_prepared(&new_episode("ep-gone", &runs.join("ep-gone"))).await.unwrap();
         assert_eq!(store.reconcile(&runs).await.unwrap(), 2);

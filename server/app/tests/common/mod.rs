@@ -7,6 +7,8 @@ use std::time::Duration;
 
 use serde_json::Value;
 
+pub mod postgres;
+
 /// The test venv's interpreter (`scripts/setup.py --test`): the independent Python peers of some tests.
 pub fn python() -> PathBuf {
     let cache = std::env::var_os("LIBERO_AGENT_CACHE")
