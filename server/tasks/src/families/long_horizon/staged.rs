@@ -10,7 +10,9 @@
 //!
 //! Atoms: a LIBERO predicate (`{"bddl": ["on", "moka_pot_1", "flat_stove_2_cook_region"]}`), or one of the
 //! RoboMemArena checks: `near` (object root within `xy_max_m` horizontally of an anchor body or site, height
-//! difference inside `dz_range_m`), `drawer_open` / `drawer_closed` (world-y displacement of a drawer's region site
+//! difference inside `dz_range_m`), `window` (object root minus an anchor body's or site's current position, in world
+//! axes, strictly inside `x_m`, `y_m`, `z_m`: RoboMemArena's in-drawer window around a drawer's moving region site),
+//! `drawer_open` / `drawer_closed` (world-y displacement of a drawer's region site
 //! from its value at reset above / below a threshold, catalog §2.2), `in_box` (RoboMemArena box rule: site box with
 //! half-extent |R·size|, lower z extended by `lower_z_m`, upper by `upper_z_m`), `released` (not grasped by
 //! robosuite's two-pad test), `released_and_clear` (not grasped and the object's root at least `min_distance_m` from
@@ -79,6 +81,8 @@ pub enum AtomSpec {
     /// `[predicate, arg…]`, a LIBERO predicate.
     Bddl(Vec<String>),
     Near { object: String, anchor: String, xy_max_m: f64, dz_range_m: [f64; 2] },
+    /// Object root minus the anchor's current position (instance root body, else site), world axes, strictly inside each range.
+    Window { object: String, anchor: String, x_m: [f64; 2], y_m: [f64; 2], z_m: [f64; 2] },
     DrawerOpen { site: String, min_displacement_m: f64 },
     DrawerClosed { site: String, max_displacement_m: f64 },
     InBox { object: String, site: String, lower_z_m: f64, upper_z_m: f64 },
@@ -182,6 +186,7 @@ pub struct StagedParams {
 enum Check {
     Bddl(CompiledAtom),
     Near { body: usize, anchor: Anchor, xy_max_m: f64, dz: [f64; 2] },
+    Window { body: usize, anchor: Anchor, ranges: [[f64; 2]; 3] },
     Drawer { site: SiteRef, open: bool, threshold_m: f64 },
     InBox { body: usize, site: usize, half_m: [f64; 3], lower_z_m: f64, upper_z_m: f64 },
     Released(usize),
@@ -287,15 +292,13 @@ impl Check {
             Check::Bddl(a) => a.evaluate(c.index, d),
             Check::Near { body, anchor, xy_max_m, dz } => {
                 let p = d.xpos()[*body];
-                let q = match anchor {
-                    Anchor::Body(b) => d.xpos()[*b],
-                    Anchor::Site(s) => match s.id(c.base) {
-                        Some(s) => d.site_xpos()[s],
-                        None => return false,
-                    },
-                };
+                let Some(q) = anchor.position(c) else { return false };
                 let dz_now = p[2] - q[2];
                 (p[0] - q[0]).hypot(p[1] - q[1]) < *xy_max_m && dz_now > dz[0] && dz_now < dz[1]
+            }
+            Check::Window { body, anchor, ranges } => {
+                let p = d.xpos()[*body];
+                anchor.position(c).is_some_and(|q| inside_window([p[0] - q[0], p[1] - q[1], p[2] - q[2]], ranges))
             }
             Check::Drawer { site, open, threshold_m } => {
                 let Some(site) = site.id(c.base) else { return false };
@@ -338,6 +341,21 @@ impl Check {
     }
 }
 
+impl Anchor {
+    /// The anchor's current world position (`None` for a binding before the first reset).
+    fn position(&self, c: &Ctx) -> Option<[f64; 3]> {
+        match self {
+            Anchor::Body(b) => Some(c.data.xpos()[*b]),
+            Anchor::Site(s) => s.id(c.base).map(|s| c.data.site_xpos()[s]),
+        }
+    }
+}
+
+/// Each component of `offset` strictly inside its `(lo, hi)`.
+fn inside_window(offset: [f64; 3], ranges: &[[f64; 2]; 3]) -> bool {
+    offset.iter().zip(ranges).all(|(v, [lo, hi])| v > lo && v < hi)
+}
+
 /// `min < q < max`, each bound only where given.
 fn joint_inside(q: f64, min: Option<f64>, max: Option<f64>) -> bool {
     min.is_none_or(|m| q > m) && max.is_none_or(|m| q < m)
@@ -373,6 +391,13 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             None => site(name).map(SiteRef::Fixed),
         }
     };
+    // an instance's root body, else a site (or binding)
+    let anchor_of = |name: &str| -> Result<Anchor, TasksError> {
+        match index.instance(name) {
+            Some(i) => Ok(Anchor::Body(index.instances[i].body)),
+            None => site_ref(name).map(Anchor::Site),
+        }
+    };
     Ok(match spec {
         AtomSpec::Bddl(words) => {
             let (predicate, args) = words.split_first().ok_or_else(|| scene_err("predicate in", "[]"))?;
@@ -380,11 +405,10 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             Check::Bddl(CompiledAtom::compile(index, &atom)?)
         }
         AtomSpec::Near { object, anchor, xy_max_m, dz_range_m } => {
-            let anchor = match index.instance(anchor) {
-                Some(i) => Anchor::Body(index.instances[i].body),
-                None => Anchor::Site(site_ref(anchor)?),
-            };
-            Check::Near { body: instance_body(object)?, anchor, xy_max_m: *xy_max_m, dz: *dz_range_m }
+            Check::Near { body: instance_body(object)?, anchor: anchor_of(anchor)?, xy_max_m: *xy_max_m, dz: *dz_range_m }
+        }
+        AtomSpec::Window { object, anchor, x_m, y_m, z_m } => {
+            Check::Window { body: instance_body(object)?, anchor: anchor_of(anchor)?, ranges: [*x_m, *y_m, *z_m] }
         }
         AtomSpec::DrawerOpen { site: s, min_displacement_m } => {
             Check::Drawer { site: site_ref(s)?, open: true, threshold_m: *min_displacement_m }
@@ -1137,6 +1161,21 @@ mod tests {
         assert!(!joint_inside(0.01, None, Some(0.01)));
         assert!(joint_inside(0.5, Some(0.4), Some(0.6)) && !joint_inside(0.7, Some(0.4), Some(0.6)));
         assert!(joint_inside(1.0, None, None));
+    }
+
+    #[test]
+    fn window_atoms_parse_and_their_bounds_are_strict_per_axis() {
+        let p: StagedParams = serde_json::from_value(json!({
+            "stages": [{"name": "02", "all": [{"window": {"object": "cookies_1", "anchor": "wooden_cabinet_1_middle_region",
+                "x_m": [-0.15, 0.15], "y_m": [-0.2, 0.1], "z_m": [-0.1, 0.1]}}]}]
+        }))
+        .unwrap();
+        let AtomSpec::Window { y_m, .. } = &p.stages[0].all[0] else { panic!("not a window atom") };
+        assert_eq!(*y_m, [-0.2, 0.1]);
+        let w = [[-0.15, 0.15], [-0.2, 0.1], [-0.1, 0.1]];
+        assert!(inside_window([0.0, -0.19, 0.05], &w), "inside the drawer, toward its front");
+        assert!(!inside_window([0.0, 0.1, 0.0], &w) && !inside_window([0.0, -0.2, 0.0], &w), "strict at both ends");
+        assert!(!inside_window([0.16, 0.0, 0.0], &w) && !inside_window([0.0, 0.0, -0.11], &w), "each axis counts");
     }
 
     #[test]
