@@ -8,8 +8,8 @@ use nalgebra::Vector3;
 
 use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script, body_dir, open_along, vec3};
 use crate::expert::skills::{
-    MIDDLE_HANDLE_LOCAL_M, RotFn, TargetFn, main_box, memo, narrow_axis, partial_count, pick_place, pick_place_turned, pos,
-    pull_drawer, push_drawer,
+    Hold, MIDDLE_HANDLE_LOCAL_M, RotFn, TargetFn, main_box, memo, narrow_axis, partial_count, pick_place_turned, pos, pull_drawer,
+    push_drawer, transfer, transfer_count,
 };
 use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
@@ -30,7 +30,7 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
     match task_id {
         "T26" => cabinet_transfer(refs, behaviour, task_id, &["tomato_sauce_1", "milk_1", "orange_juice_1"]),
         ROBOMEM_TASK_18 => cabinet_transfer(refs, behaviour, task_id, &["chocolate_pudding_1", "butter_1"]),
-        "T27" => drawer_pack(refs, behaviour),
+        "T27" => drawer_pack(refs, behaviour, task_id, &[("cookies_1", -0.045), ("chocolate_pudding_1", 0.05)], true),
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
@@ -41,43 +41,19 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 fn cabinet_transfer(refs: &SceneRefs, behaviour: &str, task_id: &str, objects: &[&str]) -> Result<Box<dyn Expert>, TasksError> {
     let cab1 = refs.instance_body("wooden_cabinet_1")?;
     let cab2 = refs.instance_body("wooden_cabinet_2")?;
-    let n = match behaviour {
-        SOLVE => objects.len(),
-        "undo" => 1,
-        b => partial_count(b)
-            .filter(|&n| n < objects.len())
-            .ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?,
-    };
-    let mut phases = Vec::new();
-    for name in &objects[..n] {
+    let n = transfer_count(behaviour, objects.len(), task_id)?;
+    // the bottles: fingers on the upper half, hand as at home; low boxes: fingers at the root across the narrow side
+    let hold = if task_id == "T26" { Hold::Above(OBJECT_GRASP_DZ_M) } else { Hold::Across };
+    let mut moves = Vec::new();
+    for name in objects {
         let body = refs.instance_body(name)?;
         // offset of the object's root from cabinet 1's root at the start
-        let offset = Arc::new(memo(move |sim: &Simulation| pos(sim, body) - pos(sim, cab1)));
-        let start = Arc::new(memo(move |sim: &Simulation| pos(sim, body)));
-        let (o1, s1) = (offset.clone(), start.clone());
-        // touch the memos before anything moves
-        phases.push(Phase::new("note_start", move |sim, ctx| {
-            o1(sim);
-            s1(sim);
-            Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
-        }));
-        let o2 = offset.clone();
-        let to_cab2: TargetFn = Arc::new(move |sim| pos(sim, cab2) + o2(sim));
-        let s2 = start.clone();
-        let back: TargetFn = Arc::new(move |sim| s2(sim));
-        let moves = if behaviour == "undo" { vec![to_cab2, back] } else { vec![to_cab2] };
-        for target in moves {
-            if task_id == "T26" {
-                // the bottles: fingers on the upper half, hand as at home
-                pick_place(&mut phases, body, OBJECT_GRASP_DZ_M, CARRY_Z_M, target);
-            } else {
-                // low boxes: fingers at the root, closing across the narrow side
-                let (geom, half) = main_box(refs, name)?;
-                let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
-                pick_place_turned(&mut phases, body, Vector3::zeros(), CARRY_Z_M, target, rot);
-            }
-        }
+        let offset = memo(move |sim: &Simulation| pos(sim, body) - pos(sim, cab1));
+        let to_cab2: TargetFn = Arc::new(move |sim| pos(sim, cab2) + offset(sim));
+        moves.push((*name, hold, to_cab2));
     }
+    let mut phases = Vec::new();
+    transfer(refs, &mut phases, &moves, n, behaviour == "undo", CARRY_Z_M)?;
     Ok(Box::new(Script::new(phases)))
 }
 
@@ -86,25 +62,32 @@ const OBJECT_GRASP_DZ_M: f64 = 0.02;
 /// Root height while carrying between the cabinets' roofs.
 const CARRY_Z_M: f64 = 0.85;
 
-/// T27: pull the middle drawer open, put the cookies and then the chocolate pudding into it (side by side along the
-/// drawer's width), push it closed. `partial_<n>` stops after the first n of these four steps; `undo` opens the
-/// drawer and pushes it shut again (stage 1 regresses).
-fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+/// T27 (and RoboMemArena tasks 13, 17 without the close): pull the middle drawer open, put `items` into it in order
+/// (each at its offset across the drawer's width: the cookies and then the chocolate pudding side by side), push it
+/// closed if `close`. `partial_<n>` stops after the first n of these steps; `undo` opens the drawer and pushes it
+/// shut again (stage 1 regresses).
+pub(super) fn drawer_pack(
+    refs: &SceneRefs,
+    behaviour: &str,
+    task_id: &str,
+    items: &[(&str, f64)],
+    close: bool,
+) -> Result<Box<dyn Expert>, TasksError> {
     let drawer = refs.body("wooden_cabinet_1_cabinet_middle")?;
     let (q_adr, _) = refs.joint("wooden_cabinet_1_middle_level")?;
     let region = refs.site("wooden_cabinet_1_middle_region")?;
+    let steps = 1 + items.len() + usize::from(close);
     let n = match behaviour {
-        SOLVE => 4,
+        SOLVE => steps,
         "undo" => 1,
-        b => partial_count(b).filter(|&n| n <= 4).ok_or_else(|| TasksError::Scene(format!("T27: unknown behaviour {b}")))?,
+        b => partial_count(b).filter(|&n| n <= steps).ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?,
     };
     let mut phases = Vec::new();
     pull_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, -0.152);
     if behaviour == "undo" {
         push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
     }
-    let items = [("cookies_1", -0.045), ("chocolate_pudding_1", 0.05)];
-    for (name, across_m) in &items[..n.saturating_sub(1).min(2)] {
+    for (name, across_m) in &items[..n.saturating_sub(1).min(items.len())] {
         let body = refs.instance_body(name)?;
         let (geom, half) = main_box(refs, name)?;
         let across_m = *across_m;
@@ -125,7 +108,7 @@ fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
         );
         pick_place_turned(&mut phases, body, Vector3::zeros(), DRAWER_CARRY_Z_M, target, rot);
     }
-    if n == 4 {
+    if close && n == steps {
         push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
     }
     Ok(Box::new(Script::new(phases)))
