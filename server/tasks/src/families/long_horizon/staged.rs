@@ -18,7 +18,7 @@
 //! robosuite's two-pad test), `released_and_clear` (not grasped and the object's root at least `min_distance_m` from
 //! the grip site, catalog §2.4), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
 //! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `pour_count` (a named pour
-//! counter has registered ≥ `at_least` pours), `any` (disjunction) and `not`.
+//! counter has registered ≥ `at_least` pours), `any` (disjunction), `all` (conjunction, for use inside `any`) and `not`.
 //!
 //! Bindings (T23's "occupied drawer"): a name `$<binding>` usable wherever an atom names a site (drawer sites, `near`
 //! anchors); at reset it is bound to the candidate site nearest (3-D) to an object's root, and stays bound for the
@@ -104,6 +104,8 @@ pub enum AtomSpec {
     PourCount { counter: String, at_least: usize },
     /// At least one of the atoms holds.
     Any(Vec<AtomSpec>),
+    /// Every one of the atoms holds (inside an `any`: RoboMemArena task 14's "the drawer holding the object is closed").
+    All(Vec<AtomSpec>),
     Not(Box<AtomSpec>),
 }
 
@@ -195,6 +197,7 @@ enum Check {
     Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
     PourCount { counter: usize, at_least: usize },
     Any(Vec<Check>),
+    All(Vec<Check>),
     Not(Box<Check>),
 }
 
@@ -326,6 +329,7 @@ impl Check {
             }
             Check::PourCount { counter, at_least } => c.pours.get(*counter).is_some_and(|p| p.count() >= *at_least),
             Check::Any(atoms) => atoms.iter().any(|a| a.holds(c)),
+            Check::All(atoms) => atoms.iter().all(|a| a.holds(c)),
             Check::Not(inner) => !inner.holds(c),
         }
     }
@@ -334,7 +338,7 @@ impl Check {
     fn counters(&self, out: &mut Vec<usize>) {
         match self {
             Check::PourCount { counter, .. } => out.push(*counter),
-            Check::Any(atoms) => atoms.iter().for_each(|a| a.counters(out)),
+            Check::Any(atoms) | Check::All(atoms) => atoms.iter().for_each(|a| a.counters(out)),
             Check::Not(inner) => inner.counters(out),
             _ => {}
         }
@@ -441,6 +445,7 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             at_least: *at_least,
         },
         AtomSpec::Any(atoms) => Check::Any(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
+        AtomSpec::All(atoms) => Check::All(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, names)?)),
     })
 }
@@ -1164,13 +1169,18 @@ mod tests {
     }
 
     #[test]
-    fn window_atoms_parse_and_their_bounds_are_strict_per_axis() {
+    fn window_and_all_atoms_parse_and_window_bounds_are_strict_per_axis() {
         let p: StagedParams = serde_json::from_value(json!({
             "stages": [{"name": "02", "all": [{"window": {"object": "cookies_1", "anchor": "wooden_cabinet_1_middle_region",
                 "x_m": [-0.15, 0.15], "y_m": [-0.2, 0.1], "z_m": [-0.1, 0.1]}}]}]
         }))
         .unwrap();
         let AtomSpec::Window { y_m, .. } = &p.stages[0].all[0] else { panic!("not a window atom") };
+        let any_all: AtomSpec = serde_json::from_value(json!({"any": [{"all": [
+            {"window": {"object": "o", "anchor": "s", "x_m": [0.0, 1.0], "y_m": [0.0, 1.0], "z_m": [0.0, 1.0]}},
+            {"drawer_closed": {"site": "s", "max_displacement_m": 0.08}}]}]}))
+        .unwrap();
+        assert!(matches!(&any_all, AtomSpec::Any(v) if matches!(&v[0], AtomSpec::All(w) if w.len() == 2)));
         assert_eq!(*y_m, [-0.2, 0.1]);
         let w = [[-0.15, 0.15], [-0.2, 0.1], [-0.1, 0.1]];
         assert!(inside_window([0.0, -0.19, 0.05], &w), "inside the drawer, toward its front");
