@@ -93,6 +93,6 @@ fn pool_addresses_are_played_by_the_expert_of_their_definition() {
     let partial = run("robomemarena/18", "partial_1");
     assert_eq!((partial["success"].as_bool(), partial["completed_stage_count"].as_u64()), (Some(false), Some(1)), "{partial}");
     let data = tempfile::tempdir().expect("tempdir");
-    let out = bin().args(["expert", "--task", "robomemarena/1", "--no-video", "--data"]).arg(data.path()).output().unwrap();
+    let out = bin().args(["expert", "--task", "vlabench_physical/1", "--no-video", "--data"]).arg(data.path()).output().unwrap();
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("no scripted expert"));
 }
