@@ -272,3 +272,60 @@ pub fn press(
     );
     Ok(Box::new(Script::new(phases)))
 }
+
+/// How a carried object is held.
+#[derive(Debug, Clone, Copy)]
+pub enum Hold {
+    /// From above with the hand as at home, the fingers closing this far above the root (bottles: their upper half).
+    Above(f64),
+    /// The hand turned so the fingers close across the narrow side of the object's main box, at its root (low boxes).
+    Across,
+}
+
+/// The number of objects a transfer behaviour moves: all for `solve`, one for `undo`, n for `partial_<n>` (n < all).
+pub fn transfer_count(behaviour: &str, all: usize, task_id: &str) -> Result<usize, TasksError> {
+    match behaviour {
+        super::SOLVE => Ok(all),
+        "undo" => Ok(1),
+        b => partial_count(b).filter(|&n| n < all).ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}"))),
+    }
+}
+
+/// Moves the first `n` of `objects` in order, each held as given, to its target, its root carried at `carry_z_m`.
+/// Each target is evaluated once before anything moves toward it (memos in it see the state at that moment, e.g. the
+/// object's start pose). With `undo`, the first object is moved to its target and then back to where it started.
+pub fn transfer(
+    refs: &SceneRefs,
+    phases: &mut Vec<Phase>,
+    objects: &[(&str, Hold, TargetFn)],
+    n: usize,
+    undo: bool,
+    carry_z_m: f64,
+) -> Result<(), TasksError> {
+    for (name, hold, target) in &objects[..n] {
+        let body = refs.instance_body(name)?;
+        let start = Arc::new(memo(move |sim: &Simulation| pos(sim, body)));
+        let (t0, s0) = (target.clone(), start.clone());
+        phases.push(Phase::new("note_start", move |sim, ctx| {
+            t0(sim);
+            s0(sim);
+            Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
+        }));
+        let back: TargetFn = Arc::new(move |sim| start(sim));
+        let moves = if undo { vec![target.clone(), back] } else { vec![target.clone()] };
+        for to in moves {
+            match *hold {
+                Hold::Above(dz) => pick_place(phases, body, dz, carry_z_m, to),
+                Hold::Across => {
+                    let (geom, half) = main_box(refs, name)?;
+                    // the axis as the object lies before it is taken: read from the held object, the turn would chase
+                    // any slip of the object in the fingers and keep the hand spinning
+                    let axis = memo(move |sim: &Simulation| narrow_axis(sim, geom, half));
+                    let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, axis(sim)));
+                    pick_place_turned(phases, body, Vector3::zeros(), carry_z_m, to, rot);
+                }
+            }
+        }
+    }
+    Ok(())
+}

@@ -8,11 +8,11 @@ use nalgebra::Vector3;
 
 use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script, body_dir, open_along, vec3};
 use crate::expert::skills::{
-    MIDDLE_HANDLE_LOCAL_M, RotFn, TargetFn, main_box, memo, narrow_axis, partial_count, pick_place, pick_place_turned, pos,
-    pull_drawer, push_drawer,
+    Hold, RotFn, TargetFn, main_box, memo, narrow_axis, partial_count, pick_place_turned, pos, transfer, transfer_count,
 };
 use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
+use super::robomem_expert::Drawer;
 
 /// RoboMemArena task 18 as a pool entry of its own (`tasks/pool.json`): T26's scene with two objects.
 pub const ROBOMEM_TASK_18: &str = "robomemarena/robomemarena_task_18";
@@ -30,7 +30,10 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
     match task_id {
         "T26" => cabinet_transfer(refs, behaviour, task_id, &["tomato_sauce_1", "milk_1", "orange_juice_1"]),
         ROBOMEM_TASK_18 => cabinet_transfer(refs, behaviour, task_id, &["chocolate_pudding_1", "butter_1"]),
-        "T27" => drawer_pack(refs, behaviour),
+        "T27" => {
+            let items = [("cookies_1", -0.045), ("chocolate_pudding_1", 0.05)];
+            drawer_pack(refs, behaviour, task_id, &[DrawerLoad { which: "middle", items: &items, close: true }])
+        }
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
@@ -41,43 +44,19 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 fn cabinet_transfer(refs: &SceneRefs, behaviour: &str, task_id: &str, objects: &[&str]) -> Result<Box<dyn Expert>, TasksError> {
     let cab1 = refs.instance_body("wooden_cabinet_1")?;
     let cab2 = refs.instance_body("wooden_cabinet_2")?;
-    let n = match behaviour {
-        SOLVE => objects.len(),
-        "undo" => 1,
-        b => partial_count(b)
-            .filter(|&n| n < objects.len())
-            .ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?,
-    };
-    let mut phases = Vec::new();
-    for name in &objects[..n] {
+    let n = transfer_count(behaviour, objects.len(), task_id)?;
+    // the bottles: fingers on the upper half, hand as at home; low boxes: fingers at the root across the narrow side
+    let hold = if task_id == "T26" { Hold::Above(OBJECT_GRASP_DZ_M) } else { Hold::Across };
+    let mut moves = Vec::new();
+    for name in objects {
         let body = refs.instance_body(name)?;
         // offset of the object's root from cabinet 1's root at the start
-        let offset = Arc::new(memo(move |sim: &Simulation| pos(sim, body) - pos(sim, cab1)));
-        let start = Arc::new(memo(move |sim: &Simulation| pos(sim, body)));
-        let (o1, s1) = (offset.clone(), start.clone());
-        // touch the memos before anything moves
-        phases.push(Phase::new("note_start", move |sim, ctx| {
-            o1(sim);
-            s1(sim);
-            Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
-        }));
-        let o2 = offset.clone();
-        let to_cab2: TargetFn = Arc::new(move |sim| pos(sim, cab2) + o2(sim));
-        let s2 = start.clone();
-        let back: TargetFn = Arc::new(move |sim| s2(sim));
-        let moves = if behaviour == "undo" { vec![to_cab2, back] } else { vec![to_cab2] };
-        for target in moves {
-            if task_id == "T26" {
-                // the bottles: fingers on the upper half, hand as at home
-                pick_place(&mut phases, body, OBJECT_GRASP_DZ_M, CARRY_Z_M, target);
-            } else {
-                // low boxes: fingers at the root, closing across the narrow side
-                let (geom, half) = main_box(refs, name)?;
-                let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
-                pick_place_turned(&mut phases, body, Vector3::zeros(), CARRY_Z_M, target, rot);
-            }
-        }
+        let offset = memo(move |sim: &Simulation| pos(sim, body) - pos(sim, cab1));
+        let to_cab2: TargetFn = Arc::new(move |sim| pos(sim, cab2) + offset(sim));
+        moves.push((*name, hold, to_cab2));
     }
+    let mut phases = Vec::new();
+    transfer(refs, &mut phases, &moves, n, behaviour == "undo", CARRY_Z_M)?;
     Ok(Box::new(Script::new(phases)))
 }
 
@@ -86,47 +65,65 @@ const OBJECT_GRASP_DZ_M: f64 = 0.02;
 /// Root height while carrying between the cabinets' roofs.
 const CARRY_Z_M: f64 = 0.85;
 
-/// T27: pull the middle drawer open, put the cookies and then the chocolate pudding into it (side by side along the
-/// drawer's width), push it closed. `partial_<n>` stops after the first n of these four steps; `undo` opens the
-/// drawer and pushes it shut again (stage 1 regresses).
-fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
-    let drawer = refs.body("wooden_cabinet_1_cabinet_middle")?;
-    let (q_adr, _) = refs.joint("wooden_cabinet_1_middle_level")?;
-    let region = refs.site("wooden_cabinet_1_middle_region")?;
+/// One drawer's part of a packing script: pull drawer `which` (`top`, `middle`, `bottom` of `wooden_cabinet_1`) open,
+/// put `items` in in order (each at its offset across the drawer's width, side by side), push it closed if `close`.
+pub(super) struct DrawerLoad<'a> {
+    pub which: &'a str,
+    pub items: &'a [(&'a str, f64)],
+    pub close: bool,
+}
+
+/// T27 (the cookies and then the chocolate pudding into the middle drawer, closed), RoboMemArena tasks 13, 17 (the
+/// same without the close) and 11, 14 (one object into the top drawer, closed, one into the middle drawer): the
+/// `loads` in order. `partial_<n>` stops after the first n steps (each pull, placement and push is one); `undo` opens
+/// the first drawer and pushes it shut again (stage 1 regresses).
+pub(super) fn drawer_pack(refs: &SceneRefs, behaviour: &str, task_id: &str, loads: &[DrawerLoad]) -> Result<Box<dyn Expert>, TasksError> {
+    let steps: usize = loads.iter().map(|l| 1 + l.items.len() + usize::from(l.close)).sum();
     let n = match behaviour {
-        SOLVE => 4,
+        SOLVE => steps,
         "undo" => 1,
-        b => partial_count(b).filter(|&n| n <= 4).ok_or_else(|| TasksError::Scene(format!("T27: unknown behaviour {b}")))?,
+        b => partial_count(b).filter(|&n| n <= steps).ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?,
     };
     let mut phases = Vec::new();
-    pull_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, -0.152);
-    if behaviour == "undo" {
-        push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
-    }
-    let items = [("cookies_1", -0.045), ("chocolate_pudding_1", 0.05)];
-    for (name, across_m) in &items[..n.saturating_sub(1).min(2)] {
-        let body = refs.instance_body(name)?;
-        let (geom, half) = main_box(refs, name)?;
-        let across_m = *across_m;
-        // root resting height above its table contact, kept when set down in the drawer
-        let rest = Arc::new(memo(move |sim: &Simulation| pos(sim, body).z));
-        let target: TargetFn = Arc::new(move |sim| {
-            let c = vec3(&sim.data().site_xpos()[region]);
-            // across the drawer = the drawer's local x
-            let x_dir = body_dir(sim, drawer, [1.0, 0.0, 0.0]);
-            let _ = rest(sim);
-            c + x_dir * across_m - Vector3::z() * 0.01
-        });
-        let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
-        // back over the middle of the table first: from the drawer the arm cannot swing straight down to objects
-        // near its base
-        phases.push(
-            Phase::new("via_middle", move |_, _| Goal::at(Vector3::new(0.0, 0.0, 0.70), GRIPPER_OPEN)).until_reached(0.03).max_steps(80),
-        );
-        pick_place_turned(&mut phases, body, Vector3::zeros(), DRAWER_CARRY_Z_M, target, rot);
-    }
-    if n == 4 {
-        push_drawer(&mut phases, drawer, MIDDLE_HANDLE_LOCAL_M, q_adr, 0.0);
+    let mut done = 0;
+    for load in loads {
+        let drawer = Drawer::of(refs, load.which)?;
+        // the top drawer's walls stand higher: carry over them
+        let carry_z_m = if load.which == "top" { TOP_DRAWER_CARRY_Z_M } else { DRAWER_CARRY_Z_M };
+        if done < n {
+            drawer.pull(&mut phases);
+            done += 1;
+        }
+        if behaviour == "undo" {
+            drawer.push(&mut phases);
+            break;
+        }
+        for (name, across_m) in load.items {
+            if done == n {
+                break;
+            }
+            let body = refs.instance_body(name)?;
+            let (geom, half) = main_box(refs, name)?;
+            let across_m = *across_m;
+            let target: TargetFn = Arc::new(move |sim| {
+                let c = vec3(&sim.data().site_xpos()[drawer.region]);
+                // across the drawer = the drawer's local x
+                let x_dir = body_dir(sim, drawer.body, [1.0, 0.0, 0.0]);
+                c + x_dir * across_m - Vector3::z() * 0.01
+            });
+            let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
+            // back over the middle of the table first: from the drawer the arm cannot swing straight down to objects
+            // near its base
+            phases.push(
+                Phase::new("via_middle", move |_, _| Goal::at(Vector3::new(0.0, 0.0, 0.70), GRIPPER_OPEN)).until_reached(0.03).max_steps(80),
+            );
+            pick_place_turned(&mut phases, body, Vector3::zeros(), carry_z_m, target, rot);
+            done += 1;
+        }
+        if load.close && done < n {
+            drawer.push(&mut phases);
+            done += 1;
+        }
     }
     Ok(Box::new(Script::new(phases)))
 }
@@ -134,3 +131,5 @@ fn drawer_pack(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
 /// Root height while carrying objects over to the drawer (above the cabinet's middle drawer, below the top one's
 /// reach problems: the cabinet top is ≈ 0.27 m above the table).
 const DRAWER_CARRY_Z_M: f64 = 0.75;
+/// The same for the raised cabinet's top drawer (above its open walls).
+const TOP_DRAWER_CARRY_Z_M: f64 = 0.82;

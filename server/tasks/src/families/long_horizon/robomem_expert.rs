@@ -17,7 +17,7 @@ use crate::TasksError;
 
 /// T23's near misses (the bottom drawer opens because the raised cabinet's close range keeps it off the shelf
 /// above, see `TALL_CABINET_CLOSE_RANGE_M`).
-const T23_BEHAVIOURS: &[&str] = &["partial_1", "partial_2", "partial_4", "partial_5", "partial_6", "partial_7", "undo", "wrong_drawer"];
+pub(super) const T23_BEHAVIOURS: &[&str] = &["partial_1", "partial_2", "partial_4", "partial_5", "partial_6", "partial_7", "undo", "wrong_drawer"];
 
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     Some(match task_id {
@@ -29,7 +29,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
 
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
     match task_id {
-        "T23" => drawer_search(refs, behaviour),
+        "T23" => drawer_search(refs, behaviour, task_id, "top", "bottom"),
         "T24" => pour_twice(refs, behaviour),
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
@@ -39,20 +39,23 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
 const PULL_TO_M: f64 = -0.152;
 /// Slide value a push ends at (closed ⇔ displaced < 0.08 m).
 const PUSH_TO_M: f64 = 0.0;
-/// Butter root height while carried over to the drawers (above the raised cabinet's open top drawer walls).
+/// Butter root height while carried over to the top drawer (above the raised cabinet's open top drawer walls), and
+/// over to a lower drawer (at 0.82 m the arm stalls short of the open middle drawer).
 const BUTTER_CARRY_Z_M: f64 = 0.82;
+const BUTTER_CARRY_LOW_Z_M: f64 = 0.75;
 
 /// One drawer of the cabinet: body, handle point, slide qpos address, region site.
 #[derive(Clone, Copy)]
-struct Drawer {
-    body: usize,
+pub(super) struct Drawer {
+    pub body: usize,
     handle_local_m: [f64; 3],
     q_adr: usize,
-    region: usize,
+    pub region: usize,
+    is_top: bool,
 }
 
 impl Drawer {
-    fn of(refs: &SceneRefs, which: &str) -> Result<Self, TasksError> {
+    pub(super) fn of(refs: &SceneRefs, which: &str) -> Result<Self, TasksError> {
         let handle_local_m = match which {
             "top" => TOP_HANDLE_LOCAL_M,
             "middle" => MIDDLE_HANDLE_LOCAL_M,
@@ -63,14 +66,15 @@ impl Drawer {
             handle_local_m,
             q_adr: refs.joint(&format!("wooden_cabinet_1_{which}_level"))?.0,
             region: refs.site(&format!("wooden_cabinet_1_{which}_region"))?,
+            is_top: which == "top",
         })
     }
 
-    fn pull(self, phases: &mut Vec<Phase>) {
+    pub(super) fn pull(self, phases: &mut Vec<Phase>) {
         pull_drawer(phases, self.body, self.handle_local_m, self.q_adr, PULL_TO_M);
     }
 
-    fn push(self, phases: &mut Vec<Phase>) {
+    pub(super) fn push(self, phases: &mut Vec<Phase>) {
         push_drawer(phases, self.body, self.handle_local_m, self.q_adr, PUSH_TO_M);
     }
 }
@@ -88,23 +92,31 @@ fn butter_into(refs: &SceneRefs, phases: &mut Vec<Phase>, drawer: Drawer) -> Res
     let rot: RotFn = Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half)));
     // back over the middle of the table first: from the cabinet the arm cannot swing straight down to the butter
     phases.push(Phase::new("via_middle", move |_, _| Goal::at(Vector3::new(0.0, 0.0, 0.75), GRIPPER_OPEN)).until_reached(0.03).max_steps(80));
-    pick_place_turned(phases, butter, Vector3::zeros(), BUTTER_CARRY_Z_M, target, rot);
+    let carry_z_m = if drawer.is_top { BUTTER_CARRY_Z_M } else { BUTTER_CARRY_LOW_Z_M };
+    pick_place_turned(phases, butter, Vector3::zeros(), carry_z_m, target, rot);
     Ok(())
 }
 
-/// T23 (occupied drawer = top, where `cream_cheese_1` starts): pull/push top, middle, bottom in turn, pull the top
-/// drawer again, put the butter in, push it closed (optional stage 09). `partial_<n>` plays the first n of the eight
-/// stage steps; `undo` reopens the occupied drawer (stage 07) and pushes it shut again; `wrong_drawer` checks all
-/// three drawers, then opens the bottom one instead and puts the butter there.
-fn drawer_search(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+/// T23 (`target` = top, the occupied drawer, where `cream_cheese_1` starts; RoboMemArena task 5: the empty middle
+/// drawer): pull/push top, middle, bottom in turn, pull the target drawer again, put the butter in, push it closed
+/// (optional stage 09). `partial_<n>` plays the first n of the eight stage steps; `undo` reopens the target drawer
+/// (stage 07) and pushes it shut again; `wrong_drawer` checks all three drawers, then opens drawer `wrong` instead and
+/// puts the butter there.
+pub(super) fn drawer_search(
+    refs: &SceneRefs,
+    behaviour: &str,
+    task_id: &str,
+    target: &str,
+    wrong: &str,
+) -> Result<Box<dyn Expert>, TasksError> {
     let [top, middle, bottom] = ["top", "middle", "bottom"].map(|d| Drawer::of(refs, d));
     let (top, middle, bottom) = (top?, middle?, bottom?);
     let n = match behaviour {
         SOLVE | "wrong_drawer" => 8,
         "undo" => 7,
-        b => partial_count(b).filter(|&n| n < 8).ok_or_else(|| TasksError::Scene(format!("T23: unknown behaviour {b}")))?,
+        b => partial_count(b).filter(|&n| n < 8).ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?,
     };
-    let occupied = if behaviour == "wrong_drawer" { bottom } else { top };
+    let occupied = Drawer::of(refs, if behaviour == "wrong_drawer" { wrong } else { target })?;
     let mut phases = Vec::new();
     for (k, d) in [top, middle, bottom].into_iter().enumerate().take(n.div_ceil(2).min(3)) {
         d.pull(&mut phases);

@@ -10,13 +10,15 @@
 //!
 //! Atoms: a LIBERO predicate (`{"bddl": ["on", "moka_pot_1", "flat_stove_2_cook_region"]}`), or one of the
 //! RoboMemArena checks: `near` (object root within `xy_max_m` horizontally of an anchor body or site, height
-//! difference inside `dz_range_m`), `drawer_open` / `drawer_closed` (world-y displacement of a drawer's region site
+//! difference inside `dz_range_m`), `window` (object root minus an anchor body's or site's current position, in world
+//! axes, strictly inside `x_m`, `y_m`, `z_m`: RoboMemArena's in-drawer window around a drawer's moving region site),
+//! `drawer_open` / `drawer_closed` (world-y displacement of a drawer's region site
 //! from its value at reset above / below a threshold, catalog §2.2), `in_box` (RoboMemArena box rule: site box with
 //! half-extent |R·size|, lower z extended by `lower_z_m`, upper by `upper_z_m`), `released` (not grasped by
 //! robosuite's two-pad test), `released_and_clear` (not grasped and the object's root at least `min_distance_m` from
 //! the grip site, catalog §2.4), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
 //! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `pour_count` (a named pour
-//! counter has registered ≥ `at_least` pours), `any` (disjunction) and `not`.
+//! counter has registered ≥ `at_least` pours), `any` (disjunction), `all` (conjunction, for use inside `any`) and `not`.
 //!
 //! Bindings (T23's "occupied drawer"): a name `$<binding>` usable wherever an atom names a site (drawer sites, `near`
 //! anchors); at reset it is bound to the candidate site nearest (3-D) to an object's root, and stays bound for the
@@ -79,6 +81,8 @@ pub enum AtomSpec {
     /// `[predicate, arg…]`, a LIBERO predicate.
     Bddl(Vec<String>),
     Near { object: String, anchor: String, xy_max_m: f64, dz_range_m: [f64; 2] },
+    /// Object root minus the anchor's current position (instance root body, else site), world axes, strictly inside each range.
+    Window { object: String, anchor: String, x_m: [f64; 2], y_m: [f64; 2], z_m: [f64; 2] },
     DrawerOpen { site: String, min_displacement_m: f64 },
     DrawerClosed { site: String, max_displacement_m: f64 },
     InBox { object: String, site: String, lower_z_m: f64, upper_z_m: f64 },
@@ -100,6 +104,8 @@ pub enum AtomSpec {
     PourCount { counter: String, at_least: usize },
     /// At least one of the atoms holds.
     Any(Vec<AtomSpec>),
+    /// Every one of the atoms holds (inside an `any`: RoboMemArena task 14's "the drawer holding the object is closed").
+    All(Vec<AtomSpec>),
     Not(Box<AtomSpec>),
 }
 
@@ -182,6 +188,7 @@ pub struct StagedParams {
 enum Check {
     Bddl(CompiledAtom),
     Near { body: usize, anchor: Anchor, xy_max_m: f64, dz: [f64; 2] },
+    Window { body: usize, anchor: Anchor, ranges: [[f64; 2]; 3] },
     Drawer { site: SiteRef, open: bool, threshold_m: f64 },
     InBox { body: usize, site: usize, half_m: [f64; 3], lower_z_m: f64, upper_z_m: f64 },
     Released(usize),
@@ -190,6 +197,7 @@ enum Check {
     Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
     PourCount { counter: usize, at_least: usize },
     Any(Vec<Check>),
+    All(Vec<Check>),
     Not(Box<Check>),
 }
 
@@ -287,15 +295,13 @@ impl Check {
             Check::Bddl(a) => a.evaluate(c.index, d),
             Check::Near { body, anchor, xy_max_m, dz } => {
                 let p = d.xpos()[*body];
-                let q = match anchor {
-                    Anchor::Body(b) => d.xpos()[*b],
-                    Anchor::Site(s) => match s.id(c.base) {
-                        Some(s) => d.site_xpos()[s],
-                        None => return false,
-                    },
-                };
+                let Some(q) = anchor.position(c) else { return false };
                 let dz_now = p[2] - q[2];
                 (p[0] - q[0]).hypot(p[1] - q[1]) < *xy_max_m && dz_now > dz[0] && dz_now < dz[1]
+            }
+            Check::Window { body, anchor, ranges } => {
+                let p = d.xpos()[*body];
+                anchor.position(c).is_some_and(|q| inside_window([p[0] - q[0], p[1] - q[1], p[2] - q[2]], ranges))
             }
             Check::Drawer { site, open, threshold_m } => {
                 let Some(site) = site.id(c.base) else { return false };
@@ -323,6 +329,7 @@ impl Check {
             }
             Check::PourCount { counter, at_least } => c.pours.get(*counter).is_some_and(|p| p.count() >= *at_least),
             Check::Any(atoms) => atoms.iter().any(|a| a.holds(c)),
+            Check::All(atoms) => atoms.iter().all(|a| a.holds(c)),
             Check::Not(inner) => !inner.holds(c),
         }
     }
@@ -331,11 +338,26 @@ impl Check {
     fn counters(&self, out: &mut Vec<usize>) {
         match self {
             Check::PourCount { counter, .. } => out.push(*counter),
-            Check::Any(atoms) => atoms.iter().for_each(|a| a.counters(out)),
+            Check::Any(atoms) | Check::All(atoms) => atoms.iter().for_each(|a| a.counters(out)),
             Check::Not(inner) => inner.counters(out),
             _ => {}
         }
     }
+}
+
+impl Anchor {
+    /// The anchor's current world position (`None` for a binding before the first reset).
+    fn position(&self, c: &Ctx) -> Option<[f64; 3]> {
+        match self {
+            Anchor::Body(b) => Some(c.data.xpos()[*b]),
+            Anchor::Site(s) => s.id(c.base).map(|s| c.data.site_xpos()[s]),
+        }
+    }
+}
+
+/// Each component of `offset` strictly inside its `(lo, hi)`.
+fn inside_window(offset: [f64; 3], ranges: &[[f64; 2]; 3]) -> bool {
+    offset.iter().zip(ranges).all(|(v, [lo, hi])| v > lo && v < hi)
 }
 
 /// `min < q < max`, each bound only where given.
@@ -373,6 +395,13 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             None => site(name).map(SiteRef::Fixed),
         }
     };
+    // an instance's root body, else a site (or binding)
+    let anchor_of = |name: &str| -> Result<Anchor, TasksError> {
+        match index.instance(name) {
+            Some(i) => Ok(Anchor::Body(index.instances[i].body)),
+            None => site_ref(name).map(Anchor::Site),
+        }
+    };
     Ok(match spec {
         AtomSpec::Bddl(words) => {
             let (predicate, args) = words.split_first().ok_or_else(|| scene_err("predicate in", "[]"))?;
@@ -380,11 +409,10 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             Check::Bddl(CompiledAtom::compile(index, &atom)?)
         }
         AtomSpec::Near { object, anchor, xy_max_m, dz_range_m } => {
-            let anchor = match index.instance(anchor) {
-                Some(i) => Anchor::Body(index.instances[i].body),
-                None => Anchor::Site(site_ref(anchor)?),
-            };
-            Check::Near { body: instance_body(object)?, anchor, xy_max_m: *xy_max_m, dz: *dz_range_m }
+            Check::Near { body: instance_body(object)?, anchor: anchor_of(anchor)?, xy_max_m: *xy_max_m, dz: *dz_range_m }
+        }
+        AtomSpec::Window { object, anchor, x_m, y_m, z_m } => {
+            Check::Window { body: instance_body(object)?, anchor: anchor_of(anchor)?, ranges: [*x_m, *y_m, *z_m] }
         }
         AtomSpec::DrawerOpen { site: s, min_displacement_m } => {
             Check::Drawer { site: site_ref(s)?, open: true, threshold_m: *min_displacement_m }
@@ -417,6 +445,7 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             at_least: *at_least,
         },
         AtomSpec::Any(atoms) => Check::Any(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
+        AtomSpec::All(atoms) => Check::All(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, names)?)),
     })
 }
@@ -1137,6 +1166,26 @@ mod tests {
         assert!(!joint_inside(0.01, None, Some(0.01)));
         assert!(joint_inside(0.5, Some(0.4), Some(0.6)) && !joint_inside(0.7, Some(0.4), Some(0.6)));
         assert!(joint_inside(1.0, None, None));
+    }
+
+    #[test]
+    fn window_and_all_atoms_parse_and_window_bounds_are_strict_per_axis() {
+        let p: StagedParams = serde_json::from_value(json!({
+            "stages": [{"name": "02", "all": [{"window": {"object": "cookies_1", "anchor": "wooden_cabinet_1_middle_region",
+                "x_m": [-0.15, 0.15], "y_m": [-0.2, 0.1], "z_m": [-0.1, 0.1]}}]}]
+        }))
+        .unwrap();
+        let AtomSpec::Window { y_m, .. } = &p.stages[0].all[0] else { panic!("not a window atom") };
+        let any_all: AtomSpec = serde_json::from_value(json!({"any": [{"all": [
+            {"window": {"object": "o", "anchor": "s", "x_m": [0.0, 1.0], "y_m": [0.0, 1.0], "z_m": [0.0, 1.0]}},
+            {"drawer_closed": {"site": "s", "max_displacement_m": 0.08}}]}]}))
+        .unwrap();
+        assert!(matches!(&any_all, AtomSpec::Any(v) if matches!(&v[0], AtomSpec::All(w) if w.len() == 2)));
+        assert_eq!(*y_m, [-0.2, 0.1]);
+        let w = [[-0.15, 0.15], [-0.2, 0.1], [-0.1, 0.1]];
+        assert!(inside_window([0.0, -0.19, 0.05], &w), "inside the drawer, toward its front");
+        assert!(!inside_window([0.0, 0.1, 0.0], &w) && !inside_window([0.0, -0.2, 0.0], &w), "strict at both ends");
+        assert!(!inside_window([0.16, 0.0, 0.0], &w) && !inside_window([0.0, 0.0, -0.11], &w), "each axis counts");
     }
 
     #[test]
