@@ -181,35 +181,12 @@ fn p_index(suite: &str, task_id: u32) -> usize {
     pool().entries().iter().position(|e| e.suite == suite && e.task_id == task_id).unwrap()
 }
 
-/// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator.
-fn play(entry: &str, behaviour: &str) -> libero_tasks::EvaluationRecord {
-    let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
-    let pool = pool();
-    let e = pool.get(entry).unwrap();
-    let Runs::Own(files, checker) = pool.runs(e, &paths).unwrap() else { panic!("{entry} runs on its own definition") };
-    let (scene, mut sim) = common::scene_and_sim(&files.bddl);
-    for _ in 0..10 {
-        sim.step([0.0; 7]).unwrap();
-    }
-    let mut evaluator = build_evaluator(Some(&checker), Some(&e.reference()), &scene, sim.model()).unwrap();
-    evaluator.reset(sim.data(), Tick::at_control_step(0, 0.0));
-    let mut script = libero_tasks::expert_for(&e.reference(), behaviour, &scene, sim.model()).unwrap();
-    let mut step = 0u64;
-    while let Some(action) = script.act(&sim) {
-        sim.step(action).unwrap();
-        step += 1;
-        evaluator.observe_control_step(sim.data(), Tick::at_control_step(step, 0.05 * step as f64));
-        assert!(step < 6_000, "{entry} {behaviour}: the script ends");
-    }
-    evaluator.finish(sim.data(), Tick::at_control_step(step, 0.05 * step as f64))
-}
-
 #[test]
 fn robomemarena_18s_expert_completes_both_stages_and_its_near_misses_fail() {
-    let solve = play("robomemarena/18", libero_tasks::expert::SOLVE);
+    let solve = common::play("robomemarena/18", libero_tasks::expert::SOLVE);
     assert_eq!((solve.success, solve.completed_required_stage_count), (true, 2), "{solve:?}");
-    let partial = play("robomemarena/18", "partial_1");
+    let partial = common::play("robomemarena/18", "partial_1");
     assert_eq!((partial.success, partial.completed_required_stage_count), (false, 1), "{partial:?}");
-    let undo = play("robomemarena/18", "undo");
+    let undo = common::play("robomemarena/18", "undo");
     assert!(!undo.success && !undo.stage_regressions.is_empty(), "{undo:?}");
 }

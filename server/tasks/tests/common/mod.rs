@@ -5,6 +5,8 @@ use std::sync::Arc;
 use libero_sim::compose::{ComposedScene, compose_file};
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, Simulation};
+use libero_tasks::pool::Runs;
+use libero_tasks::{Pool, Tick, build_evaluator};
 
 /// A task scene composed from `bddl`, placed with LIBERO's seed-100 sampler (the seed the release tasks without
 /// trusted init states use), and a simulation starting from that placement.
@@ -21,4 +23,28 @@ pub fn scene_and_sim(bddl: &Path) -> (ComposedScene, Simulation) {
     row[1..1 + qpos.len()].copy_from_slice(&qpos);
     sim.set_init_state(&row).unwrap();
     (scene, sim)
+}
+
+/// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator.
+#[allow(dead_code)] // not every test binary plays an expert
+pub fn play(entry: &str, behaviour: &str) -> libero_tasks::EvaluationRecord {
+    let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
+    let pool = Pool::discover().expect("tasks/pool.json loads and validates");
+    let e = pool.get(entry).unwrap();
+    let Runs::Own(files, checker) = pool.runs(e, &paths).unwrap() else { panic!("{entry} runs on its own definition") };
+    let (scene, mut sim) = scene_and_sim(&files.bddl);
+    for _ in 0..10 {
+        sim.step([0.0; 7]).unwrap();
+    }
+    let mut evaluator = build_evaluator(Some(&checker), Some(&e.reference()), &scene, sim.model()).unwrap();
+    evaluator.reset(sim.data(), Tick::at_control_step(0, 0.0));
+    let mut script = libero_tasks::expert_for(&e.reference(), behaviour, &scene, sim.model()).unwrap();
+    let mut step = 0u64;
+    while let Some(action) = script.act(&sim) {
+        sim.step(action).unwrap();
+        step += 1;
+        evaluator.observe_control_step(sim.data(), Tick::at_control_step(step, 0.05 * step as f64));
+        assert!(step < 6_000, "{entry} {behaviour}: the script ends");
+    }
+    evaluator.finish(sim.data(), Tick::at_control_step(step, 0.05 * step as f64))
 }

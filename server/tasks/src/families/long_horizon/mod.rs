@@ -5,6 +5,7 @@ mod expert;
 mod robomem_expert;
 mod bowls_expert;
 mod cooking_expert;
+mod robomem_pour_microwave;
 
 use crate::TasksError;
 use crate::expert::{Expert, SceneRefs};
@@ -12,6 +13,7 @@ use crate::expert::{Expert, SceneRefs};
 /// The tasks this family scripts, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     expert::behaviours(task_id).or_else(|| robomem_expert::behaviours(task_id)).or_else(|| bowls_expert::behaviours(task_id)).or_else(|| cooking_expert::behaviours(task_id))
+        .or_else(|| robomem_pour_microwave::behaviours(task_id))
 }
 
 /// This family's expert for `task_id` (one of [`behaviours`]).
@@ -22,6 +24,8 @@ pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<
         bowls_expert::build(task_id, behaviour, refs)
     } else if cooking_expert::behaviours(task_id).is_some() {
         cooking_expert::build(task_id, behaviour, refs)
+    } else if robomem_pour_microwave::behaviours(task_id).is_some() {
+        robomem_pour_microwave::build(task_id, behaviour, refs)
     } else {
         expert::build(task_id, behaviour, refs)
     }
