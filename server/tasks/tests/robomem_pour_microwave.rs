@@ -10,12 +10,13 @@ use libero_tasks::{Pool, Tick, build_evaluator, expert::SOLVE};
 mod common;
 
 const POURS: [u32; 7] = [6, 8, 9, 10, 15, 16, 22];
+const MICROWAVES: [u32; 4] = [20, 21, 23, 24];
 
 #[test]
 fn every_pour_and_microwave_entry_composes_and_judges_its_start_0_of_3() {
     let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
     let pool = Pool::discover().unwrap();
-    for t in POURS {
+    for t in POURS.into_iter().chain(MICROWAVES) {
         let e = pool.get(&format!("robomemarena/{t}")).unwrap();
         let Runs::Own(files, checker) = pool.runs(e, &paths).unwrap() else { panic!("robomemarena/{t} runs on its own definition") };
         assert_eq!((files.placement_seed, checker.kind.as_str()), (Some(100), "private_ordered_stages"), "robomemarena/{t}");
@@ -46,14 +47,35 @@ fn task_6s_expert_pours_twice_and_one_pour_or_three_fail() {
     assert_eq!(three.failure_reason, Some(FailureReason::ExtraPour));
 }
 
-/// Every pour expert: `cargo test -p libero-tasks --test robomem_pour_microwave -- --ignored` (≈ 15 s).
+/// Every pour expert: `cargo test -p libero-tasks --test robomem_pour_microwave -- --ignored` (≈ 15 s for the pours).
 #[test]
 #[ignore]
 fn every_pour_expert_completes_all_three_stages_and_stopping_after_the_lift_fails() {
-    for t in POURS {
+    solve_all_and_fail_after_one_stage(&POURS);
+}
+
+/// `solve` completes 3 of 3 for every task, `partial_1` fails with 1.
+fn solve_all_and_fail_after_one_stage(tasks: &[u32]) {
+    for t in tasks {
         let solve = common::play(&format!("robomemarena/{t}"), SOLVE);
         assert_eq!((solve.success, solve.completed_required_stage_count), (true, 3), "robomemarena/{t}: {solve:?}");
-        let lift = common::play(&format!("robomemarena/{t}"), "partial_1");
-        assert_eq!((lift.success, lift.completed_required_stage_count), (false, 1), "robomemarena/{t}: {lift:?}");
+        let one = common::play(&format!("robomemarena/{t}"), "partial_1");
+        assert_eq!((one.success, one.completed_required_stage_count), (false, 1), "robomemarena/{t}: {one:?}");
     }
+}
+
+#[test]
+fn task_24s_expert_opens_the_microwave_then_places_both_objects_and_stopping_after_the_first_fails() {
+    let solve = common::play("robomemarena/24", SOLVE);
+    assert_eq!((solve.success, solve.completed_required_stage_count), (true, 3), "{solve:?}");
+    let first = common::play("robomemarena/24", "partial_2");
+    assert_eq!((first.success, first.completed_required_stage_count), (false, 2), "{first:?}");
+}
+
+/// Every microwave expert: `cargo test -p libero-tasks --test robomem_pour_microwave -- --ignored` (with the pours,
+/// ≈ 25 s).
+#[test]
+#[ignore]
+fn every_microwave_expert_completes_all_three_stages_and_only_opening_the_door_fails() {
+    solve_all_and_fail_after_one_stage(&MICROWAVES);
 }

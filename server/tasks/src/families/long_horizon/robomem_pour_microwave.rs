@@ -1,6 +1,6 @@
 //! Experts for the RoboMemArena pour tasks 6, 8, 9, 10, 15, 16, 22 (lift a bottle, pour it over a target twice: T24's
 //! pour with the bottle, the target and the grasp height as parameters) and the microwave tasks 20, 21, 23, 24 (open
-//! the door, then put two objects into the microwave, in order). Behaviours: `solve`, `partial_<n>` (exactly n of the
+//! the door, then set two objects at the microwave, in order: on its top, which the checker's ±0.20 m rule accepts). Behaviours: `solve`, `partial_<n>` (exactly n of the
 //! K = 3 stages, then stop) and, for the pours, `three_pours` (one pour too many: the extra-pour failure).
 use std::sync::Arc;
 
@@ -8,7 +8,7 @@ use libero_sim::Simulation;
 use nalgebra::Vector3;
 
 use crate::TasksError;
-use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, rotation_error, vec3};
+use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, mat3, rotation_error, vec3};
 use crate::expert::skills::{
     TargetFn, across_narrow_side, grasp_bottle, memo, partial_count, pick_place_turned, place_held, pos, pour_at,
 };
@@ -45,8 +45,25 @@ fn pour_task(task_id: &str) -> Option<PourTask> {
     Some(PourTask { bottle, grasp_dz_m, target, into_pan, drainer })
 }
 
+/// A microwave task: the two objects put in, in order.
+fn microwave_task(task_id: &str) -> Option<[&'static str; 2]> {
+    Some(match task_id.strip_prefix("robomemarena/robomemarena_task_")? {
+        "20" => ["cookies_1", "chocolate_pudding_1"],
+        "21" => ["butter_1", "chocolate_pudding_1"],
+        "23" => ["cream_cheese_1", "popcorn_1"],
+        "24" => ["cookies_1", "popcorn_1"],
+        _ => return None,
+    })
+}
+
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    pour_task(task_id).map(|_| &["partial_1", "partial_2", "three_pours"][..])
+    if pour_task(task_id).is_some() {
+        Some(&["partial_1", "partial_2", "three_pours"])
+    } else if microwave_task(task_id).is_some() {
+        Some(&["partial_1", "partial_2"])
+    } else {
+        None
+    }
 }
 
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
@@ -56,9 +73,15 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
         SOLVE | "three_pours" => 3,
         b => partial_count(b).filter(|n| (1..3).contains(n)).ok_or_else(unknown)?,
     };
-    let task = pour_task(task_id).ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))?;
-    let pours = if behaviour == "three_pours" { 3 } else { stages - 1 };
-    pour(refs, &task, pours, behaviour == SOLVE)
+    if let Some(task) = pour_task(task_id) {
+        let pours = if behaviour == "three_pours" { 3 } else { stages - 1 };
+        return pour(refs, &task, pours, behaviour == SOLVE);
+    }
+    let objects = microwave_task(task_id).ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))?;
+    if behaviour == "three_pours" {
+        return Err(unknown());
+    }
+    microwave(refs, objects, stages - 1)
 }
 
 /// Lift of the bottle above its resting height while pouring (T24's).
@@ -123,3 +146,44 @@ fn pour(refs: &SceneRefs, task: &PourTask, pours: usize, place: bool) -> Result<
 const PAN_CARRY_Z_M: f64 = 0.53;
 /// How much higher an object's root rests on the frying pan's floor than on the table.
 const PAN_FLOOR_M: f64 = 0.03;
+
+/// Door hinge angle the door is swung to (T16's; the checker needs |q| > 0.30 or 0.50).
+const DOOR_OPEN_RAD: f64 = -1.45;
+/// Root height while carrying an object onto the microwave (its top is ≈ 0.22 m above the coffee table).
+const MICROWAVE_CARRY_Z_M: f64 = 0.78;
+/// Offset of each object's spot from the middle of the microwave's top, along the top's long side.
+const TOP_SPOT_OFFSET_M: f64 = 0.06;
+/// A point high over the middle of the table, away from the open door.
+const CLEAR_OF_DOOR_M: [f64; 3] = [-0.05, 0.05, 0.80];
+/// The coffee table's top: an object's root rests `rest z − this` above its bottom.
+const TABLE_TOP_Z_M: f64 = 0.424;
+
+/// Open the microwave door, then put the first `n` objects onto the microwave, side by side along its top's long
+/// side (the cavity is out of reach: see `tasks/README.md`); each keeps its height above its support.
+fn microwave(refs: &SceneRefs, objects: [&str; 2], n: usize) -> Result<Box<dyn Expert>, TasksError> {
+    let mut phases = crate::expert::fixtures::microwave_door_phases(refs, "microwave_1", DOOR_OPEN_RAD)?;
+    let top = refs.site("microwave_1_top_side")?;
+    let top_half_z_m = refs.model.site_size()[top][2];
+    for (k, name) in objects.iter().take(n).enumerate() {
+        // high over the middle of the table first: on its way down to an object the hand would catch the open door's
+        // (or the microwave's) top edge
+        phases.push(Phase::new("clear_of_door", move |_, _| Goal::at(CLEAR_OF_DOOR_M.into(), GRIPPER_OPEN)).until_reached(0.03).max_steps(80));
+        let body = refs.instance_body(name)?;
+        let rest_z = Arc::new(memo(move |sim: &Simulation| pos(sim, body).z));
+        let r0 = rest_z.clone();
+        phases.push(Phase::new("note_object", move |sim, ctx: &PhaseCtx| {
+            r0(sim);
+            Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
+        }));
+        let side = if k == 0 { -TOP_SPOT_OFFSET_M } else { TOP_SPOT_OFFSET_M };
+        let spot: TargetFn = Arc::new(move |sim| {
+            let c = vec3(&sim.data().site_xpos()[top]);
+            // the top's long side: the site's local x
+            let m = mat3(&sim.data().site_xmat()[top]);
+            let along = Vector3::new(m[(0, 0)], m[(1, 0)], 0.0).normalize();
+            c + along * side + Vector3::z() * (rest_z(sim) - TABLE_TOP_Z_M - top_half_z_m)
+        });
+        pick_place_turned(&mut phases, body, Vector3::zeros(), MICROWAVE_CARRY_Z_M, spot, across_narrow_side(refs, name)?);
+    }
+    Ok(Box::new(Script::new(phases)))
+}

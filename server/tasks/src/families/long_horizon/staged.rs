@@ -78,7 +78,16 @@ pub enum OrderMode {
 pub enum AtomSpec {
     /// `[predicate, arg…]`, a LIBERO predicate.
     Bddl(Vec<String>),
-    Near { object: String, anchor: String, xy_max_m: f64, dz_range_m: [f64; 2] },
+    /// `object`'s root within `xy_max_m` of `anchor` (an instance's root or a site) horizontally and `dz_range_m` above
+    /// it; with `square`, |dx| and |dy| each below `xy_max_m` (RoboMemArena's microwave rule) instead of the distance.
+    Near {
+        object: String,
+        anchor: String,
+        xy_max_m: f64,
+        dz_range_m: [f64; 2],
+        #[serde(default)]
+        square: bool,
+    },
     DrawerOpen { site: String, min_displacement_m: f64 },
     DrawerClosed { site: String, max_displacement_m: f64 },
     InBox { object: String, site: String, lower_z_m: f64, upper_z_m: f64 },
@@ -181,7 +190,7 @@ pub struct StagedParams {
 #[derive(Debug, Clone)]
 enum Check {
     Bddl(CompiledAtom),
-    Near { body: usize, anchor: Anchor, xy_max_m: f64, dz: [f64; 2] },
+    Near { body: usize, anchor: Anchor, xy_max_m: f64, dz: [f64; 2], square: bool },
     Drawer { site: SiteRef, open: bool, threshold_m: f64 },
     InBox { body: usize, site: usize, half_m: [f64; 3], lower_z_m: f64, upper_z_m: f64 },
     Released(usize),
@@ -285,7 +294,7 @@ impl Check {
         let d = c.data;
         match self {
             Check::Bddl(a) => a.evaluate(c.index, d),
-            Check::Near { body, anchor, xy_max_m, dz } => {
+            Check::Near { body, anchor, xy_max_m, dz, square } => {
                 let p = d.xpos()[*body];
                 let q = match anchor {
                     Anchor::Body(b) => d.xpos()[*b],
@@ -295,7 +304,7 @@ impl Check {
                     },
                 };
                 let dz_now = p[2] - q[2];
-                (p[0] - q[0]).hypot(p[1] - q[1]) < *xy_max_m && dz_now > dz[0] && dz_now < dz[1]
+                near_xy(p[0] - q[0], p[1] - q[1], *xy_max_m, *square) && dz_now > dz[0] && dz_now < dz[1]
             }
             Check::Drawer { site, open, threshold_m } => {
                 let Some(site) = site.id(c.base) else { return false };
@@ -379,12 +388,12 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             let atom = BddlAtom { predicate: predicate.to_ascii_lowercase(), args: args.to_vec(), pos: Pos::default() };
             Check::Bddl(CompiledAtom::compile(index, &atom)?)
         }
-        AtomSpec::Near { object, anchor, xy_max_m, dz_range_m } => {
+        AtomSpec::Near { object, anchor, xy_max_m, dz_range_m, square } => {
             let anchor = match index.instance(anchor) {
                 Some(i) => Anchor::Body(index.instances[i].body),
                 None => Anchor::Site(site_ref(anchor)?),
             };
-            Check::Near { body: instance_body(object)?, anchor, xy_max_m: *xy_max_m, dz: *dz_range_m }
+            Check::Near { body: instance_body(object)?, anchor, xy_max_m: *xy_max_m, dz: *dz_range_m, square: *square }
         }
         AtomSpec::DrawerOpen { site: s, min_displacement_m } => {
             Check::Drawer { site: site_ref(s)?, open: true, threshold_m: *min_displacement_m }
@@ -1092,6 +1101,12 @@ impl Evaluator for StagedEvaluator {
     }
 }
 
+/// Horizontal part of the `near` atom: inside the circle of radius `max_m`, or with `square` the square of half side
+/// `max_m` (strict bounds).
+fn near_xy(dx: f64, dy: f64, max_m: f64, square: bool) -> bool {
+    if square { dx.abs() < max_m && dy.abs() < max_m } else { dx.hypot(dy) < max_m }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1137,6 +1152,18 @@ mod tests {
         assert!(!joint_inside(0.01, None, Some(0.01)));
         assert!(joint_inside(0.5, Some(0.4), Some(0.6)) && !joint_inside(0.7, Some(0.4), Some(0.6)));
         assert!(joint_inside(1.0, None, None));
+    }
+
+    #[test]
+    fn near_is_a_circle_unless_square() {
+        assert!(!near_xy(0.15, 0.15, 0.2, false), "≈ 0.21 m away: outside the circle");
+        assert!(near_xy(0.15, 0.15, 0.2, true), "inside the square (RoboMemArena's microwave rule)");
+        assert!(!near_xy(0.2, 0.0, 0.2, true) && !near_xy(0.0, -0.21, 0.2, true), "strict, either axis");
+        let p: StagedParams = serde_json::from_value(json!({"stages": [{"name": "01", "all": [
+            {"near": {"object": "a", "anchor": "s", "xy_max_m": 0.2, "dz_range_m": [-1.0, 1.0], "square": true}},
+            {"near": {"object": "a", "anchor": "s", "xy_max_m": 0.2, "dz_range_m": [-1.0, 1.0]}}]}]}))
+        .unwrap();
+        assert!(matches!(p.stages[0].all[..], [AtomSpec::Near { square: true, .. }, AtomSpec::Near { square: false, .. }]));
     }
 
     #[test]
