@@ -1,6 +1,6 @@
 //! Experts for the RoboMemArena pour tasks 6, 8, 9, 10, 15, 16, 22 (lift a bottle, pour it over a target twice: T24's
 //! pour with the bottle, the target and the grasp height as parameters) and the microwave tasks 20, 21, 23, 24 (open
-//! the door, then set two objects at the microwave, in order: on its top, which the checker's ±0.20 m rule accepts). Behaviours: `solve`, `partial_<n>` (exactly n of the
+//! the door, then put two objects into the cavity, in order). Behaviours: `solve`, `partial_<n>` (exactly n of the
 //! K = 3 stages, then stop) and, for the pours, `three_pours` (one pour too many: the extra-pour failure).
 use std::sync::Arc;
 
@@ -8,15 +8,17 @@ use libero_sim::Simulation;
 use nalgebra::Vector3;
 
 use crate::TasksError;
-use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, mat3, rotation_error, vec3};
+use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, open_along, rotation_error, vec3};
 use crate::expert::skills::{
-    TargetFn, across_narrow_side, grasp_bottle, memo, partial_count, pick_place_turned, place_held, pos, pour_at,
+    TargetFn, across_narrow_side, carry, grasp_bottle, main_box, memo, partial_count, pick_place_turned, place_held, pos, pour_at,
 };
+use crate::expert::fixtures::{microwave_door_phases, push_microwave_door_wider};
 use crate::expert::{Expert, SOLVE, SceneRefs};
 
 /// A pour task: `bottle` grasped `grasp_dz_m` above its root and poured twice over `target`'s root. With `into_pan`
 /// the target is first put into the frying pan; with `drainer`, `solve` sets the bottle into the drainer's left slot
-/// after pouring. Neither is judged by the pool's checker (the original's frozen checker does not either); the
+/// after pouring; with `microwave`, `solve` sets it back where it stood and puts the target into the microwave
+/// ([`microwave_phases`]). None of these is judged by the pool's checker (the original's frozen checker does not either); the
 /// expert follows the whole instruction.
 struct PourTask {
     bottle: &'static str,
@@ -24,6 +26,7 @@ struct PourTask {
     target: &'static str,
     into_pan: bool,
     drainer: bool,
+    microwave: bool,
 }
 
 /// Fingers close this far above a HOPE bottle's root (its upper half; T24's).
@@ -32,17 +35,17 @@ const HOPE_GRASP_DZ_M: f64 = 0.02;
 const WINE_GRASP_DZ_M: f64 = 0.13;
 
 fn pour_task(task_id: &str) -> Option<PourTask> {
-    let (bottle, grasp_dz_m, target, into_pan, drainer) = match task_id.strip_prefix("robomemarena/robomemarena_task_")? {
-        "06" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", false, true),
-        "08" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "chocolate_pudding_1", true, true),
-        "09" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "butter_1", true, true),
-        "10" => ("wine_bottle_1", WINE_GRASP_DZ_M, "white_yellow_mug_1", false, false),
-        "15" => ("milk_1", HOPE_GRASP_DZ_M, "butter_1", true, false),
-        "16" => ("milk_1", HOPE_GRASP_DZ_M, "red_coffee_mug_1", false, true),
-        "22" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", false, false),
+    let (bottle, grasp_dz_m, target, into_pan, drainer, microwave) = match task_id.strip_prefix("robomemarena/robomemarena_task_")? {
+        "06" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", false, true, false),
+        "08" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "chocolate_pudding_1", true, true, false),
+        "09" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "butter_1", true, true, false),
+        "10" => ("wine_bottle_1", WINE_GRASP_DZ_M, "white_yellow_mug_1", false, false, false),
+        "15" => ("milk_1", HOPE_GRASP_DZ_M, "butter_1", true, false, false),
+        "16" => ("milk_1", HOPE_GRASP_DZ_M, "red_coffee_mug_1", false, true, false),
+        "22" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", false, false, true),
         _ => return None,
     };
-    Some(PourTask { bottle, grasp_dz_m, target, into_pan, drainer })
+    Some(PourTask { bottle, grasp_dz_m, target, into_pan, drainer, microwave })
 }
 
 /// A microwave task: the two objects put in, in order.
@@ -81,7 +84,7 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
     if behaviour == "three_pours" {
         return Err(unknown());
     }
-    microwave(refs, objects, stages - 1)
+    Ok(Box::new(Script::new(microwave_phases(refs, &objects[..stages - 1])?)))
 }
 
 /// Lift of the bottle above its resting height while pouring (T24's).
@@ -90,6 +93,8 @@ const POUR_LIFT_M: f64 = 0.15;
 const POUR_TILT_RAD: f64 = 1.05;
 /// Root height while carrying a bottle to the drainer (above its racks).
 const DRAINER_CARRY_Z_M: f64 = 0.75;
+/// Root height while carrying a bottle back to where it stood.
+const SET_BACK_CARRY_Z_M: f64 = 0.60;
 
 /// Put the target into the frying pan (`into_pan`), grasp and lift the bottle, carry it beside the target (its root
 /// 5 cm short of the target's in x and y, at the lifted height), pour `pours` times; with `place` (and a drainer) set
@@ -97,7 +102,9 @@ const DRAINER_CARRY_Z_M: f64 = 0.75;
 fn pour(refs: &SceneRefs, task: &PourTask, pours: usize, place: bool) -> Result<Box<dyn Expert>, TasksError> {
     let bottle = refs.instance_body(task.bottle)?;
     let target = refs.instance_body(task.target)?;
-    let rest_z = Arc::new(memo(move |sim: &Simulation| pos(sim, bottle).z));
+    let start = Arc::new(memo(move |sim: &Simulation| pos(sim, bottle)));
+    let s0 = start.clone();
+    let rest_z = Arc::new(move |sim: &Simulation| s0(sim).z);
     let r0 = rest_z.clone();
     let mut phases = vec![Phase::new("note_start", move |sim, ctx: &PhaseCtx| {
         r0(sim);
@@ -136,6 +143,10 @@ fn pour(refs: &SceneRefs, task: &PourTask, pours: usize, place: bool) -> Result<
         let left = refs.site("bowl_drainer_1_left_region")?;
         let slot: TargetFn = Arc::new(move |sim| vec3(&sim.data().site_xpos()[left]));
         place_held(&mut phases, bottle, task.grasp_dz_m, DRAINER_CARRY_Z_M, slot);
+    } else if place && task.microwave {
+        let back: TargetFn = Arc::new(move |sim| start(sim));
+        place_held(&mut phases, bottle, task.grasp_dz_m, SET_BACK_CARRY_Z_M, back);
+        phases.extend(microwave_phases(refs, &[task.target])?);
     } else {
         phases.push(Phase::new("hold_bottle", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(20));
     }
@@ -149,24 +160,42 @@ const PAN_FLOOR_M: f64 = 0.03;
 
 /// Door hinge angle the door is swung to (T16's; the checker needs |q| > 0.30 or 0.50).
 const DOOR_OPEN_RAD: f64 = -1.45;
-/// Root height while carrying an object onto the microwave (its top is ≈ 0.22 m above the coffee table).
-const MICROWAVE_CARRY_Z_M: f64 = 0.78;
-/// Offset of each object's spot from the middle of the microwave's top, along the top's long side.
-const TOP_SPOT_OFFSET_M: f64 = 0.06;
+/// Hinge angle the door is then pushed to, past a right angle (the hinge stops at −2.09).
+const DOOR_WIDE_RAD: f64 = -1.85;
 /// A point high over the middle of the table, away from the open door.
 const CLEAR_OF_DOOR_M: [f64; 3] = [-0.05, 0.05, 0.80];
+/// Root height while carrying an object over to the microwave.
+const MICROWAVE_CARRY_Z_M: f64 = 0.62;
 /// The coffee table's top: an object's root rests `rest z − this` above its bottom.
 const TABLE_TOP_Z_M: f64 = 0.424;
+/// Object bottom above the heating region's bottom while it slides in (the floor's collision top lies 8 mm above it).
+const FLOOR_CLEARANCE_M: f64 = 0.016;
+/// The cavity from `microwave_1_heating_region` (world frame; the BDDL turns the microwave to open toward +y): its
+/// middle lies this far to +x of the region's centre, its back wall's inner face this far to −y.
+const CAVITY_MIDDLE_DX_M: f64 = 0.04;
+const CAVITY_BACK_DY_M: f64 = -0.07;
+/// Gap kept behind and between the objects, and how far in front of the opening an object is lined up.
+const CAVITY_GAP_M: f64 = 0.01;
+const CAVITY_FRONT_M: f64 = 0.16;
 
-/// Open the microwave door, then put the first `n` objects onto the microwave, side by side along its top's long
-/// side (the cavity is out of reach: see `tasks/README.md`); each keeps its height above its support.
-fn microwave(refs: &SceneRefs, objects: [&str; 2], n: usize) -> Result<Box<dyn Expert>, TasksError> {
-    let mut phases = crate::expert::fixtures::microwave_door_phases(refs, "microwave_1", DOOR_OPEN_RAD)?;
-    let top = refs.site("microwave_1_top_side")?;
-    let top_half_z_m = refs.model.site_size()[top][2];
-    for (k, name) in objects.iter().take(n).enumerate() {
+/// Open the microwave door, then put `objects` into the cavity, one behind the other along its middle
+/// (the first at the back). Each is picked across its narrow side, turned so the fingers close along x: the hand is
+/// as wide as the cavity and only fits through the opening that way, and fingers closing along the way in would drag
+/// the object back out. Lined up in front of the opening with its bottom just above the cavity's floor, it slides
+/// in, is let go, and the hand backs out the way it came.
+fn microwave_phases(refs: &SceneRefs, objects: &[&str]) -> Result<Vec<Phase>, TasksError> {
+    let mut phases = microwave_door_phases(refs, "microwave_1", DOOR_OPEN_RAD)?;
+    // the door swung past a right angle, clear of a hand working in front of the opening
+    phases.extend(push_microwave_door_wider(refs, "microwave_1", DOOR_WIDE_RAD)?);
+    let cavity = refs.site("microwave_1_heating_region")?;
+    let floor_below_m = refs.model.site_size()[cavity][2];
+    // half lengths of the objects' long sides (HOPE boxes lie on their largest face)
+    let long_half = |name: &str| main_box(refs, name).map(|(_, h)| h.iter().copied().fold(0.0, f64::max));
+    let first_long_m = objects.first().map_or(Ok(0.0), |o| long_half(o))?;
+    let rot_in = |ctx: &PhaseCtx| open_along(&ctx.home_rot, Vector3::x());
+    for (k, name) in objects.iter().enumerate() {
         // high over the middle of the table first: on its way down to an object the hand would catch the open door's
-        // (or the microwave's) top edge
+        // top edge
         phases.push(Phase::new("clear_of_door", move |_, _| Goal::at(CLEAR_OF_DOOR_M.into(), GRIPPER_OPEN)).until_reached(0.03).max_steps(80));
         let body = refs.instance_body(name)?;
         let rest_z = Arc::new(memo(move |sim: &Simulation| pos(sim, body).z));
@@ -175,15 +204,41 @@ fn microwave(refs: &SceneRefs, objects: [&str; 2], n: usize) -> Result<Box<dyn E
             r0(sim);
             Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
         }));
-        let side = if k == 0 { -TOP_SPOT_OFFSET_M } else { TOP_SPOT_OFFSET_M };
-        let spot: TargetFn = Arc::new(move |sim| {
-            let c = vec3(&sim.data().site_xpos()[top]);
-            // the top's long side: the site's local x
-            let m = mat3(&sim.data().site_xmat()[top]);
-            let along = Vector3::new(m[(0, 0)], m[(1, 0)], 0.0).normalize();
-            c + along * side + Vector3::z() * (rest_z(sim) - TABLE_TOP_Z_M - top_half_z_m)
+        // the root's height with the bottom just above the cavity's floor
+        let slide_z = Arc::new(move |sim: &Simulation| {
+            vec3(&sim.data().site_xpos()[cavity]).z - floor_below_m + FLOOR_CLEARANCE_M + rest_z(sim) - TABLE_TOP_Z_M
         });
-        pick_place_turned(&mut phases, body, Vector3::zeros(), MICROWAVE_CARRY_Z_M, spot, across_narrow_side(refs, name)?);
+        // the first at the back wall, the second just in front of it
+        let depth_m = CAVITY_BACK_DY_M + CAVITY_GAP_M + first_long_m + if k == 0 { 0.0 } else { first_long_m + CAVITY_GAP_M + long_half(name)? };
+        let at = move |sim: &Simulation, front_m: f64, z: f64| {
+            let c = vec3(&sim.data().site_xpos()[cavity]);
+            Vector3::new(c.x + CAVITY_MIDDLE_DX_M, c.y + depth_m + front_m, z)
+        };
+        // above, down, grasp and lift of a pick across the narrow side
+        let mut pick = Vec::new();
+        let unused: TargetFn = Arc::new(move |sim| pos(sim, body));
+        pick_place_turned(&mut pick, body, Vector3::zeros(), MICROWAVE_CARRY_Z_M, unused, across_narrow_side(refs, name)?);
+        phases.extend(pick.into_iter().take(4));
+        let front_m = CAVITY_FRONT_M - depth_m;
+        let steps = [("line_up_high", front_m, true, 0.6), ("down_in_front", front_m, false, 0.4), ("slide_in", 0.0, false, 0.3)];
+        for (phase, front_m, high, speed) in steps {
+            let sz = slide_z.clone();
+            let target: TargetFn = Arc::new(move |sim| at(sim, front_m, if high { MICROWAVE_CARRY_Z_M } else { sz(sim) }));
+            let t1 = target.clone();
+            phases.push(
+                Phase::new(phase, move |sim, ctx| Goal::at(carry(sim, body, t1(sim)), GRIPPER_CLOSED).slow(speed).rotated(rot_in(ctx)))
+                    .until(move |sim, ctx| (pos(sim, body) - target(sim)).norm() < 0.008 && rotation_error(sim, &rot_in(ctx)) < 0.03)
+                    .max_steps(150),
+            );
+        }
+        phases.push(Phase::new("open", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(rot_in(ctx))).for_steps(10));
+        phases.push(
+            Phase::new("back_out", move |_, ctx| {
+                Goal::at(ctx.start_pos_m + Vector3::y() * front_m, GRIPPER_OPEN).slow(0.4).rotated(rot_in(ctx))
+            })
+            .until_reached(0.01)
+            .max_steps(150),
+        );
     }
-    Ok(Box::new(Script::new(phases)))
+    Ok(phases)
 }
