@@ -172,6 +172,34 @@ pub fn microwave_door_phases(refs: &SceneRefs, microwave: &str, q_goal: f64) -> 
     Ok(phases)
 }
 
+/// A point on the inner face of the LIBERO microwave's door near its free end, in the door body's frame (the door's
+/// local +y faces into the cavity when closed).
+const MICROWAVE_DOOR_INNER_LOCAL_M: [f64; 3] = [0.20, 0.06, 0.0];
+
+/// Phases that push the LIBERO microwave `microwave`'s open door wider, to `q_goal` (rad, more negative = wider),
+/// with the closed hand on the door's inner face near its free end: [`microwave_door_phases`] leaves it near a right
+/// angle, where a hand working in front of the opening still catches it.
+pub fn push_microwave_door_wider(refs: &SceneRefs, microwave: &str, q_goal: f64) -> Result<Vec<Phase>, TasksError> {
+    let door = refs.body(&format!("{microwave}_microdoorroot"))?;
+    let (q_adr, _) = refs.joint(&format!("{microwave}_microjoint"))?;
+    let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
+    // `out_m` along the door's inward normal from its inner face (negative: past the door, pushing it)
+    let at = move |sim: &Simulation, out_m: f64| {
+        let [x, y, z] = MICROWAVE_DOOR_INNER_LOCAL_M;
+        body_point(sim, door, [x, y + out_m, z])
+    };
+    Ok(vec![
+        Phase::new("above_door_inside", move |sim, _| Goal::at(at(sim, 0.04) + UP * 0.15, GRIPPER_CLOSED)).until_reached(0.015).max_steps(150),
+        Phase::new("down_door_inside", move |sim, _| Goal::at(at(sim, 0.04), GRIPPER_CLOSED).slow(0.5)).until_reached(0.01).max_steps(80),
+        Phase::new("push_door_wider", move |sim, _| Goal::at(at(sim, -0.05), GRIPPER_CLOSED).slow(0.4))
+            .until(move |sim, _| q(sim) <= q_goal)
+            .max_steps(150),
+        Phase::new("off_door", move |_, ctx| Goal::at(ctx.start_pos_m + UP * 0.15, GRIPPER_CLOSED))
+            .until_reached(0.015)
+            .max_steps(60),
+    ])
+}
+
 /// LIBERO flat stove knob: a point between the fingers on the knob's ridge (which runs along the knob's local y),
 /// in the knob body's frame.
 const KNOB_GRASP_LOCAL_M: [f64; 3] = [0.0014, 0.012, 0.035];

@@ -116,6 +116,48 @@ pub fn pick_place_at(phases: &mut Vec<Phase>, body: usize, grasp: TargetFn, carr
     );
 }
 
+/// Grasp a bottle standing on the table from above, the fingers closing `grasp_dz_m` above its root with the hand as
+/// at home, and lift it by `lift_m`.
+pub fn grasp_bottle(phases: &mut Vec<Phase>, bottle: usize, grasp_dz_m: f64, lift_m: f64) {
+    let grasp = move |sim: &Simulation| pos(sim, bottle) + Vector3::z() * grasp_dz_m;
+    phases.push(Phase::new("above_bottle", move |sim, _| Goal::at(grasp(sim) + Vector3::z() * 0.10, GRIPPER_OPEN)).until_reached(0.015).max_steps(150));
+    phases.push(Phase::new("down_to_bottle", move |sim, _| Goal::at(grasp(sim), GRIPPER_OPEN).slow(0.5)).until_reached(0.008).max_steps(60));
+    phases.push(Phase::new("close", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(12));
+    phases.push(
+        Phase::new("lift", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * lift_m, GRIPPER_CLOSED).slow(0.6))
+            .until_reached(0.01)
+            .max_steps(60),
+    );
+}
+
+/// Carry a held bottle until its root is over `spot` (its z: the root height to carry at), then pour `pours` times:
+/// tilt the hand by `tilt_rad` about world y for `tilt_steps` control steps and back upright for 20 (which re-arms the
+/// RoboMemArena pour counter, [`crate::judge::pouring`]). No carry when `pours` is 0.
+pub fn pour_at(phases: &mut Vec<Phase>, bottle: usize, spot: TargetFn, pours: usize, tilt_rad: f64, tilt_steps: u32) {
+    if pours > 0 {
+        let s1 = spot.clone();
+        phases.push(
+            Phase::new("carry_to_pour_spot", move |sim, _| Goal::at(carry(sim, bottle, s1(sim)), GRIPPER_CLOSED).slow(0.6))
+                .until(move |sim, _| xy_dist(pos(sim, bottle), spot(sim)) < 0.012)
+                .max_steps(100),
+        );
+    }
+    let tilted = move |ctx: &PhaseCtx| rotate_world(&ctx.home_rot, Vector3::y(), tilt_rad);
+    for _ in 0..pours {
+        phases.push(Phase::new("tilt_pour", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED).rotated(tilted(ctx))).for_steps(tilt_steps));
+        phases.push(Phase::new("back_upright", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(20));
+    }
+}
+
+/// The second half of [`pick_place`] for an object already in hand (grasped `grasp_dz_m` above its root): carry it
+/// at `carry_z_m` over `target`, lower it there, open and retreat.
+pub fn place_held(phases: &mut Vec<Phase>, body: usize, grasp_dz_m: f64, carry_z_m: f64, target: TargetFn) {
+    let mut all = Vec::new();
+    pick_place(&mut all, body, grasp_dz_m, carry_z_m, target);
+    // skip the approach, grasp and lift of the pick
+    phases.extend(all.into_iter().skip(4));
+}
+
 /// Remembers a value computed on the first call (positions at the start of the run).
 pub fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync + 'static) -> impl Fn(&Simulation) -> T + Send + Sync {
     let cell: Arc<Mutex<Option<T>>> = Arc::new(Mutex::new(None));
@@ -140,6 +182,13 @@ pub fn main_box(refs: &SceneRefs, name: &str) -> Result<(usize, [f64; 3]), Tasks
         .map(|g| (g, sizes[g]))
         .max_by(|a, b| (a.1[0] * a.1[1] * a.1[2]).total_cmp(&(b.1[0] * b.1[1] * b.1[2])))
         .ok_or_else(|| TasksError::Scene(format!("expert: {name} has no collision geom")))
+}
+
+/// The hand as at home, turned about the vertical so that the fingers close across the narrow horizontal side of
+/// `name`'s main collision box (low HOPE boxes: butter, cookies, chocolate pudding, cream cheese, popcorn).
+pub fn across_narrow_side(refs: &SceneRefs, name: &str) -> Result<RotFn, TasksError> {
+    let (geom, half) = main_box(refs, name)?;
+    Ok(Arc::new(move |sim, ctx| open_along(&ctx.home_rot, narrow_axis(sim, geom, half))))
 }
 
 /// LIBERO wooden cabinet drawers (top, middle, bottom): handle bar centre in the drawer body's frame (the same in

@@ -6,6 +6,7 @@ mod robomem_expert;
 mod bowls_expert;
 mod cooking_expert;
 mod robomem_containers;
+mod robomem_pour_microwave;
 
 use crate::TasksError;
 use crate::expert::{Expert, SceneRefs};
@@ -14,6 +15,7 @@ use crate::expert::{Expert, SceneRefs};
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     expert::behaviours(task_id).or_else(|| robomem_expert::behaviours(task_id)).or_else(|| bowls_expert::behaviours(task_id)).or_else(|| cooking_expert::behaviours(task_id))
         .or_else(|| robomem_containers::behaviours(task_id))
+        .or_else(|| robomem_pour_microwave::behaviours(task_id))
 }
 
 /// This family's expert for `task_id` (one of [`behaviours`]).
@@ -26,6 +28,8 @@ pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<
         cooking_expert::build(task_id, behaviour, refs)
     } else if robomem_containers::behaviours(task_id).is_some() {
         robomem_containers::build(task_id, behaviour, refs)
+    } else if robomem_pour_microwave::behaviours(task_id).is_some() {
+        robomem_pour_microwave::build(task_id, behaviour, refs)
     } else {
         expert::build(task_id, behaviour, refs)
     }

@@ -8,10 +8,10 @@ use libero_sim::Simulation;
 use nalgebra::Vector3;
 
 use crate::expert::skills::{
-    BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, RotFn, TOP_HANDLE_LOCAL_M, TargetFn, carry, main_box, memo, narrow_axis,
-    partial_count, pick_place, pick_place_turned, pos, pull_drawer, push_drawer, xy_dist,
+    BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, RotFn, TOP_HANDLE_LOCAL_M, TargetFn, carry, grasp_bottle, main_box, memo,
+    narrow_axis, partial_count, pick_place_turned, place_held, pos, pour_at, pull_drawer, push_drawer,
 };
-use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, open_along, rotate_world, vec3};
+use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, open_along, vec3};
 use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
 
@@ -167,28 +167,13 @@ fn pour_twice(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Task
     };
     let rest_z = Arc::new(memo(move |sim: &Simulation| pos(sim, sauce).z));
     let start = Arc::new(memo(move |sim: &Simulation| pos(sim, sauce)));
-    let grasp = {
-        let rest_z = rest_z.clone();
-        move |sim: &Simulation| {
-            let _ = rest_z(sim);
-            pos(sim, sauce) + Vector3::z() * SAUCE_GRASP_DZ_M
-        }
-    };
-    let s0 = start.clone();
-    let mut phases = vec![
-        Phase::new("note_start", move |sim, ctx: &PhaseCtx| {
-            s0(sim);
-            Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
-        }),
-        Phase::new("above_bottle", move |sim, _| Goal::at(grasp(sim) + Vector3::z() * 0.10, GRIPPER_OPEN)).until_reached(0.015).max_steps(150),
-        Phase::new("down_to_bottle", move |sim, _| Goal::at(pos(sim, sauce) + Vector3::z() * SAUCE_GRASP_DZ_M, GRIPPER_OPEN).slow(0.5))
-            .until_reached(0.008)
-            .max_steps(60),
-        Phase::new("close", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(12),
-        Phase::new("lift", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * POUR_LIFT_M, GRIPPER_CLOSED).slow(0.6))
-            .until_reached(0.01)
-            .max_steps(60),
-    ];
+    let (s0, r0) = (start.clone(), rest_z.clone());
+    let mut phases = vec![Phase::new("note_start", move |sim, ctx: &PhaseCtx| {
+        s0(sim);
+        r0(sim);
+        Goal::at(ctx.start_pos_m, GRIPPER_OPEN)
+    })];
+    grasp_bottle(&mut phases, sauce, SAUCE_GRASP_DZ_M, POUR_LIFT_M);
     if behaviour == "undo" {
         let back: TargetFn = Arc::new(move |sim| start(sim));
         phases.push(Phase::new("hold", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(10));
@@ -206,35 +191,17 @@ fn pour_twice(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Task
         return Ok(Box::new(Script::new(phases)));
     }
     // beside the pan, at the lifted height
-    let spot: TargetFn = {
-        let rest_z = rest_z.clone();
-        Arc::new(move |sim: &Simulation| {
-            let p = pos(sim, pan);
-            Vector3::new(p.x - 0.05, p.y - 0.05, rest_z(sim) + POUR_LIFT_M)
-        })
-    };
-    if pours > 0 {
-        let s1 = spot.clone();
-        phases.push(
-            Phase::new("carry_to_pan", move |sim, _| Goal::at(carry(sim, sauce, s1(sim)), GRIPPER_CLOSED).slow(0.6))
-                .until(move |sim, _| xy_dist(pos(sim, sauce), spot(sim)) < 0.012)
-                .max_steps(100),
-        );
-    }
-    let tilted = |ctx: &PhaseCtx| rotate_world(&ctx.home_rot, Vector3::y(), POUR_TILT_RAD);
-    for _ in 0..pours {
-        phases.push(Phase::new("tilt_pour", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED).rotated(tilted(ctx))).for_steps(20));
-        phases.push(Phase::new("back_upright", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(20));
-    }
+    let spot: TargetFn = Arc::new(move |sim: &Simulation| {
+        let p = pos(sim, pan);
+        Vector3::new(p.x - 0.05, p.y - 0.05, rest_z(sim) + POUR_LIFT_M)
+    });
+    pour_at(&mut phases, sauce, spot, pours, POUR_TILT_RAD, 20);
     if !place {
         phases.push(Phase::new("hold_bottle", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(20));
         return Ok(Box::new(Script::new(phases)));
     }
     // into the drainer: the root at the left slot's centre (the RoboMemArena box keeps 2 cm below it)
     let slot: TargetFn = Arc::new(move |sim| vec3(&sim.data().site_xpos()[left]));
-    let mut place_phases = Vec::new();
-    pick_place(&mut place_phases, sauce, SAUCE_GRASP_DZ_M, DRAINER_CARRY_Z_M, slot);
-    // the bottle is already in hand: skip the approach, grasp and lift of the pick
-    phases.extend(place_phases.into_iter().skip(4));
+    place_held(&mut phases, sauce, SAUCE_GRASP_DZ_M, DRAINER_CARRY_Z_M, slot);
     Ok(Box::new(Script::new(phases)))
 }

@@ -80,7 +80,16 @@ pub enum OrderMode {
 pub enum AtomSpec {
     /// `[predicate, arg…]`, a LIBERO predicate.
     Bddl(Vec<String>),
-    Near { object: String, anchor: String, xy_max_m: f64, dz_range_m: [f64; 2] },
+    /// `object`'s root within `xy_max_m` of `anchor` (an instance's root or a site) horizontally and `dz_range_m` above
+    /// it; with `square`, |dx| and |dy| each below `xy_max_m` (RoboMemArena's microwave rule) instead of the distance.
+    Near {
+        object: String,
+        anchor: String,
+        xy_max_m: f64,
+        dz_range_m: [f64; 2],
+        #[serde(default)]
+        square: bool,
+    },
     /// Object root minus the anchor's current position (instance root body, else site), world axes, strictly inside each range.
     Window { object: String, anchor: String, x_m: [f64; 2], y_m: [f64; 2], z_m: [f64; 2] },
     DrawerOpen { site: String, min_displacement_m: f64 },
@@ -187,7 +196,7 @@ pub struct StagedParams {
 #[derive(Debug, Clone)]
 enum Check {
     Bddl(CompiledAtom),
-    Near { body: usize, anchor: Anchor, xy_max_m: f64, dz: [f64; 2] },
+    Near { body: usize, anchor: Anchor, xy_max_m: f64, dz: [f64; 2], square: bool },
     Window { body: usize, anchor: Anchor, ranges: [[f64; 2]; 3] },
     Drawer { site: SiteRef, open: bool, threshold_m: f64 },
     InBox { body: usize, site: usize, half_m: [f64; 3], lower_z_m: f64, upper_z_m: f64 },
@@ -293,11 +302,11 @@ impl Check {
         let d = c.data;
         match self {
             Check::Bddl(a) => a.evaluate(c.index, d),
-            Check::Near { body, anchor, xy_max_m, dz } => {
+            Check::Near { body, anchor, xy_max_m, dz, square } => {
                 let p = d.xpos()[*body];
                 let Some(q) = anchor.position(c) else { return false };
                 let dz_now = p[2] - q[2];
-                (p[0] - q[0]).hypot(p[1] - q[1]) < *xy_max_m && dz_now > dz[0] && dz_now < dz[1]
+                near_xy(p[0] - q[0], p[1] - q[1], *xy_max_m, *square) && dz_now > dz[0] && dz_now < dz[1]
             }
             Check::Window { body, anchor, ranges } => {
                 let p = d.xpos()[*body];
@@ -408,8 +417,13 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             let atom = BddlAtom { predicate: predicate.to_ascii_lowercase(), args: args.to_vec(), pos: Pos::default() };
             Check::Bddl(CompiledAtom::compile(index, &atom)?)
         }
-        AtomSpec::Near { object, anchor, xy_max_m, dz_range_m } => {
-            Check::Near { body: instance_body(object)?, anchor: anchor_of(anchor)?, xy_max_m: *xy_max_m, dz: *dz_range_m }
+        AtomSpec::Near { object, anchor, xy_max_m, dz_range_m, square } => Check::Near {
+            body: instance_body(object)?,
+            anchor: anchor_of(anchor)?,
+            xy_max_m: *xy_max_m,
+            dz: *dz_range_m,
+            square: *square,
+        },
         }
         AtomSpec::Window { object, anchor, x_m, y_m, z_m } => {
             Check::Window { body: instance_body(object)?, anchor: anchor_of(anchor)?, ranges: [*x_m, *y_m, *z_m] }
@@ -1121,6 +1135,12 @@ impl Evaluator for StagedEvaluator {
     }
 }
 
+/// Horizontal part of the `near` atom: inside the circle of radius `max_m`, or with `square` the square of half side
+/// `max_m` (strict bounds).
+fn near_xy(dx: f64, dy: f64, max_m: f64, square: bool) -> bool {
+    if square { dx.abs() < max_m && dy.abs() < max_m } else { dx.hypot(dy) < max_m }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1186,6 +1206,18 @@ mod tests {
         assert!(inside_window([0.0, -0.19, 0.05], &w), "inside the drawer, toward its front");
         assert!(!inside_window([0.0, 0.1, 0.0], &w) && !inside_window([0.0, -0.2, 0.0], &w), "strict at both ends");
         assert!(!inside_window([0.16, 0.0, 0.0], &w) && !inside_window([0.0, 0.0, -0.11], &w), "each axis counts");
+    }
+
+    #[test]
+    fn near_is_a_circle_unless_square() {
+        assert!(!near_xy(0.15, 0.15, 0.2, false), "≈ 0.21 m away: outside the circle");
+        assert!(near_xy(0.15, 0.15, 0.2, true), "inside the square (RoboMemArena's microwave rule)");
+        assert!(!near_xy(0.2, 0.0, 0.2, true) && !near_xy(0.0, -0.21, 0.2, true), "strict, either axis");
+        let p: StagedParams = serde_json::from_value(json!({"stages": [{"name": "01", "all": [
+            {"near": {"object": "a", "anchor": "s", "xy_max_m": 0.2, "dz_range_m": [-1.0, 1.0], "square": true}},
+            {"near": {"object": "a", "anchor": "s", "xy_max_m": 0.2, "dz_range_m": [-1.0, 1.0]}}]}]}))
+        .unwrap();
+        assert!(matches!(p.stages[0].all[..], [AtomSpec::Near { square: true, .. }, AtomSpec::Near { square: false, .. }]));
     }
 
     #[test]
