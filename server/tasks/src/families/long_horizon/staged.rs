@@ -424,7 +424,6 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             dz: *dz_range_m,
             square: *square,
         },
-        }
         AtomSpec::Window { object, anchor, x_m, y_m, z_m } => {
             Check::Window { body: instance_body(object)?, anchor: anchor_of(anchor)?, ranges: [*x_m, *y_m, *z_m] }
         }
