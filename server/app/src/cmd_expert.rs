@@ -123,7 +123,8 @@ fn expert_task(asked: &str, paths: &AssetPaths) -> anyhow::Result<(String, liber
         return Ok((asked.to_owned(), resolve_task(asked, paths)?));
     }
     // a pool entry that does not run says why (excluded, or what it still needs)
-    let task = resolve_task(asked, paths)?;
+    let task = resolve_task(asked, paths)
+        .map_err(|e| anyhow::anyhow!("task {asked} has no scripted expert (see `libero-agent expert --list`): {e:#}"))?;
     let id = task.suite.as_ref().map_or_else(|| task.task_ref.clone(), |s| s.id.clone());
     if libero_tasks::expert_behaviours(&id).is_none() {
         bail!("task {asked} has no scripted expert (see `libero-agent expert --list`)");
