@@ -25,6 +25,13 @@ pub fn scene_and_sim(bddl: &Path) -> (ComposedScene, Simulation) {
     (scene, sim)
 }
 
+/// An expert action as an episode steps it: sent as JSON rounded to 1e-6 and clamped to [-1, 1]
+/// (`server/episode/src/expert_run.rs::quantize`), so that `play` passes only when `libero-agent expert` does.
+#[allow(dead_code)] // not every test binary plays an expert
+pub fn as_sent(a: [f64; 7]) -> [f64; 7] {
+    a.map(|x| ((x * 1e6).round() / 1e6).clamp(-1.0, 1.0))
+}
+
 /// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator.
 #[allow(dead_code)] // not every test binary plays an expert
 pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
@@ -41,7 +48,7 @@ pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
     let mut script = libero_tasks::expert_for(&e.reference(), behaviour, &scene, sim.model()).unwrap();
     let mut step = 0u64;
     while let Some(action) = script.act(&sim) {
-        sim.step(action).unwrap();
+        sim.step(as_sent(action)).unwrap();
         step += 1;
         evaluator.observe_control_step(sim.data(), Tick::at_control_step(step, 0.05 * step as f64));
         assert!(step < 6_000, "{entry} {behaviour}: the script ends");
