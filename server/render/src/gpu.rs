@@ -271,8 +271,10 @@ struct Inner {
     device: wgpu::Device,
     queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
-    opaque: wgpu::RenderPipeline,
-    transparent: wgpu::RenderPipeline,
+    shader: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+    /// Geometry pipelines by specialisation, made on first use (a scene's light list decides which).
+    pipelines: Mutex<HashMap<PipelineKey, wgpu::RenderPipeline>>,
     sky: wgpu::RenderPipeline,
     camera_layout: wgpu::BindGroupLayout,
     draw_layout: wgpu::BindGroupLayout,
@@ -414,11 +416,6 @@ impl Renderer {
             bind_group_layouts: &[Some(&camera_layout), Some(&draw_layout), Some(&texture_layout)],
             immediate_size: 0,
         });
-        let vertex_layout = wgpu::VertexBufferLayout {
-            array_stride: size_of::<Vertex>() as u64,
-            step_mode: wgpu::VertexStepMode::Vertex,
-            attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2],
-        };
         let ids = |write: bool| {
             Some(wgpu::ColorTargetState {
                 format: ID_FORMAT,
@@ -426,48 +423,6 @@ impl Renderer {
                 write_mask: if write { wgpu::ColorWrites::ALL } else { wgpu::ColorWrites::empty() },
             })
         };
-        let make = |label: &str, blend: Option<wgpu::BlendState>, depth_write: bool, write_depth_lin: bool| {
-            let targets = [
-                Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL }),
-                ids(write_depth_lin),
-                ids(true),
-            ];
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(label),
-                layout: Some(&layout),
-                vertex: wgpu::VertexState {
-                    module: &shader,
-                    entry_point: Some("vs_main"),
-                    compilation_options: Default::default(),
-                    buffers: &[Some(vertex_layout.clone())],
-                },
-                primitive: wgpu::PrimitiveState {
-                    topology: wgpu::PrimitiveTopology::TriangleList,
-                    front_face: wgpu::FrontFace::Ccw,
-                    cull_mode: Some(wgpu::Face::Back),
-                    ..Default::default()
-                },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: DEPTH_FORMAT,
-                    depth_write_enabled: Some(depth_write),
-                    // Reverse Z: near = 1, far = 0, for precision over MuJoCo's wide near/far range.
-                    depth_compare: Some(wgpu::CompareFunction::Greater),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &shader,
-                    entry_point: Some("fs_main"),
-                    compilation_options: Default::default(),
-                    targets: &targets,
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
-        let opaque = make("opaque", None, true, true);
-        let transparent = make("transparent", Some(wgpu::BlendState::ALPHA_BLENDING), false, false);
         let sky_targets = [
             Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend: None, write_mask: wgpu::ColorWrites::ALL }),
             ids(false),
@@ -518,8 +473,9 @@ impl Renderer {
                 device,
                 queue,
                 info,
-                opaque,
-                transparent,
+                shader,
+                pipeline_layout: layout,
+                pipelines: Mutex::new(HashMap::new()),
                 sky,
                 camera_layout,
                 draw_layout,
@@ -722,6 +678,25 @@ impl Renderer {
     }
 
     /// Renders once `frame` is held; `waiting` (a foreground caller's count) is released on acquiring it.
+    /// The opaque and transparent pipelines of every texture mode for one light list, made on first use.
+    fn geometry_pipelines(
+        &self,
+        lights: LightShape,
+    ) -> Result<([wgpu::RenderPipeline; 4], [wgpu::RenderPipeline; 4]), RenderError> {
+        let inner = &self.inner;
+        let mut cache = inner.pipelines.lock().map_err(|e| RenderError::Readback(e.to_string()))?;
+        let mut get = |transparent: bool, tex_mode: u32| {
+            let key = PipelineKey { transparent, tex_mode, lights };
+            cache
+                .entry(key)
+                .or_insert_with(|| make_geometry_pipeline(&inner.device, &inner.shader, &inner.pipeline_layout, key))
+                .clone()
+        };
+        let opaque = TEX_MODES.map(|m| get(false, m));
+        let transparent = TEX_MODES.map(|m| get(true, m));
+        Ok((opaque, transparent))
+    }
+
     fn render_locked(
         &self,
         model: &ModelHandle,
@@ -776,9 +751,11 @@ impl Renderer {
         // Per-camera uniforms.
         let mut cam_bytes = vec![0u8; requests.len().max(1) * CAMERA_STRIDE as usize];
         let mut eyes = Vec::with_capacity(requests.len());
+        let mut slot_pipelines = Vec::with_capacity(requests.len());
         for (i, (r, &cid)) in requests.iter().zip(&cams).enumerate() {
             let (u, eye) = camera_uniform(scene, state, cid, r.width, r.height);
             eyes.push(eye);
+            slot_pipelines.push(self.geometry_pipelines(LightShape::of(&u))?);
             let off = i * CAMERA_STRIDE as usize;
             cam_bytes[off..off + size_of::<CameraUniform>()].copy_from_slice(bytemuck::bytes_of(&u));
         }
@@ -832,6 +809,7 @@ impl Renderer {
             let dview = t.depth_lin.create_view(&Default::default());
             let sview = t.seg.create_view(&Default::default());
             let eye = eyes[slot];
+            let (opaque_pipelines, transparent_pipelines) = &slot_pipelines[slot];
             {
                 let clear_u = |v: u32| wgpu::Operations {
                     load: wgpu::LoadOp::Clear(wgpu::Color { r: v as f64, g: 0.0, b: 0.0, a: 0.0 }),
@@ -881,7 +859,6 @@ impl Renderer {
                 }
                 pass.set_vertex_buffer(0, gm.vertices.slice(..));
                 pass.set_index_buffer(gm.indices.slice(..), wgpu::IndexFormat::Uint32);
-                pass.set_pipeline(&inner.opaque);
                 let mut transparent = Vec::new();
                 let mut opaque = Vec::with_capacity(draws.len());
                 let frustum = cull_params(scene, state, cams[slot], r.width, r.height);
@@ -900,18 +877,24 @@ impl Renderer {
                 // Opaque geoms front to back: the depth test then rejects hidden fragments before shading, which
                 // is most of the work on a CPU rasteriser. Order does not change the image (depth decides).
                 opaque.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                let mut bound = None;
                 for &(_, i) in &opaque {
-                    draw_one(&mut pass, gm, &draw_group, i, &draws[i], &lod);
+                    draw_one(&mut pass, opaque_pipelines, &mut bound, gm, &draw_group, i, &draws[i], &lod);
                 }
                 if !transparent.is_empty() {
                     // MuJoCo draws transparent geoms front-to-back, then back-to-front.
                     transparent.sort_by(|a, b| a.0.total_cmp(&b.0));
-                    pass.set_pipeline(&inner.transparent);
+                    let mut bound = None;
                     for &(_, i) in transparent.iter().chain(transparent.iter().rev()) {
-                        draw_one(&mut pass, gm, &draw_group, i, &draws[i], &lod);
+                        draw_one(&mut pass, transparent_pipelines, &mut bound, gm, &draw_group, i, &draws[i], &lod);
                     }
                 }
             }
+        }
+        // Copies after every pass: a copy waits for its pass to be rasterised, so copying between passes would keep
+        // a CPU rasteriser from binning the next camera while it draws the last one.
+        for (slot, r) in requests.iter().enumerate() {
+            let t = &frame.targets[slot];
             let (row, offs) = layout[slot];
             for (k, tex) in [&t.color, &t.depth_lin, &t.seg].into_iter().enumerate() {
                 if let Some(offset) = offs[k] {
@@ -1000,7 +983,126 @@ impl Renderer {
     }
 }
 
-fn draw_one(pass: &mut wgpu::RenderPass<'_>, gm: &GpuModel, draw_group: &wgpu::BindGroup, i: usize, d: &Draw, lod: &CameraLod) {
+
+/// What a geometry pipeline is specialised for (see the `override` constants in the shader).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct PipelineKey {
+    transparent: bool,
+    tex_mode: u32,
+    lights: LightShape,
+}
+
+/// The shape of a camera's light list: how many lights, and per light (bit k) positional and spot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct LightShape {
+    count: u32,
+    positional: u32,
+    spot: u32,
+}
+
+impl LightShape {
+    /// Read from the uniform the shader gets, with the tests the shader used to make per fragment.
+    fn of(u: &CameraUniform) -> Self {
+        let count = u.counts[0].min(MAX_LIGHTS as u32);
+        let mut shape = Self { count, positional: 0, spot: 0 };
+        for (k, l) in u.lights.iter().take(count as usize).enumerate() {
+            if l.pos[3] > 0.5 {
+                shape.positional |= 1 << k;
+                if l.spot[2] > 0.5 {
+                    shape.spot |= 1 << k;
+                }
+            }
+        }
+        shape
+    }
+}
+
+/// Texture modes (none, explicit uv, 2D texgen, cube), each compiled into pipelines of its own.
+const TEX_MODES: [u32; 4] = [0, 1, 2, 3];
+
+/// Opaque geometry writes depth, linear depth and ids; transparent geometry blends colour and writes ids only.
+fn make_geometry_pipeline(
+    device: &wgpu::Device,
+    shader: &wgpu::ShaderModule,
+    layout: &wgpu::PipelineLayout,
+    key: PipelineKey,
+) -> wgpu::RenderPipeline {
+    let ids = |write: bool| {
+        Some(wgpu::ColorTargetState {
+            format: ID_FORMAT,
+            blend: None,
+            write_mask: if write { wgpu::ColorWrites::ALL } else { wgpu::ColorWrites::empty() },
+        })
+    };
+    let (blend, depth_write) =
+        if key.transparent { (Some(wgpu::BlendState::ALPHA_BLENDING), false) } else { (None, true) };
+    let targets = [
+        Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend, write_mask: wgpu::ColorWrites::ALL }),
+        ids(depth_write),
+        ids(true),
+    ];
+    let constants = [
+        ("TEX_MODE", f64::from(key.tex_mode)),
+        ("LIGHT_COUNT", f64::from(key.lights.count)),
+        ("LIGHT_POSITIONAL", f64::from(key.lights.positional)),
+        ("LIGHT_SPOT", f64::from(key.lights.spot)),
+    ];
+    let vertex_layout = wgpu::VertexBufferLayout {
+        array_stride: size_of::<Vertex>() as u64,
+        step_mode: wgpu::VertexStepMode::Vertex,
+        attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2],
+    };
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(if key.transparent { "transparent" } else { "opaque" }),
+        layout: Some(layout),
+        vertex: wgpu::VertexState {
+            module: shader,
+            entry_point: Some("vs_main"),
+            compilation_options: Default::default(),
+            buffers: &[Some(vertex_layout)],
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            front_face: wgpu::FrontFace::Ccw,
+            cull_mode: Some(wgpu::Face::Back),
+            ..Default::default()
+        },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH_FORMAT,
+            depth_write_enabled: Some(depth_write),
+            // Reverse Z: near = 1, far = 0, for precision over MuJoCo's wide near/far range.
+            depth_compare: Some(wgpu::CompareFunction::Greater),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: shader,
+            entry_point: Some("fs_main"),
+            compilation_options: wgpu::PipelineCompilationOptions { constants: &constants, ..Default::default() },
+            targets: &targets,
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn draw_one(
+    pass: &mut wgpu::RenderPass<'_>,
+    pipelines: &[wgpu::RenderPipeline; 4],
+    bound: &mut Option<u32>,
+    gm: &GpuModel,
+    draw_group: &wgpu::BindGroup,
+    i: usize,
+    d: &Draw,
+    lod: &CameraLod,
+) {
+    let mode = d.uniform.misc[0].min(3);
+    if *bound != Some(mode) {
+        pass.set_pipeline(&pipelines[mode as usize]);
+        *bound = Some(mode);
+    }
     pass.set_bind_group(1, draw_group, &[(i as u64 * DRAW_STRIDE) as u32]);
     pass.set_bind_group(2, &gm.texture_groups[d.texture_group], &[]);
     let (first, count) = lod.index_range(d);

@@ -75,8 +75,12 @@ fn vs_main(v: VsIn) -> VsOut {
     return o;
 }
 
+// The texture mode is a pipeline constant, not a uniform: a CPU rasteriser runs both sides of every branch under
+// a lane mask, so a per-draw `if` on a uniform would sample all three textures for every fragment.
+override TEX_MODE: u32 = 0u;
+
 fn texture_color(i: VsOut) -> vec4<f32> {
-    let mode = draw.misc.x;
+    let mode = TEX_MODE;
     if (mode == 1u) {
         return textureSample(tex2d, samp, i.uv);
     } else if (mode == 2u) {
@@ -90,45 +94,62 @@ fn texture_color(i: VsOut) -> vec4<f32> {
     return vec4<f32>(1.0);
 }
 
+// The scene's light list is fixed per model, so its shape is a pipeline constant too: how many lights, and per
+// light (bit k) whether it is positional and whether it has a spot cone. Only the live paths are compiled.
+override LIGHT_COUNT: u32 = 0u;
+override LIGHT_POSITIONAL: u32 = 0u;
+override LIGHT_SPOT: u32 = 0u;
+
+fn light_term(k: u32, world: vec3<f32>, n: vec3<f32>, v: vec3<f32>, rgb: vec3<f32>) -> vec3<f32> {
+    let l = cam.lights[k];
+    var ldir: vec3<f32>;
+    var att = 1.0;
+    if (((LIGHT_POSITIONAL >> k) & 1u) != 0u) {
+        let d = l.pos.xyz - world;
+        let dist = length(d);
+        ldir = d / max(dist, 1e-9);
+        att = 1.0 / max(l.atten.x + l.atten.y * dist + l.atten.z * dist * dist, 1e-9);
+        if (((LIGHT_SPOT >> k) & 1u) != 0u) {
+            let cs = dot(-ldir, normalize(l.dir.xyz));
+            if (cs < l.spot.x) {
+                att = 0.0;
+            } else {
+                att = att * pow(max(cs, 0.0), l.spot.y);
+            }
+        }
+    } else {
+        ldir = normalize(l.pos.xyz);
+    }
+    let ndl = dot(n, ldir);
+    var term = l.ambient.rgb * rgb;
+    if (ndl > 0.0) {
+        term = term + l.diffuse.rgb * rgb * ndl;
+        let h = normalize(ldir + v);
+        let ndh = max(dot(n, h), 0.0);
+        var sp = 0.0;
+        if (ndh > 0.0) {
+            sp = pow(ndh, draw.material.z);
+        }
+        term = term + l.specular.rgb * draw.material.y * sp;
+    }
+    return att * term;
+}
+
 fn lit(i: VsOut) -> vec3<f32> {
     let rgb = draw.rgba.rgb;
     var c = draw.material.x * rgb;
     let n = normalize(i.normal);
     let v = normalize(cam.eye.xyz - i.world);
-    for (var k = 0u; k < cam.counts.x; k = k + 1u) {
-        let l = cam.lights[k];
-        var ldir: vec3<f32>;
-        var att = 1.0;
-        if (l.pos.w > 0.5) {
-            let d = l.pos.xyz - i.world;
-            let dist = length(d);
-            ldir = d / max(dist, 1e-9);
-            att = 1.0 / max(l.atten.x + l.atten.y * dist + l.atten.z * dist * dist, 1e-9);
-            if (l.spot.z > 0.5) {
-                let cs = dot(-ldir, normalize(l.dir.xyz));
-                if (cs < l.spot.x) {
-                    att = 0.0;
-                } else {
-                    att = att * pow(max(cs, 0.0), l.spot.y);
-                }
-            }
-        } else {
-            ldir = normalize(l.pos.xyz);
-        }
-        let ndl = dot(n, ldir);
-        var term = l.ambient.rgb * rgb;
-        if (ndl > 0.0) {
-            term = term + l.diffuse.rgb * rgb * ndl;
-            let h = normalize(ldir + v);
-            let ndh = max(dot(n, h), 0.0);
-            var sp = 0.0;
-            if (ndh > 0.0) {
-                sp = pow(ndh, draw.material.z);
-            }
-            term = term + l.specular.rgb * draw.material.y * sp;
-        }
-        c = c + att * term;
-    }
+    // Unrolled by hand: each call is kept or dropped by a constant, in the light list's order.
+    if (LIGHT_COUNT > 0u) { c = c + light_term(0u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 1u) { c = c + light_term(1u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 2u) { c = c + light_term(2u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 3u) { c = c + light_term(3u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 4u) { c = c + light_term(4u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 5u) { c = c + light_term(5u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 6u) { c = c + light_term(6u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 7u) { c = c + light_term(7u, i.world, n, v, rgb); }
+    if (LIGHT_COUNT > 8u) { c = c + light_term(8u, i.world, n, v, rgb); }
     return clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
 }
 
