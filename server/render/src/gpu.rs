@@ -1,7 +1,7 @@
 //! The wgpu renderer: one per process, shared by all episodes. Models are uploaded once
 //! ([`Renderer::prepare_scene`]); a frame uploads only per-geom poses and per-camera uniforms, renders
 //! every requested camera in one submission and reads RGB, linear depth and segmentation back.
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 
@@ -119,6 +119,13 @@ impl ModelHandle {
     pub fn id(&self) -> u64 {
         self.id
     }
+    /// Triangles of a geom's exact shape, then of each simplified level (fine to coarse); `None` for a geom
+    /// that is not drawn.
+    pub fn geom_triangle_levels(&self, geom: usize) -> Option<Vec<u32>> {
+        let shape = self.gpu.geom_shapes.get(geom)?.as_ref()?;
+        let levels = shape.lods.ranges().iter().map(|l| l.index_count / 3);
+        Some(std::iter::once(shape.vertex_count / 3).chain(levels).collect())
+    }
 }
 
 /// What to draw for one geom or site.
@@ -151,6 +158,9 @@ impl LodRanges {
     }
 }
 
+/// A mesh whose corners carry on average at least this many distinct normals is simplified as faceted.
+const FACETED_NORMALS_PER_CORNER: usize = 2;
+
 /// The model's shared vertex and index buffers as they are assembled.
 #[derive(Default)]
 struct GeometryBuilder {
@@ -164,42 +174,76 @@ impl GeometryBuilder {
     fn push_soup(&mut self, soup: Vec<Vertex>) -> (u32, u32) {
         let first = self.indices.len() as u32;
         for vert in soup {
-            let key: [u32; 8] = bytemuck::cast(vert);
-            let idx = *self.seen.entry(key).or_insert_with(|| {
-                self.vertices.push(vert);
-                self.vertices.len() as u32 - 1
-            });
-            self.indices.push(idx);
+            self.push_vertex(vert);
         }
         (first, self.indices.len() as u32 - first)
     }
 
-    /// Appends a mesh and its simplified levels (indices of the same vertices).
+    /// Appends a mesh and its simplified levels.
+    ///
+    /// Faceted meshes (robosuite's Panda links among them) carry a normal per face corner, so no edge could
+    /// collapse without crossing a normal seam and they would never get a coarser level. For them the
+    /// simplifier works on corners welded by position and texture coordinate, and each corner of a simplified
+    /// triangle takes, of the normals the mesh had there, the one closest to the simplified triangle's own
+    /// normal. Smooth meshes keep their normals as seams (their shading, textured ones especially, changes less).
     fn push_mesh(&mut self, soup: Vec<Vertex>) -> ((u32, u32), LodRanges) {
-        let exact = self.push_soup(soup);
-        let global = &self.indices[exact.0 as usize..(exact.0 + exact.1) as usize];
-        // Local numbering for the simplifier, whose work is proportional to the vertex count it is given.
-        let mut local_of: HashMap<u32, u32> = HashMap::new();
-        let mut local_vertices = Vec::new();
-        let mut global_of = Vec::new();
-        let local_indices: Vec<u32> = global
+        let weld_key = |v: &Vertex, with_normal: bool| -> [u32; 8] {
+            let n = if with_normal { v.normal } else { [0.0; 3] };
+            bytemuck::cast([v.pos[0], v.pos[1], v.pos[2], n[0], n[1], n[2], v.uv[0], v.uv[1]])
+        };
+        let corners_with_normal: HashSet<[u32; 8]> = soup.iter().map(|v| weld_key(v, true)).collect();
+        let corners: HashSet<[u32; 8]> = soup.iter().map(|v| weld_key(v, false)).collect();
+        let faceted = corners_with_normal.len() >= FACETED_NORMALS_PER_CORNER * corners.len();
+        let mut welded_of: HashMap<[u32; 8], u32> = HashMap::new();
+        let mut welded: Vec<Vertex> = Vec::new();
+        let mut corner_normals: Vec<Vec<[f32; 3]>> = Vec::new();
+        let welded_indices: Vec<u32> = soup
             .iter()
-            .map(|&g| {
-                *local_of.entry(g).or_insert_with(|| {
-                    local_vertices.push(self.vertices[g as usize]);
-                    global_of.push(g);
-                    global_of.len() as u32 - 1
-                })
+            .map(|v| {
+                let w = *welded_of.entry(weld_key(v, !faceted)).or_insert_with(|| {
+                    welded.push(*v);
+                    corner_normals.push(Vec::new());
+                    welded.len() as u32 - 1
+                });
+                let normals = &mut corner_normals[w as usize];
+                if !normals.contains(&v.normal) {
+                    normals.push(v.normal);
+                }
+                w
             })
             .collect();
+        let exact = self.push_soup(soup);
         let mut lods = LodRanges::default();
-        for level in lod::simplified_levels(&local_vertices, &local_indices) {
+        for level in lod::simplified_levels(&welded, &welded_indices) {
             let first_index = self.indices.len() as u32;
-            self.indices.extend(level.indices.iter().map(|&l| global_of[l as usize]));
-            lods.levels[lods.count] = lod::LevelRange { first_index, index_count: level.indices.len() as u32, error_m: level.error_m };
+            for tri in level.indices.chunks_exact(3) {
+                let p = |k: usize| Vec3::from(welded[tri[k] as usize].pos);
+                let face = (p(1) - p(0)).cross(p(2) - p(0));
+                for &w in tri {
+                    let mut corner = welded[w as usize];
+                    corner.normal = corner_normals[w as usize]
+                        .iter()
+                        .copied()
+                        .max_by(|a, b| face.dot(Vec3::from(*a)).total_cmp(&face.dot(Vec3::from(*b))))
+                        .unwrap_or(corner.normal);
+                    self.push_vertex(corner);
+                }
+            }
+            let index_count = self.indices.len() as u32 - first_index;
+            lods.levels[lods.count] = lod::LevelRange { first_index, index_count, error_m: level.error_m };
             lods.count += 1;
         }
         (exact, lods)
+    }
+
+    /// Appends one corner, sharing an identical vertex already in the buffer.
+    fn push_vertex(&mut self, vert: Vertex) {
+        let key: [u32; 8] = bytemuck::cast(vert);
+        let idx = *self.seen.entry(key).or_insert_with(|| {
+            self.vertices.push(vert);
+            self.vertices.len() as u32 - 1
+        });
+        self.indices.push(idx);
     }
 }
 

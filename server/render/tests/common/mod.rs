@@ -65,13 +65,18 @@ pub fn load_model(xml: &Path) -> Arc<MjModel> {
 
 /// Our frames of both cameras at the model's default state (qpos0 + mj_forward).
 pub fn render_ours(renderer: &Renderer, model: &Arc<MjModel>) -> (Vec<CameraFrame>, FrameState) {
+    render_ours_with(renderer, model, &RenderOptions::default())
+}
+
+/// [`render_ours`] with other options (exact meshes: `mesh_lod_pixel_error: 0.0`).
+pub fn render_ours_with(renderer: &Renderer, model: &Arc<MjModel>, options: &RenderOptions) -> (Vec<CameraFrame>, FrameState) {
     let handle = renderer.prepare_model(model).expect("prepare model");
     let mut data = MjData::new(model.clone());
     data.forward();
     let mut state = FrameState::from_mujoco(model, &data);
     state.apply_robosuite_site_hiding(handle.scene());
     let reqs: Vec<CameraRequest> = CAMERAS.iter().map(|c| CameraRequest::named(c, SIZE, SIZE, Outputs::ALL)).collect();
-    let frames = renderer.render(&handle, &state, &reqs, &RenderOptions::default()).expect("render");
+    let frames = renderer.render(&handle, &state, &reqs, options).expect("render");
     (frames, state)
 }
 
@@ -153,7 +158,10 @@ pub fn save_ours(scene: &Path, frames: &[CameraFrame]) {
 /// Everything the metric tests compare, computed once per test binary.
 pub struct SceneComparison {
     pub name: String,
+    /// With the default options, as episodes render.
     pub ours: Vec<CameraFrame>,
+    /// With exact meshes (no levels of detail).
+    pub ours_exact: Vec<CameraFrame>,
     pub reference: Vec<Reference>,
 }
 
@@ -166,9 +174,11 @@ pub fn comparisons() -> &'static [SceneComparison] {
             .map(|scene| {
                 let model = load_model(scene);
                 let (ours, _) = render_ours(&renderer, &model);
+                let exact = RenderOptions { mesh_lod_pixel_error: 0.0, ..RenderOptions::default() };
+                let (ours_exact, _) = render_ours_with(&renderer, &model, &exact);
                 save_ours(scene, &ours);
                 let reference = reference(scene);
-                SceneComparison { name: scene.file_stem().unwrap().to_string_lossy().to_string(), ours, reference }
+                SceneComparison { name: scene.file_stem().unwrap().to_string_lossy().to_string(), ours, ours_exact, reference }
             })
             .collect()
     })
