@@ -3,19 +3,8 @@
 //! keeps the image and the depth map close to the exact meshes'. Needs no MuJoCo renderer, only the scenes' assets.
 mod common;
 
-use common::{CAMERAS, SIZE, load_model, psnr, scenes};
-use libero_render::{CameraFrame, CameraRequest, FrameState, Outputs, RenderOptions, Renderer};
-use mujoco_rs::prelude::{MjData, MjModel};
-
-fn render(renderer: &Renderer, model: &std::sync::Arc<MjModel>, options: &RenderOptions) -> Vec<CameraFrame> {
-    let handle = renderer.prepare_model(model).expect("prepare model");
-    let mut data = MjData::new(model.clone());
-    data.forward();
-    let mut state = FrameState::from_mujoco(model, &data);
-    state.apply_robosuite_site_hiding(handle.scene());
-    let reqs: Vec<CameraRequest> = CAMERAS.iter().map(|c| CameraRequest::named(c, SIZE, SIZE, Outputs::ALL)).collect();
-    renderer.render(&handle, &state, &reqs, options).expect("render")
-}
+use common::{CAMERAS, SIZE, load_model, psnr, render_ours_with, scenes};
+use libero_render::{RenderOptions, Renderer};
 
 /// Pixels that may change geom id, of 65,536. The budget is a quarter pixel, but a silhouette along a pixel row
 /// flips the whole row for any move, and the simplifier's error is an estimate (a thin rim can thin out).
@@ -42,8 +31,8 @@ fn default_levels_of_detail_move_few_silhouette_pixels_and_keep_image_and_depth(
     for scene in scenes() {
         let name = scene.file_stem().unwrap().to_string_lossy().to_string();
         let model = load_model(&scene);
-        let exact = render(&renderer, &model, &exact_options);
-        let lod = render(&renderer, &model, &RenderOptions::default());
+        let (exact, _) = render_ours_with(&renderer, &model, &exact_options);
+        let (lod, _) = render_ours_with(&renderer, &model, &RenderOptions::default());
         for (k, cam) in CAMERAS.iter().enumerate() {
             let (e, l) = (&exact[k], &lod[k]);
             let p = psnr(&e.rgb, &l.rgb);
