@@ -143,7 +143,24 @@ struct Shape {
     radius: f32,
     /// Simplified levels of a mesh (fine to coarse), chosen per camera by [`RenderOptions::mesh_lod_pixel_error`].
     lods: LodRanges,
+    /// The exact mesh's pieces (start and end in [`GpuModel::chunks`]), for culling a large mesh part by part.
+    chunks: (u32, u32),
 }
+
+/// A spatially compact piece of a large mesh's exact index range, with its bounding sphere (object frame).
+#[derive(Debug, Clone, Copy)]
+struct Chunk {
+    first_index: u32,
+    index_count: u32,
+    center: [f32; 3],
+    radius: f32,
+}
+
+/// Meshes with at least this many triangles are cut into chunks of [`CHUNK_TRIANGLES`]: a room's walls hold the
+/// camera inside their bounding sphere (so they are drawn exactly and never culled whole), yet most of them lies
+/// outside any one camera's view.
+const CHUNK_MIN_TRIANGLES: usize = 4096;
+const CHUNK_TRIANGLES: usize = 1024;
 
 /// Up to four simplified levels of one mesh inside the model's index buffer (fine to coarse).
 #[derive(Clone, Copy, Default)]
@@ -158,6 +175,18 @@ impl LodRanges {
     }
 }
 
+/// Interleaves the low 10 bits of three coordinates (a Morton code: nearby points get nearby codes).
+fn morton3(q: [f32; 3]) -> u32 {
+    let spread = |v: f32| {
+        let mut x = (v.clamp(0.0, 1023.0) as u32) & 0x3ff;
+        x = (x | (x << 16)) & 0x0300_00ff;
+        x = (x | (x << 8)) & 0x0300_f00f;
+        x = (x | (x << 4)) & 0x030c_30c3;
+        (x | (x << 2)) & 0x0924_9249
+    };
+    spread(q[0]) | (spread(q[1]) << 1) | (spread(q[2]) << 2)
+}
+
 /// A mesh whose corners carry on average at least this many distinct normals is simplified as faceted.
 const FACETED_NORMALS_PER_CORNER: usize = 2;
 
@@ -167,6 +196,7 @@ struct GeometryBuilder {
     vertices: Vec<Vertex>,
     indices: Vec<u32>,
     seen: HashMap<[u32; 8], u32>,
+    chunks: Vec<Chunk>,
 }
 
 impl GeometryBuilder {
@@ -181,12 +211,12 @@ impl GeometryBuilder {
 
     /// Appends a mesh and its simplified levels.
     ///
-    /// Faceted meshes (robosuite's Panda links among them) carry a normal per face corner, so no edge could
-    /// collapse without crossing a normal seam and they would never get a coarser level. For them the
-    /// simplifier works on corners welded by position and texture coordinate, and each corner of a simplified
-    /// triangle takes, of the normals the mesh had there, the one closest to the simplified triangle's own
-    /// normal. Smooth meshes keep their normals as seams (their shading, textured ones especially, changes less).
-    fn push_mesh(&mut self, soup: Vec<Vertex>) -> ((u32, u32), LodRanges) {
+    /// Normal seams would stop most collapses: faceted meshes (robosuite's Panda links among them) carry a normal
+    /// per face corner and never got a coarser level. So the simplifier works on corners welded by position and
+    /// texture coordinate, and each corner of a simplified triangle takes, of the normals the mesh had there, the
+    /// one closest to the simplified triangle's own normal. Smooth meshes that carry a 2D texture by their own
+    /// texture coordinates (`uv_textured`) keep their normal seams: simplifying across them distorts the texture.
+    fn push_mesh(&mut self, soup: Vec<Vertex>, uv_textured: bool) -> ((u32, u32), LodRanges, std::ops::Range<u32>) {
         let weld_key = |v: &Vertex, with_normal: bool| -> [u32; 8] {
             let n = if with_normal { v.normal } else { [0.0; 3] };
             bytemuck::cast([v.pos[0], v.pos[1], v.pos[2], n[0], n[1], n[2], v.uv[0], v.uv[1]])
@@ -194,13 +224,14 @@ impl GeometryBuilder {
         let corners_with_normal: HashSet<[u32; 8]> = soup.iter().map(|v| weld_key(v, true)).collect();
         let corners: HashSet<[u32; 8]> = soup.iter().map(|v| weld_key(v, false)).collect();
         let faceted = corners_with_normal.len() >= FACETED_NORMALS_PER_CORNER * corners.len();
+        let weld = faceted || !uv_textured;
         let mut welded_of: HashMap<[u32; 8], u32> = HashMap::new();
         let mut welded: Vec<Vertex> = Vec::new();
         let mut corner_normals: Vec<Vec<[f32; 3]>> = Vec::new();
         let welded_indices: Vec<u32> = soup
             .iter()
             .map(|v| {
-                let w = *welded_of.entry(weld_key(v, !faceted)).or_insert_with(|| {
+                let w = *welded_of.entry(weld_key(v, !weld)).or_insert_with(|| {
                     welded.push(*v);
                     corner_normals.push(Vec::new());
                     welded.len() as u32 - 1
@@ -213,6 +244,7 @@ impl GeometryBuilder {
             })
             .collect();
         let exact = self.push_soup(soup);
+        let chunks = self.cut_into_chunks(exact);
         let mut lods = LodRanges::default();
         for level in lod::simplified_levels(&welded, &welded_indices) {
             let first_index = self.indices.len() as u32;
@@ -233,7 +265,41 @@ impl GeometryBuilder {
             lods.levels[lods.count] = lod::LevelRange { first_index, index_count, error_m: level.error_m };
             lods.count += 1;
         }
-        (exact, lods)
+        (exact, lods, chunks)
+    }
+
+    /// Reorders a large exact range's triangles along a Morton curve of their centroids and cuts it into chunks
+    /// (the order of a mesh's own triangles decides only exact depth ties between them). Returns the range of
+    /// [`Self::chunks`] made, empty for a small mesh.
+    fn cut_into_chunks(&mut self, (first, count): (u32, u32)) -> std::ops::Range<u32> {
+        let start = self.chunks.len() as u32;
+        let range = first as usize..(first + count) as usize;
+        if count as usize / 3 < CHUNK_MIN_TRIANGLES {
+            return start..start;
+        }
+        let pos = |i: u32| Vec3::from(self.vertices[i as usize].pos);
+        let mut triangles: Vec<[u32; 3]> = self.indices[range.clone()].chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let centroid = |t: &[u32; 3]| (pos(t[0]) + pos(t[1]) + pos(t[2])) / 3.0;
+        let (lo, hi) = triangles.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), t| {
+            let c = centroid(t);
+            (lo.min(c), hi.max(c))
+        });
+        let extent = (hi - lo).max(Vec3::splat(1e-9));
+        triangles.sort_by_cached_key(|t| morton3(((centroid(t) - lo) / extent * 1023.0).to_array()));
+        self.indices[range].copy_from_slice(bytemuck::cast_slice(&triangles));
+        for (k, piece) in triangles.chunks(CHUNK_TRIANGLES).enumerate() {
+            let corners = piece.iter().flatten().map(|&i| pos(i));
+            let (lo, hi) = corners.clone().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(p), hi.max(p)));
+            let center = (lo + hi) / 2.0;
+            let radius = corners.map(|p| (p - center).length()).fold(0.0, f32::max);
+            self.chunks.push(Chunk {
+                first_index: first + (k * CHUNK_TRIANGLES * 3) as u32,
+                index_count: (piece.len() * 3) as u32,
+                center: center.to_array(),
+                radius,
+            });
+        }
+        start..self.chunks.len() as u32
     }
 
     /// Appends one corner, sharing an identical vertex already in the buffer.
@@ -251,6 +317,8 @@ struct GpuModel {
     scene: Arc<SceneModel>,
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
+    /// Pieces of the large meshes' exact ranges ([`Shape::chunks`]).
+    chunks: Vec<Chunk>,
     geom_shapes: Vec<Option<Shape>>,
     site_shapes: Vec<Option<Shape>>,
     /// One bind group per texture, and a last one with no texture.
@@ -571,7 +639,29 @@ impl Renderer {
         let cylinder = geo.push_soup(geometry::unit_cylinder(ns));
         let cube = geo.push_soup(geometry::unit_box());
         let plane = geo.push_soup(geometry::unit_plane(1));
-        let meshes: Vec<((u32, u32), LodRanges)> = scene.meshes.iter().map(|m| geo.push_mesh(geometry::mesh_vertices(m))).collect();
+        // Meshes some geom maps a 2D texture onto by their own texture coordinates: simplifying across their normal
+        // seams distorts the texture (a woven basket lost 2 dB against MuJoCo), so they keep them unless faceted.
+        let mut uv_textured = vec![false; scene.meshes.len()];
+        for g in &scene.geoms {
+            let texture = usize::try_from(g.matid)
+                .ok()
+                .and_then(|m| scene.materials.get(m))
+                .and_then(|m| usize::try_from(m.texid).ok())
+                .and_then(|t| scene.textures.get(t));
+            if let (Ok(mi), Some(t)) = (usize::try_from(g.dataid), texture)
+                && g.kind == GeomKind::Mesh
+                && t.kind == TextureKind::Tex2D
+                && let Some(flag) = uv_textured.get_mut(mi)
+            {
+                *flag = scene.meshes[mi].texcoords.is_some();
+            }
+        }
+        let meshes: Vec<((u32, u32), LodRanges, std::ops::Range<u32>)> = scene
+            .meshes
+            .iter()
+            .zip(&uv_textured)
+            .map(|(m, &uv_textured)| geo.push_mesh(geometry::mesh_vertices(m), uv_textured))
+            .collect();
         let zfar = scene.zfar_m as f32;
         let mesh_radius: Vec<f32> = scene
             .meshes
@@ -587,6 +677,7 @@ impl Renderer {
                 prescaled: false,
                 radius: 3f32.sqrt(),
                 lods: LodRanges::default(),
+                chunks: (0, 0),
             };
             match d.kind {
                 GeomKind::Sphere => Some(unit(sphere, [s[0], s[0], s[0]])),
@@ -607,20 +698,21 @@ impl Renderer {
                         prescaled: true,
                         radius: s[0] + s[1],
                         lods: LodRanges::default(),
+                        chunks: (0, 0),
                     })
                 }
                 GeomKind::Mesh => {
                     let mi = usize::try_from(d.dataid).ok()?;
-                    let &((first_vertex, vertex_count), lods) = meshes.get(mi)?;
+                    let ((first_vertex, vertex_count), lods, chunks) = meshes.get(mi)?.clone();
                     let radius = mesh_radius.get(mi).copied().unwrap_or(f32::INFINITY);
-                    Some(Shape { first_vertex, vertex_count, scale: [1.0; 3], prescaled: true, radius, lods })
+                    Some(Shape { first_vertex, vertex_count, scale: [1.0; 3], prescaled: true, radius, lods, chunks: (chunks.start, chunks.end) })
                 }
                 GeomKind::HField | GeomKind::Other => None,
             }
         };
         let geom_shapes: Vec<Option<Shape>> = scene.geoms.iter().map(&mut shape_of).collect();
         let site_shapes: Vec<Option<Shape>> = scene.sites.iter().map(&mut shape_of).collect();
-        let GeometryBuilder { vertices, indices, .. } = geo;
+        let GeometryBuilder { vertices, indices, chunks, .. } = geo;
         let vertex_bytes: &[u8] = bytemuck::cast_slice(&vertices);
         let vbuf = inner.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("model vertices"),
@@ -662,6 +754,7 @@ impl Renderer {
                 scene: Arc::new(scene.without_bulk_data()),
                 vertices: vbuf,
                 indices: ibuf,
+                chunks,
                 geom_shapes,
                 site_shapes,
                 texture_groups,
@@ -905,10 +998,10 @@ impl Renderer {
                 pass.set_index_buffer(gm.indices.slice(..), wgpu::IndexFormat::Uint32);
                 let mut transparent = Vec::new();
                 let mut opaque = Vec::with_capacity(draws.len());
-                let frustum = cull_params(scene, state, cams[slot], r.width, r.height);
+                let frustum = Frustum::new(scene, state, cams[slot], r.width, r.height);
                 let lod = CameraLod::new(eye, scene.cameras[cams[slot]].fovy_deg, r.height, options.mesh_lod_pixel_error);
                 for (i, d) in draws.iter().enumerate() {
-                    if !in_frustum(&frustum.0, frustum.1, frustum.2, frustum.3, frustum.4, d.center, d.cull_radius) {
+                    if !frustum.may_see(Vec3::from(d.center), d.cull_radius) {
                         continue;
                     }
                     let distance_m = (Vec3::from(d.center) - eye).length();
@@ -923,14 +1016,14 @@ impl Renderer {
                 opaque.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
                 let mut bound = None;
                 for &(_, i) in &opaque {
-                    draw_one(&mut pass, opaque_pipelines, &mut bound, gm, &draw_group, i, &draws[i], &lod);
+                    draw_one(&mut pass, opaque_pipelines, &mut bound, gm, &draw_group, i, &draws[i], &lod, &frustum);
                 }
                 if !transparent.is_empty() {
                     // MuJoCo draws transparent geoms front-to-back, then back-to-front.
                     transparent.sort_by(|a, b| a.0.total_cmp(&b.0));
                     let mut bound = None;
                     for &(_, i) in transparent.iter().chain(transparent.iter().rev()) {
-                        draw_one(&mut pass, transparent_pipelines, &mut bound, gm, &draw_group, i, &draws[i], &lod);
+                        draw_one(&mut pass, transparent_pipelines, &mut bound, gm, &draw_group, i, &draws[i], &lod, &frustum);
                     }
                 }
             }
@@ -1141,6 +1234,7 @@ fn draw_one(
     i: usize,
     d: &Draw,
     lod: &CameraLod,
+    frustum: &Frustum,
 ) {
     let mode = d.uniform.misc[0].min(3);
     if *bound != Some(mode) {
@@ -1150,7 +1244,35 @@ fn draw_one(
     pass.set_bind_group(1, draw_group, &[(i as u64 * DRAW_STRIDE) as u32]);
     pass.set_bind_group(2, &gm.texture_groups[d.texture_group], &[]);
     let (first, count) = lod.index_range(d);
-    pass.draw_indexed(first..first + count, 0, 0..1);
+    let exact = first == d.shape.first_vertex && count == d.shape.vertex_count;
+    let chunks = gm.chunks.get(d.shape.chunks.0 as usize..d.shape.chunks.1 as usize).unwrap_or_default();
+    if !exact || chunks.is_empty() {
+        pass.draw_indexed(first..first + count, 0, 0..1);
+        return;
+    }
+    // The exact mesh, chunk by chunk: neighbouring visible chunks are one draw.
+    let model = Mat4::from_cols_array_2d(&d.uniform.model);
+    let scale = model.x_axis.truncate().length().max(model.y_axis.truncate().length()).max(model.z_axis.truncate().length());
+    let mut run: Option<std::ops::Range<u32>> = None;
+    for c in chunks {
+        let visible = frustum.may_see(model.transform_point3(Vec3::from(c.center)), c.radius * scale);
+        match (&mut run, visible) {
+            (Some(r), true) if r.end == c.first_index => r.end += c.index_count,
+            (_, true) => {
+                if let Some(r) = run.replace(c.first_index..c.first_index + c.index_count) {
+                    pass.draw_indexed(r, 0, 0..1);
+                }
+            }
+            (_, false) => {
+                if let Some(r) = run.take() {
+                    pass.draw_indexed(r, 0, 0..1);
+                }
+            }
+        }
+    }
+    if let Some(r) = run {
+        pass.draw_indexed(r, 0, 0..1);
+    }
 }
 
 /// Per camera: where it is and how coarse meshes may be drawn.
@@ -1316,16 +1438,37 @@ struct Draw {
     cull_radius: f32,
 }
 
-/// Whether a bounding sphere (world) can be inside a camera's view frustum.
-fn in_frustum(view: &Mat4, tan_x: f32, tan_y: f32, near: f32, far: f32, center: [f32; 3], r: f32) -> bool {
-    let p = view.transform_point3(Vec3::from(center));
-    let z = -p.z;
-    if z + r < near || z - r > far {
-        return false;
+/// One camera's view volume, for culling bounding spheres.
+struct Frustum {
+    view: Mat4,
+    tan_x: f32,
+    tan_y: f32,
+    near: f32,
+    far: f32,
+}
+
+impl Frustum {
+    fn new(scene: &SceneModel, s: &FrameState, cam: usize, w: u32, h: u32) -> Self {
+        let r = rot3(&s.cam_xmat[cam]);
+        let p = s.cam_xpos[cam];
+        let eye = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
+        let world_from_cam = Mat4::from_cols(r.x_axis.extend(0.0), r.y_axis.extend(0.0), r.z_axis.extend(0.0), eye.extend(1.0));
+        let tan_y = ((scene.cameras[cam].fovy_deg as f32).to_radians() / 2.0).tan();
+        let tan_x = tan_y * w as f32 / h as f32;
+        Self { view: world_from_cam.inverse(), tan_x, tan_y, near: scene.znear_m as f32, far: scene.zfar_m as f32 }
     }
-    let sx = (1.0 + tan_x * tan_x).sqrt();
-    let sy = (1.0 + tan_y * tan_y).sqrt();
-    (p.x.abs() - tan_x * z) / sx <= r && (p.y.abs() - tan_y * z) / sy <= r
+
+    /// Whether a sphere (world) can be inside the view volume.
+    fn may_see(&self, center: Vec3, r: f32) -> bool {
+        let p = self.view.transform_point3(center);
+        let z = -p.z;
+        if z + r < self.near || z - r > self.far {
+            return false;
+        }
+        let sx = (1.0 + self.tan_x * self.tan_x).sqrt();
+        let sy = (1.0 + self.tan_y * self.tan_y).sqrt();
+        (p.x.abs() - self.tan_x * z) / sx <= r && (p.y.abs() - self.tan_y * z) / sy <= r
+    }
 }
 
 fn check_state(scene: &SceneModel, s: &FrameState) -> Result<(), RenderError> {
@@ -1475,16 +1618,6 @@ fn collect_draws(gm: &GpuModel, s: &FrameState, vis: &Visibility) -> Vec<Draw> {
 }
 
 /// View matrix, tangents of the half field of view (x, y) and clip distances of one camera.
-fn cull_params(scene: &SceneModel, s: &FrameState, cam: usize, w: u32, h: u32) -> (Mat4, f32, f32, f32, f32) {
-    let r = rot3(&s.cam_xmat[cam]);
-    let p = s.cam_xpos[cam];
-    let eye = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
-    let world_from_cam = Mat4::from_cols(r.x_axis.extend(0.0), r.y_axis.extend(0.0), r.z_axis.extend(0.0), eye.extend(1.0));
-    let tan_y = ((scene.cameras[cam].fovy_deg as f32).to_radians() / 2.0).tan();
-    let tan_x = tan_y * w as f32 / h as f32;
-    (world_from_cam.inverse(), tan_x, tan_y, scene.znear_m as f32, scene.zfar_m as f32)
-}
-
 /// View/projection (reverse Z) and MuJoCo's light list (headlight first) for one camera.
 fn camera_uniform(scene: &SceneModel, s: &FrameState, cam: usize, w: u32, h: u32) -> (CameraUniform, Vec3) {
     let r = rot3(&s.cam_xmat[cam]);
