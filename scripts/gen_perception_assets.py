@@ -8,6 +8,7 @@ contype/conaffinity 0, so cue geoms (stripes, spots, marks, labels) never collid
 
 Run from the repository root: python3 scripts/gen_perception_assets.py
 """
+import math
 import os
 
 OUT = "assets/objects"
@@ -166,10 +167,33 @@ MATERIALS = {
         'texture="wood_checker" texrepeat="3 3" texuniform="true" specular="0.02" shininess="0.02" reflectance="0"',
         '    <texture name="wood_checker" type="2d" builtin="checker" rgb1="0.30 0.10 0.025" rgb2="0.72 0.42 0.12" '
         'width="64" height="64"/>\n'),
+    # the pool's question-bank buttons (vlabench_button 0-5), catalog §6.4 material presets
+    "glass": ('rgba="0.30 0.72 0.94 0.68" specular="0.85" shininess="0.90" reflectance="0.18"', ""),
+    "fused_silica": ('rgba="0.93 0.97 1.00 0.42" specular="0.75" shininess="0.85" reflectance="0.10"', ""),
+    "steel": ('rgba="0.86 0.88 0.91 1" specular="0.80" shininess="0.85" reflectance="0.38"', ""),
+    "dark_steel": ('rgba="0.30 0.31 0.33 1" specular="0.80" shininess="0.85" reflectance="0.38"', ""),
+    "aluminium": ('rgba="0.82 0.83 0.85 1" specular="0.50" shininess="0.50" reflectance="0.20"', ""),
+    "ptfe": ('rgba="0.96 0.96 0.94 1" specular="0.08" shininess="0.08" reflectance="0.02"', ""),
 }
 
+# Real densities (kg/m^3) of the candidates' materials; a candidate's mass is density x the volume of its cue shape.
+# Masses never reach the agent (the fixture is static, so they have no effect in the simulation either).
+DENSITY = {"black_rubber": 1200, "glass": 2500, "steel": 7850, "dark_steel": 7850, "polished_steel": 7850,
+           "unfinished_wood": 600, "painted_wood": 700, "ptfe": 2200, "fused_silica": 2200, "aluminium": 2700}
 
-def property_button(key, what, cue_type, cue_size, cue_pos, material, plate_half="0.075 0.045 0.004", cue_extra=""):
+
+def volume(cue_type, cue_size):
+    s = [float(v) for v in cue_size.split()]
+    if cue_type == "sphere":
+        return 4 / 3 * math.pi * s[0] ** 3
+    if cue_type == "cylinder":
+        return math.pi * s[0] ** 2 * 2 * s[1]
+    return 8 * s[0] * s[1] * s[2]
+
+
+def property_button(key, what, cue_type, cue_size, cue_pos, material, plate_half="0.075 0.045 0.004", cue_extra="",
+                    with_mass=False):
+    """`with_mass`: an invisible inertia-only copy of the cue (group 0, no contacts) carries density x volume."""
     attrs, extra = MATERIALS[material]
     assets = extra + f'    <material name="cue_{material}" {attrs}/>\n'
     body = vis("pairing_plate", "box", plate_half, "0 0 0.004", "0.40 0.45 0.52 1")
@@ -183,6 +207,12 @@ def property_button(key, what, cue_type, cue_size, cue_pos, material, plate_half
              'rgba="0 0 0 0" group="0"/>\n')
     body += '        <site name="button_default_site" type="sphere" size="0.002" pos="-0.045 0 0.085" rgba="0 0 0 0" group="0"/>\n'
     body += vis("candidate_visual", cue_type, cue_size, cue_pos, material=f"cue_{material}", extra=cue_extra)
+    if with_mass:
+        mass = DENSITY[material] * volume(cue_type, cue_size)
+        what += (f"\n     An invisible, contact-free copy of the cue carries its mass: {DENSITY[material]} kg/m^3 x its volume "
+                 f"({mass:.4f} kg).")
+        body += (f'        <geom name="candidate_mass" type="{cue_type}" size="{cue_size}" pos="{cue_pos}" mass="{mass:.4f}" '
+                 f'group="0" contype="0" conaffinity="0" rgba="0 0 0 0"{cue_extra}/>\n')
     d = os.path.join(OUT, key)
     os.makedirs(d, exist_ok=True)
     text = f"""<!-- {what}
@@ -231,7 +261,39 @@ for key, material, what in [
     # scene's overhead light and the camera is near its normal: our renderer has Blinn-Phong specular but no mirror
     # reflections (MuJoCo's `reflectance` is ignored), and a flat panel shows no highlight from the head camera
     property_button(key, f"T09 cue: a {what} panel 7 x 6 cm, tilted 25 deg toward the camera.", "box", "0.035 0.030 0.006",
-                    "0.077 0 0.062", material, plate_half="0.130 0.045 0.004", cue_extra=' euler="0 0.436 0"')
+                    "0.077 0 0.062", material, plate_half="0.130 0.045 0.004", cue_extra=' euler="0 0.436 0"',
+                    with_mass=True)
+
+# The pool's question-bank buttons (suite vlabench_button, tasks 0-5; task 6 uses the T09 panels above in another
+# order). Shapes follow the catalog's §6.4 variant table, except the friction pucks (r 2.8 cm, 2.4 cm thick: the
+# instruction says pucks; the catalog's cylinder is taller than wide), the sound rods (r 1.2 cm, 9 cm long, lying
+# along y: the instruction says rods) and the mass question, whose layout the catalog does not give (three red-painted
+# beech-wood shapes of clearly different volume). Each candidate's mass is its material's real density x its volume.
+BOX = ("box", "0.026 0.026 0.026", "0.045 0 0.066")
+CYL = ("cylinder", "0.024 0.026", "0.045 0 0.066")
+PUCK = ("cylinder", "0.028 0.012", "0.045 0 0.052")
+BAR = ("box", "0.017 0.017 0.034", "0.045 0 0.074")
+ROD = ("cylinder", "0.012 0.045", "0.045 0 0.052", ' euler="1.5708 0 0"')
+for family, shape, word, materials in [
+    ("density", BOX, "block 5.2 cm", [("rubber", "black_rubber"), ("glass", "glass"), ("steel", "steel")]),
+    ("magnetism", CYL, "cylinder r 2.4 cm, 5.2 cm tall", [("wood", "unfinished_wood"), ("steel", "steel"), ("glass", "glass")]),
+    ("friction", PUCK, "puck r 2.8 cm, 2.4 cm thick", [("ptfe", "ptfe"), ("wood", "unfinished_wood"), ("rubber", "black_rubber")]),
+    ("thermal", BAR, "bar 3.4 x 3.4 x 6.8 cm, standing", [("fused_silica", "fused_silica"), ("steel", "dark_steel"),
+                                                           ("aluminium", "aluminium")]),
+    ("sound", ROD, "rod r 1.2 cm, 9 cm long, lying across the image", [("rubber", "black_rubber"), ("glass", "glass"),
+                                                                       ("steel", "steel")]),
+]:
+    cue_type, cue_size, cue_pos, *rest = shape
+    for name, material in materials:
+        property_button(f"vlabench_property_{family}_{name}", f"vlabench_button ({family} question) cue: {material} {word}.",
+                        cue_type, cue_size, cue_pos, material, cue_extra=rest[0] if rest else "", with_mass=True)
+for name, cue_type, cue_size, cue_pos, word in [
+    ("ball", "sphere", "0.017", "0.045 0 0.057", "ball r 1.7 cm"),
+    ("cube", "box", "0.026 0.026 0.026", "0.045 0 0.066", "5.2 cm cube"),
+    ("cylinder", "cylinder", "0.032 0.040", "0.045 0 0.080", "cylinder r 3.2 cm, 8 cm tall"),
+]:
+    property_button(f"vlabench_property_mass_wood_{name}", f"vlabench_button (mass question) cue: red-painted wood {word}.",
+                    cue_type, cue_size, cue_pos, "painted_wood", with_mass=True)
 
 
 # ---- T08 (catalog §6.3): the weighing mug and the CompoSuite green target bin ----

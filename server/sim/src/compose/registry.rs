@@ -166,6 +166,26 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("vlabench_property_reflection_matte_gray", "objects/vlabench_property_reflection_matte_gray/vlabench_property_reflection_matte_gray.xml", 0.0),
     ("vlabench_property_reflection_polished_silver", "objects/vlabench_property_reflection_polished_silver/vlabench_property_reflection_polished_silver.xml", 0.0),
     ("vlabench_property_reflection_satin_gray", "objects/vlabench_property_reflection_satin_gray/vlabench_property_reflection_satin_gray.xml", 0.0),
+    // pool suite vlabench_button, tasks 0-5 (the question-bank buttons; task 6 uses T09's panels): the same button with
+    // the candidate each question names, written by scripts/gen_perception_assets.py
+    ("vlabench_property_density_rubber", "objects/vlabench_property_density_rubber/vlabench_property_density_rubber.xml", 0.0),
+    ("vlabench_property_density_glass", "objects/vlabench_property_density_glass/vlabench_property_density_glass.xml", 0.0),
+    ("vlabench_property_density_steel", "objects/vlabench_property_density_steel/vlabench_property_density_steel.xml", 0.0),
+    ("vlabench_property_magnetism_wood", "objects/vlabench_property_magnetism_wood/vlabench_property_magnetism_wood.xml", 0.0),
+    ("vlabench_property_magnetism_steel", "objects/vlabench_property_magnetism_steel/vlabench_property_magnetism_steel.xml", 0.0),
+    ("vlabench_property_magnetism_glass", "objects/vlabench_property_magnetism_glass/vlabench_property_magnetism_glass.xml", 0.0),
+    ("vlabench_property_friction_ptfe", "objects/vlabench_property_friction_ptfe/vlabench_property_friction_ptfe.xml", 0.0),
+    ("vlabench_property_friction_wood", "objects/vlabench_property_friction_wood/vlabench_property_friction_wood.xml", 0.0),
+    ("vlabench_property_friction_rubber", "objects/vlabench_property_friction_rubber/vlabench_property_friction_rubber.xml", 0.0),
+    ("vlabench_property_thermal_fused_silica", "objects/vlabench_property_thermal_fused_silica/vlabench_property_thermal_fused_silica.xml", 0.0),
+    ("vlabench_property_thermal_steel", "objects/vlabench_property_thermal_steel/vlabench_property_thermal_steel.xml", 0.0),
+    ("vlabench_property_thermal_aluminium", "objects/vlabench_property_thermal_aluminium/vlabench_property_thermal_aluminium.xml", 0.0),
+    ("vlabench_property_sound_rubber", "objects/vlabench_property_sound_rubber/vlabench_property_sound_rubber.xml", 0.0),
+    ("vlabench_property_sound_glass", "objects/vlabench_property_sound_glass/vlabench_property_sound_glass.xml", 0.0),
+    ("vlabench_property_sound_steel", "objects/vlabench_property_sound_steel/vlabench_property_sound_steel.xml", 0.0),
+    ("vlabench_property_mass_wood_ball", "objects/vlabench_property_mass_wood_ball/vlabench_property_mass_wood_ball.xml", 0.0),
+    ("vlabench_property_mass_wood_cube", "objects/vlabench_property_mass_wood_cube/vlabench_property_mass_wood_cube.xml", 0.0),
+    ("vlabench_property_mass_wood_cylinder", "objects/vlabench_property_mass_wood_cylinder/vlabench_property_mass_wood_cylinder.xml", 0.0),
     // T08 (task catalog §6.3): one weighing-mug category for all three mugs (masses are private, set per episode) and
     // the green target bin, written by scripts/gen_perception_assets.py
     ("clier_weighing_mug", "objects/clier_weighing_mug/clier_weighing_mug.xml", 0.0),

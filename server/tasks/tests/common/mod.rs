@@ -6,7 +6,7 @@ use libero_sim::compose::{ComposedScene, compose_file};
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, Simulation};
 use libero_tasks::pool::Runs;
-use libero_tasks::{EvaluationRecord, Pool, Tick, build_evaluator};
+use libero_tasks::{EvaluationRecord, Evaluator, Pool, Tick, build_evaluator};
 
 /// A task scene composed from `bddl`, placed with LIBERO's seed-100 sampler (the seed the release tasks without
 /// trusted init states use), and a simulation starting from that placement.
@@ -32,9 +32,9 @@ pub fn as_sent(a: [f64; 7]) -> [f64; 7] {
     a.map(|x| ((x * 1e6).round() / 1e6).clamp(-1.0, 1.0))
 }
 
-/// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator.
-#[allow(dead_code)] // not every test binary plays an expert
-pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
+/// An entry's own scene settled like an episode start (10 zero-action steps), and its evaluator reset there.
+#[allow(dead_code)] // not every test binary starts an entry
+pub fn start(entry: &str) -> (String, ComposedScene, Simulation, Box<dyn Evaluator>) {
     let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
     let pool = Pool::discover().expect("tasks/pool.json loads and validates");
     let e = pool.get(entry).unwrap();
@@ -45,7 +45,25 @@ pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
     }
     let mut evaluator = build_evaluator(Some(&checker), Some(&e.reference()), &scene, sim.model()).unwrap();
     evaluator.reset(sim.data(), Tick::at_control_step(0, 0.0));
-    let mut script = libero_tasks::expert_for(&e.reference(), behaviour, &scene, sim.model()).unwrap();
+    (e.reference(), scene, sim, evaluator)
+}
+
+/// An entry's evaluator on an idle robot (zero actions) for `steps` control steps from its start.
+#[allow(dead_code)] // not every test binary judges an idle start
+pub fn idle(entry: &str, steps: u64) -> EvaluationRecord {
+    let (_, _, mut sim, mut evaluator) = start(entry);
+    for k in 1..=steps {
+        sim.step([0.0; 7]).unwrap();
+        evaluator.observe_control_step(sim.data(), Tick::at_control_step(k, 0.05 * k as f64));
+    }
+    evaluator.finish(sim.data(), Tick::at_control_step(steps, 0.05 * steps as f64))
+}
+
+/// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator.
+#[allow(dead_code)] // not every test binary plays an expert
+pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
+    let (reference, scene, mut sim, mut evaluator) = start(entry);
+    let mut script = libero_tasks::expert_for(&reference, behaviour, &scene, sim.model()).unwrap();
     let mut step = 0u64;
     while let Some(action) = script.act(&sim) {
         sim.step(as_sent(action)).unwrap();

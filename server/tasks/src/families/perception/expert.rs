@@ -2,8 +2,8 @@
 //! reads privileged state) and has a `wrong_target` behaviour that does the same thing to a distractor: it must fail,
 //! and its first commitment must be judged wrong (`judgment_correct == false`).
 //!
-//! Button family (T06, T09, T10): press and hold the paired button's cap (the T13 press); `wrong_target` presses
-//! another button the same way.
+//! Button family (T06, T09, T10, and the pool's seven `vlabench_button` questions on their own definitions): press
+//! and hold the paired button's cap (the T13 press); `wrong_target` presses another button the same way.
 //!
 //! Bin family (T01, T03, T04, T05, T07, and T02 with LIBERO's basket): grasp the candidate from above, lift it clear of the bin walls, carry it
 //! over the bin, lower it inside, let go, retreat.
@@ -65,12 +65,21 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
     })
 }
 
-/// Button family (T06, T09, T10): `(target, the button wrong_target presses)`.
+/// Button family (T06, T09, T10 and the pool's question-bank buttons, `vlabench_button` tasks 0–6, by their pool
+/// reference): `(target, the button wrong_target presses)`. The pool entries' target follows the physical property
+/// asked (the same button as their private `checker_params`); wrong_target presses the runner-up.
 fn button_task(task_id: &str) -> Option<(&'static str, &'static str)> {
     Some(match task_id {
         "T06" => ("button_1", "button_2"),
         "T09" => ("button_2", "button_3"),
         "T10" => ("button_3", "button_2"),
+        "vlabench_button/select_highest_density" => ("button_3", "button_2"),
+        "vlabench_button/select_smallest_mass" => ("button_2", "button_1"),
+        "vlabench_button/select_magnetic_material" => ("button_2", "button_3"),
+        "vlabench_button/select_lowest_friction" => ("button_1", "button_2"),
+        "vlabench_button/select_least_thermal_expansion" => ("button_1", "button_2"),
+        "vlabench_button/select_slowest_sound" => ("button_1", "button_2"),
+        "vlabench_button/select_highest_reflectance" => ("button_3", "button_2"),
         _ => return None,
     })
 }
