@@ -87,12 +87,71 @@ fn bench_ours(xml: &Path, frames: usize, size: u32) -> anyhow::Result<Value> {
     }
     let wall = t0.elapsed().as_secs_f64();
     let cpu = process_cpu_s() - c0;
+    #[cfg(feature = "episode-serve")]
+    let publication = bench_publication(&renderer, &handle, &model, &data, (frames / 4).max(20), size)?;
+    #[cfg(not(feature = "episode-serve"))]
+    let publication = Value::Null;
     Ok(json!({
         "renderer": format!("libero-render wgpu ({})", renderer.adapter_description()),
         "build": if cfg!(debug_assertions) { "debug" } else { "release" },
         "frames": frames, "cameras": CAMERAS, "size": size, "outputs": "rgb+depth",
         "wall_s": wall, "fps": frames as f64 / wall, "cpu_s": cpu, "fps_per_cpu_s": frames as f64 / cpu,
         "renderer_init_s": init_s, "prepare_model_s": prepare_s,
+        "observation_publication": publication,
+    }))
+}
+
+/// The whole level-3 observation publication an episode does after each call, beside the bare render: both
+/// cameras (RGB + depth), then PNGs, `.npy` depth, masks and previews, `observation.json`, the evaluator-private
+/// copy and the atomic swap into a workspace (`libero_episode`'s own publisher, on a temporary workspace).
+#[cfg(feature = "episode-serve")]
+fn bench_publication(
+    renderer: &Renderer,
+    handle: &libero_render::ModelHandle,
+    model: &Arc<MjModel>,
+    data: &MjData<Arc<MjModel>>,
+    frames: usize,
+    size: u32,
+) -> anyhow::Result<Value> {
+    use libero_episode::observation::{CameraFrame, Frame, Level, RgbImage, RobotReadout};
+    use libero_episode::publish::ObservationPublisher;
+    let dir = tempfile::tempdir().context("creating a temporary workspace")?;
+    let (workspace, private) = (dir.path().join("workspace"), dir.path().join("private"));
+    std::fs::create_dir_all(&workspace)?;
+    std::fs::create_dir_all(&private)?;
+    let mut publisher = ObservationPublisher::open(&workspace)?;
+    let reqs: Vec<CameraRequest> = CAMERAS.iter().map(|c| CameraRequest::named(c, size, size, Outputs::RGB_DEPTH)).collect();
+    let opts = RenderOptions::default();
+    let (mut render_ms, mut publish_ms, mut total_ms) = (Vec::new(), Vec::new(), Vec::new());
+    for frame_index in 0..frames as u64 {
+        let t0 = Instant::now();
+        let cams = renderer.render(handle, &FrameState::from_mujoco(model, data), &reqs, &opts)?;
+        let t1 = Instant::now();
+        let mut cams = cams.into_iter().map(|f| CameraFrame {
+            image: RgbImage { width: f.width, height: f.height, rgb: f.rgb },
+            depth_m: f.depth_m,
+            depth_valid: f.depth_valid,
+            intrinsic_matrix_3x3: f.calibration.K,
+            t_robot_base_from_camera: f.calibration.T_robot_base_from_camera.unwrap_or_default(),
+        });
+        let (Some(head), Some(wrist)) = (cams.next(), cams.next()) else { bail!("expected two camera frames") };
+        let frame = Frame { frame_index, robot: RobotReadout::default(), head, wrist, task_reference: None };
+        publisher.publish(&frame, Level::L3, Some(&private))?;
+        let t2 = Instant::now();
+        render_ms.push((t1 - t0).as_secs_f64() * 1e3);
+        publish_ms.push((t2 - t1).as_secs_f64() * 1e3);
+        total_ms.push((t2 - t0).as_secs_f64() * 1e3);
+    }
+    let p50 = |v: &mut Vec<f64>| crate::bench_mcp::percentile_ms(v, 50.0);
+    let total_p50 = p50(&mut total_ms);
+    Ok(json!({
+        "level": 3,
+        "frames": frames,
+        "render_ms_p50": p50(&mut render_ms),
+        "publish_ms_p50": p50(&mut publish_ms),
+        "render_plus_publish_ms_p50": total_p50,
+        "observations_per_s_p50": 1e3 / total_p50,
+        "what": "render both cameras, then PNG, .npy, masks, previews, observation.json, the private copy and the atomic swap",
     }))
 }
 

@@ -147,3 +147,24 @@ fn bench_sim_prints_json_with_the_cost_ratio() {
     assert!(ratio.is_finite() && ratio > 0.0, "{v}");
     assert!(v.to_string().contains("KITCHEN_SCENE10"), "{v}");
 }
+
+/// `bench render --json` times both cameras against MuJoCo's renderer in the same run and, beside them, the whole
+/// level-3 observation publication; it prints the figures and asserts nothing about time.
+#[test]
+fn bench_render_prints_the_speedup_and_the_level3_publication() {
+    let out = run_ok(bin().args(["bench", "render", "--json", "--frames", "8"]));
+    let v: Value = serde_json::from_slice(&out.stdout).expect("bench prints JSON");
+    let speedup = v["speedup_vs_mujoco"].as_f64().expect("speedup_vs_mujoco");
+    assert!(speedup.is_finite() && speedup > 0.0, "{v}");
+    assert_eq!(v["libero_render"]["outputs"], "rgb+depth", "{v}");
+    let publication = &v["libero_render"]["observation_publication"];
+    assert_eq!(publication["level"], 3, "{v}");
+    for field in ["render_ms_p50", "publish_ms_p50", "render_plus_publish_ms_p50"] {
+        let ms = publication[field].as_f64().unwrap_or(f64::NAN);
+        assert!(ms.is_finite() && ms > 0.0, "{field}: {v}");
+    }
+    assert!(
+        publication["render_plus_publish_ms_p50"].as_f64() >= publication["render_ms_p50"].as_f64(),
+        "publication includes its render: {v}"
+    );
+}
