@@ -21,9 +21,12 @@ pub enum Format {
 
 #[derive(clap::Args, Debug)]
 pub struct ReportArgs {
-    /// Batch directories written by `libero-agent run`.
+    /// Batch directories written by `libero-agent run`; with `--store`, batch names in that store.
     #[arg(required = true)]
     pub batches: Vec<PathBuf>,
+    /// Read the batches from this store (`sqlite://PATH`, `postgres://…`) as `run --store` wrote them, by name.
+    #[arg(long, value_name = "URL")]
+    pub store: Option<String>,
     #[arg(long, value_enum, default_value = "markdown")]
     pub format: Format,
     /// Rollouts per task the stable rule needs.
@@ -278,7 +281,13 @@ pub fn run(args: ReportArgs) -> anyhow::Result<()> {
     if args.reps == 0 {
         bail!("--reps must be at least 1");
     }
-    let batches = args.batches.iter().map(|d| load_batch(d)).collect::<anyhow::Result<Vec<_>>>()?;
+    let batches = match &args.store {
+        Some(url) => {
+            let names: Vec<String> = args.batches.iter().map(|n| n.to_string_lossy().into_owned()).collect();
+            crate::run::batch::load_batches_from_store(url, &names)?
+        }
+        None => args.batches.iter().map(|d| load_batch(d)).collect::<anyhow::Result<Vec<_>>>()?,
+    };
     let out = match args.format {
         Format::Markdown => markdown(&batches, args.reps),
         Format::Csv => csv(&batches, args.reps),

@@ -10,6 +10,9 @@ use std::process::{Command, Output};
 
 use serde_json::Value;
 
+mod common;
+use common::postgres::TestPostgres;
+
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
 }
@@ -65,6 +68,8 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
     let batch = dir.path().join("batch");
     let workspaces = dir.path().join("workspaces");
     let cmd = agent_cmd(&batch);
+    // The batch is also written to a real PostgreSQL (`run --store`), and reported from there below.
+    let pg = TestPostgres::start();
     let run_args = |model: &str, resume: bool| {
         let mut a = vec![
             "run", "--experiment", "main_table", "--harness", "command", "--model", model, "--tasks", "T14", "--reps", "2",
@@ -74,6 +79,7 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
         .map(str::to_owned)
         .collect::<Vec<_>>();
         a.extend(["--batch".into(), batch.display().to_string(), "--workspace-root".into(), workspaces.display().to_string()]);
+        a.extend(["--store".into(), pg.url.clone()]);
         if resume {
             a.push("--resume".into());
         }
@@ -90,6 +96,14 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
     assert_eq!((planned[1]["task"].as_str(), planned[1]["repetition"].as_u64()), (Some("T14"), Some(2)));
     assert_eq!((planned[0]["level"].as_u64(), planned[0]["demo"].as_str()), (Some(3), Some("none")));
     assert!(!batch.exists(), "a dry run launches and writes nothing");
+
+    // A store that cannot be opened stops the run before anything is written.
+    let mut bad = run_args("reference", false);
+    *bad.last_mut().unwrap() = "mysql://u:hunter2@127.0.0.1/db".into();
+    let out = libero(&as_refs(&bad));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("expected sqlite://PATH or postgres://") && !err.contains("hunter2"), "{err}");
+    assert!(!batch.exists(), "nothing written for a bad store");
 
     // The batch.
     let out = libero(&as_refs(&run_args("reference", false)));
@@ -141,6 +155,16 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
         let out = libero(&["report", batch.to_str().unwrap(), "--format", format]);
         assert!(out.status.success() && String::from_utf8_lossy(&out.stdout).to_lowercase().contains("short"), "{format}");
     }
+    // The same report from the store, without the batch directory: byte for byte, in every format.
+    for format in ["json", "markdown", "csv"] {
+        let from_dir = libero(&["report", batch.to_str().unwrap(), "--format", format, "--reps", "2"]);
+        let from_store = libero(&["report", "--store", &pg.url, "batch", "--format", format, "--reps", "2"]);
+        assert!(from_store.status.success(), "{}", String::from_utf8_lossy(&from_store.stderr));
+        assert_eq!(String::from_utf8_lossy(&from_store.stdout), String::from_utf8_lossy(&from_dir.stdout), "{format}");
+    }
+    let out = libero(&["report", "--store", &pg.url, "no-such-batch", "--format", "json"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("no batch \"no-such-batch\"") && err.contains("batch"), "{err}");
 
     // Resume: nothing left to run; changed settings refused; a second run without --resume refused.
     let out = libero(&as_refs(&run_args("reference", true)));

@@ -214,6 +214,56 @@ pub fn load_batch(dir: &Path) -> anyhow::Result<LoadedBatch> {
     Ok(LoadedBatch { dir: dir.to_path_buf(), batch, records: read_records(dir)? })
 }
 
+/// The batch in a shared store (`run --store URL`): after every change to the batch directory the runner writes
+/// `batch.json`'s document and the new `rollouts.jsonl` records there too, so that `report --store URL NAME` (on any
+/// machine) reads the batch without its files. The directory stays the source of truth.
+pub struct StoreMirror {
+    runtime: tokio::runtime::Runtime,
+    store: crate::serve::store::Store,
+}
+
+impl StoreMirror {
+    pub fn connect(url: &str) -> anyhow::Result<Self> {
+        let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
+        let store = runtime.block_on(crate::serve::store::Store::connect(url))?;
+        Ok(Self { runtime, store })
+    }
+
+    /// Writes the batch directory's current state to the store.
+    pub fn sync(&self, dir: &Path) -> anyhow::Result<()> {
+        let b = load_batch(dir)?;
+        let stored = crate::serve::store::StoredBatch {
+            name: b.name(),
+            dir: b.dir.clone(),
+            doc: b.batch,
+            records: b.records.iter().map(serde_json::to_value).collect::<Result<_, _>>()?,
+        };
+        self.runtime.block_on(self.store.put_batch(&stored))
+    }
+}
+
+/// Reads batches by name from a store (`report --store URL NAME…`), in the shape [`load_batch`] gives.
+pub fn load_batches_from_store(url: &str, names: &[String]) -> anyhow::Result<Vec<LoadedBatch>> {
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    runtime.block_on(async {
+        let store = crate::serve::store::Store::connect(url).await?;
+        let mut out = Vec::with_capacity(names.len());
+        for name in names {
+            let Some(b) = store.batch(name).await? else {
+                let known = store.batch_names().await?;
+                bail!("the store {} has no batch {name:?} (it has: {})", crate::serve::store::redact(url), known.join(", "));
+            };
+            if b.doc["schema_version"] != BATCH_SCHEMA {
+                bail!("batch {name} in the store: schema_version {}, expected {BATCH_SCHEMA}", b.doc["schema_version"]);
+            }
+            let records = b.records.into_iter().map(serde_json::from_value).collect::<Result<Vec<RolloutRecord>, _>>()?;
+            out.push(LoadedBatch { dir: b.dir, batch: b.doc, records });
+        }
+        store.close().await;
+        Ok(out)
+    })
+}
+
 /// A reporting condition: one observation level and demonstration condition.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
 pub struct Condition {

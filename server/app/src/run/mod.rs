@@ -100,6 +100,10 @@ pub struct RunArgs {
     /// Run agents without the bubblewrap sandbox (they can then read everything this user can).
     #[arg(long)]
     pub no_sandbox: bool,
+    /// Also write the batch and its rollouts to this store (`sqlite://PATH` or `postgres://…`) as they change, for
+    /// `report --store URL NAME` on any machine. The batch is named by its directory's name.
+    #[arg(long, value_name = "URL")]
+    pub store: Option<String>,
 }
 
 /// What every rollout of a batch shares.
@@ -115,6 +119,29 @@ pub struct RunContext {
     pub self_exe: PathBuf,
     /// The harness's pinned npm CLI is installed: launched directly, not through `npx`.
     pub npm_cli_installed: bool,
+    /// `--store`: the batch is written there after every change too.
+    pub store: Option<batch::StoreMirror>,
+}
+
+impl RunContext {
+    /// The batch directory's `batch.json` rewritten (and the store updated, with `--store`).
+    fn write_batch(&self, v: &Value) -> anyhow::Result<()> {
+        write_batch_json(&self.batch_dir, v)?;
+        self.sync_store()
+    }
+
+    /// One ended rollout appended (and the store updated, with `--store`).
+    fn append(&self, rec: &RolloutRecord) -> anyhow::Result<()> {
+        append_record(&self.batch_dir, rec)?;
+        self.sync_store()
+    }
+
+    fn sync_store(&self) -> anyhow::Result<()> {
+        match &self.store {
+            Some(m) => m.sync(&self.batch_dir).context("writing the batch to --store"),
+            None => Ok(()),
+        }
+    }
 }
 
 fn parse_tasks(tasks: &[String]) -> anyhow::Result<Vec<u32>> {
@@ -266,6 +293,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("nothing to run");
     }
     let settings = settings_of(&args, &only, &pool_tasks);
+    // A store that cannot be opened stops the run before anything is written or launched.
+    let store = args.store.as_deref().map(batch::StoreMirror::connect).transpose()?;
     let batch_dir = absolute(&args.batch.clone().unwrap_or_else(default_batch_dir))?;
     let existing = batch::batch_json(&batch_dir);
     let (created_at, done_records) = if existing.is_file() {
@@ -348,6 +377,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         harness_version,
         self_exe,
         npm_cli_installed,
+        store,
     });
     // SAFETY: installing an async-signal-safe handler that only stores to an atomic.
     unsafe {
@@ -355,7 +385,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
     }
     let skipped = Arc::new(skipped);
-    write_batch_json(&batch_dir, &batch_value(&ctx, "running", &created_at, &progress, &skipped))?;
+    ctx.write_batch(&batch_value(&ctx, "running", &created_at, &progress, &skipped))?;
     eprintln!("batch {} — {}", batch_dir.display(), progress.line());
     let queue = Arc::new(Mutex::new(todo));
     let state = Arc::new(Mutex::new(progress));
@@ -374,16 +404,16 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                     {
                         let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
                         p.running.insert(next.rollout_id.clone());
-                        write_batch_json(&ctx.batch_dir, &batch_value(&ctx, "running", &created_at, &p, &skipped))?;
+                        ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
                         eprintln!("{}: started — {}", next.rollout_id, p.line());
                     }
                     let rec = rollout::run_rollout(&ctx, &next);
                     let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
-                    append_record(&ctx.batch_dir, &rec)?;
+                    ctx.append(&rec)?;
                     p.running.remove(&rec.rollout_id);
                     p.done += 1;
                     *p.outcomes.entry(rec.outcome).or_insert(0) += 1;
-                    write_batch_json(&ctx.batch_dir, &batch_value(&ctx, "running", &created_at, &p, &skipped))?;
+                    ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
                     let why = rec.infrastructure_error.as_deref().map(|e| format!(" ({e})")).unwrap_or_default();
                     eprintln!("{}: {}{why} — {}", rec.rollout_id, rec.outcome.as_str(), p.line());
                 }
@@ -406,7 +436,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     let p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
     let stopped = INTERRUPTED.load(Ordering::SeqCst) || failure.is_some();
-    write_batch_json(&batch_dir, &batch_value(&ctx, if stopped { "stopped" } else { "finished" }, &created_at, &p, &skipped))?;
+    ctx.write_batch(&batch_value(&ctx, if stopped { "stopped" } else { "finished" }, &created_at, &p, &skipped))?;
     eprintln!("batch {}: {}", if stopped { "stopped" } else { "finished" }, p.line());
     if let Some(e) = failure {
         return Err(e);

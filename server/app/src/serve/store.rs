@@ -40,6 +40,24 @@ const SCHEMA: &str = "CREATE TABLE IF NOT EXISTS episodes (
     run_dir TEXT NOT NULL
 )";
 
+/// Batches of `libero-agent run` and their ended rollouts, as the batch directory holds them (`batch.json`, the
+/// lines of `rollouts.jsonl` in order): `run --store` writes them, `report --store` reads them back. `dir` is
+/// where the batch's files are on the machine that ran it.
+const BATCH_TABLES: [&str; 2] = [
+    "CREATE TABLE IF NOT EXISTS batches (name TEXT PRIMARY KEY, dir TEXT NOT NULL, doc TEXT NOT NULL, updated_at TEXT NOT NULL)",
+    "CREATE TABLE IF NOT EXISTS rollouts (batch TEXT NOT NULL, seq BIGINT NOT NULL, rollout_id TEXT NOT NULL, doc TEXT NOT NULL, \
+     PRIMARY KEY (batch, seq))",
+];
+
+/// A batch as the store holds it: `batch.json`'s document and the `rollouts.jsonl` records in order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredBatch {
+    pub name: String,
+    pub dir: PathBuf,
+    pub doc: Value,
+    pub records: Vec<Value>,
+}
+
 /// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
 /// older store by [`Store::open`].
 const ADDED_COLUMNS: [(&str, &str); 4] =
@@ -273,6 +291,9 @@ impl Store {
             sqlx::query("PRAGMA journal_mode=WAL").execute(&pool).await.context("cannot switch the store to WAL")?;
         }
         sqlx::query(SCHEMA).execute(&pool).await.context("cannot create the episodes table")?;
+        for sql in BATCH_TABLES {
+            sqlx::query(sql).execute(&pool).await.context("cannot create the batch tables")?;
+        }
         for (name, kind) in ADDED_COLUMNS {
             let sql = match backend {
                 Backend::Postgres => format!("ALTER TABLE episodes ADD COLUMN IF NOT EXISTS {name} {kind}"),
@@ -290,6 +311,72 @@ impl Store {
 
     pub fn backend(&self) -> Backend {
         self.backend
+    }
+
+    /// Writes a batch's `batch.json` document (replacing the stored one) and the `rollouts.jsonl` records the store
+    /// does not have yet (by position: records are only ever appended). Idempotent: run it after every change.
+    pub async fn put_batch(&self, batch: &StoredBatch) -> anyhow::Result<()> {
+        let name = &batch.name;
+        let mut tx = self.pool.begin().await.context("store: cannot begin")?;
+        sqlx::query(
+            "INSERT INTO batches (name, dir, doc, updated_at) VALUES ($1, $2, $3, $4) \
+             ON CONFLICT (name) DO UPDATE SET dir = excluded.dir, doc = excluded.doc, updated_at = excluded.updated_at",
+        )
+        .bind(name)
+        .bind(batch.dir.to_string_lossy().into_owned())
+        .bind(batch.doc.to_string())
+        .bind(utc_now_iso())
+        .execute(&mut *tx)
+        .await
+        .with_context(|| format!("store: cannot write batch {name}"))?;
+        let have: i64 = sqlx::query("SELECT CAST(COUNT(*) AS BIGINT) AS n FROM rollouts WHERE batch = $1")
+            .bind(name)
+            .fetch_one(&mut *tx)
+            .await
+            .and_then(|r| r.try_get("n"))
+            .with_context(|| format!("store: cannot count the rollouts of batch {name}"))?;
+        for (seq, record) in batch.records.iter().enumerate().skip(usize::try_from(have).unwrap_or(0)) {
+            sqlx::query("INSERT INTO rollouts (batch, seq, rollout_id, doc) VALUES ($1, $2, $3, $4) ON CONFLICT DO NOTHING")
+                .bind(name)
+                .bind(seq as i64)
+                .bind(record["rollout_id"].as_str().unwrap_or_default())
+                .bind(record.to_string())
+                .execute(&mut *tx)
+                .await
+                .with_context(|| format!("store: cannot write a rollout of batch {name}"))?;
+        }
+        tx.commit().await.with_context(|| format!("store: cannot commit batch {name}"))?;
+        Ok(())
+    }
+
+    /// A stored batch, its records in the order they were recorded; `None` when the store has no such batch.
+    pub async fn batch(&self, name: &str) -> anyhow::Result<Option<StoredBatch>> {
+        let Some(row) = sqlx::query("SELECT dir, doc FROM batches WHERE name = $1")
+            .bind(name)
+            .fetch_optional(&self.pool)
+            .await
+            .with_context(|| format!("store: cannot read batch {name}"))?
+        else {
+            return Ok(None);
+        };
+        let parse = |text: String| serde_json::from_str::<Value>(&text).with_context(|| format!("store: batch {name} holds bad JSON"));
+        let doc = parse(row.try_get("doc")?)?;
+        let dir = PathBuf::from(row.try_get::<String, _>("dir")?);
+        let records = sqlx::query("SELECT doc FROM rollouts WHERE batch = $1 ORDER BY seq")
+            .bind(name)
+            .fetch_all(&self.pool)
+            .await
+            .with_context(|| format!("store: cannot read the rollouts of batch {name}"))?
+            .into_iter()
+            .map(|r| parse(r.try_get("doc")?))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        Ok(Some(StoredBatch { name: name.to_owned(), dir, doc, records }))
+    }
+
+    /// The names of the stored batches, sorted.
+    pub async fn batch_names(&self) -> anyhow::Result<Vec<String>> {
+        let rows = sqlx::query("SELECT name FROM batches ORDER BY name").fetch_all(&self.pool).await.context("store: cannot list batches")?;
+        rows.iter().map(|r| r.try_get::<String, _>("name").map_err(anyhow::Error::from)).collect()
     }
 
     /// The row of a newly prepared episode (kept as is if it already exists).
@@ -460,6 +547,43 @@ mod tests {
 
     async fn sqlite_store(dir: &Path) -> Store {
         Store::open(&dir.join(STORE_FILE)).await.unwrap()
+    }
+
+    /// A batch written as it grows (the document replaced, records appended) reads back exactly, in order, with no
+    /// record twice however often it is written.
+    async fn batches_round_trip(store: Store) {
+        let record = |id: &str, outcome: &str| json!({"rollout_id": id, "outcome": outcome, "task": "T14"});
+        let mut batch = StoredBatch {
+            name: "b1".into(),
+            dir: PathBuf::from("/runs/b1"),
+            doc: json!({"status": "running", "counts": {"done": 1}}),
+            records: vec![record("r1", "FAIL")],
+        };
+        store.put_batch(&batch).await.unwrap();
+        store.put_batch(&batch).await.unwrap();
+        batch.doc = json!({"status": "finished", "counts": {"done": 3}});
+        batch.records.extend([record("r2", "SUCCESS"), record("r1", "INVALID")]);
+        store.put_batch(&batch).await.unwrap();
+        store.put_batch(&batch).await.unwrap();
+        assert_eq!(store.batch("b1").await.unwrap(), Some(batch.clone()));
+        assert_eq!(store.batch("b2").await.unwrap(), None);
+        let other = StoredBatch { name: "a0".into(), records: Vec::new(), ..batch };
+        store.put_batch(&other).await.unwrap();
+        assert_eq!(store.batch_names().await.unwrap(), ["a0", "b1"]);
+    }
+
+    #[tokio::test]
+    async fn sqlite_batches_round_trip_in_order_without_duplicates() {
+        let dir = tempfile::tempdir().unwrap();
+        batches_round_trip(sqlite_store(dir.path()).await).await;
+    }
+
+    #[tokio::test]
+    async fn postgres_batches_round_trip_in_order_without_duplicates() {
+        let pg = TestPostgres::start();
+        let store = Store::connect(&pg.url).await.unwrap();
+        batches_round_trip(store.clone()).await;
+        store.close().await;
     }
 
     #[tokio::test]
