@@ -12,6 +12,7 @@ use serde_json::Value;
 
 mod common;
 use common::postgres::TestPostgres;
+use common::{Server, http_get_json};
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
@@ -162,6 +163,15 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
         assert!(from_store.status.success(), "{}", String::from_utf8_lossy(&from_store.stderr));
         assert_eq!(String::from_utf8_lossy(&from_store.stdout), String::from_utf8_lossy(&from_dir.stdout), "{format}");
     }
+    // A dashboard that never saw the batch directory shows the batch from the shared store, with the report's rows.
+    let elsewhere = dir.path().join("elsewhere");
+    let server = Server::start_with(&elsewhere, &["--store", &pg.url]);
+    let (status, all) = http_get_json(&format!("{}/api/results?batch=batch&reps=2", server.url));
+    assert_eq!(status, 200, "{all}");
+    assert!(all["available"].as_array().unwrap().iter().any(|n| n == "batch"), "{all}");
+    let report: Value = serde_json::from_slice(&libero(&["report", batch.to_str().unwrap(), "--format", "json", "--reps", "2"]).stdout).unwrap();
+    assert_eq!(all["batches"][0]["report"]["rows"], report["rows"], "the store's batch on the dashboard and `report` disagree");
+    drop(server);
     let out = libero(&["report", "--store", &pg.url, "no-such-batch", "--format", "json"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("no batch \"no-such-batch\"") && err.contains("batch"), "{err}");

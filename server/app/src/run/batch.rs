@@ -242,6 +242,15 @@ impl StoreMirror {
     }
 }
 
+/// A batch read from the store, in the shape [`load_batch`] gives.
+pub fn from_stored(b: crate::serve::store::StoredBatch) -> anyhow::Result<LoadedBatch> {
+    if b.doc["schema_version"] != BATCH_SCHEMA {
+        bail!("batch {} in the store: schema_version {}, expected {BATCH_SCHEMA}", b.name, b.doc["schema_version"]);
+    }
+    let records = b.records.into_iter().map(serde_json::from_value).collect::<Result<Vec<RolloutRecord>, _>>()?;
+    Ok(LoadedBatch { dir: b.dir, batch: b.doc, records })
+}
+
 /// Reads batches by name from a store (`report --store URL NAME…`), in the shape [`load_batch`] gives.
 pub fn load_batches_from_store(url: &str, names: &[String]) -> anyhow::Result<Vec<LoadedBatch>> {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
@@ -253,11 +262,7 @@ pub fn load_batches_from_store(url: &str, names: &[String]) -> anyhow::Result<Ve
                 let known = store.batch_names().await?;
                 bail!("the store {} has no batch {name:?} (it has: {})", crate::serve::store::redact(url), known.join(", "));
             };
-            if b.doc["schema_version"] != BATCH_SCHEMA {
-                bail!("batch {name} in the store: schema_version {}, expected {BATCH_SCHEMA}", b.doc["schema_version"]);
-            }
-            let records = b.records.into_iter().map(serde_json::from_value).collect::<Result<Vec<RolloutRecord>, _>>()?;
-            out.push(LoadedBatch { dir: b.dir, batch: b.doc, records });
+            out.push(from_stored(b)?);
         }
         store.close().await;
         Ok(out)

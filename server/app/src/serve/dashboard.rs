@@ -139,14 +139,29 @@ struct ResultsPage {
     view: results::View,
 }
 
-/// Loads the selected batches off the async workers (they are files of any size).
+/// Loads the selected batches: batch directories off the async workers (they are files of any size), and the
+/// batches only the store holds (`run --store`) from the store.
 async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<crate::run::batch::LoadedBatch>), Response> {
+    let internal = |e: String| json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("results: {e}"));
+    let stored = app.store.batch_names().await.map_err(|e| internal(format!("{e:#}")))?;
     let (roots, sel) = (app.batch_roots.clone(), sel.clone());
-    match tokio::task::spawn_blocking(move || results::load_selected(&roots, &sel)).await {
-        Ok(Ok(x)) => Ok(x),
-        Ok(Err(e)) => Err(json_error(StatusCode::NOT_FOUND, e)),
-        Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("results: {e}"))),
+    let (names, picked) = match tokio::task::spawn_blocking(move || results::load_selected(&roots, &stored, &sel)).await {
+        Ok(Ok(x)) => x,
+        Ok(Err(e)) => return Err(json_error(StatusCode::NOT_FOUND, e)),
+        Err(e) => return Err(internal(e.to_string())),
+    };
+    let mut batches = Vec::with_capacity(picked.len());
+    for p in picked {
+        batches.push(match p {
+            results::Selected::Loaded(b) => b,
+            results::Selected::InStore(name) => {
+                let b = app.store.batch(&name).await.map_err(|e| internal(format!("{e:#}")))?;
+                let b = b.ok_or_else(|| internal(format!("batch {name} left the store")))?;
+                crate::run::batch::from_stored(b).map_err(|e| internal(format!("{e:#}")))?
+            }
+        });
     }
+    Ok((names, batches))
 }
 
 async fn results_page(State(app): State<AppState>, RawQuery(query): RawQuery) -> Response {

@@ -96,11 +96,25 @@ fn reps_of(b: &LoadedBatch, sel: &Selection) -> usize {
         .unwrap_or(PAPER_REPS)
 }
 
-/// The selected batches (all discovered ones when none is named); an unknown name is an error naming it.
-pub fn load_selected(roots: &[PathBuf], sel: &Selection) -> Result<(Vec<String>, Vec<LoadedBatch>), String> {
-    let all = discover(roots);
+/// A selected batch: read from its directory, or one only the store holds (`run --store`), to be read from there.
+pub enum Selected {
+    Loaded(LoadedBatch),
+    InStore(String),
+}
+
+/// The selected batches (all known ones when none is named), in name order: batch directories under `roots`, and
+/// the batches only the store holds (`stored`, by name; a directory of the same name wins). An unknown name is an
+/// error naming the known ones.
+pub fn load_selected(roots: &[PathBuf], stored: &[String], sel: &Selection) -> Result<(Vec<String>, Vec<Selected>), String> {
+    let mut all: Vec<(String, Option<PathBuf>)> = discover(roots).into_iter().map(|(n, d)| (n, Some(d))).collect();
+    for name in stored {
+        if !all.iter().any(|(n, _)| n == name) {
+            all.push((name.clone(), None));
+        }
+    }
+    all.sort();
     let names: Vec<String> = all.iter().map(|(n, _)| n.clone()).collect();
-    let wanted: Vec<&(String, PathBuf)> = if sel.batches.is_empty() {
+    let wanted: Vec<&(String, Option<PathBuf>)> = if sel.batches.is_empty() {
         all.iter().collect()
     } else {
         let mut w = Vec::new();
@@ -112,11 +126,14 @@ pub fn load_selected(roots: &[PathBuf], sel: &Selection) -> Result<(Vec<String>,
         }
         w
     };
-    let mut loaded = Vec::new();
-    for (_, dir) in wanted {
-        loaded.push(load_batch(dir).map_err(|e| format!("{e:#}"))?);
+    let mut selected = Vec::new();
+    for (name, dir) in wanted {
+        selected.push(match dir {
+            Some(dir) => Selected::Loaded(load_batch(dir).map_err(|e| format!("{e:#}"))?),
+            None => Selected::InStore(name.clone()),
+        });
     }
-    Ok((names, loaded))
+    Ok((names, selected))
 }
 
 fn episode_json(r: &RolloutRecord) -> Value {
