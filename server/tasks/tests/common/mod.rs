@@ -73,3 +73,12 @@ pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
     }
     evaluator.finish(sim.data(), Tick::at_control_step(step, 0.05 * step as f64))
 }
+
+/// An entry's `solve` and each of its expert's near misses, played as [`play`] does: `(solve, [(behaviour, record)])`.
+#[allow(dead_code)] // not every test binary plays every behaviour
+pub fn play_solve_and_near_misses(entry: &str) -> (EvaluationRecord, Vec<(&'static str, EvaluationRecord)>) {
+    let pool = Pool::discover().expect("tasks/pool.json loads and validates");
+    let reference = pool.get(entry).unwrap().reference();
+    let misses = libero_tasks::expert_behaviours(&reference).unwrap_or_default();
+    (play(entry, libero_tasks::expert::SOLVE), misses.iter().map(|&b| (b, play(entry, b))).collect())
+}
