@@ -1,9 +1,10 @@
 //! The pool's VLABench world-knowledge selections (`vlabench_world_knowledge` tasks 0–5, 7, 9, 11, 14, 15; task 10
-//! is T07) on definitions of their own (`tasks/pool.json`): three candidates and a basket or collection bin each,
-//! judged like the release's bin tasks (T02, T07): the BDDL `In` goal on the final state, the first object grasped
-//! and lifted judged against the private `judgment_target`. Every entry composes and judges an idle start failed;
-//! one is played by its expert: `solve` puts the target in (judged right) and `wrong_target` (the near miss) puts a
-//! distractor in and fails, judged wrong. Starts are the seed-100 placement, so a run is deterministic.
+//! is T07) and `vlabench_perception` task 5 (T04's blocks, the spotted one the target) on definitions of their own
+//! (`tasks/pool.json`): three candidates and a basket or collection bin each, judged like the release's bin tasks
+//! (T02, T04, T07): the BDDL `In` goal on the final state, the first object grasped and lifted judged against the
+//! private `judgment_target`. Every entry composes and judges an idle start failed; one is played by its expert:
+//! `solve` puts the target in (judged right) and `wrong_target` (the near miss) puts a distractor in and fails, judged
+//! wrong. Starts are the seed-100 placement, so a run is deterministic.
 use libero_sim::AssetPaths;
 use libero_tasks::expert::SOLVE;
 use libero_tasks::pool::Runs;
@@ -12,7 +13,7 @@ use libero_tasks::{EvaluationRecord, Pool, expert_behaviours};
 mod common;
 
 /// The entries this file covers.
-const ENTRIES: [&str; 11] = [
+const ENTRIES: [&str; 12] = [
     "vlabench_world_knowledge/0",
     "vlabench_world_knowledge/1",
     "vlabench_world_knowledge/2",
@@ -24,6 +25,8 @@ const ENTRIES: [&str; 11] = [
     "vlabench_world_knowledge/11",
     "vlabench_world_knowledge/14",
     "vlabench_world_knowledge/15",
+    // the perception suite's spotted block: T04's scene, a selection of the same kind
+    "vlabench_perception/5",
 ];
 
 fn stages(r: &EvaluationRecord) -> (bool, usize, usize) {

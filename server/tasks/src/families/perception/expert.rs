@@ -82,6 +82,8 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
             t("solution_1", "solution_2", 0.015, 0.015)
         }
         "vlabench_world_knowledge/select_nearest_solution" => t("solution_3", "solution_1", 0.015, 0.015),
+        // T04's blocks with the spotted one in the top slot
+        "vlabench_perception/select_spotted_object" => t("candidate_1", "candidate_2", 0.0, 0.0),
         _ => return None,
     })
 }
