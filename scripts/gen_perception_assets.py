@@ -158,7 +158,7 @@ for key, body_rgba, label_rgba, cap_rgba, what in [
 # with one cylinder or sphere the Panda's 8 cm opening takes, root at its centre (the bin family's `In` rule wants the
 # root ≥ 1 cm above the receptacle's floor). Cues are visual only. No name tags: the release's NameTag labels are
 # text, which these primitives cannot carry. ----
-GLASS = "0.86 0.92 0.97 0.35"
+GLASS = "0.86 0.92 0.97 0.25"
 # condiments (tasks 0-3, with LIBERO's basket): sugar cubes in a glass jar, a salt shaker, a hot-sauce bottle
 sugar = vis("jar_glass", "cylinder", "0.030 0.050", "0 0 -0.004", GLASS)
 for i, (x, y) in enumerate([(-0.011, -0.011), (0.011, -0.011), (-0.011, 0.011), (0.011, 0.011)]):
