@@ -153,6 +153,79 @@ for key, body_rgba, label_rgba, cap_rgba, what in [
           body, -0.075, 0.091, 0.032)
 
 
+# ---- pool suite vlabench_world_knowledge (tasks 0-5, 7, 9, 11, 14, 15): world-knowledge candidates. VLABench's
+# condiment, fruit and flask meshes are external (catalog §6.8), so each is a primitive in its usual look; all collide
+# with one cylinder or sphere the Panda's 8 cm opening takes, root at its centre (the bin family's `In` rule wants the
+# root ≥ 1 cm above the receptacle's floor). Cues are visual only. No name tags: the release's NameTag labels are
+# text, which these primitives cannot carry. ----
+GLASS = "0.86 0.92 0.97 0.25"
+# condiments (tasks 0-3, with LIBERO's basket): sugar cubes in a glass jar, a salt shaker, a hot-sauce bottle
+sugar = vis("jar_glass", "cylinder", "0.030 0.050", "0 0 -0.004", GLASS)
+for i, (x, y) in enumerate([(-0.011, -0.011), (0.011, -0.011), (-0.011, 0.011), (0.011, 0.011)]):
+    for j, z in enumerate([-0.040, -0.019, 0.002, 0.023]):
+        sugar += vis(f"sugar_cube_{i}_{j}", "box", "0.009 0.009 0.009", f"{x} {y} {z}", "0.97 0.97 0.95 1")
+sugar += vis("jar_lid", "cylinder", "0.031 0.007", "0 0 0.049", "0.95 0.95 0.93 1")
+sugar += col("jar_collision", "cylinder", "0.029 0.056", "0.12")
+write("vlabench_sugar_condiment",
+      "vlabench_world_knowledge condiment (sugar): sugar cubes stacked in a glass jar with a white lid, 11.2 cm tall,\n"
+      "     r 3 cm; collision cylinder r 2.9 cm, 0.12 kg.",
+      sugar, -0.056, 0.056, 0.030)
+salt = vis("shaker_glass", "cylinder", "0.023 0.042", "0 0 -0.014", GLASS)
+salt += vis("shaker_salt", "cylinder", "0.020 0.030", "0 0 -0.024", "0.96 0.96 0.96 1")
+salt += vis("shaker_top", "cylinder", "0.023 0.010", "0 0 0.038", material="chrome")
+salt += vis("shaker_dome", "sphere", "0.021", "0 0 0.046", material="chrome")
+for i, (x, y) in enumerate([(0, 0), (0.008, 0), (-0.008, 0), (0, 0.008), (0, -0.008)]):
+    salt += vis(f"shaker_hole_{i}", "sphere", "0.0022", f"{x} {y} 0.066", "0.05 0.05 0.05 1")
+salt += col("shaker_collision", "cylinder", "0.023 0.056", "0.10")
+write("vlabench_salt_condiment",
+      "vlabench_world_knowledge condiment (salt): a glass salt shaker filled white, with a chrome dome top pierced by\n"
+      "     five holes, 12.6 cm tall, r 2.3 cm; collision cylinder r 2.3 cm, 0.10 kg.",
+      salt, -0.056, 0.068, 0.023,
+      assets='    <material name="chrome" rgba="0.78 0.80 0.83 1" specular="0.8" shininess="0.8"/>\n')
+hot = vis("bottle_body", "cylinder", "0.024 0.045", "0 0 0", "0.72 0.05 0.03 1")
+hot += vis("bottle_label", "cylinder", "0.0245 0.018", "0 0 -0.008", "0.96 0.90 0.72 1")
+hot += vis("label_chili", "capsule", "0.005 0.009", "0.024 0 -0.008", "0.85 0.06 0.03 1", extra=' euler="0 0.5 0"')
+hot += vis("label_chili_stem", "cylinder", "0.0018 0.004", "0.0245 0 0.004", "0.15 0.55 0.15 1")
+hot += vis("bottle_shoulder", "sphere", "0.024", "0 0 0.040", "0.72 0.05 0.03 1")
+hot += vis("bottle_neck", "cylinder", "0.009 0.018", "0 0 0.072", "0.72 0.05 0.03 1")
+hot += vis("bottle_cap", "cylinder", "0.011 0.010", "0 0 0.096", "0.15 0.55 0.15 1")
+hot += col("bottle_collision", "cylinder", "0.024 0.045", "0.12")
+write("vlabench_hotsauce_condiment",
+      "vlabench_world_knowledge condiment (hot sauce): a red bottle with a cream label showing a red chili, a narrow\n"
+      "     neck and a green cap, 15.1 cm tall, r 2.4 cm; only the body collides (r 2.4 cm, 9 cm), 0.12 kg.",
+      hot, -0.045, 0.106, 0.024)
+
+# fruits (tasks 4, 9): orange, apple and pear on one collision sphere each (T05's ball, r 3.3 cm, rolling friction)
+FRUIT_R = 0.034
+fruits = {
+    "orange": vis("orange_peel", "sphere", f"{FRUIT_R}", "0 0 0", "0.98 0.52 0.04 1")
+    + vis("orange_navel", "cylinder", "0.004 0.002", f"0 0 {FRUIT_R - 0.001}", "0.45 0.55 0.12 1"),
+    "apple": vis("apple_skin", "ellipsoid", f"{FRUIT_R} {FRUIT_R} 0.031", "0 0 0", "0.75 0.06 0.07 1")
+    + vis("apple_stem", "cylinder", "0.002 0.008", "0 0 0.034", "0.35 0.22 0.10 1")
+    + vis("apple_leaf", "ellipsoid", "0.010 0.004 0.0015", "0.009 0 0.036", "0.20 0.60 0.15 1", extra=' euler="0 -0.4 0"'),
+    "pear": vis("pear_bottom", "sphere", f"{FRUIT_R}", "0 0 0", "0.74 0.80 0.24 1")
+    + vis("pear_top", "sphere", "0.021", "0 0 0.032", "0.74 0.80 0.24 1")
+    + vis("pear_stem", "cylinder", "0.002 0.009", "0 0 0.058", "0.35 0.22 0.10 1"),
+}
+for name, body in fruits.items():
+    body += col("fruit_collision", "sphere", f"{FRUIT_R - 0.001}", "0.10", "0 0 0", ' friction="1 0.02 0.002"')
+    write(f"vlabench_{name}_fruit",
+          f"vlabench_world_knowledge fruit ({name}): catalog §6.5 fruit_primitive (sphere r 4.5 cm) scaled to T05's\n"
+          "     graspable r 3.4 cm (collision sphere r 3.3 cm with rolling friction), in the fruit's colours; 0.10 kg.",
+          body, -FRUIT_R, 0.067 if name == "pear" else FRUIT_R + 0.008, FRUIT_R)
+
+# solutions (tasks 7, 14, 15): a stoppered glass bottle, 2/3 full
+for name, liquid in [("blue", "0.08 0.40 0.92 0.85"), ("green", "0.12 0.68 0.22 0.85"), ("clear", "0.82 0.92 1.0 0.22")]:
+    body = vis("flask_glass", "cylinder", "0.026 0.060", "0 0 0", GLASS)
+    body += vis("flask_liquid", "cylinder", "0.0235 0.040", "0 0 -0.0185", liquid)
+    body += vis("flask_stopper", "cylinder", "0.017 0.010", "0 0 0.066", "0.55 0.38 0.20 1")
+    body += col("flask_collision", "cylinder", "0.026 0.060", "0.09")
+    write(f"vlabench_{name}_solution",
+          f"vlabench_world_knowledge solution ({name}): catalog §6.5 chemistry_solution_primitive (r 1.8 cm, colour\n"
+          "     per solution) widened to a 12 cm glass bottle r 2.6 cm with a cork stopper, the liquid filling its lower\n"
+          "     2/3; collision cylinder r 2.6 cm, 0.09 kg.",
+          body, -0.060, 0.076, 0.026)
+
 # ---- three-button family (T06, T09, T10): catalog §6.4 vlabench_physical_property_button. The single button's stack
 # moved to x = −0.045 (robot side) with its touch sensor; the candidate cue on the camera side (x = +0.045) resting on
 # the tabletop (local z 0.04 under the −0.04 fixture convention); the pairing plate below the tabletop. Static fixture:

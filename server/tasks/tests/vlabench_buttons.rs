@@ -90,13 +90,8 @@ fn the_density_expert_presses_the_steel_blocks_button_and_pressing_the_glass_blo
 #[test]
 #[ignore]
 fn every_question_buttons_expert_solves_it_and_its_near_misses_fail() {
-    let pool = Pool::discover().unwrap();
     for id in ENTRIES {
-        let solve = common::play(id, SOLVE);
-        assert_eq!(stages(&solve), (true, 1, 1), "{id}: {solve:?}");
-        assert_eq!(solve.judgment_correct, Some(true), "{id}: {solve:?}");
-        for &b in expert_behaviours(&pool.get(id).unwrap().reference()).unwrap() {
-            let r = common::play(id, b);
+        for (b, r) in common::solved_with_near_misses(id) {
             assert!(!r.success && wrong_button_pressed(&r), "{id} {b}: {r:?}");
             assert_eq!(r.judgment_correct, Some(false), "{id} {b}: {r:?}");
         }

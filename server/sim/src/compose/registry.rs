@@ -155,6 +155,16 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("vlabench_milk_drink", "objects/vlabench_milk_drink/vlabench_milk_drink.xml", 0.0),
     ("vlabench_cola_drink", "objects/vlabench_cola_drink/vlabench_cola_drink.xml", 0.0),
     ("vlabench_juice_drink", "objects/vlabench_juice_drink/vlabench_juice_drink.xml", 0.0),
+    // pool suite vlabench_world_knowledge: condiments, fruits and solutions as primitives (scripts/gen_perception_assets.py)
+    ("vlabench_sugar_condiment", "objects/vlabench_sugar_condiment/vlabench_sugar_condiment.xml", 0.0),
+    ("vlabench_salt_condiment", "objects/vlabench_salt_condiment/vlabench_salt_condiment.xml", 0.0),
+    ("vlabench_hotsauce_condiment", "objects/vlabench_hotsauce_condiment/vlabench_hotsauce_condiment.xml", 0.0),
+    ("vlabench_orange_fruit", "objects/vlabench_orange_fruit/vlabench_orange_fruit.xml", 0.0),
+    ("vlabench_apple_fruit", "objects/vlabench_apple_fruit/vlabench_apple_fruit.xml", 0.0),
+    ("vlabench_pear_fruit", "objects/vlabench_pear_fruit/vlabench_pear_fruit.xml", 0.0),
+    ("vlabench_blue_solution", "objects/vlabench_blue_solution/vlabench_blue_solution.xml", 0.0),
+    ("vlabench_green_solution", "objects/vlabench_green_solution/vlabench_green_solution.xml", 0.0),
+    ("vlabench_clear_solution", "objects/vlabench_clear_solution/vlabench_clear_solution.xml", 0.0),
     // T06, T09, T10 (task catalog §3.1, §6.4): buttons paired with a candidate cue, written by
     // scripts/gen_perception_assets.py
     ("vlabench_property_weight_sphere", "objects/vlabench_property_weight_sphere/vlabench_property_weight_sphere.xml", 0.0),

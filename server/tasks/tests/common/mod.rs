@@ -73,3 +73,17 @@ pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
     }
     evaluator.finish(sim.data(), Tick::at_control_step(step, 0.05 * step as f64))
 }
+
+/// Plays an entry's `solve` and asserts it completes every stage with its first commitment judged right; then plays
+/// each of its expert's near misses (there is at least one) and returns their records, `(behaviour, record)`.
+#[allow(dead_code)] // not every test binary plays every behaviour
+pub fn solved_with_near_misses(entry: &str) -> Vec<(&'static str, EvaluationRecord)> {
+    let pool = Pool::discover().expect("tasks/pool.json loads and validates");
+    let reference = pool.get(entry).unwrap().reference();
+    let solve = play(entry, libero_tasks::expert::SOLVE);
+    assert!(solve.success && solve.completed_required_stage_count == solve.required_stage_count, "{entry}: {solve:?}");
+    assert_eq!(solve.judgment_correct, Some(true), "{entry}: {solve:?}");
+    let misses = libero_tasks::expert_behaviours(&reference).unwrap_or_default();
+    assert!(!misses.is_empty(), "{entry} has near misses");
+    misses.iter().map(|&b| (b, play(entry, b))).collect()
+}

@@ -5,7 +5,8 @@
 //! Button family (T06, T09, T10, and the pool's seven `vlabench_button` questions on their own definitions): press
 //! and hold the paired button's cap (the T13 press); `wrong_target` presses another button the same way.
 //!
-//! Bin family (T01, T03, T04, T05, T07, and T02 with LIBERO's basket): grasp the candidate from above, lift it clear of the bin walls, carry it
+//! Bin family (T01, T03, T04, T05, T07, T02 with LIBERO's basket, and the pool's `vlabench_world_knowledge`
+//! selections on definitions of their own): grasp the candidate from above, lift it clear of the bin walls, carry it
 //! over the bin, lower it inside, let go, retreat.
 use std::sync::{Arc, Mutex};
 
@@ -47,6 +48,11 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
         bin_offset_x_m: 0.0,
         carry_above_rest_m: CARRY_ABOVE_REST_M,
     };
+    let condiment = |target, distractor, target_grip_m, distractor_grip_m| BinTask {
+        bin: "basket_1",
+        carry_above_rest_m: 0.20,
+        ..t(target, distractor, target_grip_m, distractor_grip_m)
+    };
     Some(match task_id {
         // upright token (root at its centre, 12 cm tall) vs a fallen one (7.2 cm tall, 12 cm across y: turn the hand)
         "T01" => BinTask { distractor_yaw_rad: std::f64::consts::FRAC_PI_2, ..t("marker_1", "marker_2", 0.013, 0.0) },
@@ -58,9 +64,26 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
         "T05" => t("candidate_1", "candidate_2", 0.0, 0.0),
         // LIBERO condiment bottles standing (root 6 cm above the bottom), carried high over the basket's rim (the basket
         // stands 9 cm nearer the robot than in the catalog: at x ≈ 0.2 it is beyond a top-down reach)
-        "T02" => BinTask { bin: "basket_1", carry_above_rest_m: 0.20, ..t("condiment_2", "condiment_1", 0.0, 0.0) },
+        "T02" => condiment("condiment_2", "condiment_1", 0.0, 0.0),
         // drinks: root at the centre, 15 cm tall
         "T07" => t("drink_2", "drink_1", 0.028, 0.028),
+        // pool suite vlabench_world_knowledge on definitions of their own (tasks 0–5, 7, 9, 11, 14, 15): the target
+        // in the private checker_params, wrong_target takes the distractor nearest in kind (or in the layout's order).
+        // Condiments with LIBERO's basket, as T02: sugar jar and salt shaker collide 11.2 cm tall, the hot sauce's body 9 cm
+        "vlabench_world_knowledge/select_sweet_condiment" => condiment("condiment_3", "condiment_1", 0.011, 0.011),
+        "vlabench_world_knowledge/select_salty_condiment" => condiment("condiment_2", "condiment_1", 0.011, 0.011),
+        "vlabench_world_knowledge/select_spicy_condiment" => condiment("condiment_3", "condiment_2", 0.0, 0.011),
+        "vlabench_world_knowledge/select_sweet_condiment_explicit_name" => condiment("condiment_2", "condiment_3", 0.011, 0.011),
+        // fruits: T05's balls; drinks: T07's; solution bottles: root at the centre, 12 cm tall
+        "vlabench_world_knowledge/select_vitamin_c_fruit" | "vlabench_world_knowledge/select_between_fruit" => t("fruit_2", "fruit_1", 0.0, 0.0),
+        "vlabench_world_knowledge/select_calcium_drink" => t("drink_2", "drink_1", 0.028, 0.028),
+        "vlabench_world_knowledge/select_nearest_drink" => t("drink_3", "drink_1", 0.028, 0.028),
+        "vlabench_world_knowledge/select_copper_sulfate_solution" | "vlabench_world_knowledge/select_green_solution" => {
+            t("solution_1", "solution_2", 0.015, 0.015)
+        }
+        "vlabench_world_knowledge/select_nearest_solution" => t("solution_3", "solution_1", 0.015, 0.015),
+        // T04's blocks with the spotted one in the top slot
+        "vlabench_perception/select_spotted_object" => t("candidate_1", "candidate_2", 0.0, 0.0),
         _ => return None,
     })
 }

@@ -1,6 +1,6 @@
-//! perception_v2 (T01–T10) and the pool's `vlabench_button` questions (tasks 0–6): the weighing evaluator (T08) and
-//! the perception experts; the bin tasks are judged by the BDDL goal with a judgment target, the buttons by the
-//! button press.
+//! perception_v2 (T01–T10), the pool's `vlabench_button` questions (tasks 0–6) and its `vlabench_world_knowledge`
+//! selections: the weighing evaluator (T08) and the perception experts; the bin tasks are judged by the BDDL goal
+//! with a judgment target, the buttons by the button press.
 pub mod weighing;
 mod expert;
 
