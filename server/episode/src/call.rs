@@ -161,6 +161,25 @@ pub fn validate_actions(actions: &Value) -> Result<Vec<MicroAction>, ToolError> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// (The action log lives in `libero-records`; this checks it against the call rules it must fit.)
+    /// The longest valid `osc_sequence` arguments: 50 actions whose every component has the longest JSON
+    /// form a number in [-1, 1] can take.
+    fn maximal_valid_arguments() -> Value {
+        let longest = -2.2250738585072014e-308_f64; // 24 characters
+        assert_eq!(serde_json::to_string(&longest).unwrap().len(), 24);
+        json!({"actions": vec![[longest; 7]; crate::tools::MAX_MICRO_ACTIONS_PER_CALL]})
+    }
+
+    #[test]
+    fn the_largest_valid_call_is_logged_in_full() {
+        let args = maximal_valid_arguments();
+        assert!(validate_actions(&args["actions"]).is_ok());
+        let size = crate::json::compact_sorted(&args).len();
+        assert!(size * 3 / 2 < crate::records::MAX_LOGGED_FIELD_BYTES, "{size} bytes: the limit must stay well above a valid call");
+        assert_eq!(crate::records::bounded_for_log(&args), args);
+    }
+
     use serde_json::json;
 
     fn msg(v: Value) -> String {

@@ -157,14 +157,7 @@ fn empty_dir(dir: BorrowedFd<'_>, depth: usize, budget: &mut usize) -> std::io::
 }
 
 /// `prefix` + 128 random bits in hex: a name nobody can have created in advance except by watching.
-pub fn random_name(prefix: &str) -> std::io::Result<String> {
-    let mut bytes = [0u8; 16];
-    let mut filled = 0;
-    while filled < bytes.len() {
-        filled += rustix::rand::getrandom(&mut bytes[filled..], rustix::rand::GetRandomFlags::empty())?;
-    }
-    Ok(format!("{prefix}{}", crate::json::hex(&bytes)))
-}
+pub use crate::json::random_name;
 
 #[cfg(test)]
 mod tests {

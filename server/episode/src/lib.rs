@@ -8,13 +8,13 @@ pub mod demo;
 pub mod dirfd;
 pub mod error;
 pub mod expert_run;
-pub mod json;
 pub mod live;
+/// The run directory, its records and JSON helpers live in `libero-records` (the store reads them without the simulator).
+pub use libero_records::{json, records};
 pub mod observation;
 pub mod physics;
 pub mod publish;
 pub mod readout;
-pub mod records;
 #[cfg(feature = "world")]
 pub mod state_record;
 pub mod task;

@@ -65,7 +65,7 @@ fn create_temp(dir: &Path, name: &str) -> std::io::Result<(PathBuf, File)> {
     let prefix = format!(".{name}.tmp-{}-", std::process::id());
     let mut last = None;
     for _ in 0..4 {
-        let tmp = dir.join(crate::dirfd::random_name(&prefix)?);
+        let tmp = dir.join(random_name(&prefix)?);
         match OpenOptions::new().write(true).create_new(true).open(&tmp) {
             Ok(f) => return Ok((tmp, f)),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last = Some(e),
@@ -151,6 +151,16 @@ pub fn format_g(x: f64) -> String {
     } else {
         format!("{x}")
     }
+}
+
+/// `prefix` and 32 random hex digits: a name nobody can guess or pre-create.
+pub fn random_name(prefix: &str) -> std::io::Result<String> {
+    let mut bytes = [0u8; 16];
+    let mut filled = 0;
+    while filled < bytes.len() {
+        filled += rustix::rand::getrandom(&mut bytes[filled..], rustix::rand::GetRandomFlags::empty())?;
+    }
+    Ok(format!("{prefix}{}", hex(&bytes)))
 }
 
 #[cfg(test)]

@@ -8,6 +8,9 @@ use serde_json::{Value, json};
 
 use crate::json::{compact_sorted, open_jsonl_for_append, sha256_hex, utc_now_iso, write_json_file};
 
+/// `telemetry.jsonl` beside the other private records: one line per control step.
+pub const TELEMETRY_FILE: &str = "telemetry.jsonl";
+
 pub const ACTION_EVENT_SCHEMA: &str = "libero.agent_action_event.v1";
 pub const RESULT_SCHEMA: &str = "libero.agent_run_result.v1";
 
@@ -50,7 +53,7 @@ impl RunDir {
     }
     /// Per-control-step end-effector, gripper and wrist-force series for the review page.
     pub fn telemetry_jsonl(&self) -> PathBuf {
-        self.root.join(crate::live::TELEMETRY_FILE)
+        self.root.join(TELEMETRY_FILE)
     }
 }
 
@@ -228,23 +231,6 @@ mod tests {
         assert!(serde_json::from_str::<Value>(lines[1]).is_err(), "the torn line stays as it was");
         let last: Value = serde_json::from_str(lines[2]).expect("the next event is a whole line");
         assert_eq!(last["event_index"], 2);
-    }
-
-    /// The longest valid `osc_sequence` arguments: 50 actions whose every component has the longest JSON
-    /// form a number in [-1, 1] can take.
-    fn maximal_valid_arguments() -> Value {
-        let longest = -2.2250738585072014e-308_f64; // 24 characters
-        assert_eq!(serde_json::to_string(&longest).unwrap().len(), 24);
-        json!({"actions": vec![[longest; 7]; crate::tools::MAX_MICRO_ACTIONS_PER_CALL]})
-    }
-
-    #[test]
-    fn the_largest_valid_call_is_logged_in_full() {
-        let args = maximal_valid_arguments();
-        assert!(crate::call::validate_actions(&args["actions"]).is_ok());
-        let size = compact_sorted(&args).len();
-        assert!(size * 3 / 2 < MAX_LOGGED_FIELD_BYTES, "{size} bytes: the limit must stay well above a valid call");
-        assert_eq!(bounded_for_log(&args), args);
     }
 
     #[test]

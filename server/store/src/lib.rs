@@ -1,0 +1,696 @@
+//! The episode store: one row per prepared episode (task, level, seed, init state, times, outcome of §4.8,
+//! reason, stage counts, run directory), written when an episode is prepared, when it starts and when it
+//! ends. Two backends through sqlx's `Any` driver, chosen by URL (`--store`): `sqlite://PATH` (the embedded
+//! default, `<data>/episodes.sqlite`) or `postgres://…` (one store shared by several servers). The SQL is
+//! plain (`$n` placeholders, `BIGINT`/`BOOLEAN`/`TEXT`, `ON CONFLICT DO NOTHING`), the same statements on
+//! both. The run directories stay the source of truth: at startup [`Store::reconcile`] rebuilds any row the
+//! files know better (a crash between `result.json` and the store write loses nothing), and closes only the
+//! open rows of its own run directories (another server's running episodes in a shared store stay open).
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use libero_records::json::utc_now_iso;
+use libero_records::records::{Outcome, RunDir, classify, read_result};
+use serde::Serialize;
+use serde_json::Value;
+use sqlx::Row;
+use sqlx::AnyPool;
+use sqlx::any::{AnyPoolOptions, AnyRow};
+
+/// File name of the store inside the data directory.
+pub const STORE_FILE: &str = "episodes.sqlite";
+/// Reason stored for a row whose episode was open when the server went away and whose run directory is gone.
+pub const MISSING_RUN_REASON: &str = "server_stopped_before_finish: the run directory was missing at restart";
+
+const SCHEMA: &str = "CREATE TABLE IF NOT EXISTS episodes (
+    id TEXT PRIMARY KEY,
+    task_ref TEXT NOT NULL,
+    level BIGINT NOT NULL,
+    seed BIGINT NOT NULL,
+    init_index BIGINT NOT NULL,
+    created_at TEXT NOT NULL,
+    started_at TEXT,
+    finished_at TEXT,
+    outcome TEXT,
+    reason TEXT,
+    success BOOLEAN,
+    accepted_agent_steps BIGINT,
+    completed_stage_count BIGINT,
+    required_stage_count BIGINT,
+    run_dir TEXT NOT NULL
+)";
+
+/// Batches of `libero-agent run` and their ended rollouts, as the batch directory holds them (`batch.json`, the
+/// lines of `rollouts.jsonl` in order): `run --store` writes them, `report --store` reads them back. `dir` is
+/// where the batch's files are on the machine that ran it.
+const BATCH_TABLES: [&str; 2] = [
+    "CREATE TABLE IF NOT EXISTS batches (name TEXT PRIMARY KEY, dir TEXT NOT NULL, doc TEXT NOT NULL, updated_at TEXT NOT NULL)",
+    "CREATE TABLE IF NOT EXISTS rollouts (batch TEXT NOT NULL, seq BIGINT NOT NULL, rollout_id TEXT NOT NULL, doc TEXT NOT NULL, \
+     PRIMARY KEY (batch, seq))",
+];
+
+/// A batch as the store holds it: `batch.json`'s document and the `rollouts.jsonl` records in order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredBatch {
+    pub name: String,
+    pub dir: PathBuf,
+    pub doc: Value,
+    pub records: Vec<Value>,
+}
+
+/// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
+/// older store by [`Store::open`].
+const ADDED_COLUMNS: [(&str, &str); 4] =
+    [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION")];
+
+/// The columns of a row as read back. `success` is read as a number: sqlx's `Any` driver decodes PostgreSQL's
+/// BOOLEAN but not SQLite's.
+const COLUMNS: &str = "id, task_ref, level, seed, init_index, created_at, started_at, finished_at, outcome, reason, \
+    CAST(CASE WHEN success THEN 1 WHEN NOT success THEN 0 END AS BIGINT) AS success, accepted_agent_steps, completed_stage_count, required_stage_count, run_dir, harness, model, batch, \
+    wall_time_s";
+
+/// The dashboard's episode filters (`None`: any). Outcome `RUNNING` selects episodes without an outcome yet.
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
+pub struct EpisodeFilter {
+    pub task: Option<String>,
+    pub outcome: Option<String>,
+    pub batch: Option<String>,
+}
+
+impl EpisodeFilter {
+    /// Empty strings (an empty form field) mean no filter.
+    pub fn normalized(self) -> Self {
+        let keep = |v: Option<String>| v.map(|s| s.trim().to_owned()).filter(|s| !s.is_empty());
+        Self { task: keep(self.task), outcome: keep(self.outcome).map(|o| o.to_uppercase()), batch: keep(self.batch) }
+    }
+}
+
+/// One stored episode. The run directory is private: the HTTP API leaves it out (see [`EpisodeRow::public`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EpisodeRow {
+    #[serde(flatten)]
+    pub episode: NewEpisode,
+    pub started_at: Option<String>,
+    pub finished_at: Option<String>,
+    /// `SUCCESS | FAIL | SIM_TIMEOUT | INVALID`, null while the episode is open.
+    pub outcome: Option<String>,
+    pub reason: Option<String>,
+    pub success: Option<bool>,
+    pub accepted_agent_steps: Option<i64>,
+    pub completed_stage_count: Option<i64>,
+    pub required_stage_count: Option<i64>,
+    /// Episode wall time (`result.json`), once ended.
+    pub wall_time_s: Option<f64>,
+}
+
+impl EpisodeRow {
+    /// The row as the operator API shows it: everything but filesystem paths.
+    pub fn public(&self) -> Value {
+        let mut v = serde_json::to_value(self).unwrap_or(Value::Null);
+        if let Some(o) = v.as_object_mut() {
+            o.remove("run_dir");
+        }
+        v
+    }
+
+    fn from_row(r: &AnyRow) -> Result<Self, sqlx::Error> {
+        let episode = NewEpisode {
+            id: r.try_get("id")?,
+            task_ref: r.try_get("task_ref")?,
+            level: r.try_get("level")?,
+            seed: r.try_get("seed")?,
+            init_index: r.try_get("init_index")?,
+            created_at: r.try_get("created_at")?,
+            run_dir: PathBuf::from(r.try_get::<String, _>("run_dir")?),
+            harness: r.try_get("harness")?,
+            model: r.try_get("model")?,
+            batch: r.try_get("batch")?,
+        };
+        Ok(Self {
+            episode,
+            started_at: r.try_get("started_at")?,
+            finished_at: r.try_get("finished_at")?,
+            outcome: r.try_get("outcome")?,
+            reason: r.try_get("reason")?,
+            success: r.try_get::<Option<i64>, _>("success")?.map(|v| v != 0),
+            accepted_agent_steps: r.try_get("accepted_agent_steps")?,
+            completed_stage_count: r.try_get("completed_stage_count")?,
+            required_stage_count: r.try_get("required_stage_count")?,
+            wall_time_s: r.try_get("wall_time_s")?,
+        })
+    }
+}
+
+/// How an episode ended, as `result.json` says.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EpisodeEnd {
+    pub finished_at: String,
+    pub outcome: Outcome,
+    pub reason: Option<String>,
+    pub success: bool,
+    pub accepted_agent_steps: Option<i64>,
+    pub completed_stage_count: Option<i64>,
+    pub required_stage_count: Option<i64>,
+    pub wall_time_s: Option<f64>,
+}
+
+impl EpisodeEnd {
+    /// From a run directory's `result.json` (None while it has none).
+    pub fn from_run(run: &RunDir) -> Option<Self> {
+        let result = read_result(run)?;
+        Some(Self::from_result(&result))
+    }
+
+    pub fn from_result(result: &Value) -> Self {
+        let outcome = classify(Some(result));
+        let text = |k: &str| result.get(k).and_then(Value::as_str).map(str::to_owned);
+        let eval = result.get("private_evaluation");
+        let eval_count = |k: &str| eval.and_then(|e| e.get(k)).and_then(Value::as_i64);
+        Self {
+            finished_at: text("finished_at").unwrap_or_else(utc_now_iso),
+            outcome,
+            reason: text("reason").or_else(|| text("termination_reason")),
+            success: outcome == Outcome::Success,
+            accepted_agent_steps: result.get("accepted_agent_steps").and_then(Value::as_i64),
+            completed_stage_count: eval_count("completed_required_stage_count"),
+            required_stage_count: eval_count("required_stage_count"),
+            wall_time_s: result.get("wall_time_seconds").and_then(Value::as_f64),
+        }
+    }
+}
+
+/// What is known when an episode is prepared.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NewEpisode {
+    pub id: String,
+    pub task_ref: String,
+    pub level: i64,
+    pub seed: i64,
+    pub init_index: i64,
+    pub created_at: String,
+    pub run_dir: PathBuf,
+    /// Agent harness and model driving the episode, and the batch it belongs to, where the preparer said.
+    pub harness: Option<String>,
+    pub model: Option<String>,
+    pub batch: Option<String>,
+}
+
+impl NewEpisode {
+    /// From a run directory's `episode_record.json` (written by `prepare` before anything else).
+    pub fn from_record(run: &RunDir) -> Option<Self> {
+        let text = std::fs::read_to_string(run.episode_record()).ok()?;
+        let r: Value = serde_json::from_str(&text).ok()?;
+        Some(Self {
+            id: r["episode_id"].as_str()?.to_owned(),
+            task_ref: r["task"]["task_ref"].as_str()?.to_owned(),
+            level: r["level"].as_i64()?,
+            seed: r["seed"].as_i64()?,
+            init_index: r["init_state_index"].as_i64()?,
+            created_at: r["created_at"].as_str()?.to_owned(),
+            run_dir: run.root.clone(),
+            harness: r["harness"].as_str().map(str::to_owned),
+            model: r["model"].as_str().map(str::to_owned),
+            batch: r["batch"].as_str().map(str::to_owned),
+        })
+    }
+}
+
+/// Connections of the store's pool.
+const STORE_CONNECTIONS: u32 = 4;
+
+/// Which engine a store URL names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Backend {
+    Sqlite,
+    Postgres,
+}
+
+impl Backend {
+    pub fn of_url(url: &str) -> anyhow::Result<Self> {
+        match url.split_once(':').map(|(scheme, _)| scheme) {
+            Some("sqlite") => Ok(Backend::Sqlite),
+            Some("postgres" | "postgresql") => Ok(Backend::Postgres),
+            _ => anyhow::bail!("store URL {:?}: expected sqlite://PATH or postgres://USER@HOST:PORT/DB", redact(url)),
+        }
+    }
+}
+
+/// A store URL without its password, for messages.
+pub fn redact(url: &str) -> String {
+    match (url.find("://"), url.rfind('@')) {
+        (Some(s), Some(at)) if at > s => match url[s + 3..at].split_once(':') {
+            Some((user, _)) => format!("{}{user}:***{}", &url[..s + 3], &url[at..]),
+            None => url.to_owned(),
+        },
+        _ => url.to_owned(),
+    }
+}
+
+/// The URL of the embedded store at `path`, created when missing. The path is percent-encoded: a data directory
+/// may be named anything (`?`, `#`, `%`, spaces), and sqlx decodes the path part of the URL.
+pub fn sqlite_url(path: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let mut encoded = String::new();
+    for &b in path.as_os_str().as_bytes() {
+        if b.is_ascii_alphanumeric() || b"/-_.~".contains(&b) {
+            encoded.push(char::from(b));
+        } else {
+            encoded.push_str(&format!("%{b:02X}"));
+        }
+    }
+    format!("sqlite://{encoded}?mode=rwc")
+}
+
+#[derive(Clone)]
+pub struct Store {
+    pool: AnyPool,
+    backend: Backend,
+}
+
+impl Store {
+    /// Opens (creating) the embedded SQLite store at `path` and its table.
+    pub async fn open(path: &Path) -> anyhow::Result<Self> {
+        Self::connect(&sqlite_url(path)).await
+    }
+
+    /// Opens the store a URL names (`sqlite://PATH?mode=rwc`, `postgres://…`) and creates or upgrades its table.
+    pub async fn connect(url: &str) -> anyhow::Result<Self> {
+        let backend = Backend::of_url(url)?;
+        sqlx::any::install_default_drivers();
+        let pool = AnyPoolOptions::new()
+            .max_connections(STORE_CONNECTIONS)
+            // All open from the start: a connection is a thread and three files, and a pool that grew under
+            // load would keep them for its 10-minute idle timeout, so the server's baseline depended on past load.
+            .min_connections(STORE_CONNECTIONS)
+            .connect(url)
+            .await
+            .with_context(|| format!("cannot open the episode store {}", redact(url)))?;
+        if backend == Backend::Sqlite {
+            // WAL (kept in the file): readers (the API) never block the writer; a killed process loses no
+            // committed row.
+            sqlx::query("PRAGMA journal_mode=WAL").execute(&pool).await.context("cannot switch the store to WAL")?;
+        }
+        sqlx::query(SCHEMA).execute(&pool).await.context("cannot create the episodes table")?;
+        for sql in BATCH_TABLES {
+            sqlx::query(sql).execute(&pool).await.context("cannot create the batch tables")?;
+        }
+        for (name, kind) in ADDED_COLUMNS {
+            let sql = match backend {
+                Backend::Postgres => format!("ALTER TABLE episodes ADD COLUMN IF NOT EXISTS {name} {kind}"),
+                // SQLite has no IF NOT EXISTS here: a store written by this version has the column already
+                Backend::Sqlite => format!("ALTER TABLE episodes ADD COLUMN {name} {kind}"),
+            };
+            if let Err(e) = sqlx::query(&sql).execute(&pool).await
+                && !e.to_string().to_ascii_lowercase().contains("duplicate column")
+            {
+                return Err(anyhow::Error::from(e).context(format!("cannot add column {name} to the episode store {}", redact(url))));
+            }
+        }
+        Ok(Self { pool, backend })
+    }
+
+    pub fn backend(&self) -> Backend {
+        self.backend
+    }
+
+    /// Writes a batch's `batch.json` document (replacing the stored one) and the `rollouts.jsonl` records the store
+    /// does not have yet (by position: records are only ever appended). Idempotent: run it after every change.
+    pub async fn put_batch(&self, batch: &StoredBatch) -> anyhow::Result<()> {
+        let name = &batch.name;
+        let mut tx = self.pool.begin().await.context("store: cannot begin")?;
+        sqlx::query(
+            "INSERT INTO batches (name, dir, doc, updated_at) VALUES ($1, $2, $3, $4) \
+             ON CONFLICT (name) DO UPDATE SET dir = excluded.dir, doc = excluded.doc, updated_at = excluded.updated_at",
+        )
+        .bind(name)
+        .bind(batch.dir.to_string_lossy().into_owned())
+        .bind(batch.doc.to_string())
+        .bind(utc_now_iso())
+        .execute(&mut *tx)
+        .await
+        .with_context(|| format!("store: cannot write batch {name}"))?;
+        let have: i64 = sqlx::query("SELECT CAST(COUNT(*) AS BIGINT) AS n FROM rollouts WHERE batch = $1")
+            .bind(name)
+            .fetch_one(&mut *tx)
+            .await
+            .and_then(|r| r.try_get("n"))
+            .with_context(|| format!("store: cannot count the rollouts of batch {name}"))?;
+        for (seq, record) in batch.records.iter().enumerate().skip(usize::try_from(have).unwrap_or(0)) {
+            sqlx::query("INSERT INTO rollouts (batch, seq, rollout_id, doc) VALUES ($1, $2, $3, $4) ON CONFLICT DO NOTHING")
+                .bind(name)
+                .bind(seq as i64)
+                .bind(record["rollout_id"].as_str().unwrap_or_default())
+                .bind(record.to_string())
+                .execute(&mut *tx)
+                .await
+                .with_context(|| format!("store: cannot write a rollout of batch {name}"))?;
+        }
+        tx.commit().await.with_context(|| format!("store: cannot commit batch {name}"))?;
+        Ok(())
+    }
+
+    /// A stored batch, its records in the order they were recorded; `None` when the store has no such batch.
+    pub async fn batch(&self, name: &str) -> anyhow::Result<Option<StoredBatch>> {
+        let Some(row) = sqlx::query("SELECT dir, doc FROM batches WHERE name = $1")
+            .bind(name)
+            .fetch_optional(&self.pool)
+            .await
+            .with_context(|| format!("store: cannot read batch {name}"))?
+        else {
+            return Ok(None);
+        };
+        let parse = |text: String| serde_json::from_str::<Value>(&text).with_context(|| format!("store: batch {name} holds bad JSON"));
+        let doc = parse(row.try_get("doc")?)?;
+        let dir = PathBuf::from(row.try_get::<String, _>("dir")?);
+        let records = sqlx::query("SELECT doc FROM rollouts WHERE batch = $1 ORDER BY seq")
+            .bind(name)
+            .fetch_all(&self.pool)
+            .await
+            .with_context(|| format!("store: cannot read the rollouts of batch {name}"))?
+            .into_iter()
+            .map(|r| parse(r.try_get("doc")?))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        Ok(Some(StoredBatch { name: name.to_owned(), dir, doc, records }))
+    }
+
+    /// The names of the stored batches, sorted.
+    pub async fn batch_names(&self) -> anyhow::Result<Vec<String>> {
+        let rows = sqlx::query("SELECT name FROM batches ORDER BY name").fetch_all(&self.pool).await.context("store: cannot list batches")?;
+        rows.iter().map(|r| r.try_get::<String, _>("name").map_err(anyhow::Error::from)).collect()
+    }
+
+    /// The row of a newly prepared episode (kept as is if it already exists).
+    pub async fn insert_prepared(&self, e: &NewEpisode) -> anyhow::Result<()> {
+        sqlx::query(
+            "INSERT INTO episodes (id, task_ref, level, seed, init_index, created_at, run_dir, harness, model, batch) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10) ON CONFLICT (id) DO NOTHING",
+        )
+        .bind(&e.id)
+        .bind(&e.task_ref)
+        .bind(e.level)
+        .bind(e.seed)
+        .bind(e.init_index)
+        .bind(&e.created_at)
+        .bind(e.run_dir.to_string_lossy().into_owned())
+        .bind(&e.harness)
+        .bind(&e.model)
+        .bind(&e.batch)
+        .execute(&self.pool)
+        .await
+        .with_context(|| format!("store: cannot insert episode {}", e.id))?;
+        Ok(())
+    }
+
+    pub async fn mark_started(&self, id: &str, started_at: &str) -> anyhow::Result<()> {
+        sqlx::query("UPDATE episodes SET started_at = $1 WHERE id = $2 AND started_at IS NULL")
+            .bind(started_at)
+            .bind(id)
+            .execute(&self.pool)
+            .await
+            .with_context(|| format!("store: cannot mark episode {id} started"))?;
+        Ok(())
+    }
+
+    /// Records the end once; a row that already has an outcome keeps it.
+    pub async fn record_end(&self, id: &str, end: &EpisodeEnd) -> anyhow::Result<()> {
+        sqlx::query(
+            "UPDATE episodes SET finished_at = $1, outcome = $2, reason = $3, success = $4, \
+             accepted_agent_steps = $5, completed_stage_count = $6, required_stage_count = $7, wall_time_s = $8 \
+             WHERE id = $9 AND outcome IS NULL",
+        )
+        .bind(&end.finished_at)
+        .bind(end.outcome.as_str())
+        .bind(&end.reason)
+        .bind(end.success)
+        .bind(end.accepted_agent_steps)
+        .bind(end.completed_stage_count)
+        .bind(end.required_stage_count)
+        .bind(end.wall_time_s)
+        .bind(id)
+        .execute(&self.pool)
+        .await
+        .with_context(|| format!("store: cannot record the end of episode {id}"))?;
+        Ok(())
+    }
+
+    /// At startup, after the run directories were recovered: every run directory has its row, every ended
+    /// episode its outcome; rows still open without a run directory become INVALID. Returns how many rows
+    /// were closed.
+    pub async fn reconcile(&self, runs_dir: &Path) -> anyhow::Result<u64> {
+        let mut closed = 0;
+        let mut dirs: Vec<PathBuf> = match std::fs::read_dir(runs_dir) {
+            Ok(d) => d.flatten().map(|e| e.path()).collect(),
+            Err(_) => Vec::new(),
+        };
+        dirs.sort();
+        for dir in dirs {
+            let run = RunDir::new(dir);
+            let Some(new) = NewEpisode::from_record(&run) else { continue };
+            self.insert_prepared(&new).await?;
+            if let Some(end) = EpisodeEnd::from_run(&run) {
+                let before = self.get(&new.id).await?.and_then(|r| r.outcome);
+                self.record_end(&new.id, &end).await?;
+                closed += u64::from(before.is_none());
+            }
+        }
+        // Rows of this server's run directories still open without their directory: the episode was lost with
+        // the server. Rows under other run directories (another server on a shared store) are not this one's.
+        let open = sqlx::query("SELECT id, run_dir FROM episodes WHERE outcome IS NULL")
+            .fetch_all(&self.pool)
+            .await
+            .context("store: cannot list open rows")?;
+        let mut orphans = 0;
+        for row in &open {
+            let (id, run_dir): (String, String) = (row.try_get("id")?, row.try_get("run_dir")?);
+            let run_dir = PathBuf::from(run_dir);
+            let foreign = self.backend == Backend::Postgres && run_dir.parent() != Some(runs_dir);
+            if foreign || run_dir.exists() {
+                continue;
+            }
+            let closed_row = sqlx::query(
+                "UPDATE episodes SET finished_at = $1, outcome = $2, reason = $3, success = $4 WHERE id = $5 AND outcome IS NULL",
+            )
+            .bind(utc_now_iso())
+            .bind(Outcome::Invalid.as_str())
+            .bind(MISSING_RUN_REASON)
+            .bind(false)
+            .bind(&id)
+            .execute(&self.pool)
+            .await
+            .context("store: cannot close an orphaned row")?;
+            orphans += closed_row.rows_affected();
+        }
+        Ok(closed + orphans)
+    }
+
+    pub async fn get(&self, id: &str) -> anyhow::Result<Option<EpisodeRow>> {
+        let row = sqlx::query(&format!("SELECT {COLUMNS} FROM episodes WHERE id = $1"))
+            .bind(id)
+            .fetch_optional(&self.pool)
+            .await
+            .with_context(|| format!("store: cannot read episode {id}"))?;
+        Ok(row.as_ref().map(EpisodeRow::from_row).transpose()?)
+    }
+
+    /// Newest first.
+    pub async fn list(&self, limit: i64) -> anyhow::Result<Vec<EpisodeRow>> {
+        self.list_filtered(&EpisodeFilter::default(), limit).await
+    }
+
+    /// Newest first, those matching `filter`.
+    pub async fn list_filtered(&self, filter: &EpisodeFilter, limit: i64) -> anyhow::Result<Vec<EpisodeRow>> {
+        let sql = format!(
+            "SELECT {COLUMNS} FROM episodes WHERE ($1 IS NULL OR task_ref = $1) \
+             AND ($2 IS NULL OR outcome = $2 OR ($2 = 'RUNNING' AND outcome IS NULL)) AND ($3 IS NULL OR batch = $3) \
+             ORDER BY created_at DESC, id DESC LIMIT $4"
+        );
+        let rows = sqlx::query(&sql)
+            .bind(&filter.task)
+            .bind(&filter.outcome)
+            .bind(&filter.batch)
+            .bind(limit)
+            .fetch_all(&self.pool)
+            .await
+            .context("store: cannot list episodes")?;
+        Ok(rows.iter().map(EpisodeRow::from_row).collect::<Result<_, _>>()?)
+    }
+
+    pub async fn close(&self) {
+        self.pool.close().await;
+    }
+}
+
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
+
+#[cfg(test)]
+mod tests {
+    use super::testing::TestPostgres;
+    use super::*;
+    use serde_json::json;
+
+    fn new_episode(id: &str, run_dir: &Path) -> NewEpisode {
+        NewEpisode {
+            id: id.into(),
+            task_ref: "libero_90/KITCHEN_SCENE10_close_the_top_drawer_of_the_cabinet".into(),
+            level: 3,
+            seed: 100,
+            init_index: 2,
+            created_at: utc_now_iso(),
+            run_dir: run_dir.to_path_buf(),
+            harness: Some("codex".into()),
+            model: None,
+            batch: Some("b1".into()),
+        }
+    }
+
+    async fn sqlite_store(dir: &Path) -> Store {
+        Store::open(&dir.join(STORE_FILE)).await.unwrap()
+    }
+
+    /// A batch written as it grows (the document replaced, records appended) reads back exactly, in order, with no
+    /// record twice however often it is written.
+    async fn batches_round_trip(store: Store) {
+        let record = |id: &str, outcome: &str| json!({"rollout_id": id, "outcome": outcome, "task": "T14"});
+        let mut batch = StoredBatch {
+            name: "b1".into(),
+            dir: PathBuf::from("/runs/b1"),
+            doc: json!({"status": "running", "counts": {"done": 1}}),
+            records: vec![record("r1", "FAIL")],
+        };
+        store.put_batch(&batch).await.unwrap();
+        store.put_batch(&batch).await.unwrap();
+        batch.doc = json!({"status": "finished", "counts": {"done": 3}});
+        batch.records.extend([record("r2", "SUCCESS"), record("r1", "INVALID")]);
+        store.put_batch(&batch).await.unwrap();
+        store.put_batch(&batch).await.unwrap();
+        assert_eq!(store.batch("b1").await.unwrap(), Some(batch.clone()));
+        assert_eq!(store.batch("b2").await.unwrap(), None);
+        let other = StoredBatch { name: "a0".into(), records: Vec::new(), ..batch };
+        store.put_batch(&other).await.unwrap();
+        assert_eq!(store.batch_names().await.unwrap(), ["a0", "b1"]);
+    }
+
+    #[tokio::test]
+    async fn sqlite_batches_round_trip_in_order_without_duplicates() {
+        let dir = tempfile::tempdir().unwrap();
+        batches_round_trip(sqlite_store(dir.path()).await).await;
+    }
+
+    #[tokio::test]
+    async fn postgres_batches_round_trip_in_order_without_duplicates() {
+        let pg = TestPostgres::start();
+        let store = Store::connect(&pg.url).await.unwrap();
+        batches_round_trip(store.clone()).await;
+        store.close().await;
+    }
+
+    #[tokio::test]
+    async fn sqlite_rows_follow_an_episode_from_prepare_to_its_end_and_keep_the_first_outcome() {
+        let dir = tempfile::tempdir().unwrap();
+        rows_follow_an_episode(sqlite_store(dir.path()).await, dir.path()).await;
+    }
+
+    #[tokio::test]
+    async fn postgres_rows_follow_an_episode_from_prepare_to_its_end_and_keep_the_first_outcome() {
+        let pg = TestPostgres::start();
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::connect(&pg.url).await.unwrap();
+        assert_eq!(store.backend(), Backend::Postgres);
+        rows_follow_an_episode(store.clone(), dir.path()).await;
+        store.close().await;
+        // Opening an existing store again (a second server, a restart) keeps its rows and columns.
+        let again = Store::connect(&pg.url).await.unwrap();
+        assert_eq!(again.list(10).await.unwrap().len(), 1);
+        again.close().await;
+    }
+
+    #[tokio::test]
+    async fn sqlite_reconcile_restores_ended_episodes_from_run_directories_and_closes_orphans() {
+        let dir = tempfile::tempdir().unwrap();
+        reconcile_restores_and_closes_orphans(sqlite_store(dir.path()).await, dir.path()).await;
+    }
+
+    #[tokio::test]
+    async fn postgres_reconcile_closes_only_its_own_orphans() {
+        let pg = TestPostgres::start();
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::connect(&pg.url).await.unwrap();
+        // Another server's open episode in the shared store: not this server's to close.
+        let other = dir.path().join("other-server/runs/ep-elsewhere");
+        store.insert_prepared(&new_episode("ep-elsewhere", &other)).await.unwrap();
+        reconcile_restores_and_closes_orphans(store.clone(), dir.path()).await;
+        assert_eq!(store.get("ep-elsewhere").await.unwrap().unwrap().outcome, None, "another server's episode stays open");
+        store.close().await;
+    }
+
+    #[tokio::test]
+    async fn the_embedded_store_opens_in_a_directory_whose_name_needs_quoting_in_a_url() {
+        let dir = tempfile::tempdir().unwrap();
+        let odd = dir.path().join("my data #1 ?x=y 100%");
+        std::fs::create_dir_all(&odd).unwrap();
+        let store = Store::open(&odd.join(STORE_FILE)).await.unwrap();
+        store.insert_prepared(&new_episode("ep-odd", &odd)).await.unwrap();
+        assert!(store.get("ep-odd").await.unwrap().is_some());
+        store.close().await;
+        assert!(odd.join(STORE_FILE).is_file(), "the file is where the path says, not at a truncated name");
+    }
+
+    #[test]
+    fn store_urls_name_their_backend_and_messages_hide_the_password() {
+        assert_eq!(Backend::of_url("sqlite:///tmp/x.sqlite").unwrap(), Backend::Sqlite);
+        assert_eq!(Backend::of_url("postgres://u:secret@h:5432/db").unwrap(), Backend::Postgres);
+        let err = Backend::of_url("mysql://u:secret@h/db").unwrap_err().to_string();
+        assert!(err.contains("postgres://") && !err.contains("secret"), "{err}");
+        assert_eq!(redact("postgres://u:secret@h:5432/db"), "postgres://u:***@h:5432/db");
+        assert_eq!(redact("sqlite:///a/b"), "sqlite:///a/b");
+    }
+
+    async fn rows_follow_an_episode(store: Store, dir: &Path) {
+        store.insert_prepared(&new_episode("ep-a", dir)).await.unwrap();
+        let row = store.get("ep-a").await.unwrap().unwrap();
+        assert_eq!((row.episode.level, row.episode.seed, row.episode.init_index), (3, 100, 2));
+        assert_eq!(row.outcome, None);
+        store.mark_started("ep-a", "2026-01-01T00:00:00+00:00").await.unwrap();
+        let result = json!({"status": "finished", "success": false, "accepted_agent_steps": 7,
+            "termination_reason": "episode_wall_time_budget_exhausted", "finished_at": "2026-01-01T00:30:00+00:00",
+            "private_evaluation": {"completed_required_stage_count": 1, "required_stage_count": 3}});
+        store.record_end("ep-a", &EpisodeEnd::from_result(&result)).await.unwrap();
+        let aborted = json!({"status": "aborted", "reason": "late"});
+        store.record_end("ep-a", &EpisodeEnd::from_result(&aborted)).await.unwrap();
+        let row = store.get("ep-a").await.unwrap().unwrap();
+        assert_eq!(row.outcome.as_deref(), Some("SIM_TIMEOUT"));
+        assert_eq!(row.reason.as_deref(), Some("episode_wall_time_budget_exhausted"));
+        assert_eq!((row.success, row.accepted_agent_steps), (Some(false), Some(7)));
+        assert_eq!((row.completed_stage_count, row.required_stage_count), (Some(1), Some(3)));
+        assert_eq!(row.started_at.as_deref(), Some("2026-01-01T00:00:00+00:00"));
+        assert!(row.public().get("run_dir").is_none(), "paths stay out of the API");
+        assert_eq!(store.list(10).await.unwrap(), vec![row.clone()]);
+        let filter = |task: &str, outcome: &str, batch: &str| {
+            EpisodeFilter { task: Some(task.into()), outcome: Some(outcome.into()), batch: Some(batch.into()) }.normalized()
+        };
+        let task = row.episode.task_ref.clone();
+        assert_eq!(store.list_filtered(&filter(&task, "sim_timeout", "b1"), 10).await.unwrap(), vec![row.clone()]);
+        assert!(store.list_filtered(&filter(&task, "RUNNING", ""), 10).await.unwrap().is_empty());
+        assert!(store.list_filtered(&filter("", "", "b2"), 10).await.unwrap().is_empty());
+        assert_eq!(row.episode.harness.as_deref(), Some("codex"));
+    }
+
+    async fn reconcile_restores_and_closes_orphans(store: Store, dir: &Path) {
+        let runs = dir.join("runs");
+        let run = RunDir::new(runs.join("ep-files"));
+        std::fs::create_dir_all(&run.root).unwrap();
+        let record = json!({"episode_id": "ep-files", "created_at": "2026-01-01T00:00:00+00:00",
+            "task": {"task_ref": "libero_object/x"}, "level": 1, "seed": 5, "init_state_index": 0});
+        std::fs::write(run.episode_record(), record.to_string()).unwrap();
+        std::fs::write(run.result_json(), json!({"status": "finished", "success": true}).to_string()).unwrap();
+        // A row whose run directory vanished while it was open.
+        store.insert_prepared(&new_episode("ep-gone", &runs.join("ep-gone"))).await.unwrap();
+        assert_eq!(store.reconcile(&runs).await.unwrap(), 2);
+        let files = store.get("ep-files").await.unwrap().expect("row rebuilt from the run directory");
+        assert_eq!((files.outcome.as_deref(), files.success, files.episode.seed), (Some("SUCCESS"), Some(true), 5));
+        let gone = store.get("ep-gone").await.unwrap().unwrap();
+        assert_eq!((gone.outcome.as_deref(), gone.reason.as_deref()), (Some("INVALID"), Some(MISSING_RUN_REASON)));
+        assert_eq!(store.reconcile(&runs).await.unwrap(), 0, "idempotent");
+    }
+}
