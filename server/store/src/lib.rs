@@ -17,6 +17,9 @@ use sqlx::Row;
 use sqlx::AnyPool;
 use sqlx::any::{AnyPoolOptions, AnyRow};
 
+pub mod queue;
+pub use queue::{Job, QueueListener, QueueProgress, WorkerRow, QUEUE_CHANNEL};
+
 /// File name of the store inside the data directory.
 pub const STORE_FILE: &str = "episodes.sqlite";
 /// Reason stored for a row whose episode was open when the server went away and whose run directory is gone.
@@ -291,8 +294,8 @@ impl Store {
             sqlx::query("PRAGMA journal_mode=WAL").execute(&pool).await.context("cannot switch the store to WAL")?;
         }
         sqlx::query(SCHEMA).execute(&pool).await.context("cannot create the episodes table")?;
-        for sql in BATCH_TABLES {
-            sqlx::query(sql).execute(&pool).await.context("cannot create the batch tables")?;
+        for sql in BATCH_TABLES.iter().chain(queue::QUEUE_TABLES.iter()) {
+            sqlx::query(sql).execute(&pool).await.context("cannot create the batch and queue tables")?;
         }
         for (name, kind) in ADDED_COLUMNS {
             let sql = match backend {
