@@ -237,6 +237,22 @@ def check_node_clis(node: Path) -> None:
             fail(f"{bin_dir / cmd} --version failed after npm install")
 
 
+def setup_s3_server(spec: dict) -> None:
+    """The S3-compatible test server (`s3s-fs`, a crate on crates.io) built once into the cache with `cargo install`
+    at the locked version; the queue test starts it on a free loopback port over a temporary directory."""
+    root = cache_dir() / f"{spec['crate']}-{spec['version']}"
+    exe = root / "bin" / spec["crate"]
+    if exe.exists():
+        return
+    say(f"building {spec['crate']} {spec['version']} from crates.io into {root} (once, a few minutes)")
+    cmd = ["cargo", "install", spec["crate"], "--version", spec["version"], "--locked", "--root", str(root)]
+    if spec.get("features"):
+        cmd += ["--features", ",".join(spec["features"])]
+    if subprocess.call(cmd) != 0 or not exe.exists():
+        shutil.rmtree(root, ignore_errors=True)
+        fail(f"cargo install {spec['crate']} failed; nothing was kept")
+
+
 def main() -> None:
     args = set(sys.argv[1:])
     lock = json.loads(LOCK.read_text())
@@ -246,6 +262,7 @@ def main() -> None:
     if "--test" in args:
         setup_venv(lock["python_test_venv"])
         setup_node(lock["node_test"])
+        setup_s3_server(lock["s3_test_server"])
     say(f"ready (cache {cache_dir()})")
 
 

@@ -14,7 +14,7 @@ use serde::Serialize;
 use serde_json::{Value, json};
 
 use crate::bench_mcp::percentile_ms;
-use crate::serve::client::{InProcessServer, McpClient, get_json, prepare_episode};
+use crate::serve::client::{InProcessServer, McpClient, prepare_episode, wait_for_video};
 
 /// The longest one episode's video may take (a software renderer behind several episodes).
 const VIDEO_TIMEOUT: Duration = Duration::from_secs(900);
@@ -209,25 +209,9 @@ fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> anyhow::Result
         bail!("episode {}: finish_episode answered {finished}", prepared.episode_id);
     }
     if req.video {
-        wait_for_video(base, &prepared.episode_id)?;
+        wait_for_video(base, &prepared.episode_id, VIDEO_TIMEOUT)?;
     }
     Ok(prepare_ms)
-}
-
-/// An episode's cost includes its private video, rendered after it ends: waits until the review API says it is
-/// there.
-fn wait_for_video(base: &str, episode_id: &str) -> anyhow::Result<()> {
-    let t = Instant::now();
-    loop {
-        let (status, v) = get_json(base, &format!("/api/episodes/{episode_id}/review?part=video"))?;
-        if status == 200 && v["video"] == true {
-            return Ok(());
-        }
-        if v["video_status"]["state"] == "failed" || v["video_status"].is_null() || t.elapsed() > VIDEO_TIMEOUT {
-            bail!("episode {episode_id}: the video did not complete: {v}");
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    }
 }
 
 /// Runs episodes `range` with `concurrent` client threads; returns each one's prepare time (ms).

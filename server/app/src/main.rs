@@ -8,6 +8,8 @@ mod cmd_tasks;
 #[cfg(feature = "episode-serve")]
 mod bench_mcp;
 #[cfg(feature = "episode-serve")]
+mod bench_queue;
+#[cfg(feature = "episode-serve")]
 mod bench_teleop;
 #[cfg(feature = "episode-serve")]
 mod bench_soak;
@@ -70,6 +72,9 @@ enum Command {
     /// A benchmark batch: agent CLIs on scheduled rollouts, sandboxed and supervised (`--dry-run` to preview).
     #[cfg(feature = "episode-serve")]
     Run(Box<run::RunArgs>),
+    /// Run queued rollouts on this machine: claim from the store's queue, run, upload to the artifact store.
+    #[cfg(feature = "episode-serve")]
+    Worker(run::worker::WorkerArgs),
     /// The paper's tables from batch directories.
     #[cfg(feature = "episode-serve")]
     Report(cmd_report::ReportArgs),
@@ -90,6 +95,9 @@ enum BenchCommand {
     /// Teleop key-to-frame latency over the real WebSocket path (control socket → episode → live frame).
     #[cfg(feature = "episode-serve")]
     Teleop(bench_teleop::BenchTeleopArgs),
+    /// The queue: claim latency with 1 and 3 claimers, rollouts per hour with 1 and 3 workers, in one run.
+    #[cfg(feature = "episode-serve")]
+    Queue(bench_queue::BenchQueueArgs),
     /// Many short episodes over MCP: resident memory, threads and open files before, at the peak and after.
     #[cfg(feature = "episode-serve")]
     Soak(bench_soak::BenchSoakArgs),
@@ -109,6 +117,8 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Soak(a)) => bench_soak::run(&a),
         #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Queue(a)) => bench_queue::run(&a),
+        #[cfg(feature = "episode-serve")]
         Command::Serve(a) => serve::run_serve(a),
         #[cfg(feature = "episode-serve")]
         Command::Episode(a) => cmd_episode::run_episode(a),
@@ -120,6 +130,8 @@ fn main() -> anyhow::Result<()> {
         Command::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
         #[cfg(feature = "episode-serve")]
         Command::Run(a) => run::run(*a),
+        #[cfg(feature = "episode-serve")]
+        Command::Worker(a) => run::worker::run(a),
         #[cfg(feature = "episode-serve")]
         Command::Report(a) => cmd_report::run(a),
         #[cfg(feature = "episode-serve")]

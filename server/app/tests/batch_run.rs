@@ -80,7 +80,8 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
         .map(str::to_owned)
         .collect::<Vec<_>>();
         a.extend(["--batch".into(), batch.display().to_string(), "--workspace-root".into(), workspaces.display().to_string()]);
-        a.extend(["--store".into(), pg.url.clone()]);
+        // `--local`: run here and mirror to the store (without it a PostgreSQL store queues the batch for workers).
+        a.extend(["--store".into(), pg.url.clone(), "--local".into()]);
         if resume {
             a.push("--resume".into());
         }

@@ -18,7 +18,7 @@ use sqlx::AnyPool;
 use sqlx::any::{AnyPoolOptions, AnyRow};
 
 pub mod queue;
-pub use queue::{Job, QueueListener, QueueProgress, WorkerRow, QUEUE_CHANNEL};
+pub use queue::{EPISODE_CHANNEL, Job, QUEUE_CHANNEL, QueueListener, QueueProgress, WorkerRow};
 
 /// File name of the store inside the data directory.
 pub const STORE_FILE: &str = "episodes.sqlite";
@@ -316,6 +316,19 @@ impl Store {
         self.backend
     }
 
+    /// Tells PostgreSQL listeners (every dashboard on the store) that episode `id` changed.
+    async fn notify_episode(&self, id: &str) -> anyhow::Result<()> {
+        if self.backend == Backend::Postgres {
+            sqlx::query("SELECT pg_notify($1, $2)")
+                .bind(EPISODE_CHANNEL)
+                .bind(id)
+                .execute(&self.pool)
+                .await
+                .context("store: cannot notify the episode's listeners")?;
+        }
+        Ok(())
+    }
+
     /// Writes a batch's `batch.json` document (replacing the stored one) and the `rollouts.jsonl` records the store
     /// does not have yet (by position: records are only ever appended). Idempotent: run it after every change.
     pub async fn put_batch(&self, batch: &StoredBatch) -> anyhow::Result<()> {
@@ -401,7 +414,7 @@ impl Store {
         .execute(&self.pool)
         .await
         .with_context(|| format!("store: cannot insert episode {}", e.id))?;
-        Ok(())
+        self.notify_episode(&e.id).await
     }
 
     pub async fn mark_started(&self, id: &str, started_at: &str) -> anyhow::Result<()> {
@@ -411,7 +424,7 @@ impl Store {
             .execute(&self.pool)
             .await
             .with_context(|| format!("store: cannot mark episode {id} started"))?;
-        Ok(())
+        self.notify_episode(id).await
     }
 
     /// Records the end once; a row that already has an outcome keeps it.
@@ -433,7 +446,7 @@ impl Store {
         .execute(&self.pool)
         .await
         .with_context(|| format!("store: cannot record the end of episode {id}"))?;
-        Ok(())
+        self.notify_episode(id).await
     }
 
     /// At startup, after the run directories were recovered: every run directory has its row, every ended

@@ -29,6 +29,8 @@ pub(crate) const QUEUE_TABLES: [&str; 3] = [
 
 /// The PostgreSQL channel a `NOTIFY` goes to after every queue transition; the payload is the batch's name.
 pub const QUEUE_CHANNEL: &str = "libero_queue";
+/// The channel of episode transitions (prepared, started, ended); the payload is the episode id.
+pub const EPISODE_CHANNEL: &str = "libero_episodes";
 
 /// A claimed rollout.
 #[derive(Debug, Clone, PartialEq)]
@@ -349,18 +351,30 @@ impl Store {
             return Ok(());
         };
         let mut doc: Value = serde_json::from_str(&row.try_get::<String, _>("doc")?).unwrap_or(Value::Null);
-        let jobs = sqlx::query("SELECT rollout_id, state, outcome FROM queue WHERE batch = $1 ORDER BY seq")
+        let jobs = sqlx::query(
+            "SELECT q.rollout_id, q.state, q.outcome, q.worker, w.host, w.live_url FROM queue q \
+             LEFT JOIN workers w ON w.id = q.worker WHERE q.batch = $1 ORDER BY q.seq",
+        )
             .bind(batch)
             .fetch_all(&mut **tx)
             .await
             .with_context(|| format!("store: cannot read the queue of batch {batch}"))?;
         let (mut done, mut left) = (0u64, 0u64);
-        let mut running = Vec::new();
+        let (mut running, mut running_on) = (Vec::new(), Vec::new());
         let mut outcomes = serde_json::Map::new();
         for j in &jobs {
             match j.try_get::<String, _>("state")?.as_str() {
                 "queued" => left += 1,
-                "running" => running.push(Value::String(j.try_get("rollout_id")?)),
+                "running" => {
+                    let id: String = j.try_get("rollout_id")?;
+                    running_on.push(serde_json::json!({
+                        "rollout_id": id,
+                        "worker": j.try_get::<Option<String>, _>("worker")?,
+                        "host": j.try_get::<Option<String>, _>("host")?,
+                        "live_url": j.try_get::<Option<String>, _>("live_url")?,
+                    }));
+                    running.push(Value::String(id));
+                }
                 _ => {
                     done += 1;
                     let outcome = j.try_get::<Option<String>, _>("outcome")?.unwrap_or_else(|| "INVALID".into());
@@ -374,6 +388,8 @@ impl Store {
         fields.insert("status".into(), Value::from(status));
         fields.insert("counts".into(), serde_json::json!({"done": done, "running": running.len(), "left": left}));
         fields.insert("running".into(), Value::Array(running));
+        // Which worker runs what, and where its own live views are (`worker --public-url`).
+        fields.insert("running_on".into(), Value::Array(running_on));
         fields.insert("outcomes".into(), Value::Object(outcomes));
         fields.insert("updated_at".into(), Value::from(utc_now_iso()));
         sqlx::query("UPDATE batches SET doc = $2, updated_at = $3 WHERE name = $1")
@@ -409,12 +425,17 @@ pub enum QueueListener {
 
 impl QueueListener {
     pub async fn connect(url: &str) -> anyhow::Result<Self> {
+        Self::connect_to(url, &[QUEUE_CHANNEL]).await
+    }
+
+    /// Listens on `channels` ([`QUEUE_CHANNEL`], [`EPISODE_CHANNEL`]).
+    pub async fn connect_to(url: &str, channels: &[&str]) -> anyhow::Result<Self> {
         match Backend::of_url(url)? {
             Backend::Postgres => {
                 let mut l = sqlx::postgres::PgListener::connect(url)
                     .await
                     .with_context(|| format!("cannot listen on the store {}", crate::redact(url)))?;
-                l.listen(QUEUE_CHANNEL).await.context("store: cannot LISTEN")?;
+                l.listen_all(channels.iter().copied()).await.context("store: cannot LISTEN")?;
                 Ok(Self::Postgres(l))
             }
             Backend::Sqlite => Ok(Self::Poll),

@@ -86,6 +86,12 @@ pub struct RolloutRecord {
     pub usage: Option<super::usage::Usage>,
     pub started_at: String,
     pub finished_at: String,
+    /// The `libero-agent worker` that ran a queued rollout.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub worker: Option<String>,
+    /// Where a queued rollout's run directory is in the artifact store (`<artifacts URL>/runs/<episode id>`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub artifacts: Option<String>,
 }
 
 impl RolloutRecord {
@@ -120,6 +126,8 @@ impl RolloutRecord {
             usage: None,
             started_at: now.clone(),
             finished_at: now,
+            worker: None,
+            artifacts: None,
         }
     }
 

@@ -7,10 +7,12 @@ pub mod batch;
 #[cfg(test)]
 mod cli_checks;
 pub mod harness;
+pub mod queue;
 pub mod rollout;
 pub mod sandbox;
 pub mod schedule;
 pub mod usage;
+pub mod worker;
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::{Path, PathBuf};
@@ -53,8 +55,9 @@ pub struct RunArgs {
     /// Reasoning effort where the harness supports it.
     #[arg(long, default_value = "high", value_parser = ["low", "medium", "high"])]
     pub effort: String,
-    #[arg(long, default_value_t = 1)]
-    pub concurrency: usize,
+    /// Rollouts at once in a local run (default 1).
+    #[arg(long)]
+    pub concurrency: Option<usize>,
     /// Only these tasks, e.g. `T11,T13` (default: every implemented task of the experiment). With
     /// `--experiment pool` also `suite:robomemarena`, `suite:release`, `group:long_horizon` and pool addresses
     /// (`libero_90/35`, `libero_90/<name>`; see `tasks list --suite all`); default every entry that runs.
@@ -100,10 +103,35 @@ pub struct RunArgs {
     /// Run agents without the bubblewrap sandbox (they can then read everything this user can).
     #[arg(long)]
     pub no_sandbox: bool,
-    /// Also write the batch and its rollouts to this store (`sqlite://PATH` or `postgres://…`) as they change, for
-    /// `report --store URL NAME` on any machine. The batch is named by its directory's name.
+    /// The store. `postgres://…`: the batch is queued there (`--batch` is then its name) and run by
+    /// `libero-agent worker`s on any machine, while this command follows its progress. `sqlite://PATH` (or
+    /// `--local`): the batch runs here and is also written to the store as it changes, for `report --store URL
+    /// NAME` on any machine (named by its directory's name).
     #[arg(long, value_name = "URL")]
     pub store: Option<String>,
+    /// With a queue store: enqueue and return (workers run it; `report --store` reads it).
+    #[arg(long)]
+    pub detach: bool,
+    /// With a PostgreSQL store: run here, mirroring the batch to the store, instead of queueing it.
+    #[arg(long)]
+    pub local: bool,
+}
+
+impl RunArgs {
+    /// The store URL of a queued batch: a PostgreSQL store without `--local`.
+    fn queue_store(&self) -> anyhow::Result<Option<&str>> {
+        let Some(url) = self.store.as_deref() else { return Ok(None) };
+        Ok((libero_store::Backend::of_url(url)? == libero_store::Backend::Postgres && !self.local).then_some(url))
+    }
+}
+
+/// SIGINT/SIGTERM set [`INTERRUPTED`].
+pub(crate) fn install_signal_handlers() {
+    // SAFETY: installing an async-signal-safe handler that only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
 }
 
 /// What every rollout of a batch shares.
@@ -190,7 +218,7 @@ fn settings_of(args: &RunArgs, tasks: &[u32], pool_tasks: &[String]) -> BatchSet
 }
 
 /// `<program> --version` (90 s), first version-looking word of the output.
-fn probe_version(harness: Harness, npm_cli_installed: bool) -> Value {
+pub(crate) fn probe_version(harness: Harness, npm_cli_installed: bool) -> Value {
     let Some(argv) = harness.version_probe(npm_cli_installed) else {
         return json!({"requested": null, "observed": null, "probe_output": null});
     };
@@ -205,12 +233,12 @@ fn probe_version(harness: Harness, npm_cli_installed: bool) -> Value {
     json!({"requested": argv[..argv.len() - 1].join(" "), "observed": observed, "probe_output": text.trim().chars().take(500).collect::<String>()})
 }
 
-fn default_batch_dir() -> PathBuf {
+pub(crate) fn default_batch_dir() -> PathBuf {
     let stamp: String = utc_now_iso()[..19].chars().filter(|c| c.is_ascii_digit() || *c == 'T').collect();
     PathBuf::from("agent_runs").join(format!("batch_{stamp}Z"))
 }
 
-fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
+pub(crate) fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
     Ok(if p.is_absolute() { p.to_path_buf() } else { std::env::current_dir()?.join(p) })
 }
 
@@ -257,8 +285,12 @@ fn batch_value(ctx: &RunContext, status: &str, created_at: &str, p: &Progress, s
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
-    if args.concurrency == 0 {
+    if args.concurrency == Some(0) {
         bail!("--concurrency must be at least 1");
+    }
+    let queue_store = args.queue_store()?;
+    if args.detach && queue_store.is_none() {
+        bail!("--detach needs a queue store (--store postgres://… without --local)");
     }
     if args.model.trim().is_empty() {
         bail!("--model must name the model");
@@ -293,6 +325,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("nothing to run");
     }
     let settings = settings_of(&args, &only, &pool_tasks);
+    if let Some(url) = queue_store {
+        return queue::enqueue_and_follow(&args, url, &schedule, &skipped, &settings);
+    }
     // A store that cannot be opened stops the run before anything is written or launched.
     let store = args.store.as_deref().map(batch::StoreMirror::connect).transpose()?;
     let batch_dir = absolute(&args.batch.clone().unwrap_or_else(default_batch_dir))?;
@@ -379,17 +414,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         npm_cli_installed,
         store,
     });
-    // SAFETY: installing an async-signal-safe handler that only stores to an atomic.
-    unsafe {
-        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
-        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
-    }
+    install_signal_handlers();
     let skipped = Arc::new(skipped);
     ctx.write_batch(&batch_value(&ctx, "running", &created_at, &progress, &skipped))?;
     eprintln!("batch {} — {}", batch_dir.display(), progress.line());
     let queue = Arc::new(Mutex::new(todo));
     let state = Arc::new(Mutex::new(progress));
-    let workers: Vec<_> = (0..args.concurrency)
+    let workers: Vec<_> = (0..args.concurrency.unwrap_or(1))
         .map(|_| {
             let (ctx, queue, state, skipped, created_at) =
                 (ctx.clone(), queue.clone(), state.clone(), skipped.clone(), created_at.clone());

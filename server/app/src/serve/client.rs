@@ -134,6 +134,22 @@ pub fn post_json(base: &str, path: &str, body: &Value) -> anyhow::Result<(u16, V
     Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
 }
 
+/// Waits until the review API says the private video of `episode_id` is written (an episode's video is rendered
+/// after it ends), at most `timeout`.
+pub fn wait_for_video(base: &str, episode_id: &str, timeout: Duration) -> anyhow::Result<()> {
+    let t = std::time::Instant::now();
+    loop {
+        let (status, v) = get_json(base, &format!("/api/episodes/{episode_id}/review?part=video"))?;
+        if status == 200 && v["video"] == true {
+            return Ok(());
+        }
+        if v["video_status"]["state"] == "failed" || v["video_status"].is_null() || t.elapsed() > timeout {
+            bail!("episode {episode_id}: the video did not complete: {v}");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
 /// A server running in this process on a free loopback port; stops (recording open episodes as aborted with
 /// `stop_reason`) when [`InProcessServer::stop`] is called (waiting for every episode's records and video) or
 /// [`InProcessServer::stop_now`] / drop (waiting only seconds: an interrupted batch must exit promptly).
@@ -147,13 +163,27 @@ impl InProcessServer {
     /// Starts the server on a free loopback port with a fresh operator token of its own, known to this
     /// process's client calls and to no agent (it is in no environment and on no command line).
     pub fn start(data: PathBuf, stop_reason: &str) -> anyhow::Result<Self> {
+        Self::start_with_store(data, None, stop_reason)
+    }
+
+    /// As [`InProcessServer::start`], recording episodes in the store `store` names (a worker's server writes to
+    /// the shared store, so every dashboard lists its episodes) instead of `<data>/episodes.sqlite`.
+    pub fn start_with_store(data: PathBuf, store: Option<String>, stop_reason: &str) -> anyhow::Result<Self> {
         let (url_tx, url_rx) = mpsc::channel::<anyhow::Result<String>>();
         let (stop_tx, stop_rx) = mpsc::channel::<Duration>();
         let stop_reason = stop_reason.to_owned();
         let thread = std::thread::spawn(move || -> anyhow::Result<()> {
             let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
             let result = runtime.block_on(async move {
-                let args = ServeArgs { addr: "127.0.0.1:0".parse()?, data: Some(data), operator_token_file: None, public_hosts: vec![], batches: vec![], store: None };
+                let args = ServeArgs {
+                    addr: "127.0.0.1:0".parse()?,
+                    data: Some(data),
+                    operator_token_file: None,
+                    public_hosts: vec![],
+                    batches: vec![],
+                    store,
+                    artifacts: None,
+                };
                 let bound = match start(&args).await {
                     Ok(b) => b,
                     Err(e) => {

@@ -89,10 +89,42 @@ async fn stored_row(app: &App, id: &str) -> Result<super::store::EpisodeRow, Res
         return Err(json_error(StatusCode::NOT_FOUND, "no such episode"));
     }
     match app.store.get(id).await {
-        Ok(Some(row)) => Ok(row),
+        Ok(Some(row)) => Ok(fetched_if_elsewhere(app, row).await),
         Ok(None) => batch_episode(app, id).await.ok_or_else(|| json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
         Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}"))),
     }
+}
+
+/// A stored episode whose run directory is not on this machine (a worker elsewhere ran it): with `--artifacts`,
+/// its run directory is fetched from the artifact store once its upload is complete, kept under
+/// `<data>/artifact_cache/<id>`, and the row points there. Otherwise the row is returned as it is.
+async fn fetched_if_elsewhere(app: &App, mut row: super::store::EpisodeRow) -> super::store::EpisodeRow {
+    let Some(artifacts) = app.artifacts.as_ref() else { return row };
+    if tokio::fs::metadata(&row.episode.run_dir).await.is_ok_and(|m| m.is_dir()) {
+        return row;
+    }
+    let id = row.episode.id.clone();
+    let cache = app.episodes.data_dir().join("artifact_cache");
+    let dest = cache.join(&id);
+    if tokio::fs::metadata(dest.join(libero_artifacts::COMPLETE_MARKER)).await.is_ok() {
+        row.episode.run_dir = dest;
+        return row;
+    }
+    let Ok(prefix) = libero_artifacts::run_prefix(&id) else { return row };
+    // Fetched beside the destination and renamed into place: a concurrent view never sees half a directory.
+    let Ok(staging_name) = libero_episode::json::random_name(&format!(".{id}.")) else { return row };
+    let staging = cache.join(staging_name);
+    match artifacts.fetch_run(&prefix, &staging).await {
+        Ok(Some(_)) => match tokio::fs::rename(&staging, &dest).await {
+            Ok(()) => row.episode.run_dir = dest,
+            Err(_) if tokio::fs::metadata(dest.join(libero_artifacts::COMPLETE_MARKER)).await.is_ok() => row.episode.run_dir = dest,
+            Err(e) => eprintln!("artifact cache: cannot keep episode {id}: {e}"),
+        },
+        Ok(None) => {}
+        Err(e) => eprintln!("artifact store: cannot fetch episode {id}: {e}"),
+    }
+    let _ = tokio::fs::remove_dir_all(&staging).await;
+    row
 }
 
 /// An episode a batch ran on its own in-process server (`<batch>/server`, not this server's store): found

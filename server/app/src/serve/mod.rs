@@ -66,6 +66,11 @@ pub struct ServeArgs {
     /// `PGPASSWORD` or `~/.pgpass` instead of the URL). Also $LIBERO_AGENT_STORE.
     #[arg(long, value_name = "URL", env = "LIBERO_AGENT_STORE")]
     pub store: Option<String>,
+    /// The artifact store workers upload run directories to (`/shared/dir`, `file:///…` or `s3://BUCKET[/PREFIX]`
+    /// with the `AWS_*` environment): reviews and videos of episodes run on other machines are fetched from there
+    /// on first view and kept under `<data>/artifact_cache/`. Also $LIBERO_AGENT_ARTIFACTS.
+    #[arg(long, value_name = "URL", env = "LIBERO_AGENT_ARTIFACTS")]
+    pub artifacts: Option<String>,
 }
 
 pub fn default_data_dir() -> PathBuf {
@@ -94,6 +99,8 @@ pub struct App {
     /// Episodes the operator drives from the teleop page; only these accept actions from the operator's socket,
     /// so an agent's benchmark episode can never be steered from the dashboard.
     pub teleop: Mutex<HashMap<String, String>>,
+    /// `--artifacts`: where run directories recorded on other machines are fetched from.
+    pub artifacts: Option<libero_artifacts::Artifacts>,
 }
 
 type AppState = Arc<App>;
@@ -304,6 +311,10 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         eprintln!("libero-agent serve: episode store {}", store::redact(args.store.as_deref().unwrap_or_default()));
     }
     let reconciled = store.reconcile(&episodes.runs_dir()).await?;
+    let artifacts = args.artifacts.as_deref().map(libero_artifacts::Artifacts::open).transpose()?;
+    if let Some(url) = args.store.as_deref().filter(|_| store.backend() == store::Backend::Postgres) {
+        follow_store_changes(url, hubs.clone()).await?;
+    }
     let app = Arc::new(App {
         episodes,
         store,
@@ -314,8 +325,23 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         thumbnail_lock: tokio::sync::Mutex::new(()),
         batch_roots: results::batch_roots(&data, &args.batches),
         teleop: Mutex::new(HashMap::new()),
+        artifacts,
     });
     Ok(Bound { app, listener, base_url, recovered, reconciled, calls_rx, _lock: lock, _registration: registration })
+}
+
+/// On a shared PostgreSQL store, every episode and queue change any machine makes (`LISTEN libero_episodes,
+/// libero_queue`) refreshes this dashboard's episode list at once, as its own episodes' changes do.
+async fn follow_store_changes(url: &str, hubs: Arc<live::LiveHubs>) -> anyhow::Result<()> {
+    let mut listener = store::QueueListener::connect_to(url, &[store::EPISODE_CHANNEL, store::QUEUE_CHANNEL]).await?;
+    tokio::spawn(async move {
+        loop {
+            if listener.wait(Duration::from_secs(60)).await.is_some() {
+                hubs.notify();
+            }
+        }
+    });
+    Ok(())
 }
 
 impl Bound {

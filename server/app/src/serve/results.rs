@@ -207,6 +207,8 @@ pub struct ProgressRow {
     pub running: String,
     pub left: String,
     pub outcomes: String,
+    /// A queued batch's running rollouts: (rollout id, worker, the worker's live view if it gave one).
+    pub running_on: Vec<(String, String, Option<String>)>,
 }
 
 /// One rollout in a per-task cell.
@@ -298,7 +300,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
     for b in batches {
         let reps = reps_of(b, sel);
         let status = b.batch["status"].as_str().unwrap_or("?").to_owned();
-        v.any_running |= status == "running";
+        v.any_running |= status == "running" || status == "queued";
         let outcomes = b.batch["outcomes"]
             .as_object()
             .map(|o| o.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "))
@@ -314,6 +316,18 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             running: count(&b.batch["counts"]["running"]),
             left: count(&b.batch["counts"]["left"]),
             outcomes,
+            running_on: b.batch["running_on"]
+                .as_array()
+                .map(|a| {
+                    a.iter()
+                        .map(|r| {
+                            let text = |k: &str| r[k].as_str().unwrap_or_default().to_owned();
+                            let live = r["live_url"].as_str().filter(|u| u.starts_with("http://") || u.starts_with("https://")).map(str::to_owned);
+                            (text("rollout_id"), if r["host"].is_string() { text("host") } else { text("worker") }, live)
+                        })
+                        .collect()
+                })
+                .unwrap_or_default(),
         });
         let batch_rows = rows(std::slice::from_ref(b), reps);
         for r in &batch_rows {

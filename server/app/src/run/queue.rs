@@ -1,0 +1,185 @@
+//! `run --store postgres://…`: the batch goes to the store's queue instead of running here. `run` enqueues it and
+//! follows its progress (a bar on stderr, woken by the store's notifications) until every rollout ended, or
+//! returns at once with `--detach`; `libero-agent worker` processes on any machine run the rollouts. `--resume`
+//! queues the batch's INVALID rollouts again (a lost worker's among them) and follows; changed settings are
+//! refused, as for a batch directory.
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use libero_episode::json::utc_now_iso;
+use libero_metrics::Outcome;
+use libero_store::{QueueListener, Store, StoredBatch};
+use serde_json::{Value, json};
+
+use super::batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord};
+use super::schedule::PlannedRollout;
+use super::{INTERRUPTED, RunArgs};
+
+/// Why a rollout whose worker stopped renewing its lease ended (its record's `termination_reason`).
+pub const WORKER_LOST: &str = "worker_lost";
+
+/// The record of a rollout whose worker was lost (its lease ran out): INVALID, `worker_lost`.
+pub fn worker_lost_record(plan: &Value) -> Value {
+    let Ok(plan) = serde_json::from_value::<PlannedRollout>(plan.clone()) else {
+        return json!({"rollout_id": plan["rollout_id"], "outcome": Outcome::Invalid.as_str(), "termination_reason": WORKER_LOST});
+    };
+    let mut rec = RolloutRecord::planned(&plan);
+    rec.outcome = Outcome::Invalid;
+    rec.termination_reason = Some(WORKER_LOST.into());
+    rec.infrastructure_error = Some(format!("{WORKER_LOST}: the worker running it stopped renewing its lease (its machine or process died)"));
+    serde_json::to_value(&rec).unwrap_or(Value::Null)
+}
+
+/// A batch name: it names the batch in the store and its prefix in the artifact store.
+pub fn batch_name(args: &RunArgs) -> anyhow::Result<String> {
+    let name = match &args.batch {
+        Some(b) => b.to_string_lossy().into_owned(),
+        None => super::default_batch_dir().file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+    };
+    libero_artifacts::check_name(&name).map(str::to_owned).with_context(|| "with a queue store, --batch is the batch's name, not a directory")
+}
+
+/// The queued batch's document: `batch.json`'s shape; the store keeps its progress current.
+fn batch_doc(name: &str, settings: &BatchSettings, schedule: &[PlannedRollout], skipped: &[String], store_url: &str) -> Value {
+    json!({
+        "schema_version": BATCH_SCHEMA,
+        "name": name,
+        "created_at": utc_now_iso(),
+        "updated_at": utc_now_iso(),
+        "status": "queued",
+        "settings": settings,
+        "settings_sha256": settings.sha256(),
+        "harness": {"name": settings.harness, "version": null},
+        "sandbox": null,
+        "server_url": null,
+        "workspace_root": null,
+        "max_outer_retries": 0,
+        "rollout_count": schedule.len(),
+        "skipped_unimplemented_tasks": skipped,
+        "counts": {"done": 0, "running": 0, "left": schedule.len()},
+        "running": [],
+        "outcomes": {},
+        "queue": {"store": libero_store::redact(store_url)},
+    })
+}
+
+/// Writes a new batch `name` and queues its rollouts.
+pub async fn enqueue(store: &Store, url: &str, name: &str, settings: &BatchSettings, schedule: &[PlannedRollout], skipped: &[String]) -> anyhow::Result<()> {
+    let doc = batch_doc(name, settings, schedule, skipped, url);
+    let jobs = schedule.iter().map(|r| Ok((r.rollout_id.clone(), serde_json::to_value(r)?))).collect::<anyhow::Result<Vec<_>>>()?;
+    store.enqueue(&StoredBatch { name: name.to_owned(), dir: name.into(), doc, records: Vec::new() }, &jobs).await
+}
+
+/// Enqueues (or with `--resume` re-queues the INVALID rollouts of) the batch, then follows it unless `--detach`.
+pub fn enqueue_and_follow(
+    args: &RunArgs,
+    url: &str,
+    schedule: &[PlannedRollout],
+    skipped: &[String],
+    settings: &BatchSettings,
+) -> anyhow::Result<()> {
+    for (given, flag) in [(args.server.is_some(), "--server"), (args.data.is_some(), "--data"), (args.workspace_root.is_some(), "--workspace-root"), (args.concurrency.is_some(), "--concurrency"), (args.credentials_file.is_some(), "--credentials-file")] {
+        if given {
+            bail!("{flag} belongs to a local run: a queued batch runs on `libero-agent worker`s (give it to them), or pass --local");
+        }
+    }
+    let name = batch_name(args)?;
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
+    runtime.block_on(async {
+        let store = Store::connect(url).await?;
+        match store.batch(&name).await? {
+            Some(existing) if args.resume => {
+                if existing.doc["settings_sha256"] != json!(settings.sha256()) {
+                    bail!(
+                        "--resume refuses changed settings: the batch was started with {}, now {}",
+                        existing.doc["settings"],
+                        serde_json::to_value(settings)?
+                    );
+                }
+                let requeued = store.requeue_invalid(&name).await?;
+                eprintln!("batch {name}: {} INVALID rollout(s) queued again{}", requeued.len(), if requeued.is_empty() { String::new() } else { format!(": {}", requeued.join(", ")) });
+            }
+            Some(_) => bail!("the store already has a batch {name:?}; pass --resume to continue it"),
+            None if args.resume => bail!("--resume: the store {} has no batch {name:?}", libero_store::redact(url)),
+            None => {
+                enqueue(&store, url, &name, settings, schedule, skipped).await?;
+                eprintln!("batch {name}: {} rollouts queued in {}", schedule.len(), libero_store::redact(url));
+            }
+        }
+        if args.detach {
+            eprintln!("detached: workers (`libero-agent worker --store URL --artifacts URL`) run it; `libero-agent report --store URL {name}` reads it");
+            println!("{}", json!({"batch": name, "queued": true}));
+            return Ok(());
+        }
+        follow(&store, url, &name).await
+    })
+}
+
+/// Follows a queued batch until every rollout ended: a progress bar on stderr, redrawn on each change the store
+/// notifies; lost workers' rollouts are closed as they are found. Ctrl-C stops following, not the batch.
+async fn follow(store: &Store, url: &str, name: &str) -> anyhow::Result<()> {
+    super::install_signal_handlers();
+    let mut listener = QueueListener::connect(url).await?;
+    let mut last = String::new();
+    loop {
+        for (batch, id) in store.expire_lost(worker_lost_record).await? {
+            eprintln!("{batch}/{id}: INVALID ({WORKER_LOST}: its worker stopped renewing the lease)");
+        }
+        let Some(b) = store.batch(name).await? else { bail!("batch {name} left the store") };
+        let line = progress_line(&b.doc);
+        if line != last {
+            eprintln!("{line}");
+            last = line;
+        }
+        if b.doc["status"] == "finished" {
+            let invalid = b.doc["outcomes"][Outcome::Invalid.as_str()].as_u64().unwrap_or(0);
+            eprintln!("batch {name}: finished{}", if invalid > 0 { format!("; {invalid} INVALID (`run --resume` queues them again)") } else { String::new() });
+            println!("{}", json!({"batch": name, "status": "finished", "counts": b.doc["counts"], "outcomes": b.doc["outcomes"]}));
+            return Ok(());
+        }
+        if INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst) {
+            eprintln!("stopped following batch {name}; it goes on on the workers (`run --resume` with the same settings follows it again)");
+            return Ok(());
+        }
+        // A notification wakes this at once; the timeout bounds how late a lost lease is noticed.
+        listener.wait(Duration::from_secs(2)).await;
+    }
+}
+
+/// `[########------------] 5/12 ended · 3 running · 4 queued · SUCCESS 4, INVALID 1`
+pub fn progress_line(doc: &Value) -> String {
+    const WIDTH: u64 = 24;
+    let total = doc["rollout_count"].as_u64().unwrap_or(0);
+    let c = &doc["counts"];
+    let (done, running, left) = (c["done"].as_u64().unwrap_or(0), c["running"].as_u64().unwrap_or(0), c["left"].as_u64().unwrap_or(0));
+    let filled = (done * WIDTH).checked_div(total).unwrap_or(0).min(WIDTH);
+    let outcomes: Vec<String> = doc["outcomes"].as_object().map(|o| o.iter().map(|(k, v)| format!("{k} {v}")).collect()).unwrap_or_default();
+    format!(
+        "[{}{}] {done}/{total} ended · {running} running · {left} queued · {}",
+        "#".repeat(filled as usize),
+        "-".repeat((WIDTH - filled) as usize),
+        if outcomes.is_empty() { "no outcomes yet".to_owned() } else { outcomes.join(", ") }
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_progress_bar_fills_with_ended_rollouts() {
+        let doc = json!({"rollout_count": 12, "counts": {"done": 6, "running": 3, "left": 3}, "outcomes": {"SUCCESS": 5, "INVALID": 1}});
+        assert_eq!(progress_line(&doc), format!("[{}{}] 6/12 ended · 3 running · 3 queued · INVALID 1, SUCCESS 5", "#".repeat(12), "-".repeat(12)));
+        assert!(progress_line(&json!({})).starts_with("[------------------------] 0/0 ended"));
+    }
+
+    #[test]
+    fn a_lost_rollout_is_invalid_with_reason_worker_lost() {
+        let plan = json!({"rollout_id": "w1_t14_level3", "task": "T14", "task_number": 14, "task_name": "close", "split": "short_horizon_easy",
+            "stage_count": 1, "repetition": 1, "level": 3, "demo": "none"});
+        let rec: RolloutRecord = serde_json::from_value(worker_lost_record(&plan)).unwrap();
+        assert_eq!((rec.outcome, rec.termination_reason.as_deref()), (Outcome::Invalid, Some(WORKER_LOST)));
+        assert_eq!(rec.rollout_id, "w1_t14_level3");
+        assert_eq!(worker_lost_record(&json!({"rollout_id": "x"}))["termination_reason"], WORKER_LOST);
+    }
+}

@@ -1,0 +1,272 @@
+//! `libero-agent worker`: runs queued rollouts on this machine. It claims rollouts from the store's queue
+//! (`--slots` at a time), holds each with a lease its heartbeat renews, and runs each as `run` does locally: a
+//! fresh workspace, an episode on this worker's own server (recorded in the shared store, so every dashboard
+//! lists it) and the agent in its sandbox. When the rollout ended and the episode's video is written, the run
+//! directory and the runner's files go to the artifact store, then the record to the store. A worker that dies
+//! loses its leases: the next worker or follower to look closes those rollouts INVALID (`worker_lost`); nothing is
+//! retried unless `run --resume` asks. SIGINT/SIGTERM: claim nothing more, end the running rollouts INTERRUPTED.
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use libero_artifacts::Artifacts;
+use libero_store::{QueueListener, Store};
+use serde_json::{Value, json};
+
+use super::batch::{BatchSettings, RolloutRecord};
+use super::harness::{Credentials, Harness, default_credentials_file, pinned_npm_cli_installed};
+use super::queue::{WORKER_LOST, worker_lost_record};
+use super::sandbox::Sandbox;
+use super::schedule::PlannedRollout;
+use super::{INTERRUPTED, RunContext};
+use crate::serve::client::{InProcessServer, wait_for_video};
+
+/// How long a rollout's video may take to be written before its files are uploaded without it.
+const VIDEO_WAIT: Duration = Duration::from_secs(600);
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct WorkerArgs {
+    /// The shared store with the queue (`postgres://…`; `sqlite://PATH` for workers on one machine).
+    #[arg(long, value_name = "URL", env = "LIBERO_AGENT_STORE")]
+    pub store: String,
+    /// Where run directories go: a shared directory (`/srv/artifacts`, `file:///…`) or `s3://BUCKET[/PREFIX]`
+    /// (endpoint and credentials from the `AWS_*` environment).
+    #[arg(long, value_name = "URL", env = "LIBERO_AGENT_ARTIFACTS")]
+    pub artifacts: String,
+    /// Rollouts this machine runs at once.
+    #[arg(long, default_value_t = 1)]
+    pub slots: usize,
+    /// This worker's directory: its server's data (run directories), the runner's files per batch (default
+    /// ./libero-worker).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Where agent workspaces are created (default $TMPDIR/libero-agent-workspaces).
+    #[arg(long)]
+    pub workspace_root: Option<PathBuf>,
+    /// API credentials for model-backed harnesses (default ~/.config/libero-agent/credentials).
+    #[arg(long)]
+    pub credentials_file: Option<PathBuf>,
+    /// The lease on a claimed rollout, renewed every third of it: a worker silent for this long is lost.
+    #[arg(long, default_value_t = 60.0)]
+    pub lease_s: f64,
+    /// Exit once nothing is queued and this worker's rollouts ended (default: wait for more work).
+    #[arg(long)]
+    pub exit_when_idle: bool,
+    /// The URL under which other machines reach this worker's server (its live views), shown on dashboards.
+    #[arg(long)]
+    pub public_url: Option<String>,
+}
+
+/// What every slot of the worker shares.
+struct Worker {
+    id: String,
+    store: Store,
+    artifacts: Artifacts,
+    runtime: tokio::runtime::Handle,
+    server_url: String,
+    data: PathBuf,
+    workspace_root: PathBuf,
+    credentials_file: PathBuf,
+    lease_ms: i64,
+    /// The run context of each (batch, attempt): settings, harness, sandbox, credentials.
+    contexts: Mutex<HashMap<(String, i64), Arc<RunContext>>>,
+    busy: AtomicUsize,
+}
+
+pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
+    if args.slots == 0 || args.slots > 64 {
+        bail!("--slots must be 1 to 64");
+    }
+    if !(2.0..=3600.0).contains(&args.lease_s) {
+        bail!("--lease-s must be 2 to 3600 seconds");
+    }
+    let data = super::absolute(&args.data.clone().unwrap_or_else(|| PathBuf::from("libero-worker")))?;
+    std::fs::create_dir_all(&data)?;
+    let artifacts = Artifacts::open(&args.artifacts)?;
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    let store = runtime.block_on(Store::connect(&args.store))?;
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_else(|_| "unknown".into());
+    let id = format!("{host}-{}-{}", std::process::id(), &libero_episode::json::random_name("")?[..6]);
+    let server = InProcessServer::start_with_store(data.join("server"), Some(args.store.clone()), "worker_stopped_before_finish")?;
+    let live_url = args.public_url.clone().unwrap_or_else(|| server.url.clone());
+    runtime.block_on(store.register_worker(&id, &host, args.slots as i64, Some(&live_url)))?;
+    eprintln!("worker {id}: {} slot(s), store {}, artifacts {}, server {}", args.slots, libero_store::redact(&args.store), artifacts.url(), server.url);
+    super::install_signal_handlers();
+    let worker = Arc::new(Worker {
+        id,
+        store,
+        artifacts,
+        runtime: runtime.handle().clone(),
+        server_url: server.url.clone(),
+        workspace_root: match &args.workspace_root {
+            Some(w) => super::absolute(w)?,
+            None => std::env::temp_dir().join("libero-agent-workspaces"),
+        },
+        data,
+        credentials_file: args.credentials_file.clone().unwrap_or_else(default_credentials_file),
+        lease_ms: (args.lease_s * 1000.0) as i64,
+        contexts: Mutex::new(HashMap::new()),
+        busy: AtomicUsize::new(0),
+    });
+    let stop = Arc::new(AtomicBool::new(false));
+    let heartbeat = {
+        let (w, stop) = (worker.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let period = Duration::from_millis((w.lease_ms / 3).max(500) as u64);
+            while !stop.load(Ordering::SeqCst) {
+                if let Err(e) = w.runtime.block_on(w.store.heartbeat(&w.id, w.lease_ms)) {
+                    eprintln!("worker {}: heartbeat failed (the leases run out if this lasts): {e:#}", w.id);
+                }
+                let t = Instant::now();
+                while t.elapsed() < period && !stop.load(Ordering::SeqCst) {
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+            }
+        })
+    };
+    let slots: Vec<_> = (0..args.slots)
+        .map(|_| {
+            let (w, url, exit_when_idle) = (worker.clone(), args.store.clone(), args.exit_when_idle);
+            std::thread::spawn(move || w.slot(&url, exit_when_idle))
+        })
+        .collect();
+    let mut failure = None;
+    for s in slots {
+        match s.join() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => failure = Some(e),
+            Err(_) => failure = Some(anyhow::anyhow!("a worker slot panicked")),
+        }
+    }
+    stop.store(true, Ordering::SeqCst);
+    let _ = heartbeat.join();
+    if INTERRUPTED.load(Ordering::SeqCst) { server.stop_now()? } else { server.stop()? };
+    eprintln!("worker {}: stopped", worker.id);
+    failure.map_or(Ok(()), Err)
+}
+
+impl Worker {
+    /// One slot: close lost rollouts, claim one, run it; wait for work when the queue is empty.
+    fn slot(&self, url: &str, exit_when_idle: bool) -> anyhow::Result<()> {
+        let mut listener = self.runtime.block_on(QueueListener::connect(url))?;
+        loop {
+            if INTERRUPTED.load(Ordering::SeqCst) {
+                return Ok(());
+            }
+            for (batch, id) in self.runtime.block_on(self.store.expire_lost(worker_lost_record))? {
+                eprintln!("{batch}/{id}: INVALID ({WORKER_LOST})");
+            }
+            let Some(job) = self.runtime.block_on(self.store.claim(&self.id, self.lease_ms))? else {
+                if exit_when_idle && self.busy.load(Ordering::SeqCst) == 0 {
+                    return Ok(());
+                }
+                self.runtime.block_on(listener.wait(Duration::from_secs(2)));
+                continue;
+            };
+            self.busy.fetch_add(1, Ordering::SeqCst);
+            let ended = self.run_job(&job);
+            self.busy.fetch_sub(1, Ordering::SeqCst);
+            if let Err(e) = ended {
+                eprintln!("worker {}: {}/{}: {e:#}", self.id, job.batch, job.rollout_id);
+            }
+        }
+    }
+
+    fn run_job(&self, job: &libero_store::Job) -> anyhow::Result<()> {
+        eprintln!("{}/{}: started on {}", job.batch, job.rollout_id, self.id);
+        let mut rec = match serde_json::from_value::<PlannedRollout>(job.plan.clone()).context("the queued plan is not a rollout") {
+            Ok(plan) => match self.context(&job.batch, job.attempts) {
+                Ok(ctx) => {
+                    let mut rec = super::rollout::run_rollout(&ctx, &plan);
+                    self.upload(&ctx, job, &mut rec);
+                    rec
+                }
+                Err(e) => failed(&plan, format!("the worker cannot run this batch: {e:#}")),
+            },
+            Err(e) => {
+                let mut v = worker_lost_record(&job.plan);
+                v["termination_reason"] = Value::Null;
+                v["infrastructure_error"] = json!(format!("{e:#}"));
+                return self.finish(job, &v);
+            }
+        };
+        rec.worker = Some(self.id.clone());
+        self.finish(job, &serde_json::to_value(&rec)?)
+    }
+
+    fn finish(&self, job: &libero_store::Job, record: &Value) -> anyhow::Result<()> {
+        if self.runtime.block_on(self.store.finish(&job.batch, &job.rollout_id, &self.id, record))? {
+            eprintln!("{}/{}: {}", job.batch, job.rollout_id, record["outcome"].as_str().unwrap_or("?"));
+        } else {
+            eprintln!("{}/{}: this worker lost its lease meanwhile; the rollout was closed as {WORKER_LOST} and this record is dropped", job.batch, job.rollout_id);
+        }
+        Ok(())
+    }
+
+    /// The run context of a batch's attempt: its settings from the store, this machine's sandbox and
+    /// credentials. Each attempt gets directories of its own (`a<N>`), so a re-queued rollout never meets the
+    /// files of its first attempt.
+    fn context(&self, batch: &str, attempt: i64) -> anyhow::Result<Arc<RunContext>> {
+        let key = (batch.to_owned(), attempt);
+        if let Some(ctx) = self.contexts.lock().map_err(|_| anyhow::anyhow!("poisoned"))?.get(&key) {
+            return Ok(ctx.clone());
+        }
+        let stored = self.runtime.block_on(self.store.batch(batch))?.with_context(|| format!("no batch {batch} in the store"))?;
+        let settings: BatchSettings = serde_json::from_value(stored.doc["settings"].clone()).context("the batch's settings")?;
+        let harness: Harness = serde_json::from_value(json!(settings.harness)).context("the batch's harness")?;
+        let credentials = if harness.needs_credentials() { Some(Credentials::load(&self.credentials_file)?) } else { None };
+        let sandbox = if settings.sandbox { Some(Sandbox::detect()?) } else { None };
+        let npm_cli_installed = pinned_npm_cli_installed(harness);
+        let name = libero_artifacts::check_name(batch)?;
+        let ctx = Arc::new(RunContext {
+            batch_dir: self.data.join("batches").join(name).join(format!("a{attempt}")),
+            workspace_root: self.workspace_root.join(name).join(format!("a{attempt}")),
+            server_url: self.server_url.clone(),
+            harness_version: super::probe_version(harness, npm_cli_installed),
+            settings,
+            harness,
+            credentials,
+            sandbox,
+            self_exe: std::env::current_exe()?,
+            npm_cli_installed,
+            store: None,
+        });
+        std::fs::create_dir_all(&ctx.workspace_root)?;
+        std::fs::create_dir_all(ctx.batch_dir.join("rollouts"))?;
+        self.contexts.lock().map_err(|_| anyhow::anyhow!("poisoned"))?.insert(key, ctx.clone());
+        Ok(ctx)
+    }
+
+    /// The episode's run directory (once its video is written) and the runner's own files of the rollout (not the
+    /// agent's session home) to the artifact store; the record says where, or why not.
+    fn upload(&self, ctx: &RunContext, job: &libero_store::Job, rec: &mut RolloutRecord) {
+        let (Some(episode), Some(run_dir)) = (rec.episode_id.clone(), rec.run_dir.clone()) else { return };
+        if !INTERRUPTED.load(Ordering::SeqCst)
+            && let Err(e) = wait_for_video(&self.server_url, &episode, VIDEO_WAIT)
+        {
+            eprintln!("{}/{}: uploading without a finished video: {e:#}", job.batch, job.rollout_id);
+        }
+        let rollout_dir = ctx.batch_dir.join("rollouts").join(&job.rollout_id);
+        let uploaded = self.runtime.block_on(async {
+            let run_prefix = libero_artifacts::run_prefix(&episode)?;
+            self.artifacts.put_run(&run_dir, &run_prefix, |_| true).await?;
+            let files_prefix = libero_artifacts::rollout_prefix(&job.batch, &job.rollout_id)?;
+            self.artifacts.put_run(&rollout_dir, &files_prefix, |rel| rel.parent() == Some(Path::new("")) && rel != Path::new("home")).await?;
+            Ok::<_, libero_artifacts::ArtifactError>(run_prefix)
+        });
+        match uploaded {
+            Ok(prefix) => rec.artifacts = Some(format!("{}/{prefix}", self.artifacts.url().trim_end_matches('/'))),
+            Err(e) => eprintln!("{}/{}: its files stay on this worker ({}): {e}", job.batch, job.rollout_id, run_dir.display()),
+        }
+    }
+}
+
+/// A rollout the worker could not start (INVALID, with why).
+fn failed(plan: &PlannedRollout, why: String) -> RolloutRecord {
+    let mut rec = RolloutRecord::planned(plan);
+    rec.infrastructure_error = Some(why);
+    rec
+}
