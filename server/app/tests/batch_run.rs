@@ -81,7 +81,7 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
         .collect::<Vec<_>>();
         a.extend(["--batch".into(), batch.display().to_string(), "--workspace-root".into(), workspaces.display().to_string()]);
         // `--local`: run here and mirror to the store (without it a PostgreSQL store queues the batch for workers).
-        a.extend(["--store".into(), pg.url.clone(), "--local".into()]);
+        a.extend(["--local".into(), "--store".into(), pg.url.clone()]);
         if resume {
             a.push("--resume".into());
         }

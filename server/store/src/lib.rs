@@ -52,6 +52,20 @@ const BATCH_TABLES: [&str; 2] = [
      PRIMARY KEY (batch, seq))",
 ];
 
+/// Inserts `batch`'s row (name, dir, document); `on_conflict` says what an existing row of that name gets
+/// (`DO NOTHING`, `DO UPDATE SET …`). Returns the rows written.
+async fn write_batch_row(tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &StoredBatch, on_conflict: &str) -> anyhow::Result<u64> {
+    let written = sqlx::query(&format!("INSERT INTO batches (name, dir, doc, updated_at) VALUES ($1, $2, $3, $4) ON CONFLICT (name) {on_conflict}"))
+        .bind(&batch.name)
+        .bind(batch.dir.to_string_lossy().into_owned())
+        .bind(batch.doc.to_string())
+        .bind(utc_now_iso())
+        .execute(&mut **tx)
+        .await
+        .with_context(|| format!("store: cannot write batch {}", batch.name))?;
+    Ok(written.rows_affected())
+}
+
 /// A batch as the store holds it: `batch.json`'s document and the `rollouts.jsonl` records in order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StoredBatch {
@@ -334,17 +348,7 @@ impl Store {
     pub async fn put_batch(&self, batch: &StoredBatch) -> anyhow::Result<()> {
         let name = &batch.name;
         let mut tx = self.pool.begin().await.context("store: cannot begin")?;
-        sqlx::query(
-            "INSERT INTO batches (name, dir, doc, updated_at) VALUES ($1, $2, $3, $4) \
-             ON CONFLICT (name) DO UPDATE SET dir = excluded.dir, doc = excluded.doc, updated_at = excluded.updated_at",
-        )
-        .bind(name)
-        .bind(batch.dir.to_string_lossy().into_owned())
-        .bind(batch.doc.to_string())
-        .bind(utc_now_iso())
-        .execute(&mut *tx)
-        .await
-        .with_context(|| format!("store: cannot write batch {name}"))?;
+        write_batch_row(&mut tx, batch, "DO UPDATE SET dir = excluded.dir, doc = excluded.doc, updated_at = excluded.updated_at").await?;
         let have: i64 = sqlx::query("SELECT CAST(COUNT(*) AS BIGINT) AS n FROM rollouts WHERE batch = $1")
             .bind(name)
             .fetch_one(&mut *tx)

@@ -92,15 +92,7 @@ impl Store {
     pub async fn enqueue(&self, batch: &StoredBatch, jobs: &[(String, Value)]) -> anyhow::Result<()> {
         let name = &batch.name;
         let mut tx = self.pool.begin().await.context("store: cannot begin")?;
-        let inserted = sqlx::query("INSERT INTO batches (name, dir, doc, updated_at) VALUES ($1, $2, $3, $4) ON CONFLICT (name) DO NOTHING")
-            .bind(name)
-            .bind(batch.dir.to_string_lossy().into_owned())
-            .bind(batch.doc.to_string())
-            .bind(utc_now_iso())
-            .execute(&mut *tx)
-            .await
-            .with_context(|| format!("store: cannot write batch {name}"))?;
-        if inserted.rows_affected() == 0 {
+        if crate::write_batch_row(&mut tx, batch, "DO NOTHING").await? == 0 {
             anyhow::bail!("the store already has a batch named {name:?} (`run --resume` continues it)");
         }
         let sql = format!(

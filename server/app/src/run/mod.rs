@@ -88,12 +88,8 @@ pub struct RunArgs {
     /// Data directory of the in-process server (default: <batch>/server).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Where workspaces are created (default: $TMPDIR/libero-agent-workspaces/<batch name>).
-    #[arg(long)]
-    pub workspace_root: Option<PathBuf>,
-    /// API credentials (APIKEY=…, APIURL=…), outside every workspace (default ~/.config/libero-agent/credentials).
-    #[arg(long)]
-    pub credentials_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub paths: LocalPaths,
     #[arg(long, default_value_t = 100)]
     pub seed: u64,
     #[arg(long, default_value_t = DEFAULT_WALL_TIME_S)]
@@ -131,6 +127,31 @@ pub(crate) fn install_signal_handlers() {
     unsafe {
         libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
+}
+
+/// Where this machine puts agent workspaces and keeps API credentials (`run` and `worker`).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct LocalPaths {
+    /// Where workspaces are created (default: $TMPDIR/libero-agent-workspaces/<batch name>).
+    #[arg(long)]
+    pub workspace_root: Option<PathBuf>,
+    /// API credentials (APIKEY=…, APIURL=…), outside every workspace (default ~/.config/libero-agent/credentials).
+    #[arg(long)]
+    pub credentials_file: Option<PathBuf>,
+}
+
+impl LocalPaths {
+    /// The workspace root (absolute; `<TMPDIR>/libero-agent-workspaces/<under>` by default).
+    pub fn workspace_root(&self, under: &str) -> anyhow::Result<PathBuf> {
+        match &self.workspace_root {
+            Some(w) => absolute(w),
+            None => Ok(std::env::temp_dir().join("libero-agent-workspaces").join(under)),
+        }
+    }
+
+    pub fn credentials_file(&self) -> PathBuf {
+        self.credentials_file.clone().unwrap_or_else(default_credentials_file)
     }
 }
 
@@ -350,7 +371,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         (utc_now_iso(), Vec::new())
     };
     let credentials = if args.harness.needs_credentials() {
-        let path = args.credentials_file.clone().unwrap_or_else(default_credentials_file);
+        let path = args.paths.credentials_file();
         Some(Credentials::load(&path)?)
     } else {
         None
@@ -362,10 +383,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(Sandbox::detect()?)
     };
     let batch_name = batch_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "batch".into());
-    let workspace_root = match &args.workspace_root {
-        Some(w) => absolute(w)?,
-        None => std::env::temp_dir().join("libero-agent-workspaces").join(&batch_name),
-    };
+    let workspace_root = args.paths.workspace_root(&batch_name)?;
     if let Some(c) = &credentials
         && (c.source.starts_with(&workspace_root) || c.source.starts_with(&batch_dir))
     {

@@ -78,7 +78,7 @@ pub fn enqueue_and_follow(
     skipped: &[String],
     settings: &BatchSettings,
 ) -> anyhow::Result<()> {
-    for (given, flag) in [(args.server.is_some(), "--server"), (args.data.is_some(), "--data"), (args.workspace_root.is_some(), "--workspace-root"), (args.concurrency.is_some(), "--concurrency"), (args.credentials_file.is_some(), "--credentials-file")] {
+    for (given, flag) in [(args.server.is_some(), "--server"), (args.data.is_some(), "--data"), (args.paths.workspace_root.is_some(), "--workspace-root"), (args.concurrency.is_some(), "--concurrency"), (args.paths.credentials_file.is_some(), "--credentials-file")] {
         if given {
             bail!("{flag} belongs to a local run: a queued batch runs on `libero-agent worker`s (give it to them), or pass --local");
         }

@@ -17,7 +17,7 @@ use libero_store::{QueueListener, Store};
 use serde_json::{Value, json};
 
 use super::batch::{BatchSettings, RolloutRecord};
-use super::harness::{Credentials, Harness, default_credentials_file, pinned_npm_cli_installed};
+use super::harness::{Credentials, Harness, pinned_npm_cli_installed};
 use super::queue::{WORKER_LOST, worker_lost_record};
 use super::sandbox::Sandbox;
 use super::schedule::PlannedRollout;
@@ -43,12 +43,8 @@ pub struct WorkerArgs {
     /// ./libero-worker).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Where agent workspaces are created (default $TMPDIR/libero-agent-workspaces).
-    #[arg(long)]
-    pub workspace_root: Option<PathBuf>,
-    /// API credentials for model-backed harnesses (default ~/.config/libero-agent/credentials).
-    #[arg(long)]
-    pub credentials_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub paths: super::LocalPaths,
     /// The lease on a claimed rollout, renewed every third of it: a worker silent for this long is lost.
     #[arg(long, default_value_t = 60.0)]
     pub lease_s: f64,
@@ -101,12 +97,9 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         artifacts,
         runtime: runtime.handle().clone(),
         server_url: server.url.clone(),
-        workspace_root: match &args.workspace_root {
-            Some(w) => super::absolute(w)?,
-            None => std::env::temp_dir().join("libero-agent-workspaces"),
-        },
+        workspace_root: args.paths.workspace_root("")?,
         data,
-        credentials_file: args.credentials_file.clone().unwrap_or_else(default_credentials_file),
+        credentials_file: args.paths.credentials_file(),
         lease_ms: (args.lease_s * 1000.0) as i64,
         contexts: Mutex::new(HashMap::new()),
         busy: AtomicUsize::new(0),
