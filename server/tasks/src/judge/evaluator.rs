@@ -161,6 +161,16 @@ impl StageTracker {
         })
     }
 
+    /// Completes every not yet completed stage that `holds`, in no order (terminal-only judging, where the stages
+    /// are independent checks on one final state).
+    pub fn complete_where(&mut self, tick: Tick, mut holds: impl FnMut(usize) -> bool) {
+        for i in 0..self.specs.len() {
+            if self.completed_at[i].is_none() && holds(i) {
+                self.complete(tick, i);
+            }
+        }
+    }
+
     /// Re-tests completed stages: a stage whose condition stops holding is recorded once per drop (event +
     /// count); it stays completed.
     pub fn track_regressions(&mut self, tick: Tick, mut holds: impl FnMut(usize) -> bool) {
