@@ -134,6 +134,10 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // T18: primitive stand-ins for VLABench's chemistry tube and tube rack (catalog §4 T18, §6.8)
     ("vlabench_tube", "objects/vlabench_tube/vlabench_tube.xml", 0.0),
     ("vlabench_tube_stand", "objects/vlabench_tube_stand/vlabench_tube_stand.xml", 0.0),
+    // pool vlabench_tube_precision/1: the green tube and the NameTag rack with VLABench's hole layout, written by
+    // scripts/gen_perception_assets.py
+    ("vlabench_green_tube", "objects/vlabench_green_tube/vlabench_green_tube.xml", 0.0),
+    ("vlabench_tube_stand_tagged", "objects/vlabench_tube_stand_tagged/vlabench_tube_stand_tagged.xml", 0.0),
     // T19 (task catalog §6.6): RoboCasa-style sponge (movable) and tabletop spill patch with the blue rest pad (fixture)
     ("robocasa_sponge", "objects/robocasa_sponge/robocasa_sponge.xml", 0.0),
     ("robocasa_spill_patch", "objects/robocasa_spill_patch/robocasa_spill_patch.xml", 0.0),
