@@ -500,3 +500,17 @@ write("vlabench_tube_stand_tagged",
       "     \"CuCl2\" (right slot's), drawn in capsule strokes, read left to right in the head camera's image.\n"
       "     Rack geoms are group 1 with default contact flags (render and collide).",
       rack, 0, 0.08, 0.22)
+
+# ---- pool suite vlabench_additional task 0 (find_unseen_object): the apple hidden in a closed drawer of LIBERO's wooden
+# cabinet. The drawer's inside is 6.1 cm tall (floor top to the carcass roof), so the world-knowledge apple (r 3.4 cm)
+# does not fit; this one is the same fruit at r 2.5 cm. ----
+HIDDEN_APPLE_R = 0.025
+hidden_apple = vis("apple_skin", "ellipsoid", f"{HIDDEN_APPLE_R} {HIDDEN_APPLE_R} 0.023", "0 0 0", "0.75 0.06 0.07 1")
+hidden_apple += vis("apple_stem", "cylinder", "0.0018 0.005", "0 0 0.025", "0.35 0.22 0.10 1")
+hidden_apple += vis("apple_leaf", "ellipsoid", "0.008 0.003 0.0012", "0.007 0 0.027", "0.20 0.60 0.15 1",
+                    extra=' euler="0 -0.4 0"')
+hidden_apple += col("fruit_collision", "sphere", f"{HIDDEN_APPLE_R - 0.001}", "0.08", "0 0 0", ' friction="1 0.02 0.002"')
+write("vlabench_hidden_apple",
+      "vlabench_additional find_unseen_object apple: the world-knowledge apple primitive at r 2.5 cm (collision sphere\n"
+      "     r 2.4 cm with rolling friction), 0.08 kg, small enough to lie in a closed drawer of LIBERO's wooden cabinet.",
+      hidden_apple, -HIDDEN_APPLE_R, HIDDEN_APPLE_R + 0.006, HIDDEN_APPLE_R)

@@ -166,6 +166,8 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("vlabench_orange_fruit", "objects/vlabench_orange_fruit/vlabench_orange_fruit.xml", 0.0),
     ("vlabench_apple_fruit", "objects/vlabench_apple_fruit/vlabench_apple_fruit.xml", 0.0),
     ("vlabench_pear_fruit", "objects/vlabench_pear_fruit/vlabench_pear_fruit.xml", 0.0),
+    // pool suite vlabench_additional/find_unseen_object: the apple small enough for a wooden-cabinet drawer
+    ("vlabench_hidden_apple", "objects/vlabench_hidden_apple/vlabench_hidden_apple.xml", 0.0),
     ("vlabench_blue_solution", "objects/vlabench_blue_solution/vlabench_blue_solution.xml", 0.0),
     ("vlabench_green_solution", "objects/vlabench_green_solution/vlabench_green_solution.xml", 0.0),
     ("vlabench_clear_solution", "objects/vlabench_clear_solution/vlabench_clear_solution.xml", 0.0),
