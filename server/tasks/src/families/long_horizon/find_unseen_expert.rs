@@ -1,7 +1,8 @@
-//! Expert for the pool's `vlabench_additional/find_unseen_object`: the apple lies hidden in the closed top drawer of
-//! LIBERO's wooden cabinet; pull that drawer open, take the apple out from above and put it on the wooden tray. Near
-//! misses: `wrong_drawer` opens the middle drawer (the bottom handle is out of the horizontal hand's reach) and
-//! stops; `leave_apple` opens the right drawer and stops.
+//! Expert for the pool's `vlabench_additional/find_unseen_object`: the apple lies hidden in the closed middle drawer
+//! of LIBERO's wooden cabinet (in the top drawer it would show through the cabinet's roof in the head image); pull
+//! that drawer open, take the apple out from above and put it on the wooden tray. Near misses: `wrong_drawer` opens
+//! the top drawer (the bottom handle is out of the horizontal hand's reach) and stops; `leave_apple` opens the right
+//! drawer and stops.
 use std::sync::Arc;
 
 use libero_sim::Simulation;
@@ -19,8 +20,8 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     (task_id == FIND_UNSEEN_OBJECT).then_some(&["wrong_drawer", "leave_apple"][..])
 }
 
-/// Apple root height while carried: above the open top drawer's walls (kitchen tabletop at 0.90 m, the walls' top
-/// ≈ 0.22 m above it).
+/// Apple root height while carried: above the cabinet's roof (kitchen tabletop at 0.90 m, the roof ≈ 0.22 m above
+/// it), so the apple clears the closed top drawer on its way out.
 const APPLE_CARRY_Z_M: f64 = 1.20;
 /// Where the apple is let go, below the tray's region-site centre (the site is 8 cm tall; the floor is near its bottom).
 const TRAY_DROP_BELOW_SITE_M: f64 = 0.02;
@@ -29,7 +30,7 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
     if task_id != FIND_UNSEEN_OBJECT {
         return Err(TasksError::Scene(format!("no scripted expert for task {task_id}")));
     }
-    let drawer = Drawer::of(refs, if behaviour == "wrong_drawer" { "middle" } else { "top" })?;
+    let drawer = Drawer::of(refs, if behaviour == "wrong_drawer" { "top" } else { "middle" })?;
     let mut phases = Vec::new();
     drawer.pull(&mut phases);
     // up and clear of the drawer front before the hand turns back to pointing down
