@@ -450,6 +450,15 @@ mod tests {
     }
 
     #[test]
+    fn terminal_stages_complete_wherever_they_hold_in_any_order() {
+        let mut t = tracker();
+        // the second stage holds, the first does not: an ordered advance would complete nothing
+        t.complete_where(tick(9), |i| i == 1);
+        assert!(!t.is_completed(0) && t.is_completed(1));
+        assert_eq!(t.completed_required_count(), 1);
+    }
+
+    #[test]
     fn regressions_are_counted_once_per_drop_and_never_uncomplete_a_stage() {
         let mut t = tracker();
         t.advance(tick(1), |_| true);
