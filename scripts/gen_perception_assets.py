@@ -404,3 +404,113 @@ write("composuite_target_bin",
       "     0.236 x 0.246 m, walls 12 cm high; region site contain_region h=(0.095, 0.098, 0.075) at z 0.075.",
       tb, 0, 0.135, 0.118,
       assets='    <material name="target_green" rgba="0.12 0.55 0.22 1" shininess="0.25"/>\n')
+
+
+# ---- pool suite vlabench_tube_precision task 1 (rearrange_marked_chemistry_tubes): a green tube beside T18's blue
+# one, and a rack with VLABench's hole layout (five columns 0.08 m apart, rows at +-0.05: VLABench's relative_col_pos /
+# relative_row_pos) carrying two NameTags, so that the catalog's slots at world offset (-0.08, 0.05, 0.055) and
+# (+0.08, 0.05, 0.055) from the root (after the pi/2 yaw) are the centres of two rear-row holes. T18's own rack keeps
+# its 0.055 m pitch. ----
+green_tube = (
+    '        <body name="tube_axis" euler="1.5707963267948966 0 0">\n'
+    '          <geom name="tube_collision" type="cylinder" fromto="0 0 0 0 0.12 0" size="0.0115" mass="0.04" group="0"\n'
+    '                friction="1 0.005 0.0001" solref="0.002 1" solimp="0.95 0.99 0.001" rgba="0.8 0.8 0.8 0.3"/>\n'
+    '          <geom name="tube_glass" type="cylinder" fromto="0 0.0 0 0 0.12 0" size="0.0116" group="1" contype="0"'
+    ' conaffinity="0" rgba="0.86 0.93 0.97 0.35"/>\n'
+    '          <geom name="tube_rim" type="cylinder" fromto="0 0.116 0 0 0.12 0" size="0.0122" group="1" contype="0"'
+    ' conaffinity="0" rgba="0.92 0.95 0.98 0.6"/>\n'
+    '          <geom name="tube_solution" type="cylinder" fromto="0 0.003 0 0 0.07 0" size="0.0102" group="1" contype="0"'
+    ' conaffinity="0" rgba="0.10 0.70 0.30 0.45"/>\n'
+    '        </body>\n')
+write("vlabench_green_tube",
+      "Green chemistry tube (pool vlabench_tube_precision/1): T18's primitive tube (assets/objects/vlabench_tube) with\n"
+      "     a green CuCl2 solution (rgba 0.10 0.70 0.30 0.45) instead of the blue CuSO4 one; same geometry, 0.04 kg, the\n"
+      "     long axis the local y of child body `tube_axis`, origin at the tube's bottom centre.",
+      green_tube, 0, 0.12, 0.0125)
+
+# stroke glyphs on a unit cell (x right, y up): line segments (x0, y0, x1, y1)
+GLYPHS = {
+    "C": [(1, 1, 0, 1), (0, 1, 0, 0), (0, 0, 1, 0)],
+    "u": [(0, 0.6, 0, 0), (0, 0, 1, 0), (1, 0, 1, 0.6)],
+    "S": [(1, 1, 0, 1), (0, 1, 0, 0.5), (0, 0.5, 1, 0.5), (1, 0.5, 1, 0), (1, 0, 0, 0)],
+    "O": [(0, 0, 1, 0), (1, 0, 1, 1), (1, 1, 0, 1), (0, 1, 0, 0)],
+    "4": [(0, 1, 0, 0.45), (0, 0.45, 1, 0.45), (0.8, 1, 0.8, 0)],
+    "l": [(0.5, 1, 0.5, 0)],
+    "2": [(0, 1, 1, 1), (1, 1, 1, 0.5), (1, 0.5, 0, 0.5), (0, 0.5, 0, 0), (0, 0, 1, 0)],
+}
+GLYPH_W, GLYPH_H, GLYPH_PITCH, STROKE_R = 0.011, 0.018, 0.017, 0.0014
+
+
+def name_tag(key, text, centre_x, centre_y, z):
+    """A white NameTag lying flat at height z (rack frame), its text read along local +x with the letters' tops
+    toward local +y: after the rack's pi/2 yaw that is left to right and upright in the head camera's image."""
+    width = GLYPH_PITCH * len(text)
+    out = vis(f"{key}_tag", "box", f"{width / 2 + 0.006:.4f} {GLYPH_H / 2 + 0.006:.4f} 0.0015",
+              f"{centre_x:.4f} {centre_y:.4f} {z:.4f}", "0.97 0.97 0.94 1")
+    x0 = centre_x - width / 2 + (GLYPH_PITCH - GLYPH_W) / 2
+    y0 = centre_y - GLYPH_H / 2
+    for i, ch in enumerate(text):
+        for j, (a, b, c, d) in enumerate(GLYPHS[ch]):
+            p = (x0 + i * GLYPH_PITCH + a * GLYPH_W, y0 + b * GLYPH_H, x0 + i * GLYPH_PITCH + c * GLYPH_W, y0 + d * GLYPH_H)
+            out += (f'        <geom name="{key}_tag_{i}_{j}" type="capsule" size="{STROKE_R}" '
+                    f'fromto="{p[0]:.4f} {p[1]:.4f} {z + 0.0015:.4f} {p[2]:.4f} {p[3]:.4f} {z + 0.0015:.4f}" '
+                    f'rgba="0.05 0.05 0.08 1" group="1" contype="0" conaffinity="0"/>\n')
+    return out
+
+
+RACK_COLS = [-0.16, -0.08, 0.0, 0.08, 0.16]  # local y (world -x after the yaw)
+RACK_ROWS = [-0.05, 0.05]                     # local x (world y after the yaw)
+RACK_HALF_Y, HOLE_HALF = 0.20, 0.019
+RACK_SURF = 'rgba="0.90 0.90 0.87 1" group="1" mass="0.00400" friction="1 0.005 0.0001"'
+
+
+def rack_box(name, size, pos, rgba_attrs=RACK_SURF):
+    return f'        <geom name="{name}" type="box" pos="{pos}" size="{size}" {rgba_attrs}/>\n'
+
+
+rack = rack_box("rack_base", f"0.085 {RACK_HALF_Y} 0.004", "0 0 0.044",
+                'rgba="0.78 0.80 0.82 1" group="1" mass="0.00400" friction="1 0.005 0.0001"')
+for n, half_x, x in [("front", 0.008, -0.077), ("middle", 0.031, 0.0), ("rear", 0.008, 0.077)]:
+    rack += rack_box(f"rack_top_bar_{n}", f"{half_x} {RACK_HALF_Y} 0.004", f"{x} 0 0.076")
+edges = [-RACK_HALF_Y] + [e for c in RACK_COLS for e in (c - HOLE_HALF, c + HOLE_HALF)] + [RACK_HALF_Y]
+for row_name, x in [("front", -0.05), ("rear", 0.05)]:
+    for k in range(0, len(edges), 2):
+        lo, hi = edges[k], edges[k + 1]
+        rack += rack_box(f"rack_top_{row_name}_web{k // 2}", f"{HOLE_HALF} {(hi - lo) / 2:.4f} 0.004",
+                         f"{x} {(hi + lo) / 2:.4f} 0.076")
+for n, x, y in [("front_right", -0.077, -0.192), ("front_left", -0.077, 0.192), ("rear_right", 0.077, -0.192),
+                ("rear_left", 0.077, 0.192)]:
+    rack += rack_box(f"rack_post_{n}", "0.008 0.008 0.012", f"{x} {y} 0.06")
+# the catalog's slots: world (-0.08, 0.05) is local (0.05, 0.08), world (+0.08, 0.05) is local (0.05, -0.08)
+rack += '        <site name="left_slot" type="box" pos="0.05 0.08 0.055" size="0.022 0.022 0.08" rgba="0 1 0 0" group="0"/>\n'
+rack += '        <site name="right_slot" type="box" pos="0.05 -0.08 0.055" size="0.022 0.022 0.08" rgba="0 1 0 0" group="0"/>\n'
+# the tags lie on a visual-only shelf behind the rear row (world +y of the rack), one in front of each slot's column
+rack += vis("tag_shelf", "box", f"0.0425 {RACK_HALF_Y} 0.002", "0.1275 0 0.078", "0.90 0.90 0.87 1")
+rack += name_tag("left", "CuSO4", 0.121, 0.08, 0.0815)
+rack += name_tag("right", "CuCl2", 0.121, -0.08, 0.0815)
+write("vlabench_tube_stand_tagged",
+      "Chemistry tube rack with NameTags (pool vlabench_tube_precision/1, rearrange_marked_chemistry_tubes), authored\n"
+      "     from primitives like T18's rack (assets/objects/vlabench_tube_stand; VLABench's mesh is external, catalog §6.8)\n"
+      "     but with VLABench's hole layout: two rows (local x = -+0.05) of five square holes (half width 1.9 cm) at\n"
+      "     local y = 0, +-0.08, +-0.16, 0.40 m long. Static fixture, bottom_site at z = 0 (the tabletop is local\n"
+      "     z = 0.04). Placed with yaw pi/2, sites `left_slot` / `right_slot` (box half sizes 0.022 0.022 0.08) lie at the\n"
+      "     catalog's world offsets (-0.08, 0.05, 0.055) / (+0.08, 0.05, 0.055) from the root, the centres of two\n"
+      "     rear-row holes; a tube standing on the base plate there has insertion depth 0.048 m, inside [0.032, 0.085].\n"
+      "     A visual-only shelf behind the rear row carries the white NameTags \"CuSO4\" (left slot's column) and\n"
+      "     \"CuCl2\" (right slot's), drawn in capsule strokes, read left to right in the head camera's image.\n"
+      "     Rack geoms are group 1 with default contact flags (render and collide).",
+      rack, 0, 0.08, 0.22)
+
+# ---- pool suite vlabench_additional task 0 (find_unseen_object): the apple hidden in a closed drawer of LIBERO's wooden
+# cabinet. The drawer's inside is 6.1 cm tall (floor top to the carcass roof), so the world-knowledge apple (r 3.4 cm)
+# does not fit; this one is the same fruit at r 2.5 cm. ----
+HIDDEN_APPLE_R = 0.025
+hidden_apple = vis("apple_skin", "ellipsoid", f"{HIDDEN_APPLE_R} {HIDDEN_APPLE_R} 0.023", "0 0 0", "0.75 0.06 0.07 1")
+hidden_apple += vis("apple_stem", "cylinder", "0.0018 0.005", "0 0 0.025", "0.35 0.22 0.10 1")
+hidden_apple += vis("apple_leaf", "ellipsoid", "0.008 0.003 0.0012", "0.007 0 0.027", "0.20 0.60 0.15 1",
+                    extra=' euler="0 -0.4 0"')
+hidden_apple += col("fruit_collision", "sphere", f"{HIDDEN_APPLE_R - 0.001}", "0.08", "0 0 0", ' friction="1 0.02 0.002"')
+write("vlabench_hidden_apple",
+      "vlabench_additional find_unseen_object apple: the world-knowledge apple primitive at r 2.5 cm (collision sphere\n"
+      "     r 2.4 cm with rolling friction), 0.08 kg, small enough to lie in a closed drawer of LIBERO's wooden cabinet.",
+      hidden_apple, -HIDDEN_APPLE_R, HIDDEN_APPLE_R + 0.006, HIDDEN_APPLE_R)

@@ -134,6 +134,10 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // T18: primitive stand-ins for VLABench's chemistry tube and tube rack (catalog §4 T18, §6.8)
     ("vlabench_tube", "objects/vlabench_tube/vlabench_tube.xml", 0.0),
     ("vlabench_tube_stand", "objects/vlabench_tube_stand/vlabench_tube_stand.xml", 0.0),
+    // pool vlabench_tube_precision/1: the green tube and the NameTag rack with VLABench's hole layout, written by
+    // scripts/gen_perception_assets.py
+    ("vlabench_green_tube", "objects/vlabench_green_tube/vlabench_green_tube.xml", 0.0),
+    ("vlabench_tube_stand_tagged", "objects/vlabench_tube_stand_tagged/vlabench_tube_stand_tagged.xml", 0.0),
     // T19 (task catalog §6.6): RoboCasa-style sponge (movable) and tabletop spill patch with the blue rest pad (fixture)
     ("robocasa_sponge", "objects/robocasa_sponge/robocasa_sponge.xml", 0.0),
     ("robocasa_spill_patch", "objects/robocasa_spill_patch/robocasa_spill_patch.xml", 0.0),
@@ -162,6 +166,8 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("vlabench_orange_fruit", "objects/vlabench_orange_fruit/vlabench_orange_fruit.xml", 0.0),
     ("vlabench_apple_fruit", "objects/vlabench_apple_fruit/vlabench_apple_fruit.xml", 0.0),
     ("vlabench_pear_fruit", "objects/vlabench_pear_fruit/vlabench_pear_fruit.xml", 0.0),
+    // pool suite vlabench_additional/find_unseen_object: the apple small enough for a wooden-cabinet drawer
+    ("vlabench_hidden_apple", "objects/vlabench_hidden_apple/vlabench_hidden_apple.xml", 0.0),
     ("vlabench_blue_solution", "objects/vlabench_blue_solution/vlabench_blue_solution.xml", 0.0),
     ("vlabench_green_solution", "objects/vlabench_green_solution/vlabench_green_solution.xml", 0.0),
     ("vlabench_clear_solution", "objects/vlabench_clear_solution/vlabench_clear_solution.xml", 0.0),

@@ -161,6 +161,16 @@ impl StageTracker {
         })
     }
 
+    /// Completes every not yet completed stage that `holds`, in no order (terminal-only judging, where the stages
+    /// are independent checks on one final state).
+    pub fn complete_where(&mut self, tick: Tick, mut holds: impl FnMut(usize) -> bool) {
+        for i in 0..self.specs.len() {
+            if self.completed_at[i].is_none() && holds(i) {
+                self.complete(tick, i);
+            }
+        }
+    }
+
     /// Re-tests completed stages: a stage whose condition stops holding is recorded once per drop (event +
     /// count); it stays completed.
     pub fn track_regressions(&mut self, tick: Tick, mut holds: impl FnMut(usize) -> bool) {
@@ -437,6 +447,15 @@ mod tests {
         assert_eq!(r.ordered_stage_names, ["01_a", "02_b"]);
         assert_eq!(r.optional_stage_names, ["03_optional"]);
         assert_eq!(r.stage_events.iter().map(|e| e.tick.control_step).collect::<Vec<_>>(), [1, 3]);
+    }
+
+    #[test]
+    fn terminal_stages_complete_wherever_they_hold_in_any_order() {
+        let mut t = tracker();
+        // the second stage holds, the first does not: an ordered advance would complete nothing
+        t.complete_where(tick(9), |i| i == 1);
+        assert!(!t.is_completed(0) && t.is_completed(1));
+        assert_eq!(t.completed_required_count(), 1);
     }
 
     #[test]

@@ -48,6 +48,12 @@ pub fn start(entry: &str) -> (String, ComposedScene, Simulation, Box<dyn Evaluat
     (e.reference(), scene, sim, evaluator)
 }
 
+/// A record's (success, completed stages, K), the triple the stage tests compare.
+#[allow(dead_code)] // not every test binary compares stage counts
+pub fn stages(r: &EvaluationRecord) -> (bool, usize, usize) {
+    (r.success, r.completed_required_stage_count, r.required_stage_count)
+}
+
 /// An entry's evaluator on an idle robot (zero actions) for `steps` control steps from its start.
 #[allow(dead_code)] // not every test binary judges an idle start
 pub fn idle(entry: &str, steps: u64) -> EvaluationRecord {

@@ -1,5 +1,5 @@
 //! long_horizon_v2 and RoboMemArena: the staged evaluator (ordered, unordered and buffer-rotation stages, pour
-//! counters, drawers, cabinets) and the experts of T21–T27.
+//! counters, drawers, cabinets) and the experts of T21–T27, and the pool's VLABench find_unseen_object (a staged search).
 pub mod staged;
 mod expert;
 mod robomem_expert;
@@ -7,6 +7,7 @@ mod bowls_expert;
 mod cooking_expert;
 mod robomem_containers;
 mod robomem_pour_microwave;
+mod find_unseen_expert;
 
 use crate::TasksError;
 use crate::expert::{Expert, SceneRefs};
@@ -16,6 +17,7 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     expert::behaviours(task_id).or_else(|| robomem_expert::behaviours(task_id)).or_else(|| bowls_expert::behaviours(task_id)).or_else(|| cooking_expert::behaviours(task_id))
         .or_else(|| robomem_containers::behaviours(task_id))
         .or_else(|| robomem_pour_microwave::behaviours(task_id))
+        .or_else(|| find_unseen_expert::behaviours(task_id))
 }
 
 /// This family's expert for `task_id` (one of [`behaviours`]).
@@ -30,6 +32,8 @@ pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<
         robomem_containers::build(task_id, behaviour, refs)
     } else if robomem_pour_microwave::behaviours(task_id).is_some() {
         robomem_pour_microwave::build(task_id, behaviour, refs)
+    } else if find_unseen_expert::behaviours(task_id).is_some() {
+        find_unseen_expert::build(task_id, behaviour, refs)
     } else {
         expert::build(task_id, behaviour, refs)
     }

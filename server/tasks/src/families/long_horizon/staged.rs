@@ -18,7 +18,10 @@
 //! robosuite's two-pad test), `released_and_clear` (not grasped and the object's root at least `min_distance_m` from
 //! the grip site, catalog §2.4), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
 //! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `pour_count` (a named pour
-//! counter has registered ≥ `at_least` pours), `any` (disjunction), `all` (conjunction, for use inside `any`) and `not`.
+//! counter has registered ≥ `at_least` pours), `displaced_since` (the object's root at least `min_xy_m` horizontally from
+//! where it was when a named earlier stage completed: VLABench find_unseen_object's "taken out after the drawer opened"),
+//! `touching` (a live contact between two instances' body subtrees, distance ≤ `max_distance_m`), `any` (disjunction),
+//! `all` (conjunction, for use inside `any`) and `not`.
 //!
 //! Bindings (T23's "occupied drawer"): a name `$<binding>` usable wherever an atom names a site (drawer sites, `near`
 //! anchors); at reset it is bound to the candidate site nearest (3-D) to an object's root, and stays bound for the
@@ -111,6 +114,12 @@ pub enum AtomSpec {
     },
     /// The named pour counter (`pour_counters`) has registered at least `at_least` pours.
     PourCount { counter: String, at_least: usize },
+    /// `object`'s root at least `min_xy_m` (horizontal) from its position when stage `stage` completed; false while
+    /// that stage has not completed.
+    DisplacedSince { object: String, stage: String, min_xy_m: f64 },
+    /// A contact between `object`'s and `other`'s body subtrees with distance ≤ `max_distance_m` (a live support,
+    /// not a hover inside a region).
+    Touching { object: String, other: String, max_distance_m: f64 },
     /// At least one of the atoms holds.
     Any(Vec<AtomSpec>),
     /// Every one of the atoms holds (inside an `any`: RoboMemArena task 14's "the drawer holding the object is closed").
@@ -205,6 +214,9 @@ enum Check {
     Lifted { body: usize, above_m: f64 },
     Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
     PourCount { counter: usize, at_least: usize },
+    DisplacedSince { body: usize, stage: usize, min_xy_m: f64 },
+    /// `sides[g]`: geom g belongs to the object's subtree (1), the other's (2), or neither (0).
+    Touching { sides: Arc<Vec<u8>>, max_distance_m: f64 },
     Any(Vec<Check>),
     All(Vec<Check>),
     Not(Box<Check>),
@@ -242,6 +254,8 @@ struct Baseline {
     body0: Vec<[f64; 3]>,
     /// binding → the site it was bound to at reset
     bound: Vec<usize>,
+    /// stage → body id → world position when the stage completed (`displaced_since`)
+    body_at_stage: Vec<Option<Vec<[f64; 3]>>>,
 }
 
 /// A compiled binding.
@@ -337,6 +351,16 @@ impl Check {
                 joint_inside(if *abs { q.abs() } else { q }, *min, *max)
             }
             Check::PourCount { counter, at_least } => c.pours.get(*counter).is_some_and(|p| p.count() >= *at_least),
+            Check::DisplacedSince { body, stage, min_xy_m } => {
+                let Some(Some(then)) = c.base.body_at_stage.get(*stage) else { return false };
+                let (p, q) = (d.xpos()[*body], then[*body]);
+                (p[0] - q[0]).hypot(p[1] - q[1]) >= *min_xy_m
+            }
+            Check::Touching { sides, max_distance_m } => d.contact().iter().any(|k| {
+                let side = |g: i32| sides.get(g as usize).copied().unwrap_or(0);
+                let (a, b) = (side(k.geom[0]), side(k.geom[1]));
+                k.dist <= *max_distance_m && a != 0 && b != 0 && a != b
+            }),
             Check::Any(atoms) => atoms.iter().any(|a| a.holds(c)),
             Check::All(atoms) => atoms.iter().all(|a| a.holds(c)),
             Check::Not(inner) => !inner.holds(c),
@@ -380,6 +404,8 @@ struct Names<'a> {
     model: &'a MjModel,
     bindings: &'a [String],
     counters: &'a [String],
+    /// every stage's name (required, then optional), for `displaced_since`
+    stages: &'a [String],
 }
 
 fn scene_err(what: &str, name: &str) -> TasksError {
@@ -457,6 +483,25 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             counter: names.counters.iter().position(|n| n == counter).ok_or_else(|| scene_err("pour counter", counter))?,
             at_least: *at_least,
         },
+        AtomSpec::DisplacedSince { object, stage, min_xy_m } => Check::DisplacedSince {
+            body: instance_body(object)?,
+            stage: names.stages.iter().position(|n| n == stage).ok_or_else(|| scene_err("stage", stage))?,
+            min_xy_m: *min_xy_m,
+        },
+        AtomSpec::Touching { object, other, max_distance_m } => {
+            let (a, b) = (instance_body(object)?, instance_body(other)?);
+            let parents = model.body_parentid();
+            let sides = model
+                .geom_bodyid()
+                .iter()
+                .map(|&g| match g as usize {
+                    g if in_subtree(parents, g, a) => 1,
+                    g if in_subtree(parents, g, b) => 2,
+                    _ => 0,
+                })
+                .collect();
+            Check::Touching { sides: Arc::new(sides), max_distance_m: *max_distance_m }
+        }
         AtomSpec::Any(atoms) => Check::Any(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::All(atoms) => Check::All(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, names)?)),
@@ -801,7 +846,8 @@ impl StagedEvaluator {
             .collect::<Result<Vec<_>, TasksError>>()?;
         let binding_names: Vec<String> = params.bindings.iter().map(|b| b.name.clone()).collect();
         let counter_names: Vec<String> = params.pour_counters.iter().map(|p| p.name.clone()).collect();
-        let names = Names { index: &index, model, bindings: &binding_names, counters: &counter_names };
+        let stage_names: Vec<String> = params.stages.iter().chain(&params.optional_stages).map(|s| s.name.clone()).collect();
+        let names = Names { index: &index, model, bindings: &binding_names, counters: &counter_names, stages: &stage_names };
         let mut stages = params.stages.iter().map(|s| Stage::compile(s, &names)).collect::<Result<Vec<_>, _>>()?;
         let n_required = stages.len();
         for s in &params.optional_stages {
@@ -958,14 +1004,17 @@ impl StagedEvaluator {
         }
         let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
         let stages = &self.stages;
-        match self.order {
-            OrderMode::Strict => {
-                self.tracker.advance_strict(tick, |i| stages[i].holds(&ctx));
-            }
-            _ => {
-                self.tracker.advance(tick, |i| stages[i].holds(&ctx));
-            }
+        let completed = match self.order {
+            OrderMode::Strict => self.tracker.advance_strict(tick, |i| stages[i].holds(&ctx)),
+            _ => self.tracker.advance(tick, |i| stages[i].holds(&ctx)),
+        };
+        if let Some(i) = completed
+            && let Some(slot) = self.base.body_at_stage.get_mut(i)
+        {
+            *slot = Some(data.xpos().to_vec());
         }
+        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        let stages = &self.stages;
         if control {
             self.tracker.track_regressions(tick, |i| stages[i].holds(&ctx));
             self.check_failures(data, tick);
@@ -1013,7 +1062,12 @@ impl Evaluator for StagedEvaluator {
 
     fn reset(&mut self, data: &SimData, tick: Tick) {
         let bound = self.bindings.iter().map(|b| b.resolve(data)).collect();
-        self.base = Baseline { site0: data.site_xpos().to_vec(), body0: data.xpos().to_vec(), bound };
+        self.base = Baseline {
+            site0: data.site_xpos().to_vec(),
+            body0: data.xpos().to_vec(),
+            bound,
+            body_at_stage: vec![None; self.stages.len()],
+        };
         self.pours.iter_mut().for_each(|p| p.tracker = None);
         self.failures.iter_mut().for_each(|f| f.latched_at = None);
         self.tracker = StageTracker::new(Self::specs(&self.stages, self.n_required));

@@ -1,5 +1,6 @@
 //! Experts for the VLABench-derived release tasks on this repository's assets: T13 (press the red button) and
-//! T18 (insert the blue chemistry tube into the rack's rear-centre slot).
+//! T18 (insert the blue chemistry tube into the rack's rear-centre slot), and the pool's
+//! `vlabench_tube_precision/rearrange_marked_chemistry_tubes` (T18's insertion twice, on the NameTag rack).
 use libero_sim::Simulation;
 use nalgebra::Vector3;
 
@@ -8,10 +9,14 @@ use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
 use crate::expert::skills::press;
 
+/// The pool's two-tube rearrangement (task id `suite/name`).
+pub const REARRANGE_TUBES: &str = "vlabench_tube_precision/rearrange_marked_chemistry_tubes";
+
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     Some(match task_id {
         "T13" => &["tap"],
         "T18" => &["tilted", "beside_slot"],
+        REARRANGE_TUBES => &["swapped_slots", "one_tube"],
         _ => return None,
     })
 }
@@ -20,6 +25,7 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
     match task_id {
         "T13" => press_button(refs, behaviour),
         "T18" => insert_tube(refs, behaviour),
+        REARRANGE_TUBES => rearrange_tubes(refs, behaviour),
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
@@ -49,12 +55,38 @@ const CARRY_BOTTOM_ABOVE_ROOT_M: f64 = 0.15;
 /// release, retreat. `beside_slot` does the same into the neighbouring hole of the rear row; `tilted` inserts the
 /// tube, then drags the hand sideways before letting go, so the tube is left leaning against the hole's rim.
 fn insert_tube(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
-    let tube = refs.instance_body("blue_tube_1")?;
-    let rack = refs.instance_body("tube_stand_1")?;
     let hole_local = match behaviour {
         "beside_slot" => [REAR_CENTRE_HOLE_LOCAL_M[0], HOLE_PITCH_M, REAR_CENTRE_HOLE_LOCAL_M[2]],
         _ => REAR_CENTRE_HOLE_LOCAL_M,
     };
+    Ok(Box::new(Script::new(insertion_phases(refs, "blue_tube_1", hole_local, behaviour == "tilted")?)))
+}
+
+/// NameTag rack (`vlabench_tube_stand_tagged.xml`, rack frame): the rear-row holes under the sites `left_slot` and
+/// `right_slot`, at the height of the base plate's top.
+const LEFT_SLOT_HOLE_LOCAL_M: [f64; 3] = [0.05, 0.08, 0.048];
+const RIGHT_SLOT_HOLE_LOCAL_M: [f64; 3] = [0.05, -0.08, 0.048];
+
+/// Rearrangement: T18's insertion twice, the blue (CuSO4) tube into the hole under the "CuSO4" tag (`left_slot`),
+/// then the green (CuCl2) one under "CuCl2" (`right_slot`). `swapped_slots` exchanges the holes; `one_tube` inserts
+/// only the blue tube.
+fn rearrange_tubes(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+    let (blue_hole, green_hole) = match behaviour {
+        "swapped_slots" => (RIGHT_SLOT_HOLE_LOCAL_M, LEFT_SLOT_HOLE_LOCAL_M),
+        _ => (LEFT_SLOT_HOLE_LOCAL_M, RIGHT_SLOT_HOLE_LOCAL_M),
+    };
+    let mut phases = insertion_phases(refs, "blue_tube_1", blue_hole, false)?;
+    if behaviour != "one_tube" {
+        phases.extend(insertion_phases(refs, "green_tube_1", green_hole, false)?);
+    }
+    Ok(Box::new(Script::new(phases)))
+}
+
+/// Phases that insert `tube` into the hole at `hole_local` of the rack `tube_stand_1` (see [`insert_tube`]);
+/// `tilted` drags the hand sideways before letting go.
+fn insertion_phases(refs: &SceneRefs, tube: &str, hole_local: [f64; 3], tilted: bool) -> Result<Vec<Phase>, TasksError> {
+    let tube = refs.instance_body(tube)?;
+    let rack = refs.instance_body("tube_stand_1")?;
     let tube_pos = move |sim: &Simulation| vec3(&sim.data().xpos()[tube]);
     let hole = move |sim: &Simulation| body_point(sim, rack, hole_local);
     // grip-site goal that puts the tube's bottom at `bottom`, correcting for where the tube sits in the fingers
@@ -91,7 +123,7 @@ fn insert_tube(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
         .until(move |sim, _| tube_pos(sim).z - hole(sim).z < 0.003)
         .max_steps(120),
     ];
-    if behaviour == "tilted" {
+    if tilted {
         phases.push(
             Phase::new("drag_sideways", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::x() * 0.05, GRIPPER_CLOSED).slow(0.2))
                 .for_steps(20),
@@ -102,5 +134,5 @@ fn insert_tube(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Tas
         Phase::new("retreat", move |_, ctx| Goal::at(ctx.start_pos_m + up * 0.10, GRIPPER_OPEN).slow(0.5)).until_reached(0.01),
         Phase::new("wait", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN)).for_steps(10),
     ]);
-    Ok(Box::new(Script::new(phases)))
+    Ok(phases)
 }

@@ -15,6 +15,11 @@
 //! Control-rate observe only counts how many control steps satisfied all five (a diagnostic). The BDDL goal
 //! (`In(tube, slot)`) is reported as a diagnostic. Names are resolved when the evaluator is built, so a lookup
 //! error fails the episode before it starts rather than at finish.
+//!
+//! `tubes` instead of `tube`/`slot_site` (pool `vlabench_tube_precision/1`, the original's
+//! ChemistryTubeRearrangementEvaluator): every listed tube must pass all five checks in its own slot against the one
+//! rack. Each tube is one stage (K = number of tubes; a stage is complete when that tube passes at finish, in any
+//! order) and its checks are named `<tube>.<check>`.
 use libero_sim::compose::ComposedScene;
 use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
 use libero_sim::simulation::SimData;
@@ -31,12 +36,24 @@ use crate::judge::goal::GoalChecker;
 pub const CHECKER: &str = "private_tube_insertion";
 pub const STAGE_NAME: &str = "01_Tube_Inserted_At_Finish";
 
-/// The manifest's `checker.params`.
+/// One tube and the slot site it belongs in.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TubeSlot {
+    pub tube: String,
+    pub slot_site: String,
+}
+
+/// The manifest's `checker.params`: one tube (`tube` + `slot_site`, T18) or several (`tubes`), never both.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TubeInsertionParams {
-    pub tube: String,
-    pub slot_site: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tube: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub slot_site: Option<String>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tubes: Vec<TubeSlot>,
     pub rack_root: String,
     pub lateral_max_m: f64,
     pub depth_range_m: [f64; 2],
@@ -58,17 +75,38 @@ pub struct TubeMeasures {
     pub tube_rack_contact: bool,
 }
 
+impl TubeInsertionParams {
+    /// The (tube, slot) pairs to judge, in order; an error unless exactly one of the two forms is given.
+    pub fn pairs(&self) -> Result<Vec<TubeSlot>, TasksError> {
+        let bad = |message: &str| TasksError::Scene(format!("{CHECKER}: {message}"));
+        match (&self.tube, &self.slot_site, self.tubes.is_empty()) {
+            (Some(tube), Some(slot_site), true) => Ok(vec![TubeSlot { tube: tube.clone(), slot_site: slot_site.clone() }]),
+            (None, None, false) => Ok(self.tubes.clone()),
+            _ => Err(bad("give either `tube` and `slot_site` or a non-empty `tubes` list")),
+        }
+    }
+}
+
+/// One judged tube, resolved in the model.
+struct JudgedTube {
+    name: String,
+    tube_body: usize,
+    axis_body: usize,
+    slot_site: usize,
+    /// `in_tube[b]`: body b belongs to the tube's subtree.
+    in_tube: Vec<bool>,
+}
+
 pub struct TubeInsertion {
     params: TubeInsertionParams,
     task_id: Option<String>,
     goal: GoalChecker,
     commitment: CommitmentTracker,
-    tube_body: usize,
-    axis_body: usize,
-    slot_site: usize,
+    tubes: Vec<JudgedTube>,
+    /// Several tubes (`tubes`): stages and check names carry the tube's name.
+    several: bool,
     rack_body: usize,
-    /// `in_tube[b]` / `in_rack[b]`: body b belongs to the tube's / the rack's subtree.
-    in_tube: Vec<bool>,
+    /// `in_rack[b]`: body b belongs to the rack's subtree.
     in_rack: Vec<bool>,
     geom_body: Vec<usize>,
     control_steps: u64,
@@ -107,23 +145,28 @@ impl TubeInsertion {
     ) -> Result<Self, TasksError> {
         let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
         let missing = |kind: &str, name: &str| missing_in_model(CHECKER, kind, name);
-        let tube_body = lookup_body(model, &params.tube).ok_or_else(|| missing("body", &params.tube))?;
-        let axis_name = format!("{}_tube_axis", params.tube);
-        let axis_body = model.name_to_id(MjtObjBase::mjOBJ_BODY, &axis_name).ok_or_else(|| missing("body", &axis_name))?;
-        let slot_site =
-            model.name_to_id(MjtObjBase::mjOBJ_SITE, &params.slot_site).ok_or_else(|| missing("site", &params.slot_site))?;
+        let pairs = params.pairs()?;
+        let tubes = pairs
+            .iter()
+            .map(|p| {
+                let tube_body = lookup_body(model, &p.tube).ok_or_else(|| missing("body", &p.tube))?;
+                let axis_name = format!("{}_tube_axis", p.tube);
+                let axis_body = model.name_to_id(MjtObjBase::mjOBJ_BODY, &axis_name).ok_or_else(|| missing("body", &axis_name))?;
+                let slot_site =
+                    model.name_to_id(MjtObjBase::mjOBJ_SITE, &p.slot_site).ok_or_else(|| missing("site", &p.slot_site))?;
+                Ok(JudgedTube { name: p.tube.clone(), tube_body, axis_body, slot_site, in_tube: subtree(model, tube_body) })
+            })
+            .collect::<Result<Vec<_>, TasksError>>()?;
         let rack_body = lookup_body(model, &params.rack_root).ok_or_else(|| missing("body", &params.rack_root))?;
         Ok(Self {
-            in_tube: subtree(model, tube_body),
+            several: !params.tubes.is_empty(),
+            tubes,
             in_rack: subtree(model, rack_body),
             geom_body: model.geom_bodyid().iter().map(|&b| b as usize).collect(),
             params,
             task_id,
             goal,
             commitment,
-            tube_body,
-            axis_body,
-            slot_site,
             rack_body,
             control_steps: 0,
             steps_all_checks_passed: 0,
@@ -131,18 +174,18 @@ impl TubeInsertion {
         })
     }
 
-    pub fn measure(&self, data: &SimData) -> TubeMeasures {
-        let p = data.xpos()[self.tube_body];
-        let s = data.site_xpos()[self.slot_site];
+    fn measure_tube(&self, t: &JudgedTube, data: &SimData) -> TubeMeasures {
+        let p = data.xpos()[t.tube_body];
+        let s = data.site_xpos()[t.slot_site];
         let r = data.xpos()[self.rack_body];
         // xmat is row-major: the second column's z component (the world z of local y) is element [2][1]
-        let verticality = data.xmat()[self.axis_body][7].abs();
-        let v = data.cvel()[self.tube_body];
+        let verticality = data.xmat()[t.axis_body][7].abs();
+        let v = data.cvel()[t.tube_body];
         let body = |g: i32| self.geom_body[g as usize];
         let contact = data.contact().iter().any(|c| {
             let (b1, b2) = (body(c.geom[0]), body(c.geom[1]));
             c.dist <= self.params.contact_distance_max_m
-                && ((self.in_tube[b1] && self.in_rack[b2]) || (self.in_tube[b2] && self.in_rack[b1]))
+                && ((t.in_tube[b1] && self.in_rack[b2]) || (t.in_tube[b2] && self.in_rack[b1]))
         });
         TubeMeasures {
             lateral_error_m: ((p[0] - s[0]).powi(2) + (p[1] - s[1]).powi(2)).sqrt(),
@@ -152,6 +195,28 @@ impl TubeInsertion {
             linear_speed_m_s: norm3(&v[3..6]),
             tube_rack_contact: contact,
         }
+    }
+
+    /// Per tube: its measures and its five checks (named `<tube>.<check>` when there are several tubes).
+    fn judge_all(&self, data: &SimData) -> Vec<(TubeMeasures, Vec<TerminalCheck>)> {
+        self.tubes
+            .iter()
+            .map(|t| {
+                let m = self.measure_tube(t, data);
+                let mut checks = self.checks(&m);
+                if self.several {
+                    checks.iter_mut().for_each(|c| c.name = format!("{}.{}", t.name, c.name));
+                }
+                (m, checks)
+            })
+            .collect()
+    }
+
+    fn stage_names(&self) -> Vec<String> {
+        if !self.several {
+            return vec![STAGE_NAME.to_owned()];
+        }
+        self.tubes.iter().enumerate().map(|(i, t)| format!("{:02}_{}_Inserted_At_Finish", i + 1, t.name)).collect()
     }
 
     /// The five named checks on `m`.
@@ -186,18 +251,21 @@ impl Evaluator for TubeInsertion {
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
         self.control_steps += 1;
-        if self.checks(&self.measure(data)).iter().all(|c| c.passed) {
+        if self.judge_all(data).iter().all(|(_, checks)| checks.iter().all(|c| c.passed)) {
             self.steps_all_checks_passed += 1;
         }
         self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
     }
 
     fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord {
-        let measures = self.measure(data);
-        let checks = self.checks(&measures);
-        let success = checks.iter().all(|c| c.passed);
-        let mut stages = StageTracker::new(vec![StageSpec::required(STAGE_NAME)]);
-        stages.advance(tick, |_| success);
+        let judged = self.judge_all(data);
+        let passed: Vec<bool> = judged.iter().map(|(_, checks)| checks.iter().all(|c| c.passed)).collect();
+        let success = passed.iter().all(|&p| p);
+        let names = self.stage_names();
+        let mut stages = StageTracker::new(names.iter().map(|n| StageSpec::required(n)).collect());
+        // terminal judging has no order: a tube that passes completes its stage whatever the others do
+        stages.complete_where(tick, |i| passed[i]);
+        let checks: Vec<TerminalCheck> = judged.iter().flat_map(|(_, c)| c.iter().cloned()).collect();
         let mut record = EvaluationRecord::new(CHECKER);
         stages.write_into(&mut record);
         record.task_id = self.task_id.clone();
@@ -211,8 +279,14 @@ impl Evaluator for TubeInsertion {
         record.bddl_final_goal_success = Some(report.success);
         record.bddl_goal = Some(report);
         record.failure_reason = (!success).then_some(FailureReason::TerminalStateInvalid);
+        let finals: Vec<TubeMeasures> = judged.iter().map(|(m, _)| *m).collect();
+        let per_tube: serde_json::Map<String, serde_json::Value> =
+            self.tubes.iter().zip(&finals).map(|(t, m)| (t.name.clone(), serde_json::json!(m))).collect();
         record.details = Some(serde_json::json!({
-            "final": measures,
+            "final": match finals.as_slice() {
+                [only] if !self.several => serde_json::json!(only),
+                _ => serde_json::Value::Object(per_tube),
+            },
             "control_steps_all_checks_passed": self.steps_all_checks_passed,
         }));
         record
