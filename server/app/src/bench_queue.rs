@@ -164,7 +164,9 @@ fn drain_with_workers(url: &str, dir: &Path, n: usize) -> anyhow::Result<()> {
         loop {
             if let Some(st) = c.try_wait()? {
                 if !st.success() {
-                    bail!("a worker failed ({st}); its log is in {}", dir.display());
+                    let log = std::fs::read_to_string(dir.join("worker0.log")).unwrap_or_default();
+                    let tail: Vec<&str> = log.lines().rev().take(20).collect();
+                    bail!("a worker failed ({st}); the end of the first worker's log:\n{}", tail.into_iter().rev().collect::<Vec<_>>().join("\n"));
                 }
                 break;
             }

@@ -272,3 +272,26 @@ fn a_pool_batch_runs_pool_addresses_and_reports_them_per_suite() {
     let md = libero(&["report", batch.to_str().unwrap(), "--reps", "1"]);
     assert!(String::from_utf8_lossy(&md.stdout).contains("## Task pool, per suite"));
 }
+
+/// `bench queue` on a real PostgreSQL: claim latency per claimer count, and a real batch drained by `worker`
+/// processes that exit on their own once the queue is empty (no timing asserted).
+#[test]
+fn bench_queue_prints_claim_latency_and_rollouts_per_hour_for_each_worker_count() {
+    let pg = TestPostgres::start();
+    let out = libero(&["bench", "queue", "--json", "--store", &pg.url, "--workers", "1,2", "--rollouts", "2", "--claims", "40"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["backend"], "postgres");
+    let claims = v["claim_latency"].as_array().unwrap();
+    assert_eq!(claims.iter().map(|c| c["claimers"].as_u64().unwrap()).collect::<Vec<_>>(), [1, 2]);
+    assert!(claims.iter().all(|c| c["claims"] == 40 && c["claim_p50_ms"].as_f64().unwrap() > 0.0 && c["claim_p95_ms"].as_f64() >= c["claim_p50_ms"].as_f64()));
+    let rates = v["rollouts"].as_array().unwrap();
+    assert_eq!(rates.len(), 2);
+    for r in rates {
+        assert!(r["rollouts_per_hour"].as_f64().unwrap() > 0.0, "{r}");
+        let ended: u64 = r["outcomes"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum();
+        assert_eq!(ended, 2, "every queued rollout ended: {r}");
+        assert!(r["outcomes"].get("INVALID").is_none(), "{r}");
+    }
+    assert_eq!(rates[0]["speedup"], 1.0);
+}

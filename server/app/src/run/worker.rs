@@ -144,6 +144,8 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
 impl Worker {
     /// One slot: close lost rollouts, claim one, run it; wait for work when the queue is empty.
     fn slot(&self, url: &str, exit_when_idle: bool) -> anyhow::Result<()> {
+        // In the runtime's context until the listener is dropped: its connection is closed by a task it spawns.
+        let _in_runtime = self.runtime.enter();
         let mut listener = self.runtime.block_on(QueueListener::connect(url))?;
         loop {
             if INTERRUPTED.load(Ordering::SeqCst) {
