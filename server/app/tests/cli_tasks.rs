@@ -67,8 +67,8 @@ fn tasks_show_prints_a_pool_entry_by_id_or_name() {
     let (ok, same, _) = run(&["tasks", "show", "libero_goal/turn_on_the_stove"]);
     assert!(ok);
     assert_eq!(same, text);
-    let (ok, text, _) = run(&["tasks", "show", "vlabench_physical/1"]);
-    assert!(ok && text.contains("Probe the seesaw with a subset of neutral weights") && text.contains("not implemented in this build"), "{text}");
+    let (ok, text, _) = run(&["tasks", "show", "long_horizon_v2/2"]);
+    assert!(ok && text.contains("press the front button to brew coffee") && text.contains("not implemented in this build"), "{text}");
     let (ok, _, err) = run(&["tasks", "show", "robomemarena/27"]);
     assert!(!ok && err.contains("robomemarena has task ids 1–26"), "{err}");
 }

@@ -15,6 +15,8 @@ use crate::families::long_horizon::staged::{self, StagedEvaluator};
 use crate::families::perception::weighing::{self, PhysicalWeighing};
 use crate::families::vlabench::button_press::{self, ButtonPress};
 use crate::families::vlabench::seesaw::{self, PhysicalSeesaw};
+use crate::families::vlabench::seesaw_adaptive::{self, AdaptiveSeesaw};
+use crate::families::vlabench::seesaw_comparison::{self, WeightComparison};
 use crate::families::vlabench::tube_insertion::{self, TubeInsertion};
 use crate::families::{adapted, libero, long_horizon, perception, vlabench};
 use crate::judge::evaluator::Evaluator;
@@ -46,11 +48,28 @@ fn params<T: serde::de::DeserializeOwned>(checker: Option<&CheckerSpec>, kind: &
     })
 }
 
+/// The seesaw checker's variant (`params.variant`): `None` is T30's basic seesaw.
+fn seesaw_variant(checker: Option<&CheckerSpec>) -> Option<&str> {
+    checker.and_then(|c| c.params.get("variant")).and_then(|v| v.as_str())
+}
+
 /// Edits a task's private checker parameters make to the compiled model before the episode starts (T08: each
-/// mug's mass). Call before [`build_evaluator`] and before the model is frozen; a no-op for other checkers.
+/// mug's mass; the pool's seesaw weights: each weight's mass). Call before [`build_evaluator`] and before the model
+/// is frozen; a no-op for other checkers.
 pub fn apply_private_model_edits(checker: Option<&CheckerSpec>, task_id: Option<&str>, model: &mut MjModel) -> Result<(), TasksError> {
-    match checker.map(|c| c.kind.as_str()) {
-        Some(weighing::CHECKER) => weighing::apply_mug_masses(&params(checker, weighing::CHECKER, task_id)?, model),
+    let masses = |m: &std::collections::BTreeMap<String, f64>, model: &mut MjModel| {
+        crate::judge::support::set_instance_masses(seesaw::CHECKER, m, model)
+    };
+    match (checker.map(|c| c.kind.as_str()), seesaw_variant(checker)) {
+        (Some(weighing::CHECKER), _) => weighing::apply_mug_masses(&params(checker, weighing::CHECKER, task_id)?, model),
+        (Some(seesaw::CHECKER), Some(seesaw_adaptive::VARIANT)) => {
+            let p: seesaw_adaptive::AdaptiveParams = params(checker, seesaw::CHECKER, task_id)?;
+            masses(&p.masses_kg, model)
+        }
+        (Some(seesaw::CHECKER), Some(seesaw_comparison::VARIANT)) => {
+            let p: seesaw_comparison::ComparisonParams = params(checker, seesaw::CHECKER, task_id)?;
+            masses(&p.masses_kg, model)
+        }
         _ => Ok(()),
     }
 }
@@ -115,8 +134,20 @@ pub fn build_evaluator(
         }
         seesaw::CHECKER => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-            let p = params(checker, kind, task_id)?;
-            Ok(Box::new(PhysicalSeesaw::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
+            let id = task_id.map(str::to_owned);
+            match seesaw_variant(checker) {
+                None => Ok(Box::new(PhysicalSeesaw::new(params(checker, kind, task_id)?, goal, commitment, model, id)?)),
+                Some(seesaw_adaptive::VARIANT) => {
+                    Ok(Box::new(AdaptiveSeesaw::new(params(checker, kind, task_id)?, goal, commitment, model, id)?))
+                }
+                Some(seesaw_comparison::VARIANT) => {
+                    Ok(Box::new(WeightComparison::new(params(checker, kind, task_id)?, goal, commitment, model, id)?))
+                }
+                Some(other) => Err(TasksError::Catalog {
+                    path: task_id.unwrap_or("task").to_owned(),
+                    message: format!("checker {kind}: no variant {other:?} in this build"),
+                }),
+            }
         }
         other => Err(TasksError::Catalog {
             path: task_id.unwrap_or("task").to_owned(),

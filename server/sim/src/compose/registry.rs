@@ -95,6 +95,49 @@ const DERIVED: &[(&str, &str, &[AssetEdit])] = &[
             },
         ],
     ),
+    // pool vlabench_physical/2 (active_weight_comparison): T30's seesaw primitive with its far-end region marked (a
+    // yellow band wrapping the plank over `seesaw_right_region` and the far lip painted yellow, visual only: the head
+    // camera sees the tilted board nearly edge-on, so it sees the lip) and its hinge spring scaled by the light
+    // weight's mass over T30's counterweight's (0.6 × 0.30 / 0.08 = 2.25 N·m/rad): the 0.30 kg weight alone tilts the
+    // board part way, as one counterweight tilts T30's, and the 1.20 kg one to the stop; on T30's spring both reach the
+    // 0.6 rad stop and their responses differ only by the stop's softness (tasks/README.md)
+    (
+        "vlabench_seesaw_marked",
+        "vlabench_seesaw",
+        &[
+            AssetEdit::Set { tag: "joint", name: "seesaw_hinge", attr: "stiffness", from: "0.6", to: "2.25" },
+            AssetEdit::Add {
+                body: "board",
+                tag: "geom",
+                attrs: &[
+                    ("name", "far_end_mark_visual"),
+                    ("type", "box"),
+                    ("size", "0.055 0.0502 0.0016"),
+                    ("pos", "0.24 0 0"),
+                    ("rgba", "0.95 0.78 0.12 1"),
+                    ("group", "1"),
+                    ("contype", "0"),
+                    ("conaffinity", "0"),
+                    ("mass", "0"),
+                ],
+            },
+            AssetEdit::Add {
+                body: "board",
+                tag: "geom",
+                attrs: &[
+                    ("name", "far_lip_mark_visual"),
+                    ("type", "box"),
+                    ("size", "0.0026 0.0502 0.0204"),
+                    ("pos", "0.30 0 0.02"),
+                    ("rgba", "0.95 0.78 0.12 1"),
+                    ("group", "1"),
+                    ("contype", "0"),
+                    ("conaffinity", "0"),
+                    ("mass", "0"),
+                ],
+            },
+        ],
+    ),
     // T24: the chefmate frypan with its flat base collision box (geom 4) lowered 8 mm and its bottom site at
     // z −0.0112, so the pan rests on its base on the coffee table
     (
@@ -216,6 +259,9 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // `seesaw_right_region`) and its 0.08 kg counterweight
     ("vlabench_seesaw", "objects/vlabench_seesaw/vlabench_seesaw.xml", 0.0),
     ("vlabench_seesaw_weight", "objects/vlabench_seesaw_weight/vlabench_seesaw_weight.xml", 0.0),
+    // pool suite vlabench_physical, tasks 1 and 2 (catalog §6.1, `seesaw_weight_light/medium/heavy.xml`): one neutral
+    // weight for all three variants (same envelope; masses are private, set per episode)
+    ("vlabench_seesaw_mass_weight", "objects/vlabench_seesaw_mass_weight/vlabench_seesaw_mass_weight.xml", 0.0),
 ];
 
 /// The latched door fixture of T28: only its `hinge` is an articulation joint (catalog §2.2).

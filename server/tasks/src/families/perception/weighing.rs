@@ -16,7 +16,7 @@
 //! the first weighing, so it judges nothing.)
 use std::collections::BTreeMap;
 
-use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
+use libero_sim::mujoco_rs::prelude::MjModel;
 use libero_sim::simulation::SimData;
 use serde::{Deserialize, Serialize};
 
@@ -56,34 +56,7 @@ fn default_clear() -> f64 {
 /// Sets each mug instance's mass (scaling every body of its subtree, inertia with it, so the shape's density is
 /// uniform): the private masses of the manifest reach the physics, never a file.
 pub fn apply_mug_masses(params: &WeighingParams, model: &mut MjModel) -> Result<(), TasksError> {
-    let nbody = model.ffi().nbody as usize;
-    let parent: Vec<usize> = model.body_parentid().iter().map(|&p| p as usize).collect();
-    for (mug, &mass) in &params.mugs {
-        let root_name = format!("{mug}_main");
-        let root = model.name_to_id(MjtObjBase::mjOBJ_BODY, &root_name).ok_or_else(|| missing_in_model(CHECKER, "body", &root_name))?;
-        let in_subtree = |mut b: usize| loop {
-            if b == root {
-                return true;
-            }
-            if b == 0 {
-                return false;
-            }
-            b = parent[b];
-        };
-        let bodies: Vec<usize> = (0..nbody).filter(|&b| in_subtree(b)).collect();
-        let total: f64 = bodies.iter().map(|&b| model.body_mass()[b]).sum();
-        if total <= 0.0 {
-            return Err(TasksError::Scene(format!("{CHECKER}: mug {mug} has no mass to scale")));
-        }
-        let k = mass / total;
-        for &b in &bodies {
-            model.body_mass_mut()[b] *= k;
-            for v in &mut model.body_inertia_mut()[b] {
-                *v *= k;
-            }
-        }
-    }
-    Ok(())
+    crate::judge::support::set_instance_masses(CHECKER, &params.mugs, model)
 }
 
 pub struct PhysicalWeighing {

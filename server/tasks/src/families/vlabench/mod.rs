@@ -1,10 +1,14 @@
 //! VLABench-derived tasks on this repository's assets: the button press (T13 and the property buttons), the
-//! chemistry-tube insertion (T18) and the seesaw (T30), with their experts.
+//! chemistry-tube insertion (T18) and the seesaw (T30, and the pool's `vlabench_physical` 1 and 2: the adaptive mass
+//! selection and the active weight comparison), with their experts.
 pub mod button_press;
 pub mod seesaw;
+pub mod seesaw_adaptive;
+pub mod seesaw_comparison;
 pub mod tube_insertion;
 mod expert;
 mod seesaw_expert;
+mod seesaw_pool_expert;
 
 use crate::TasksError;
 use crate::expert::{Expert, SceneRefs};

@@ -182,11 +182,9 @@ pub struct PhysicalSeesaw {
     task_id: Option<String>,
     target: usize,
     weights: Vec<usize>,
-    hinge_qpos_adr: usize,
-    /// Where the far-end anchor is read.
-    anchor: Anchor,
-    /// Per geom: `Some(k)` in weight k's subtree, `Some(BOARD)` in the hinge body's subtree.
-    geom_side: Vec<Option<usize>>,
+    rig: SeesawRig,
+    /// Per weight: its subtree's geoms.
+    weight_geoms: Vec<GeomMask>,
     in_basket: CompiledAtom,
     hinge0_rad: f64,
     target_z0_m: f64,
@@ -195,13 +193,103 @@ pub struct PhysicalSeesaw {
     control_steps: u64,
 }
 
-/// `geom_side` tag of the moving board's geoms.
-const BOARD: usize = usize::MAX;
-
 #[derive(Debug, Clone, Copy)]
 enum Anchor {
     Site(usize),
     Body(usize),
+}
+
+/// Per geom of the model: whether it belongs to one body subtree.
+#[derive(Debug, Clone)]
+pub(crate) struct GeomMask(Vec<bool>);
+
+impl GeomMask {
+    /// The geoms of `root`'s body subtree.
+    pub(crate) fn subtree(model: &MjModel, root: usize) -> Self {
+        let (parents, geom_body) = (model.body_parentid(), model.geom_bodyid());
+        Self((0..model.ffi().ngeom as usize).map(|g| in_subtree(parents, geom_body[g] as usize, root)).collect())
+    }
+
+    fn has(&self, geom: i32) -> bool {
+        self.0.get(geom as usize).copied().unwrap_or(false)
+    }
+}
+
+/// The seesaw as every `private_ordered_physical_seesaw` variant reads it (T30 and the pool's `vlabench_physical` 1
+/// and 2, all as the release's seesaw helpers): the hinge, the far-end anchor (`far_end_site`, falling back to
+/// `<seesaw>_horizontal_radius_site`, `<seesaw>_top_site`, then the body carrying the hinge), the far-end box around
+/// it and the moving board (the subtree of the body that carries the hinge: the static rest block and base do not
+/// count).
+pub(crate) struct SeesawRig {
+    hinge_qpos_adr: usize,
+    hinge_dof_adr: usize,
+    anchor: Anchor,
+    board: GeomMask,
+    xy_max_m: f64,
+    dz_range_m: [f64; 2],
+}
+
+impl SeesawRig {
+    pub(crate) fn new(
+        checker: &str,
+        model: &MjModel,
+        seesaw: &str,
+        hinge_joint: &str,
+        far_end_site: &str,
+        xy_max_m: f64,
+        dz_range_m: [f64; 2],
+    ) -> Result<Self, TasksError> {
+        let hinge = model
+            .name_to_id(MjtObjBase::mjOBJ_JOINT, hinge_joint)
+            .ok_or_else(|| missing_in_model(checker, "joint", hinge_joint))?;
+        let board = model.jnt_bodyid()[hinge] as usize;
+        let site = |n: &str| model.name_to_id(MjtObjBase::mjOBJ_SITE, n);
+        let anchor = [far_end_site.to_owned(), format!("{seesaw}_horizontal_radius_site"), format!("{seesaw}_top_site")]
+            .iter()
+            .find_map(|n| site(n))
+            .map_or(Anchor::Body(board), Anchor::Site);
+        Ok(Self {
+            hinge_qpos_adr: model.jnt_qposadr()[hinge] as usize,
+            hinge_dof_adr: model.jnt_dofadr()[hinge] as usize,
+            anchor,
+            board: GeomMask::subtree(model, board),
+            xy_max_m,
+            dz_range_m,
+        })
+    }
+
+    pub(crate) fn far_end(&self, data: &SimData) -> [f64; 3] {
+        match self.anchor {
+            Anchor::Site(s) => data.site_xpos()[s],
+            Anchor::Body(b) => data.xpos()[b],
+        }
+    }
+
+    /// Whether a body's origin is in the far-end box: ‖xy − f_xy‖ ≤ `xy_max_m` and z − f_z in `dz_range_m` (position
+    /// only: held above the far end counts).
+    pub(crate) fn on_far_end(&self, data: &SimData, body: usize) -> bool {
+        let f = self.far_end(data);
+        let w = data.xpos()[body];
+        let [lo, hi] = self.dz_range_m;
+        let dz = w[2] - f[2];
+        (w[0] - f[0]).hypot(w[1] - f[1]) <= self.xy_max_m && (lo..=hi).contains(&dz)
+    }
+
+    /// Some current contact between a geom of `geoms` and a geom of the moving board (no distance filter).
+    pub(crate) fn touches_board(&self, data: &SimData, geoms: &GeomMask) -> bool {
+        data.contact().iter().any(|c| {
+            let (a, b) = (c.geom[0], c.geom[1]);
+            (geoms.has(a) && self.board.has(b)) || (self.board.has(a) && geoms.has(b))
+        })
+    }
+
+    pub(crate) fn hinge_rad(&self, data: &SimData) -> f64 {
+        data.qpos()[self.hinge_qpos_adr]
+    }
+
+    pub(crate) fn hinge_velocity(&self, data: &SimData) -> f64 {
+        data.qvel()[self.hinge_dof_adr]
+    }
 }
 
 impl PhysicalSeesaw {
@@ -216,30 +304,16 @@ impl PhysicalSeesaw {
         let instance = |n: &str| index.instance(n).ok_or_else(|| missing_in_model(CHECKER, "instance", n));
         let target = instance(&params.target)?;
         let weights = params.weights.iter().map(|w| instance(w)).collect::<Result<Vec<_>, _>>()?;
-        let hinge = model
-            .name_to_id(MjtObjBase::mjOBJ_JOINT, &params.hinge_joint)
-            .ok_or_else(|| missing_in_model(CHECKER, "joint", &params.hinge_joint))?;
-        let board = model.jnt_bodyid()[hinge] as usize;
-        let site = |n: &str| model.name_to_id(MjtObjBase::mjOBJ_SITE, n);
-        let anchor = [
-            params.far_end_site.clone(),
-            format!("{}_horizontal_radius_site", params.seesaw),
-            format!("{}_top_site", params.seesaw),
-        ]
-        .iter()
-        .find_map(|n| site(n))
-        .map_or(Anchor::Body(board), Anchor::Site);
-        let (parents, geom_body) = (model.body_parentid(), model.geom_bodyid());
-        let weight_bodies: Vec<usize> = weights.iter().map(|&w| index.instances[w].body).collect();
-        let geom_side = (0..model.ffi().ngeom as usize)
-            .map(|g| {
-                let b = geom_body[g] as usize;
-                if in_subtree(parents, b, board) {
-                    return Some(BOARD);
-                }
-                weight_bodies.iter().position(|&w| in_subtree(parents, b, w))
-            })
-            .collect();
+        let rig = SeesawRig::new(
+            CHECKER,
+            model,
+            &params.seesaw,
+            &params.hinge_joint,
+            &params.far_end_site,
+            params.weight_xy_max_m,
+            params.weight_dz_range_m,
+        )?;
+        let weight_geoms = weights.iter().map(|&w| GeomMask::subtree(model, index.instances[w].body)).collect();
         let atom = libero_bddl::Atom {
             predicate: "In".into(),
             args: vec![params.target.clone(), params.basket_region.clone()],
@@ -248,7 +322,6 @@ impl PhysicalSeesaw {
         let in_basket = CompiledAtom::compile(&index, &atom)?;
         let progress = SeesawProgress::new(&params.stages, params.hinge_lift_rad, params.target_lift_m);
         Ok(Self {
-            hinge_qpos_adr: model.jnt_qposadr()[hinge] as usize,
             params,
             index,
             goal,
@@ -256,8 +329,8 @@ impl PhysicalSeesaw {
             task_id,
             target,
             weights,
-            anchor,
-            geom_side,
+            rig,
+            weight_geoms,
             in_basket,
             hinge0_rad: 0.0,
             target_z0_m: 0.0,
@@ -267,32 +340,9 @@ impl PhysicalSeesaw {
         })
     }
 
-    fn far_end(&self, data: &SimData) -> [f64; 3] {
-        match self.anchor {
-            Anchor::Site(s) => data.site_xpos()[s],
-            Anchor::Body(b) => data.xpos()[b],
-        }
-    }
-
-    fn on_far_end(&self, data: &SimData, k: usize) -> bool {
-        let f = self.far_end(data);
-        let w = data.xpos()[self.index.instances[self.weights[k]].body];
-        let [lo, hi] = self.params.weight_dz_range_m;
-        let dz = w[2] - f[2];
-        (w[0] - f[0]).hypot(w[1] - f[1]) <= self.params.weight_xy_max_m && (lo..=hi).contains(&dz)
-    }
-
-    /// Some contact between weight k's subtree and the board's.
-    fn touches_board(&self, data: &SimData, k: usize) -> bool {
-        data.contact().iter().any(|c| {
-            let (a, b) = (self.geom_side[c.geom[0] as usize], self.geom_side[c.geom[1] as usize]);
-            (a, b) == (Some(k), Some(BOARD)) || (a, b) == (Some(BOARD), Some(k))
-        })
-    }
-
     fn released(&self, data: &SimData, k: usize) -> bool {
-        self.on_far_end(data, k)
-            && self.touches_board(data, k)
+        self.rig.on_far_end(data, self.index.instances[self.weights[k]].body)
+            && self.rig.touches_board(data, &self.weight_geoms[k])
             && !self.commitment.grasped(&self.index, data, self.weights[k])
     }
 
@@ -300,7 +350,7 @@ impl PhysicalSeesaw {
         SeesawSample {
             released: (0..self.weights.len()).filter(|&k| self.released(data, k)).count(),
             weights: self.weights.len(),
-            hinge_delta_rad: data.qpos()[self.hinge_qpos_adr] - self.hinge0_rad,
+            hinge_delta_rad: self.rig.hinge_rad(data) - self.hinge0_rad,
             target_lift_m: data.xpos()[self.index.instances[self.target].body][2] - self.target_z0_m,
             target_in_basket: self.in_basket.evaluate(&self.index, data),
         }
@@ -321,7 +371,7 @@ impl Evaluator for PhysicalSeesaw {
     }
 
     fn reset(&mut self, data: &SimData, _tick: Tick) {
-        self.hinge0_rad = data.qpos()[self.hinge_qpos_adr];
+        self.hinge0_rad = self.rig.hinge_rad(data);
         self.target_z0_m = data.xpos()[self.index.instances[self.target].body][2];
         self.progress = SeesawProgress::new(&self.params.stages, self.params.hinge_lift_rad, self.params.target_lift_m);
         self.events.clear();

@@ -19,13 +19,24 @@ use crate::expert::motion::{
 use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
 
+/// The pool's adaptive seesaw (`vlabench_physical/1`) and weight comparison (`vlabench_physical/2`), by reference.
+pub const ADAPTIVE: &str = "vlabench_physical/adaptive_seesaw_usage";
+pub const COMPARISON: &str = "vlabench_physical/active_weight_comparison";
+
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    (task_id == "T30").then_some(&["partial_1", "partial_2", "partial_3", "undo", "lift_by_hand"])
+    Some(match task_id {
+        "T30" => &["partial_1", "partial_2", "partial_3", "undo", "lift_by_hand"],
+        ADAPTIVE => &["light_pair", "partial_3"],
+        COMPARISON => &["skip_probing", "lighter_in_basket"],
+        _ => return None,
+    })
 }
 
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
     match task_id {
         "T30" => seesaw(refs, behaviour),
+        ADAPTIVE => super::seesaw_pool_expert::adaptive(refs, behaviour),
+        COMPARISON => super::seesaw_pool_expert::comparison(refs, behaviour),
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
@@ -50,7 +61,7 @@ const SECOND_SPOT_M: f64 = 0.25;
 const FIRST_GAP_M: f64 = 0.008;
 const SECOND_GAP_M: f64 = 0.015;
 /// Root height of a carried weight or carton: clears the board's high end and the cage roof (1.17 m).
-const CARRY_Z_M: f64 = 1.30;
+pub(super) const CARRY_Z_M: f64 = 1.30;
 /// The fingers close this far above the carton's root, along its axis (its box reaches 0.04 above the root, its
 /// gable 0.062): grasped higher, the gable wedges between the fingers and the carton stays in the opened hand.
 const CARTON_GRASP_M: f64 = 0.015;
@@ -59,8 +70,8 @@ const CARTON_GRASP_M: f64 = 0.015;
 const CARTON_DROP_ABOVE_REGION_M: f64 = 0.04;
 /// Seesaw state that counts as "the board has lifted the carton" for the expert (above the evaluator's 0.12 rad and
 /// 0.04 m, so stage 3 has completed when the expert moves on).
-const WAIT_HINGE_RAD: f64 = 0.20;
-const WAIT_LIFT_M: f64 = 0.05;
+pub(super) const WAIT_HINGE_RAD: f64 = 0.20;
+pub(super) const WAIT_LIFT_M: f64 = 0.05;
 
 /// The root position at which a weight held upright (world-aligned) above board-frame spot `x_b` has its uphill
 /// bottom edge `gap_m` above the sloping board.
@@ -79,7 +90,7 @@ fn place_weight(phases: &mut Vec<Phase>, weight: usize, board: usize, x_b: f64, 
 }
 
 /// Moves the open hand to a waiting spot high over the table's middle.
-fn stand_clear(phases: &mut Vec<Phase>) {
+pub(super) fn stand_clear(phases: &mut Vec<Phase>) {
     phases.push(
         Phase::new("stand_clear", |_, _| Goal::at(Vector3::new(-0.10, -0.20, 1.30), GRIPPER_OPEN)).until_reached(0.02).max_steps(80),
     );
@@ -145,7 +156,7 @@ fn seesaw(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksErr
 
 /// Picks the raised carton off the board into the basket: the hand closes on its upper half (fingers on the faces
 /// across the board), lifts it straight up beside the cage roof, carries it over the basket, lowers it and lets go.
-fn pick_carton(phases: &mut Vec<Phase>, carton: usize, basket_region: usize) {
+pub(super) fn pick_carton(phases: &mut Vec<Phase>, carton: usize, basket_region: usize) {
     let axis = move |sim: &Simulation| {
         let a = body_dir(sim, carton, [0.0, 1.0, 0.0]);
         if a.z < 0.0 { -a } else { a }
