@@ -18,7 +18,9 @@
 //! robosuite's two-pad test), `released_and_clear` (not grasped and the object's root at least `min_distance_m` from
 //! the grip site, catalog §2.4), `lifted` (root z − z at reset > `above_m`), `joint` (a joint's position, or its
 //! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `pour_count` (a named pour
-//! counter has registered ≥ `at_least` pours), `any` (disjunction), `all` (conjunction, for use inside `any`) and `not`.
+//! counter has registered ≥ `at_least` pours), `contact` (live contact between two instances' body subtrees, distance ≤
+//! `max_distance_m`: VLABench's "on the real container"), `moved_xy` (root moved ≥ `min_m` horizontally from its pose
+//! at reset), `any` (disjunction), `all` (conjunction, for use inside `any`) and `not`.
 //!
 //! Bindings (T23's "occupied drawer"): a name `$<binding>` usable wherever an atom names a site (drawer sites, `near`
 //! anchors); at reset it is bound to the candidate site nearest (3-D) to an object's root, and stays bound for the
@@ -54,7 +56,7 @@ use crate::judge::evaluator::{
     TerminalCheck, Tick, score_percent,
 };
 use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{CompiledAtom, EntityRef, SceneIndex, in_subtree};
+use crate::judge::predicates::{CompiledAtom, EntityRef, SceneIndex, SubtreeContact, in_subtree};
 use crate::judge::pouring::{PourCounterConfig, PourTracker};
 
 pub const CHECKER_ORDERED: &str = "private_ordered_stages";
@@ -111,6 +113,11 @@ pub enum AtomSpec {
     },
     /// The named pour counter (`pour_counters`) has registered at least `at_least` pours.
     PourCount { counter: String, at_least: usize },
+    /// A live contact between `object`'s and `with`'s body subtrees (distance ≤ `max_distance_m`): an object resting on
+    /// a container, not one hovering inside its region (VLABench cluster_series).
+    Contact { object: String, with: String, max_distance_m: f64 },
+    /// `object`'s root is at least `min_m` from its reset position horizontally (it was really moved).
+    MovedXy { object: String, min_m: f64 },
     /// At least one of the atoms holds.
     Any(Vec<AtomSpec>),
     /// Every one of the atoms holds (inside an `any`: RoboMemArena task 14's "the drawer holding the object is closed").
@@ -205,6 +212,8 @@ enum Check {
     Lifted { body: usize, above_m: f64 },
     Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
     PourCount { counter: usize, at_least: usize },
+    Contact(SubtreeContact),
+    MovedXy { body: usize, min_m: f64 },
     Any(Vec<Check>),
     All(Vec<Check>),
     Not(Box<Check>),
@@ -337,6 +346,11 @@ impl Check {
                 joint_inside(if *abs { q.abs() } else { q }, *min, *max)
             }
             Check::PourCount { counter, at_least } => c.pours.get(*counter).is_some_and(|p| p.count() >= *at_least),
+            Check::Contact(contact) => contact.holds(d),
+            Check::MovedXy { body, min_m } => {
+                let (p, p0) = (d.xpos()[*body], c.base.body0.get(*body).copied().unwrap_or(d.xpos()[*body]));
+                (p[0] - p0[0]).hypot(p[1] - p0[1]) >= *min_m
+            }
             Check::Any(atoms) => atoms.iter().any(|a| a.holds(c)),
             Check::All(atoms) => atoms.iter().all(|a| a.holds(c)),
             Check::Not(inner) => !inner.holds(c),
@@ -457,6 +471,10 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             counter: names.counters.iter().position(|n| n == counter).ok_or_else(|| scene_err("pour counter", counter))?,
             at_least: *at_least,
         },
+        AtomSpec::Contact { object, with, max_distance_m } => {
+            Check::Contact(SubtreeContact::new(model, instance_body(object)?, instance_body(with)?, *max_distance_m))
+        }
+        AtomSpec::MovedXy { object, min_m } => Check::MovedXy { body: instance_body(object)?, min_m: *min_m },
         AtomSpec::Any(atoms) => Check::Any(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::All(atoms) => Check::All(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, names)?)),
