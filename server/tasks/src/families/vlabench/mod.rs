@@ -1,8 +1,10 @@
 //! VLABench-derived tasks on this repository's assets: the button press (T13 and the property buttons), the
-//! chemistry-tube insertion (T18) and the seesaw (T30), with their experts.
+//! chemistry-tube insertion (T18) and the seesaw (T30), with their experts; and the expert of the pool's
+//! `vlabench_additional/cluster_series` (judged by the staged evaluator from its own checker parameters).
 pub mod button_press;
 pub mod seesaw;
 pub mod tube_insertion;
+mod cluster_expert;
 mod expert;
 mod seesaw_expert;
 
@@ -11,13 +13,15 @@ use crate::expert::{Expert, SceneRefs};
 
 /// The tasks this family scripts, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    expert::behaviours(task_id).or_else(|| seesaw_expert::behaviours(task_id))
+    expert::behaviours(task_id).or_else(|| seesaw_expert::behaviours(task_id)).or_else(|| cluster_expert::behaviours(task_id))
 }
 
 /// This family's expert for `task_id` (one of [`behaviours`]).
 pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
     if seesaw_expert::behaviours(task_id).is_some() {
         seesaw_expert::build(task_id, behaviour, refs)
+    } else if cluster_expert::behaviours(task_id).is_some() {
+        cluster_expert::build(task_id, behaviour, refs)
     } else {
         expert::build(task_id, behaviour, refs)
     }
