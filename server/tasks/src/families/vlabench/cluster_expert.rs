@@ -8,7 +8,7 @@ use libero_sim::Simulation;
 use nalgebra::Vector3;
 
 use crate::TasksError;
-use crate::expert::motion::Script;
+use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script};
 use crate::expert::skills::{Hold, TargetFn, memo, pos, transfer};
 use crate::expert::{Expert, SOLVE, SceneRefs};
 
@@ -21,6 +21,8 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
 
 /// Root height while carrying over the baskets' rims (the basket stands ≈ 0.15 m tall on the table at z ≈ 0.90).
 const CARRY_Z_M: f64 = 1.13;
+/// Grip-site waypoint between two picks: over the table's middle, in front of the fruit.
+const VIA_M: Vector3<f64> = Vector3::new(-0.15, 0.0, 1.15);
 /// Height of the LIBERO basket's floor above its root.
 const BASKET_FLOOR_M: f64 = 0.022;
 /// A fruit is let go with its bottom this far above where it will rest.
@@ -56,6 +58,10 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
         moves.push((fruit, hold, target));
     }
     let mut phases = Vec::new();
-    transfer(refs, &mut phases, &moves, moves.len(), false, CARRY_Z_M)?;
+    for one in moves.chunks(1) {
+        // back over the middle of the table first: straight from a basket toward the far side's fruit the arm stalls
+        phases.push(Phase::new("via_middle", move |_, _| Goal::at(VIA_M, GRIPPER_OPEN)).until_reached(0.03).max_steps(80));
+        transfer(refs, &mut phases, one, 1, false, CARRY_Z_M)?;
+    }
     Ok(Box::new(Script::new(phases)))
 }
