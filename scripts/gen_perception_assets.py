@@ -214,6 +214,33 @@ for name, body in fruits.items():
           "     graspable r 3.4 cm (collision sphere r 3.3 cm with rolling friction), in the fruit's colours; 0.10 kg.",
           body, -FRUIT_R, 0.067 if name == "pear" else FRUIT_R + 0.008, FRUIT_R)
 
+# banana (vlabench_additional cluster_series): VLABench's banana family is excluded as buggy, so a primitive. A 11 cm
+# curved fruit drawn as three yellow capsules bending in the horizontal plane with brown tips; one collision box
+# (10 × 3.2 × 3.2 cm) so that it lies still and the hand closes across its 3.2 cm side; 0.12 kg.
+BANANA_YELLOW = "0.95 0.80 0.16 1"
+
+
+def capsule(name, radius, a, b, rgba):
+    """A visual capsule from point a to point b (banana segments)."""
+    ends = " ".join(f"{v:g}" for v in (*a, *b))
+    return (f'        <geom name="{name}" type="capsule" size="{radius}" fromto="{ends}" rgba="{rgba}" group="1" '
+            f'contype="0" conaffinity="0"/>\n')
+
+
+# the arc: tips 1.3 cm to +y of the middle, 5.2 cm to either side along x
+banana_points = [(-0.052, 0.013, 0.0), (-0.024, 0.002, 0.0), (0.024, 0.002, 0.0), (0.052, 0.013, 0.0)]
+banana = capsule("banana_end_a", 0.013, banana_points[0], banana_points[1], BANANA_YELLOW)
+banana += capsule("banana_middle", 0.016, banana_points[1], banana_points[2], BANANA_YELLOW)
+banana += capsule("banana_end_b", 0.013, banana_points[2], banana_points[3], BANANA_YELLOW)
+for tag, (x, y, z) in (("a", banana_points[0]), ("b", banana_points[3])):
+    banana += vis(f"banana_tip_{tag}", "sphere", "0.006", f"{x * 1.08:g} {y:g} {z:g}", "0.30 0.20 0.08 1")
+banana += col("banana_collision", "box", "0.050 0.016 0.016", "0.12", "0 0.003 0", ' friction="1 0.005 0.0001"')
+write("vlabench_banana_fruit",
+      "vlabench_additional fruit (banana): a primitive in place of VLABench's banana family (excluded as buggy):\n"
+      "     three yellow capsules curving in the horizontal plane, brown tips, 11 cm long; collision box 10 × 3.2 × 3.2 cm\n"
+      "     (the hand closes across its 3.2 cm side); 0.12 kg.",
+      banana, -0.016, 0.016, 0.055)
+
 # solutions (tasks 7, 14, 15): a stoppered glass bottle, 2/3 full
 for name, liquid in [("blue", "0.08 0.40 0.92 0.85"), ("green", "0.12 0.68 0.22 0.85"), ("clear", "0.82 0.92 1.0 0.22")]:
     body = vis("flask_glass", "cylinder", "0.026 0.060", "0 0 0", GLASS)

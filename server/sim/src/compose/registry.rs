@@ -214,6 +214,8 @@ const PROJECT: &[(&str, &str, f64)] = &[
     ("vlabench_blue_solution", "objects/vlabench_blue_solution/vlabench_blue_solution.xml", 0.0),
     ("vlabench_green_solution", "objects/vlabench_green_solution/vlabench_green_solution.xml", 0.0),
     ("vlabench_clear_solution", "objects/vlabench_clear_solution/vlabench_clear_solution.xml", 0.0),
+    // pool vlabench_additional/cluster_series: the banana as a primitive (VLABench's banana family is excluded as buggy)
+    ("vlabench_banana_fruit", "objects/vlabench_banana_fruit/vlabench_banana_fruit.xml", 0.0),
     // T06, T09, T10 (task catalog §3.1, §6.4): buttons paired with a candidate cue, written by
     // scripts/gen_perception_assets.py
     ("vlabench_property_weight_sphere", "objects/vlabench_property_weight_sphere/vlabench_property_weight_sphere.xml", 0.0),

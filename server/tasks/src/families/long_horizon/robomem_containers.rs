@@ -74,7 +74,9 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
         // the near miss `wrong_drawer` puts the butter into the occupied top drawer
         Container::EmptyDrawer => return drawer_search(refs, behaviour, task_id, "middle", "top"),
         Container::TopThenMiddleDrawer => {
-            let [first, second] = [0, 1].map(|k| [(t.objects[k], 0.0)]);
+            // the first object 5 cm toward the robot from the raised top drawer's centre: let go at the centre, at the
+            // arm's full reach, it leaves the elbow straight on joint 4's limit and the arm cannot come back
+            let (first, second) = ([(t.objects[0], TOP_DRAWER_ACROSS_M)], [(t.objects[1], 0.0)]);
             let loads = [
                 DrawerLoad { which: "top", items: &first, close: true },
                 DrawerLoad { which: "middle", items: &second, close: true },
@@ -91,6 +93,8 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
     Ok(Box::new(Script::new(phases)))
 }
 
+/// Where the object goes across the top drawer (its local x, world x: negative is toward the robot), from its centre.
+const TOP_DRAWER_ACROSS_M: f64 = -0.05;
 /// Root height while carrying into the basket (its rim stands ≈ 0.15 m above the coffee table's top at z ≈ 0.42).
 const BASKET_CARRY_Z_M: f64 = 0.70;
 /// Root height while carrying between the plates.

@@ -20,8 +20,9 @@
 //! magnitude, strictly inside `(min, max)`: rad for hinges, m for slides — T28's latch), `pour_count` (a named pour
 //! counter has registered ≥ `at_least` pours), `displaced_since` (the object's root at least `min_xy_m` horizontally from
 //! where it was when a named earlier stage completed: VLABench find_unseen_object's "taken out after the drawer opened"),
-//! `touching` (a live contact between two instances' body subtrees, distance ≤ `max_distance_m`), `any` (disjunction),
-//! `all` (conjunction, for use inside `any`) and `not`.
+//! `touching` (a live contact between two instances' body subtrees, distance ≤ `max_distance_m`: VLABench's "on the
+//! real container", not hovering inside its region), `moved_xy` (root moved ≥ `min_m` horizontally from its pose at
+//! reset), `any` (disjunction), `all` (conjunction, for use inside `any`) and `not`.
 //!
 //! Bindings (T23's "occupied drawer"): a name `$<binding>` usable wherever an atom names a site (drawer sites, `near`
 //! anchors); at reset it is bound to the candidate site nearest (3-D) to an object's root, and stays bound for the
@@ -57,7 +58,7 @@ use crate::judge::evaluator::{
     TerminalCheck, Tick, score_percent,
 };
 use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{CompiledAtom, EntityRef, SceneIndex, in_subtree};
+use crate::judge::predicates::{CompiledAtom, EntityRef, SceneIndex, SubtreeContact, in_subtree};
 use crate::judge::pouring::{PourCounterConfig, PourTracker};
 
 pub const CHECKER_ORDERED: &str = "private_ordered_stages";
@@ -120,6 +121,8 @@ pub enum AtomSpec {
     /// A contact between `object`'s and `other`'s body subtrees with distance ≤ `max_distance_m` (a live support,
     /// not a hover inside a region).
     Touching { object: String, other: String, max_distance_m: f64 },
+    /// `object`'s root is at least `min_m` from its reset position horizontally (it was really moved).
+    MovedXy { object: String, min_m: f64 },
     /// At least one of the atoms holds.
     Any(Vec<AtomSpec>),
     /// Every one of the atoms holds (inside an `any`: RoboMemArena task 14's "the drawer holding the object is closed").
@@ -215,8 +218,8 @@ enum Check {
     Joint { qpos_adr: usize, min: Option<f64>, max: Option<f64>, abs: bool },
     PourCount { counter: usize, at_least: usize },
     DisplacedSince { body: usize, stage: usize, min_xy_m: f64 },
-    /// `sides[g]`: geom g belongs to the object's subtree (1), the other's (2), or neither (0).
-    Touching { sides: Arc<Vec<u8>>, max_distance_m: f64 },
+    Touching(SubtreeContact),
+    MovedXy { body: usize, min_m: f64 },
     Any(Vec<Check>),
     All(Vec<Check>),
     Not(Box<Check>),
@@ -356,11 +359,11 @@ impl Check {
                 let (p, q) = (d.xpos()[*body], then[*body]);
                 (p[0] - q[0]).hypot(p[1] - q[1]) >= *min_xy_m
             }
-            Check::Touching { sides, max_distance_m } => d.contact().iter().any(|k| {
-                let side = |g: i32| sides.get(g as usize).copied().unwrap_or(0);
-                let (a, b) = (side(k.geom[0]), side(k.geom[1]));
-                k.dist <= *max_distance_m && a != 0 && b != 0 && a != b
-            }),
+            Check::Touching(contact) => contact.holds(d),
+            Check::MovedXy { body, min_m } => {
+                let (p, p0) = (d.xpos()[*body], c.base.body0.get(*body).copied().unwrap_or(d.xpos()[*body]));
+                (p[0] - p0[0]).hypot(p[1] - p0[1]) >= *min_m
+            }
             Check::Any(atoms) => atoms.iter().any(|a| a.holds(c)),
             Check::All(atoms) => atoms.iter().all(|a| a.holds(c)),
             Check::Not(inner) => !inner.holds(c),
@@ -489,19 +492,9 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
             min_xy_m: *min_xy_m,
         },
         AtomSpec::Touching { object, other, max_distance_m } => {
-            let (a, b) = (instance_body(object)?, instance_body(other)?);
-            let parents = model.body_parentid();
-            let sides = model
-                .geom_bodyid()
-                .iter()
-                .map(|&g| match g as usize {
-                    g if in_subtree(parents, g, a) => 1,
-                    g if in_subtree(parents, g, b) => 2,
-                    _ => 0,
-                })
-                .collect();
-            Check::Touching { sides: Arc::new(sides), max_distance_m: *max_distance_m }
+            Check::Touching(SubtreeContact::new(model, instance_body(object)?, instance_body(other)?, *max_distance_m))
         }
+        AtomSpec::MovedXy { object, min_m } => Check::MovedXy { body: instance_body(object)?, min_m: *min_m },
         AtomSpec::Any(atoms) => Check::Any(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::All(atoms) => Check::All(atoms.iter().map(|a| compile(a, names)).collect::<Result<_, _>>()?),
         AtomSpec::Not(inner) => Check::Not(Box::new(compile(inner, names)?)),
