@@ -218,15 +218,17 @@ fn a_pool_batch_runs_pool_addresses_and_reports_them_per_suite() {
     }
     assert!(!batch.exists(), "nothing written");
 
-    // The schedule of a whole suite: every long_horizon_v2 entry that runs, the others named on stderr.
-    let mut dry = args("suite:long_horizon_v2", "pool");
+    // The schedule of a whole suite: every vlabench_perception entry that runs, the others (the excluded bloomed
+    // flower) named on stderr.
+    let mut dry = args("suite:vlabench_perception", "pool");
     dry.extend(["--dry-run".into(), "--json".into()]);
     let out = libero(&as_refs(&dry));
     assert!(out.status.success());
     let planned: Vec<Value> = String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
-    assert!(planned.iter().any(|p| p["task"] == "long_horizon_v2/0" && p["suite"] == "long_horizon_v2"), "{planned:?}");
+    assert!(planned.iter().any(|p| p["task"] == "vlabench_perception/0" && p["suite"] == "vlabench_perception"), "{planned:?}");
+    assert!(!planned.iter().any(|p| p["task"] == "vlabench_perception/1"), "{planned:?}");
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("left out") && err.contains("long_horizon_v2/2"), "the entries that do not run are named: {err}");
+    assert!(err.contains("left out") && err.contains("vlabench_perception/1"), "the entries that do not run are named: {err}");
 
     // The batch.
     let out = libero(&as_refs(&args("libero_object/0,robomemarena/18,T14", "pool")));

@@ -11,6 +11,7 @@ use crate::families::adapted::hammer_contact::{self, HammerContact};
 use crate::families::adapted::pour_wine::{self as pour, PourWine};
 use crate::families::adapted::wipe::{self, SpillWipe};
 use crate::families::libero::bddl_terminal::{self, BddlTerminal};
+use crate::families::long_horizon::coffee::{self, CoffeeBrewing};
 use crate::families::long_horizon::staged::{self, StagedEvaluator};
 use crate::families::perception::weighing::{self, PhysicalWeighing};
 use crate::families::vlabench::button_press::{self, ButtonPress};
@@ -34,6 +35,7 @@ pub const EVALUATOR_KINDS: &[&str] = &[
     staged::CHECKER_ORDERED,
     staged::CHECKER_UNORDERED,
     staged::CHECKER_BUFFER_ROTATION,
+    coffee::CHECKER,
     weighing::CHECKER,
     hammer_contact::CHECKER,
     seesaw::CHECKER,
@@ -121,6 +123,11 @@ pub fn build_evaluator(
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
             let p = params(checker, kind, task_id)?;
             Ok(Box::new(StagedEvaluator::new(kind, p, goal, commitment, model, task_id.map(str::to_owned))?))
+        }
+        coffee::CHECKER => {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = params(checker, kind, task_id)?;
+            Ok(Box::new(CoffeeBrewing::new(p, goal, commitment, model, task_id.map(str::to_owned))?))
         }
         weighing::CHECKER => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;

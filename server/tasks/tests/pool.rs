@@ -190,3 +190,60 @@ fn robomemarena_18s_expert_completes_both_stages_and_its_near_misses_fail() {
     let undo = common::play("robomemarena/18", "undo");
     assert!(!undo.success && !undo.stage_regressions.is_empty(), "{undo:?}");
 }
+
+/// `long_horizon_v2/3` (T21's cooking scene, its five goals judged in the instructed order by the strict sequence,
+/// sampled at substeps as in an episode): the expert playing the instructed order completes 5 of 5 with no
+/// violation; stopping before the microwave leaves 4; T21's own order, which turns the first stove on before the moka
+/// pot is placed, latches an ordering violation and fails.
+#[test]
+fn the_strict_order_cooking_task_is_solved_in_order_and_fails_out_of_order() {
+    use libero_tasks::judge::evaluator::FailureReason;
+    let solve = common::play("long_horizon_v2/3", libero_tasks::expert::SOLVE);
+    assert_eq!((solve.success, solve.completed_required_stage_count, solve.required_stage_count), (true, 5, 5), "{solve:?}");
+    assert_eq!(solve.details.as_ref().unwrap()["order_violation"], false, "{solve:?}");
+    let partial = common::play("long_horizon_v2/3", "partial_4");
+    assert_eq!((partial.success, partial.completed_required_stage_count), (false, 4), "{partial:?}");
+    let out_of_order = common::play("long_horizon_v2/3", "goal_order");
+    assert!(!out_of_order.success, "{out_of_order:?}");
+    assert_eq!(out_of_order.failure_reason, Some(FailureReason::OrderViolation), "{out_of_order:?}");
+    let details = out_of_order.details.as_ref().unwrap();
+    assert_eq!(details["order_violation_latch"], "04_Turn_On_First_Stove_before_01_Place_Moka_Pot_On_Second_Stove", "{details}");
+}
+
+/// `long_horizon_v2/2` (the coffee machine, task catalog §6.2): the idle start is 0 of 3 with the coffee hidden; the
+/// expert places the mug, lets go and presses the button, completing all three stages, and the coffee shows; pressing
+/// the button before the mug is placed counts for nothing (1 of 3, armed but never brewed).
+#[test]
+fn the_coffee_machine_brews_only_for_a_press_after_the_mug_is_placed() {
+    let idle = common::idle("long_horizon_v2/2", 20);
+    assert_eq!((idle.success, idle.completed_required_stage_count, idle.required_stage_count), (false, 0, 3), "{idle:?}");
+
+    let (reference, scene, mut sim, mut evaluator) = common::start("long_horizon_v2/2");
+    let liquid = sim.model().name_to_id(MjtObjBase::mjOBJ_GEOM, "coffee_machine_1_coffee_liquid_visual").expect("the coffee geom");
+    let alpha = |e: &dyn Evaluator| e.geom_rgba_overrides().iter().find(|(g, _)| *g == liquid).map(|(_, c)| c[3]);
+    assert_eq!(alpha(evaluator.as_ref()), Some(0.0), "no coffee before a brew");
+    let mut script = libero_tasks::expert_for(&reference, libero_tasks::expert::SOLVE, &scene, sim.model()).unwrap();
+    let mut step = 0u64;
+    while let Some(action) = script.act(&sim) {
+        step += 1;
+        sim.step_with(common::as_sent(action), |k, data| {
+            evaluator.observe_substep(data, Tick { control_step: step, substep: Some(k as u32), sim_time_s: data.ffi().time })
+        })
+        .unwrap();
+        evaluator.observe_control_step(sim.data(), Tick::at_control_step(step, sim.time_s()));
+        assert!(step < 3_000, "the script ends");
+    }
+    assert_eq!(alpha(evaluator.as_ref()), Some(1.0), "the coffee shows once brewed");
+    let solve = evaluator.finish(sim.data(), Tick::at_control_step(step, sim.time_s()));
+    assert_eq!((solve.success, solve.completed_required_stage_count), (true, 3), "{solve:?}");
+    assert!(solve.terminal_state_checks.iter().all(|c| c.passed), "{solve:?}");
+    assert!(solve.stage_regressions.is_empty(), "{solve:?}");
+
+    let early = common::play("long_horizon_v2/2", "press_first");
+    assert_eq!((early.success, early.completed_required_stage_count), (false, 1), "{early:?}");
+    let details = early.details.as_ref().unwrap();
+    assert!(details["max_button_displacement_m"].as_f64().unwrap() >= 0.015, "the button was pressed: {details}");
+    assert_eq!((details["button_armed_after_mug_placement"].as_bool(), details["brewed_at"].is_null()), (Some(true), true), "{details}");
+    let placed_only = common::play("long_horizon_v2/2", "partial_1");
+    assert_eq!((placed_only.success, placed_only.completed_required_stage_count), (false, 1), "{placed_only:?}");
+}

@@ -257,6 +257,9 @@ const PROJECT: &[(&str, &str, f64)] = &[
     // predicate reads the nail joint, the private evaluator does)
     ("metaworld_hammer", "objects/metaworld_hammer/metaworld_hammer.xml", 0.0),
     ("metaworld_hammer_block", "objects/metaworld_hammer_block/metaworld_hammer_block.xml", 0.0),
+    // pool task long_horizon_v2/2 (task catalog §6.2): the MetaWorld-style coffee machine, primitives (fixture; the
+    // brew button's slide joint is read by the private evaluator only)
+    ("metaworld_coffee_machine", "objects/metaworld_coffee_machine/metaworld_coffee_machine.xml", 0.0),
     // T30 (task catalog §6.1): the VLABench seesaw primitive (fixture; hinge `seesaw_hinge`, far-end site
     // `seesaw_right_region`) and its 0.08 kg counterweight
     ("vlabench_seesaw", "objects/vlabench_seesaw/vlabench_seesaw.xml", 0.0),

@@ -43,6 +43,22 @@ impl HingeHand {
         // prefer a small positive turn: the microwave door's plane lies right at the ±π/2 tie
         rotate_world(&open_along_near(&ctx.home_rot, dir0, 0.3), *axis, angle)
     }
+
+    /// [`Self::rot`] with the hand first pitched by `pitch_rad` about the fingers' opening axis at hinge angle 0, the
+    /// sign chosen so that positive pitch tips the fingertips toward the robot's base (world −x).
+    fn rot_pitched(&self, sim: &Simulation, ctx: &PhaseCtx, angle: f64, pitch_rad: f64) -> Matrix3<f64> {
+        if pitch_rad == 0.0 {
+            return self.rot(sim, ctx, angle);
+        }
+        let axis = Unit::new_normalize(self.axis(sim));
+        let dir0 = Rotation3::from_axis_angle(&axis, -self.q(sim)) * body_dir(sim, self.body, self.local_dir);
+        let open0 = open_along_near(&ctx.home_rot, dir0, 0.3);
+        // the (horizontal) opening axis, signed toward +y: a positive turn about +y swings the downward approach
+        // direction toward −x
+        let across = Vector3::new(dir0.x, dir0.y, 0.0);
+        let across = if across.y < 0.0 { -across } else { across };
+        rotate_world(&rotate_world(&open0, across, pitch_rad), *axis, angle)
+    }
 }
 
 /// Above the grasp point, a few centimetres over it, down onto it slowly (the arm lags its goal; a straight slow
@@ -220,6 +236,14 @@ pub fn stove_knob_phases(refs: &SceneRefs, stove: &str, q_goal: f64) -> Result<V
 /// As [`stove_knob_phases`], turning the knob toward `q_goal` from wherever it is when the turn starts: up (on) or
 /// down (off, a knob left on).
 pub fn stove_knob_phases_toward(refs: &SceneRefs, stove: &str, q_goal: f64) -> Result<Vec<Phase>, TasksError> {
+    stove_knob_phases_pitched(refs, stove, q_goal, 0.0)
+}
+
+/// As [`stove_knob_phases_toward`], the hand pitched by `pitch_rad` about the fingers' opening axis (positive: the
+/// fingertips point back toward the robot and the wrist stands out past the knob). For a knob close to the robot's
+/// base (the cooking scene's first stove, 26 cm in front of it) a hand pointing straight down turns the knob with
+/// the elbow folded onto its joint limit; pitched, the elbow stays off it.
+pub fn stove_knob_phases_pitched(refs: &SceneRefs, stove: &str, q_goal: f64, pitch_rad: f64) -> Result<Vec<Phase>, TasksError> {
     let knob = refs.body(&format!("{stove}_button"))?;
     let (q_adr, joint) = refs.joint(&format!("{stove}_button"))?;
     let dof = refs.model.jnt_dofadr()[joint] as usize;
@@ -235,7 +259,7 @@ pub fn stove_knob_phases_toward(refs: &SceneRefs, stove: &str, q_goal: f64) -> R
     let grasp = move |sim: &Simulation| body_point(sim, knob, KNOB_GRASP_LOCAL_M);
     // fingers open across the ridge (the knob's local x)
     let hand = HingeHand { body: knob, local_dir: [1.0, 0.0, 0.0], joint, q_adr };
-    let rot_at = move |sim: &Simulation, ctx: &PhaseCtx, angle: f64| hand.rot(sim, ctx, angle);
+    let rot_at = move |sim: &Simulation, ctx: &PhaseCtx, angle: f64| hand.rot_pitched(sim, ctx, angle, pitch_rad);
     const LEAD_RAD: f64 = 0.3;
     const OFF_HOLD_PAST_RAD: f64 = 0.15;
     let mut phases = reach_and_grip(["above_knob", "near_knob", "down_to_knob", "pinch_knob"], grasp, move |sim, ctx| {

@@ -7,11 +7,12 @@ use libero_sim::Simulation;
 use nalgebra::{Matrix3, Vector3};
 
 use super::motion::{
-    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, body_point, grip_pose, open_along, rotate_world,
-    rotation_error, vec3,
+    GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, body_point, grip_pose, mat3, open_along,
+    rotate_world, rotation_error, vec3,
 };
 use super::{Expert, SceneRefs};
 use crate::TasksError;
+use crate::judge::predicates::SceneIndex;
 
 /// `partial_<n>` → n.
 pub fn partial_count(behaviour: &str) -> Option<usize> {
@@ -36,6 +37,24 @@ const MAX_HELD_OFFSET_M: f64 = 0.3;
 pub fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64> {
     let offset = grip_pose(sim).0 - pos(sim, body);
     target + offset.cap_magnitude(MAX_HELD_OFFSET_M)
+}
+
+/// World bounding box (min, max) of an instance's contact geoms now.
+pub fn extent(sim: &Simulation, index: &SceneIndex, instance: usize) -> (Vector3<f64>, Vector3<f64>) {
+    let (model, data) = (sim.model(), sim.data());
+    let aabb = model.geom_aabb();
+    let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+    for g in index.contact_geoms(instance) {
+        let (c, h) = (Vector3::new(aabb[g][0], aabb[g][1], aabb[g][2]), Vector3::new(aabb[g][3], aabb[g][4], aabb[g][5]));
+        let (p, r) = (vec3(&data.geom_xpos()[g]), mat3(&data.geom_xmat()[g]));
+        for k in 0..8 {
+            let s = Vector3::new(if k & 1 == 0 { -1.0 } else { 1.0 }, if k & 2 == 0 { -1.0 } else { 1.0 }, if k & 4 == 0 { -1.0 } else { 1.0 });
+            let corner = p + r * (c + h.component_mul(&s));
+            lo = lo.inf(&corner);
+            hi = hi.sup(&corner);
+        }
+    }
+    if lo.x.is_finite() { (lo, hi) } else { (pos(sim, index.instances[instance].body), pos(sim, index.instances[instance].body)) }
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).
@@ -166,7 +185,7 @@ pub fn memo<T: Copy + Send + 'static>(f: impl Fn(&Simulation) -> T + Send + Sync
 
 /// The horizontal axis of an object's largest collision box along which it is narrowest (fingers close across it).
 pub fn narrow_axis(sim: &Simulation, geom: usize, half_m: [f64; 3]) -> Vector3<f64> {
-    let m = super::motion::mat3(&sim.data().geom_xmat()[geom]);
+    let m = mat3(&sim.data().geom_xmat()[geom]);
     (0..3)
         .filter(|&k| m[(2, k)].abs() < 0.7)
         .min_by(|&a, &b| half_m[a].total_cmp(&half_m[b]))

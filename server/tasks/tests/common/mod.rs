@@ -9,18 +9,19 @@ use libero_tasks::pool::Runs;
 use libero_tasks::{EvaluationRecord, Evaluator, Pool, Tick, build_evaluator};
 
 /// A task scene composed from `bddl`, placed with LIBERO's seed-100 sampler (the seed the release tasks without
-/// trusted init states use), and a simulation starting from that placement.
+/// trusted init states use), and a simulation starting from that placement as an episode's does
+/// (`server/episode/src/physics.rs`): the robot as its reset leaves it (arm at LIBERO's `init_qpos`), the objects and
+/// articulations where the placement put them.
 pub fn scene_and_sim(bddl: &Path) -> (ComposedScene, Simulation) {
     let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
     let scene = compose_file(bddl, &paths).unwrap();
     let mut model = scene.compile().unwrap();
     let placement = Placement::sample(&scene, 100, Some(&model)).unwrap();
     placement.apply(&mut model).unwrap();
-    let mut qpos = model.qpos0().to_vec();
-    placement.write_qpos(&model, &mut qpos).unwrap();
     let mut sim = Simulation::new(Arc::new(model)).unwrap();
     let mut row = sim.state_row();
-    row[1..1 + qpos.len()].copy_from_slice(&qpos);
+    let nq = sim.model().ffi().nq as usize;
+    placement.write_qpos(sim.model(), &mut row[1..1 + nq]).unwrap();
     sim.set_init_state(&row).unwrap();
     (scene, sim)
 }
@@ -65,15 +66,24 @@ pub fn idle(entry: &str, steps: u64) -> EvaluationRecord {
     evaluator.finish(sim.data(), Tick::at_control_step(steps, 0.05 * steps as f64))
 }
 
-/// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator.
+/// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator, which
+/// also observes every physics substep where it samples them (as `server/episode/src/physics.rs` steps it).
 #[allow(dead_code)] // not every test binary plays an expert
 pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
     let (reference, scene, mut sim, mut evaluator) = start(entry);
     let mut script = libero_tasks::expert_for(&reference, behaviour, &scene, sim.model()).unwrap();
     let mut step = 0u64;
     while let Some(action) = script.act(&sim) {
-        sim.step(as_sent(action)).unwrap();
-        step += 1;
+        let next = step + 1;
+        if evaluator.samples_substeps() {
+            sim.step_with(as_sent(action), |k, data| {
+                evaluator.observe_substep(data, Tick { control_step: next, substep: Some(k as u32), sim_time_s: data.ffi().time })
+            })
+            .unwrap();
+        } else {
+            sim.step(as_sent(action)).unwrap();
+        }
+        step = next;
         evaluator.observe_control_step(sim.data(), Tick::at_control_step(step, 0.05 * step as f64));
         assert!(step < 6_000, "{entry} {behaviour}: the script ends");
     }

@@ -27,7 +27,7 @@ use crate::expert::motion::{
     rotation_error, vec3,
 };
 use crate::expert::skills::{
-    BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, carry, pos, pull_drawer, push_drawer, xy_dist,
+    BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, carry, extent, pos, pull_drawer, push_drawer, xy_dist,
 };
 use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::judge::goal::GoalChecker;
@@ -410,23 +410,6 @@ fn rise() -> Phase {
         .max_steps(60)
 }
 
-/// World bounding box (min, max) of an instance's contact geoms now.
-fn extent(sim: &Simulation, index: &SceneIndex, instance: usize) -> (Vector3<f64>, Vector3<f64>) {
-    let (model, data) = (sim.model(), sim.data());
-    let aabb = model.geom_aabb();
-    let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
-    for g in index.contact_geoms(instance) {
-        let (c, h) = (Vector3::new(aabb[g][0], aabb[g][1], aabb[g][2]), Vector3::new(aabb[g][3], aabb[g][4], aabb[g][5]));
-        let (p, r) = (vec3(&data.geom_xpos()[g]), mat3(&data.geom_xmat()[g]));
-        for k in 0..8 {
-            let s = Vector3::new(if k & 1 == 0 { -1.0 } else { 1.0 }, if k & 2 == 0 { -1.0 } else { 1.0 }, if k & 4 == 0 { -1.0 } else { 1.0 });
-            let corner = p + r * (c + h.component_mul(&s));
-            lo = lo.inf(&corner);
-            hi = hi.sup(&corner);
-        }
-    }
-    if lo.x.is_finite() { (lo, hi) } else { (pos(sim, index.instances[instance].body), pos(sim, index.instances[instance].body)) }
-}
 
 /// The horizontal direction along which the largest contact geom of `instance` is narrowest (fingers close across
 /// it); world y (the hand's home opening, no wrist turn) for a round or square footprint, where any direction fits.
