@@ -68,7 +68,9 @@ fn tasks_show_prints_a_pool_entry_by_id_or_name() {
     assert!(ok);
     assert_eq!(same, text);
     let (ok, text, _) = run(&["tasks", "show", "long_horizon_v2/2"]);
-    assert!(ok && text.contains("press the front button to brew coffee") && text.contains("not implemented in this build"), "{text}");
+    assert!(ok && text.contains("press the front button to brew coffee") && !text.contains("not implemented"), "{text}");
+    let (ok, text, _) = run(&["tasks", "show", "vlabench_perception/1"]);
+    assert!(ok && text.contains("excluded"), "an entry that does not run says why: {text}");
     let (ok, _, err) = run(&["tasks", "show", "robomemarena/27"]);
     assert!(!ok && err.contains("robomemarena has task ids 1–26"), "{err}");
 }
