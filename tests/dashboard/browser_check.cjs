@@ -143,7 +143,7 @@ async function main() {
     check(t23.includes('runs as T23'), 'a release-backed entry says what it runs as');
     report.pool = { microwave: ids, summary: await text(tasks, '#task-summary') };
     await shot(tasks, 'tasks-pool');
-    await tasks.goto(`${base}/tasks?suite=long_horizon_v2`);
+    await tasks.goto(`${base}/tasks?suite=vlabench_perception`);
     check((await tasks.locator('article[data-id="vlabench_perception/1"]').innerText()).includes('does not run here'), 'an excluded entry says so');
     check(errors.length === 0, `no page errors: ${errors.join('; ')}`);
     say({ ok: true, ...report });
