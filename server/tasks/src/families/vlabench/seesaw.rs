@@ -292,6 +292,27 @@ impl SeesawRig {
     }
 }
 
+/// The record the seesaw evaluators share (T30 and the pool's adaptive and comparison variants): their stages, the
+/// terminal checks, success when every required stage completed and every check passed, and the episode's history
+/// (control steps, private events, first commitment, BDDL goal). Also says whether every required stage completed.
+pub(crate) fn seesaw_record(
+    task_id: Option<String>,
+    stages: &StageTracker,
+    checks: Vec<TerminalCheck>,
+    (control_steps, events, commitment, goal): (u64, &[PrivateEvent], &CommitmentTracker, &GoalChecker),
+    data: &SimData,
+) -> (EvaluationRecord, bool) {
+    let mut record = EvaluationRecord::new(CHECKER);
+    stages.write_into(&mut record);
+    record.task_id = task_id;
+    record.terminal_state_success = checks.iter().all(|c| c.passed);
+    record.terminal_state_checks = checks;
+    let stages_done = stages.all_required_completed();
+    record.success = stages_done && record.terminal_state_success;
+    crate::judge::support::fill_history(&mut record, (control_steps, 0), events, commitment, goal, data);
+    (record, stages_done)
+}
+
 impl PhysicalSeesaw {
     pub fn new(
         params: SeesawParams,
@@ -388,13 +409,10 @@ impl Evaluator for PhysicalSeesaw {
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
         let s = self.sample(data);
-        let mut record = EvaluationRecord::new(CHECKER);
-        self.progress.stages.write_into(&mut record);
-        record.task_id = self.task_id.clone();
         let premature = self.progress.premature_lift();
         let lift_seen = self.progress.lift_event().is_some();
         let weights_released = s.all_released();
-        record.terminal_state_checks = vec![
+        let checks = vec![
             TerminalCheck { name: format!("(in {} {})", self.params.target, self.params.basket_region), passed: s.target_in_basket },
             TerminalCheck { name: "lift_event_seen".into(), passed: lift_seen },
             TerminalCheck {
@@ -403,10 +421,8 @@ impl Evaluator for PhysicalSeesaw {
             },
             TerminalCheck { name: "no_premature_lift".into(), passed: premature.is_none() },
         ];
-        record.terminal_state_success = record.terminal_state_checks.iter().all(|c| c.passed);
-        let stages_done = self.progress.stages.all_required_completed();
-        record.success = stages_done && record.terminal_state_success;
-        crate::judge::support::fill_history(&mut record, (self.control_steps, 0), &self.events, &self.commitment, &self.goal, data);
+        let history = (self.control_steps, &self.events[..], &self.commitment, &self.goal);
+        let (mut record, stages_done) = seesaw_record(self.task_id.clone(), &self.progress.stages, checks, history, data);
         record.failure_reason = if record.success {
             None
         } else if premature.is_some() {

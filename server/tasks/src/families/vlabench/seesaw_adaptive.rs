@@ -37,7 +37,7 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawRig};
+use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawRig, seesaw_record};
 use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
 use crate::judge::goal::GoalChecker;
@@ -356,19 +356,10 @@ impl Evaluator for AdaptiveSeesaw {
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
         let s = self.sample(data);
-        let mut record = EvaluationRecord::new(CHECKER);
-        self.progress.stages.write_into(&mut record);
-        record.task_id = self.task_id.clone();
-        record.terminal_state_checks = self
-            .progress
-            .terminal_checks(&s)
-            .into_iter()
-            .map(|(name, passed)| TerminalCheck { name: name.into(), passed })
-            .collect();
-        record.terminal_state_success = record.terminal_state_checks.iter().all(|c| c.passed);
-        let stages_done = self.progress.stages.all_required_completed();
-        record.success = stages_done && record.terminal_state_success;
-        crate::judge::support::fill_history(&mut record, (self.control_steps, 0), &self.events, &self.commitment, &self.goal, data);
+        let checks =
+            self.progress.terminal_checks(&s).into_iter().map(|(name, passed)| TerminalCheck { name: name.into(), passed }).collect();
+        let history = (self.control_steps, &self.events[..], &self.commitment, &self.goal);
+        let (mut record, stages_done) = seesaw_record(self.task_id.clone(), &self.progress.stages, checks, history, data);
         record.failure_reason = FailureReason::of_staged(record.success, stages_done);
         let (max_hinge, max_lift) = self.progress.maxima();
         let masses: BTreeMap<&str, f64> =
