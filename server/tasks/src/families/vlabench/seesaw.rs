@@ -176,9 +176,7 @@ impl SeesawProgress {
 
 pub struct PhysicalSeesaw {
     params: SeesawParams,
-    index: std::sync::Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
+    history: SeesawHistory,
     task_id: Option<String>,
     target: usize,
     weights: Vec<usize>,
@@ -189,8 +187,6 @@ pub struct PhysicalSeesaw {
     hinge0_rad: f64,
     target_z0_m: f64,
     progress: SeesawProgress,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -292,25 +288,50 @@ impl SeesawRig {
     }
 }
 
-/// The record the seesaw evaluators share (T30 and the pool's adaptive and comparison variants): their stages, the
-/// terminal checks, success when every required stage completed and every check passed, and the episode's history
-/// (control steps, private events, first commitment, BDDL goal). Also says whether every required stage completed.
-pub(crate) fn seesaw_record(
-    task_id: Option<String>,
-    stages: &StageTracker,
-    checks: Vec<TerminalCheck>,
-    (control_steps, events, commitment, goal): (u64, &[PrivateEvent], &CommitmentTracker, &GoalChecker),
-    data: &SimData,
-) -> (EvaluationRecord, bool) {
-    let mut record = EvaluationRecord::new(CHECKER);
-    stages.write_into(&mut record);
-    record.task_id = task_id;
-    record.terminal_state_success = checks.iter().all(|c| c.passed);
-    record.terminal_state_checks = checks;
-    let stages_done = stages.all_required_completed();
-    record.success = stages_done && record.terminal_state_success;
-    crate::judge::support::fill_history(&mut record, (control_steps, 0), events, commitment, goal, data);
-    (record, stages_done)
+/// What the seesaw evaluators (T30 and the pool's adaptive and comparison variants) keep of an episode besides their
+/// stages: the scene index, the BDDL goal, the first commitment, the private events and the control steps seen; and
+/// how a finished episode's record is filled from them.
+pub(crate) struct SeesawHistory {
+    pub index: std::sync::Arc<SceneIndex>,
+    pub goal: GoalChecker,
+    pub commitment: CommitmentTracker,
+    events: Vec<PrivateEvent>,
+    control_steps: u64,
+}
+
+impl SeesawHistory {
+    pub fn new(goal: GoalChecker, commitment: CommitmentTracker) -> Self {
+        Self { index: goal.index().clone(), goal, commitment, events: Vec::new(), control_steps: 0 }
+    }
+
+    pub fn reset(&mut self, data: &SimData) {
+        self.events.clear();
+        self.control_steps = 0;
+        self.commitment.reset(&self.index, data);
+    }
+
+    pub fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
+        self.control_steps += 1;
+        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+    }
+
+    pub fn private_events(&self, stages: &StageTracker) -> Vec<PrivateEvent> {
+        crate::judge::evaluator::merged_events(stages, &self.events)
+    }
+
+    /// The record: the stages, the terminal checks, success when every required stage completed and every check
+    /// passed, and the history. Also says whether every required stage completed.
+    pub fn record(&self, task_id: Option<String>, stages: &StageTracker, checks: Vec<TerminalCheck>, data: &SimData) -> (EvaluationRecord, bool) {
+        let mut record = EvaluationRecord::new(CHECKER);
+        stages.write_into(&mut record);
+        record.task_id = task_id;
+        record.terminal_state_success = checks.iter().all(|c| c.passed);
+        record.terminal_state_checks = checks;
+        let stages_done = stages.all_required_completed();
+        record.success = stages_done && record.terminal_state_success;
+        crate::judge::support::fill_history(&mut record, (self.control_steps, 0), &self.events, &self.commitment, &self.goal, data);
+        (record, stages_done)
+    }
 }
 
 impl PhysicalSeesaw {
@@ -344,9 +365,7 @@ impl PhysicalSeesaw {
         let progress = SeesawProgress::new(&params.stages, params.hinge_lift_rad, params.target_lift_m);
         Ok(Self {
             params,
-            index,
-            goal,
-            commitment,
+            history: SeesawHistory::new(goal, commitment),
             task_id,
             target,
             weights,
@@ -356,15 +375,13 @@ impl PhysicalSeesaw {
             hinge0_rad: 0.0,
             target_z0_m: 0.0,
             progress,
-            events: Vec::new(),
-            control_steps: 0,
         })
     }
 
     fn released(&self, data: &SimData, k: usize) -> bool {
-        self.rig.on_far_end(data, self.index.instances[self.weights[k]].body)
+        self.rig.on_far_end(data, self.history.index.instances[self.weights[k]].body)
             && self.rig.touches_board(data, &self.weight_geoms[k])
-            && !self.commitment.grasped(&self.index, data, self.weights[k])
+            && !self.history.commitment.grasped(&self.history.index, data, self.weights[k])
     }
 
     fn sample(&self, data: &SimData) -> SeesawSample {
@@ -372,8 +389,8 @@ impl PhysicalSeesaw {
             released: (0..self.weights.len()).filter(|&k| self.released(data, k)).count(),
             weights: self.weights.len(),
             hinge_delta_rad: self.rig.hinge_rad(data) - self.hinge0_rad,
-            target_lift_m: data.xpos()[self.index.instances[self.target].body][2] - self.target_z0_m,
-            target_in_basket: self.in_basket.evaluate(&self.index, data),
+            target_lift_m: data.xpos()[self.history.index.instances[self.target].body][2] - self.target_z0_m,
+            target_in_basket: self.in_basket.evaluate(&self.history.index, data),
         }
     }
 }
@@ -384,7 +401,7 @@ impl Evaluator for PhysicalSeesaw {
     }
 
     fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(&self.progress.stages, &self.events)
+        self.history.private_events(&self.progress.stages)
     }
 
     fn stage_progress(&self) -> Option<(usize, usize)> {
@@ -393,18 +410,15 @@ impl Evaluator for PhysicalSeesaw {
 
     fn reset(&mut self, data: &SimData, _tick: Tick) {
         self.hinge0_rad = self.rig.hinge_rad(data);
-        self.target_z0_m = data.xpos()[self.index.instances[self.target].body][2];
+        self.target_z0_m = data.xpos()[self.history.index.instances[self.target].body][2];
         self.progress = SeesawProgress::new(&self.params.stages, self.params.hinge_lift_rad, self.params.target_lift_m);
-        self.events.clear();
-        self.control_steps = 0;
-        self.commitment.reset(&self.index, data);
+        self.history.reset(data);
     }
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
         let s = self.sample(data);
         self.progress.observe(&s, tick);
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+        self.history.observe_control_step(data, tick);
     }
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
@@ -421,8 +435,7 @@ impl Evaluator for PhysicalSeesaw {
             },
             TerminalCheck { name: "no_premature_lift".into(), passed: premature.is_none() },
         ];
-        let history = (self.control_steps, &self.events[..], &self.commitment, &self.goal);
-        let (mut record, stages_done) = seesaw_record(self.task_id.clone(), &self.progress.stages, checks, history, data);
+        let (mut record, stages_done) = self.history.record(self.task_id.clone(), &self.progress.stages, checks, data);
         record.failure_reason = if record.success {
             None
         } else if premature.is_some() {

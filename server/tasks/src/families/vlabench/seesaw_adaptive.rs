@@ -37,11 +37,11 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawRig, seesaw_record};
+use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawHistory, SeesawRig};
 use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
 use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{CompiledAtom, SceneIndex};
+use crate::judge::predicates::CompiledAtom;
 use crate::judge::support::{instance_mass, missing_in_model};
 
 /// The `variant` of the checker's params that selects this evaluator.
@@ -224,9 +224,7 @@ impl AdaptiveProgress {
 
 pub struct AdaptiveSeesaw {
     params: AdaptiveParams,
-    index: std::sync::Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
+    history: SeesawHistory,
     task_id: Option<String>,
     payload: usize,
     /// Root body per weight.
@@ -238,8 +236,6 @@ pub struct AdaptiveSeesaw {
     hinge0_rad: f64,
     payload_z0_m: f64,
     progress: AdaptiveProgress,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
 }
 
 impl AdaptiveSeesaw {
@@ -282,9 +278,7 @@ impl AdaptiveSeesaw {
         let progress = Self::fresh_progress(&params, &masses_kg);
         Ok(Self {
             params,
-            index,
-            goal,
-            commitment,
+            history: SeesawHistory::new(goal, commitment),
             task_id,
             payload,
             weight_bodies,
@@ -295,8 +289,6 @@ impl AdaptiveSeesaw {
             hinge0_rad: 0.0,
             payload_z0_m: 0.0,
             progress,
-            events: Vec::new(),
-            control_steps: 0,
         })
     }
 
@@ -315,8 +307,8 @@ impl AdaptiveSeesaw {
             on_far_end: self.weight_bodies.iter().map(|&b| self.rig.on_far_end(data, b)).collect(),
             touching_board: self.weight_geoms.iter().map(|g| self.rig.touches_board(data, g)).collect(),
             hinge_delta_rad: self.rig.hinge_rad(data) - self.hinge0_rad,
-            payload_lift_m: data.xpos()[self.index.instances[self.payload].body][2] - self.payload_z0_m,
-            payload_in_basket: self.in_basket.evaluate(&self.index, data),
+            payload_lift_m: data.xpos()[self.history.index.instances[self.payload].body][2] - self.payload_z0_m,
+            payload_in_basket: self.in_basket.evaluate(&self.history.index, data),
         }
     }
 
@@ -331,7 +323,7 @@ impl Evaluator for AdaptiveSeesaw {
     }
 
     fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(&self.progress.stages, &self.events)
+        self.history.private_events(&self.progress.stages)
     }
 
     fn stage_progress(&self) -> Option<(usize, usize)> {
@@ -340,26 +332,22 @@ impl Evaluator for AdaptiveSeesaw {
 
     fn reset(&mut self, data: &SimData, _tick: Tick) {
         self.hinge0_rad = self.rig.hinge_rad(data);
-        self.payload_z0_m = data.xpos()[self.index.instances[self.payload].body][2];
+        self.payload_z0_m = data.xpos()[self.history.index.instances[self.payload].body][2];
         self.progress = Self::fresh_progress(&self.params, &self.masses_kg);
-        self.events.clear();
-        self.control_steps = 0;
-        self.commitment.reset(&self.index, data);
+        self.history.reset(data);
     }
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
         let s = self.sample(data);
         self.progress.observe(&s, tick);
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+        self.history.observe_control_step(data, tick);
     }
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
         let s = self.sample(data);
         let checks =
             self.progress.terminal_checks(&s).into_iter().map(|(name, passed)| TerminalCheck { name: name.into(), passed }).collect();
-        let history = (self.control_steps, &self.events[..], &self.commitment, &self.goal);
-        let (mut record, stages_done) = seesaw_record(self.task_id.clone(), &self.progress.stages, checks, history, data);
+        let (mut record, stages_done) = self.history.record(self.task_id.clone(), &self.progress.stages, checks, data);
         record.failure_reason = FailureReason::of_staged(record.success, stages_done);
         let (max_hinge, max_lift) = self.progress.maxima();
         let masses: BTreeMap<&str, f64> =

@@ -36,11 +36,11 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawRig, seesaw_record};
+use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawHistory, SeesawRig};
 use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
 use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{CompiledAtom, SceneIndex};
+use crate::judge::predicates::CompiledAtom;
 use crate::judge::support::{instance_mass, missing_in_model};
 
 /// The `variant` of the checker's params that selects this evaluator.
@@ -278,9 +278,7 @@ impl ComparisonProgress {
 
 pub struct WeightComparison {
     params: ComparisonParams,
-    index: std::sync::Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
+    history: SeesawHistory,
     task_id: Option<String>,
     candidates: [usize; 2],
     candidate_geoms: [GeomMask; 2],
@@ -290,8 +288,6 @@ pub struct WeightComparison {
     rig: SeesawRig,
     hinge0_rad: f64,
     progress: ComparisonProgress,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
 }
 
 impl WeightComparison {
@@ -336,9 +332,7 @@ impl WeightComparison {
         let progress = ComparisonProgress::new(&params.stages, masses_kg, (&params).into());
         Ok(Self {
             params,
-            index,
-            goal,
-            commitment,
+            history: SeesawHistory::new(goal, commitment),
             task_id,
             candidates,
             candidate_geoms,
@@ -348,20 +342,18 @@ impl WeightComparison {
             rig,
             hinge0_rad: 0.0,
             progress,
-            events: Vec::new(),
-            control_steps: 0,
         })
     }
 
     fn sample(&self, data: &SimData) -> ComparisonSample {
-        let body = |k: usize| self.index.instances[self.candidates[k]].body;
+        let body = |k: usize| self.history.index.instances[self.candidates[k]].body;
         ComparisonSample {
             on_far_end: [0, 1].map(|k| self.rig.on_far_end(data, body(k))),
             touching_board: [0, 1].map(|k| self.rig.touches_board(data, &self.candidate_geoms[k])),
             hinge_delta_rad: self.rig.hinge_rad(data) - self.hinge0_rad,
             hinge_velocity_rad_s: self.rig.hinge_velocity(data),
             in_basket: [0, 1].map(|k| {
-                self.in_region[k].evaluate(&self.index, data) && self.index.in_contact(data, self.basket, self.candidates[k])
+                self.in_region[k].evaluate(&self.history.index, data) && self.history.index.in_contact(data, self.basket, self.candidates[k])
             }),
         }
     }
@@ -377,7 +369,7 @@ impl Evaluator for WeightComparison {
     }
 
     fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(&self.progress.stages, &self.events)
+        self.history.private_events(&self.progress.stages)
     }
 
     fn stage_progress(&self) -> Option<(usize, usize)> {
@@ -387,24 +379,20 @@ impl Evaluator for WeightComparison {
     fn reset(&mut self, data: &SimData, _tick: Tick) {
         self.hinge0_rad = self.rig.hinge_rad(data);
         self.progress = ComparisonProgress::new(&self.params.stages, self.masses_kg, (&self.params).into());
-        self.events.clear();
-        self.control_steps = 0;
-        self.commitment.reset(&self.index, data);
+        self.history.reset(data);
     }
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
         let s = self.sample(data);
         self.progress.observe(&s, tick);
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+        self.history.observe_control_step(data, tick);
     }
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
         let s = self.sample(data);
         let checks =
             self.progress.terminal_checks(&s).into_iter().map(|(name, passed)| TerminalCheck { name: name.into(), passed }).collect();
-        let history = (self.control_steps, &self.events[..], &self.commitment, &self.goal);
-        let (mut record, stages_done) = seesaw_record(self.task_id.clone(), &self.progress.stages, checks, history, data);
+        let (mut record, stages_done) = self.history.record(self.task_id.clone(), &self.progress.stages, checks, data);
         record.failure_reason = FailureReason::of_staged(record.success, stages_done);
         let names = &self.params.candidates;
         let masses: BTreeMap<&str, f64> = names.iter().map(String::as_str).zip(self.masses_kg).collect();
