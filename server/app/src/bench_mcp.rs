@@ -25,8 +25,8 @@ use serde_json::{Value, json};
 
 use libero_episode::tools::MAX_AGENT_STEPS_CAP;
 
-use crate::serve::client::{InProcessServer, McpClient, prepare_episode};
-use crate::serve::episodes::PrepareRequest;
+use libero_server::client::{InProcessServer, McpClient, prepare_episode};
+use libero_server::episodes::PrepareRequest;
 
 pub const DEFAULT_TASK: &str = "libero_90/KITCHEN_SCENE10_close_the_top_drawer_of_the_cabinet";
 

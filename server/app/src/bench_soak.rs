@@ -14,11 +14,11 @@ use serde::Serialize;
 use serde_json::{Value, json};
 
 use crate::bench_mcp::percentile_ms;
-use crate::serve::client::{InProcessServer, McpClient, prepare_episode, wait_for_video};
+use libero_server::client::{InProcessServer, McpClient, prepare_episode, wait_for_video};
 
 /// The longest one episode's video may take (a software renderer behind several episodes).
 const VIDEO_TIMEOUT: Duration = Duration::from_secs(900);
-use crate::serve::episodes::PrepareRequest;
+use libero_server::episodes::PrepareRequest;
 
 /// Arguments of `bench soak`.
 #[derive(Debug, Clone, clap::Args)]

@@ -18,8 +18,8 @@ use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 use crate::bench_mcp::percentile_ms;
-use crate::serve::client::{InProcessServer, post_json};
-use crate::serve::credential::operator_headers;
+use libero_server::client::{InProcessServer, post_json};
+use libero_server::credential::operator_headers;
 
 /// The control period: one action per 50 ms, as the teleop page generates them.
 const CONTROL_PERIOD: Duration = Duration::from_millis(50);
@@ -81,7 +81,7 @@ pub fn run(args: &BenchTeleopArgs) -> anyhow::Result<()> {
         Some(d) => (d.clone(), false),
         None => (std::env::temp_dir().join(format!("libero-agent-bench-teleop-{}", std::process::id())), true),
     };
-    let server = InProcessServer::start(data.clone(), "bench_teleop_over")?;
+    let server = InProcessServer::start_with(data.clone(), None, Some(libero_dashboard::console()), "bench_teleop_over")?;
     let result = drive(&server.url, args);
     let stopped = server.stop();
     if remove_data {
@@ -148,7 +148,7 @@ async fn open_socket(base_url: &str, path: &str) -> anyhow::Result<Socket> {
     let ws_base = base_url.replacen("http://", "ws://", 1);
     let mut request = format!("{}{path}", ws_base.trim_end_matches('/')).into_client_request()?;
     for (name, value) in operator_headers(base_url)? {
-        request.headers_mut().insert(axum::http::HeaderName::from_bytes(name.as_bytes())?, value.parse()?);
+        request.headers_mut().insert(tokio_tungstenite::tungstenite::http::HeaderName::from_bytes(name.as_bytes())?, value.parse()?);
     }
     let (socket, _) = tokio_tungstenite::connect_async(request).await.with_context(|| format!("WebSocket {path}"))?;
     Ok(socket)

@@ -10,7 +10,7 @@ use libero_episode::tools::MCP_SERVER_KEY;
 use libero_episode::workspace::OBSERVATION_FILE;
 use serde_json::{Value, json};
 
-use crate::serve::client::McpClient;
+use libero_server::client::McpClient;
 
 #[derive(clap::Args, Debug)]
 pub struct AgentArgs {

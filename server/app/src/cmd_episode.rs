@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use libero_episode::demo::DemoCondition;
 
-use crate::serve::episodes::PrepareRequest;
-use crate::serve::client::prepare_episode;
+use libero_server::episodes::PrepareRequest;
+use libero_server::client::prepare_episode;
 
 #[derive(clap::Args, Debug)]
 pub struct EpisodeArgs {
@@ -97,7 +97,7 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         demo: p.demo,
     };
     if let Some(file) = &p.operator_token_file {
-        crate::serve::credential::use_token_file(file);
+        libero_server::credential::use_token_file(file);
     }
     let prepared = prepare_episode(&p.server, &req)?;
     println!("{}", serde_json::to_string_pretty(&prepared)?);

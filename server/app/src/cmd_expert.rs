@@ -21,9 +21,9 @@ use libero_sim::AssetPaths;
 use libero_tasks::expert;
 use serde_json::{Value, json};
 
-use crate::serve::default_data_dir;
-use crate::serve::episodes::{Episodes, PrepareRequest};
-use crate::serve::client::{McpClient, prepare_episode};
+use libero_server::default_data_dir;
+use libero_server::episodes::{Episodes, PrepareRequest};
+use libero_server::client::{McpClient, prepare_episode};
 
 /// The longest `expert` waits for an episode's private video (a long episode on a software renderer).
 const VIDEO_WAIT: Duration = Duration::from_secs(3600);

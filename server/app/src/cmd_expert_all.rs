@@ -15,8 +15,8 @@ use libero_tasks::expert;
 use serde_json::{Value, json};
 
 use crate::cmd_expert::{ExpertArgs, prepare_request, run_local};
-use crate::serve::default_data_dir;
-use crate::serve::episodes::Episodes;
+use libero_server::default_data_dir;
+use libero_server::episodes::Episodes;
 
 /// The suite name `--suite release` selects (the 30 release tasks).
 const RELEASE: &str = "release";

@@ -6,7 +6,7 @@ use std::time::Duration;
 use anyhow::Context;
 use serde_json::{Value, json};
 
-use crate::serve::http_client::{HttpResponse, HttpUrl, request};
+use libero_server::http_client::{HttpUrl, messages_of, request};
 
 #[derive(clap::Args, Debug)]
 pub struct McpStdioArgs {
@@ -20,27 +20,6 @@ pub struct McpStdioArgs {
     /// Environment variable holding the episode token, sent as `Authorization: Bearer <token>`.
     #[arg(long = "bearer-env", value_name = "VAR")]
     pub bearer_env: Option<String>,
-}
-
-/// JSON-RPC messages of one HTTP reply: a JSON body, or the `data:` events of an SSE stream.
-pub fn messages_of(resp: &HttpResponse) -> Vec<Value> {
-    let body = String::from_utf8_lossy(&resp.body);
-    let is_sse = resp.header("content-type").is_some_and(|c| c.starts_with("text/event-stream"));
-    if !is_sse {
-        return serde_json::from_str::<Value>(body.trim()).map(|v| vec![v]).unwrap_or_default();
-    }
-    let mut out = Vec::new();
-    for event in body.split("\n\n") {
-        let data: Vec<&str> =
-            event.lines().filter_map(|l| l.strip_prefix("data:")).map(|d| d.strip_prefix(' ').unwrap_or(d)).collect();
-        if data.is_empty() {
-            continue;
-        }
-        if let Ok(v) = serde_json::from_str::<Value>(&data.join("\n")) {
-            out.push(v);
-        }
-    }
-    out
 }
 
 pub fn run_mcp_stdio(args: McpStdioArgs) -> anyhow::Result<()> {
@@ -115,25 +94,4 @@ pub fn run_mcp_stdio(args: McpStdioArgs) -> anyhow::Result<()> {
 
 fn error_reply(id: Option<Value>, message: &str) -> Value {
     json!({"jsonrpc": "2.0", "id": id.unwrap_or(Value::Null), "error": {"code": -32603, "message": message}})
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sse_and_json_bodies_yield_their_messages() {
-        let sse = HttpResponse {
-            status: 200,
-            headers: vec![("content-type".into(), "text/event-stream".into())],
-            body: b"data: \n\nid: 0\nretry: 3000\ndata: {\"jsonrpc\":\"2.0\",\"id\":1,\"result\":{}}\n\n".to_vec(),
-        };
-        assert_eq!(messages_of(&sse), vec![json!({"jsonrpc": "2.0", "id": 1, "result": {}})]);
-        let plain = HttpResponse {
-            status: 200,
-            headers: vec![("content-type".into(), "application/json".into())],
-            body: br#"{"jsonrpc":"2.0","id":2,"result":{}}"#.to_vec(),
-        };
-        assert_eq!(messages_of(&plain).len(), 1);
-    }
 }

@@ -1,4 +1,5 @@
-//! The `libero-agent` binary: a thin CLI over the library crates (sim, render, episode) plus the server.
+//! The `libero-agent` binary: a thin CLI over the library crates: sim, render, episode, the episode server
+//! (`libero-server`), its browser console (`libero-dashboard`) and batches (`libero-runner`).
 mod bench_render;
 mod bench_sim;
 mod cmd_inspect;
@@ -23,13 +24,7 @@ mod cmd_expert_all;
 #[cfg(feature = "episode-serve")]
 mod cmd_mcp_stdio;
 #[cfg(feature = "episode-serve")]
-mod serve;
-#[cfg(feature = "episode-serve")]
 mod cmd_agent;
-#[cfg(feature = "episode-serve")]
-mod cmd_report;
-#[cfg(feature = "episode-serve")]
-mod run;
 
 use clap::{Parser, Subcommand};
 
@@ -56,7 +51,7 @@ enum Command {
     Bench(BenchCommand),
     /// Serve prepared episodes over MCP (streamable HTTP) and the HTTP API.
     #[cfg(feature = "episode-serve")]
-    Serve(serve::ServeArgs),
+    Serve(libero_server::ServeArgs),
     /// Episodes on a running server.
     #[cfg(feature = "episode-serve")]
     Episode(cmd_episode::EpisodeArgs),
@@ -71,13 +66,13 @@ enum Command {
     McpStdio(cmd_mcp_stdio::McpStdioArgs),
     /// A benchmark batch: agent CLIs on scheduled rollouts, sandboxed and supervised (`--dry-run` to preview).
     #[cfg(feature = "episode-serve")]
-    Run(Box<run::RunArgs>),
+    Run(Box<libero_runner::RunArgs>),
     /// Run queued rollouts on this machine: claim from the store's queue, run, upload to the artifact store.
     #[cfg(feature = "episode-serve")]
-    Worker(run::worker::WorkerArgs),
+    Worker(libero_runner::worker::WorkerArgs),
     /// The paper's tables from batch directories.
     #[cfg(feature = "episode-serve")]
-    Report(cmd_report::ReportArgs),
+    Report(libero_runner::report::ReportArgs),
     /// The built-in reference agent: a scripted MCP client with no model (for end-to-end tests).
     #[cfg(feature = "episode-serve")]
     Agent(cmd_agent::AgentArgs),
@@ -119,7 +114,7 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Queue(a)) => bench_queue::run(&a),
         #[cfg(feature = "episode-serve")]
-        Command::Serve(a) => serve::run_serve(a),
+        Command::Serve(a) => libero_server::run_serve(libero_server::ServeArgs { console: Some(libero_dashboard::console()), ..a }),
         #[cfg(feature = "episode-serve")]
         Command::Episode(a) => cmd_episode::run_episode(a),
         #[cfg(feature = "episode-serve")]
@@ -129,11 +124,11 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::McpStdio(a) => cmd_mcp_stdio::run_mcp_stdio(a),
         #[cfg(feature = "episode-serve")]
-        Command::Run(a) => run::run(*a),
+        Command::Run(a) => libero_runner::run(*a),
         #[cfg(feature = "episode-serve")]
-        Command::Worker(a) => run::worker::run(a),
+        Command::Worker(a) => libero_runner::worker::run(libero_runner::worker::WorkerArgs { console: Some(libero_dashboard::console()), ..a }),
         #[cfg(feature = "episode-serve")]
-        Command::Report(a) => cmd_report::run(a),
+        Command::Report(a) => libero_runner::report::run(a),
         #[cfg(feature = "episode-serve")]
         Command::Agent(a) => cmd_agent::run(a),
     }

@@ -5,7 +5,8 @@
 //! exactly once: the killed worker's in-flight rollout INVALID (`worker_lost`), all others finished, none lost,
 //! none twice; `run --resume` queues the INVALID one again and follows the batch to its end; every finished
 //! rollout's run directory is in the bucket, and its review and video open from a dashboard that never ran it
-//! (the workers' own directories deleted first).
+//! (the workers' own directories deleted first). While the batch runs, a dashboard on the same store shows an
+//! episode worker 3 runs with a link to that worker's own live view, which opens with the worker's token.
 mod common;
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -84,13 +85,14 @@ struct Worker {
 }
 
 impl Worker {
-    fn start(dir: &Path, n: usize, pg: &str) -> Self {
+    fn start(dir: &Path, n: usize, pg: &str, extra: &[&str]) -> Self {
         let (data, log) = (dir.join(format!("worker{n}")), dir.join(format!("worker{n}.log")));
         let child = Command::new(bin())
             .args(["worker", "--store", pg, "--artifacts", &format!("s3://{BUCKET}/bench"), "--slots", "1", "--lease-s", "10", "--data"])
             .arg(&data)
             .arg("--workspace-root")
             .arg(dir.join(format!("workspaces{n}")))
+            .args(extra)
             .stdout(Stdio::null())
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
@@ -153,8 +155,17 @@ fn workers_on_a_shared_queue_end_every_rollout_once_and_a_dashboard_elsewhere_re
     let progress = runtime.block_on(store.queue_progress("q12")).unwrap();
     assert_eq!((progress.total, progress.queued), (ROLLOUTS as u64, ROLLOUTS as u64));
 
-    // Three workers; the second is killed with SIGKILL while it runs a rollout.
-    let mut workers: Vec<Worker> = (1..=3).map(|n| Worker::start(dir.path(), n, &pg.url)).collect();
+    // Three workers; the second is killed with SIGKILL while it runs a rollout. The third serves its live views
+    // where other machines reach it (a fixed port, a known operator token, a public URL).
+    let w3_port = TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let (w3_addr, w3_url) = (format!("127.0.0.1:{w3_port}"), format!("http://127.0.0.1:{w3_port}"));
+    let w3_token_file = dir.path().join("worker3_token");
+    std::fs::write(&w3_token_file, "worker-three-operator-token").unwrap();
+    let w3_token_arg = w3_token_file.to_string_lossy().into_owned();
+    let w3_extra = ["--addr", w3_addr.as_str(), "--public-url", w3_url.as_str(), "--operator-token-file", w3_token_arg.as_str()];
+    let mut workers: Vec<Worker> =
+        (1..=3).map(|n| Worker::start(dir.path(), n, &pg.url, if n == 3 { &w3_extra[..] } else { &[] })).collect();
+    let watcher = Server::start_with(&dir.path().join("watcher"), &["--store", &pg.url]);
     let victim = workers[1].id();
     let t = Instant::now();
     let held: Vec<String> = loop {
@@ -170,6 +181,36 @@ fn workers_on_a_shared_queue_end_every_rollout_once_and_a_dashboard_elsewhere_re
     };
     workers[1].child.kill().unwrap();
     workers[1].child.wait().unwrap();
+
+    // An episode worker 3 runs: the watcher's live page links to the worker's own live view, which opens there.
+    let t = Instant::now();
+    'linked: loop {
+        let (_, listed) = http_get_json(&format!("{}/api/episodes", watcher.url));
+        let open_on_w3: Vec<String> = listed["episodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|e| e["outcome"].is_null() && e["server_url"] == w3_url.as_str())
+            .map(|e| e["id"].as_str().unwrap().to_owned())
+            .collect();
+        for id in open_on_w3 {
+            let (status, page) = common::http_get_text(&format!("{}/episodes/{id}", watcher.url));
+            if status != 200 {
+                continue; // ended meanwhile: the watcher sends the viewer to the review
+            }
+            assert!(page.contains(&format!("href=\"{w3_url}/episodes/{id}\"")), "the watcher links to worker 3's live view: {page}");
+            let auth = "Bearer worker-three-operator-token";
+            let (status, _, live) = common::http("GET", &format!("{w3_url}/episodes/{id}"), &[("Authorization", auth)], b"");
+            if status == 200 {
+                let live = String::from_utf8_lossy(&live);
+                assert!(live.contains(&format!("data-episode=\"{id}\"")), "worker 3 serves the episode's live page: {live}");
+                break 'linked;
+            }
+        }
+        assert!(t.elapsed() < Duration::from_secs(900), "no episode of worker 3 was seen open from the watcher");
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    drop(watcher);
 
     // The other two finish the batch; the lost lease is closed as worker_lost.
     let t = Instant::now();

@@ -8,7 +8,6 @@
 //! open rows of its own run directories (another server's running episodes in a shared store stay open).
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use libero_records::json::utc_now_iso;
 use libero_records::records::{Outcome, RunDir, classify, read_result};
 use serde::Serialize;
@@ -17,7 +16,10 @@ use sqlx::Row;
 use sqlx::AnyPool;
 use sqlx::any::{AnyPoolOptions, AnyRow};
 
+mod error;
 pub mod queue;
+pub use error::{Result, StoreError};
+use error::Context;
 pub use queue::{EPISODE_CHANNEL, Job, QUEUE_CHANNEL, QueueListener, QueueProgress, WorkerRow};
 
 /// File name of the store inside the data directory.
@@ -54,7 +56,7 @@ const BATCH_TABLES: [&str; 2] = [
 
 /// Inserts `batch`'s row (name, dir, document); `on_conflict` says what an existing row of that name gets
 /// (`DO NOTHING`, `DO UPDATE SET …`). Returns the rows written.
-async fn write_batch_row(tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &StoredBatch, on_conflict: &str) -> anyhow::Result<u64> {
+async fn write_batch_row(tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &StoredBatch, on_conflict: &str) -> Result<u64> {
     let written = sqlx::query(&format!("INSERT INTO batches (name, dir, doc, updated_at) VALUES ($1, $2, $3, $4) ON CONFLICT (name) {on_conflict}"))
         .bind(&batch.name)
         .bind(batch.dir.to_string_lossy().into_owned())
@@ -77,14 +79,14 @@ pub struct StoredBatch {
 
 /// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
 /// older store by [`Store::open`].
-const ADDED_COLUMNS: [(&str, &str); 4] =
-    [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION")];
+const ADDED_COLUMNS: [(&str, &str); 5] =
+    [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION"), ("server_url", "TEXT")];
 
 /// The columns of a row as read back. `success` is read as a number: sqlx's `Any` driver decodes PostgreSQL's
 /// BOOLEAN but not SQLite's.
 const COLUMNS: &str = "id, task_ref, level, seed, init_index, created_at, started_at, finished_at, outcome, reason, \
     CAST(CASE WHEN success THEN 1 WHEN NOT success THEN 0 END AS BIGINT) AS success, accepted_agent_steps, completed_stage_count, required_stage_count, run_dir, harness, model, batch, \
-    wall_time_s";
+    wall_time_s, server_url";
 
 /// The dashboard's episode filters (`None`: any). Outcome `RUNNING` selects episodes without an outcome yet.
 #[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
@@ -142,6 +144,7 @@ impl EpisodeRow {
             harness: r.try_get("harness")?,
             model: r.try_get("model")?,
             batch: r.try_get("batch")?,
+            server_url: r.try_get("server_url")?,
         };
         Ok(Self {
             episode,
@@ -210,6 +213,9 @@ pub struct NewEpisode {
     pub harness: Option<String>,
     pub model: Option<String>,
     pub batch: Option<String>,
+    /// The URL of the server that runs the episode (its `--public-url`), where its live view is: a dashboard on
+    /// another machine links there while the episode is open.
+    pub server_url: Option<String>,
 }
 
 impl NewEpisode {
@@ -228,6 +234,7 @@ impl NewEpisode {
             harness: r["harness"].as_str().map(str::to_owned),
             model: r["model"].as_str().map(str::to_owned),
             batch: r["batch"].as_str().map(str::to_owned),
+            server_url: None,
         })
     }
 }
@@ -243,11 +250,11 @@ pub enum Backend {
 }
 
 impl Backend {
-    pub fn of_url(url: &str) -> anyhow::Result<Self> {
+    pub fn of_url(url: &str) -> Result<Self> {
         match url.split_once(':').map(|(scheme, _)| scheme) {
             Some("sqlite") => Ok(Backend::Sqlite),
             Some("postgres" | "postgresql") => Ok(Backend::Postgres),
-            _ => anyhow::bail!("store URL {:?}: expected sqlite://PATH or postgres://USER@HOST:PORT/DB", redact(url)),
+            _ => Err(StoreError::BadUrl(redact(url))),
         }
     }
 }
@@ -286,12 +293,12 @@ pub struct Store {
 
 impl Store {
     /// Opens (creating) the embedded SQLite store at `path` and its table.
-    pub async fn open(path: &Path) -> anyhow::Result<Self> {
+    pub async fn open(path: &Path) -> Result<Self> {
         Self::connect(&sqlite_url(path)).await
     }
 
     /// Opens the store a URL names (`sqlite://PATH?mode=rwc`, `postgres://…`) and creates or upgrades its table.
-    pub async fn connect(url: &str) -> anyhow::Result<Self> {
+    pub async fn connect(url: &str) -> Result<Self> {
         let backend = Backend::of_url(url)?;
         sqlx::any::install_default_drivers();
         let pool = AnyPoolOptions::new()
@@ -320,7 +327,7 @@ impl Store {
             if let Err(e) = sqlx::query(&sql).execute(&pool).await
                 && !e.to_string().to_ascii_lowercase().contains("duplicate column")
             {
-                return Err(anyhow::Error::from(e).context(format!("cannot add column {name} to the episode store {}", redact(url))));
+                return Err(StoreError::Database { what: format!("cannot add column {name} to the episode store {}", redact(url)), cause: e });
             }
         }
         Ok(Self { pool, backend })
@@ -331,7 +338,7 @@ impl Store {
     }
 
     /// Tells PostgreSQL listeners (every dashboard on the store) that episode `id` changed.
-    async fn notify_episode(&self, id: &str) -> anyhow::Result<()> {
+    async fn notify_episode(&self, id: &str) -> Result<()> {
         if self.backend == Backend::Postgres {
             sqlx::query("SELECT pg_notify($1, $2)")
                 .bind(EPISODE_CHANNEL)
@@ -345,7 +352,7 @@ impl Store {
 
     /// Writes a batch's `batch.json` document (replacing the stored one) and the `rollouts.jsonl` records the store
     /// does not have yet (by position: records are only ever appended). Idempotent: run it after every change.
-    pub async fn put_batch(&self, batch: &StoredBatch) -> anyhow::Result<()> {
+    pub async fn put_batch(&self, batch: &StoredBatch) -> Result<()> {
         let name = &batch.name;
         let mut tx = self.pool.begin().await.context("store: cannot begin")?;
         write_batch_row(&mut tx, batch, "DO UPDATE SET dir = excluded.dir, doc = excluded.doc, updated_at = excluded.updated_at").await?;
@@ -370,7 +377,7 @@ impl Store {
     }
 
     /// A stored batch, its records in the order they were recorded; `None` when the store has no such batch.
-    pub async fn batch(&self, name: &str) -> anyhow::Result<Option<StoredBatch>> {
+    pub async fn batch(&self, name: &str) -> Result<Option<StoredBatch>> {
         let Some(row) = sqlx::query("SELECT dir, doc FROM batches WHERE name = $1")
             .bind(name)
             .fetch_optional(&self.pool)
@@ -389,21 +396,21 @@ impl Store {
             .with_context(|| format!("store: cannot read the rollouts of batch {name}"))?
             .into_iter()
             .map(|r| parse(r.try_get("doc")?))
-            .collect::<anyhow::Result<Vec<_>>>()?;
+            .collect::<Result<Vec<_>>>()?;
         Ok(Some(StoredBatch { name: name.to_owned(), dir, doc, records }))
     }
 
     /// The names of the stored batches, sorted.
-    pub async fn batch_names(&self) -> anyhow::Result<Vec<String>> {
+    pub async fn batch_names(&self) -> Result<Vec<String>> {
         let rows = sqlx::query("SELECT name FROM batches ORDER BY name").fetch_all(&self.pool).await.context("store: cannot list batches")?;
-        rows.iter().map(|r| r.try_get::<String, _>("name").map_err(anyhow::Error::from)).collect()
+        rows.iter().map(|r| r.try_get::<String, _>("name").map_err(StoreError::from)).collect()
     }
 
     /// The row of a newly prepared episode (kept as is if it already exists).
-    pub async fn insert_prepared(&self, e: &NewEpisode) -> anyhow::Result<()> {
+    pub async fn insert_prepared(&self, e: &NewEpisode) -> Result<()> {
         sqlx::query(
-            "INSERT INTO episodes (id, task_ref, level, seed, init_index, created_at, run_dir, harness, model, batch) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10) ON CONFLICT (id) DO NOTHING",
+            "INSERT INTO episodes (id, task_ref, level, seed, init_index, created_at, run_dir, harness, model, batch, server_url) \
+             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11) ON CONFLICT (id) DO NOTHING",
         )
         .bind(&e.id)
         .bind(&e.task_ref)
@@ -415,13 +422,14 @@ impl Store {
         .bind(&e.harness)
         .bind(&e.model)
         .bind(&e.batch)
+        .bind(&e.server_url)
         .execute(&self.pool)
         .await
         .with_context(|| format!("store: cannot insert episode {}", e.id))?;
         self.notify_episode(&e.id).await
     }
 
-    pub async fn mark_started(&self, id: &str, started_at: &str) -> anyhow::Result<()> {
+    pub async fn mark_started(&self, id: &str, started_at: &str) -> Result<()> {
         sqlx::query("UPDATE episodes SET started_at = $1 WHERE id = $2 AND started_at IS NULL")
             .bind(started_at)
             .bind(id)
@@ -432,7 +440,7 @@ impl Store {
     }
 
     /// Records the end once; a row that already has an outcome keeps it.
-    pub async fn record_end(&self, id: &str, end: &EpisodeEnd) -> anyhow::Result<()> {
+    pub async fn record_end(&self, id: &str, end: &EpisodeEnd) -> Result<()> {
         sqlx::query(
             "UPDATE episodes SET finished_at = $1, outcome = $2, reason = $3, success = $4, \
              accepted_agent_steps = $5, completed_stage_count = $6, required_stage_count = $7, wall_time_s = $8 \
@@ -456,7 +464,7 @@ impl Store {
     /// At startup, after the run directories were recovered: every run directory has its row, every ended
     /// episode its outcome; rows still open without a run directory become INVALID. Returns how many rows
     /// were closed.
-    pub async fn reconcile(&self, runs_dir: &Path) -> anyhow::Result<u64> {
+    pub async fn reconcile(&self, runs_dir: &Path) -> Result<u64> {
         let mut closed = 0;
         let mut dirs: Vec<PathBuf> = match std::fs::read_dir(runs_dir) {
             Ok(d) => d.flatten().map(|e| e.path()).collect(),
@@ -503,7 +511,7 @@ impl Store {
         Ok(closed + orphans)
     }
 
-    pub async fn get(&self, id: &str) -> anyhow::Result<Option<EpisodeRow>> {
+    pub async fn get(&self, id: &str) -> Result<Option<EpisodeRow>> {
         let row = sqlx::query(&format!("SELECT {COLUMNS} FROM episodes WHERE id = $1"))
             .bind(id)
             .fetch_optional(&self.pool)
@@ -513,12 +521,12 @@ impl Store {
     }
 
     /// Newest first.
-    pub async fn list(&self, limit: i64) -> anyhow::Result<Vec<EpisodeRow>> {
+    pub async fn list(&self, limit: i64) -> Result<Vec<EpisodeRow>> {
         self.list_filtered(&EpisodeFilter::default(), limit).await
     }
 
     /// Newest first, those matching `filter`.
-    pub async fn list_filtered(&self, filter: &EpisodeFilter, limit: i64) -> anyhow::Result<Vec<EpisodeRow>> {
+    pub async fn list_filtered(&self, filter: &EpisodeFilter, limit: i64) -> Result<Vec<EpisodeRow>> {
         let sql = format!(
             "SELECT {COLUMNS} FROM episodes WHERE ($1 IS NULL OR task_ref = $1) \
              AND ($2 IS NULL OR outcome = $2 OR ($2 = 'RUNNING' AND outcome IS NULL)) AND ($3 IS NULL OR batch = $3) \
@@ -561,6 +569,7 @@ mod tests {
             harness: Some("codex".into()),
             model: None,
             batch: Some("b1".into()),
+            server_url: Some("http://worker-1.lab:8080".into()),
         }
     }
 
@@ -694,6 +703,7 @@ mod tests {
         assert!(store.list_filtered(&filter(&task, "RUNNING", ""), 10).await.unwrap().is_empty());
         assert!(store.list_filtered(&filter("", "", "b2"), 10).await.unwrap().is_empty());
         assert_eq!(row.episode.harness.as_deref(), Some("codex"));
+        assert_eq!(row.episode.server_url.as_deref(), Some("http://worker-1.lab:8080"), "where its live view is");
     }
 
     async fn reconcile_restores_and_closes_orphans(store: Store, dir: &Path) {

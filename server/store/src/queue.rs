@@ -10,7 +10,7 @@
 //! ([`Store::expire_lost`]: INVALID, `worker_lost`); only [`Store::requeue_invalid`] (`run --resume`) queues the
 //! INVALID ones again. A worker that finishes a job it no longer holds is told so and its record is dropped, so a
 //! rollout ends exactly once.
-use anyhow::Context;
+use crate::error::{Context, Result, StoreError};
 use libero_records::json::utc_now_iso;
 use serde::Serialize;
 use serde_json::Value;
@@ -82,18 +82,18 @@ impl Store {
     }
 
     /// The database's clock (ms since the epoch).
-    pub async fn clock_ms(&self) -> anyhow::Result<i64> {
+    pub async fn clock_ms(&self) -> Result<i64> {
         let row = sqlx::query(&format!("SELECT {} AS now", self.now_ms())).fetch_one(&self.pool).await.context("store: cannot read the clock")?;
         Ok(row.try_get("now")?)
     }
 
     /// Writes a new batch and queues its rollouts (`(rollout_id, plan)` in schedule order), in one transaction.
     /// Refused when the store already has a batch of that name.
-    pub async fn enqueue(&self, batch: &StoredBatch, jobs: &[(String, Value)]) -> anyhow::Result<()> {
+    pub async fn enqueue(&self, batch: &StoredBatch, jobs: &[(String, Value)]) -> Result<()> {
         let name = &batch.name;
         let mut tx = self.pool.begin().await.context("store: cannot begin")?;
         if crate::write_batch_row(&mut tx, batch, "DO NOTHING").await? == 0 {
-            anyhow::bail!("the store already has a batch named {name:?} (`run --resume` continues it)");
+            return Err(StoreError::BatchExists(name.clone()));
         }
         let sql = format!(
             "INSERT INTO queue (batch, rollout_id, seq, plan, state, enqueued_ms, attempts) VALUES ($1, $2, $3, $4, 'queued', {}, 0)",
@@ -114,7 +114,7 @@ impl Store {
     }
 
     /// Replaces a batch's document (its settings and status), keeping its rollouts and jobs.
-    pub async fn put_batch_doc(&self, name: &str, doc: &Value) -> anyhow::Result<()> {
+    pub async fn put_batch_doc(&self, name: &str, doc: &Value) -> Result<()> {
         sqlx::query("UPDATE batches SET doc = $2, updated_at = $3 WHERE name = $1")
             .bind(name)
             .bind(doc.to_string())
@@ -127,7 +127,7 @@ impl Store {
 
     /// Claims the oldest queued rollout of any batch for `worker`, with a lease of `lease_ms`; `None` when nothing
     /// is queued.
-    pub async fn claim(&self, worker: &str, lease_ms: i64) -> anyhow::Result<Option<Job>> {
+    pub async fn claim(&self, worker: &str, lease_ms: i64) -> Result<Option<Job>> {
         let lock = match self.backend {
             Backend::Postgres => " FOR UPDATE SKIP LOCKED",
             Backend::Sqlite => "",
@@ -160,7 +160,7 @@ impl Store {
 
     /// Renews the lease of every rollout `worker` runs and notes that it is alive; returns the rollouts it still
     /// holds (one missing here was closed as lost: its lease had run out).
-    pub async fn heartbeat(&self, worker: &str, lease_ms: i64) -> anyhow::Result<Vec<(String, String)>> {
+    pub async fn heartbeat(&self, worker: &str, lease_ms: i64) -> Result<Vec<(String, String)>> {
         let now = self.now_ms();
         sqlx::query(&format!("UPDATE workers SET seen_ms = {now} WHERE id = $1"))
             .bind(worker)
@@ -180,11 +180,11 @@ impl Store {
 
     /// Records the end of a rollout `worker` holds: its record appended to the batch, the job done, in one
     /// transaction. `false` (and nothing written) when the worker no longer holds it.
-    pub async fn finish(&self, batch: &str, rollout_id: &str, worker: &str, record: &Value) -> anyhow::Result<bool> {
+    pub async fn finish(&self, batch: &str, rollout_id: &str, worker: &str, record: &Value) -> Result<bool> {
         self.close_job(batch, rollout_id, Some(worker), record).await
     }
 
-    async fn close_job(&self, batch: &str, rollout_id: &str, worker: Option<&str>, record: &Value) -> anyhow::Result<bool> {
+    async fn close_job(&self, batch: &str, rollout_id: &str, worker: Option<&str>, record: &Value) -> Result<bool> {
         let now = self.now_ms();
         let mut tx = self.pool.begin().await.context("store: cannot begin")?;
         // The holder's own finish, or (no worker) the close of a lost one: only while its lease has run out.
@@ -226,7 +226,7 @@ impl Store {
     /// Closes every running rollout whose lease ran out (its worker died or lost the database) with the record
     /// `lost(plan)` makes; returns `(batch, rollout_id)` of each. Any worker or follower may call it: a rollout is
     /// closed once.
-    pub async fn expire_lost(&self, lost: impl Fn(&Value) -> Value) -> anyhow::Result<Vec<(String, String)>> {
+    pub async fn expire_lost(&self, lost: impl Fn(&Value) -> Value) -> Result<Vec<(String, String)>> {
         let rows = sqlx::query(&format!("SELECT batch, rollout_id, plan FROM queue WHERE state = 'running' AND lease_until_ms < {}", self.now_ms()))
             .fetch_all(&self.pool)
             .await
@@ -244,7 +244,7 @@ impl Store {
 
     /// Queues a batch's INVALID rollouts again (`run --resume`): their records are removed, their jobs queued.
     /// Returns their ids.
-    pub async fn requeue_invalid(&self, batch: &str) -> anyhow::Result<Vec<String>> {
+    pub async fn requeue_invalid(&self, batch: &str) -> Result<Vec<String>> {
         let mut tx = self.pool.begin().await.context("store: cannot begin")?;
         let rows = sqlx::query("UPDATE queue SET state = 'queued', worker = NULL, outcome = NULL, lease_until_ms = NULL \
                                 WHERE batch = $1 AND state = 'done' AND outcome = 'INVALID' RETURNING rollout_id")
@@ -268,7 +268,7 @@ impl Store {
     }
 
     /// Where a queued batch stands (all zero for a batch that was not queued).
-    pub async fn queue_progress(&self, batch: &str) -> anyhow::Result<QueueProgress> {
+    pub async fn queue_progress(&self, batch: &str) -> Result<QueueProgress> {
         let rows = sqlx::query("SELECT rollout_id, state, worker FROM queue WHERE batch = $1 ORDER BY seq")
             .bind(batch)
             .fetch_all(&self.pool)
@@ -290,7 +290,7 @@ impl Store {
     }
 
     /// Registers (or re-registers) a worker.
-    pub async fn register_worker(&self, id: &str, host: &str, slots: i64, live_url: Option<&str>) -> anyhow::Result<()> {
+    pub async fn register_worker(&self, id: &str, host: &str, slots: i64, live_url: Option<&str>) -> Result<()> {
         sqlx::query(&format!(
             "INSERT INTO workers (id, host, slots, live_url, started_at, seen_ms) VALUES ($1, $2, $3, $4, $5, {}) \
              ON CONFLICT (id) DO UPDATE SET host = excluded.host, slots = excluded.slots, live_url = excluded.live_url, \
@@ -309,7 +309,7 @@ impl Store {
     }
 
     /// The registered workers, most recently heard of first.
-    pub async fn workers(&self) -> anyhow::Result<Vec<WorkerRow>> {
+    pub async fn workers(&self) -> Result<Vec<WorkerRow>> {
         let rows = sqlx::query("SELECT id, host, slots, live_url, started_at, seen_ms FROM workers ORDER BY seen_ms DESC")
             .fetch_all(&self.pool)
             .await
@@ -332,7 +332,7 @@ impl Store {
     /// from its jobs, inside the transaction that changed them: the document is current whoever changed the queue,
     /// with or without a follower. The batch row is locked first on PostgreSQL, so concurrent changes of one batch
     /// write their documents in turn.
-    async fn refresh_doc(&self, tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &str) -> anyhow::Result<()> {
+    async fn refresh_doc(&self, tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &str) -> Result<()> {
         let lock = if self.backend == Backend::Postgres { " FOR UPDATE" } else { "" };
         let Some(row) = sqlx::query(&format!("SELECT doc FROM batches WHERE name = $1{lock}"))
             .bind(batch)
@@ -395,7 +395,7 @@ impl Store {
     }
 
     /// Tells PostgreSQL listeners (`LISTEN libero_queue`) that `batch` changed, when the transaction commits.
-    async fn notify(&self, tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &str) -> anyhow::Result<()> {
+    async fn notify(&self, tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &str) -> Result<()> {
         if self.backend == Backend::Postgres {
             sqlx::query("SELECT pg_notify($1, $2)")
                 .bind(QUEUE_CHANNEL)
@@ -416,12 +416,12 @@ pub enum QueueListener {
 }
 
 impl QueueListener {
-    pub async fn connect(url: &str) -> anyhow::Result<Self> {
+    pub async fn connect(url: &str) -> Result<Self> {
         Self::connect_to(url, &[QUEUE_CHANNEL]).await
     }
 
     /// Listens on `channels` ([`QUEUE_CHANNEL`], [`EPISODE_CHANNEL`]).
-    pub async fn connect_to(url: &str, channels: &[&str]) -> anyhow::Result<Self> {
+    pub async fn connect_to(url: &str, channels: &[&str]) -> Result<Self> {
         match Backend::of_url(url)? {
             Backend::Postgres => {
                 let mut l = sqlx::postgres::PgListener::connect(url)

@@ -12,8 +12,8 @@ use serde_json::{Value, json};
 use super::harness::{Credentials, Harness, Launch, LaunchContext, QWEN_PACKAGE, build_launch, claude_mcp_config, qwen_mcp_config};
 use super::rollout::{contained_argv, write_launch_files};
 use super::sandbox::Sandbox;
-use crate::serve::client::{InProcessServer, prepare_episode};
-use crate::serve::episodes::{PrepareRequest, Prepared};
+use libero_server::client::{InProcessServer, prepare_episode};
+use libero_server::episodes::{PrepareRequest, Prepared};
 
 const SETUP_HINT: &str = "run `python3 scripts/setup.py --test`, which installs the pinned agent CLIs with npm into \
                           ~/.cache/libero-agent/node";

@@ -23,9 +23,9 @@ use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
-use super::dashboard::{page, serve_file, valid_id};
-use super::episodes::{PrepareRequest, random_hex};
-use super::{AppState, json_error};
+use crate::dashboard::{page, serve_file, valid_id};
+use libero_server::episodes::{PrepareRequest, random_hex};
+use libero_server::{AppState, json_error};
 
 /// Wall-clock budget of an operator episode: long enough for unhurried driving.
 const TELEOP_WALL_TIME_S: f64 = 3600.0;
@@ -168,7 +168,7 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
 }
 
 /// The handle and task of an operator episode; agents' episodes are never returned.
-fn teleop_episode(app: &super::App, id: &str) -> Option<(EpisodeHandle, String)> {
+fn teleop_episode(app: &libero_server::App, id: &str) -> Option<(EpisodeHandle, String)> {
     let task = app.teleop.lock().ok()?.get(id).cloned()?;
     Some((app.episodes.handle(id)?, task))
 }
@@ -280,7 +280,7 @@ async fn demos_page() -> Response {
 }
 
 /// `<library>/<task>/<bundle>` for names that are plain directory names (never a path trick) and exist.
-fn bundle_path(app: &super::App, task: &str, bundle: &str) -> Option<PathBuf> {
+fn bundle_path(app: &libero_server::App, task: &str, bundle: &str) -> Option<PathBuf> {
     let plain = |s: &str| valid_id(s) && library::task_dir_name(s) == s;
     if !(plain(task) && plain(bundle)) {
         return None;

@@ -1,21 +1,19 @@
-//! `libero-agent serve`: every prepared episode at its own MCP endpoint `/mcp/<episode_id>` (rmcp streamable
-//! HTTP), guarded by a per-episode bearer token checked before anything reaches rmcp; `GET /api/health`;
-//! `POST /api/episodes` to prepare an episode (the CLI's `episode prepare` and the dashboard use it);
-//! `GET /api/episodes[/{id}]` from the episode store (operator-facing; no tokens, no paths); the browser console
-//! (`dashboard`), fed live by each episode's event bus (`live`), behind the operator guard (`auth`).
+//! The episode server (`libero-agent serve`, and the in-process server of `run` and `worker`): every prepared
+//! episode at its own MCP endpoint `/mcp/<episode_id>` (rmcp streamable HTTP), guarded by a per-episode bearer
+//! token checked before anything reaches rmcp; `GET /api/health`; `POST /api/episodes` to prepare an episode
+//! (the CLI's `episode prepare` and the dashboard use it); `GET /api/episodes[/{id}[/video]]` from the episode
+//! store (operator-facing; no tokens, no paths), behind the operator guard (`auth`). The browser console is not
+//! here: a [`Console`] (the `libero-dashboard` crate's) adds its pages, so a worker's server can run without it.
 pub mod auth;
 pub mod client;
 pub mod credential;
-pub mod dashboard;
 pub mod episodes;
 pub mod http_client;
 pub mod live;
 pub mod mcp;
 pub mod mcp_gate;
 pub mod memory;
-pub mod results;
 pub mod store;
-pub mod teleop;
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -57,6 +55,11 @@ pub struct ServeArgs {
     /// a reverse proxy; requests naming any other `Host` are refused with 421. Repeatable.
     #[arg(long = "public-host", value_name = "NAME")]
     pub public_hosts: Vec<String>,
+    /// The URL under which other machines reach this server (e.g. `http://worker-3.lab:8080`): stored with each
+    /// episode it runs, so a dashboard elsewhere on the same store links to the episode's live view here
+    /// (default: the address it listens on).
+    #[arg(long, value_name = "URL")]
+    pub public_url: Option<String>,
     /// More batch directories for the Results page, besides `<data>/batches/`: a batch directory itself or a
     /// folder of them (e.g. `./agent_runs`, where `run` puts batches by default). Repeatable.
     #[arg(long = "batches", value_name = "DIR")]
@@ -71,6 +74,38 @@ pub struct ServeArgs {
     /// on first view and kept under `<data>/artifact_cache/`. Also $LIBERO_AGENT_ARTIFACTS.
     #[arg(long, value_name = "URL", env = "LIBERO_AGENT_ARTIFACTS")]
     pub artifacts: Option<String>,
+    /// The browser console this server serves, if any (set by the binary, never from the command line).
+    #[arg(skip)]
+    pub console: Option<Console>,
+}
+
+/// What a browser console adds to the server: its routes (each `fn` builds a fresh router) and its login page.
+/// `operator_compressed` and `operator_raw` sit behind the operator guard (the first gzip-compressed);
+/// `public` (static files) is open to anyone who may reach the server at all.
+#[derive(Debug, Clone, Copy)]
+pub struct Console {
+    pub operator_compressed: fn() -> Router<AppState>,
+    pub operator_raw: fn() -> Router<AppState>,
+    pub public: fn() -> Router<AppState>,
+    /// The login form's HTML; `true` when the token just given was wrong.
+    pub login_page: fn(bool) -> String,
+}
+
+/// A `--public-url` other machines can follow: `http(s)://` and at most 512 printable characters without spaces
+/// or quotes (it is stored with every episode and shown as a link).
+pub fn check_public_url(url: &str) -> anyhow::Result<()> {
+    let ok = (url.starts_with("http://") || url.starts_with("https://"))
+        && url.len() <= 512
+        && url.chars().all(|c| c.is_ascii_graphic() && !matches!(c, '"' | '\'' | '<' | '>' | '\\'));
+    if !ok {
+        bail!("--public-url must be an http:// or https:// URL of at most 512 characters without spaces or quotes (got {url:?})");
+    }
+    Ok(())
+}
+
+/// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
+pub fn batch_roots(data: &std::path::Path, extra: &[PathBuf]) -> Vec<PathBuf> {
+    std::iter::once(data.join("batches")).chain(extra.iter().cloned()).collect()
 }
 
 pub fn default_data_dir() -> PathBuf {
@@ -93,17 +128,22 @@ pub struct App {
     /// The `Host` names this server answers to.
     pub hosts: auth::AllowedHosts,
     /// Task thumbnails render one at a time.
-    thumbnail_lock: tokio::sync::Mutex<()>,
-    /// Where the Results page looks for batch directories (`results::batch_roots`).
+    pub thumbnail_lock: tokio::sync::Mutex<()>,
+    /// Where the Results page looks for batch directories ([`batch_roots`]).
     pub batch_roots: Vec<PathBuf>,
     /// Episodes the operator drives from the teleop page; only these accept actions from the operator's socket,
     /// so an agent's benchmark episode can never be steered from the dashboard.
     pub teleop: Mutex<HashMap<String, String>>,
     /// `--artifacts`: where run directories recorded on other machines are fetched from.
     pub artifacts: Option<libero_artifacts::Artifacts>,
+    /// The browser console's routes, when this server has one.
+    pub console: Option<Console>,
+    /// Where other machines reach this server (`--public-url`, else its listening address), stored with every
+    /// episode it prepares.
+    pub public_url: String,
 }
 
-type AppState = Arc<App>;
+pub type AppState = Arc<App>;
 
 /// How often open episodes are checked for changes no call reports (wall-clock expiry while idle).
 const STORE_SYNC_PERIOD: Duration = Duration::from_secs(1);
@@ -144,8 +184,9 @@ impl App {
     /// Stores a prepared episode's row. The run directory's record is written first; a row that cannot be
     /// stored is a failure of the preparation (the caller ends the episode), never a log line.
     pub async fn insert_prepared(&self, prepared: &episodes::Prepared) -> anyhow::Result<()> {
-        let new = NewEpisode::from_record(&RunDir::new(&prepared.run_dir))
+        let mut new = NewEpisode::from_record(&RunDir::new(&prepared.run_dir))
             .with_context(|| format!("episode {} has no readable episode record", prepared.episode_id))?;
+        new.server_url = Some(self.public_url.clone());
         self.store.insert_prepared(&new).await?;
         self.hubs.notify();
         Ok(())
@@ -287,10 +328,16 @@ pub struct Bound {
 
 /// Locks the data directory, binds and opens everything a server needs.
 pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
+    if let Some(url) = &args.public_url {
+        check_public_url(url)?;
+    }
     let data = args.data.clone().unwrap_or_else(default_data_dir);
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create data directory {}", data.display()))?;
     let lock = DataLock::acquire(&data)?;
-    let operator = auth::Operator::for_server(&data, args.operator_token_file.as_deref())?;
+    let mut operator = auth::Operator::for_server(&data, args.operator_token_file.as_deref())?;
+    if let Some(console) = args.console {
+        operator = operator.with_login_page(console.login_page);
+    }
     let listener = tokio::net::TcpListener::bind(args.addr).await.with_context(|| format!("cannot bind {}", args.addr))?;
     let local = listener.local_addr()?;
     let base_url = format!("http://{local}");
@@ -323,9 +370,11 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         operator,
         hosts: auth::AllowedHosts::new(local, &args.public_hosts),
         thumbnail_lock: tokio::sync::Mutex::new(()),
-        batch_roots: results::batch_roots(&data, &args.batches),
+        batch_roots: batch_roots(&data, &args.batches),
         teleop: Mutex::new(HashMap::new()),
         artifacts,
+        console: args.console,
+        public_url: args.public_url.as_deref().map(|u| u.trim_end_matches('/').to_owned()).unwrap_or_else(|| base_url.clone()),
     });
     Ok(Bound { app, listener, base_url, recovered, reconciled, calls_rx, _lock: lock, _registration: registration })
 }
@@ -434,16 +483,23 @@ async fn shutdown_signal() -> String {
 
 pub fn router(state: AppState) -> Router {
     use tower_http::compression::CompressionLayer;
-    // The operator's side: pages, operator API, live streams, private media. Episode tokens open none of it.
-    let operator = Router::new()
+    // The operator's side: the operator API and the console's pages, live streams and private media. Episode
+    // tokens open none of it.
+    let mut compressed = Router::new()
         .route("/api/episodes", post(prepare).get(list_episodes))
         .route("/api/episodes/{id}", get(episode_status))
-        .route("/api/episodes/{id}/abort", post(abort_episode))
-        .merge(dashboard::compressed_routes())
-        .merge(teleop::compressed_routes())
+        .route("/api/episodes/{id}/video", get(episode_video))
+        .route("/api/episodes/{id}/abort", post(abort_episode));
+    let mut raw = Router::new();
+    let mut public = Router::new();
+    if let Some(console) = state.console {
+        compressed = compressed.merge((console.operator_compressed)());
+        raw = raw.merge((console.operator_raw)());
+        public = public.merge((console.public)());
+    }
+    let operator = compressed
         .layer(CompressionLayer::new())
-        .merge(dashboard::raw_routes())
-        .merge(teleop::raw_routes())
+        .merge(raw)
         .layer(axum::middleware::from_fn_with_state(state.operator.clone(), auth::require_operator));
     Router::new()
         .route("/api/health", get(health))
@@ -453,7 +509,7 @@ pub fn router(state: AppState) -> Router {
                 .route("/login", get(auth::login_form).post(auth::login))
                 .with_state(state.operator.clone()),
         )
-        .merge(dashboard::static_routes().layer(CompressionLayer::new()))
+        .merge(public.layer(CompressionLayer::new()))
         .merge(operator)
         .layer(axum::middleware::from_fn_with_state(state.hosts.clone(), auth::check_host))
         .layer(tower_http::trace::TraceLayer::new_for_http())
@@ -464,7 +520,7 @@ async fn health(State(app): State<AppState>) -> Response {
     axum::Json(json!({"ok": true, "episodes": app.episodes.count(), "version": env!("CARGO_PKG_VERSION")})).into_response()
 }
 
-pub(crate) fn json_error(status: StatusCode, message: impl Into<String>) -> Response {
+pub fn json_error(status: StatusCode, message: impl Into<String>) -> Response {
     (status, axum::Json(json!({"ok": false, "error": message.into()}))).into_response()
 }
 
@@ -480,7 +536,7 @@ async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> Respon
 }
 
 /// A stored row for the API: no paths, plus the live state while this process serves the episode.
-fn episode_json(app: &App, row: &store::EpisodeRow) -> Value {
+pub fn episode_json(app: &App, row: &store::EpisodeRow) -> Value {
     let mut v = row.public();
     if let (Some(live), Some(obj)) = (app.episodes.status(&row.episode.id), v.as_object_mut()) {
         obj.insert("state".into(), json!(live.state));
@@ -519,6 +575,31 @@ async fn episode_status(State(app): State<AppState>, Path(id): Path<String>) -> 
     }
 }
 
+/// Whether the private video is there (`video`), and where its rendering stands (`video_status`: `state`
+/// queued, rendering, ready or failed, `percent`, frames); `video_status` is null for an episode without one.
+pub fn video_part(episodes: &Episodes, run: &RunDir) -> Value {
+    let status = episodes.video_progress(run);
+    let mut st = serde_json::to_value(&status).unwrap_or(Value::Null);
+    if let (Some(obj), Some(p)) = (st.as_object_mut(), status.as_ref()) {
+        obj.insert("percent".into(), json!(p.percent()));
+    }
+    json!({"video": status == Some(libero_episode::video_queue::VideoProgress::Ready), "video_status": st})
+}
+
+/// `GET /api/episodes/{id}/video`: [`video_part`] of a stored episode (what a worker waits on before uploading).
+async fn episode_video(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+    let run = match app.store.get(&id).await {
+        Ok(Some(row)) => RunDir::new(row.episode.run_dir),
+        Ok(None) => return json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
+        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    };
+    let episodes = app.episodes.clone();
+    match tokio::task::spawn_blocking(move || video_part(&episodes, &run)).await {
+        Ok(v) => axum::Json(v).into_response(),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("video: {e}")),
+    }
+}
+
 #[derive(serde::Deserialize)]
 struct AbortRequest {
     reason: String,
@@ -545,7 +626,7 @@ async fn abort_episode(State(app): State<AppState>, Path(id): Path<String>, body
 }
 
 /// `Authorization: Bearer <token>`, if present.
-pub(crate) fn bearer(headers: &HeaderMap) -> Option<&str> {
+pub fn bearer(headers: &HeaderMap) -> Option<&str> {
     headers.get(header::AUTHORIZATION)?.to_str().ok()?.strip_prefix("Bearer ").map(str::trim)
 }
 

@@ -29,8 +29,8 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 use sha2::{Digest, Sha256};
 
-use super::live::LiveHubs;
-use super::mcp::EpisodeMcp;
+use crate::live::LiveHubs;
+use crate::mcp::EpisodeMcp;
 
 pub type McpService = StreamableHttpService<EpisodeMcp, LocalSessionManager>;
 
@@ -242,7 +242,7 @@ pub struct Episodes {
     videos: Mutex<Option<VideoQueue>>,
 }
 
-pub(crate) fn random_hex(bytes: usize) -> std::io::Result<String> {
+pub fn random_hex(bytes: usize) -> std::io::Result<String> {
     let mut buf = vec![0u8; bytes];
     fs::File::open("/dev/urandom")?.read_exact(&mut buf)?;
     Ok(buf.iter().map(|b| format!("{b:02x}")).collect())
@@ -284,7 +284,7 @@ fn absolute(p: &Path) -> std::io::Result<PathBuf> {
 
 impl Episodes {
     pub fn new(data: PathBuf, base_url: String) -> anyhow::Result<Self> {
-        super::memory::tune_for_long_runs();
+        crate::memory::tune_for_long_runs();
         let data = absolute(&data)?;
         fs::create_dir_all(data.join("runs"))?;
         fs::create_dir_all(data.join("workspaces"))?;
@@ -524,7 +524,7 @@ impl Episodes {
             self.close_live(id);
         }
         if !due.is_empty() {
-            let _ = tokio::task::spawn_blocking(super::memory::return_freed_memory).await;
+            let _ = tokio::task::spawn_blocking(crate::memory::return_freed_memory).await;
         }
         due.into_iter().map(|(id, _)| id).collect()
     }

@@ -173,7 +173,7 @@ pub fn token_for(base_url: &str) -> anyhow::Result<Option<String>> {
             }
         }
     }
-    Ok(read_token_file(&super::default_data_dir().join(TOKEN_FILE)).ok())
+    Ok(read_token_file(&crate::default_data_dir().join(TOKEN_FILE)).ok())
 }
 
 /// `Authorization: Bearer …` for the server at `base_url` (empty when no token is found: the server then

@@ -227,31 +227,31 @@ pub fn load_batch(dir: &Path) -> anyhow::Result<LoadedBatch> {
 /// machine) reads the batch without its files. The directory stays the source of truth.
 pub struct StoreMirror {
     runtime: tokio::runtime::Runtime,
-    store: crate::serve::store::Store,
+    store: libero_server::store::Store,
 }
 
 impl StoreMirror {
     pub fn connect(url: &str) -> anyhow::Result<Self> {
         let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
-        let store = runtime.block_on(crate::serve::store::Store::connect(url))?;
+        let store = runtime.block_on(libero_server::store::Store::connect(url))?;
         Ok(Self { runtime, store })
     }
 
     /// Writes the batch directory's current state to the store.
     pub fn sync(&self, dir: &Path) -> anyhow::Result<()> {
         let b = load_batch(dir)?;
-        let stored = crate::serve::store::StoredBatch {
+        let stored = libero_server::store::StoredBatch {
             name: b.name(),
             dir: b.dir.clone(),
             doc: b.batch,
             records: b.records.iter().map(serde_json::to_value).collect::<Result<_, _>>()?,
         };
-        self.runtime.block_on(self.store.put_batch(&stored))
+        Ok(self.runtime.block_on(self.store.put_batch(&stored))?)
     }
 }
 
 /// A batch read from the store, in the shape [`load_batch`] gives.
-pub fn from_stored(b: crate::serve::store::StoredBatch) -> anyhow::Result<LoadedBatch> {
+pub fn from_stored(b: libero_server::store::StoredBatch) -> anyhow::Result<LoadedBatch> {
     if b.doc["schema_version"] != BATCH_SCHEMA {
         bail!("batch {} in the store: schema_version {}, expected {BATCH_SCHEMA}", b.name, b.doc["schema_version"]);
     }
@@ -263,12 +263,12 @@ pub fn from_stored(b: crate::serve::store::StoredBatch) -> anyhow::Result<Loaded
 pub fn load_batches_from_store(url: &str, names: &[String]) -> anyhow::Result<Vec<LoadedBatch>> {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async {
-        let store = crate::serve::store::Store::connect(url).await?;
+        let store = libero_server::store::Store::connect(url).await?;
         let mut out = Vec::with_capacity(names.len());
         for name in names {
             let Some(b) = store.batch(name).await? else {
                 let known = store.batch_names().await?;
-                bail!("the store {} has no batch {name:?} (it has: {})", crate::serve::store::redact(url), known.join(", "));
+                bail!("the store {} has no batch {name:?} (it has: {})", libero_server::store::redact(url), known.join(", "));
             };
             out.push(from_stored(b)?);
         }

@@ -9,9 +9,9 @@ use std::path::{Path, PathBuf};
 use libero_metrics::{PAPER_REPS, Split, overall};
 use serde_json::{Value, json};
 
-use crate::cmd_report::{Row, coverage, pct, report_json, rows, wilson};
-use crate::run::batch::{LoadedBatch, RolloutRecord, load_batch};
-use crate::cmd_report::pool_rows;
+use libero_runner::report::{Row, coverage, pct, report_json, rows, wilson};
+use libero_runner::batch::{LoadedBatch, RolloutRecord, load_batch};
+use libero_runner::report::pool_rows;
 
 /// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
 pub fn batch_roots(data: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {

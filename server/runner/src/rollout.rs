@@ -21,8 +21,8 @@ use super::sandbox::{Sandbox, SandboxSpec, cli_install_paths, own_binary_files};
 use super::schedule::{Demo, PlannedRollout};
 use super::usage::{Usage, usage_from_codex_exec, usage_from_jsonl};
 use super::{INTERRUPTED, RunContext};
-use crate::serve::client::{get_json, post_json, prepare_episode};
-use crate::serve::episodes::PrepareRequest;
+use libero_server::client::{get_json, post_json, prepare_episode};
+use libero_server::episodes::PrepareRequest;
 
 /// Supervision poll period.
 const POLL: Duration = Duration::from_millis(250);

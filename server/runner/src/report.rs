@@ -9,7 +9,7 @@ use anyhow::bail;
 use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
 use serde_json::{Value, json};
 
-use crate::run::batch::{Condition, LoadedBatch, load_batch, metrics_rollouts, pool_rollouts};
+use crate::batch::{Condition, LoadedBatch, load_batch, metrics_rollouts, pool_rollouts};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
@@ -71,12 +71,12 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
     json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows, "pool": pool})
 }
 
-pub(crate) fn pct(x: Option<f64>) -> String {
+pub fn pct(x: Option<f64>) -> String {
     x.map(|v| format!("{:.1}", 100.0 * v)).unwrap_or_else(|| "—".into())
 }
 
 /// A stable split value, with (scored/member) when the subset is partial.
-pub(crate) fn coverage(s: &SuiteSummary, split: Split) -> String {
+pub fn coverage(s: &SuiteSummary, split: Split) -> String {
     match s.split(split) {
         Some(sp) if sp.complete() => pct(sp.stable),
         Some(sp) => format!("{} ({}/{})", pct(sp.stable), sp.tasks_scored, sp.member_count),
@@ -85,7 +85,7 @@ pub(crate) fn coverage(s: &SuiteSummary, split: Split) -> String {
 }
 
 /// `successes/trials = rate [low, high]` in percent.
-pub(crate) fn wilson(p: &Proportion) -> String {
+pub fn wilson(p: &Proportion) -> String {
     match (p.rate, p.wilson_low, p.wilson_high) {
         (Some(r), Some(lo), Some(hi)) => {
             format!("{}/{} = {:.1} [{:.1}, {:.1}]", p.successes, p.trials, 100.0 * r, 100.0 * lo, 100.0 * hi)
@@ -284,7 +284,7 @@ pub fn run(args: ReportArgs) -> anyhow::Result<()> {
     let batches = match &args.store {
         Some(url) => {
             let names: Vec<String> = args.batches.iter().map(|n| n.to_string_lossy().into_owned()).collect();
-            crate::run::batch::load_batches_from_store(url, &names)?
+            crate::batch::load_batches_from_store(url, &names)?
         }
         None => args.batches.iter().map(|d| load_batch(d)).collect::<anyhow::Result<Vec<_>>>()?,
     };

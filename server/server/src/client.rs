@@ -8,10 +8,10 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use serde_json::{Value, json};
 
-use super::episodes::{PrepareRequest, Prepared};
-use super::http_client::{HttpUrl, request};
-use super::{ServeArgs, credential, start};
-use crate::cmd_mcp_stdio::messages_of;
+use crate::episodes::{PrepareRequest, Prepared};
+use crate::http_client::{HttpUrl, request};
+use crate::{ServeArgs, credential, start};
+use crate::http_client::messages_of;
 
 /// Per-request timeout (a debug build under load can take seconds per call; a call never outlives an episode).
 pub const CALL_TIMEOUT: Duration = Duration::from_secs(600);
@@ -97,7 +97,7 @@ impl McpClient {
 
 /// `request` to the operator API at `base` with the operator credential this user can find; a 401 says how
 /// to pass one.
-fn operator_request(method: &str, base: &str, path: &str, body: &[u8], timeout: Duration) -> anyhow::Result<super::http_client::HttpResponse> {
+fn operator_request(method: &str, base: &str, path: &str, body: &[u8], timeout: Duration) -> anyhow::Result<crate::http_client::HttpResponse> {
     let base = base.trim_end_matches('/');
     let url = HttpUrl::parse(&format!("{base}{path}"))?;
     let mut headers = credential::operator_headers(base)?;
@@ -134,12 +134,12 @@ pub fn post_json(base: &str, path: &str, body: &Value) -> anyhow::Result<(u16, V
     Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
 }
 
-/// Waits until the review API says the private video of `episode_id` is written (an episode's video is rendered
+/// Waits until the operator API says the private video of `episode_id` is written (an episode's video is rendered
 /// after it ends), at most `timeout`.
 pub fn wait_for_video(base: &str, episode_id: &str, timeout: Duration) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
     loop {
-        let (status, v) = get_json(base, &format!("/api/episodes/{episode_id}/review?part=video"))?;
+        let (status, v) = get_json(base, &format!("/api/episodes/{episode_id}/video"))?;
         if status == 200 && v["video"] == true {
             return Ok(());
         }
@@ -162,28 +162,37 @@ pub struct InProcessServer {
 impl InProcessServer {
     /// Starts the server on a free loopback port with a fresh operator token of its own, known to this
     /// process's client calls and to no agent (it is in no environment and on no command line).
+    /// No browser console: MCP and the operator API only.
     pub fn start(data: PathBuf, stop_reason: &str) -> anyhow::Result<Self> {
-        Self::start_with_store(data, None, stop_reason)
+        Self::start_with(data, None, None, stop_reason)
     }
 
     /// As [`InProcessServer::start`], recording episodes in the store `store` names (a worker's server writes to
-    /// the shared store, so every dashboard lists its episodes) instead of `<data>/episodes.sqlite`.
-    pub fn start_with_store(data: PathBuf, store: Option<String>, stop_reason: &str) -> anyhow::Result<Self> {
+    /// the shared store, so every dashboard lists its episodes) instead of `<data>/episodes.sqlite`, and serving
+    /// `console`'s pages when given one.
+    pub fn start_with(data: PathBuf, store: Option<String>, console: Option<crate::Console>, stop_reason: &str) -> anyhow::Result<Self> {
+        let args = ServeArgs {
+            addr: std::net::SocketAddr::from(([127, 0, 0, 1], 0)),
+            data: Some(data),
+            operator_token_file: None,
+            public_hosts: vec![],
+            public_url: None,
+            batches: vec![],
+            store,
+            artifacts: None,
+            console,
+        };
+        Self::start_args(args, stop_reason)
+    }
+
+    /// A server with these settings in a thread of this process (a worker's, listening where it is told).
+    pub fn start_args(args: ServeArgs, stop_reason: &str) -> anyhow::Result<Self> {
         let (url_tx, url_rx) = mpsc::channel::<anyhow::Result<String>>();
         let (stop_tx, stop_rx) = mpsc::channel::<Duration>();
         let stop_reason = stop_reason.to_owned();
         let thread = std::thread::spawn(move || -> anyhow::Result<()> {
             let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
             let result = runtime.block_on(async move {
-                let args = ServeArgs {
-                    addr: "127.0.0.1:0".parse()?,
-                    data: Some(data),
-                    operator_token_file: None,
-                    public_hosts: vec![],
-                    batches: vec![],
-                    store,
-                    artifacts: None,
-                };
                 let bound = match start(&args).await {
                     Ok(b) => b,
                     Err(e) => {
@@ -194,7 +203,7 @@ impl InProcessServer {
                 credential::remember_in_process(bound.url(), bound.operator_token());
                 let stop = async move {
                     let grace = tokio::task::spawn_blocking(move || stop_rx.recv()).await.ok().and_then(Result::ok);
-                    (stop_reason, grace.unwrap_or(super::SIGNAL_GRACE))
+                    (stop_reason, grace.unwrap_or(crate::SIGNAL_GRACE))
                 };
                 let listening = move |v: Value| {
                     let _ = url_tx.send(Ok(v["url"].as_str().unwrap_or_default().to_owned()));
@@ -214,14 +223,14 @@ impl InProcessServer {
         }
     }
 
-    /// Stops the server once every episode has written its records and video (bounded by [`super::DRAIN_GRACE`]).
+    /// Stops the server once every episode has written its records and video (bounded by [`crate::DRAIN_GRACE`]).
     pub fn stop(mut self) -> anyhow::Result<()> {
-        self.shutdown(super::DRAIN_GRACE)
+        self.shutdown(crate::DRAIN_GRACE)
     }
 
     /// Stops the server within seconds (an interrupted batch): a video still draining may stay partial.
     pub fn stop_now(mut self) -> anyhow::Result<()> {
-        self.shutdown(super::SIGNAL_GRACE)
+        self.shutdown(crate::SIGNAL_GRACE)
     }
 
     fn shutdown(&mut self, grace: Duration) -> anyhow::Result<()> {
@@ -238,6 +247,6 @@ impl InProcessServer {
 
 impl Drop for InProcessServer {
     fn drop(&mut self) {
-        let _ = self.shutdown(super::SIGNAL_GRACE);
+        let _ = self.shutdown(crate::SIGNAL_GRACE);
     }
 }

@@ -17,8 +17,8 @@ use axum::http::{HeaderMap, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Redirect, Response};
 
-use super::credential::{self, TOKEN_FILE};
-use super::episodes::{random_hex, tokens_equal};
+use crate::credential::{self, TOKEN_FILE};
+use crate::episodes::{random_hex, tokens_equal};
 
 /// Name of the dashboard's session cookie.
 pub const COOKIE: &str = "libero_session";
@@ -30,6 +30,19 @@ const MAX_SESSIONS: usize = 256;
 pub struct Operator {
     token: Arc<str>,
     sessions: Arc<Mutex<VecDeque<String>>>,
+    /// The login form (the console's, or [`plain_login_page`] on a server without one).
+    login_page: fn(bool) -> String,
+}
+
+/// The login form of a server without a console: the operator API's browser sessions still open through it.
+pub fn plain_login_page(failed: bool) -> String {
+    let notice = if failed { "<p role=\"alert\">That token is not this server's operator token.</p>" } else { "" };
+    format!(
+        "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>libero-agent: sign in</title></head><body>\
+         <h1>Operator sign-in</h1>{notice}<form method=\"post\" action=\"/login\"><label>Operator token \
+         <input type=\"password\" name=\"token\" autocomplete=\"current-password\"></label> \
+         <button type=\"submit\">Sign in</button></form></body></html>"
+    )
 }
 
 impl Operator {
@@ -45,7 +58,12 @@ impl Operator {
     }
 
     pub fn with_token(token: String) -> Self {
-        Self { token: token.into(), sessions: Arc::default() }
+        Self { token: token.into(), sessions: Arc::default(), login_page: plain_login_page }
+    }
+
+    /// The same operator, answering browsers with `page` as its login form.
+    pub fn with_login_page(self, page: fn(bool) -> String) -> Self {
+        Self { login_page: page, ..self }
     }
 
     pub fn token(&self) -> &str {
@@ -54,7 +72,7 @@ impl Operator {
 
     /// Whether `headers` carry the operator token (bearer) or an open browser session (cookie).
     pub fn admits(&self, headers: &HeaderMap) -> bool {
-        let bearer = super::bearer(headers);
+        let bearer = crate::bearer(headers);
         if bearer.is_some_and(|t| tokens_equal(t, &self.token)) {
             return true;
         }
@@ -192,16 +210,16 @@ fn split_token_query(query: Option<&str>) -> Option<(String, String)> {
 /// everything else answers 401.
 pub async fn require_operator(State(op): State<Operator>, req: Request, next: Next) -> Response {
     if cross_site(req.headers()) {
-        return super::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
+        return crate::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
     }
     let path = req.uri().path().to_owned();
     let is_page = req.method() == axum::http::Method::GET && !path.starts_with("/api/") && !path.starts_with("/ws/");
     if is_page && let Some((token, rest)) = split_token_query(req.uri().query()) {
         if !op.token_matches(&token) {
-            return (StatusCode::UNAUTHORIZED, axum::response::Html(super::dashboard::login_page(true))).into_response();
+            return (StatusCode::UNAUTHORIZED, axum::response::Html((op.login_page)(true))).into_response();
         }
         let Some(cookie) = op.open_session() else {
-            return super::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session");
+            return crate::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session");
         };
         let location = if rest.is_empty() { path } else { format!("{path}?{rest}") };
         return (StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, location)]).into_response();
@@ -212,7 +230,7 @@ pub async fn require_operator(State(op): State<Operator>, req: Request, next: Ne
     if is_page {
         return Redirect::to("/login").into_response();
     }
-    let mut resp = super::json_error(StatusCode::UNAUTHORIZED, "operator token required");
+    let mut resp = crate::json_error(StatusCode::UNAUTHORIZED, "operator token required");
     resp.headers_mut().insert(header::WWW_AUTHENTICATE, header::HeaderValue::from_static("Bearer"));
     resp
 }
@@ -225,19 +243,19 @@ pub struct LoginForm {
 /// `POST /login`: the right token opens a session (HttpOnly, SameSite=Strict cookie).
 pub async fn login(State(op): State<Operator>, headers: HeaderMap, axum::Form(form): axum::Form<LoginForm>) -> Response {
     if cross_site(&headers) {
-        return super::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
+        return crate::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
     }
     if !op.token_matches(&form.token) {
-        return (StatusCode::UNAUTHORIZED, axum::response::Html(super::dashboard::login_page(true))).into_response();
+        return (StatusCode::UNAUTHORIZED, axum::response::Html((op.login_page)(true))).into_response();
     }
     match op.open_session() {
         Some(cookie) => (StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, "/".to_owned())]).into_response(),
-        None => super::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session"),
+        None => crate::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session"),
     }
 }
 
-pub async fn login_form() -> Response {
-    axum::response::Html(super::dashboard::login_page(false)).into_response()
+pub async fn login_form(State(op): State<Operator>) -> Response {
+    axum::response::Html((op.login_page)(false)).into_response()
 }
 
 #[cfg(test)]

@@ -22,10 +22,10 @@ use serde_json::{Value, json};
 use tower::ServiceExt;
 use tower_http::services::ServeFile;
 
-use super::live::Hub;
-use super::results::{self, Selection};
-use super::store::EpisodeFilter;
-use super::{App, AppState, episode_json, json_error};
+use libero_server::live::Hub;
+use crate::results::{self, Selection};
+use libero_server::store::EpisodeFilter;
+use libero_server::{App, AppState, episode_json, json_error};
 
 /// Largest episode list the home page shows.
 const HOME_LIST_LIMIT: i64 = 500;
@@ -84,7 +84,7 @@ pub(crate) fn valid_id(id: &str) -> bool {
 }
 
 /// The stored row of episode `id`, or the response saying why there is none.
-async fn stored_row(app: &App, id: &str) -> Result<super::store::EpisodeRow, Response> {
+async fn stored_row(app: &App, id: &str) -> Result<libero_server::store::EpisodeRow, Response> {
     if !valid_id(id) {
         return Err(json_error(StatusCode::NOT_FOUND, "no such episode"));
     }
@@ -98,7 +98,7 @@ async fn stored_row(app: &App, id: &str) -> Result<super::store::EpisodeRow, Res
 /// A stored episode whose run directory is not on this machine (a worker elsewhere ran it): with `--artifacts`,
 /// its run directory is fetched from the artifact store once its upload is complete, kept under
 /// `<data>/artifact_cache/<id>`, and the row points there. Otherwise the row is returned as it is.
-async fn fetched_if_elsewhere(app: &App, mut row: super::store::EpisodeRow) -> super::store::EpisodeRow {
+async fn fetched_if_elsewhere(app: &App, mut row: libero_server::store::EpisodeRow) -> libero_server::store::EpisodeRow {
     let Some(artifacts) = app.artifacts.as_ref() else { return row };
     if tokio::fs::metadata(&row.episode.run_dir).await.is_ok_and(|m| m.is_dir()) {
         return row;
@@ -129,21 +129,21 @@ async fn fetched_if_elsewhere(app: &App, mut row: super::store::EpisodeRow) -> s
 
 /// An episode a batch ran on its own in-process server (`<batch>/server`, not this server's store): found
 /// through the batch's `rollouts.jsonl`, read from its run directory, so Results links open its review.
-async fn batch_episode(app: &App, id: &str) -> Option<super::store::EpisodeRow> {
+async fn batch_episode(app: &App, id: &str) -> Option<libero_server::store::EpisodeRow> {
     let roots = app.batch_roots.clone();
     let id = id.to_owned();
     tokio::task::spawn_blocking(move || {
         let run_dir = results::discover(&roots).into_iter().find_map(|(_, dir)| {
-            crate::run::batch::read_records(&dir)
+            libero_runner::batch::read_records(&dir)
                 .ok()?
                 .into_iter()
                 .find(|r| r.episode_id.as_deref() == Some(id.as_str()))
                 .and_then(|r| r.run_dir)
         })?;
         let run = RunDir::new(run_dir);
-        let episode = super::store::NewEpisode::from_record(&run).filter(|e| e.id == id)?;
-        let end = super::store::EpisodeEnd::from_run(&run);
-        Some(super::store::EpisodeRow {
+        let episode = libero_server::store::NewEpisode::from_record(&run).filter(|e| e.id == id)?;
+        let end = libero_server::store::EpisodeEnd::from_run(&run);
+        Some(libero_server::store::EpisodeRow {
             episode,
             started_at: None,
             finished_at: end.as_ref().map(|e| e.finished_at.clone()),
@@ -173,7 +173,7 @@ struct ResultsPage {
 
 /// Loads the selected batches: batch directories off the async workers (they are files of any size), and the
 /// batches only the store holds (`run --store`) from the store.
-async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<crate::run::batch::LoadedBatch>), Response> {
+async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<libero_runner::batch::LoadedBatch>), Response> {
     let internal = |e: String| json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("results: {e}"));
     let stored = app.store.batch_names().await.map_err(|e| internal(format!("{e:#}")))?;
     let (roots, sel) = (app.batch_roots.clone(), sel.clone());
@@ -189,7 +189,7 @@ async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<crate:
             results::Selected::InStore(name) => {
                 let b = app.store.batch(&name).await.map_err(|e| internal(format!("{e:#}")))?;
                 let b = b.ok_or_else(|| internal(format!("batch {name} left the store")))?;
-                crate::run::batch::from_stored(b).map_err(|e| internal(format!("{e:#}")))?
+                libero_runner::batch::from_stored(b).map_err(|e| internal(format!("{e:#}")))?
             }
         });
     }
@@ -365,13 +365,41 @@ struct LivePage {
     max_wall_time_s: f64,
 }
 
+/// An open episode another server of the shared store runs: what the store knows, and the link to its live view.
+#[derive(Template)]
+#[template(path = "live_elsewhere.html")]
+struct LiveElsewherePage {
+    id: String,
+    task: String,
+    level: i64,
+    state: &'static str,
+    server_url: String,
+    live_url: String,
+    created_at: String,
+    started_at: String,
+    batch: Option<String>,
+}
+
 async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
     let row = match stored_row(&app, &id).await {
         Ok(r) => r,
         Err(resp) => return resp,
     };
     let Some(hub) = app.hubs.get(&id) else {
-        // Not run by this process (finished before a restart): only the review exists.
+        if let Some(server_url) = runs_elsewhere(&app, &row) {
+            return page(LiveElsewherePage {
+                live_url: format!("{server_url}/episodes/{id}"),
+                id,
+                task: row.episode.task_ref,
+                level: row.episode.level,
+                state: if row.started_at.is_some() { "running" } else { "prepared" },
+                server_url,
+                created_at: row.episode.created_at,
+                started_at: row.started_at.unwrap_or_else(|| "not yet".into()),
+                batch: row.episode.batch,
+            });
+        }
+        // Ended, or run by this server before a restart: only the review exists.
         return Redirect::to(&format!("/episodes/{id}/review")).into_response();
     };
     page(LivePage {
@@ -381,6 +409,12 @@ async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Respo
         max_agent_steps: hub.max_agent_steps,
         max_wall_time_s: hub.max_wall_time_s,
     })
+}
+
+/// The server running `row`'s episode, when it is still open and that server is not this one.
+fn runs_elsewhere(app: &App, row: &libero_server::store::EpisodeRow) -> Option<String> {
+    let url = row.episode.server_url.as_deref()?;
+    (row.outcome.is_none() && url != app.public_url && (url.starts_with("http://") || url.starts_with("https://"))).then(|| url.to_owned())
 }
 
 async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -397,7 +431,7 @@ async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(
 
 /// What a viewer of an episode without a live hub gets: `hello` with the budgets, the final state as a
 /// `finished` event (the live page then stops reconnecting), then the socket closes.
-async fn ended_stream(mut socket: WebSocket, row: super::store::EpisodeRow) {
+async fn ended_stream(mut socket: WebSocket, row: libero_server::store::EpisodeRow) {
     let record: Value = std::fs::read_to_string(RunDir::new(&row.episode.run_dir).episode_record())
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok())
@@ -577,17 +611,6 @@ fn telemetry_page(run: &RunDir, from: u64) -> Value {
     json!({"telemetry": lines, "telemetry_next": next.map(|n| json!({"from": n}))})
 }
 
-/// Whether the private video is there (`video`), and where its rendering stands (`video_status`: `state`
-/// queued, rendering, ready or failed, `percent`, frames); `video_status` is null for an episode without one.
-fn video_part(episodes: &crate::serve::episodes::Episodes, run: &RunDir) -> Value {
-    let status = episodes.video_progress(run);
-    let mut st = serde_json::to_value(&status).unwrap_or(Value::Null);
-    if let (Some(obj), Some(p)) = (st.as_object_mut(), status.as_ref()) {
-        obj.insert("percent".into(), json!(p.percent()));
-    }
-    json!({"video": status == Some(VideoProgress::Ready), "video_status": st})
-}
-
 /// Everything the review page shows, from the private run directory, with the long parts (calls, telemetry)
 /// in pages the page follows through `calls_next` / `telemetry_next`. Operator-only.
 async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ReviewQuery>) -> Response {
@@ -599,7 +622,7 @@ async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(
     let data = tokio::task::spawn_blocking(move || match q.part.as_deref() {
         Some("calls") => Ok(calls_page(&run, q.from, q.control_step)),
         Some("telemetry") => Ok(telemetry_page(&run, q.from)),
-        Some("video") => Ok(video_part(&episodes, &run)),
+        Some("video") => Ok(libero_server::video_part(&episodes, &run)),
         Some(other) => Err(format!("part must be calls, telemetry or video (got {other:?})")),
         None => {
             let result = read_result(&run);
@@ -614,7 +637,7 @@ async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(
                 "result": result,
                 "video_fps": 20.0,
             });
-            for part in [video_part(&episodes, &run), calls_page(&run, 0, 0), telemetry_page(&run, 0)] {
+            for part in [libero_server::video_part(&episodes, &run), calls_page(&run, 0, 0), telemetry_page(&run, 0)] {
                 if let (Some(obj), Value::Object(p)) = (v.as_object_mut(), part) {
                     obj.extend(p);
                 }

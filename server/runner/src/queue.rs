@@ -67,7 +67,8 @@ fn batch_doc(name: &str, settings: &BatchSettings, schedule: &[PlannedRollout], 
 pub async fn enqueue(store: &Store, url: &str, name: &str, settings: &BatchSettings, schedule: &[PlannedRollout], skipped: &[String]) -> anyhow::Result<()> {
     let doc = batch_doc(name, settings, schedule, skipped, url);
     let jobs = schedule.iter().map(|r| Ok((r.rollout_id.clone(), serde_json::to_value(r)?))).collect::<anyhow::Result<Vec<_>>>()?;
-    store.enqueue(&StoredBatch { name: name.to_owned(), dir: name.into(), doc, records: Vec::new() }, &jobs).await
+    store.enqueue(&StoredBatch { name: name.to_owned(), dir: name.into(), doc, records: Vec::new() }, &jobs).await?;
+    Ok(())
 }
 
 /// Enqueues (or with `--resume` re-queues the INVALID rollouts of) the batch, then follows it unless `--detach`.

@@ -22,7 +22,8 @@ use super::queue::{WORKER_LOST, worker_lost_record};
 use super::sandbox::Sandbox;
 use super::schedule::PlannedRollout;
 use super::{INTERRUPTED, RunContext};
-use crate::serve::client::{InProcessServer, wait_for_video};
+use libero_server::ServeArgs;
+use libero_server::client::{InProcessServer, wait_for_video};
 
 /// How long a rollout's video may take to be written before its files are uploaded without it.
 const VIDEO_WAIT: Duration = Duration::from_secs(600);
@@ -51,9 +52,25 @@ pub struct WorkerArgs {
     /// Exit once nothing is queued and this worker's rollouts ended (default: wait for more work).
     #[arg(long)]
     pub exit_when_idle: bool,
-    /// The URL under which other machines reach this worker's server (its live views), shown on dashboards.
+    /// The URL under which other machines reach this worker's server (its live views), shown on dashboards
+    /// (default: the address it listens on).
     #[arg(long)]
     pub public_url: Option<String>,
+    /// Where this worker's server listens: its episodes' MCP endpoints (for the agents, on loopback) and, when
+    /// the binary gives it a console, the live views other dashboards link to. Port 0 picks a free port.
+    #[arg(long, default_value = "127.0.0.1:0")]
+    pub addr: std::net::SocketAddr,
+    /// The operator token of this worker's server (a file, at least 16 characters), so operators can open its
+    /// live views; without it the token is random and known to this process only.
+    #[arg(long)]
+    pub operator_token_file: Option<PathBuf>,
+    /// A host name (or `name:port`) besides the loopback names under which this worker's server is reached
+    /// (the host of `--public-url`, behind a proxy). Repeatable.
+    #[arg(long = "public-host", value_name = "NAME")]
+    pub public_hosts: Vec<String>,
+    /// The browser console the worker's server serves (set by the binary; never from the command line).
+    #[arg(skip)]
+    pub console: Option<libero_server::Console>,
 }
 
 /// What every slot of the worker shares.
@@ -86,7 +103,18 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     let store = runtime.block_on(Store::connect(&args.store))?;
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_else(|_| "unknown".into());
     let id = format!("{host}-{}-{}", std::process::id(), &libero_episode::json::random_name("")?[..6]);
-    let server = InProcessServer::start_with_store(data.join("server"), Some(args.store.clone()), "worker_stopped_before_finish")?;
+    let serve_args = ServeArgs {
+        addr: args.addr,
+        data: Some(data.join("server")),
+        operator_token_file: args.operator_token_file.clone(),
+        public_hosts: args.public_hosts.clone(),
+        public_url: args.public_url.clone(),
+        batches: vec![],
+        store: Some(args.store.clone()),
+        artifacts: None,
+        console: args.console,
+    };
+    let server = InProcessServer::start_args(serve_args, "worker_stopped_before_finish")?;
     let live_url = args.public_url.clone().unwrap_or_else(|| server.url.clone());
     runtime.block_on(store.register_worker(&id, &host, args.slots as i64, Some(&live_url)))?;
     eprintln!("worker {id}: {} slot(s), store {}, artifacts {}, server {}", args.slots, libero_store::redact(&args.store), artifacts.url(), server.url);

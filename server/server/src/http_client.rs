@@ -113,6 +113,27 @@ pub fn request(
     Ok(HttpResponse { status, headers, body })
 }
 
+/// JSON-RPC messages of one HTTP reply: a JSON body, or the `data:` events of an SSE stream.
+pub fn messages_of(resp: &HttpResponse) -> Vec<serde_json::Value> {
+    let body = String::from_utf8_lossy(&resp.body);
+    let is_sse = resp.header("content-type").is_some_and(|c| c.starts_with("text/event-stream"));
+    if !is_sse {
+        return serde_json::from_str::<serde_json::Value>(body.trim()).map(|v| vec![v]).unwrap_or_default();
+    }
+    let mut out = Vec::new();
+    for event in body.split("\n\n") {
+        let data: Vec<&str> =
+            event.lines().filter_map(|l| l.strip_prefix("data:")).map(|d| d.strip_prefix(' ').unwrap_or(d)).collect();
+        if data.is_empty() {
+            continue;
+        }
+        if let Ok(v) = serde_json::from_str::<serde_json::Value>(&data.join("\n")) {
+            out.push(v);
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -123,5 +144,21 @@ mod tests {
         assert_eq!((u.host_port.as_str(), u.path.as_str()), ("127.0.0.1:8080", "/mcp/ep-1"));
         assert_eq!(HttpUrl::parse("http://localhost").unwrap().host_port, "localhost:80");
         assert!(HttpUrl::parse("https://x").is_err());
+    }
+
+    #[test]
+    fn sse_and_json_bodies_yield_their_messages() {
+        let sse = HttpResponse {
+            status: 200,
+            headers: vec![("content-type".into(), "text/event-stream".into())],
+            body: b"data: \n\nid: 0\nretry: 3000\ndata: {\"jsonrpc\":\"2.0\",\"id\":1,\"result\":{}}\n\n".to_vec(),
+        };
+        assert_eq!(messages_of(&sse), vec![serde_json::json!({"jsonrpc": "2.0", "id": 1, "result": {}})]);
+        let plain = HttpResponse {
+            status: 200,
+            headers: vec![("content-type".into(), "application/json".into())],
+            body: br#"{"jsonrpc":"2.0","id":2,"result":{}}"#.to_vec(),
+        };
+        assert_eq!(messages_of(&plain).len(), 1);
     }
 }

@@ -8,6 +8,7 @@ pub mod batch;
 mod cli_checks;
 pub mod harness;
 pub mod queue;
+pub mod report;
 pub mod rollout;
 pub mod sandbox;
 pub mod schedule;
@@ -32,7 +33,7 @@ use harness::{Credentials, Harness, default_credentials_file};
 use sandbox::Sandbox;
 use schedule::{Experiment, PlannedRollout, plan, plan_pool};
 
-use crate::serve::client::InProcessServer;
+use libero_server::client::InProcessServer;
 
 /// Set by SIGINT/SIGTERM: stop scheduling, stop running agents, record them INTERRUPTED.
 pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);

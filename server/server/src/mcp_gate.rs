@@ -12,8 +12,8 @@ use libero_episode::actor::Ended;
 use libero_episode::{EpisodeHandle, Outcome};
 use serde_json::{Map, Value, json};
 
-use super::episodes::{LiveMcp, MAX_SESSIONS_PER_EPISODE, McpAccess};
-use super::mcp::envelope;
+use crate::episodes::{LiveMcp, MAX_SESSIONS_PER_EPISODE, McpAccess};
+use crate::mcp::envelope;
 
 /// Largest MCP request body read; a 50-action `osc_sequence` is a few kilobytes.
 const MAX_MCP_BODY_BYTES: usize = 4 << 20;
