@@ -250,3 +250,43 @@ impl Drop for InProcessServer {
         let _ = self.shutdown(crate::SIGNAL_GRACE);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn get(base: &str, path: &str, with_operator_token: bool) -> (u16, String) {
+        let headers = if with_operator_token { credential::operator_headers(base).unwrap() } else { vec![] };
+        let resp = request("GET", &HttpUrl::parse(&format!("{base}{path}")).unwrap(), &headers, b"", Duration::from_secs(30)).unwrap();
+        (resp.status, String::from_utf8_lossy(&resp.body).into_owned())
+    }
+
+    #[test]
+    fn a_server_without_a_console_serves_mcp_and_the_operator_api_but_no_pages() {
+        let dir = tempfile::tempdir().unwrap();
+        let server = InProcessServer::start(dir.path().join("data"), "test_finished").unwrap();
+        assert_eq!(get(&server.url, "/api/health", false).0, 200);
+        let (status, list) = get(&server.url, "/api/episodes", true);
+        assert_eq!(status, 200, "{list}");
+        assert_eq!(get(&server.url, "/api/episodes", false).0, 401, "the operator API stays guarded");
+        for page in ["/", "/tasks", "/results", "/static/style.css", "/ws/episodes"] {
+            assert_eq!(get(&server.url, page, true).0, 404, "{page} belongs to the console");
+        }
+        let (status, login) = get(&server.url, "/login", false);
+        assert_eq!(status, 200);
+        assert!(login.contains("Operator sign-in") && login.contains("name=\"token\""), "{login}");
+        assert_eq!(get(&server.url, "/api/episodes/ep-none/video", true).0, 404);
+        server.stop_now().unwrap();
+    }
+
+    #[test]
+    fn a_public_url_must_be_a_plain_http_url() {
+        for good in ["http://worker-3.lab:8090", "https://bench.example/libero"] {
+            assert!(crate::check_public_url(good).is_ok(), "{good}");
+        }
+        let long = format!("http://{}", "a".repeat(600));
+        for bad in ["worker-3:8090", "ftp://x", "http://a b", "http://x\"><script>", "javascript:alert(1)", long.as_str()] {
+            assert!(crate::check_public_url(bad).is_err(), "{bad}");
+        }
+    }
+}

@@ -573,6 +573,19 @@ mod tests {
         }
     }
 
+    #[tokio::test]
+    async fn errors_say_what_failed_and_keep_passwords_out() {
+        let err = Store::connect("mysql://libero:hunter2@db:3306/x").await.err().expect("not a store URL");
+        assert!(matches!(err, StoreError::BadUrl(_)), "{err:?}");
+        assert!(err.to_string().contains("libero:***@db") && !err.to_string().contains("hunter2"), "{err}");
+        let dir = tempfile::tempdir().unwrap();
+        let store = sqlite_store(dir.path()).await;
+        let batch = StoredBatch { name: "b1".into(), dir: PathBuf::new(), doc: serde_json::json!({}), records: vec![] };
+        store.enqueue(&batch, &[]).await.unwrap();
+        let again = store.enqueue(&batch, &[]).await.expect_err("the name is taken");
+        assert!(matches!(&again, StoreError::BatchExists(name) if name == "b1"), "{again:?}");
+    }
+
     async fn sqlite_store(dir: &Path) -> Store {
         Store::open(&dir.join(STORE_FILE)).await.unwrap()
     }
