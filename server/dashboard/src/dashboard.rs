@@ -378,6 +378,9 @@ struct LiveElsewherePage {
     created_at: String,
     started_at: String,
     batch: Option<String>,
+    /// `accepted of max` agent steps and `completed / required` stages, as the running server last stored them.
+    steps: String,
+    stages: String,
 }
 
 async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -397,6 +400,11 @@ async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Respo
                 created_at: row.episode.created_at,
                 started_at: row.started_at.unwrap_or_else(|| "not yet".into()),
                 batch: row.episode.batch,
+                steps: row.accepted_agent_steps.map_or_else(|| "none yet".into(), |n| n.to_string()),
+                stages: match (row.completed_stage_count, row.required_stage_count) {
+                    (Some(c), Some(r)) => format!("{c} / {r}"),
+                    _ => "not reported yet".into(),
+                },
             });
         }
         // Ended, or run by this server before a restart: only the review exists.

@@ -280,6 +280,37 @@ mod tests {
     }
 
     #[test]
+    fn an_open_episode_s_steps_reach_the_store_for_dashboards_elsewhere() {
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        let server = InProcessServer::start(data.clone(), "test_finished").unwrap();
+        let req = PrepareRequest { level: 3, workspace: Some(dir.path().join("ws")), wall_time_s: 300.0, max_agent_steps: 10, ..PrepareRequest::new("T14") };
+        let prepared = prepare_episode(&server.url, &req).unwrap();
+        let headers: Vec<(String, String)> = prepared.mcp_headers.clone().into_iter().collect();
+        let mut client = McpClient::connect(&prepared.mcp_url, &headers, "progress-test").unwrap();
+        client.call_tool("start_episode", json!({})).unwrap();
+        for _ in 0..2 {
+            client.call_tool("osc_sequence", json!({"actions": [[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]]})).unwrap();
+        }
+        // What a dashboard on another machine reads: the store's row, not this server's live state.
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        let store = runtime.block_on(crate::store::Store::open(&data.join(crate::store::STORE_FILE))).unwrap();
+        let t = std::time::Instant::now();
+        let row = loop {
+            let row = runtime.block_on(store.get(&prepared.episode_id)).unwrap().unwrap();
+            if row.accepted_agent_steps == Some(2) || t.elapsed() > Duration::from_secs(20) {
+                break row;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        assert_eq!((row.outcome.as_deref(), row.accepted_agent_steps), (None, Some(2)), "{row:?}");
+        assert_eq!(row.episode.server_url.as_deref(), Some(server.url.as_str()), "the row says where the episode runs");
+        assert!(row.required_stage_count.is_some_and(|r| r > 0), "the evaluator's stage count is stored while open: {row:?}");
+        client.call_tool("finish_episode", json!({})).unwrap();
+        server.stop_now().unwrap();
+    }
+
+    #[test]
     fn a_public_url_must_be_a_plain_http_url() {
         for good in ["http://worker-3.lab:8090", "https://bench.example/libero"] {
             assert!(crate::check_public_url(good).is_ok(), "{good}");

@@ -122,6 +122,8 @@ pub struct App {
     pub store: Store,
     /// The last state written to the store per episode, so only transitions cost a write.
     synced: Mutex<HashMap<String, EpisodeState>>,
+    /// The progress last written to the store per open episode, so only changes cost a write.
+    progressed: Mutex<HashMap<String, (u64, Option<(usize, usize)>)>>,
     /// Live events of the episodes this process runs, for the dashboard.
     pub hubs: Arc<live::LiveHubs>,
     pub operator: auth::Operator,
@@ -153,17 +155,42 @@ impl App {
     pub async fn sync(&self, id: &str) {
         let Some(status) = self.episodes.status(id) else { return };
         let previous = self.synced.lock().ok().and_then(|m| m.get(id).copied());
-        if previous == Some(status.state) {
+        if previous != Some(status.state) {
+            match self.write_transition(id, previous, &status).await {
+                Ok(()) => {
+                    if let Ok(mut m) = self.synced.lock() {
+                        m.insert(id.to_owned(), status.state);
+                    }
+                    self.hubs.notify();
+                }
+                Err(e) => eprintln!("warning: {e:#}"),
+            }
+        }
+        match status.state {
+            EpisodeState::Active => self.sync_progress(id).await,
+            EpisodeState::Finished | EpisodeState::Aborted => {
+                if let Ok(mut m) = self.progressed.lock() {
+                    m.remove(id);
+                }
+            }
+            EpisodeState::Prepared => {}
+        }
+    }
+
+    /// Writes an open episode's steps and stages to the store when they changed, for dashboards elsewhere.
+    async fn sync_progress(&self, id: &str) {
+        let Some(now) = self.hubs.get(id).and_then(|hub| hub.progress()) else { return };
+        if self.progressed.lock().ok().and_then(|m| m.get(id).copied()) == Some(now) {
             return;
         }
-        match self.write_transition(id, previous, &status).await {
+        let stages = now.1.map(|(completed, required)| (completed as i64, required as i64));
+        match self.store.record_progress(id, now.0 as i64, stages).await {
             Ok(()) => {
-                if let Ok(mut m) = self.synced.lock() {
-                    m.insert(id.to_owned(), status.state);
+                if let Ok(mut m) = self.progressed.lock() {
+                    m.insert(id.to_owned(), now);
                 }
-                self.hubs.notify();
             }
-            Err(e) => eprintln!("warning: {e:#}"),
+            Err(e) => eprintln!("warning: {e}"),
         }
     }
 
@@ -366,6 +393,7 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         episodes,
         store,
         synced: Mutex::new(HashMap::new()),
+        progressed: Mutex::new(HashMap::new()),
         hubs,
         operator,
         hosts: auth::AllowedHosts::new(local, &args.public_hosts),

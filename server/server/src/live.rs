@@ -115,6 +115,12 @@ impl Hub {
         Some((state.history.clone(), self.events.subscribe()))
     }
 
+    /// Agent steps accepted so far and (completed, required) stages once the evaluator reported them.
+    pub fn progress(&self) -> Option<(u64, Option<(usize, usize)>)> {
+        let s = self.state.lock().ok()?;
+        Some((s.accepted_agent_steps, s.progress))
+    }
+
     /// Live figures for the episode table: progress, submissions, wall time, ended.
     pub fn summary(&self) -> Value {
         let Ok(s) = self.state.lock() else { return Value::Null };

@@ -439,6 +439,27 @@ impl Store {
         self.notify_episode(id).await
     }
 
+    /// An open episode's progress so far (agent steps accepted; stages completed of required, once the evaluator
+    /// said), so dashboards on other machines can follow it; ignored once the episode has its outcome, whose
+    /// record then holds the final figures.
+    pub async fn record_progress(&self, id: &str, accepted_agent_steps: i64, stages: Option<(i64, i64)>) -> Result<()> {
+        let updated = sqlx::query(
+            "UPDATE episodes SET accepted_agent_steps = $1, completed_stage_count = COALESCE($2, completed_stage_count), \
+             required_stage_count = COALESCE($3, required_stage_count) WHERE id = $4 AND outcome IS NULL",
+        )
+        .bind(accepted_agent_steps)
+        .bind(stages.map(|s| s.0))
+        .bind(stages.map(|s| s.1))
+        .bind(id)
+        .execute(&self.pool)
+        .await
+        .with_context(|| format!("store: cannot record the progress of episode {id}"))?;
+        if updated.rows_affected() > 0 {
+            self.notify_episode(id).await?;
+        }
+        Ok(())
+    }
+
     /// Records the end once; a row that already has an outcome keeps it.
     pub async fn record_end(&self, id: &str, end: &EpisodeEnd) -> Result<()> {
         sqlx::query(
@@ -694,12 +715,21 @@ mod tests {
         assert_eq!((row.episode.level, row.episode.seed, row.episode.init_index), (3, 100, 2));
         assert_eq!(row.outcome, None);
         store.mark_started("ep-a", "2026-01-01T00:00:00+00:00").await.unwrap();
+        // Progress while open: steps at once, stages once the evaluator reported them, kept when a later write
+        // has none.
+        let progress = |r: EpisodeRow| (r.outcome, r.accepted_agent_steps, r.completed_stage_count, r.required_stage_count);
+        store.record_progress("ep-a", 2, None).await.unwrap();
+        assert_eq!(progress(store.get("ep-a").await.unwrap().unwrap()), (None, Some(2), None, None));
+        store.record_progress("ep-a", 3, Some((1, 3))).await.unwrap();
+        store.record_progress("ep-a", 4, None).await.unwrap();
+        assert_eq!(progress(store.get("ep-a").await.unwrap().unwrap()), (None, Some(4), Some(1), Some(3)));
         let result = json!({"status": "finished", "success": false, "accepted_agent_steps": 7,
             "termination_reason": "episode_wall_time_budget_exhausted", "finished_at": "2026-01-01T00:30:00+00:00",
             "private_evaluation": {"completed_required_stage_count": 1, "required_stage_count": 3}});
         store.record_end("ep-a", &EpisodeEnd::from_result(&result)).await.unwrap();
         let aborted = json!({"status": "aborted", "reason": "late"});
         store.record_end("ep-a", &EpisodeEnd::from_result(&aborted)).await.unwrap();
+        store.record_progress("ep-a", 99, Some((3, 3))).await.unwrap();
         let row = store.get("ep-a").await.unwrap().unwrap();
         assert_eq!(row.outcome.as_deref(), Some("SIM_TIMEOUT"));
         assert_eq!(row.reason.as_deref(), Some("episode_wall_time_budget_exhausted"));
