@@ -54,6 +54,27 @@ const BATCH_TABLES: [&str; 2] = [
      PRIMARY KEY (batch, seq))",
 ];
 
+/// Creates the tables and adds the columns later versions added (idempotent: every server and worker runs it).
+async fn create_schema(conn: &mut sqlx::AnyConnection, backend: Backend, url: &str) -> Result<()> {
+    sqlx::query(SCHEMA).execute(&mut *conn).await.context("cannot create the episodes table")?;
+    for sql in BATCH_TABLES.iter().chain(queue::QUEUE_TABLES.iter()) {
+        sqlx::query(sql).execute(&mut *conn).await.context("cannot create the batch and queue tables")?;
+    }
+    for (name, kind) in ADDED_COLUMNS {
+        let sql = match backend {
+            Backend::Postgres => format!("ALTER TABLE episodes ADD COLUMN IF NOT EXISTS {name} {kind}"),
+            // SQLite has no IF NOT EXISTS here: a store written by this version has the column already
+            Backend::Sqlite => format!("ALTER TABLE episodes ADD COLUMN {name} {kind}"),
+        };
+        if let Err(e) = sqlx::query(&sql).execute(&mut *conn).await
+            && !e.to_string().to_ascii_lowercase().contains("duplicate column")
+        {
+            return Err(StoreError::Database { what: format!("cannot add column {name} to the episode store {}", redact(url)), cause: e });
+        }
+    }
+    Ok(())
+}
+
 /// Inserts `batch`'s row (name, dir, document); `on_conflict` says what an existing row of that name gets
 /// (`DO NOTHING`, `DO UPDATE SET …`). Returns the rows written.
 async fn write_batch_row(tx: &mut sqlx::Transaction<'_, sqlx::Any>, batch: &StoredBatch, on_conflict: &str) -> Result<u64> {
@@ -79,6 +100,10 @@ pub struct StoredBatch {
 
 /// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
 /// older store by [`Store::open`].
+/// The PostgreSQL advisory lock that serialises schema creation and upgrades across every process on the store
+/// (an arbitrary constant: "libero" in ASCII).
+const SCHEMA_LOCK_KEY: i64 = 0x6c_6962_6572_6f;
+
 const ADDED_COLUMNS: [(&str, &str); 5] =
     [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION"), ("server_url", "TEXT")];
 
@@ -314,22 +339,20 @@ impl Store {
             // committed row.
             sqlx::query("PRAGMA journal_mode=WAL").execute(&pool).await.context("cannot switch the store to WAL")?;
         }
-        sqlx::query(SCHEMA).execute(&pool).await.context("cannot create the episodes table")?;
-        for sql in BATCH_TABLES.iter().chain(queue::QUEUE_TABLES.iter()) {
-            sqlx::query(sql).execute(&pool).await.context("cannot create the batch and queue tables")?;
+        // On PostgreSQL the schema is created under a session advisory lock: `CREATE TABLE IF NOT EXISTS` is not
+        // safe against itself, so workers and dashboards starting at once on a fresh database would fail on the
+        // catalog's unique index. SQLite serialises writers itself (and a transaction there would fail on a stale
+        // snapshot instead of waiting).
+        let mut conn = pool.acquire().await.context("cannot start creating the store's tables")?;
+        if backend == Backend::Postgres {
+            sqlx::query("SELECT pg_advisory_lock($1)").bind(SCHEMA_LOCK_KEY).execute(&mut *conn).await.context("cannot lock the store's schema")?;
         }
-        for (name, kind) in ADDED_COLUMNS {
-            let sql = match backend {
-                Backend::Postgres => format!("ALTER TABLE episodes ADD COLUMN IF NOT EXISTS {name} {kind}"),
-                // SQLite has no IF NOT EXISTS here: a store written by this version has the column already
-                Backend::Sqlite => format!("ALTER TABLE episodes ADD COLUMN {name} {kind}"),
-            };
-            if let Err(e) = sqlx::query(&sql).execute(&pool).await
-                && !e.to_string().to_ascii_lowercase().contains("duplicate column")
-            {
-                return Err(StoreError::Database { what: format!("cannot add column {name} to the episode store {}", redact(url)), cause: e });
-            }
+        let created = create_schema(&mut conn, backend, url).await;
+        if backend == Backend::Postgres {
+            // Also released when the connection closes, should this fail.
+            let _ = sqlx::query("SELECT pg_advisory_unlock($1)").bind(SCHEMA_LOCK_KEY).execute(&mut *conn).await;
         }
+        created?;
         Ok(Self { pool, backend })
     }
 
@@ -666,6 +689,47 @@ mod tests {
         let again = Store::connect(&pg.url).await.unwrap();
         assert_eq!(again.list(10).await.unwrap().len(), 1);
         again.close().await;
+    }
+
+    /// N workers and dashboards starting at once on a fresh database: PostgreSQL's `CREATE TABLE IF NOT EXISTS`
+    /// is not safe against itself (both see no table, one fails on the catalog's unique index), so the schema is
+    /// created under an advisory lock and every opener succeeds.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+    async fn postgres_stores_opened_at_once_on_a_fresh_database_all_open() {
+        let pg = TestPostgres::start();
+        for round in 0..3 {
+            // A fresh database each round, so every round races on creating the tables.
+            let db = format!("fresh{round}");
+            let admin = Store::connect(&pg.url).await.unwrap();
+            sqlx::query(&format!("CREATE DATABASE {db}")).execute(&admin.pool).await.unwrap();
+            admin.close().await;
+            let url = format!("{}/{db}", pg.url.rsplit_once('/').unwrap().0);
+            open_at_once(&url, Backend::Postgres).await;
+        }
+    }
+
+    /// Eight openers of `url` at once; each must open the store.
+    async fn open_at_once(url: &str, expected: Backend) {
+        let openers: Vec<_> = (0..8)
+            .map(|_| {
+                let url = url.to_owned();
+                tokio::spawn(async move { Store::connect(&url).await })
+            })
+            .collect();
+        for opener in openers {
+            let store = opener.await.unwrap().unwrap_or_else(|e| panic!("{url}: {e}"));
+            assert_eq!(store.backend(), expected);
+            store.close().await;
+        }
+    }
+
+    /// Several workers of one machine on one `sqlite://` file, started at once.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+    async fn sqlite_stores_opened_at_once_on_a_new_file_all_open() {
+        let dir = tempfile::tempdir().unwrap();
+        for round in 0..3 {
+            open_at_once(&sqlite_url(&dir.path().join(format!("fresh{round}.sqlite"))), Backend::Sqlite).await;
+        }
     }
 
     #[tokio::test]
