@@ -61,3 +61,89 @@ fn a_store_url_that_cannot_be_used_is_refused_without_showing_its_password() {
         assert!(!err.contains("hunter2"), "the password stays out of messages: {err}");
     }
 }
+
+/// One text message from a dashboard's WebSocket, or `None` once it closed; panics after `timeout`.
+fn next_text(
+    runtime: &tokio::runtime::Runtime,
+    socket: &mut tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>,
+    timeout: std::time::Duration,
+) -> Option<Value> {
+    use futures_util::StreamExt;
+    use tokio_tungstenite::tungstenite::Message;
+    runtime.block_on(async {
+        loop {
+            match tokio::time::timeout(timeout, socket.next()).await.expect("the dashboard pushes within the timeout") {
+                Some(Ok(Message::Text(t))) => return Some(serde_json::from_str(&t).unwrap()),
+                Some(Ok(Message::Close(_))) | None => return None,
+                Some(Ok(_)) => continue,
+                Some(Err(e)) => panic!("socket: {e}"),
+            }
+        }
+    })
+}
+
+#[test]
+fn a_dashboard_on_the_shared_store_pushes_another_servers_episode_progress_until_it_ends() {
+    use libero_server::client::{McpClient, prepare_episode};
+    use libero_server::episodes::PrepareRequest;
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    let pg = TestPostgres::start();
+    let dir = tempfile::tempdir().unwrap();
+    let runner = Server::start_with(&dir.path().join("runner"), &["--store", &pg.url]);
+    let watcher = Server::start_with(&dir.path().join("watcher"), &["--store", &pg.url]);
+    let req = PrepareRequest { level: 3, workspace: Some(dir.path().join("ws")), wall_time_s: 300.0, max_agent_steps: 10, video: false, ..PrepareRequest::new("T14") };
+    let prepared = prepare_episode(&runner.url, &req).unwrap();
+    let id = prepared.episode_id.clone();
+
+    // The watcher's page is the episode-elsewhere page, which follows the socket below.
+    let (status, page) = common::http_get_text(&format!("{}/episodes/{id}", watcher.url));
+    assert_eq!(status, 200, "{page}");
+    assert!(page.contains(&format!("href=\"{}/episodes/{id}\"", runner.url)), "links to the running server: {page}");
+    assert!(page.contains("/static/elsewhere.js") && page.contains(&format!("data-episode=\"{id}\"")), "{page}");
+    let (status, script) = common::http_get_text(&format!("{}/static/elsewhere.js", watcher.url));
+    assert!(status == 200 && script.contains("/ws/episodes/"), "{script}");
+
+    let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let ws_url = format!("{}/ws/episodes/{id}", watcher.url.replacen("http://", "ws://", 1));
+    let mut request = ws_url.into_client_request().unwrap();
+    request.headers_mut().insert("Authorization", format!("Bearer {}", watcher.token).parse().unwrap());
+    let (mut socket, _) = runtime.block_on(tokio_tungstenite::connect_async(request)).unwrap();
+    let wait = std::time::Duration::from_secs(30);
+    let first = next_text(&runtime, &mut socket, wait).unwrap();
+    assert_eq!((first["type"].as_str(), first["state"].as_str()), (Some("elsewhere"), Some("prepared")), "{first}");
+
+    // The agent plays on the running server; the watcher's one socket is told each step, pushed by the store.
+    let headers: Vec<(String, String)> = prepared.mcp_headers.clone().into_iter().collect();
+    let mut client = McpClient::connect(&prepared.mcp_url, &headers, "watched").unwrap();
+    client.call_tool("start_episode", json!({})).unwrap();
+    let mut seen = vec![first];
+    for step in 1..=2 {
+        client.call_tool("osc_sequence", json!({"actions": [[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]]})).unwrap();
+        loop {
+            let m = next_text(&runtime, &mut socket, wait).unwrap_or_else(|| panic!("the socket stays open while the episode runs: {seen:?}"));
+            assert_eq!(m["type"], "elsewhere", "{m}");
+            let done = m["accepted_agent_steps"] == step;
+            seen.push(m);
+            if done {
+                break;
+            }
+        }
+    }
+    let last = seen.last().unwrap();
+    assert_eq!(last["state"], "running", "{last}");
+    assert!(last["required_stage_count"].as_i64().is_some_and(|r| r > 0), "the evaluator's stage count reaches the watcher: {last}");
+    assert_eq!(last["steps"], "2");
+
+    // The end: an `ended` message that names the review, then the socket closes.
+    client.call_tool("finish_episode", json!({})).unwrap();
+    let ended = loop {
+        let m = next_text(&runtime, &mut socket, wait).expect("an ended message before the close");
+        if m["type"] == "ended" {
+            break m;
+        }
+        assert_eq!(m["type"], "elsewhere", "{m}");
+    };
+    assert!(ended["outcome"].is_string(), "{ended}");
+    assert_eq!(ended["review_url"], format!("/episodes/{id}/review"));
+    assert!(next_text(&runtime, &mut socket, wait).is_none(), "the socket closes after the end");
+}

@@ -336,19 +336,43 @@ async fn list_stream(mut socket: WebSocket, app: AppState, filter: EpisodeFilter
         if socket.send(Message::Text(message.to_string().into())).await.is_err() {
             return;
         }
-        tokio::select! {
-            changed = changes.recv() => {
-                if matches!(changed, Err(tokio::sync::broadcast::error::RecvError::Closed)) {
-                    return;
-                }
-                tokio::time::sleep(LIST_REFRESH_MIN_INTERVAL).await;
-                changes = changes.resubscribe(); // drop what piled up meanwhile: one refresh covers it
+        if matches!(next_wake(&mut socket, &mut changes, None).await, Wake::Gone) {
+            return;
+        }
+    }
+}
+
+/// What woke a socket that follows the store.
+enum Wake {
+    /// The store changed (or, with a re-read period, that period passed): read it again.
+    Changed,
+    /// The viewer sent a text, ping or pong: nothing to re-read.
+    Viewer,
+    /// The viewer or the server went away.
+    Gone,
+}
+
+/// Waits for a change of the store (a burst coalesced into one, at most every 250 ms), a message of the viewer,
+/// or `reread` without either (for stores without notifications).
+async fn next_wake(socket: &mut WebSocket, changes: &mut tokio::sync::broadcast::Receiver<()>, reread: Option<Duration>) -> Wake {
+    let period = async {
+        match reread {
+            Some(d) => tokio::time::sleep(d).await,
+            None => std::future::pending().await,
+        }
+    };
+    tokio::select! {
+        changed = changes.recv() => {
+            if matches!(changed, Err(tokio::sync::broadcast::error::RecvError::Closed)) {
+                return Wake::Gone;
             }
-            incoming = socket.recv() => {
-                if !matches!(incoming, Some(Ok(Message::Ping(_) | Message::Pong(_) | Message::Text(_)))) {
-                    return;
-                }
-            }
+            tokio::time::sleep(LIST_REFRESH_MIN_INTERVAL).await;
+            *changes = changes.resubscribe(); // drop what piled up meanwhile: one re-read covers it
+            Wake::Changed
+        }
+        _ = period => Wake::Changed,
+        incoming = socket.recv() => {
+            if matches!(incoming, Some(Ok(Message::Ping(_) | Message::Pong(_) | Message::Text(_)))) { Wake::Viewer } else { Wake::Gone }
         }
     }
 }
@@ -390,21 +414,19 @@ async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Respo
     };
     let Some(hub) = app.hubs.get(&id) else {
         if let Some(server_url) = runs_elsewhere(&app, &row) {
+            let (state, steps, stages) = (elsewhere_state(&row), elsewhere_steps(&row), elsewhere_stages(&row));
             return page(LiveElsewherePage {
                 live_url: format!("{server_url}/episodes/{id}"),
                 id,
                 task: row.episode.task_ref,
                 level: row.episode.level,
-                state: if row.started_at.is_some() { "running" } else { "prepared" },
+                state,
                 server_url,
                 created_at: row.episode.created_at,
                 started_at: row.started_at.unwrap_or_else(|| "not yet".into()),
                 batch: row.episode.batch,
-                steps: row.accepted_agent_steps.map_or_else(|| "none yet".into(), |n| n.to_string()),
-                stages: match (row.completed_stage_count, row.required_stage_count) {
-                    (Some(c), Some(r)) => format!("{c} / {r}"),
-                    _ => "not reported yet".into(),
-                },
+                steps,
+                stages,
             });
         }
         // Ended, or run by this server before a restart: only the review exists.
@@ -429,12 +451,79 @@ async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(
     if let Some(hub) = app.hubs.get(&id) {
         return ws.on_upgrade(move |socket| episode_stream(socket, hub));
     }
-    // Ended and released (or run before a restart): the viewer gets the final state from the records.
     let row = match stored_row(&app, &id).await {
         Ok(r) => r,
         Err(resp) => return resp,
     };
+    if runs_elsewhere(&app, &row).is_some() {
+        return ws.on_upgrade(move |socket| elsewhere_stream(socket, app, row));
+    }
+    // Ended and released (or run before a restart): the viewer gets the final state from the records.
     ws.on_upgrade(move |socket| ended_stream(socket, row))
+}
+
+/// How often the page of an episode running elsewhere re-reads the store without a notification: a SQLite
+/// store shared by processes on one machine has no LISTEN/NOTIFY.
+const ELSEWHERE_REREAD: Duration = Duration::from_secs(5);
+
+fn elsewhere_state(row: &libero_server::store::EpisodeRow) -> &'static str {
+    match (&row.outcome, &row.started_at) {
+        (Some(_), _) => "ended",
+        (None, Some(_)) => "running",
+        (None, None) => "prepared",
+    }
+}
+
+fn elsewhere_steps(row: &libero_server::store::EpisodeRow) -> String {
+    row.accepted_agent_steps.map_or_else(|| "none yet".into(), |n| n.to_string())
+}
+
+fn elsewhere_stages(row: &libero_server::store::EpisodeRow) -> String {
+    match (row.completed_stage_count, row.required_stage_count) {
+        (Some(c), Some(r)) => format!("{c} / {r}"),
+        _ => "not reported yet".into(),
+    }
+}
+
+/// What a viewer of an episode another server runs gets: the store's row as an `elsewhere` message at once and
+/// again whenever the store changes (a PostgreSQL store's `NOTIFY`, which the running server sends with every
+/// change of steps and stages, wakes it; otherwise every few seconds), until the row has its outcome: then an
+/// `ended` message and the socket closes, and the page opens the review.
+async fn elsewhere_stream(mut socket: WebSocket, app: AppState, mut row: libero_server::store::EpisodeRow) {
+    let id = row.episode.id.clone();
+    let mut changes = app.hubs.changes();
+    let mut last_sent = String::new();
+    loop {
+        let message = if row.outcome.is_some() {
+            json!({"type": "ended", "outcome": row.outcome, "reason": row.reason, "review_url": format!("/episodes/{id}/review")})
+        } else {
+            json!({"type": "elsewhere", "state": elsewhere_state(&row), "started_at": row.started_at,
+                "steps": elsewhere_steps(&row), "stages": elsewhere_stages(&row),
+                "accepted_agent_steps": row.accepted_agent_steps, "completed_stage_count": row.completed_stage_count,
+                "required_stage_count": row.required_stage_count})
+        }
+        .to_string();
+        if message != last_sent {
+            if !send_text(&mut socket, &message).await {
+                return;
+            }
+            last_sent = message;
+        }
+        if row.outcome.is_some() {
+            let _ = socket.send(Message::Close(None)).await;
+            return;
+        }
+        match next_wake(&mut socket, &mut changes, Some(ELSEWHERE_REREAD)).await {
+            Wake::Changed => {}
+            Wake::Viewer => continue,
+            Wake::Gone => return,
+        }
+        row = match app.store.get(&id).await {
+            Ok(Some(fresh)) => fresh,
+            // Gone from the store (or the store failed): the page falls back to reloading.
+            Ok(None) | Err(_) => return,
+        };
+    }
 }
 
 /// What a viewer of an episode without a live hub gets: `hello` with the budgets, the final state as a
@@ -937,6 +1026,7 @@ async fn static_file(Path(file): Path<String>) -> Response {
         "review.js" => (web_static!("review.js"), "text/javascript; charset=utf-8"),
         "teleop.js" => (web_static!("teleop.js"), "text/javascript; charset=utf-8"),
         "demos.js" => (web_static!("demos.js"), "text/javascript; charset=utf-8"),
+        "elsewhere.js" => (web_static!("elsewhere.js"), "text/javascript; charset=utf-8"),
         _ => return json_error(StatusCode::NOT_FOUND, "no such file"),
     };
     ([(header::CONTENT_TYPE, kind), (header::CACHE_CONTROL, "no-cache")], body).into_response()
