@@ -147,3 +147,21 @@ fn a_dashboard_on_the_shared_store_pushes_another_servers_episode_progress_until
     assert_eq!(ended["review_url"], format!("/episodes/{id}/review"));
     assert!(next_text(&runtime, &mut socket, wait).is_none(), "the socket closes after the end");
 }
+
+#[test]
+fn an_episode_on_a_server_without_a_console_is_followed_from_the_store_without_a_dead_link() {
+    use libero_server::client::{InProcessServer, prepare_episode};
+    use libero_server::episodes::PrepareRequest;
+    let pg = TestPostgres::start();
+    let dir = tempfile::tempdir().unwrap();
+    // What `libero-worker` and `run`'s own server are: MCP and the operator API, no pages.
+    let slim = InProcessServer::start_with(dir.path().join("slim"), Some(pg.url.clone()), None, "test_finished").unwrap();
+    let watcher = Server::start_with(&dir.path().join("watcher"), &["--store", &pg.url]);
+    let req = PrepareRequest { level: 3, workspace: Some(dir.path().join("ws")), video: false, ..PrepareRequest::new("T14") };
+    let id = prepare_episode(&slim.url, &req).unwrap().episode_id;
+    let (status, page) = common::http_get_text(&format!("{}/episodes/{id}", watcher.url));
+    assert_eq!(status, 200, "{page}");
+    assert!(page.contains("id=\"no-live-view\"") && page.contains("/static/elsewhere.js"), "{page}");
+    assert!(!page.contains(&slim.url), "no link to a server that has no pages: {page}");
+    slim.stop_now().unwrap();
+}

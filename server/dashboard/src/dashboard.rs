@@ -85,12 +85,28 @@ pub(crate) fn valid_id(id: &str) -> bool {
 
 /// The stored row of episode `id`, or the response saying why there is none.
 async fn stored_row(app: &App, id: &str) -> Result<libero_server::store::EpisodeRow, Response> {
+    row_and_source(app, id).await.map(|(row, _)| row)
+}
+
+/// Where an episode's row came from.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum RowSource {
+    /// The store: every server of a shared store writes there.
+    Store,
+    /// A batch directory's records (a batch's own in-process server).
+    BatchDir,
+}
+
+async fn row_and_source(app: &App, id: &str) -> Result<(libero_server::store::EpisodeRow, RowSource), Response> {
     if !valid_id(id) {
         return Err(json_error(StatusCode::NOT_FOUND, "no such episode"));
     }
     match app.store.get(id).await {
-        Ok(Some(row)) => Ok(fetched_if_elsewhere(app, row).await),
-        Ok(None) => batch_episode(app, id).await.ok_or_else(|| json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
+        Ok(Some(row)) => Ok((fetched_if_elsewhere(app, row).await, RowSource::Store)),
+        Ok(None) => batch_episode(app, id)
+            .await
+            .map(|row| (row, RowSource::BatchDir))
+            .ok_or_else(|| json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
         Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}"))),
     }
 }
@@ -397,8 +413,9 @@ struct LiveElsewherePage {
     task: String,
     level: i64,
     state: &'static str,
-    server_url: String,
-    live_url: String,
+    /// The running server and its live view; `None` when it has no console.
+    server_url: Option<String>,
+    live_url: Option<String>,
     created_at: String,
     started_at: String,
     batch: Option<String>,
@@ -408,15 +425,15 @@ struct LiveElsewherePage {
 }
 
 async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
-    let row = match stored_row(&app, &id).await {
+    let (row, source) = match row_and_source(&app, &id).await {
         Ok(r) => r,
         Err(resp) => return resp,
     };
     let Some(hub) = app.hubs.get(&id) else {
-        if let Some(server_url) = runs_elsewhere(&app, &row) {
+        if let Some(server_url) = runs_elsewhere(&app, &row, source) {
             let (state, steps, stages) = (elsewhere_state(&row), elsewhere_steps(&row), elsewhere_stages(&row));
             return page(LiveElsewherePage {
-                live_url: format!("{server_url}/episodes/{id}"),
+                live_url: server_url.as_ref().map(|url| format!("{url}/episodes/{id}")),
                 id,
                 task: row.episode.task_ref,
                 level: row.episode.level,
@@ -441,21 +458,29 @@ async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Respo
     })
 }
 
-/// The server running `row`'s episode, when it is still open and that server is not this one.
-fn runs_elsewhere(app: &App, row: &libero_server::store::EpisodeRow) -> Option<String> {
-    let url = row.episode.server_url.as_deref()?;
-    (row.outcome.is_none() && url != app.public_url && (url.starts_with("http://") || url.starts_with("https://"))).then(|| url.to_owned())
+/// For a stored episode that is still open and that this server does not run (the caller checked it has no live
+/// hub here): `Some(Some(url))`, the server whose live view shows it; `Some(None)`, a server without a console
+/// (`libero-worker`, `run`'s in-process server) runs it, so only the store follows it. `None` otherwise.
+fn runs_elsewhere(app: &App, row: &libero_server::store::EpisodeRow, source: RowSource) -> Option<Option<String>> {
+    if row.outcome.is_some() || source != RowSource::Store {
+        return None;
+    }
+    match row.episode.server_url.as_deref() {
+        None => Some(None),
+        Some(url) if url != app.public_url && (url.starts_with("http://") || url.starts_with("https://")) => Some(Some(url.to_owned())),
+        Some(_) => None,
+    }
 }
 
 async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
     if let Some(hub) = app.hubs.get(&id) {
         return ws.on_upgrade(move |socket| episode_stream(socket, hub));
     }
-    let row = match stored_row(&app, &id).await {
+    let (row, source) = match row_and_source(&app, &id).await {
         Ok(r) => r,
         Err(resp) => return resp,
     };
-    if runs_elsewhere(&app, &row).is_some() {
+    if runs_elsewhere(&app, &row, source).is_some() {
         return ws.on_upgrade(move |socket| elsewhere_stream(socket, app, row));
     }
     // Ended and released (or run before a restart): the viewer gets the final state from the records.

@@ -94,7 +94,7 @@ impl Episode {
     fn run_contained(&self, launch: &Launch, argv: &[&str]) -> Output {
         let argv: Vec<String> = argv.iter().map(|a| (*a).to_owned()).collect();
         let sandbox = Sandbox::detect().unwrap();
-        let full = contained_argv(Some(&sandbox), &argv, &launch.env, &self.prepared.workspace, &self.home);
+        let full = contained_argv(Some(&sandbox), &argv, &launch.env, &self.prepared.workspace, &self.home, &std::env::current_exe().unwrap());
         assert!(full.iter().all(|a| !a.contains(&self.token)), "the episode token is on a command line: {full:?}");
         let out = Command::new(&full[0])
             .args(&full[1..])

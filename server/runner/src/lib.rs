@@ -306,6 +306,21 @@ fn batch_value(ctx: &RunContext, status: &str, created_at: &str, p: &Progress, s
     })
 }
 
+/// The `libero-agent` binary a rollout's `{libero_agent}` and the `mcp-stdio` relay run (and the sandbox shows):
+/// this executable, or for `libero-worker` (which has neither the reference agent nor the relay) the
+/// `libero-agent` installed beside it.
+pub fn agent_exe() -> anyhow::Result<PathBuf> {
+    let me = std::env::current_exe().context("cannot find this executable")?;
+    if me.file_name().is_some_and(|n| n == "libero-agent") {
+        return Ok(me);
+    }
+    let beside = me.with_file_name("libero-agent");
+    if beside.is_file() {
+        return Ok(beside);
+    }
+    bail!("{} runs agents through libero-agent ({{libero_agent}}, the mcp-stdio relay), expected at {}", me.display(), beside.display())
+}
+
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.concurrency == Some(0) {
         bail!("--concurrency must be at least 1");
@@ -391,7 +406,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("the credentials file must lie outside the workspaces and the batch directory");
     }
     std::fs::create_dir_all(&workspace_root)?;
-    let self_exe = std::env::current_exe()?;
+    let self_exe = agent_exe()?;
     let npm_cli_installed = harness::pinned_npm_cli_installed(args.harness);
     let harness_version = probe_version(args.harness, npm_cli_installed);
     // Rollouts with a directory but no record were running when an earlier runner died: INTERRUPTED, no retry.

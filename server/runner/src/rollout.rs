@@ -184,12 +184,19 @@ pub fn replace_file_under(root: &Path, path: &Path, bytes: &[u8], mode: u32) -> 
 }
 
 /// The argv the runner starts: `argv` inside the sandbox when there is one, writing only the workspace and the
-/// session home and reading, besides the system directories, this binary and the install of the program `argv`
-/// runs as the child's own `PATH` (in `env`) finds it.
-pub fn contained_argv(sandbox: Option<&Sandbox>, argv: &[String], env: &[(String, String)], workspace: &Path, home: &Path) -> Vec<String> {
+/// session home and reading, besides the system directories, the `libero-agent` binary `agent_exe` and the install
+/// of the program `argv` runs as the child's own `PATH` (in `env`) finds it.
+pub fn contained_argv(
+    sandbox: Option<&Sandbox>,
+    argv: &[String],
+    env: &[(String, String)],
+    workspace: &Path,
+    home: &Path,
+    agent_exe: &Path,
+) -> Vec<String> {
     let Some(sb) = sandbox else { return argv.to_vec() };
     let path = env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
-    let mut readable = own_binary_files();
+    let mut readable = own_binary_files(agent_exe);
     readable.extend(argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
     let spec = SandboxSpec { writable: vec![workspace.to_path_buf(), home.to_path_buf()], readable, cwd: workspace.to_path_buf() };
     sb.command(argv, &spec)
@@ -251,7 +258,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     };
     let launch = build_launch(&lctx)?;
     write_launch_files(&launch)?;
-    let argv = contained_argv(ctx.sandbox.as_ref(), &launch.argv, &launch.env, &prepared.workspace, &home);
+    let argv = contained_argv(ctx.sandbox.as_ref(), &launch.argv, &launch.env, &prepared.workspace, &home, &ctx.self_exe);
     let stdout_path = dir.join(ctx.harness.stdout_file());
     let stderr_path = dir.join(format!("{}_stderr.log", ctx.harness.as_str()));
     let mut manifest = json!({

@@ -112,11 +112,12 @@ impl Sandbox {
     }
 }
 
-/// This executable and the shared libraries it loaded from outside the system directories (libmujoco from the
-/// asset cache): what a sandboxed `libero-agent agent`/`mcp-stdio` needs to start. Only these files, not
-/// their folders, so the cache's assets stay invisible.
-pub fn own_binary_files() -> Vec<PathBuf> {
-    let mut out: Vec<PathBuf> = std::env::current_exe().into_iter().collect();
+/// The `libero-agent` binary `agent_exe` ([`crate::agent_exe`]) and the shared libraries this process loaded from
+/// outside the system directories (libmujoco from the asset cache, which every binary of the project links): what
+/// a sandboxed `libero-agent agent`/`mcp-stdio` needs to start. Only these files, not their folders, so the
+/// cache's assets stay invisible.
+pub fn own_binary_files(agent_exe: &Path) -> Vec<PathBuf> {
+    let mut out = vec![agent_exe.to_path_buf()];
     if let Ok(maps) = std::fs::read_to_string("/proc/self/maps") {
         for line in maps.lines() {
             let Some(path) = line.split_whitespace().nth(5) else { continue };

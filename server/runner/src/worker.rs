@@ -114,9 +114,11 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         artifacts: None,
         console: args.console,
     };
+    let has_console = serve_args.console.is_some();
     let server = InProcessServer::start_args(serve_args, "worker_stopped_before_finish")?;
-    let live_url = args.public_url.clone().unwrap_or_else(|| server.url.clone());
-    runtime.block_on(store.register_worker(&id, &host, args.slots as i64, Some(&live_url)))?;
+    // Without a console (`libero-worker`) there is no live view to link to.
+    let live_url = has_console.then(|| args.public_url.clone().unwrap_or_else(|| server.url.clone()));
+    runtime.block_on(store.register_worker(&id, &host, args.slots as i64, live_url.as_deref()))?;
     eprintln!("worker {id}: {} slot(s), store {}, artifacts {}, server {}", args.slots, libero_store::redact(&args.store), artifacts.url(), server.url);
     super::install_signal_handlers();
     let worker = Arc::new(Worker {
@@ -253,7 +255,7 @@ impl Worker {
             harness,
             credentials,
             sandbox,
-            self_exe: std::env::current_exe()?,
+            self_exe: super::agent_exe()?,
             npm_cli_installed,
             store: None,
         });

@@ -141,7 +141,7 @@ pub struct App {
     /// The browser console's routes, when this server has one.
     pub console: Option<Console>,
     /// Where other machines reach this server (`--public-url`, else its listening address), stored with every
-    /// episode it prepares.
+    /// episode it prepares when it has a console (its live view).
     pub public_url: String,
 }
 
@@ -213,7 +213,8 @@ impl App {
     pub async fn insert_prepared(&self, prepared: &episodes::Prepared) -> anyhow::Result<()> {
         let mut new = NewEpisode::from_record(&RunDir::new(&prepared.run_dir))
             .with_context(|| format!("episode {} has no readable episode record", prepared.episode_id))?;
-        new.server_url = Some(self.public_url.clone());
+        // Only a server with a console has a live view for other dashboards to link to.
+        new.server_url = self.console.is_some().then(|| self.public_url.clone());
         self.store.insert_prepared(&new).await?;
         self.hubs.notify();
         Ok(())
