@@ -491,12 +491,9 @@ async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(
 /// store shared by processes on one machine has no LISTEN/NOTIFY.
 const ELSEWHERE_REREAD: Duration = Duration::from_secs(5);
 
+/// The state of an open episode another server runs.
 fn elsewhere_state(row: &libero_server::store::EpisodeRow) -> &'static str {
-    match (&row.outcome, &row.started_at) {
-        (Some(_), _) => "ended",
-        (None, Some(_)) => "running",
-        (None, None) => "prepared",
-    }
+    if row.started_at.is_some() { "running" } else { "prepared" }
 }
 
 fn elsewhere_steps(row: &libero_server::store::EpisodeRow) -> String {

@@ -98,12 +98,12 @@ pub struct StoredBatch {
     pub records: Vec<Value>,
 }
 
-/// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
-/// older store by [`Store::open`].
 /// The PostgreSQL advisory lock that serialises schema creation and upgrades across every process on the store
 /// (an arbitrary constant: "libero" in ASCII).
 const SCHEMA_LOCK_KEY: i64 = 0x6c_6962_6572_6f;
 
+/// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
+/// older store by [`Store::open`].
 const ADDED_COLUMNS: [(&str, &str); 5] =
     [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION"), ("server_url", "TEXT")];
 
