@@ -80,6 +80,12 @@ pub fn run(args: &BenchQueueArgs) -> anyhow::Result<()> {
         if b.doc["status"] != "finished" {
             bail!("the workers exited before batch {name} finished: {}", b.doc["counts"]);
         }
+        if b.doc["outcomes"]["INVALID"].as_u64().is_some_and(|n| n > 0) {
+            // A measurement of failing rollouts is no measurement: say why they failed (the workers name it).
+            let log = std::fs::read_to_string(tmp.path().join(&name).join("worker0.log")).unwrap_or_default();
+            let why: Vec<&str> = log.lines().filter(|l| l.contains("INVALID")).take(3).collect();
+            eprintln!("{n} worker(s): INVALID rollouts; the first worker says:\n{}", why.join("\n"));
+        }
         let per_hour = f64::from(args.rollouts) * 3600.0 / elapsed_s;
         eprintln!("{n} worker(s): {} rollouts in {elapsed_s:.1} s ({per_hour:.0} per hour), outcomes {}", args.rollouts, b.doc["outcomes"]);
         rates.push(json!({"workers": n, "rollouts": args.rollouts, "elapsed_s": elapsed_s, "rollouts_per_hour": per_hour, "outcomes": b.doc["outcomes"]}));

@@ -76,6 +76,11 @@ enum Command {
     /// The built-in reference agent: a scripted MCP client with no model (for end-to-end tests).
     #[cfg(feature = "episode-serve")]
     Agent(cmd_agent::AgentArgs),
+    /// The first process of an agent's sandbox (started by `run` and workers, not by people): relays the agent's
+    /// loopback addresses to the runner's sockets, drops every privilege, then starts the agent.
+    #[cfg(feature = "episode-serve")]
+    #[command(hide = true)]
+    SandboxNet(libero_runner::sandbox_net::SandboxNetArgs),
 }
 
 #[derive(Subcommand)]
@@ -131,5 +136,7 @@ fn main() -> anyhow::Result<()> {
         Command::Report(a) => libero_runner::report::run(a),
         #[cfg(feature = "episode-serve")]
         Command::Agent(a) => cmd_agent::run(a),
+        #[cfg(feature = "episode-serve")]
+        Command::SandboxNet(a) => std::process::exit(libero_runner::sandbox_net::run(&a)?),
     }
 }

@@ -12,6 +12,8 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+mod common;
+
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
 }
@@ -32,18 +34,7 @@ fn run_batch(batch: &Path, workspaces: &Path, agent_cmd: &str, limit: Duration) 
         .stderr(Stdio::inherit())
         .spawn()
         .expect("run libero-agent run");
-    let start = Instant::now();
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            assert!(status.success(), "the batch failed: {status}");
-            return;
-        }
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            panic!("the batch hung for more than {limit:?} (a planted FIFO or link blocked the server?)");
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    }
+    common::wait_success(&mut child, limit, "the batch (a planted FIFO or link blocking the server?)");
 }
 
 fn records(batch: &Path) -> Vec<Value> {

@@ -182,13 +182,20 @@ fn check_rollout(r: &Rollout) {
     let logs = files_below(&r.dir).into_iter().filter(|f| f.parent() == Some(r.dir.as_path()));
     let token_at: Vec<_> = logs.chain([r.batch.join("rollouts.jsonl")]).filter(|f| contains(f, &token)).collect();
     assert!(token_at.is_empty(), "the episode token is in {token_at:?}");
+
+    // The scripted model lives on the host's loopback, outside the agent's network namespace: every answer went
+    // through the runner's gateway, which recorded it.
+    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(r.dir.join("harness_manifest.json")).unwrap()).unwrap();
+    let via_gateway = manifest["model_api"]["requests"].as_u64().unwrap_or(0) - manifest["model_api"]["refused"].as_u64().unwrap_or(0);
+    assert!(via_gateway >= r.answers.len() as u64, "{} answers, {via_gateway} requests through the gateway: {manifest}", r.answers.len());
+    assert_eq!(manifest["sandbox_report"]["network_interfaces"], serde_json::json!(["lo"]), "{manifest}");
 }
 
 /// The record's usage is the sum of what the endpoint reported, read under the provider's own names:
 /// `[input, cached input, output]` pointers into each reply's usage.
 fn check_usage(r: &Rollout, [input, cached, output]: [&str; 3]) {
     let u = &r.record["usage"];
-    assert_eq!(u["available"], true, "usage from the harness's stdout: {u}");
+    assert_eq!(u["available"], true, "usage from the harness's stdout or the runner's gateway: {u}");
     for (field, pointer) in [("input_tokens", input), ("cache_read_input_tokens", cached), ("output_tokens", output)] {
         assert_eq!(u[field], reported(&r.answers, pointer), "{field}: {u}");
     }
@@ -256,15 +263,18 @@ fn qwen_code_plays_a_t14_episode_against_a_scripted_model() {
 
 /// Kimi Code, the pinned version installed, plays T14 over OpenAI chat completions with the launch's
 /// `config.toml` and `mcp.json` in KIMI_CODE_HOME. Its `stream-json` stdout carries messages and tool calls but
-/// no token counts, so the record says usage is unavailable rather than reading the agent-writable session files.
+/// no token counts; its model traffic went through the runner's gateway (its sandbox has no other way out), whose
+/// records give the usage — exactly the endpoint's sums — never the agent-writable session files.
 #[test]
 fn kimi_code_plays_a_t14_episode_against_a_scripted_model() {
     let r = run_t14("kimi_code", "kimi");
     check_rollout(&r);
     let stdout = stdout_of(&r, "kimi_code");
     assert!(stdout.contains(r#""name":"mcp__libero__finish_episode""#), "its tool calls are in its stdout: {stdout}");
-    let u = &r.record["usage"];
-    assert_eq!((u["available"].as_bool(), u["input_tokens"].as_u64()), (Some(false), None), "{u}");
+    check_usage(&r, ["/prompt_tokens", "/prompt_tokens_details/cached_tokens", "/completion_tokens"]);
+    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(r.dir.join("harness_manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["usage_source"], "model_api_gateway", "{manifest}");
+    assert_eq!(manifest["model_api"]["responses_with_usage"].as_u64(), Some(r.answers.len() as u64), "{manifest}");
 }
 
 /// `mcp-inspector --cli` with the workspace's `.libero/mcp.json`; stdout parsed as JSON.

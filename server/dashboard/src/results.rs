@@ -143,6 +143,7 @@ fn episode_json(r: &RolloutRecord) -> Value {
         "completed_stages": r.completed_stages, "stage_count": r.stage_count, "episode_id": r.episode_id,
         "review": r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")),
         "wall_time_s": r.wall_time_s, "judgment_correct": r.judgment_correct,
+        "reason": (!r.outcome.is_valid()).then(|| r.reason()).flatten(), "worker": r.worker,
     })
 }
 
@@ -217,6 +218,19 @@ pub struct EpisodeLink {
     pub label: String,
     pub outcome: String,
     pub title: String,
+    /// Why an INVALID or INTERRUPTED rollout does not count, shortened (the title has all of it); empty otherwise.
+    pub reason: String,
+}
+
+/// A rollout that does not count (INVALID, INTERRUPTED), with why.
+pub struct ExcludedRow {
+    pub batch: String,
+    pub rollout: String,
+    pub task: String,
+    pub outcome: String,
+    pub worker: String,
+    pub reason: String,
+    pub href: String,
 }
 
 pub struct TaskCell {
@@ -270,6 +284,8 @@ pub struct View {
     pub columns: Vec<String>,
     pub tasks: Vec<TaskRow>,
     pub ablations: Vec<Ablation>,
+    /// Every rollout that does not count, with its reason.
+    pub excluded: Vec<ExcludedRow>,
     pub any_running: bool,
 }
 
@@ -292,6 +308,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
         columns: vec![],
         tasks: vec![],
         ablations: vec![],
+        excluded: vec![],
         any_running: false,
     };
     // (column index, batch, condition row) for the per-task table.
@@ -362,6 +379,17 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             });
             task_numbers.extend(s.tasks.iter().map(|t| t.task_number));
         }
+        for r in b.records.iter().filter(|r| !r.outcome.is_valid()) {
+            v.excluded.push(ExcludedRow {
+                batch: b.name(),
+                rollout: r.rollout_id.clone(),
+                task: r.task.clone(),
+                outcome: r.outcome.as_str().to_owned(),
+                worker: r.worker.clone().unwrap_or_default(),
+                reason: r.reason().unwrap_or_else(|| "no reason recorded".into()),
+                href: r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")).unwrap_or_default(),
+            });
+        }
         pool_view(&mut v, b, reps);
         if let Some(a) = ablation(&experiment, b, &batch_rows) {
             v.ablations.push(a);
@@ -417,12 +445,27 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
 /// A rollout as `c/K`, linked to its review.
 fn episode_link(x: &RolloutRecord) -> EpisodeLink {
     let c = x.completed_stages.map(|c| c.to_string()).unwrap_or_else(|| "?".into());
+    let reason = if x.outcome.is_valid() { None } else { x.reason() };
     EpisodeLink {
         href: x.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")).unwrap_or_default(),
         label: format!("{c}/{}", x.stage_count),
         outcome: x.outcome.as_str().to_owned(),
-        title: format!("repetition {}: {} ({})", x.repetition, x.outcome.as_str(), x.rollout_id),
+        title: match &reason {
+            Some(why) => format!("repetition {}: {} ({}): {why}", x.repetition, x.outcome.as_str(), x.rollout_id),
+            None => format!("repetition {}: {} ({})", x.repetition, x.outcome.as_str(), x.rollout_id),
+        },
+        reason: reason.map(|why| shorten(&why, 80)).unwrap_or_default(),
     }
+}
+
+/// At most `max` characters of `text`, with `…` where it was cut.
+fn shorten(text: &str, max: usize) -> String {
+    if text.chars().count() <= max {
+        return text.to_owned();
+    }
+    let mut s: String = text.chars().take(max.saturating_sub(1)).collect();
+    s.push('…');
+    s
 }
 
 /// A pool batch's per-suite lines and per-task rows (the same summary as `report`'s pool section).

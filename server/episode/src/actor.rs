@@ -1,7 +1,8 @@
 //! The episode actor: one thread owns one episode's world (simulation + renderer + evaluator), receives
 //! tool calls over a channel, enforces the protocol's order of checks and budgets (§2.11, §4.4), publishes
 //! observations and writes the private records. A fault or panic ends this episode only (INVALID, reason
-//! recorded); other episodes' threads are untouched.
+//! recorded); other episodes' threads are untouched. What the agent does to its own workspace is never a
+//! fault: an observation its workspace cannot take is an error of that tool call, and the episode goes on.
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::PathBuf;
 use std::sync::mpsc::{self, RecvTimeoutError};
@@ -14,8 +15,8 @@ use crate::EpisodeError;
 use crate::call::{MicroAction, ToolCall, ToolError, validate_actions};
 use crate::json::{compact_sorted, utc_now_iso};
 use crate::live::{LiveEvent, LiveSink, unix_now_s};
-use crate::observation::{Frame, Level, observation_id};
-use crate::publish::ObservationPublisher;
+use crate::observation::{EncodedObservation, Frame, Level, encode_observation};
+use crate::publish::{ObservationPublisher, write_private_copy};
 use crate::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, aborted_result, classify, write_result};
 use crate::tools::{MAX_AGENT_STEPS_CAP, ToolName};
 use crate::workspace::OBSERVATION_FILE;
@@ -27,6 +28,9 @@ const EXPIRY_REASON: &str = "episode_wall_time_budget_exhausted";
 const FINISHED_TEXT: &str = "the episode is already finished; finish_episode was called and no further commands are accepted";
 const ABORTED_TEXT: &str = "the episode was stopped by the server and accepts no further commands";
 const START_TWICE_TEXT: &str = "start may be called exactly once";
+/// How the agent's error begins when its workspace could not take an observation.
+pub const PUBLICATION_FAILED: &str = "observation publication failed";
+const CURRENT_OBSERVATION_DIR: &str = "benchmark_inputs/current_observation/";
 
 /// The official verdict at finish (or the evaluator snapshot at expiry).
 #[derive(Debug, Clone, PartialEq)]
@@ -290,6 +294,9 @@ struct Actor<W: World> {
     run: RunDir,
     /// Holds the workspace root open for the episode's life.
     publisher: ObservationPublisher,
+    /// The initial observation, reset done and archived, that a `start_episode` could not publish into the
+    /// workspace (the agent wrecked it): the next `start_episode` publishes it without resetting again.
+    unpublished_start: Option<EncodedObservation>,
     status: Arc<Mutex<EpisodeStatus>>,
     /// The operator's live view (calls, the end); never the agent's.
     live: Option<LiveSink>,
@@ -356,6 +363,7 @@ where
             let _ = ready_tx.send(Ok(()));
             let mut actor = Actor {
                 publisher,
+                unpublished_start: None,
                 config: actor_config,
                 world: Some(world),
                 phase: Phase::Prepared,
@@ -580,26 +588,51 @@ impl<W: World> Actor<W> {
         result.map_err(|e| self.fault(e))
     }
 
-    fn publish(&mut self) -> Result<String, ToolError> {
+    /// Renders the current frame, encodes it and writes the evaluator-private archive copy. A failure here is the
+    /// server's (simulator, renderer, run directory): the episode ends INVALID.
+    fn archive_frame(&mut self) -> Result<EncodedObservation, ToolError> {
         let index = self.frame_index;
         let frame = self.with_world(|w| w.frame(index))?;
         let private = self.run.private_observations();
-        let level = self.config.level;
-        self.publisher.publish(&frame, level, Some(&private)).map_err(|e| self.fault(e.into()))?;
-        let id = observation_id(index);
-        self.latest_id = Some(id.clone());
-        Ok(id)
+        let archived = encode_observation(&frame, self.config.level).and_then(|e| write_private_copy(&private, &e).map(|()| e));
+        let encoded = archived.map_err(|e| self.fault(EpisodeError::Io(e)))?;
+        self.latest_id = Some(encoded.observation_id.clone());
+        Ok(encoded)
+    }
+
+    /// Publishes an archived observation into the agent's workspace. A failure there is the agent's doing (it
+    /// changed its workspace under every attempt) or its workspace's (a full disk): never a fault of the
+    /// episode, which goes on; the text tells the agent.
+    fn publish_to_workspace(&mut self, encoded: &EncodedObservation) -> Result<(), String> {
+        self.publisher.publish_encoded(encoded).map_err(|e| {
+            log::warn!("episode {}: {} not published into the workspace: {e}", self.config.episode_id, encoded.observation_id);
+            format!(
+                "{PUBLICATION_FAILED}: {} could not be placed at {CURRENT_OBSERVATION_DIR} in your workspace: {e} (your workspace's benchmark_inputs was changed or cannot be written)",
+                encoded.observation_id
+            )
+        })
     }
 
     fn start(&mut self) -> Result<Value, ToolError> {
-        self.with_world(|w| w.start())?;
-        let id = self.publish()?;
+        let encoded = match self.unpublished_start.take() {
+            Some(encoded) => encoded,
+            None => {
+                self.with_world(|w| w.start())?;
+                self.archive_frame()?
+            }
+        };
+        if let Err(why) = self.publish_to_workspace(&encoded) {
+            self.unpublished_start = Some(encoded);
+            return Err(ToolError::runtime_error(format!(
+                "{why}; the episode has not started and its wall clock is not running: call start_episode again"
+            )));
+        }
         // The wall clock starts after the initial observation is published (§2.7).
         self.phase = Phase::Active { started: Instant::now() };
         self.update_status();
         Ok(json!({
             "ok": true,
-            "observation_id": id,
+            "observation_id": encoded.observation_id,
             "observation_file": OBSERVATION_FILE,
             "max_agent_steps": self.config.agent_step_limit(),
             "attempt_index": 1,
@@ -616,19 +649,34 @@ impl<W: World> Actor<W> {
         self.with_world(|w| actions.iter().try_for_each(|a| w.step(a)))?;
         self.frame_index += 1;
         self.accepted += 1;
-        let id = self.publish()?;
+        let encoded = self.archive_frame()?;
+        let published = self.publish_to_workspace(&encoded);
         self.update_status();
-        Ok(json!({
-            "ok": true,
-            "observation_id": id,
-            "observation_file": OBSERVATION_FILE,
-            "execution": {
-                "command_completed": true,
-                "termination_reason": "sequence_executed",
-                "micro_step_count": actions.len(),
-                "control_steps": actions.len(),
-            },
-        }))
+        let execution = json!({
+            "command_completed": true,
+            "termination_reason": "sequence_executed",
+            "micro_step_count": actions.len(),
+            "control_steps": actions.len(),
+        });
+        Ok(match published {
+            Ok(()) => json!({
+                "ok": true,
+                "observation_id": encoded.observation_id,
+                "observation_file": OBSERVATION_FILE,
+                "execution": execution,
+            }),
+            // The robot moved and the call counts: the payload says so beside the error (`execution`).
+            Err(why) => {
+                let mut payload = ToolError::runtime_error(format!(
+                    "{why}; the actions were executed and count as accepted agent step {}; the episode continues and the next successful osc_sequence publishes a new observation",
+                    self.accepted
+                ))
+                .payload();
+                payload["execution"] = execution;
+                payload["accepted_agent_steps"] = json!(self.accepted);
+                payload
+            }
+        })
     }
 
     fn finished_payload(&self, success: bool, wall_time_s: f64) -> Value {
@@ -768,6 +816,8 @@ mod tests {
     struct FakeWorld {
         dropped: Arc<AtomicBool>,
         fail_start: bool,
+        /// `start` (reset) calls so far.
+        starts: Arc<std::sync::atomic::AtomicUsize>,
     }
 
     impl Drop for FakeWorld {
@@ -789,6 +839,7 @@ mod tests {
 
     impl World for FakeWorld {
         fn start(&mut self) -> Result<(), EpisodeError> {
+            self.starts.fetch_add(1, Ordering::SeqCst);
             if self.fail_start { Err(EpisodeError::Thread("start failed on purpose".into())) } else { Ok(()) }
         }
         fn step(&mut self, _: &MicroAction) -> Result<(), EpisodeError> {
@@ -814,7 +865,7 @@ mod tests {
         };
         std::fs::create_dir_all(config.workspace.join("benchmark_inputs")).unwrap();
         let dropped = Arc::new(AtomicBool::new(false));
-        let world = FakeWorld { dropped: dropped.clone(), fail_start };
+        let world = FakeWorld { dropped: dropped.clone(), fail_start, starts: Arc::default() };
         (spawn_episode(config, move || Ok(world)).unwrap(), dropped)
     }
 
@@ -877,5 +928,95 @@ mod tests {
         assert!(dropped.load(Ordering::SeqCst));
         let late = expiring.call("finish_episode", None);
         assert_eq!((late["ok"].clone(), late["termination_reason"].clone()), (json!(true), json!(EXPIRY_REASON)));
+    }
+
+    fn spawn_counting(dir: &std::path::Path) -> (EpisodeHandle, Arc<std::sync::atomic::AtomicUsize>) {
+        let config = EpisodeConfig {
+            episode_id: "sabotaged".into(),
+            instruction: "do nothing".into(),
+            level: Level::L3,
+            max_agent_steps: 10,
+            max_wall_time_s: 600.0,
+            workspace: dir.join("ws"),
+            run_dir: dir.join("run"),
+        };
+        std::fs::create_dir_all(config.workspace.join("benchmark_inputs")).unwrap();
+        let starts = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let world = FakeWorld { dropped: Arc::default(), fail_start: false, starts: starts.clone() };
+        (spawn_episode(config, move || Ok(world)).unwrap(), starts)
+    }
+
+    fn observation_id_on_disk(ws: &std::path::Path) -> Value {
+        let text = std::fs::read(ws.join(OBSERVATION_FILE)).unwrap();
+        serde_json::from_slice::<Value>(&text).unwrap()["observation_id"].clone()
+    }
+
+    #[test]
+    fn an_agent_that_wrecks_every_publication_gets_errors_and_its_episode_still_ends_with_a_verdict() {
+        use crate::publish::{ATTEMPTS, Moment, install_hook};
+        let dir = tempfile::tempdir().unwrap();
+        let ws = dir.path().join("ws");
+        // The agent deletes benchmark_inputs under every attempt of the first start_episode and of the first
+        // osc_sequence (attempt counts 0..8 and 9..17), and leaves the others alone.
+        let bi = ws.join("benchmark_inputs");
+        let mut staged = 0usize;
+        install_hook(&ws, move |moment, _| {
+            if moment == Moment::Staged {
+                if staged < ATTEMPTS || (ATTEMPTS + 1..2 * ATTEMPTS + 1).contains(&staged) {
+                    let _ = std::fs::remove_dir_all(&bi);
+                }
+                staged += 1;
+            }
+        });
+        let (h, starts) = spawn_counting(dir.path());
+        let first = h.call("start_episode", None);
+        assert_eq!(first["error_type"], "RuntimeError", "{first}");
+        let text = error_text(&first);
+        assert!(text.starts_with(PUBLICATION_FAILED) && text.contains("call start_episode again"), "{text}");
+        assert_eq!(h.status().state, EpisodeState::Prepared, "not aborted, not started");
+        let early = h.call("osc_sequence", Some(json!({"actions": [[0, 0, 0, 0, 0, 0, 0]]}).as_object().unwrap().clone()));
+        assert!(error_text(&early).contains("call start_episode first"), "{early}");
+        // The retry publishes the initial observation archived by the first call, without a second reset.
+        let second = h.call("start_episode", None);
+        assert_eq!((second["ok"].clone(), second["observation_id"].clone()), (json!(true), json!("obs_000000")), "{second}");
+        assert_eq!(starts.load(Ordering::SeqCst), 1, "the world was reset once");
+        assert_eq!(observation_id_on_disk(&ws), "obs_000000");
+        let act = || Some(json!({"actions": [[0.1, 0, 0, 0, 0, 0, 1], [0.1, 0, 0, 0, 0, 0, 1]]}).as_object().unwrap().clone());
+        // The step is executed and counted; only its observation is missing, and the payload says both.
+        let spoiled = h.call("osc_sequence", act());
+        assert_eq!((spoiled["ok"].clone(), spoiled["error_type"].clone()), (json!(false), json!("RuntimeError")), "{spoiled}");
+        assert!(error_text(&spoiled).starts_with(PUBLICATION_FAILED) && error_text(&spoiled).contains("obs_000001"), "{spoiled}");
+        assert_eq!(spoiled["execution"]["command_completed"], true);
+        assert_eq!(spoiled["execution"]["control_steps"], 2);
+        assert_eq!(spoiled["accepted_agent_steps"], 1);
+        assert_eq!(h.status().state, EpisodeState::Active);
+        assert_eq!(h.status().accepted_agent_steps, 1);
+        let next = h.call("osc_sequence", act());
+        assert_eq!((next["ok"].clone(), next["observation_id"].clone()), (json!(true), json!("obs_000002")), "{next}");
+        assert_eq!(observation_id_on_disk(&ws), "obs_000002");
+        let finished = h.call("finish_episode", None);
+        assert_eq!((finished["status"].clone(), finished["accepted_agent_steps"].clone()), (json!("finished"), json!(2)), "{finished}");
+        let status = h.status();
+        assert_eq!((status.state, status.outcome), (EpisodeState::Finished, Some(Outcome::Fail)));
+        let result = crate::records::read_result(&RunDir::new(dir.path().join("run"))).unwrap();
+        assert_eq!(result["status"], "finished");
+        // Every frame is in the private archive, the unpublished one included.
+        for id in ["obs_000000", "obs_000001", "obs_000002"] {
+            assert!(dir.path().join("run/private_observations").join(id).join("observation.json").is_file(), "{id}");
+        }
+    }
+
+    #[test]
+    fn an_agent_that_removes_its_whole_workspace_still_gets_a_verdict() {
+        let dir = tempfile::tempdir().unwrap();
+        let (h, _) = spawn_counting(dir.path());
+        assert_eq!(h.call("start_episode", None)["ok"], true);
+        std::fs::remove_dir_all(dir.path().join("ws")).unwrap();
+        let spoiled = h.call("osc_sequence", Some(json!({"actions": [[0, 0, 0, 0, 0, 0, 1]]}).as_object().unwrap().clone()));
+        assert!(error_text(&spoiled).contains("workspace directory itself was removed"), "{spoiled}");
+        assert_eq!(spoiled["execution"]["command_completed"], true);
+        let finished = h.call("finish_episode", None);
+        assert_eq!((finished["status"].clone(), finished["accepted_agent_steps"].clone()), (json!("finished"), json!(1)));
+        assert_eq!(h.status().outcome, Some(Outcome::Fail));
     }
 }

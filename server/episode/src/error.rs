@@ -16,3 +16,17 @@ pub enum EpisodeError {
     #[error("episode thread: {0}")]
     Thread(String),
 }
+
+/// Why an observation was not published. The two sides are told apart because they are blamed differently:
+/// the server's own side failing is an infrastructure fault (the episode ends INVALID), while the agent's
+/// workspace is the agent's to wreck (the agent is told, and the episode goes on).
+#[derive(Debug, Error)]
+pub enum PublishError {
+    /// Encoding the frame or writing the evaluator-private archive in the run directory.
+    #[error("observation archive: {0}")]
+    Private(#[source] std::io::Error),
+    /// The agent's workspace could not be made to hold the observation: the agent changed it under every
+    /// attempt, or it cannot take the files (a full disk, the workspace root removed).
+    #[error("workspace publication: {0}")]
+    Workspace(#[source] std::io::Error),
+}

@@ -131,6 +131,36 @@ impl RolloutRecord {
         }
     }
 
+    /// Why the rollout did not count (INVALID, INTERRUPTED) or was stopped by the watchdog: the runner's
+    /// infrastructure error, else the episode's termination reason, else what is known. `None` for the other
+    /// outcomes.
+    pub fn reason(&self) -> Option<String> {
+        if !matches!(self.outcome, Outcome::Invalid | Outcome::Interrupted | Outcome::WatchdogTimeout) {
+            return None;
+        }
+        Some(match (&self.infrastructure_error, &self.termination_reason, &self.result_status) {
+            (Some(e), _, _) => e.clone(),
+            (None, Some(t), _) => format!("the episode ended: {t}"),
+            (None, None, Some(s)) => format!("the episode's result is {s:?}, with no reason given"),
+            (None, None, None) => "no reason recorded".to_owned(),
+        })
+    }
+
+    /// Gives an INVALID rollout that names no reason (no infrastructure error, no termination reason) one: the
+    /// reason its episode's result records (the private run directory, written by the server), else what is
+    /// missing. Every INVALID record then says why, in `rollouts.jsonl`, the store, `report` and the Results page.
+    pub fn ensure_reason(&mut self) {
+        if self.outcome != Outcome::Invalid || self.infrastructure_error.is_some() || self.termination_reason.is_some() {
+            return;
+        }
+        let recorded = self.run_dir.as_deref().and_then(result_reason);
+        self.infrastructure_error = Some(recorded.unwrap_or_else(|| match (&self.episode_id, &self.result_status) {
+            (None, _) => "no episode was prepared for this rollout".to_owned(),
+            (Some(id), None) => format!("no result was found for episode {id}"),
+            (Some(id), Some(s)) => format!("episode {id} ended {s:?} without a reason"),
+        }));
+    }
+
     /// The rollout as the paper's metrics see it; `None` for a pool rollout.
     pub fn to_metrics(&self) -> Option<Rollout> {
         if self.suite.is_some() {
@@ -163,6 +193,38 @@ impl RolloutRecord {
             wall_time_s: self.wall_time_s,
         })
     }
+}
+
+/// The reason an episode's `result.json` gives for not counting (its infrastructure error, its abort reason).
+fn result_reason(run_dir: &Path) -> Option<String> {
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(run_dir.join("result.json")).ok()?.take(1 << 20).read_to_string(&mut text).ok()?;
+    let v: Value = serde_json::from_str(&text).ok()?;
+    let field = |k: &str| v[k].as_str().filter(|s| !s.is_empty()).map(str::to_owned);
+    field("infrastructure_error")
+        .map(|e| format!("the episode recorded an infrastructure error: {e}"))
+        .or_else(|| field("reason").map(|r| format!("the episode ended: {r}")))
+        .or_else(|| field("status").map(|s| format!("the episode's result is {s:?}, with no reason given")))
+}
+
+/// When every rollout of `rollouts` (id, outcome, reason) is INVALID, the message saying so with the first
+/// reasons; `None` when any is not (or there are none).
+pub fn all_invalid_message<'a>(batch: &str, rollouts: impl IntoIterator<Item = (&'a str, &'a str, Option<String>)>) -> Option<String> {
+    let rollouts: Vec<_> = rollouts.into_iter().collect();
+    if rollouts.is_empty() || rollouts.iter().any(|(_, outcome, _)| *outcome != Outcome::Invalid.as_str()) {
+        return None;
+    }
+    let first: Vec<String> = rollouts
+        .iter()
+        .take(3)
+        .map(|(id, _, why)| format!("  {id}: {}", why.as_deref().unwrap_or("no reason recorded")))
+        .collect();
+    Some(format!(
+        "every rollout of batch {batch} ended INVALID ({} of them); the first reasons:\n{}",
+        rollouts.len(),
+        first.join("\n")
+    ))
 }
 
 pub fn batch_json(dir: &Path) -> PathBuf {
@@ -360,6 +422,39 @@ mod tests {
         assert_eq!(r.suite, None);
         assert_eq!(r.to_metrics().unwrap().split, libero_metrics::Split::ShortHorizonEasy);
         assert!(r.to_pool().is_none());
+    }
+
+    #[test]
+    fn every_invalid_rollout_names_a_reason() {
+        let plan = super::super::schedule::PlannedRollout {
+            rollout_id: "w1_t14_level3".into(),
+            task: "T14".into(),
+            task_number: 14,
+            task_name: "open_the_microwave".into(),
+            split: Some(libero_metrics::Split::ShortHorizonEasy),
+            suite: None,
+            stage_count: 1,
+            repetition: 1,
+            level: 3,
+            demo: super::super::schedule::Demo::None,
+        };
+        let mut r = RolloutRecord::planned(&plan);
+        r.ensure_reason();
+        assert_eq!(r.reason().as_deref(), Some("no episode was prepared for this rollout"));
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("result.json"), r#"{"status": "aborted", "reason": "harness_process_exited_before_finish"}"#).unwrap();
+        let mut r = RolloutRecord::planned(&plan);
+        (r.episode_id, r.run_dir) = (Some("ep1".into()), Some(dir.path().to_path_buf()));
+        r.ensure_reason();
+        assert_eq!(r.reason().as_deref(), Some("the episode ended: harness_process_exited_before_finish"));
+        let mut ok = RolloutRecord::planned(&plan);
+        ok.outcome = Outcome::Success;
+        ok.ensure_reason();
+        assert_eq!((ok.reason(), ok.infrastructure_error), (None, None));
+        let msg = all_invalid_message("b", [("a", "INVALID", Some("x".to_owned())), ("b", "INVALID", None)]).unwrap();
+        assert!(msg.contains("(2 of them)") && msg.contains("a: x") && msg.contains("b: no reason recorded"), "{msg}");
+        assert!(all_invalid_message("b", [("a", "INVALID", None), ("b", "FAIL", None)]).is_none());
+        assert!(all_invalid_message("b", []).is_none());
     }
 
     #[test]

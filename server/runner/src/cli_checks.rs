@@ -5,12 +5,13 @@
 //! `scripts/setup.py --test` installs under the cache's `node/node_modules/.bin`; a missing one fails the test
 //! with the command that installs it. Whole episodes driven by Claude Code and Codex are `tests/real_clis.rs`.
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 
 use serde_json::{Value, json};
 
 use super::harness::{Credentials, Harness, Launch, LaunchContext, QWEN_PACKAGE, build_launch, claude_mcp_config, qwen_mcp_config};
-use super::rollout::{contained_argv, write_launch_files};
+use super::agent_net::{NetPlan, contain};
+use super::rollout::write_launch_files;
 use super::sandbox::Sandbox;
 use libero_server::client::{InProcessServer, prepare_episode};
 use libero_server::episodes::{PrepareRequest, Prepared};
@@ -24,6 +25,15 @@ fn cli_dir() -> PathBuf {
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache/libero-agent"));
     cache.join("node/node_modules/.bin")
+}
+
+/// The `libero-agent` binary whose `sandbox-net` starts every sandboxed process (built beside the test binaries
+/// by `cargo test --workspace`).
+fn libero_agent_exe() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let p = exe.parent().and_then(Path::parent).map(|d| d.join("libero-agent")).unwrap();
+    assert!(p.is_file(), "{} is missing: cargo build -p libero-agent", p.display());
+    p
 }
 
 fn require_cli(name: &str) -> PathBuf {
@@ -63,6 +73,7 @@ impl Episode {
     /// a closed loopback port: nothing here talks to a model, and nothing waits on a name lookup.
     fn launch(&self, harness: Harness) -> Launch {
         let creds = Credentials { api_base: Some("http://127.0.0.1:9".into()), api_key: "sk-config-check-0123".into(), source: "/c".into() };
+        let creds = self.plan(harness).agent_credentials(&creds);
         let prompt_file = self.prepared.prompt_file.clone();
         let ctx = LaunchContext {
             harness,
@@ -90,20 +101,26 @@ impl Episode {
         launch
     }
 
-    /// Runs `argv` as `run` runs the agent: sandboxed, in the workspace, with exactly the launch's environment.
-    fn run_contained(&self, launch: &Launch, argv: &[&str]) -> Output {
+    /// The agent's network as `run` plans it: the model API is the launch's closed loopback port.
+    fn plan(&self, harness: Harness) -> NetPlan {
+        let creds = Credentials { api_base: Some("http://127.0.0.1:9".into()), api_key: "sk-config-check-0123".into(), source: "/c".into() };
+        NetPlan::new(harness, &self.prepared.mcp_url, Some(&creds), false).unwrap()
+    }
+
+    /// Runs `argv` as `run` runs the agent: sandboxed in its own network namespace behind the runner's relays, in
+    /// the workspace, with exactly the launch's environment.
+    fn run_contained(&self, harness: Harness, launch: &Launch, argv: &[&str]) -> Output {
         let argv: Vec<String> = argv.iter().map(|a| (*a).to_owned()).collect();
         let sandbox = Sandbox::detect().unwrap();
-        let full = contained_argv(Some(&sandbox), &argv, &launch.env, &self.prepared.workspace, &self.home, &std::env::current_exe().unwrap());
-        assert!(full.iter().all(|a| !a.contains(&self.token)), "the episode token is on a command line: {full:?}");
-        let out = Command::new(&full[0])
-            .args(&full[1..])
-            .env_clear()
-            .envs(launch.env.iter().map(|(k, v)| (k, v)))
-            .current_dir(&self.prepared.workspace)
-            .stdin(Stdio::null())
-            .output()
-            .unwrap();
+        let this = Launch { argv, env: launch.env.clone(), files: Vec::new() };
+        let private = self._dir.path().join(format!("private-{}", harness.as_str()));
+        let mut contained =
+            contain(Some(&sandbox), Some(&self.plan(harness)), &this, &self.prepared.workspace, &self.home, &libero_agent_exe(), &private).unwrap();
+        assert!(contained.argv.iter().all(|a| !a.contains(&self.token)), "the episode token is on a command line: {:?}", contained.argv);
+        let mut cmd = contained.command();
+        let out = cmd.current_dir(&self.prepared.workspace).stdin(Stdio::null()).output().unwrap();
+        contained.spawned();
+        let argv = this.argv;
         eprintln!("$ {}\n{}{}", argv.join(" "), String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
         out
     }
@@ -136,19 +153,20 @@ fn launch_file(launch: &Launch, name: &str) -> Value {
 fn claude_code_health_check_connects_to_the_episode_from_inside_the_sandbox() {
     require_cli("claude");
     let ep = Episode::start();
-    let launch = ep.launch(Harness::ClaudeCode);
+    let h = Harness::ClaudeCode;
+    let launch = ep.launch(h);
     let cfg = launch_file(&launch, "mcp.json");
     let config_arg = launch.argv.iter().position(|a| a == "--mcp-config").map(|i| &launch.argv[i + 1]);
     assert_eq!(config_arg.map(PathBuf::from), Some(ep.home.join("mcp.json")), "{:?}", launch.argv);
     let user_scope = |servers: &Value| std::fs::write(ep.home.join(".claude.json"), json!({"mcpServers": servers}).to_string()).unwrap();
     user_scope(&cfg["mcpServers"]);
-    let out = ep.run_contained(&launch, &["claude", "mcp", "list"]);
+    let out = ep.run_contained(h, &launch, &["claude", "mcp", "list"]);
     let said = text(&out);
     assert!(out.status.success(), "claude mcp list: {said}");
     let line = said.lines().find(|l| l.starts_with("libero:")).unwrap_or_else(|| panic!("no libero server listed: {said}"));
     assert!(line.contains(&ep.prepared.mcp_url) && line.contains("Connected"), "claude mcp list: {line}");
     user_scope(&claude_mcp_config(&ep.prepared.mcp_url, "wrong-token")["mcpServers"]);
-    let said = text(&ep.run_contained(&launch, &["claude", "mcp", "list"]));
+    let said = text(&ep.run_contained(h, &launch, &["claude", "mcp", "list"]));
     assert!(said.contains("libero:") && !said.contains("Connected"), "a wrong token must not connect: {said}");
 }
 
@@ -159,7 +177,8 @@ fn claude_code_health_check_connects_to_the_episode_from_inside_the_sandbox() {
 fn codex_shows_the_launch_s_server_with_its_token_variable() {
     require_cli("codex");
     let ep = Episode::start();
-    let launch = ep.launch(Harness::Codex);
+    let h = Harness::Codex;
+    let launch = ep.launch(h);
     let overrides: Vec<&str> = launch.argv.windows(2).filter(|w| w[0] == "--config").map(|w| w[1].as_str()).collect();
     assert!(overrides.iter().any(|o| o.starts_with("openai_base_url=")), "{overrides:?}");
     let mut argv = vec!["codex"];
@@ -167,7 +186,7 @@ fn codex_shows_the_launch_s_server_with_its_token_variable() {
         argv.extend(["--config", o]);
     }
     argv.extend(["mcp", "get", "libero", "--json"]);
-    let out = ep.run_contained(&launch, &argv);
+    let out = ep.run_contained(h, &launch, &argv);
     assert!(out.status.success(), "codex mcp get: {}", text(&out));
     let v: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("codex mcp get --json: {e}: {}", text(&out)));
     let t = &v["transport"];
@@ -185,14 +204,15 @@ fn codex_shows_the_launch_s_server_with_its_token_variable() {
 fn qwen_code_health_check_connects_to_the_episode_from_inside_the_sandbox() {
     require_cli("qwen");
     let ep = Episode::start();
-    let launch = ep.launch(Harness::QwenCode);
+    let h = Harness::QwenCode;
+    let launch = ep.launch(h);
     assert_eq!(launch.argv[0], "qwen", "the installed pinned CLI, not npx");
-    let version = ep.run_contained(&launch, &["qwen", "--version"]);
+    let version = ep.run_contained(h, &launch, &["qwen", "--version"]);
     let pinned = QWEN_PACKAGE.rsplit('@').next().unwrap_or_default();
     assert_eq!(String::from_utf8_lossy(&version.stdout).trim(), pinned, "the installed Qwen Code is the one the launch names");
     let settings = launch_file(&launch, "settings.json");
     assert_eq!(settings["mcpServers"], qwen_mcp_config(&ep.prepared.mcp_url, &ep.token)["mcpServers"]);
-    let out = ep.run_contained(&launch, &["qwen", "mcp", "list"]);
+    let out = ep.run_contained(h, &launch, &["qwen", "mcp", "list"]);
     let said = text(&out);
     assert!(out.status.success(), "qwen mcp list: {said}");
     let line = said.lines().find(|l| l.contains("libero:")).unwrap_or_else(|| panic!("no libero server listed: {said}"));
@@ -200,6 +220,6 @@ fn qwen_code_health_check_connects_to_the_episode_from_inside_the_sandbox() {
     let mut wrong = settings.clone();
     wrong["mcpServers"] = qwen_mcp_config(&ep.prepared.mcp_url, "wrong-token")["mcpServers"].clone();
     std::fs::write(ep.home.join("settings.json"), wrong.to_string()).unwrap();
-    let said = text(&ep.run_contained(&launch, &["qwen", "mcp", "list"]));
+    let said = text(&ep.run_contained(h, &launch, &["qwen", "mcp", "list"]));
     assert!(said.contains("libero:") && said.contains("Disconnected"), "a wrong token must not connect: {said}");
 }

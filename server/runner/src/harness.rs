@@ -262,6 +262,11 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
         (s("LIBERO_MCP_URL"), s(ctx.mcp_url)),
         (s("LIBERO_MCP_TOKEN"), s(ctx.mcp_token)),
     ];
+    // A library path the operator started the runner with (libmujoco outside the binary's run path) holds for the
+    // `libero-agent` processes of the sandbox too; the sandbox shows the libraries themselves.
+    if let Some(v) = std::env::var_os("LD_LIBRARY_PATH") {
+        env.push((s("LD_LIBRARY_PATH"), v.to_string_lossy().into_owned()));
+    }
     let mut files = Vec::new();
     let creds = || -> anyhow::Result<&Credentials> {
         ctx.credentials.with_context(|| format!("the {} harness needs API credentials", ctx.harness.as_str()))
@@ -415,6 +420,14 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
                 .replace("{mcp_url}", &shell_quote(ctx.mcp_url))
                 .replace("{model}", &shell_quote(ctx.model))
                 .replace("{libero_agent}", &shell_quote(&ctx.self_exe.to_string_lossy()));
+            if let Some(c) = ctx.credentials {
+                // Explicit credentials for a command agent: its key (the base URL is the gateway's, in the
+                // sandbox's LIBERO_MODEL_API_BASE).
+                env.push((s("LIBERO_MODEL_API_KEY"), c.api_key.clone()));
+                if let Some(b) = &c.api_base {
+                    env.push((s("LIBERO_MODEL_API_BASE"), b.clone()));
+                }
+            }
             vec![s("/bin/sh"), s("-c"), cmd]
         }
     };

@@ -3,14 +3,19 @@
 //! bubblewrap sandbox, supervised against the episode's wall budget, classified per §4.8, with no automatic
 //! retries. Progress goes to stderr; `batch.json` and `rollouts.jsonl` in the batch directory are what the
 //! report and the dashboard read.
+pub mod agent_net;
 pub mod batch;
+pub mod cleanup;
 #[cfg(test)]
 mod cli_checks;
 pub mod harness;
+pub mod logs;
+pub mod netgate;
 pub mod queue;
 pub mod report;
 pub mod rollout;
 pub mod sandbox;
+pub mod sandbox_net;
 pub mod schedule;
 pub mod usage;
 pub mod worker;
@@ -134,7 +139,10 @@ pub(crate) fn install_signal_handlers() {
 /// Where this machine puts agent workspaces and keeps API credentials (`run` and `worker`).
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct LocalPaths {
-    /// Where workspaces are created (default: $TMPDIR/libero-agent-workspaces/<batch name>).
+    /// Where workspaces are created. `run`: this directory, or a fresh `<batch name>-<random>` in it when a
+    /// workspace of an earlier batch is in the way (default: a fresh `$TMPDIR/libero-agent-workspaces/<batch
+    /// name>-<random>`). `worker`: a fresh `<batch>/a<attempt>-<random>` in it per batch attempt (default
+    /// `$TMPDIR/libero-agent-workspaces`).
     #[arg(long)]
     pub workspace_root: Option<PathBuf>,
     /// API credentials (APIKEY=…, APIURL=…), outside every workspace (default ~/.config/libero-agent/credentials).
@@ -143,11 +151,11 @@ pub struct LocalPaths {
 }
 
 impl LocalPaths {
-    /// The workspace root (absolute; `<TMPDIR>/libero-agent-workspaces/<under>` by default).
-    pub fn workspace_root(&self, under: &str) -> anyhow::Result<PathBuf> {
+    /// The directory workspaces go under (absolute; `<TMPDIR>/libero-agent-workspaces` by default).
+    pub fn workspace_base(&self) -> anyhow::Result<PathBuf> {
         match &self.workspace_root {
             Some(w) => absolute(w),
-            None => Ok(std::env::temp_dir().join("libero-agent-workspaces").join(under)),
+            None => absolute(&std::env::temp_dir().join("libero-agent-workspaces")),
         }
     }
 
@@ -264,6 +272,72 @@ pub(crate) fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
     Ok(if p.is_absolute() { p.to_path_buf() } else { std::env::current_dir()?.join(p) })
 }
 
+/// A new directory `<base>/<stem>-<random>` (created here, so no other run or worker has it).
+pub(crate) fn fresh_dir(base: &Path, stem: &str) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(base).with_context(|| format!("cannot create {}", base.display()))?;
+    loop {
+        let dir = base.join(format!("{stem}-{}", &libero_episode::json::random_name("")?[..8]));
+        match std::fs::create_dir(&dir) {
+            Ok(()) => return Ok(dir),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e).with_context(|| format!("cannot create {}", dir.display())),
+        }
+    }
+}
+
+/// Where a local run's workspaces go (`<root>/<rollout id>` each): `--workspace-root` itself unless a workspace
+/// of a rollout to run is already there (left by an earlier batch of the same name), else a fresh
+/// `<batch name>-<random>` directory in it (always, without `--workspace-root`). A batch never fails on what an
+/// earlier one left.
+fn run_workspace_root(paths: &LocalPaths, batch: &str, todo: &VecDeque<PlannedRollout>) -> anyhow::Result<PathBuf> {
+    let base = paths.workspace_base()?;
+    if paths.workspace_root.is_some() {
+        let leftover = todo.iter().find(|r| std::fs::symlink_metadata(base.join(&r.rollout_id)).is_ok());
+        let Some(leftover) = leftover else {
+            std::fs::create_dir_all(&base).with_context(|| format!("cannot create {}", base.display()))?;
+            return Ok(base);
+        };
+        let dir = fresh_dir(&base, batch)?;
+        eprintln!(
+            "{} already holds {} (an earlier batch's workspace): this batch's workspaces go to {}",
+            base.display(),
+            leftover.rollout_id,
+            dir.display()
+        );
+        return Ok(dir);
+    }
+    fresh_dir(&base, batch)
+}
+
+/// `GET /api/health` of `--server`, answered within seconds, before anything is scheduled: a batch never starts
+/// against a server that is not there (each rollout would end INVALID).
+pub(crate) fn check_server(url: &str) -> anyhow::Result<()> {
+    use libero_server::http_client::{HttpUrl, request};
+    use std::net::{TcpStream, ToSocketAddrs};
+    let base = url.trim_end_matches('/');
+    let health = HttpUrl::parse(&format!("{base}/api/health")).with_context(|| format!("--server {url}"))?;
+    let addrs: Vec<std::net::SocketAddr> = health
+        .host_port
+        .to_socket_addrs()
+        .with_context(|| format!("--server {url}: cannot resolve {}", health.host_port))?
+        .collect();
+    if !addrs.iter().any(|a| TcpStream::connect_timeout(a, Duration::from_secs(5)).is_ok()) {
+        bail!(
+            "--server {url}: nothing answers at {} (is `libero-agent serve` running there? without --server the batch \
+             runs its own server)",
+            health.host_port
+        );
+    }
+    let resp = request("GET", &health, &[], b"", Duration::from_secs(15))
+        .with_context(|| format!("--server {url}: GET /api/health failed"))?;
+    let v: Value = serde_json::from_slice(&resp.body).unwrap_or(Value::Null);
+    if resp.status != 200 || v["ok"] != true {
+        bail!("--server {url} is not a libero-agent server: GET /api/health answered HTTP {} {}", resp.status,
+            String::from_utf8_lossy(&resp.body).chars().take(200).collect::<String>());
+    }
+    Ok(())
+}
+
 /// Live counts for the terminal and `batch.json`.
 struct Progress {
     total: usize,
@@ -365,6 +439,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(url) = queue_store {
         return queue::enqueue_and_follow(&args, url, &schedule, &skipped, &settings);
     }
+    if let Some(url) = &args.server {
+        check_server(url)?;
+    }
     // A store that cannot be opened stops the run before anything is written or launched.
     let store = args.store.as_deref().map(batch::StoreMirror::connect).transpose()?;
     let batch_dir = absolute(&args.batch.clone().unwrap_or_else(default_batch_dir))?;
@@ -389,6 +466,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let credentials = if args.harness.needs_credentials() {
         let path = args.paths.credentials_file();
         Some(Credentials::load(&path)?)
+    } else if let Some(path) = &args.paths.credentials_file {
+        // A `command` agent that talks to a model: its API through the runner's gateway, like every harness.
+        Some(Credentials::load(path)?)
     } else {
         None
     };
@@ -399,13 +479,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(Sandbox::detect()?)
     };
     let batch_name = batch_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "batch".into());
-    let workspace_root = args.paths.workspace_root(&batch_name)?;
     if let Some(c) = &credentials
-        && (c.source.starts_with(&workspace_root) || c.source.starts_with(&batch_dir))
+        && (c.source.starts_with(args.paths.workspace_base()?) || c.source.starts_with(&batch_dir))
     {
         bail!("the credentials file must lie outside the workspaces and the batch directory");
     }
-    std::fs::create_dir_all(&workspace_root)?;
     let self_exe = agent_exe()?;
     let npm_cli_installed = harness::pinned_npm_cli_installed(args.harness);
     let harness_version = probe_version(args.harness, npm_cli_installed);
@@ -424,6 +502,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         *outcomes.entry(r.outcome).or_insert(0) += 1;
     }
     let todo: VecDeque<PlannedRollout> = schedule.iter().filter(|r| !finished.contains(&r.rollout_id)).cloned().collect();
+    let workspace_root = run_workspace_root(&args.paths, &batch_name, &todo)?;
     let progress = Progress { total: schedule.len(), done: schedule.len() - todo.len(), running: BTreeSet::new(), outcomes };
     // The in-process server lives as long as the batch.
     let (server, server_url) = match &args.server {
@@ -472,14 +551,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                         ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
                         eprintln!("{}: started — {}", next.rollout_id, p.line());
                     }
-                    let rec = rollout::run_rollout(&ctx, &next);
+                    let mut rec = rollout::run_rollout(&ctx, &next);
+                    rec.ensure_reason();
                     let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
                     ctx.append(&rec)?;
                     p.running.remove(&rec.rollout_id);
                     p.done += 1;
                     *p.outcomes.entry(rec.outcome).or_insert(0) += 1;
                     ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
-                    let why = rec.infrastructure_error.as_deref().map(|e| format!(" ({e})")).unwrap_or_default();
+                    let why = rec.reason().map(|e| format!(" ({e})")).unwrap_or_default();
                     eprintln!("{}: {}{why} — {}", rec.rollout_id, rec.outcome.as_str(), p.line());
                 }
             })
@@ -508,6 +588,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     if stopped {
         bail!("interrupted; `--resume` continues the batch (interrupted rollouts are not retried)");
+    }
+    // A batch none of whose rollouts ran is a failure of the run, not a result.
+    let records = read_records(&batch_dir)?;
+    let ours = records.iter().filter(|r| schedule.iter().any(|s| s.rollout_id == r.rollout_id));
+    if let Some(msg) = batch::all_invalid_message(&batch_name, ours.map(|r| (r.rollout_id.as_str(), r.outcome.as_str(), r.reason()))) {
+        bail!("{msg}");
     }
     Ok(())
 }

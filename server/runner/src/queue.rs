@@ -135,7 +135,14 @@ async fn follow(store: &Store, url: &str, name: &str) -> anyhow::Result<()> {
         if b.doc["status"] == "finished" {
             let invalid = b.doc["outcomes"][Outcome::Invalid.as_str()].as_u64().unwrap_or(0);
             eprintln!("batch {name}: finished{}", if invalid > 0 { format!("; {invalid} INVALID (`run --resume` queues them again)") } else { String::new() });
+            for r in b.records.iter().filter(|r| r["outcome"] == Outcome::Invalid.as_str()).take(10) {
+                eprintln!("  {} INVALID: {}", r["rollout_id"].as_str().unwrap_or("?"), record_reason(r));
+            }
             println!("{}", json!({"batch": name, "status": "finished", "counts": b.doc["counts"], "outcomes": b.doc["outcomes"]}));
+            let rollouts = b.records.iter().map(|r| (r["rollout_id"].as_str().unwrap_or("?"), r["outcome"].as_str().unwrap_or("?"), Some(record_reason(r))));
+            if let Some(msg) = super::batch::all_invalid_message(name, rollouts) {
+                bail!("{msg}");
+            }
             return Ok(());
         }
         if INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst) {
@@ -145,6 +152,15 @@ async fn follow(store: &Store, url: &str, name: &str) -> anyhow::Result<()> {
         // A notification wakes this at once; the timeout bounds how late a lost lease is noticed.
         listener.wait(Duration::from_secs(2)).await;
     }
+}
+
+/// Why a stored record did not count: its infrastructure error, else its termination reason.
+fn record_reason(r: &Value) -> String {
+    ["infrastructure_error", "termination_reason"]
+        .iter()
+        .find_map(|k| r[*k].as_str().filter(|s| !s.is_empty()))
+        .unwrap_or("no reason recorded")
+        .to_owned()
 }
 
 /// `[########------------] 5/12 ended · 3 running · 4 queued · SUCCESS 4, INVALID 1`

@@ -9,7 +9,7 @@ use anyhow::bail;
 use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
 use serde_json::{Value, json};
 
-use crate::batch::{Condition, LoadedBatch, load_batch, metrics_rollouts, pool_rollouts};
+use crate::batch::{Condition, LoadedBatch, RolloutRecord, load_batch, metrics_rollouts, pool_rollouts};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
@@ -68,7 +68,28 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
         .collect();
     let pool: Vec<Value> =
         pool_rows(batches, reps).into_iter().map(|(agent, summary)| json!({"agent": agent, "summary": summary})).collect();
-    json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows, "pool": pool})
+    let excluded: Vec<Value> = excluded(batches)
+        .into_iter()
+        .map(|(b, r, why)| json!({"batch": b.name(), "rollout_id": r.rollout_id, "task": r.task, "outcome": r.outcome,
+            "reason": why, "worker": r.worker, "episode_id": r.episode_id}))
+        .collect();
+    json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows, "pool": pool,
+        "excluded": excluded})
+}
+
+/// The batches' rollouts that do not count (INVALID, INTERRUPTED), each with its reason, in batch order.
+pub fn excluded(batches: &[LoadedBatch]) -> Vec<(&LoadedBatch, &RolloutRecord, String)> {
+    batches
+        .iter()
+        .flat_map(|b| b.records.iter().map(move |r| (b, r)))
+        .filter(|(_, r)| !r.outcome.is_valid())
+        .map(|(b, r)| (b, r, r.reason().unwrap_or_else(|| "no reason recorded".into())))
+        .collect()
+}
+
+/// `text` as one Markdown table cell.
+fn cell(text: &str) -> String {
+    text.replace('|', "\\|").replace(['\n', '\r'], " ")
 }
 
 pub fn pct(x: Option<f64>) -> String {
@@ -178,6 +199,24 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize) -> String {
                 stable,
                 opt(t.stable_stage_fraction, 2),
                 opt(t.stage_fraction_sum, 2),
+            );
+        }
+    }
+    let excluded = excluded(batches);
+    if !excluded.is_empty() {
+        let _ = writeln!(o, "\n## Excluded rollouts (INVALID, INTERRUPTED) and why\n");
+        let _ = writeln!(o, "| Batch | Rollout | Task | Outcome | Worker | Reason |");
+        let _ = writeln!(o, "|---|---|---|---|---|---|");
+        for (b, r, why) in &excluded {
+            let _ = writeln!(
+                o,
+                "| {} | {} | {} | {} | {} | {} |",
+                cell(&b.name()),
+                cell(&r.rollout_id),
+                cell(&r.task),
+                r.outcome.as_str(),
+                cell(r.worker.as_deref().unwrap_or("—")),
+                cell(why),
             );
         }
     }

@@ -5,7 +5,7 @@ use std::fs;
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::process::CommandExt;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -17,9 +17,10 @@ use serde_json::{Value, json};
 
 use super::batch::RolloutRecord;
 use super::harness::{Harness, Launch, LaunchContext, build_launch};
-use super::sandbox::{Sandbox, SandboxSpec, cli_install_paths, own_binary_files};
+use super::agent_net::{NetPlan, contain};
 use super::schedule::{Demo, PlannedRollout};
-use super::usage::{Usage, usage_from_codex_exec, usage_from_jsonl};
+use super::logs::{Limits, scrub_log, scrub_text};
+use super::usage::{Usage, UsageFormat, UsageScanner};
 use super::{INTERRUPTED, RunContext};
 use libero_server::client::{get_json, post_json, prepare_episode};
 use libero_server::episodes::PrepareRequest;
@@ -61,30 +62,10 @@ pub fn classify(result: Option<&Value>, infra: Option<&str>, budget_s: f64) -> O
     }
 }
 
-/// Replaces the API key, `sk-…` tokens and `Bearer …` values with `<redacted>`.
+/// Replaces the API key, `sk-…` tokens and `Bearer …` values with `<redacted>` (the same matcher as the logs'
+/// streaming scrubber, [`super::logs`]).
 pub fn scrub(text: &str, secrets: &[&str]) -> String {
-    let mut out = text.to_owned();
-    for s in secrets.iter().filter(|s| s.len() >= 6) {
-        out = out.replace(*s, "<redacted>");
-    }
-    let mut result = String::with_capacity(out.len());
-    let mut rest = out.as_str();
-    loop {
-        let next = [rest.find("sk-"), rest.find("Bearer ")].into_iter().flatten().min();
-        let Some(i) = next else { break };
-        let prefix_len = if rest[i..].starts_with("sk-") { 3 } else { 7 };
-        result.push_str(&rest[..i + prefix_len]);
-        let tail = &rest[i + prefix_len..];
-        let end = tail.find(|c: char| !(c.is_ascii_alphanumeric() || "-_.".contains(c))).unwrap_or(tail.len());
-        if end >= 6 {
-            result.push_str("<redacted>");
-        } else {
-            result.push_str(&tail[..end]);
-        }
-        rest = &tail[end..];
-    }
-    result.push_str(rest);
-    result
+    scrub_text(text, secrets)
 }
 
 fn read_result(run_dir: &Path) -> Option<Value> {
@@ -116,26 +97,42 @@ fn kill_group(child: &mut Child) {
     let _ = child.wait();
 }
 
-/// Most bytes of a harness's stdout read for token usage.
-const MAX_USAGE_LOG_BYTES: u64 = 256 << 20;
-
-/// Token usage from what the harness itself printed on stdout, which the runner captures into the rollout
-/// directory outside the sandbox: the one channel the agent cannot write to. Session logs in the agent's home or
-/// workspace are never read (the agent could forge them, or plant links and FIFOs there). Codex prints its
-/// events on stdout with `--json`, one `turn.completed` usage per turn.
-fn usage_of(harness: Harness, stdout: &Path) -> Usage {
-    if harness == Harness::Command {
-        return Usage::default();
+/// Scrubs the agent's logs in place and reads the token usage from its stdout on the way, in one bounded pass
+/// per log ([`scrub_log`]: the first and last 8 MiB kept, scrubbed, the size and SHA-256 of the rest recorded;
+/// opened without following a link). The usage comes from what the harness itself printed on stdout, which the
+/// runner captures into the rollout directory outside the sandbox: the one channel the agent cannot write to.
+/// Session logs in the agent's home or workspace are never read (the agent could forge them, or plant links and
+/// FIFOs there). Codex prints its events on stdout with `--json`, one `turn.completed` usage per turn. Returns the
+/// usage and, per log file name, what was kept (or why the log could not be scrubbed).
+fn scrub_logs(harness: Harness, stdout: &Path, stderr: &Path, secrets: &[&str]) -> (Usage, Value) {
+    let format = match harness {
+        Harness::Command => UsageFormat::None,
+        Harness::Codex => UsageFormat::CodexExec,
+        _ => UsageFormat::Jsonl,
+    };
+    let mut usage = UsageScanner::new(format);
+    let mut logs = serde_json::Map::new();
+    for (path, is_stdout) in [(stdout, true), (stderr, false)] {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let scrubbed = scrub_log(path, secrets, &Limits::DEFAULT, |bytes| {
+            if is_stdout {
+                match bytes {
+                    Some(b) => usage.push(b),
+                    None => usage.gap(),
+                }
+            }
+        });
+        let entry = match scrubbed {
+            Ok(r) => json!(r),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => {
+                eprintln!("libero-agent: cannot scrub {}: {e}", path.display());
+                json!({"error": format!("not scrubbed: {e}")})
+            }
+        };
+        logs.insert(name, entry);
     }
-    let mut text = String::new();
-    if let Ok(f) = fs::File::open(stdout) {
-        use std::io::Read;
-        let _ = f.take(MAX_USAGE_LOG_BYTES).read_to_string(&mut text);
-    }
-    if harness == Harness::Codex {
-        return usage_from_codex_exec(&text);
-    }
-    usage_from_jsonl([text.as_str()])
+    (usage.finish(), Value::Object(logs))
 }
 
 /// Writes the files a launch needs first (CLI configuration, 0600 where it holds a token or key).
@@ -183,25 +180,6 @@ pub fn replace_file_under(root: &Path, path: &Path, bytes: &[u8], mode: u32) -> 
     dirfd::write_new_file_mode_at(dir.as_fd(), name, bytes, mode)
 }
 
-/// The argv the runner starts: `argv` inside the sandbox when there is one, writing only the workspace and the
-/// session home and reading, besides the system directories, the `libero-agent` binary `agent_exe` and the install
-/// of the program `argv` runs as the child's own `PATH` (in `env`) finds it.
-pub fn contained_argv(
-    sandbox: Option<&Sandbox>,
-    argv: &[String],
-    env: &[(String, String)],
-    workspace: &Path,
-    home: &Path,
-    agent_exe: &Path,
-) -> Vec<String> {
-    let Some(sb) = sandbox else { return argv.to_vec() };
-    let path = env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
-    let mut readable = own_binary_files(agent_exe);
-    readable.extend(argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
-    let spec = SandboxSpec { writable: vec![workspace.to_path_buf(), home.to_path_buf()], readable, cwd: workspace.to_path_buf() };
-    sb.command(argv, &spec)
-}
-
 /// Runs one rollout to its record.
 pub fn run_rollout(ctx: &RunContext, plan: &PlannedRollout) -> RolloutRecord {
     let mut rec = RolloutRecord::planned(plan);
@@ -240,6 +218,16 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     rec.run_dir = Some(prepared.run_dir.clone());
     let token = prepared.mcp_headers.get("Authorization").map(|t| t.trim_start_matches("Bearer ").to_owned()).unwrap_or_default();
     let prompt = fs::read_to_string(&prepared.prompt_file).context("cannot read the prepared prompt")?;
+    // The agent's addresses: its endpoint and its model API through the runner's relays, nothing else.
+    let via_npx = ctx.harness.npm_cli().is_some() && !ctx.npm_cli_installed;
+    let net = match ctx.sandbox {
+        Some(_) => Some(NetPlan::new(ctx.harness, &prepared.mcp_url, ctx.credentials.as_ref(), via_npx)?),
+        None => None,
+    };
+    let agent_credentials = ctx.credentials.as_ref().map(|c| match &net {
+        Some(p) => p.agent_credentials(c),
+        None => c.clone(),
+    });
     let lctx = LaunchContext {
         harness: ctx.harness,
         model: &ctx.settings.model,
@@ -250,7 +238,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         prompt_file: &prepared.prompt_file,
         mcp_url: &prepared.mcp_url,
         mcp_token: &token,
-        credentials: ctx.credentials.as_ref(),
+        credentials: agent_credentials.as_ref(),
         agent_cmd: ctx.settings.agent_cmd.as_deref(),
         self_exe: &ctx.self_exe,
         sandboxed: ctx.sandbox.is_some(),
@@ -258,7 +246,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     };
     let launch = build_launch(&lctx)?;
     write_launch_files(&launch)?;
-    let argv = contained_argv(ctx.sandbox.as_ref(), &launch.argv, &launch.env, &prepared.workspace, &home, &ctx.self_exe);
+    let mut contained = contain(ctx.sandbox.as_ref(), net.as_ref(), &launch, &prepared.workspace, &home, &ctx.self_exe, &dir.join("sandbox"))?;
     let stdout_path = dir.join(ctx.harness.stdout_file());
     let stderr_path = dir.join(format!("{}_stderr.log", ctx.harness.as_str()));
     let mut manifest = json!({
@@ -272,7 +260,8 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         "api_protocol": ctx.harness.api_protocol(),
         "credential_source": ctx.credentials.as_ref().map(|c| c.source.clone()),
         "credential_material": "never_recorded",
-        "sandbox": ctx.sandbox.as_ref().map(|s| s.version.clone()),
+        "sandbox": ctx.sandbox.as_ref().map(|s| s.describe()),
+        "network": net.as_ref().map(NetPlan::describe),
         "episode_id": prepared.episode_id,
         "workspace": prepared.workspace,
         "private_run": prepared.run_dir,
@@ -282,17 +271,22 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         "max_wall_time_seconds": ctx.settings.wall_time_s, "max_agent_steps": ctx.settings.max_agent_steps,
     });
     write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
-    let mut cmd = Command::new(&argv[0]);
-    cmd.args(&argv[1..])
-        .env_clear()
-        .envs(launch.env.iter().map(|(k, v)| (k, v)))
-        .current_dir(&prepared.workspace)
+    let mut cmd = contained.command();
+    cmd.current_dir(&prepared.workspace)
         .stdin(Stdio::null())
         .stdout(fs::File::create(&stdout_path)?)
         .stderr(fs::File::create(&stderr_path)?)
         .process_group(0);
     let t0 = Instant::now();
-    let mut child = cmd.spawn().with_context(|| format!("cannot start {}", argv[0]))?;
+    let mut child = cmd.spawn().with_context(|| format!("cannot start {}", contained.argv[0]))?;
+    contained.spawned();
+    // What the sandbox is, as its first process saw it before the agent started (ids, capabilities, mounts).
+    let sandbox_report = if ctx.sandbox.is_some() { contained.report(Duration::from_secs(30)) } else { None };
+    if let Some(m) = manifest.as_object_mut() {
+        m.insert("sandbox_report".into(), json!(sandbox_report));
+        m.insert("relay_dir".into(), json!(contained.relay_dir()));
+    }
+    write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
     let deadline = Duration::from_secs_f64(ctx.settings.wall_time_s + WATCHDOG_GRACE_S);
     let mut infra: Option<String> = None;
     let mut ended_at: Option<Instant> = None;
@@ -332,6 +326,9 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         exit_code = child.try_wait().ok().flatten().map(|s| s.code().unwrap_or(-1));
     }
     let elapsed_s = t0.elapsed().as_secs_f64();
+    // The agent is gone: its relays and gateway stop, their sockets go; the gateway's records stay.
+    let model_api_records = contained.model_api_records.clone();
+    drop(contained);
     if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
         let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
         let _ = post_json(&ctx.server_url, &format!("/api/episodes/{}/abort", prepared.episode_id), &json!({"reason": reason}));
@@ -362,15 +359,20 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     rec.infrastructure_error = infra;
     rec.harness_elapsed_s = Some(elapsed_s);
     rec.agent_exit_code = exit_code;
-    rec.usage = Some(usage_of(ctx.harness, &stdout_path));
-    // Scrub what the agent printed (the API key, sk-… keys, bearer tokens, ours included) and the launch's own
-    // files, which stay in the batch's session home: Kimi's config.toml holds the key, the MCP configs the token.
+    // Scrub what the agent printed (the API key, sk-… keys, bearer tokens, ours included), bounded whatever its
+    // size, and the launch's own files, which stay in the batch's session home: Kimi's config.toml holds the key,
+    // the MCP configs the token.
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
-    for p in [&stdout_path, &stderr_path] {
-        if let Ok(t) = fs::read_to_string(p) {
-            let _ = fs::write(p, scrub(&t, &secrets));
-        }
-    }
+    let (usage, logs) = scrub_logs(ctx.harness, &stdout_path, &stderr_path, &secrets);
+    // What the runner's gateway saw of the agent's model traffic (never a file the agent can write); its token
+    // figures stand in where the harness prints none on stdout (Kimi Code, DeepSeek's harness).
+    let model_api = model_api_records.as_deref().and_then(|p| super::netgate::summarize(p).ok());
+    let (usage, usage_source) = match &model_api {
+        _ if usage.available => (usage, "harness_stdout"),
+        Some(m) if m.responses_with_usage > 0 => (m.to_usage(), "model_api_gateway"),
+        _ => (usage, "unavailable"),
+    };
+    rec.usage = Some(usage);
     scrub_launch_files(&home, &launch, &secrets);
     if let Some(m) = manifest.as_object_mut() {
         m.insert("finished_at".into(), json!(utc_now_iso()));
@@ -380,6 +382,9 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         m.insert("result_status".into(), json!(rec.result_status));
         m.insert("task_success".into(), json!(rec.success));
         m.insert("outcome".into(), json!(rec.outcome));
+        m.insert("logs".into(), logs);
+        m.insert("usage_source".into(), json!(usage_source));
+        m.insert("model_api".into(), json!(model_api.as_ref().map(|m| serde_json::to_value(m).unwrap_or_default())));
     }
     write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
     write_json_file(&dir.join("harness_usage.json"), &serde_json::to_value(&rec.usage)?)?;
@@ -398,7 +403,7 @@ mod tests {
         fs::write(&host, "host secret Bearer abcdefghijkl\n").unwrap();
         fs::create_dir_all(home.join(".codex")).unwrap();
         std::os::unix::fs::symlink(&host, home.join("mcp.json")).unwrap();
-        assert!(Command::new("mkfifo").arg(home.join(".codex/config.toml")).status().unwrap().success());
+        assert!(std::process::Command::new("mkfifo").arg(home.join(".codex/config.toml")).status().unwrap().success());
         // A directory replaced by a link to a host directory: nothing is written through it.
         fs::create_dir(t.path().join("host-dir")).unwrap();
         std::os::unix::fs::symlink(t.path().join("host-dir"), home.join("sub")).unwrap();

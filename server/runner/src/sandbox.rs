@@ -1,9 +1,18 @@
-//! The agent's sandbox: bubblewrap with a fresh mount namespace in which the agent sees the system
-//! directories read-only (`/usr`, `/lib*`, `/bin`, `/sbin`, `/etc`), its own CLI's install, the files it is
-//! given to read, and writes only its workspace and its session home. Everything else — `tasks/`, `assets/`,
-//! the asset cache, the server's data directory and store, other episodes' workspaces and run directories,
-//! the batch directory — does not exist inside. The network namespace is shared, so the agent reaches the
-//! MCP endpoint on loopback and its model API.
+//! The agent's sandbox: bubblewrap with fresh mount, PID, IPC, UTS and network namespaces. The agent sees the
+//! system directories read-only (`/usr`, `/lib*`, `/bin`, `/sbin`, `/etc`), its own CLI's install, the files it is
+//! given to read, and writes only its workspace and its session home. Everything else — `tasks/`, `assets/`, the
+//! asset cache, the server's data directory and store, other episodes' workspaces and run directories, the batch
+//! directory — does not exist inside. Its network namespace holds only `lo`: the first process inside
+//! (`libero-agent sandbox-net`, [`crate::sandbox_net`]) relays the loopback addresses of its MCP endpoint and its
+//! model API to Unix sockets the runner owns (bound at [`RELAY_DIR`]), and nothing else of any host is reachable.
+//!
+//! The agent holds no capability and cannot gain one. As an ordinary user the sandbox is a user namespace of that
+//! user with every capability dropped and further user namespaces disabled. As root, bubblewrap builds the
+//! namespaces with root's rights (so it can bind what only root can read, such as CLIs installed under `/root`),
+//! keeps only CAP_SETUID/CAP_SETGID/CAP_SETPCAP for `sandbox-net`, which empties the bounding set, switches to the
+//! unprivileged [`AGENT_UID`]/[`AGENT_GID`], clears every capability set, sets no_new_privs and installs a seccomp
+//! filter that refuses new namespaces before it starts the agent. Read-only mounts then stay read-only: remounting
+//! needs CAP_SYS_ADMIN, which no process of the agent has in any namespace.
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -12,11 +21,21 @@ use anyhow::{Context, bail};
 /// System directories visible read-only (symlinks such as Debian's `/lib -> usr/lib` are recreated as links).
 const SYSTEM_DIRS: [&str; 7] = ["/usr", "/etc", "/bin", "/sbin", "/lib", "/lib64", "/lib32"];
 
+/// The host uid and gid a sandboxed agent runs as when the runner is root (`nobody`/`nogroup` on Debian).
+pub const AGENT_UID: u32 = 65534;
+pub const AGENT_GID: u32 = 65534;
+
+/// Where the runner's relay sockets appear inside the sandbox.
+pub const RELAY_DIR: &str = "/run/libero";
+
 /// A working bubblewrap.
 #[derive(Debug, Clone)]
 pub struct Sandbox {
     pub bwrap: PathBuf,
     pub version: String,
+    /// The unprivileged host ids the agent is switched to (`Some` when the runner is root; an ordinary user's
+    /// agent keeps that user's ids inside a user namespace of its own).
+    pub agent_ids: Option<(u32, u32)>,
 }
 
 /// What one agent may see.
@@ -26,6 +45,10 @@ pub struct SandboxSpec {
     pub writable: Vec<PathBuf>,
     /// Read-only extras outside the system directories (the CLI's install, this binary and its libraries).
     pub readable: Vec<PathBuf>,
+    /// Host files shown read-only at another path inside (`/etc/hosts`).
+    pub files: Vec<(PathBuf, PathBuf)>,
+    /// A host directory shown at [`RELAY_DIR`] (the runner's relay sockets).
+    pub relay_dir: Option<PathBuf>,
     pub cwd: PathBuf,
 }
 
@@ -56,7 +79,9 @@ impl Sandbox {
             .ok()
             .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned())
             .unwrap_or_default();
-        let s = Self { bwrap, version };
+        // SAFETY: geteuid(2) has no preconditions.
+        let agent_ids = (unsafe { libc::geteuid() } == 0).then_some((AGENT_UID, AGENT_GID));
+        let s = Self { bwrap, version, agent_ids };
         let probe = s.command(&["/bin/true".to_owned()], &SandboxSpec { cwd: "/".into(), ..Default::default() });
         let out = Command::new(&probe[0]).args(&probe[1..]).output().context("cannot run bwrap")?;
         if !out.status.success() {
@@ -71,12 +96,32 @@ impl Sandbox {
         Ok(s)
     }
 
+    /// How the sandbox isolates, for the harness manifest (what the agent itself reports comes beside it).
+    pub fn describe(&self) -> serde_json::Value {
+        serde_json::json!({
+            "bubblewrap": self.version,
+            "namespaces": ["mount", "pid", "ipc", "uts", "net", "cgroup"],
+            "identity": match self.agent_ids {
+                Some((u, g)) => serde_json::json!({"runner": "root", "agent_uid": u, "agent_gid": g,
+                    "how": "bubblewrap as root keeps CAP_SETUID/SETGID/SETPCAP for sandbox-net, which drops the bounding set, switches to the agent's ids, clears every capability set, sets no_new_privs and a seccomp filter refusing new namespaces"}),
+                None => serde_json::json!({"runner": "unprivileged", "how": "a user namespace of the runner's user, every capability dropped, further user namespaces disabled, no_new_privs and a seccomp filter refusing new namespaces"}),
+            },
+            "network": "own namespace with only lo; sandbox-net relays the MCP endpoint and the model API to the runner's Unix sockets",
+        })
+    }
+
     /// The argv running `argv` inside the sandbox.
     pub fn command(&self, argv: &[String], spec: &SandboxSpec) -> Vec<String> {
         let mut a: Vec<String> = vec![self.bwrap.to_string_lossy().into_owned()];
         let mut push = |xs: &[&str]| a.extend(xs.iter().map(|s| (*s).to_owned()));
-        push(&["--unshare-user", "--unshare-pid", "--unshare-ipc", "--unshare-uts", "--unshare-cgroup-try"]);
-        push(&["--die-with-parent", "--new-session"]);
+        push(&["--unshare-pid", "--unshare-ipc", "--unshare-uts", "--unshare-net", "--unshare-cgroup-try"]);
+        push(&["--die-with-parent", "--new-session", "--hostname", "libero-agent"]);
+        if self.agent_ids.is_some() {
+            // Root builds the namespaces; sandbox-net keeps only what it needs to become the agent's user.
+            push(&["--cap-drop", "ALL", "--cap-add", "CAP_SETUID", "--cap-add", "CAP_SETGID", "--cap-add", "CAP_SETPCAP"]);
+        } else {
+            push(&["--unshare-user", "--disable-userns", "--cap-drop", "ALL"]);
+        }
         for dir in SYSTEM_DIRS {
             let p = Path::new(dir);
             match std::fs::symlink_metadata(p) {
@@ -89,7 +134,22 @@ impl Sandbox {
                 Err(_) => {}
             }
         }
-        push(&["--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp", "--tmpfs", "/run"]);
+        push(&["--dev", "/dev", "--proc", "/proc", "--perms", "1777", "--tmpfs", "/tmp", "--tmpfs", "/run"]);
+        // bubblewrap makes missing parents of a mount point private (0700) when it runs as root: the agent's user
+        // could not reach its own workspace or CLI below them. Every parent is made first, world-searchable.
+        let relay = spec.relay_dir.as_ref().map(|_| PathBuf::from(RELAY_DIR));
+        let dests = spec.readable.iter().chain(&spec.writable).chain(spec.files.iter().map(|(_, inside)| inside)).chain(relay.iter());
+        let mut parents: Vec<&Path> = dests
+            .flat_map(|p| p.ancestors().skip(1))
+            .filter(|d| *d != Path::new("/") && !d.as_os_str().is_empty() && !SYSTEM_DIRS.iter().any(|s| d.starts_with(s)))
+            .collect();
+        parents.sort();
+        parents.dedup();
+        for d in parents {
+            if d != Path::new("/tmp") && d != Path::new("/run") {
+                push(&["--perms", "0755", "--dir", &d.to_string_lossy()]);
+            }
+        }
         // Later mounts win: system first, then the extras, then the writable directories. A link stays a link
         // (npm's `node_modules/.bin/x -> ../pkg/cli.js`): a script finds its modules relative to its real path.
         for p in &spec.readable {
@@ -105,6 +165,12 @@ impl Sandbox {
         for p in &spec.writable {
             let s = p.to_string_lossy();
             push(&["--bind", &s, &s]);
+        }
+        for (host, inside) in &spec.files {
+            push(&["--ro-bind", &host.to_string_lossy(), &inside.to_string_lossy()]);
+        }
+        if let Some(dir) = &spec.relay_dir {
+            push(&["--ro-bind", &dir.to_string_lossy(), RELAY_DIR]);
         }
         push(&["--chdir", &spec.cwd.to_string_lossy(), "--"]);
         a.extend(argv.iter().cloned());
@@ -209,23 +275,41 @@ mod tests {
 
     #[test]
     fn the_command_binds_only_what_the_spec_names() {
-        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new() };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None };
         let spec = SandboxSpec {
             writable: vec!["/tmp/ws/w1".into()],
             readable: vec!["/usr/bin/codex".into(), "/opt/tool".into()],
             cwd: "/tmp/ws/w1".into(),
+            ..Default::default()
         };
         let a = s.command(&["sh".into(), "-c".into(), "true".into()], &spec);
         let joined = a.join(" ");
         assert!(joined.contains("--bind /tmp/ws/w1 /tmp/ws/w1"));
         assert!(joined.contains("--ro-bind-try /opt/tool /opt/tool"));
         assert!(!joined.contains("/usr/bin/codex"), "inside /usr already");
-        assert!(joined.contains("--ro-bind /usr /usr") && joined.contains("--unshare-user"));
+        assert!(joined.contains("--ro-bind /usr /usr") && joined.contains("--unshare-user --disable-userns --cap-drop ALL"));
+        assert!(joined.contains("--unshare-net") && joined.contains("--perms 0755 --dir /opt") && joined.contains("--perms 0755 --dir /tmp/ws"));
         assert!(joined.ends_with("--chdir /tmp/ws/w1 -- sh -c true"));
         // The workspace's bind comes after the /tmp tmpfs, so it is not hidden by it.
         let tmpfs = a.iter().position(|x| x == "/tmp").unwrap();
         let bind = a.iter().position(|x| x == "/tmp/ws/w1").unwrap();
         assert!(tmpfs < bind);
+    }
+
+    /// As root, bubblewrap builds the namespaces and keeps only what `sandbox-net` needs to become the agent's
+    /// unprivileged user; as an ordinary user, a user namespace with everything dropped and no nested ones.
+    #[test]
+    fn a_root_runner_s_sandbox_keeps_only_the_capabilities_to_drop_to_the_agent_s_user() {
+        let spec = SandboxSpec { writable: vec!["/root/b/home".into()], cwd: "/".into(), relay_dir: Some("/root/b/net".into()), ..Default::default() };
+        let root = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)) };
+        let joined = root.command(&["x".into()], &spec).join(" ");
+        assert!(joined.contains("--cap-drop ALL --cap-add CAP_SETUID --cap-add CAP_SETGID --cap-add CAP_SETPCAP"), "{joined}");
+        assert!(!joined.contains("--unshare-user") && joined.contains("--unshare-net"), "{joined}");
+        assert!(joined.contains("--perms 0755 --dir /root ") && joined.contains("--perms 1777 --tmpfs /tmp"), "{joined}");
+        assert!(joined.contains(&format!("--ro-bind /root/b/net {RELAY_DIR}")), "{joined}");
+        let user = Sandbox { agent_ids: None, ..root };
+        let joined = user.command(&["x".into()], &spec).join(" ");
+        assert!(joined.contains("--unshare-user --disable-userns --cap-drop ALL") && !joined.contains("--cap-add"), "{joined}");
     }
 
     /// An npm install as the runner sees it: `.bin/tool -> ../@scope/tool/cli.js`, a script run by `node`.
@@ -253,7 +337,7 @@ mod tests {
         std::fs::write(dir.path().join("native"), b"\x7fELF\x02\x01").unwrap();
         assert_eq!(script_interpreter(&dir.path().join("native")), None);
         // Inside the sandbox the link is recreated as a link, so the script resolves its modules where it lives.
-        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new() };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None };
         let spec = SandboxSpec { readable: paths, cwd: "/".into(), ..Default::default() };
         let joined = s.command(&["tool".into()], &spec).join(" ");
         assert!(joined.contains(&format!("--symlink ../@scope/tool/bin/cli.js {}", nm.join(".bin/tool").display())), "{joined}");

@@ -69,64 +69,192 @@ fn walk(v: &Value, out: &mut Vec<Record>) {
     }
 }
 
-fn sum(records: &[Record], lines_scanned: u64) -> Usage {
-    let add = |f: fn(&Record) -> Option<u64>| {
-        let vals: Vec<u64> = records.iter().filter_map(f).collect();
-        (!vals.is_empty()).then(|| vals.iter().sum())
-    };
-    Usage {
-        available: !records.is_empty(),
-        requests_with_usage: records.len() as u64,
-        lines_scanned,
-        input_tokens: add(|r| r.input),
-        output_tokens: add(|r| r.output),
-        cache_read_input_tokens: add(|r| r.cache_read),
-        reasoning_tokens: add(|r| r.reasoning),
-        total_tokens: add(|r| r.total),
-    }
-}
-
 /// Usage of JSON-lines texts (harness stdout in stream-json mode, archived session files).
 pub fn usage_from_jsonl<'a>(texts: impl IntoIterator<Item = &'a str>) -> Usage {
-    let (mut all, mut results, mut lines) = (Vec::new(), Vec::new(), 0u64);
+    let mut scanner = UsageScanner::new(UsageFormat::Jsonl);
     for text in texts {
-        for line in text.lines().filter(|l| !l.trim().is_empty()) {
-            lines += 1;
-            let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
-            let mut rs = Vec::new();
-            walk(&v, &mut rs);
-            let is_result = matches!(v.get("type").and_then(Value::as_str), Some("result" | "turn.result" | "session.result"));
-            if is_result {
-                results.extend(rs.iter().copied());
-            }
-            all.extend(rs);
-        }
+        scanner.push(text.as_bytes());
+        scanner.gap();
     }
-    let mut chosen = if results.is_empty() { all } else { results };
-    chosen.dedup();
-    sum(&chosen, lines)
+    scanner.finish()
 }
 
 /// Codex `exec --json` on stdout: each turn ends with a `turn.completed` event carrying that turn's usage summed
 /// over its model requests (`input_tokens` includes `cached_input_tokens`; `reasoning_output_tokens` is part of
 /// `output_tokens`); the turns of a run add up.
 pub fn usage_from_codex_exec(text: &str) -> Usage {
-    let (mut records, mut lines) = (Vec::new(), 0u64);
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
-        lines += 1;
-        let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
-        if v["type"] != "turn.completed" {
-            continue;
+    let mut scanner = UsageScanner::new(UsageFormat::CodexExec);
+    scanner.push(text.as_bytes());
+    scanner.finish()
+}
+
+/// Lines longer than this are counted but not parsed (a harness's usage lines are a few hundred bytes; parsing a
+/// line costs many times its size in memory).
+pub const MAX_USAGE_LINE_BYTES: usize = 1 << 20;
+
+/// What a harness prints on stdout.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UsageFormat {
+    /// Nothing to read (the `command` harness).
+    None,
+    /// JSON lines with `usage` mappings anywhere (Claude Code, Qwen Code, Kimi Code, DeepSeek).
+    Jsonl,
+    /// Codex `exec --json` events.
+    CodexExec,
+}
+
+/// The sum of a sequence of records, consecutive repeats collapsed.
+#[derive(Debug, Default)]
+struct Sum {
+    count: u64,
+    last: Option<Record>,
+    input: Option<u64>,
+    output: Option<u64>,
+    cache_read: Option<u64>,
+    reasoning: Option<u64>,
+    total: Option<u64>,
+}
+
+impl Sum {
+    fn add(&mut self, r: Record, dedup: bool) {
+        if dedup && self.last == Some(r) {
+            return;
         }
-        if let Some(Value::Object(u)) = v.get("usage") {
-            let mut u = u.clone();
-            if let Some(r) = u.get("reasoning_output_tokens").cloned() {
-                u.insert("reasoning_tokens".into(), r);
+        self.last = Some(r);
+        self.count += 1;
+        for (acc, v) in [
+            (&mut self.input, r.input),
+            (&mut self.output, r.output),
+            (&mut self.cache_read, r.cache_read),
+            (&mut self.reasoning, r.reasoning),
+            (&mut self.total, r.total),
+        ] {
+            if let Some(v) = v {
+                *acc = Some(acc.unwrap_or(0).saturating_add(v));
             }
-            records.extend(record_of(&u));
         }
     }
-    sum(&records, lines)
+
+    fn usage(&self, lines_scanned: u64) -> Usage {
+        Usage {
+            available: self.count > 0,
+            requests_with_usage: self.count,
+            lines_scanned,
+            input_tokens: self.input,
+            output_tokens: self.output,
+            cache_read_input_tokens: self.cache_read,
+            reasoning_tokens: self.reasoning,
+            total_tokens: self.total,
+        }
+    }
+}
+
+/// Token usage from a harness's stdout fed in pieces of any size (the log is never held whole): lines are
+/// split as bytes arrive, each kept only up to [`MAX_USAGE_LINE_BYTES`], and the records summed as they are
+/// found, in constant memory. JSON lines: when some records come from `result`-type lines only those count;
+/// consecutive identical records collapse. Codex: the `turn.completed` events add up.
+#[derive(Debug)]
+pub struct UsageScanner {
+    format: UsageFormat,
+    line: Vec<u8>,
+    /// The current line outgrew the limit: it is counted, not parsed.
+    overlong: bool,
+    lines: u64,
+    all: Sum,
+    results: Sum,
+}
+
+impl UsageScanner {
+    pub fn new(format: UsageFormat) -> Self {
+        Self { format, line: Vec::new(), overlong: false, lines: 0, all: Sum::default(), results: Sum::default() }
+    }
+
+    /// The next bytes of the log.
+    pub fn push(&mut self, mut bytes: &[u8]) {
+        if self.format == UsageFormat::None {
+            return;
+        }
+        while let Some(i) = bytes.iter().position(|&b| b == b'\n') {
+            self.append(&bytes[..i]);
+            self.end_line();
+            bytes = &bytes[i + 1..];
+        }
+        self.append(bytes);
+    }
+
+    /// Bytes of the log were skipped here: the line under way ends.
+    pub fn gap(&mut self) {
+        self.end_line();
+    }
+
+    pub fn finish(mut self) -> Usage {
+        self.end_line();
+        match self.format {
+            UsageFormat::None => Usage::default(),
+            UsageFormat::CodexExec => self.all.usage(self.lines),
+            UsageFormat::Jsonl if self.results.count > 0 => self.results.usage(self.lines),
+            UsageFormat::Jsonl => self.all.usage(self.lines),
+        }
+    }
+
+    fn append(&mut self, bytes: &[u8]) {
+        if self.overlong {
+            return;
+        }
+        if self.line.len() + bytes.len() > MAX_USAGE_LINE_BYTES {
+            self.overlong = true;
+            self.line = Vec::new();
+            return;
+        }
+        self.line.extend_from_slice(bytes);
+    }
+
+    fn end_line(&mut self) {
+        let line = std::mem::take(&mut self.line);
+        let overlong = std::mem::replace(&mut self.overlong, false);
+        if overlong {
+            self.lines += 1;
+            return;
+        }
+        if line.iter().all(u8::is_ascii_whitespace) {
+            return;
+        }
+        self.lines += 1;
+        // Only lines that can hold a usage record are parsed.
+        let needle: &[u8] = if self.format == UsageFormat::CodexExec { b"turn.completed" } else { b"usage" };
+        if !line.windows(needle.len()).any(|w| w == needle) {
+            return;
+        }
+        let Ok(v) = serde_json::from_slice::<Value>(&line) else { return };
+        match self.format {
+            UsageFormat::None => {}
+            UsageFormat::CodexExec => {
+                if v["type"] != "turn.completed" {
+                    return;
+                }
+                if let Some(Value::Object(u)) = v.get("usage") {
+                    let mut u = u.clone();
+                    if let Some(r) = u.get("reasoning_output_tokens").cloned() {
+                        u.insert("reasoning_tokens".into(), r);
+                    }
+                    if let Some(r) = record_of(&u) {
+                        self.all.add(r, false);
+                    }
+                }
+            }
+            UsageFormat::Jsonl => {
+                let mut rs = Vec::new();
+                walk(&v, &mut rs);
+                let is_result = matches!(v.get("type").and_then(Value::as_str), Some("result" | "turn.result" | "session.result"));
+                for r in rs {
+                    if is_result {
+                        self.results.add(r, true);
+                    }
+                    self.all.add(r, true);
+                }
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -40,8 +40,9 @@ pub struct WorkerArgs {
     /// Rollouts this machine runs at once.
     #[arg(long, default_value_t = 1)]
     pub slots: usize,
-    /// This worker's directory: its server's data (run directories), the runner's files per batch (default
-    /// ./libero-worker).
+    /// This worker's directory: its server's data (run directories), the runner's files per batch. Default: a
+    /// directory of its own, `~/.local/share/libero-agent/workers/<worker id>` (under `$LIBERO_AGENT_DATA` when
+    /// set), so any number of workers run on one machine without flags; printed at start.
     #[arg(long)]
     pub data: Option<PathBuf>,
     #[command(flatten)]
@@ -96,13 +97,16 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     if !(2.0..=3600.0).contains(&args.lease_s) {
         bail!("--lease-s must be 2 to 3600 seconds");
     }
-    let data = super::absolute(&args.data.clone().unwrap_or_else(|| PathBuf::from("libero-worker")))?;
-    std::fs::create_dir_all(&data)?;
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_else(|_| "unknown".into());
+    let id = format!("{host}-{}-{}", std::process::id(), &libero_episode::json::random_name("")?[..6]);
+    let data = match &args.data {
+        Some(d) => super::absolute(d)?,
+        None => default_worker_dir(&id)?,
+    };
+    std::fs::create_dir_all(&data).with_context(|| format!("cannot create the worker's directory {}", data.display()))?;
     let artifacts = Artifacts::open(&args.artifacts)?;
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     let store = runtime.block_on(Store::connect(&args.store))?;
-    let host = std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_else(|_| "unknown".into());
-    let id = format!("{host}-{}-{}", std::process::id(), &libero_episode::json::random_name("")?[..6]);
     let serve_args = ServeArgs {
         addr: args.addr,
         data: Some(data.join("server")),
@@ -112,6 +116,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         batches: vec![],
         store: Some(args.store.clone()),
         artifacts: None,
+        limits: libero_server::listener::ConnLimits::default(),
         console: args.console,
     };
     let has_console = serve_args.console.is_some();
@@ -119,7 +124,16 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     // Without a console (`libero-worker`) there is no live view to link to.
     let live_url = has_console.then(|| args.public_url.clone().unwrap_or_else(|| server.url.clone()));
     runtime.block_on(store.register_worker(&id, &host, args.slots as i64, live_url.as_deref()))?;
-    eprintln!("worker {id}: {} slot(s), store {}, artifacts {}, server {}", args.slots, libero_store::redact(&args.store), artifacts.url(), server.url);
+    let workspace_base = args.paths.workspace_base()?;
+    eprintln!(
+        "worker {id}: {} slot(s), store {}, artifacts {}, server {}, data {}, workspaces {}",
+        args.slots,
+        libero_store::redact(&args.store),
+        artifacts.url(),
+        server.url,
+        data.display(),
+        workspace_base.display()
+    );
     super::install_signal_handlers();
     let worker = Arc::new(Worker {
         id,
@@ -127,7 +141,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         artifacts,
         runtime: runtime.handle().clone(),
         server_url: server.url.clone(),
-        workspace_root: args.paths.workspace_root("")?,
+        workspace_root: workspace_base,
         data,
         credentials_file: args.paths.credentials_file(),
         lease_ms: (args.lease_s * 1000.0) as i64,
@@ -206,7 +220,9 @@ impl Worker {
             Ok(plan) => match self.context(&job.batch, job.attempts) {
                 Ok(ctx) => {
                     let mut rec = super::rollout::run_rollout(&ctx, &plan);
+                    rec.ensure_reason();
                     self.upload(&ctx, job, &mut rec);
+                    self.clean_up(&ctx, job, &rec);
                     rec
                 }
                 Err(e) => failed(&plan, format!("the worker cannot run this batch: {e:#}")),
@@ -224,7 +240,12 @@ impl Worker {
 
     fn finish(&self, job: &libero_store::Job, record: &Value) -> anyhow::Result<()> {
         if self.runtime.block_on(self.store.finish(&job.batch, &job.rollout_id, &self.id, record))? {
-            eprintln!("{}/{}: {}", job.batch, job.rollout_id, record["outcome"].as_str().unwrap_or("?"));
+            let why = ["infrastructure_error", "termination_reason"].iter().find_map(|k| record[*k].as_str());
+            let outcome = record["outcome"].as_str().unwrap_or("?");
+            match why {
+                Some(why) if outcome != "SUCCESS" && outcome != "FAIL" => eprintln!("{}/{}: {outcome} ({why})", job.batch, job.rollout_id),
+                _ => eprintln!("{}/{}: {outcome}", job.batch, job.rollout_id),
+            }
         } else {
             eprintln!("{}/{}: this worker lost its lease meanwhile; the rollout was closed as {WORKER_LOST} and this record is dropped", job.batch, job.rollout_id);
         }
@@ -232,8 +253,9 @@ impl Worker {
     }
 
     /// The run context of a batch's attempt: its settings from the store, this machine's sandbox and
-    /// credentials. Each attempt gets directories of its own (`a<N>`), so a re-queued rollout never meets the
-    /// files of its first attempt.
+    /// credentials. Each attempt gets directories of its own, fresh in this process (`a<N>-<random>`), so a
+    /// re-queued rollout never meets the files of its first attempt, nor a batch those of an earlier batch of the
+    /// same name (a fresh database numbers attempts from 1 again).
     fn context(&self, batch: &str, attempt: i64) -> anyhow::Result<Arc<RunContext>> {
         let key = (batch.to_owned(), attempt);
         if let Some(ctx) = self.contexts.lock().map_err(|_| anyhow::anyhow!("poisoned"))?.get(&key) {
@@ -246,9 +268,11 @@ impl Worker {
         let sandbox = if settings.sandbox { Some(Sandbox::detect()?) } else { None };
         let npm_cli_installed = pinned_npm_cli_installed(harness);
         let name = libero_artifacts::check_name(batch)?;
+        let attempt_dir = super::fresh_dir(&self.data.join("batches").join(name), &format!("a{attempt}"))?;
+        let unique = attempt_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| format!("a{attempt}"));
         let ctx = Arc::new(RunContext {
-            batch_dir: self.data.join("batches").join(name).join(format!("a{attempt}")),
-            workspace_root: self.workspace_root.join(name).join(format!("a{attempt}")),
+            batch_dir: attempt_dir,
+            workspace_root: self.workspace_root.join(name).join(&unique),
             server_url: self.server_url.clone(),
             harness_version: super::probe_version(harness, npm_cli_installed),
             settings,
@@ -287,6 +311,27 @@ impl Worker {
             Err(e) => eprintln!("{}/{}: its files stay on this worker ({}): {e}", job.batch, job.rollout_id, run_dir.display()),
         }
     }
+}
+
+impl Worker {
+    /// Removes what the agent left on this machine once its files are uploaded: the workspace and the session
+    /// home (never uploaded), however deep, following no link ([`super::cleanup`]). Only paths inside this
+    /// worker's own directories are touched.
+    fn clean_up(&self, ctx: &RunContext, job: &libero_store::Job, rec: &RolloutRecord) {
+        let home = ctx.batch_dir.join("rollouts").join(&job.rollout_id).join("home");
+        let workspace = rec.workspace.clone().filter(|w| w.starts_with(&ctx.workspace_root) && w != &ctx.workspace_root);
+        for path in [Some(home), workspace].into_iter().flatten() {
+            if let Err(e) = super::cleanup::remove_tree(&path) {
+                eprintln!("{}/{}: cannot remove {}: {e}", job.batch, job.rollout_id, path.display());
+            }
+        }
+    }
+}
+
+/// `<data dir>/workers/<worker id>`: a directory of this worker's own (`~/.local/share/libero-agent/workers/…`).
+fn default_worker_dir(id: &str) -> anyhow::Result<PathBuf> {
+    let name: String = id.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect();
+    super::absolute(&libero_server::default_data_dir().join("workers").join(name))
 }
 
 /// A rollout the worker could not start (INVALID, with why).

@@ -180,6 +180,7 @@ impl InProcessServer {
             batches: vec![],
             store,
             artifacts: None,
+            limits: crate::listener::ConnLimits::default(),
             console,
         };
         Self::start_args(args, stop_reason)

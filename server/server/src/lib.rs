@@ -4,11 +4,14 @@
 //! (the CLI's `episode prepare` and the dashboard use it); `GET /api/episodes[/{id}[/video]]` from the episode
 //! store (operator-facing; no tokens, no paths), behind the operator guard (`auth`). The browser console is not
 //! here: a [`Console`] (the `libero-dashboard` crate's) adds its pages, so a worker's server can run without it.
+//! Every listener (the address asked for and its loopback twin) serves through [`listener`]: connection caps per
+//! peer address and in total, header, idle and body timeouts, and a file-descriptor reserve for the episodes.
 pub mod auth;
 pub mod client;
 pub mod credential;
 pub mod episodes;
 pub mod http_client;
+pub mod listener;
 pub mod live;
 pub mod mcp;
 pub mod mcp_gate;
@@ -74,6 +77,9 @@ pub struct ServeArgs {
     /// on first view and kept under `<data>/artifact_cache/`. Also $LIBERO_AGENT_ARTIFACTS.
     #[arg(long, value_name = "URL", env = "LIBERO_AGENT_ARTIFACTS")]
     pub artifacts: Option<String>,
+    /// Connection limits and timeouts of every listener (see [`listener`]).
+    #[command(flatten)]
+    pub limits: listener::ConnLimits,
     /// The browser console this server serves, if any (set by the binary, never from the command line).
     #[arg(skip)]
     pub console: Option<Console>,
@@ -344,7 +350,9 @@ pub async fn serve_until(
 /// A bound server, before it serves: its URL and operator token are known.
 pub struct Bound {
     app: Arc<App>,
-    listener: tokio::net::TcpListener,
+    /// The listener on the address asked for first, then its loopback twin ([`listener::bind`]).
+    listeners: Vec<tokio::net::TcpListener>,
+    limits: listener::Limits,
     base_url: String,
     recovered: usize,
     reconciled: u64,
@@ -359,6 +367,16 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     if let Some(url) = &args.public_url {
         check_public_url(url)?;
     }
+    // Descriptors for a flood of connections and for the episodes' own files, renders and store.
+    let nofile = listener::raise_nofile_limit();
+    let limits = args.limits.resolve(nofile)?;
+    if limits.max_total < args.limits.max_connections {
+        eprintln!(
+            "libero-agent serve: at most {} connections (not {}): the file-descriptor limit is {nofile}, and a reserve stays \
+             for the episodes",
+            limits.max_total, args.limits.max_connections
+        );
+    }
     let data = args.data.clone().unwrap_or_else(default_data_dir);
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create data directory {}", data.display()))?;
     let lock = DataLock::acquire(&data)?;
@@ -366,8 +384,8 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     if let Some(console) = args.console {
         operator = operator.with_login_page(console.login_page);
     }
-    let listener = tokio::net::TcpListener::bind(args.addr).await.with_context(|| format!("cannot bind {}", args.addr))?;
-    let local = listener.local_addr()?;
+    let listeners = listener::bind(args.addr).await?;
+    let local = listeners.first().context("no listener")?.local_addr()?;
     let base_url = format!("http://{local}");
     let registration = credential::Registration::register(local, operator.token());
     let (calls_tx, calls_rx) = unbounded_channel();
@@ -405,7 +423,7 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         console: args.console,
         public_url: args.public_url.as_deref().map(|u| u.trim_end_matches('/').to_owned()).unwrap_or_else(|| base_url.clone()),
     });
-    Ok(Bound { app, listener, base_url, recovered, reconciled, calls_rx, _lock: lock, _registration: registration })
+    Ok(Bound { app, listeners, limits, base_url, recovered, reconciled, calls_rx, _lock: lock, _registration: registration })
 }
 
 /// On a shared PostgreSQL store, every episode and queue change any machine makes (`LISTEN libero_episodes,
@@ -433,7 +451,7 @@ impl Bound {
 
     /// Serves until `shutdown` yields a stop reason (see [`serve_until`]).
     pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = (String, Duration)> + Send + 'static) -> anyhow::Result<()> {
-        let Bound { app, listener, base_url, recovered, reconciled, calls_rx, _lock, _registration } = self;
+        let Bound { app, listeners, limits, base_url, recovered, reconciled, calls_rx, _lock, _registration } = self;
         let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
         let data = app.episodes.data_dir().to_path_buf();
         listening(json!({
@@ -479,13 +497,13 @@ impl Bound {
                 let _ = stopped_tx.send(());
             }
         };
-        let server = axum::serve(listener, router(app.clone())).with_graceful_shutdown(stop);
+        let server = listener::serve(listeners, router(app.clone()), limits, stop);
         let grace_over = async {
             let _ = stopped_rx.await;
             tokio::time::sleep(SIGNAL_GRACE).await;
         };
         tokio::select! {
-            served = server => served?,
+            () = server => {}
             () = grace_over => eprintln!("warning: requests still open {SIGNAL_GRACE:?} after the stop; closing them"),
         }
         sync_task.abort();

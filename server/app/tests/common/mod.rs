@@ -166,3 +166,19 @@ pub fn dechunk(mut b: &[u8]) -> Vec<u8> {
         b = &b[line_end + 4 + size..];
     }
 }
+
+/// Waits for `child` (a batch run) to exit successfully within `limit`; kills it and fails the test otherwise.
+pub fn wait_success(child: &mut Child, limit: std::time::Duration, what: &str) {
+    let start = std::time::Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            assert!(status.success(), "{what} failed: {status}");
+            return;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            panic!("{what} hung for more than {limit:?}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+}

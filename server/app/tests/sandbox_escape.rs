@@ -1,0 +1,214 @@
+//! Issue 30's proof that the sandbox holds against the runner being root and against the network: a red-team agent
+//! (`tests/redteam/escape.py`) runs where a real agent runs — `libero-agent run --harness command`, inside the
+//! bubblewrap sandbox, against the runner's in-process server — and tries what an attacker would: remount the
+//! read-only system, the binary and the grader's code read-write, mount, chmod, write the `libero-agent` binary,
+//! read `/etc/shadow`, make new namespaces to regain capabilities, ptrace and signal a host process, open raw
+//! sockets, reach a decoy service on the host's loopback (IPv4 and IPv6), PostgreSQL's port and other hosts, and
+//! tunnel through the runner's proxy to anything off its allow-list. Every attempt must be refused, the decoy must see
+//! no connection, and the agent must still reach exactly its two addresses: its episode's MCP endpoint (the
+//! reference agent then plays the episode to a valid outcome) and its model API (a scripted endpoint on the host's
+//! loopback, reached only through the runner's gateway, which records the request). The harness manifest records
+//! the sandbox's ids, capability sets and mounts as the agent's first process saw them.
+use std::io::{Read, Write};
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use serde_json::Value;
+
+mod common;
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_libero-agent")
+}
+
+fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap()
+}
+
+/// A host loopback service the agent must not reach: counts every connection it accepts.
+fn decoy(listener: TcpListener) -> Arc<AtomicUsize> {
+    let hits = Arc::new(AtomicUsize::new(0));
+    let h = hits.clone();
+    std::thread::spawn(move || {
+        for c in listener.incoming().flatten() {
+            h.fetch_add(1, Ordering::SeqCst);
+            drop(c);
+        }
+    });
+    hits
+}
+
+/// A scripted model API on the host's loopback: answers every request with a model list and counts them.
+fn model_api() -> (u16, Arc<AtomicUsize>) {
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = l.local_addr().unwrap().port();
+    let hits = Arc::new(AtomicUsize::new(0));
+    let h = hits.clone();
+    std::thread::spawn(move || {
+        for mut c in l.incoming().flatten() {
+            h.fetch_add(1, Ordering::SeqCst);
+            let mut buf = [0u8; 8192];
+            let _ = c.set_read_timeout(Some(Duration::from_secs(5)));
+            let _ = c.read(&mut buf);
+            let body = r#"{"object":"list","data":[{"id":"scripted-model"}]}"#;
+            let _ = write!(c, "HTTP/1.1 200 OK\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}", body.len());
+        }
+    });
+    (port, hits)
+}
+
+/// How the runner is started: as this test's user, or as an ordinary user (from root: `setpriv` to nobody, with a
+/// hard-linked copy of the asset cache that user can read and the test's directory given to it).
+struct Runner {
+    as_user: Option<(u32, u32)>,
+    cache: Option<PathBuf>,
+    home: Option<PathBuf>,
+}
+
+impl Runner {
+    fn command(&self) -> Command {
+        let Some((uid, gid)) = self.as_user else { return Command::new(bin()) };
+        let mut c = Command::new("setpriv");
+        c.args(["--reuid", &uid.to_string(), "--regid", &gid.to_string(), "--clear-groups", "--"]).arg(bin());
+        let cache = self.cache.as_ref().unwrap();
+        c.env("LIBERO_AGENT_CACHE", cache).env("LD_LIBRARY_PATH", cache.join("mujoco-3.17.0/lib")).env("HOME", self.home.as_ref().unwrap());
+        c
+    }
+}
+
+fn run_batch(runner: &Runner, batch: &Path, workspaces: &Path, credentials: &Path, agent_cmd: &str) {
+    let mut child = runner
+        .command()
+        .args(["run", "--experiment", "main_table", "--harness", "command", "--model", "escape", "--tasks", "T14", "--reps", "1"])
+        .args(["--agent-cmd", agent_cmd, "--wall-time-s", "300", "--batch"])
+        .arg(batch)
+        .arg("--workspace-root")
+        .arg(workspaces)
+        .arg("--credentials-file")
+        .arg(credentials)
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("run libero-agent run");
+    common::wait_success(&mut child, Duration::from_secs(600), "the batch");
+}
+
+fn cache_dir() -> PathBuf {
+    std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"))
+}
+
+/// Root's asset cache is private to root: a copy of hard links (no data copied) in directories nobody can read.
+fn cache_for(dir: &Path, uid: u32, gid: u32) -> PathBuf {
+    let copy = dir.join("cache");
+    std::fs::create_dir(&copy).unwrap();
+    for part in ["mujoco-3.17.0", "robosuite-1.4.0", "hf-libero-0.1.4", "libero-assets-0.1.0"] {
+        let st = Command::new("cp").arg("-al").arg(cache_dir().join(part)).arg(&copy).status().unwrap();
+        assert!(st.success(), "cp -al {part}");
+    }
+    let st = Command::new("find").arg(&copy).args(["-type", "d", "-exec", "chmod", "0755", "{}", "+"]).status().unwrap();
+    assert!(st.success());
+    std::os::unix::fs::chown(dir, Some(uid), Some(gid)).unwrap();
+    copy
+}
+
+#[test]
+fn an_agent_in_the_sandbox_holds_no_capability_and_reaches_only_its_endpoint_and_model_api() {
+    let dir = tempfile::tempdir().unwrap();
+    escape_attempt(dir.path(), &Runner { as_user: None, cache: None, home: None });
+}
+
+/// The same attacks with the runner started by an ordinary user (nobody, switched to from root; when this test
+/// itself runs as an ordinary user, the test above is that case already).
+#[test]
+fn an_agent_of_an_ordinary_user_s_runner_is_held_the_same_way() {
+    // SAFETY: getuid(2) has no preconditions.
+    if unsafe { libc::getuid() } != 0 {
+        eprintln!("not root: an_agent_in_the_sandbox_holds_no_capability_… ran as an ordinary user");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (uid, gid) = (65534, 65534);
+    let cache = cache_for(dir.path(), uid, gid);
+    let home = dir.path().join("home");
+    std::fs::create_dir(&home).unwrap();
+    std::os::unix::fs::chown(&home, Some(uid), Some(gid)).unwrap();
+    escape_attempt(dir.path(), &Runner { as_user: Some((uid, gid)), cache: Some(cache), home: Some(home) });
+}
+
+fn escape_attempt(dir: &Path, runner: &Runner) {
+    let decoy_v4 = TcpListener::bind("127.0.0.1:0").unwrap();
+    let decoy_port = decoy_v4.local_addr().unwrap().port();
+    let mut hits = vec![decoy(decoy_v4)];
+    if let Ok(v6) = TcpListener::bind(("::1", decoy_port)) {
+        hits.push(decoy(v6));
+    }
+    let (model_port, model_hits) = model_api();
+    let credentials = dir.join("credentials");
+    std::fs::write(&credentials, format!("APIURL=http://127.0.0.1:{model_port}/v1\nAPIKEY=sk-escape-test-key-0123\n")).unwrap();
+    let marker = format!("libero-escape-{}", std::process::id());
+    // SAFETY: getuid(2) has no preconditions.
+    let runner_uid = runner.as_user.map(|(u, _)| u).unwrap_or_else(|| unsafe { libc::getuid() });
+    let args = serde_json::json!({"decoy_port": decoy_port, "host_pid": std::process::id(), "runner_uid": runner_uid, "marker": marker});
+    let script = std::fs::read_to_string(repo_root().join("tests/redteam/escape.py")).unwrap();
+    let agent_cmd = format!(
+        "python3 - {{libero_agent}} '{args}' <<'PY'\n{script}\nPY\nexec {{libero_agent}} agent --workspace {{workspace}}"
+    );
+    let batch = dir.join("batch");
+    let workspaces = dir.join("ws");
+    run_batch(runner, &batch, &workspaces, &credentials, &agent_cmd);
+
+    let rec: Value = serde_json::from_str(std::fs::read_to_string(batch.join("rollouts.jsonl")).unwrap().lines().next().unwrap()).unwrap();
+    let rollout = batch.join("rollouts/w1_t14_level3");
+    let stderr = String::from_utf8_lossy(&std::fs::read(rollout.join("command_stderr.log")).unwrap_or_default()).into_owned();
+    let ws = PathBuf::from(rec["workspace"].as_str().unwrap());
+    let report: Value = serde_json::from_slice(&std::fs::read(ws.join("escape.json")).unwrap_or_default())
+        .unwrap_or_else(|e| panic!("no escape report ({e}); the agent's stderr:\n{stderr}"));
+    let attempts = report["attempts"].as_array().unwrap();
+    assert!(attempts.len() >= 30, "{} attempts", attempts.len());
+    let let_through: Vec<&Value> = attempts.iter().filter(|a| a["refused"] != true).collect();
+    assert!(let_through.is_empty(), "the sandbox let these through: {let_through:#?}");
+    for (i, h) in hits.iter().enumerate() {
+        assert_eq!(h.load(Ordering::SeqCst), 0, "the host's decoy {i} was reached");
+    }
+    assert!(!Path::new("/tmp").join(&marker).exists(), "the sandbox's /tmp is the host's");
+
+    // Its two addresses work: the model API through the gateway, the episode to a valid outcome.
+    assert!(report["model_reply"].as_str().is_some_and(|r| r.contains("scripted-model")), "{report}");
+    assert_eq!(model_hits.load(Ordering::SeqCst), 1, "exactly the agent's one model request reached the model API");
+    assert!(rec["outcome"] == "SUCCESS" || rec["outcome"] == "FAIL", "{rec}\n{stderr}");
+    assert_eq!(rec["result_status"], "finished", "{rec}");
+    let records = std::fs::read_to_string(rollout.join("sandbox/model_api.jsonl")).unwrap();
+    let records: Vec<Value> = records.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(records.iter().any(|r| r["status"] == 200 && r["path"].as_str().is_some_and(|p| p.ends_with("/models"))), "{records:#?}");
+    assert!(records.iter().filter(|r| r["status"] == 403).count() >= 3, "the refused tunnels are recorded: {records:#?}");
+    assert!(!std::fs::read_to_string(rollout.join("sandbox/model_api.jsonl")).unwrap().contains("sk-escape-test-key"), "no key in the records");
+
+    // The manifest: the sandbox as the agent's first process saw it.
+    let manifest: Value = serde_json::from_slice(&std::fs::read(rollout.join("harness_manifest.json")).unwrap()).unwrap();
+    let relay_dir = manifest["relay_dir"].as_str().unwrap();
+    assert!(relay_dir.len() < 90 && !Path::new(relay_dir).exists(), "the relay sockets are removed after the rollout: {relay_dir}");
+    let sr = &manifest["sandbox_report"];
+    for set in ["inheritable", "permitted", "effective", "bounding", "ambient"] {
+        assert_eq!(sr["capabilities"][set], "0000000000000000", "{set}: {sr}");
+    }
+    assert_eq!(sr["no_new_privs"], true, "{sr}");
+    assert_eq!(sr["seccomp"], "2", "a seccomp filter: {sr}");
+    assert_eq!(sr["network_interfaces"], serde_json::json!(["lo"]), "{sr}");
+    assert!(sr["mounts"].as_array().is_some_and(|m| m.iter().any(|x| x["mountpoint"] == "/usr" && x["options"].as_str().unwrap().starts_with("ro"))), "{sr}");
+    assert!(manifest["network"]["proxy_allow_list"].as_array().is_some_and(|a| a == &[Value::from(format!("127.0.0.1:{model_port}"))]), "{manifest}");
+    assert_eq!(report["uid"], if runner_uid == 0 { 65534 } else { runner_uid }, "{report}");
+    if runner_uid == 0 {
+        // As root: the agent is an unprivileged host user, and what it wrote is that user's.
+        assert_eq!(sr["uid"][0], "65534", "{sr}");
+        assert_eq!(report["uid"], 65534);
+        use std::os::unix::fs::MetadataExt;
+        assert_eq!(std::fs::metadata(ws.join("escape.json")).unwrap().uid(), 65534);
+        assert_eq!(manifest["sandbox"]["identity"]["agent_uid"], 65534, "{manifest}");
+    }
+}

@@ -1,0 +1,1554 @@
+//! The runner's end of a sandboxed agent's network: the agent's namespace holds only `lo`, where the sandbox's
+//! forwarder ([`crate::sandbox_net`]) relays each TCP connection to a Unix socket the runner listens on. Behind one
+//! such socket [`start`] runs the model-API gateway; behind another [`relay_unix_to_tcp`] relays bytes to the
+//! episode's MCP endpoint.
+//!
+//! The gateway tells three kinds of HTTP/1.1 request apart, request by request:
+//! - origin-form (`POST /v1/chat/completions`): reverse-proxied to [`GatewayConfig::upstream`], the credentials'
+//!   base URL (the request's path and query on the upstream's origin, `Host` rewritten, TLS when https); without an
+//!   upstream, 502. The agent's API base is the gateway's loopback address with the upstream's path.
+//! - absolute-form (`GET http://host:port/path`): forwarded to that host when [`GatewayConfig::allowed`] names it.
+//! - `CONNECT host:port` (HTTPS through a proxy): a raw tunnel when allowed; only its byte counts are visible.
+//!
+//! Anything else allowed lists do not name is refused with 403. Proxied requests go upstream with
+//! `Connection: close` and `Accept-Encoding: identity`, and their responses stream back as they arrive (SSE
+//! included) while a bounded head and tail of each response is kept to read the model's token usage from.
+//!
+//! Every request becomes one JSON line in [`GatewayConfig::records`] ([`Record`]): times, mode, method, host:port,
+//! path without query, status, body bytes, duration and token usage. Never headers or bodies: no prompts, no keys.
+//! [`summarize`] adds a records file up.
+//!
+//! Bounds: a request head of at most 64 KiB (431 beyond), 30 s to send it (an idle keep-alive connection is closed
+//! after as long), request bodies of at most 32 MiB (413), 64 connections at once per socket (more wait in the
+//! backlog), 30 s to connect upstream. A response may take as long as the model needs: no total timeout.
+//!
+//! Each gateway or relay runs on a current-thread tokio runtime of its own thread, so the synchronous runner can
+//! start it and stop it ([`Gateway::stop`], or drop it); what is in flight is then cut and recorded as such.
+use std::convert::Infallible;
+use std::future::Future;
+use std::io::Write as _;
+use std::net::SocketAddr;
+use std::os::unix::net::UnixListener as StdUnixListener;
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use bytes::Bytes;
+use http::header::{self, HeaderName, HeaderValue};
+use http::{HeaderMap, Method, Request, Response, StatusCode, Uri};
+use hyper::body::{Body, Frame, Incoming, SizeHint};
+use hyper_util::rt::{TokioIo, TokioTimer};
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::{TcpStream, UnixListener, UnixStream};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, oneshot};
+
+use libero_episode::json::iso_from_system_time;
+
+/// Largest request head (request line and headers) the gateway reads; beyond it, 431.
+pub const MAX_HEAD_BYTES: usize = 64 << 10;
+/// Largest request body the gateway forwards; beyond it, 413.
+pub const MAX_REQUEST_BODY_BYTES: u64 = 32 << 20;
+/// Connections served at once per socket (gateway or relay); more wait in the listen backlog.
+pub const MAX_CONNECTIONS: usize = 64;
+/// Time a client has to send a request head; also how long an idle keep-alive connection stays open.
+pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(30);
+/// Time to connect (and shake hands with TLS) upstream.
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
+/// Of each response, the first bytes kept for reading token usage (Anthropic's `message_start`).
+const HEAD_KEEP: usize = 64 << 10;
+/// Of each response, the last bytes kept for reading token usage (the final SSE events, a JSON body's `usage`);
+/// the buffer holds up to twice this between trims, so at most 256 KiB of a response are held.
+const TAIL_KEEP: usize = 96 << 10;
+/// How long stopping waits for the runtime's blocking work (name lookups) before leaving it behind.
+const STOP_GRACE: Duration = Duration::from_secs(2);
+
+/// What a gateway serves.
+#[derive(Debug, Clone, Default)]
+pub struct GatewayConfig {
+    /// Where origin-form requests (the agent's model API calls) go: the credentials' base URL, `http` or `https`,
+    /// e.g. `https://api.example.com/v1`. Only its origin is used: the request's own path and query are sent
+    /// there, so the agent's base URL must carry the same path. None: such requests get 502.
+    pub upstream: Option<url::Url>,
+    /// `(host, port)` pairs that `CONNECT` tunnels and absolute-form `http://` requests may reach (host names
+    /// compared without case, IPv6 without brackets); everything else is refused with 403 and recorded.
+    pub allowed: Vec<(String, u16)>,
+    /// The JSON-lines file each request is appended to as a [`Record`] (created if missing).
+    pub records: PathBuf,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum GatewayError {
+    #[error("the model API URL {0:?} is not http(s)://host[:port][/path] without user info")]
+    Upstream(String),
+    #[error("cannot open the gateway's records file {path}: {source}")]
+    Records { path: PathBuf, source: std::io::Error },
+    #[error("TLS to the model API: {0}")]
+    Tls(String),
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+}
+
+/// How the gateway handled a request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Origin-form, to the configured upstream.
+    Reverse,
+    /// Absolute-form `http://…`, to an allowed host.
+    Forward,
+    /// A `CONNECT` tunnel to an allowed host.
+    Connect,
+    /// Not allowed (403), or not a request the gateway could read (malformed or oversized head).
+    Refused,
+}
+
+/// Token usage a model API reported in a response, normalised. `api` says whose convention the counts follow:
+/// `openai_chat` and `openai_responses` count cached tokens inside `input_tokens` and reasoning tokens inside
+/// `output_tokens`; `anthropic_messages` counts cache reads (`cached_input_tokens`) and cache writes
+/// (`cache_creation_input_tokens`) beside `input_tokens`, and its `total_tokens` is input + output (as in
+/// [`crate::usage`]).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TokenUsage {
+    pub api: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input_tokens: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub output_tokens: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cached_input_tokens: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cache_creation_input_tokens: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reasoning_tokens: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub total_tokens: Option<u64>,
+}
+
+/// One line of the records file: one request (or one tunnel), written when it ended.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Record {
+    /// When the request arrived, ISO-8601 UTC.
+    pub time: String,
+    /// The same, in milliseconds since the Unix epoch.
+    pub unix_ms: u64,
+    pub mode: Mode,
+    pub method: String,
+    /// `host:port` the request went (or would have gone) to; empty when the head could not be read.
+    pub host: String,
+    /// The request's path without query; empty for `CONNECT`.
+    pub path: String,
+    /// The status sent to the client (200 for an established tunnel).
+    pub status: u16,
+    /// Body bytes from the client (tunnels: every byte from the client).
+    pub request_bytes: u64,
+    /// Body bytes to the client (tunnels: every byte to the client).
+    pub response_bytes: u64,
+    pub duration_ms: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub content_type: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub usage: Option<TokenUsage>,
+    /// Why the request failed or ended early (upstream unreachable, client gone, gateway stopped, …).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// A records file added up.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct UsageSummary {
+    pub requests: u64,
+    /// Requests in mode `refused`.
+    pub refused: u64,
+    /// Requests that recorded an error.
+    pub failed: u64,
+    pub request_bytes: u64,
+    pub response_bytes: u64,
+    /// Responses that carried token usage; the token sums below are over these.
+    pub responses_with_usage: u64,
+    pub input_tokens: u64,
+    pub output_tokens: u64,
+    pub cached_input_tokens: u64,
+    pub cache_creation_input_tokens: u64,
+    pub reasoning_tokens: u64,
+    pub total_tokens: u64,
+    /// Lines that were not records (a line cut short when the runner died).
+    pub unreadable_lines: u64,
+}
+
+impl UsageSummary {
+    /// The rollout's token figures ([`crate::usage::Usage`]) from what the gateway saw, for harnesses whose stdout
+    /// lacks them.
+    pub fn to_usage(&self) -> crate::usage::Usage {
+        let available = self.responses_with_usage > 0;
+        let some = |x: u64| available.then_some(x);
+        crate::usage::Usage {
+            available,
+            requests_with_usage: self.responses_with_usage,
+            lines_scanned: self.requests + self.unreadable_lines,
+            input_tokens: some(self.input_tokens),
+            output_tokens: some(self.output_tokens),
+            cache_read_input_tokens: some(self.cached_input_tokens),
+            reasoning_tokens: some(self.reasoning_tokens),
+            total_tokens: some(self.total_tokens),
+        }
+    }
+}
+
+/// Adds up a gateway's records file.
+pub fn summarize(records: &Path) -> std::io::Result<UsageSummary> {
+    let text = std::fs::read_to_string(records)?;
+    let mut s = UsageSummary::default();
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        let Ok(r) = serde_json::from_str::<Record>(line) else {
+            s.unreadable_lines += 1;
+            continue;
+        };
+        s.requests += 1;
+        s.refused += u64::from(r.mode == Mode::Refused);
+        s.failed += u64::from(r.error.is_some());
+        s.request_bytes += r.request_bytes;
+        s.response_bytes += r.response_bytes;
+        if let Some(u) = &r.usage {
+            s.responses_with_usage += 1;
+            s.input_tokens += u.input_tokens.unwrap_or(0);
+            s.output_tokens += u.output_tokens.unwrap_or(0);
+            s.cached_input_tokens += u.cached_input_tokens.unwrap_or(0);
+            s.cache_creation_input_tokens += u.cache_creation_input_tokens.unwrap_or(0);
+            s.reasoning_tokens += u.reasoning_tokens.unwrap_or(0);
+            s.total_tokens += u.total_tokens.unwrap_or(0);
+        }
+    }
+    Ok(s)
+}
+
+/// A running gateway; stopped by [`Gateway::stop`] or when dropped.
+pub struct Gateway {
+    running: Running,
+}
+
+impl Gateway {
+    /// Stops accepting, cuts what is in flight (recorded with an error) and waits for the gateway's thread.
+    pub fn stop(mut self) {
+        self.running.stop();
+    }
+}
+
+/// A running Unix-to-TCP relay; stopped by [`Relay::stop`] or when dropped.
+pub struct Relay {
+    running: Running,
+}
+
+impl Relay {
+    /// Stops accepting, cuts the relayed connections and waits for the relay's thread.
+    pub fn stop(mut self) {
+        self.running.stop();
+    }
+}
+
+/// Serves the gateway on `listener` (a bound Unix socket; the caller removes its file) until stopped.
+pub fn start(listener: StdUnixListener, cfg: GatewayConfig) -> Result<Gateway, GatewayError> {
+    let upstream = cfg.upstream.as_ref().map(parse_upstream).transpose()?;
+    let tls = match &upstream {
+        Some(u) if u.tls => Some(tls_connector()?),
+        _ => None,
+    };
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&cfg.records)
+        .map_err(|source| GatewayError::Records { path: cfg.records.clone(), source })?;
+    let allowed = cfg.allowed.iter().map(|(h, p)| (normal_host(h), *p)).collect();
+    let shared = Arc::new(Shared { upstream, allowed, tls, records: Mutex::new(file) });
+    let running = Running::spawn("netgate", listener, move |listener| {
+        accept_loop(listener, move |stream, permit| serve_gateway_connection(shared.clone(), stream, permit))
+    })?;
+    Ok(Gateway { running })
+}
+
+/// Relays each connection accepted on `listener` to a new TCP connection to `target`, bytes both ways (a side's
+/// end of stream is passed on as a half-close), until stopped. For the episode's MCP endpoint.
+pub fn relay_unix_to_tcp(listener: StdUnixListener, target: SocketAddr) -> Result<Relay, GatewayError> {
+    let running = Running::spawn("netgate-relay", listener, move |listener| {
+        accept_loop(listener, move |mut stream, permit| async move {
+            let _permit = permit;
+            if let Ok(Ok(mut tcp)) = tokio::time::timeout(CONNECT_TIMEOUT, TcpStream::connect(target)).await {
+                let _ = tcp.set_nodelay(true);
+                let _ = tokio::io::copy_bidirectional(&mut stream, &mut tcp).await;
+            }
+        })
+    })?;
+    Ok(Relay { running })
+}
+
+/// A thread running a current-thread runtime that serves one listener until told to stop.
+struct Running {
+    stop: Option<oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Running {
+    fn spawn<F, Fut>(name: &str, listener: StdUnixListener, serve: F) -> Result<Self, GatewayError>
+    where
+        F: FnOnce(UnixListener) -> Fut + Send + 'static,
+        Fut: Future<Output = ()> + 'static,
+    {
+        listener.set_nonblocking(true)?;
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+        let listener = {
+            let _in_runtime = rt.enter();
+            UnixListener::from_std(listener)?
+        };
+        let (stop, stopped) = oneshot::channel::<()>();
+        let thread = std::thread::Builder::new().name(name.to_owned()).spawn(move || {
+            rt.block_on(async move {
+                tokio::select! {
+                    _ = stopped => {}
+                    () = serve(listener) => {}
+                }
+            });
+            // Drops every task (their records are written as they drop), then waits a little for name lookups.
+            rt.shutdown_timeout(STOP_GRACE);
+        })?;
+        Ok(Self { stop: Some(stop), thread: Some(thread) })
+    }
+
+    fn stop(&mut self) {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+async fn accept_loop<H, HF>(listener: UnixListener, handle: H)
+where
+    H: Fn(UnixStream, OwnedSemaphorePermit) -> HF,
+    HF: Future<Output = ()> + Send + 'static,
+{
+    let permits = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    loop {
+        let Ok(permit) = permits.clone().acquire_owned().await else { return };
+        match listener.accept().await {
+            Ok((stream, _)) => {
+                tokio::spawn(handle(stream, permit));
+            }
+            // Out of descriptors or the like: wait rather than spin.
+            Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+        }
+    }
+}
+
+/// The upstream of reverse-proxied requests.
+#[derive(Debug)]
+struct Upstream {
+    tls: bool,
+    /// Without IPv6 brackets, as connected to and as the TLS server name.
+    host: String,
+    port: u16,
+    /// The `Host` header.
+    authority: String,
+}
+
+fn parse_upstream(url: &url::Url) -> Result<Upstream, GatewayError> {
+    let bad = || GatewayError::Upstream(format!("{}://{}{}", url.scheme(), url.host_str().unwrap_or_default(), url.path()));
+    let tls = match url.scheme() {
+        "https" => true,
+        "http" => false,
+        _ => return Err(bad()),
+    };
+    let host = url.host_str().filter(|h| !h.is_empty()).ok_or_else(bad)?;
+    if !url.username().is_empty() || url.password().is_some() {
+        return Err(bad());
+    }
+    let port = url.port_or_known_default().ok_or_else(bad)?;
+    // The `Host` header: the URL's host, with its port where that is not the scheme's default.
+    let authority = match url.port() {
+        Some(p) => format!("{host}:{p}"),
+        None => host.to_owned(),
+    };
+    Ok(Upstream { tls, host: normal_host(host), port, authority })
+}
+
+fn normal_host(h: &str) -> String {
+    h.trim().trim_start_matches('[').trim_end_matches(']').to_ascii_lowercase()
+}
+
+fn tls_connector() -> Result<tokio_rustls::TlsConnector, GatewayError> {
+    let found = rustls_native_certs::load_native_certs();
+    let mut roots = rustls::RootCertStore::empty();
+    let (added, _) = roots.add_parsable_certificates(found.certs);
+    if added == 0 {
+        let why = found.errors.first().map(|e| format!(": {e}")).unwrap_or_default();
+        return Err(GatewayError::Tls(format!("no trusted root certificates found on this machine{why}")));
+    }
+    let provider = Arc::new(rustls::crypto::aws_lc_rs::default_provider());
+    let config = rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .map_err(|e| GatewayError::Tls(e.to_string()))?
+        .with_root_certificates(roots)
+        .with_no_client_auth();
+    Ok(tokio_rustls::TlsConnector::from(Arc::new(config)))
+}
+
+struct Shared {
+    upstream: Option<Upstream>,
+    allowed: Vec<(String, u16)>,
+    tls: Option<tokio_rustls::TlsConnector>,
+    records: Mutex<std::fs::File>,
+}
+
+impl Shared {
+    fn allows(&self, host: &str, port: u16) -> bool {
+        let host = normal_host(host);
+        self.allowed.iter().any(|(h, p)| *h == host && *p == port)
+    }
+
+    /// Appends one record (a write error loses that line; the proxying goes on).
+    fn write(&self, r: &Record) {
+        let Ok(mut line) = serde_json::to_vec(r) else { return };
+        line.push(b'\n');
+        if let Ok(mut f) = self.records.lock() {
+            let _ = f.write_all(&line);
+        }
+    }
+}
+
+/// Bytes each way of one request or tunnel.
+#[derive(Default)]
+struct Counters {
+    from_client: AtomicU64,
+    to_client: AtomicU64,
+}
+
+fn clipped(s: &str, max: usize) -> String {
+    if s.len() <= max {
+        return s.to_owned();
+    }
+    let mut end = max;
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    s[..end].to_owned()
+}
+
+/// A request being served; its record is written once, when it ends (or when it is dropped unfinished).
+struct Pending {
+    shared: Arc<Shared>,
+    at: SystemTime,
+    started: Instant,
+    mode: Mode,
+    method: String,
+    host: String,
+    path: String,
+    status: u16,
+    bytes: Arc<Counters>,
+    content_type: Option<String>,
+    capture: Option<Capture>,
+    error: Option<String>,
+    done: bool,
+}
+
+impl Pending {
+    fn new(shared: Arc<Shared>, method: &str, path: &str) -> Self {
+        Self {
+            shared,
+            at: SystemTime::now(),
+            started: Instant::now(),
+            mode: Mode::Refused,
+            method: clipped(method, 32),
+            host: String::new(),
+            path: clipped(path, 512),
+            status: 0,
+            bytes: Arc::new(Counters::default()),
+            content_type: None,
+            capture: None,
+            error: None,
+            done: false,
+        }
+    }
+
+    fn set_host(&mut self, host: &str, port: u16) {
+        let host = normal_host(host);
+        self.host = clipped(&if host.contains(':') { format!("[{host}]:{port}") } else { format!("{host}:{port}") }, 300);
+    }
+
+    fn finish(&mut self) {
+        if self.done {
+            return;
+        }
+        self.done = true;
+        let r = Record {
+            time: iso_from_system_time(self.at),
+            unix_ms: self.at.duration_since(UNIX_EPOCH).map(|d| d.as_millis() as u64).unwrap_or(0),
+            mode: self.mode,
+            method: self.method.clone(),
+            host: self.host.clone(),
+            path: self.path.clone(),
+            status: self.status,
+            request_bytes: self.bytes.from_client.load(Ordering::Relaxed),
+            response_bytes: self.bytes.to_client.load(Ordering::Relaxed),
+            duration_ms: self.started.elapsed().as_millis() as u64,
+            content_type: self.content_type.clone(),
+            usage: self.capture.as_ref().and_then(Capture::usage),
+            error: self.error.as_ref().map(|e| clipped(e, 500)),
+        };
+        self.shared.write(&r);
+    }
+
+    /// A response the gateway makes itself, recorded now.
+    fn answer(mut self, status: StatusCode, message: &str) -> Response<GateBody> {
+        self.status = status.as_u16();
+        if status.is_client_error() || status.is_server_error() {
+            self.error.get_or_insert_with(|| message.to_owned());
+        }
+        let text = format!("libero-agent gateway: {message}\n");
+        self.bytes.to_client.store(text.len() as u64, Ordering::Relaxed);
+        self.finish();
+        text_response(status, text)
+    }
+
+    fn refuse(mut self, status: StatusCode, message: &str) -> Response<GateBody> {
+        self.mode = Mode::Refused;
+        self.answer(status, message)
+    }
+}
+
+impl Drop for Pending {
+    fn drop(&mut self) {
+        if !self.done {
+            self.error.get_or_insert_with(|| "ended early: the client went away or the gateway stopped".to_owned());
+            self.finish();
+        }
+    }
+}
+
+fn text_response(status: StatusCode, text: String) -> Response<GateBody> {
+    let mut r = Response::new(GateBody::Full(Some(Bytes::from(text))));
+    *r.status_mut() = status;
+    r.headers_mut().insert(header::CONTENT_TYPE, HeaderValue::from_static("text/plain; charset=utf-8"));
+    // The gateway's own answers are refusals and failures: the connection ends with them.
+    r.headers_mut().insert(header::CONNECTION, HeaderValue::from_static("close"));
+    r
+}
+
+async fn serve_gateway_connection(shared: Arc<Shared>, stream: UnixStream, permit: OwnedSemaphorePermit) {
+    // Tunnels outlive the connection's HTTP handling: each holds the permit too.
+    let permit = Arc::new(permit);
+    let svc_shared = shared.clone();
+    let svc = hyper::service::service_fn(move |req| {
+        let (shared, permit) = (svc_shared.clone(), permit.clone());
+        async move { Ok::<_, Infallible>(handle(shared, req, permit).await) }
+    });
+    let mut builder = hyper::server::conn::http1::Builder::new();
+    builder.timer(TokioTimer::new()).header_read_timeout(HEADER_READ_TIMEOUT).max_header_size(MAX_HEAD_BYTES);
+    if let Err(e) = builder.serve_connection(TokioIo::new(stream), svc).with_upgrades().await
+        && e.is_parse()
+    {
+        // hyper has answered 431 (or 400) itself; a timed-out or vanished client is not a request.
+        let mut p = Pending::new(shared, "", "");
+        let (status, why) = if e.is_parse_too_large() {
+            (431, format!("request head over {} KiB", MAX_HEAD_BYTES >> 10))
+        } else {
+            (400, format!("unreadable request head: {e}"))
+        };
+        p.status = status;
+        p.error = Some(why);
+        p.finish();
+    }
+}
+
+async fn handle(shared: Arc<Shared>, req: Request<Incoming>, permit: Arc<OwnedSemaphorePermit>) -> Response<GateBody> {
+    let mut p = Pending::new(shared.clone(), req.method().as_str(), req.uri().path());
+    if req.method() == Method::CONNECT {
+        p.path.clear();
+        return connect(shared, req, p, permit).await;
+    }
+    if let Some(scheme) = req.uri().scheme_str() {
+        let Some(authority) = req.uri().authority().cloned() else {
+            return p.refuse(StatusCode::BAD_REQUEST, "an absolute-form request needs a host");
+        };
+        let port = authority.port_u16().unwrap_or(80);
+        p.set_host(authority.host(), port);
+        if !scheme.eq_ignore_ascii_case("http") {
+            return p.refuse(StatusCode::BAD_REQUEST, "only http:// is forwarded; https goes through CONNECT");
+        }
+        if !shared.allows(authority.host(), port) {
+            let message = format!("{} is not reachable from the sandbox", p.host);
+            return p.refuse(StatusCode::FORBIDDEN, &message);
+        }
+        p.mode = Mode::Forward;
+        let target = Target { tls: false, host: normal_host(authority.host()), port, authority: authority.as_str().to_owned() };
+        return proxy(&shared, req, target, p).await;
+    }
+    p.mode = Mode::Reverse;
+    if !req.uri().path().starts_with('/') {
+        return p.refuse(StatusCode::BAD_REQUEST, "the request target must be a path");
+    }
+    let Some(u) = &shared.upstream else {
+        return p.answer(StatusCode::BAD_GATEWAY, "no model API is configured for this sandbox");
+    };
+    p.set_host(&u.host, u.port);
+    let target = Target { tls: u.tls, host: u.host.clone(), port: u.port, authority: u.authority.clone() };
+    proxy(&shared, req, target, p).await
+}
+
+async fn connect(
+    shared: Arc<Shared>,
+    mut req: Request<Incoming>,
+    mut p: Pending,
+    permit: Arc<OwnedSemaphorePermit>,
+) -> Response<GateBody> {
+    let Some((host, port)) = req.uri().authority().and_then(|a| Some((normal_host(a.host()), a.port_u16()?))) else {
+        return p.refuse(StatusCode::BAD_REQUEST, "CONNECT needs host:port");
+    };
+    p.set_host(&host, port);
+    if !shared.allows(&host, port) {
+        let message = format!("{} is not reachable from the sandbox", p.host);
+        return p.refuse(StatusCode::FORBIDDEN, &message);
+    }
+    p.mode = Mode::Connect;
+    let tcp = match tokio::time::timeout(CONNECT_TIMEOUT, TcpStream::connect((host.as_str(), port))).await {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => {
+            let message = format!("cannot connect to {}: {e}", p.host);
+            return p.answer(StatusCode::BAD_GATEWAY, &message);
+        }
+        Err(_) => {
+            let message = format!("no connection to {} within 30 s", p.host);
+            return p.answer(StatusCode::GATEWAY_TIMEOUT, &message);
+        }
+    };
+    let _ = tcp.set_nodelay(true);
+    let on_upgrade = hyper::upgrade::on(&mut req);
+    p.status = 200;
+    tokio::spawn(async move {
+        let _permit = permit;
+        match on_upgrade.await {
+            Ok(upgraded) => {
+                let mut client = Counted { inner: TokioIo::new(upgraded), bytes: p.bytes.clone(), from_client: true };
+                let mut server = Counted { inner: tcp, bytes: p.bytes.clone(), from_client: false };
+                if let Err(e) = tokio::io::copy_bidirectional(&mut client, &mut server).await {
+                    p.error = Some(format!("tunnel: {e}"));
+                }
+            }
+            Err(e) => p.error = Some(format!("the client did not take the tunnel: {e}")),
+        }
+        p.finish();
+    });
+    Response::new(GateBody::Full(None))
+}
+
+/// Where a proxied request goes.
+struct Target {
+    tls: bool,
+    host: String,
+    port: u16,
+    authority: String,
+}
+
+trait Io: AsyncRead + AsyncWrite + Send + Unpin {}
+impl<T: AsyncRead + AsyncWrite + Send + Unpin> Io for T {}
+
+async fn open(shared: &Shared, t: &Target) -> Result<Box<dyn Io>, String> {
+    let name = format!("{}:{}", t.host, t.port);
+    let tcp = match tokio::time::timeout(CONNECT_TIMEOUT, TcpStream::connect((t.host.as_str(), t.port))).await {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => return Err(format!("cannot connect to {name}: {e}")),
+        Err(_) => return Err(format!("no connection to {name} within 30 s")),
+    };
+    let _ = tcp.set_nodelay(true);
+    if !t.tls {
+        return Ok(Box::new(tcp));
+    }
+    let tls = shared.tls.as_ref().ok_or_else(|| "no TLS configuration".to_owned())?;
+    let server_name = rustls::pki_types::ServerName::try_from(t.host.clone()).map_err(|e| format!("{name}: {e}"))?;
+    match tokio::time::timeout(CONNECT_TIMEOUT, tls.connect(server_name, tcp)).await {
+        Ok(Ok(s)) => Ok(Box::new(s)),
+        Ok(Err(e)) => Err(format!("TLS with {name}: {e}")),
+        Err(_) => Err(format!("no TLS handshake with {name} within 30 s")),
+    }
+}
+
+/// Headers that describe one connection, not the message (RFC 9110 §7.6.1), and those named by `Connection`.
+fn strip_hop_by_hop(h: &mut HeaderMap) {
+    let listed: Vec<HeaderName> = h
+        .get_all(header::CONNECTION)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .filter_map(|n| HeaderName::from_bytes(n.trim().as_bytes()).ok())
+        .collect();
+    for n in listed {
+        h.remove(n);
+    }
+    for n in ["connection", "keep-alive", "proxy-connection", "proxy-authenticate", "proxy-authorization", "te", "trailer", "transfer-encoding", "upgrade"] {
+        h.remove(n);
+    }
+}
+
+async fn proxy(shared: &Shared, req: Request<Incoming>, target: Target, mut p: Pending) -> Response<GateBody> {
+    let declared = req.headers().get(header::CONTENT_LENGTH).and_then(|v| v.to_str().ok()).and_then(|v| v.trim().parse::<u64>().ok());
+    if declared.is_some_and(|n| n > MAX_REQUEST_BODY_BYTES) {
+        return p.answer(StatusCode::PAYLOAD_TOO_LARGE, &format!("request body over {} MiB", MAX_REQUEST_BODY_BYTES >> 20));
+    }
+    let (parts, body) = req.into_parts();
+    let Ok(uri) = parts.uri.path_and_query().map_or("/", |pq| pq.as_str()).parse::<Uri>() else {
+        return p.answer(StatusCode::BAD_REQUEST, "unreadable request target");
+    };
+    let Ok(host) = HeaderValue::from_str(&target.authority) else {
+        return p.answer(StatusCode::BAD_REQUEST, "unusable host");
+    };
+    let mut headers = parts.headers;
+    strip_hop_by_hop(&mut headers);
+    // hyper answers `Expect: 100-continue` itself as it reads the body.
+    headers.remove(header::EXPECT);
+    headers.insert(header::HOST, host);
+    headers.insert(header::CONNECTION, HeaderValue::from_static("close"));
+    headers.insert(header::ACCEPT_ENCODING, HeaderValue::from_static("identity"));
+    let mut up = Request::new(RequestBody { inner: body, bytes: p.bytes.clone() });
+    *up.method_mut() = parts.method;
+    *up.uri_mut() = uri;
+    *up.headers_mut() = headers;
+    let io = match open(shared, &target).await {
+        Ok(io) => io,
+        Err(e) => return p.answer(StatusCode::BAD_GATEWAY, &e),
+    };
+    let (mut sender, conn) = match hyper::client::conn::http1::handshake(TokioIo::new(io)).await {
+        Ok(x) => x,
+        Err(e) => return p.answer(StatusCode::BAD_GATEWAY, &format!("upstream: {e}")),
+    };
+    tokio::spawn(async move {
+        let _ = conn.await;
+    });
+    let resp = match sender.send_request(up).await {
+        Ok(r) => r,
+        Err(_) if p.bytes.from_client.load(Ordering::Relaxed) > MAX_REQUEST_BODY_BYTES => {
+            return p.answer(StatusCode::PAYLOAD_TOO_LARGE, &format!("request body over {} MiB", MAX_REQUEST_BODY_BYTES >> 20));
+        }
+        Err(e) => return p.answer(StatusCode::BAD_GATEWAY, &format!("upstream: {e}")),
+    };
+    let (mut parts, body) = resp.into_parts();
+    p.status = parts.status.as_u16();
+    let content_type = parts.headers.get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()).map(|v| clipped(v, 100));
+    let encoded = parts
+        .headers
+        .get(header::CONTENT_ENCODING)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| !v.trim().is_empty() && !v.trim().eq_ignore_ascii_case("identity"));
+    let sse = content_type.as_deref().is_some_and(|c| c.to_ascii_lowercase().starts_with("text/event-stream"));
+    p.content_type = content_type;
+    p.capture = Some(Capture { sse, encoded, ..Capture::default() });
+    strip_hop_by_hop(&mut parts.headers);
+    let mut out = Response::new(GateBody::Tee(Box::new(TeeBody { inner: body, pending: p })));
+    *out.status_mut() = parts.status;
+    *out.headers_mut() = parts.headers;
+    out
+}
+
+/// The client's request body on its way upstream: counted, and cut past [`MAX_REQUEST_BODY_BYTES`].
+struct RequestBody {
+    inner: Incoming,
+    bytes: Arc<Counters>,
+}
+
+impl Body for RequestBody {
+    type Data = Bytes;
+    type Error = Box<dyn std::error::Error + Send + Sync>;
+
+    fn poll_frame(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Result<Frame<Bytes>, Self::Error>>> {
+        match Pin::new(&mut self.inner).poll_frame(cx) {
+            Poll::Ready(Some(Ok(frame))) => {
+                if let Some(d) = frame.data_ref() {
+                    let n = self.bytes.from_client.fetch_add(d.len() as u64, Ordering::Relaxed) + d.len() as u64;
+                    if n > MAX_REQUEST_BODY_BYTES {
+                        return Poll::Ready(Some(Err("request body over the gateway's limit".into())));
+                    }
+                }
+                Poll::Ready(Some(Ok(frame)))
+            }
+            Poll::Ready(Some(Err(e))) => Poll::Ready(Some(Err(e.into()))),
+            Poll::Ready(None) => Poll::Ready(None),
+            Poll::Pending => Poll::Pending,
+        }
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// What the gateway sends its client: its own short answers, or an upstream's response as it streams.
+enum GateBody {
+    Full(Option<Bytes>),
+    Tee(Box<TeeBody>),
+}
+
+impl Body for GateBody {
+    type Data = Bytes;
+    type Error = hyper::Error;
+
+    fn poll_frame(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Result<Frame<Bytes>, hyper::Error>>> {
+        match self.get_mut() {
+            GateBody::Full(b) => Poll::Ready(b.take().map(|b| Ok(Frame::data(b)))),
+            GateBody::Tee(t) => Pin::new(&mut **t).poll_frame(cx),
+        }
+    }
+
+    fn is_end_stream(&self) -> bool {
+        match self {
+            GateBody::Full(b) => b.is_none(),
+            GateBody::Tee(t) => t.inner.is_end_stream(),
+        }
+    }
+
+    fn size_hint(&self) -> SizeHint {
+        match self {
+            GateBody::Full(b) => SizeHint::with_exact(b.as_ref().map_or(0, |b| b.len() as u64)),
+            GateBody::Tee(t) => t.inner.size_hint(),
+        }
+    }
+}
+
+/// An upstream response passed on frame by frame, counted and sampled for token usage; recorded at its end.
+struct TeeBody {
+    inner: Incoming,
+    pending: Pending,
+}
+
+impl Body for TeeBody {
+    type Data = Bytes;
+    type Error = hyper::Error;
+
+    fn poll_frame(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Result<Frame<Bytes>, hyper::Error>>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.inner).poll_frame(cx) {
+            Poll::Ready(Some(Ok(frame))) => {
+                if let Some(d) = frame.data_ref() {
+                    this.pending.bytes.to_client.fetch_add(d.len() as u64, Ordering::Relaxed);
+                    if let Some(c) = &mut this.pending.capture {
+                        c.push(d);
+                    }
+                }
+                Poll::Ready(Some(Ok(frame)))
+            }
+            Poll::Ready(Some(Err(e))) => {
+                this.pending.error = Some(format!("upstream response: {e}"));
+                this.pending.finish();
+                Poll::Ready(Some(Err(e)))
+            }
+            Poll::Ready(None) => {
+                this.pending.finish();
+                Poll::Ready(None)
+            }
+            Poll::Pending => Poll::Pending,
+        }
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+impl Drop for TeeBody {
+    fn drop(&mut self) {
+        // An empty body (204, HEAD) is never polled: it ended well.
+        if self.inner.is_end_stream() {
+            self.pending.finish();
+        }
+    }
+}
+
+/// A tunnel's side, counting the bytes read from it.
+struct Counted<T> {
+    inner: T,
+    bytes: Arc<Counters>,
+    from_client: bool,
+}
+
+impl<T: AsyncRead + Unpin> AsyncRead for Counted<T> {
+    fn poll_read(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let r = Pin::new(&mut self.inner).poll_read(cx, buf);
+        if let Poll::Ready(Ok(())) = r {
+            let n = (buf.filled().len() - before) as u64;
+            let counter = if self.from_client { &self.bytes.from_client } else { &self.bytes.to_client };
+            counter.fetch_add(n, Ordering::Relaxed);
+        }
+        r
+    }
+}
+
+impl<T: AsyncWrite + Unpin> AsyncWrite for Counted<T> {
+    fn poll_write(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
+        Pin::new(&mut self.inner).poll_write(cx, buf)
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+/// The part of a response kept for reading token usage: its first [`HEAD_KEEP`] and last [`TAIL_KEEP`] bytes.
+#[derive(Default)]
+struct Capture {
+    head: Vec<u8>,
+    tail: Vec<u8>,
+    total: u64,
+    sse: bool,
+    /// Compressed despite `Accept-Encoding: identity`: not read.
+    encoded: bool,
+}
+
+impl Capture {
+    fn push(&mut self, d: &[u8]) {
+        self.total += d.len() as u64;
+        let room = HEAD_KEEP.saturating_sub(self.head.len()).min(d.len());
+        self.head.extend_from_slice(&d[..room]);
+        let rest = &d[room..];
+        if !rest.is_empty() {
+            self.tail.extend_from_slice(rest);
+            if self.tail.len() > 2 * TAIL_KEEP {
+                let cut = self.tail.len() - TAIL_KEEP;
+                self.tail.drain(..cut);
+            }
+        }
+    }
+
+    fn usage(&self) -> Option<TokenUsage> {
+        if self.encoded || self.total == 0 {
+            return None;
+        }
+        let whole = self.total == (self.head.len() + self.tail.len()) as u64;
+        let sse = self.sse || self.head.starts_with(b"data:") || self.head.starts_with(b"event:");
+        let mut acc = UsageAcc::default();
+        match (sse, whole) {
+            (true, true) => sse_events(&[&self.head[..], &self.tail[..]].concat(), &mut acc),
+            (true, false) => {
+                sse_events(&self.head, &mut acc);
+                // The tail starts inside some line: from the next one.
+                let from = self.tail.iter().position(|b| *b == b'\n').map_or(self.tail.len(), |i| i + 1);
+                sse_events(&self.tail[from..], &mut acc);
+            }
+            (false, true) => {
+                if let Ok(v) = serde_json::from_slice::<Value>(&[&self.head[..], &self.tail[..]].concat()) {
+                    acc.feed(&v);
+                }
+            }
+            (false, false) => {
+                if let Some(u) = last_usage_object(&self.tail) {
+                    acc.feed(&Value::Object(Map::from_iter([("usage".to_owned(), u)])));
+                }
+            }
+        }
+        acc.result()
+    }
+}
+
+/// Feeds the JSON `data` of each server-sent event in `text` to `acc`.
+fn sse_events(text: &[u8], acc: &mut UsageAcc) {
+    let text = String::from_utf8_lossy(text);
+    let mut data = String::new();
+    let mut dispatch = |data: &mut String| {
+        if !data.is_empty() {
+            if let Ok(v) = serde_json::from_str::<Value>(data) {
+                acc.feed(&v);
+            }
+            data.clear();
+        }
+    };
+    for line in text.split('\n').map(|l| l.strip_suffix('\r').unwrap_or(l)) {
+        if line.is_empty() {
+            dispatch(&mut data);
+        } else if let Some(d) = line.strip_prefix("data:") {
+            if !data.is_empty() {
+                data.push('\n');
+            }
+            data.push_str(d.strip_prefix(' ').unwrap_or(d));
+        }
+    }
+    dispatch(&mut data);
+}
+
+/// The value of the last `"usage"` key in a piece of JSON (the end of a body too large to keep whole).
+fn last_usage_object(text: &[u8]) -> Option<Value> {
+    let key = b"\"usage\"";
+    let mut end = text.len();
+    while let Some(i) = text[..end].windows(key.len()).rposition(|w| w == key) {
+        end = i;
+        if i > 0 && text[i - 1] == b'\\' {
+            continue; // inside a string
+        }
+        let rest = &text[i + key.len()..];
+        let colon = rest.iter().position(|b| !b.is_ascii_whitespace())?;
+        if rest[colon] != b':' {
+            continue;
+        }
+        let mut values = serde_json::Deserializer::from_slice(&rest[colon + 1..]).into_iter::<Value>();
+        if let Some(Ok(v @ Value::Object(_))) = values.next() {
+            return Some(v);
+        }
+    }
+    None
+}
+
+fn count(m: &Map<String, Value>, path: &[&str]) -> Option<u64> {
+    let (last, parents) = path.split_last()?;
+    let mut at = m;
+    for p in parents {
+        at = at.get(*p)?.as_object()?;
+    }
+    at.get(*last)?.as_u64()
+}
+
+/// Usage as the responses of one request report it: the last complete report wins; Anthropic's stream reports in
+/// parts (`message_start`, then cumulative `message_delta`s), merged.
+#[derive(Default)]
+struct UsageAcc {
+    last: Option<TokenUsage>,
+    anthropic: Option<TokenUsage>,
+}
+
+impl UsageAcc {
+    fn feed(&mut self, v: &Value) {
+        let kind = v.get("type").and_then(Value::as_str).unwrap_or_default();
+        match kind {
+            "message_start" => {
+                if let Some(u) = v.pointer("/message/usage").and_then(Value::as_object) {
+                    self.merge_anthropic(u);
+                }
+            }
+            "message_delta" => {
+                if let Some(u) = v.get("usage").and_then(Value::as_object) {
+                    self.merge_anthropic(u);
+                }
+            }
+            k if k.starts_with("response.") => {
+                if let Some(u) = v.pointer("/response/usage").and_then(Value::as_object) {
+                    self.last = Some(responses_usage(u));
+                }
+            }
+            _ => {
+                let Some(u) = v.get("usage").and_then(Value::as_object) else { return };
+                if u.contains_key("prompt_tokens") || u.contains_key("completion_tokens") {
+                    self.last = Some(chat_usage(u));
+                } else if kind == "message" || u.contains_key("cache_read_input_tokens") || u.contains_key("cache_creation_input_tokens") {
+                    self.merge_anthropic(u);
+                } else if u.contains_key("input_tokens") || u.contains_key("output_tokens") {
+                    self.last = Some(responses_usage(u));
+                }
+            }
+        }
+    }
+
+    fn merge_anthropic(&mut self, u: &Map<String, Value>) {
+        let a = self.anthropic.get_or_insert_with(|| TokenUsage { api: "anthropic_messages".into(), ..TokenUsage::default() });
+        for (key, field) in [
+            ("input_tokens", &mut a.input_tokens),
+            ("output_tokens", &mut a.output_tokens),
+            ("cache_read_input_tokens", &mut a.cached_input_tokens),
+            ("cache_creation_input_tokens", &mut a.cache_creation_input_tokens),
+        ] {
+            if let Some(n) = count(u, &[key]) {
+                *field = Some(n);
+            }
+        }
+    }
+
+    fn result(self) -> Option<TokenUsage> {
+        let mut u = self.anthropic.or(self.last)?;
+        if u.total_tokens.is_none() && (u.input_tokens.is_some() || u.output_tokens.is_some()) {
+            u.total_tokens = Some(u.input_tokens.unwrap_or(0) + u.output_tokens.unwrap_or(0));
+        }
+        Some(u)
+    }
+}
+
+/// OpenAI chat completions (and the OpenAI-compatible APIs: DeepSeek's `prompt_cache_hit_tokens`, Moonshot's
+/// top-level `cached_tokens`).
+fn chat_usage(u: &Map<String, Value>) -> TokenUsage {
+    TokenUsage {
+        api: "openai_chat".into(),
+        input_tokens: count(u, &["prompt_tokens"]),
+        output_tokens: count(u, &["completion_tokens"]),
+        cached_input_tokens: count(u, &["prompt_tokens_details", "cached_tokens"])
+            .or_else(|| count(u, &["prompt_cache_hit_tokens"]))
+            .or_else(|| count(u, &["cached_tokens"])),
+        cache_creation_input_tokens: None,
+        reasoning_tokens: count(u, &["completion_tokens_details", "reasoning_tokens"]).or_else(|| count(u, &["reasoning_tokens"])),
+        total_tokens: count(u, &["total_tokens"]),
+    }
+}
+
+/// OpenAI Responses API.
+fn responses_usage(u: &Map<String, Value>) -> TokenUsage {
+    TokenUsage {
+        api: "openai_responses".into(),
+        input_tokens: count(u, &["input_tokens"]),
+        output_tokens: count(u, &["output_tokens"]),
+        cached_input_tokens: count(u, &["input_tokens_details", "cached_tokens"]),
+        cache_creation_input_tokens: None,
+        reasoning_tokens: count(u, &["output_tokens_details", "reasoning_tokens"]),
+        total_tokens: count(u, &["total_tokens"]),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use http_body_util::{BodyExt, Either, Full};
+    use std::io::{Read, Write};
+    use std::os::unix::net::UnixStream as StdUnixStream;
+    use std::sync::atomic::AtomicBool;
+    use tokio::net::TcpListener;
+
+    const KEY: &str = "sk-test-SECRET-0123456789";
+
+    type UpBody = Either<Full<Bytes>, ChanBody>;
+
+    /// A response body sent piece by piece.
+    struct ChanBody(tokio::sync::mpsc::Receiver<Bytes>);
+
+    impl Body for ChanBody {
+        type Data = Bytes;
+        type Error = Infallible;
+
+        fn poll_frame(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<Result<Frame<Bytes>, Infallible>>> {
+            self.0.poll_recv(cx).map(|b| b.map(|b| Ok(Frame::data(b))))
+        }
+    }
+
+    /// What the local upstream saw, and the gate of its streamed chat completion.
+    #[derive(Default)]
+    struct Seen {
+        requests: Mutex<Vec<(String, HeaderMap)>>,
+        gate: Mutex<Option<oneshot::Receiver<()>>>,
+        /// The stream's last chunk went out before the client had its first one.
+        gate_timed_out: AtomicBool,
+    }
+
+    fn sse_response(events: Vec<String>, gate: Option<(oneshot::Receiver<()>, Arc<Seen>)>) -> Response<UpBody> {
+        let (tx, rx) = tokio::sync::mpsc::channel::<Bytes>(4);
+        tokio::spawn(async move {
+            let mut gate = gate;
+            for (i, e) in events.into_iter().enumerate() {
+                if i == 1
+                    && let Some((rx, seen)) = gate.take()
+                    && tokio::time::timeout(Duration::from_secs(10), rx).await.is_err()
+                {
+                    seen.gate_timed_out.store(true, Ordering::SeqCst);
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                if tx.send(Bytes::from(e)).await.is_err() {
+                    return;
+                }
+            }
+        });
+        let mut r = Response::new(Either::Right(ChanBody(rx)));
+        r.headers_mut().insert(header::CONTENT_TYPE, HeaderValue::from_static("text/event-stream"));
+        r
+    }
+
+    fn json_response(v: &str) -> Response<UpBody> {
+        let mut r = Response::new(Either::Left(Full::new(Bytes::from(v.to_owned()))));
+        r.headers_mut().insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+        r
+    }
+
+    fn data(v: &str) -> String {
+        format!("data: {v}\n\n")
+    }
+
+    async fn upstream(seen: Arc<Seen>, req: Request<Incoming>) -> Result<Response<UpBody>, Infallible> {
+        let (parts, body) = req.into_parts();
+        let body = body.collect().await.map(|b| b.to_bytes()).unwrap_or_default();
+        let body = String::from_utf8_lossy(&body).into_owned();
+        seen.requests.lock().unwrap().push((parts.uri.path().to_owned(), parts.headers));
+        Ok(match parts.uri.path() {
+            "/v1/chat/completions" if body.contains("\"stream\":true") => {
+                let gate = seen.gate.lock().unwrap().take().map(|rx| (rx, seen.clone()));
+                sse_response(
+                    vec![
+                        data(r#"{"choices":[{"delta":{"content":"Hel"}}],"usage":null}"#),
+                        data(r#"{"choices":[{"delta":{"content":"lo!"}}],"usage":null}"#),
+                        data(r#"{"choices":[],"usage":{"prompt_tokens":20,"completion_tokens":5,"total_tokens":25,"prompt_tokens_details":{"cached_tokens":4},"completion_tokens_details":{"reasoning_tokens":2}}}"#),
+                        data("[DONE]"),
+                    ],
+                    gate,
+                )
+            }
+            "/v1/chat/completions" => json_response(
+                r#"{"id":"c1","object":"chat.completion","choices":[{"index":0,"message":{"role":"assistant","content":"hi"}}],"usage":{"prompt_tokens":11,"completion_tokens":7,"total_tokens":18,"prompt_tokens_details":{"cached_tokens":3}}}"#,
+            ),
+            "/v1/messages" => sse_response(
+                vec![
+                    format!("event: message_start\n{}", data(r#"{"type":"message_start","message":{"id":"m1","type":"message","role":"assistant","usage":{"input_tokens":30,"cache_read_input_tokens":100,"cache_creation_input_tokens":10,"output_tokens":1}}}"#)),
+                    format!("event: content_block_delta\n{}", data(r#"{"type":"content_block_delta","index":0,"delta":{"type":"text_delta","text":"ok"}}"#)),
+                    format!("event: message_delta\n{}", data(r#"{"type":"message_delta","delta":{"stop_reason":"end_turn"},"usage":{"output_tokens":15}}"#)),
+                    format!("event: message_stop\n{}", data(r#"{"type":"message_stop"}"#)),
+                ],
+                None,
+            ),
+            "/v1/responses" => sse_response(
+                vec![
+                    data(r#"{"type":"response.created","response":{"id":"r1","usage":null}}"#),
+                    data(r#"{"type":"response.output_text.delta","delta":"ok"}"#),
+                    data(r#"{"type":"response.completed","response":{"id":"r1","usage":{"input_tokens":40,"input_tokens_details":{"cached_tokens":8},"output_tokens":9,"output_tokens_details":{"reasoning_tokens":6},"total_tokens":49}}}"#),
+                ],
+                None,
+            ),
+            _ => json_response(r#"{"object":"list","data":[]}"#),
+        })
+    }
+
+    /// A local upstream, a TCP echo server and a gateway in front of them (all on real sockets).
+    struct Fixture {
+        rt: tokio::runtime::Runtime,
+        seen: Arc<Seen>,
+        up: SocketAddr,
+        echo: SocketAddr,
+        dir: tempfile::TempDir,
+        sock: PathBuf,
+        records: PathBuf,
+        gateway: Option<Gateway>,
+    }
+
+    fn fixture(with_upstream: bool) -> Fixture {
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+        let seen = Arc::new(Seen::default());
+        let (up, echo) = rt.block_on(async {
+            let up_listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+            let echo_listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+            let (up, echo) = (up_listener.local_addr().unwrap(), echo_listener.local_addr().unwrap());
+            let seen = seen.clone();
+            tokio::spawn(async move {
+                while let Ok((s, _)) = up_listener.accept().await {
+                    let seen = seen.clone();
+                    tokio::spawn(async move {
+                        let svc = hyper::service::service_fn(move |req| upstream(seen.clone(), req));
+                        let _ = hyper::server::conn::http1::Builder::new().serve_connection(TokioIo::new(s), svc).await;
+                    });
+                }
+            });
+            tokio::spawn(async move {
+                while let Ok((s, _)) = echo_listener.accept().await {
+                    tokio::spawn(async move {
+                        let (mut r, mut w) = s.into_split();
+                        let _ = tokio::io::copy(&mut r, &mut w).await;
+                        let _ = tokio::io::AsyncWriteExt::shutdown(&mut w).await;
+                    });
+                }
+            });
+            (up, echo)
+        });
+        let dir = tempfile::tempdir().unwrap();
+        let sock = dir.path().join("model.sock");
+        let records = dir.path().join("model_api.jsonl");
+        let cfg = GatewayConfig {
+            upstream: with_upstream.then(|| url::Url::parse(&format!("http://{up}/v1")).unwrap()),
+            allowed: vec![("127.0.0.1".into(), up.port()), ("127.0.0.1".into(), echo.port())],
+            records: records.clone(),
+        };
+        let gateway = Some(start(StdUnixListener::bind(&sock).unwrap(), cfg).unwrap());
+        Fixture { rt, seen, up, echo, dir, sock, records, gateway }
+    }
+
+    impl Fixture {
+        fn connect(&self) -> StdUnixStream {
+            let s = StdUnixStream::connect(&self.sock).unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+            s
+        }
+
+        /// Sends `raw`, reads until the gateway closes.
+        fn exchange(&self, raw: &[u8]) -> String {
+            let mut s = self.connect();
+            let _ = s.write_all(raw);
+            let mut out = Vec::new();
+            let _ = s.read_to_end(&mut out);
+            String::from_utf8_lossy(&out).into_owned()
+        }
+
+        /// The records file once it holds at least `n` records.
+        fn records(&self, n: usize) -> Vec<Record> {
+            let deadline = Instant::now() + Duration::from_secs(10);
+            loop {
+                let text = std::fs::read_to_string(&self.records).unwrap_or_default();
+                let rs: Vec<Record> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+                if rs.len() >= n || Instant::now() > deadline {
+                    return rs;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
+    }
+
+    fn post(path: &str, body: &str) -> Vec<u8> {
+        format!(
+            "POST {path} HTTP/1.1\r\nHost: 127.0.0.1:18790\r\nAuthorization: Bearer {KEY}\r\nx-api-key: {KEY}\r\n\
+             Content-Type: application/json\r\nAccept-Encoding: gzip, br\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        )
+        .into_bytes()
+    }
+
+    fn read_until(s: &mut StdUnixStream, buf: &mut Vec<u8>, needle: &str) {
+        let mut chunk = [0u8; 4096];
+        while !String::from_utf8_lossy(buf).contains(needle) {
+            let n = s.read(&mut chunk).unwrap();
+            assert!(n > 0, "closed before {needle:?}: {}", String::from_utf8_lossy(buf));
+            buf.extend_from_slice(&chunk[..n]);
+        }
+    }
+
+    #[test]
+    fn reverse_proxy_streams_and_records_usage_without_secrets() {
+        let f = fixture(true);
+        // (a) A JSON chat completion.
+        let out = f.exchange(&post("/v1/chat/completions", r#"{"model":"m","messages":[]}"#));
+        assert!(out.starts_with("HTTP/1.1 200"), "{out}");
+        assert!(out.contains(r#""content":"hi""#), "{out}");
+        // (b) A streamed one: the upstream holds its later chunks until the client has the first.
+        let (gate, gate_rx) = oneshot::channel();
+        *f.seen.gate.lock().unwrap() = Some(gate_rx);
+        let mut s = f.connect();
+        s.write_all(&post("/v1/chat/completions", r#"{"model":"m","stream":true}"#)).unwrap();
+        let mut buf = Vec::new();
+        read_until(&mut s, &mut buf, r#""content":"Hel""#);
+        assert!(!String::from_utf8_lossy(&buf).contains("[DONE]"));
+        gate.send(()).unwrap();
+        s.read_to_end(&mut buf).unwrap();
+        let out = String::from_utf8_lossy(&buf);
+        assert!(out.contains(r#""content":"lo!""#) && out.contains("data: [DONE]"), "{out}");
+        assert!(out.to_ascii_lowercase().contains("content-type: text/event-stream"), "{out}");
+        assert!(!f.seen.gate_timed_out.load(Ordering::SeqCst), "the first chunk reached the client only after the last was sent");
+        // (c) Anthropic messages and the Responses API, streamed.
+        let out = f.exchange(&post("/v1/messages", r#"{"model":"claude","stream":true}"#));
+        assert!(out.contains("message_stop"), "{out}");
+        let out = f.exchange(&post("/v1/responses?api-version=2", r#"{"model":"m","stream":true}"#));
+        assert!(out.contains("response.completed"), "{out}");
+
+        // Upstream saw the key (the agent's own call) with its own Host, identity encoding and one request per connection.
+        for (path, h) in f.seen.requests.lock().unwrap().iter() {
+            assert_eq!(h[header::HOST], f.up.to_string().as_str(), "{path}");
+            assert_eq!(h[header::AUTHORIZATION], format!("Bearer {KEY}").as_str());
+            assert_eq!(h[header::ACCEPT_ENCODING], "identity");
+            assert_eq!(h[header::CONNECTION], "close");
+        }
+        let rs = f.records(4);
+        assert_eq!(rs.len(), 4, "{rs:?}");
+        assert!(rs.iter().all(|r| r.mode == Mode::Reverse && r.status == 200 && r.error.is_none() && r.host == f.up.to_string()), "{rs:?}");
+        assert!(rs.iter().all(|r| r.request_bytes > 0 && r.response_bytes > 0), "{rs:?}");
+        assert_eq!(rs[3].path, "/v1/responses", "no query");
+        let usage = |i: usize| rs[i].usage.clone().unwrap();
+        assert_eq!(usage(0), TokenUsage { api: "openai_chat".into(), input_tokens: Some(11), output_tokens: Some(7), cached_input_tokens: Some(3), total_tokens: Some(18), ..TokenUsage::default() });
+        assert_eq!(usage(1), TokenUsage { api: "openai_chat".into(), input_tokens: Some(20), output_tokens: Some(5), cached_input_tokens: Some(4), reasoning_tokens: Some(2), total_tokens: Some(25), ..TokenUsage::default() });
+        assert_eq!(usage(2), TokenUsage { api: "anthropic_messages".into(), input_tokens: Some(30), output_tokens: Some(15), cached_input_tokens: Some(100), cache_creation_input_tokens: Some(10), total_tokens: Some(45), ..TokenUsage::default() });
+        assert_eq!(usage(3), TokenUsage { api: "openai_responses".into(), input_tokens: Some(40), output_tokens: Some(9), cached_input_tokens: Some(8), reasoning_tokens: Some(6), total_tokens: Some(49), ..TokenUsage::default() });
+        let text = std::fs::read_to_string(&f.records).unwrap();
+        assert!(!text.contains("SECRET") && !text.contains("Bearer"), "{text}");
+
+        let s = summarize(&f.records).unwrap();
+        assert_eq!((s.requests, s.refused, s.failed, s.responses_with_usage), (4, 0, 0, 4));
+        assert_eq!((s.input_tokens, s.output_tokens, s.cached_input_tokens), (101, 36, 115));
+        assert_eq!((s.cache_creation_input_tokens, s.reasoning_tokens, s.total_tokens), (10, 8, 137));
+        assert_eq!(s.request_bytes, rs.iter().map(|r| r.request_bytes).sum::<u64>());
+        assert_eq!(s.response_bytes, rs.iter().map(|r| r.response_bytes).sum::<u64>());
+        let u = s.to_usage();
+        assert!(u.available);
+        assert_eq!((u.requests_with_usage, u.input_tokens, u.total_tokens), (4, Some(101), Some(137)));
+        drop(f.dir);
+    }
+
+    #[test]
+    fn forward_and_connect_reach_only_allowed_hosts() {
+        let f = fixture(true);
+        let out = f.exchange(format!("GET http://{}/v1/models HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n", f.up, f.up).as_bytes());
+        assert!(out.starts_with("HTTP/1.1 200") && out.contains(r#""object":"list""#), "{out}");
+        let out = f.exchange(b"GET http://127.0.0.1:1/secret?x=1 HTTP/1.1\r\nHost: 127.0.0.1:1\r\nConnection: close\r\n\r\n");
+        assert!(out.starts_with("HTTP/1.1 403"), "{out}");
+        let out = f.exchange(b"GET https://127.0.0.1:1/ HTTP/1.1\r\nHost: 127.0.0.1:1\r\nConnection: close\r\n\r\n");
+        assert!(out.starts_with("HTTP/1.1 400"), "{out}");
+
+        // A tunnel to the echo server: bytes both ways, then the half-close travels through.
+        let mut s = f.connect();
+        s.write_all(format!("CONNECT {0} HTTP/1.1\r\nHost: {0}\r\n\r\n", f.echo).as_bytes()).unwrap();
+        let mut buf = Vec::new();
+        read_until(&mut s, &mut buf, "\r\n\r\n");
+        assert!(buf.starts_with(b"HTTP/1.1 200"), "{}", String::from_utf8_lossy(&buf));
+        s.write_all(b"ping-pong").unwrap();
+        let mut back = [0u8; 9];
+        s.read_exact(&mut back).unwrap();
+        assert_eq!(&back, b"ping-pong");
+        s.shutdown(std::net::Shutdown::Write).unwrap();
+        let mut rest = Vec::new();
+        s.read_to_end(&mut rest).unwrap();
+        assert!(rest.is_empty());
+        let out = f.exchange(b"CONNECT 127.0.0.1:1 HTTP/1.1\r\nHost: 127.0.0.1:1\r\n\r\n");
+        assert!(out.starts_with("HTTP/1.1 403"), "{out}");
+
+        let rs = f.records(5);
+        let by_mode = |m: Mode| rs.iter().filter(|r| r.mode == m).cloned().collect::<Vec<_>>();
+        let fwd = by_mode(Mode::Forward);
+        assert_eq!((fwd.len(), fwd[0].status, fwd[0].path.as_str(), fwd[0].usage.is_none()), (1, 200, "/v1/models", true));
+        let tunnel = by_mode(Mode::Connect);
+        assert_eq!(tunnel.len(), 1, "{rs:?}");
+        assert_eq!((tunnel[0].status, tunnel[0].request_bytes, tunnel[0].response_bytes), (200, 9, 9));
+        assert_eq!(tunnel[0].host, f.echo.to_string());
+        let refused = by_mode(Mode::Refused);
+        assert_eq!(refused.iter().map(|r| (r.status, r.method.as_str(), r.host.as_str())).collect::<Vec<_>>(),
+            [(403, "GET", "127.0.0.1:1"), (400, "GET", "127.0.0.1:1"), (403, "CONNECT", "127.0.0.1:1")]);
+        assert_eq!(refused[0].path, "/secret");
+        assert_eq!(summarize(&f.records).unwrap().refused, 3);
+    }
+
+    #[test]
+    fn bounds_and_a_missing_upstream() {
+        let f = fixture(false);
+        let big = format!("GET /v1/models HTTP/1.1\r\nHost: x\r\nX-Big: {}\r\n\r\n", "a".repeat(MAX_HEAD_BYTES + 1024));
+        let out = f.exchange(big.as_bytes());
+        assert!(out.starts_with("HTTP/1.1 431"), "{out}");
+        let too_long = format!("POST http://{0}/v1/chat/completions HTTP/1.1\r\nHost: {0}\r\nContent-Length: {1}\r\n\r\n", f.up, 40u64 << 20);
+        let out = f.exchange(too_long.as_bytes());
+        assert!(out.starts_with("HTTP/1.1 413"), "{out}");
+        let out = f.exchange(&post("/v1/chat/completions", "{}"));
+        assert!(out.starts_with("HTTP/1.1 502") && out.contains("no model API"), "{out}");
+        let rs = f.records(3);
+        let statuses: Vec<(Mode, u16)> = rs.iter().map(|r| (r.mode, r.status)).collect();
+        assert_eq!(statuses, [(Mode::Refused, 431), (Mode::Forward, 413), (Mode::Reverse, 502)]);
+        assert!(rs.iter().all(|r| r.error.is_some()));
+        assert!(!std::fs::read_to_string(&f.records).unwrap().contains("SECRET"));
+    }
+
+    #[test]
+    fn stopping_cuts_a_stream_and_records_it() {
+        let mut f = fixture(true);
+        let (_gate, gate_rx) = oneshot::channel::<()>();
+        *f.seen.gate.lock().unwrap() = Some(gate_rx);
+        let mut s = f.connect();
+        s.write_all(&post("/v1/chat/completions", r#"{"stream":true}"#)).unwrap();
+        read_until(&mut s, &mut Vec::new(), "Hel");
+        f.gateway.take().unwrap().stop();
+        let mut rest = Vec::new();
+        let _ = s.read_to_end(&mut rest);
+        let rs = f.records(1);
+        assert_eq!(rs.len(), 1);
+        assert!(rs[0].error.as_deref().is_some_and(|e| e.contains("ended early")), "{rs:?}");
+        assert!(rs[0].response_bytes > 0 && rs[0].usage.is_none());
+        f.rt.shutdown_background();
+    }
+
+    #[test]
+    fn relay_passes_bytes_and_half_closes() {
+        let f = fixture(true);
+        let sock = f.dir.path().join("mcp.sock");
+        let relay = relay_unix_to_tcp(StdUnixListener::bind(&sock).unwrap(), f.echo).unwrap();
+        for _ in 0..3 {
+            let mut s = StdUnixStream::connect(&sock).unwrap();
+            s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+            s.write_all(b"hello mcp").unwrap();
+            s.shutdown(std::net::Shutdown::Write).unwrap();
+            let mut out = Vec::new();
+            s.read_to_end(&mut out).unwrap();
+            assert_eq!(out, b"hello mcp");
+        }
+        relay.stop();
+        assert!(StdUnixStream::connect(&sock).is_err_and(|e| e.kind() == std::io::ErrorKind::ConnectionRefused));
+    }
+
+    #[test]
+    fn usage_survives_bodies_larger_than_what_is_kept() {
+        // An Anthropic stream of ~1 MiB: its input counts lead, its output count trails.
+        let mut c = Capture { sse: true, ..Capture::default() };
+        c.push(b"event: message_start\ndata: {\"type\":\"message_start\",\"message\":{\"usage\":{\"input_tokens\":7,\"cache_read_input_tokens\":70,\"output_tokens\":1}}}\n\n");
+        let delta = "event: content_block_delta\ndata: {\"type\":\"content_block_delta\",\"delta\":{\"text\":\"xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx\"}}\n\n";
+        for _ in 0..10_000 {
+            c.push(delta.as_bytes());
+        }
+        c.push(b"event: message_delta\ndata: {\"type\":\"message_delta\",\"usage\":{\"output_tokens\":900}}\n\n");
+        assert!(c.head.len() + c.tail.len() <= HEAD_KEEP + 2 * TAIL_KEEP && c.total > 1 << 20);
+        let u = c.usage().unwrap();
+        assert_eq!((u.input_tokens, u.cached_input_tokens, u.output_tokens, u.total_tokens), (Some(7), Some(70), Some(900), Some(907)));
+        // A JSON completion of ~1 MiB: `usage` comes last.
+        let mut c = Capture::default();
+        c.push(br#"{"choices":[{"message":{"content":""#);
+        for _ in 0..20_000 {
+            c.push(b"yyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyy \\\"usage\\\": {\\\"prompt_tokens\\\": 1}");
+        }
+        c.push(br#""}}],"usage":{"prompt_tokens":123,"completion_tokens":45,"total_tokens":168}}"#);
+        let u = c.usage().unwrap();
+        assert_eq!((u.api.as_str(), u.input_tokens, u.output_tokens, u.total_tokens), ("openai_chat", Some(123), Some(45), Some(168)));
+        // Compressed against our asking: not read. No usage at all: none.
+        let mut c = Capture { encoded: true, ..Capture::default() };
+        c.push(br#"{"usage":{"prompt_tokens":1}}"#);
+        assert_eq!(c.usage(), None);
+        let mut c = Capture::default();
+        c.push(br#"{"object":"list","data":[]}"#);
+        assert_eq!(c.usage(), None);
+        // DeepSeek's cache hits, Moonshot's top-level cached_tokens.
+        let mut acc = UsageAcc::default();
+        acc.feed(&serde_json::json!({"usage": {"prompt_tokens": 10, "completion_tokens": 2, "prompt_cache_hit_tokens": 6}}));
+        assert_eq!(acc.result().unwrap().cached_input_tokens, Some(6));
+    }
+
+    /// An https upstream goes through rustls with this machine's roots: here a server that only echoes, so the
+    /// handshake fails and the agent gets a 502 that says so.
+    #[test]
+    fn an_https_upstream_is_reached_over_tls() {
+        let f = fixture(true);
+        let sock = f.dir.path().join("tls.sock");
+        let records = f.dir.path().join("tls.jsonl");
+        let cfg = GatewayConfig {
+            upstream: Some(url::Url::parse(&format!("https://{}/v1", f.echo)).unwrap()),
+            allowed: Vec::new(),
+            records: records.clone(),
+        };
+        let gateway = start(StdUnixListener::bind(&sock).unwrap(), cfg).unwrap();
+        let mut s = StdUnixStream::connect(&sock).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        s.write_all(&post("/v1/chat/completions", "{}")).unwrap();
+        let mut out = String::new();
+        let _ = s.read_to_string(&mut out);
+        assert!(out.starts_with("HTTP/1.1 502") && out.contains("TLS"), "{out}");
+        gateway.stop();
+        let r: Record = serde_json::from_str(std::fs::read_to_string(&records).unwrap().trim()).unwrap();
+        assert_eq!((r.mode, r.status, r.host.as_str()), (Mode::Reverse, 502, f.echo.to_string().as_str()));
+        assert!(r.error.is_some_and(|e| e.contains("TLS")));
+    }
+
+    #[test]
+    fn upstream_urls_are_checked() {
+        let u = parse_upstream(&url::Url::parse("https://API.Example.com/v1/").unwrap()).unwrap();
+        assert_eq!((u.tls, u.host.as_str(), u.port, u.authority.as_str()), (true, "api.example.com", 443, "api.example.com"));
+        let u = parse_upstream(&url::Url::parse("http://[::1]:8080/x").unwrap()).unwrap();
+        assert_eq!((u.tls, u.host.as_str(), u.port, u.authority.as_str()), (false, "::1", 8080, "[::1]:8080"));
+        assert!(parse_upstream(&url::Url::parse("https://user:pw@api.example.com/v1").unwrap()).is_err());
+        assert!(parse_upstream(&url::Url::parse("ftp://api.example.com/").unwrap()).is_err());
+        let err = parse_upstream(&url::Url::parse("https://user:pw@api.example.com/v1?key=SECRET").unwrap()).unwrap_err().to_string();
+        assert!(!err.contains("SECRET") && !err.contains("pw"), "{err}");
+    }
+}
