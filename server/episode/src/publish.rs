@@ -282,8 +282,10 @@ impl ObservationPublisher {
         if !now.is_ok_and(|st| (st.st_dev, st.st_ino) == (published.st_dev, published.st_ino)) {
             return Err(spoiled("benchmark_inputs was moved or replaced"));
         }
+        // `staged` is still open, so its inode cannot have been freed and reused by whatever replaced it.
+        let staged = rustix::fs::fstat(&staged)?;
         let current = rustix::fs::statat(&bi, CURRENT, rustix::fs::AtFlags::SYMLINK_NOFOLLOW);
-        if !current.is_ok_and(|st| (st.st_dev, st.st_ino) == staged) {
+        if !current.is_ok_and(|st| (st.st_dev, st.st_ino) == (staged.st_dev, staged.st_ino)) {
             return Err(spoiled("current_observation was removed or replaced"));
         }
         Ok(())
@@ -374,8 +376,8 @@ pub fn write_private_copy(root: &Path, encoded: &EncodedObservation) -> std::io:
 }
 
 /// Creates the staging directory `name` in `area` and writes `encoded` into it, every entry created new;
-/// the directory's identity (device, inode).
-fn stage(area: BorrowedFd<'_>, name: &str, encoded: &EncodedObservation) -> std::io::Result<(u64, u64)> {
+/// the directory, open (held, its identity stays its own: the inode cannot be reused while it is open).
+fn stage(area: BorrowedFd<'_>, name: &str, encoded: &EncodedObservation) -> std::io::Result<OwnedFd> {
     let root = make_dir_at(area, name, 0o777)?;
     let mut dirs: Vec<(&str, OwnedFd)> = Vec::new();
     for sub in encoded.dirs() {
@@ -395,8 +397,7 @@ fn stage(area: BorrowedFd<'_>, name: &str, encoded: &EncodedObservation) -> std:
         sync_dir_fd(fd.as_fd())?;
     }
     sync_dir_fd(root.as_fd())?;
-    let st = rustix::fs::fstat(&root)?;
-    Ok((st.st_dev as u64, st.st_ino as u64))
+    Ok(root)
 }
 
 /// Makes the staged `area/name` the current observation. The first publication (or one after the agent
@@ -507,7 +508,14 @@ mod tests {
             self.publisher.publish(&frame(index, 4, 3), Level::L3, Some(&private))
         }
         fn current_id(&self) -> Value {
-            let text = fs::read(self.bi().join("current_observation/observation.json")).unwrap();
+            let path = self.bi().join("current_observation/observation.json");
+            let text = fs::read(&path).unwrap_or_else(|e| {
+                let kinds: Vec<String> = [self.ws(), self.bi(), self.bi().join("current_observation"), path.clone()]
+                    .iter()
+                    .map(|p| format!("{}: {:?}", p.display(), fs::symlink_metadata(p).map(|m| m.file_type())))
+                    .collect();
+                panic!("{}: {e}; {kinds:#?}", path.display())
+            });
             serde_json::from_slice::<Value>(&text).unwrap()["observation_id"].clone()
         }
         /// A host directory outside the workspace with one file the agent must never get at.

@@ -224,7 +224,11 @@ pub fn contain(
         set_mode(&p, 0o600)?;
         Ok(l)
     };
-    let relay = netgate::relay_unix_to_tcp(bind("mcp.sock")?, plan.mcp_target).context("cannot start the MCP relay")?;
+    // A loopback server sees this agent's connections come from an address of its own (127.0.0.0/8 is all
+    // loopback), so its per-address caps bound each agent alone.
+    let source = plan.mcp_target.ip().is_loopback().then(|| plan.mcp_target.is_ipv4()).filter(|v4| *v4).map(|_| own_loopback_address());
+    let relay =
+        netgate::relay_unix_to_tcp_from(bind("mcp.sock")?, plan.mcp_target, source).context("cannot start the MCP relay")?;
     let records = private.join("model_api.jsonl");
     let gateway = netgate::start(
         bind("model.sock")?,
@@ -272,6 +276,14 @@ pub fn contain(
         _gateway: Some(gateway),
         relay_dir: Some(net),
     })
+}
+
+/// A random address of 127.0.0.0/8 other than 127.0.0.1 and 127.0.1.1 (names of this host).
+fn own_loopback_address() -> IpAddr {
+    let mut b = [0u8; 3];
+    // SAFETY: getrandom(2) fills the buffer it is given, of the length it is given.
+    unsafe { libc::getrandom(b.as_mut_ptr().cast(), b.len(), 0) };
+    IpAddr::V4(Ipv4Addr::new(127, b[0].max(2), b[1], b[2].clamp(2, 254)))
 }
 
 /// A directory `<tmp>/libero-net-<random>` (0700) removed on drop.

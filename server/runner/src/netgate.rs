@@ -27,7 +27,7 @@
 use std::convert::Infallible;
 use std::future::Future;
 use std::io::Write as _;
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::os::unix::net::UnixListener as StdUnixListener;
 use std::path::{Path, PathBuf};
 use std::pin::Pin;
@@ -273,16 +273,30 @@ pub fn start(listener: StdUnixListener, cfg: GatewayConfig) -> Result<Gateway, G
 /// Relays each connection accepted on `listener` to a new TCP connection to `target`, bytes both ways (a side's
 /// end of stream is passed on as a half-close), until stopped. For the episode's MCP endpoint.
 pub fn relay_unix_to_tcp(listener: StdUnixListener, target: SocketAddr) -> Result<Relay, GatewayError> {
+    relay_unix_to_tcp_from(listener, target, None)
+}
+
+/// [`relay_unix_to_tcp`] with the outgoing connections bound to `source` (an address of this machine). Every
+/// address of 127.0.0.0/8 is loopback on Linux without any set-up, so each agent's relay can come from an
+/// address of its own and the server's per-address connection caps hold per agent, not for all agents at once.
+pub fn relay_unix_to_tcp_from(listener: StdUnixListener, target: SocketAddr, source: Option<IpAddr>) -> Result<Relay, GatewayError> {
     let running = Running::spawn("netgate-relay", listener, move |listener| {
         accept_loop(listener, move |mut stream, permit| async move {
             let _permit = permit;
-            if let Ok(Ok(mut tcp)) = tokio::time::timeout(CONNECT_TIMEOUT, TcpStream::connect(target)).await {
+            if let Ok(Ok(mut tcp)) = tokio::time::timeout(CONNECT_TIMEOUT, connect_from(source, target)).await {
                 let _ = tcp.set_nodelay(true);
                 let _ = tokio::io::copy_bidirectional(&mut stream, &mut tcp).await;
             }
         })
     })?;
     Ok(Relay { running })
+}
+
+async fn connect_from(source: Option<IpAddr>, target: SocketAddr) -> std::io::Result<TcpStream> {
+    let Some(source) = source.filter(|s| s.is_ipv4() == target.is_ipv4()) else { return TcpStream::connect(target).await };
+    let socket = if target.is_ipv4() { tokio::net::TcpSocket::new_v4()? } else { tokio::net::TcpSocket::new_v6()? };
+    socket.bind(SocketAddr::new(source, 0))?;
+    socket.connect(target).await
 }
 
 /// A thread running a current-thread runtime that serves one listener until told to stop.
@@ -1478,6 +1492,21 @@ mod tests {
         }
         relay.stop();
         assert!(StdUnixStream::connect(&sock).is_err_and(|e| e.kind() == std::io::ErrorKind::ConnectionRefused));
+    }
+
+    /// The relay's connections come from the agent's own loopback address, which the server sees as the peer.
+    #[test]
+    fn relayed_connections_come_from_the_given_loopback_address() {
+        let dir = tempfile::tempdir().unwrap();
+        let server = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let target = server.local_addr().unwrap();
+        let sock = dir.path().join("mcp.sock");
+        let source: IpAddr = "127.31.7.9".parse().unwrap();
+        let relay = relay_unix_to_tcp_from(StdUnixListener::bind(&sock).unwrap(), target, Some(source)).unwrap();
+        let _client = StdUnixStream::connect(&sock).unwrap();
+        let (_conn, peer) = server.accept().unwrap();
+        assert_eq!(peer.ip(), source);
+        relay.stop();
     }
 
     #[test]
