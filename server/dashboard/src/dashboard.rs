@@ -685,7 +685,8 @@ fn timeline_calls(actions: &[Value], mut control_step: u64) -> (Vec<Value>, u64)
         .map(|e| {
             let (req, resp) = (&e["request"], &e["response"]);
             let ok = resp["ok"] == json!(true);
-            let steps = if ok { resp["execution"]["control_steps"].as_u64().unwrap_or(0) } else { 0 };
+            let executed = libero_episode::tools::actions_executed(resp);
+            let steps = if executed { resp["execution"]["control_steps"].as_u64().unwrap_or(0) } else { 0 };
             let begin = control_step;
             control_step = control_step.saturating_add(steps);
             json!({

@@ -123,3 +123,22 @@ result.",
 pub fn tools_list() -> Value {
     json!({"tools": ToolName::ALL.iter().map(|t| tool_definition(*t)).collect::<Vec<_>>()})
 }
+
+/// Whether the actions of a recorded `osc_sequence` response were executed: an accepted call, or one whose
+/// actions ran but whose observation the agent's own workspace could not take (`ok: false` with
+/// `execution.command_completed`). Replays and timelines count both.
+pub fn actions_executed(response: &Value) -> bool {
+    response["ok"] == true || response["execution"]["command_completed"] == true
+}
+
+#[cfg(test)]
+mod executed_tests {
+    use super::*;
+
+    #[test]
+    fn a_call_whose_observation_the_workspace_refused_still_counts_as_executed() {
+        assert!(actions_executed(&json!({"ok": true, "execution": {"command_completed": true}})));
+        assert!(actions_executed(&json!({"ok": false, "error": "observation publication failed: …", "execution": {"command_completed": true}})));
+        assert!(!actions_executed(&json!({"ok": false, "error_type": "InvalidAction"})));
+    }
+}

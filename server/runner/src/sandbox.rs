@@ -25,6 +25,9 @@ const SYSTEM_DIRS: [&str; 7] = ["/usr", "/etc", "/bin", "/sbin", "/lib", "/lib64
 pub const AGENT_UID: u32 = 65534;
 pub const AGENT_GID: u32 = 65534;
 
+/// The size of the sandbox's in-memory `/tmp` (2 GiB).
+const TMP_BYTES: &str = "2147483648";
+
 /// Where the runner's relay sockets appear inside the sandbox.
 pub const RELAY_DIR: &str = "/run/libero";
 
@@ -134,7 +137,8 @@ impl Sandbox {
                 Err(_) => {}
             }
         }
-        push(&["--dev", "/dev", "--proc", "/proc", "--perms", "1777", "--tmpfs", "/tmp", "--tmpfs", "/run"]);
+        // The sandbox's /tmp lives in memory: bounded, so an agent filling it cannot take the host's memory.
+        push(&["--dev", "/dev", "--proc", "/proc", "--perms", "1777", "--size", TMP_BYTES, "--tmpfs", "/tmp", "--tmpfs", "/run"]);
         // bubblewrap makes missing parents of a mount point private (0700) when it runs as root: the agent's user
         // could not reach its own workspace or CLI below them. Every parent is made first, world-searchable.
         let relay = spec.relay_dir.as_ref().map(|_| PathBuf::from(RELAY_DIR));
@@ -305,7 +309,7 @@ mod tests {
         let joined = root.command(&["x".into()], &spec).join(" ");
         assert!(joined.contains("--cap-drop ALL --cap-add CAP_SETUID --cap-add CAP_SETGID --cap-add CAP_SETPCAP"), "{joined}");
         assert!(!joined.contains("--unshare-user") && joined.contains("--unshare-net"), "{joined}");
-        assert!(joined.contains("--perms 0755 --dir /root ") && joined.contains("--perms 1777 --tmpfs /tmp"), "{joined}");
+        assert!(joined.contains("--perms 0755 --dir /root ") && joined.contains("--perms 1777 --size 2147483648 --tmpfs /tmp"), "{joined}");
         assert!(joined.contains(&format!("--ro-bind /root/b/net {RELAY_DIR}")), "{joined}");
         let user = Sandbox { agent_ids: None, ..root };
         let joined = user.command(&["x".into()], &spec).join(" ");

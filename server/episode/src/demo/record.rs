@@ -57,7 +57,7 @@ impl SourceEpisode {
         for (n, line) in log.lines().enumerate() {
             let event: Value = serde_json::from_str(line)
                 .map_err(|e| DemoError::Source(format!("actions.jsonl line {}: not JSON: {e}", n + 1)))?;
-            if event["request"]["tool"] != "osc_sequence" || event["response"]["ok"] != true {
+            if event["request"]["tool"] != "osc_sequence" || !crate::tools::actions_executed(&event["response"]) {
                 continue;
             }
             let call_index = event["event_index"].as_u64().unwrap_or(n as u64);
