@@ -6,6 +6,7 @@ mod cmd_inspect;
 mod cmd_render;
 mod cmd_sim;
 mod cmd_tasks;
+mod logging;
 #[cfg(feature = "episode-serve")]
 mod bench_mcp;
 #[cfg(feature = "episode-serve")]
@@ -34,6 +35,10 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Log lines on stderr as text for people or one JSON object a line for machines (filter: RUST_LOG,
+    /// default `info` for libero-agent's own crates and `warn` for the rest).
+    #[arg(long, global = true, value_enum, default_value_t = logging::LogFormat::Text)]
+    log_format: logging::LogFormat,
 }
 
 #[derive(Subcommand)]
@@ -104,7 +109,17 @@ enum BenchCommand {
 }
 
 fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    // Agents' own processes (the sandbox's first process, the stdio relay, the reference agent) never render.
+    #[cfg(feature = "episode-serve")]
+    let renders = !matches!(cli.command, Command::SandboxNet(_) | Command::McpStdio(_) | Command::Agent(_));
+    #[cfg(not(feature = "episode-serve"))]
+    let renders = true;
+    if renders {
+        logging::ensure_runtime_dir();
+    }
+    logging::init(cli.log_format);
+    match cli.command {
         Command::Sim(c) => cmd_sim::run_sim(&c),
         Command::Render(a) => cmd_render::run(&a),
         Command::Tasks(c) => cmd_tasks::run(&c),
@@ -119,7 +134,11 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Queue(a)) => bench_queue::run(&a),
         #[cfg(feature = "episode-serve")]
-        Command::Serve(a) => libero_server::run_serve(libero_server::ServeArgs { console: Some(libero_dashboard::console()), ..a }),
+        Command::Serve(a) => {
+            libero_server::run_serve(libero_server::ServeArgs { console: Some(libero_dashboard::console()), ..a })?;
+            tracing::info!("libero-agent serve: stopped");
+            Ok(())
+        }
         #[cfg(feature = "episode-serve")]
         Command::Episode(a) => cmd_episode::run_episode(a),
         #[cfg(feature = "episode-serve")]

@@ -75,6 +75,18 @@ pub fn partial_path(path: &Path) -> PathBuf {
     PathBuf::from(name)
 }
 
+/// Lowers OpenH264's trace level to errors before the encoder is initialised (at its first frame). At the
+/// default level its parameter check prints "bEnableFrameSkip = 0, bitrate can't be controlled for RC_QUALITY_MODE,
+/// RC_BITRATE_MODE and RC_TIMESTAMP_MODE without enabling skip frame" on stderr for every video: true, and meant
+/// (every control step must be in the video, so no frame is skipped); the openh264 crate only quiets the encoder
+/// after initialising it. Only what is printed changes, never a byte of the stream.
+fn errors_only(encoder: &mut Encoder) {
+    let mut level = openh264_sys2::WELS_LOG_ERROR as std::ffi::c_int;
+    // SAFETY: the encoder is live; the trace level is an option OpenH264 accepts before initialisation, read as
+    // one int from the pointer during the call.
+    let _ = unsafe { encoder.raw_api().set_option(openh264_sys2::ENCODER_OPTION_TRACE_LEVEL, (&raw mut level).cast()) };
+}
+
 /// Encodes RGB frames of one size into an MP4 at [`partial_path`]; [`finish`](Self::finish) finalises and
 /// renames it. The file is created at the first frame (an episode that never stepped has no video).
 pub struct Mp4Writer {
@@ -103,8 +115,9 @@ impl Mp4Writer {
                 // The default lets rate control drop frames; every control step must be in the video.
                 .skip_frames(false)
                 .intra_frame_period(IntraFramePeriod::from_num_frames(INTRA_PERIOD_FRAMES));
-            let encoder = Encoder::with_api_config(OpenH264API::from_source(), config)
+            let mut encoder = Encoder::with_api_config(OpenH264API::from_source(), config)
                 .map_err(|e| VideoError::Encode(e.to_string()))?;
+            errors_only(&mut encoder);
             let file = File::create(partial_path(&self.path))?;
             let muxer = MuxerBuilder::new(BufWriter::new(file))
                 .video(VideoCodec::H264, self.width_px, self.height_px, VIDEO_FPS)

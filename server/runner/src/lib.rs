@@ -531,12 +531,25 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let skipped = Arc::new(skipped);
     ctx.write_batch(&batch_value(&ctx, "running", &created_at, &progress, &skipped))?;
     eprintln!("batch {} — {}", batch_dir.display(), progress.line());
+    tracing::info!(
+        batch = batch_name,
+        dir = %batch_dir.display(),
+        experiment = ctx.settings.experiment,
+        harness = ctx.settings.harness,
+        model = ctx.settings.model,
+        rollouts = progress.total,
+        to_run = progress.total - progress.done,
+        concurrency = args.concurrency.unwrap_or(1),
+        server = ctx.server_url,
+        "batch started"
+    );
     let queue = Arc::new(Mutex::new(todo));
     let state = Arc::new(Mutex::new(progress));
     let workers: Vec<_> = (0..args.concurrency.unwrap_or(1))
         .map(|_| {
             let (ctx, queue, state, skipped, created_at) =
                 (ctx.clone(), queue.clone(), state.clone(), skipped.clone(), created_at.clone());
+            let batch_name = batch_name.clone();
             std::thread::spawn(move || -> anyhow::Result<()> {
                 loop {
                     if INTERRUPTED.load(Ordering::SeqCst) {
@@ -561,6 +574,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                     ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
                     let why = rec.reason().map(|e| format!(" ({e})")).unwrap_or_default();
                     eprintln!("{}: {}{why} — {}", rec.rollout_id, rec.outcome.as_str(), p.line());
+                    log_rollout_end(&ctx.settings.model, &batch_name, &rec);
                 }
             })
         })
@@ -583,6 +597,16 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let stopped = INTERRUPTED.load(Ordering::SeqCst) || failure.is_some();
     ctx.write_batch(&batch_value(&ctx, if stopped { "stopped" } else { "finished" }, &created_at, &p, &skipped))?;
     eprintln!("batch {}: {}", if stopped { "stopped" } else { "finished" }, p.line());
+    let outcomes: Vec<String> = p.outcomes.iter().map(|(k, v)| format!("{}={v}", k.as_str())).collect();
+    tracing::info!(
+        batch = batch_name,
+        status = if stopped { "stopped" } else { "finished" },
+        done = p.done,
+        rollouts = p.total,
+        outcomes = outcomes.join(" "),
+        error = failure.as_ref().map(|e| format!("{e:#}")),
+        "batch ended"
+    );
     if let Some(e) = failure {
         return Err(e);
     }
@@ -596,6 +620,35 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("{msg}");
     }
     Ok(())
+}
+
+/// The log line of an ended rollout (`run` and workers): info for an outcome of the agent's, a warning with its
+/// reason for an INVALID, WATCHDOG_TIMEOUT or INTERRUPTED one.
+pub(crate) fn log_rollout_end(model: &str, batch: &str, rec: &RolloutRecord) {
+    let reason = rec.reason();
+    macro_rules! line {
+        ($level:ident) => {
+            tracing::$level!(
+                batch,
+                rollout_id = rec.rollout_id,
+                task = rec.task,
+                level = rec.level,
+                model,
+                outcome = rec.outcome.as_str(),
+                reason = reason.as_deref(),
+                episode_id = rec.episode_id.as_deref(),
+                steps = rec.accepted_agent_steps,
+                wall_time_s = rec.wall_time_s.map(|s| (s * 1000.0).round() / 1000.0),
+                worker = rec.worker.as_deref(),
+                "rollout ended"
+            )
+        };
+    }
+    if reason.is_some() {
+        line!(warn);
+    } else {
+        line!(info);
+    }
 }
 
 fn interrupted_record(r: &PlannedRollout) -> RolloutRecord {

@@ -134,6 +134,16 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         data.display(),
         workspace_base.display()
     );
+    tracing::info!(
+        worker = id,
+        slots = args.slots,
+        store = libero_store::redact(&args.store),
+        artifacts = artifacts.url(),
+        server = server.url,
+        data = %data.display(),
+        workspaces = %workspace_base.display(),
+        "worker registered"
+    );
     super::install_signal_handlers();
     let worker = Arc::new(Worker {
         id,
@@ -155,7 +165,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
             let period = Duration::from_millis((w.lease_ms / 3).max(500) as u64);
             while !stop.load(Ordering::SeqCst) {
                 if let Err(e) = w.runtime.block_on(w.store.heartbeat(&w.id, w.lease_ms)) {
-                    eprintln!("worker {}: heartbeat failed (the leases run out if this lasts): {e:#}", w.id);
+                    tracing::warn!(worker = w.id, error = format!("{e:#}"), "heartbeat failed (the leases run out if this lasts)");
                 }
                 let t = Instant::now();
                 while t.elapsed() < period && !stop.load(Ordering::SeqCst) {
@@ -182,6 +192,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     let _ = heartbeat.join();
     if INTERRUPTED.load(Ordering::SeqCst) { server.stop_now()? } else { server.stop()? };
     eprintln!("worker {}: stopped", worker.id);
+    tracing::info!(worker = worker.id, error = failure.as_ref().map(|e| format!("{e:#}")), "worker stopped");
     failure.map_or(Ok(()), Err)
 }
 
@@ -197,6 +208,7 @@ impl Worker {
             }
             for (batch, id) in self.runtime.block_on(self.store.expire_lost(worker_lost_record))? {
                 eprintln!("{batch}/{id}: INVALID ({WORKER_LOST})");
+                tracing::warn!(worker = self.id, batch, rollout_id = id, outcome = "INVALID", reason = WORKER_LOST, "rollout closed: its worker was lost");
             }
             let Some(job) = self.runtime.block_on(self.store.claim(&self.id, self.lease_ms))? else {
                 if exit_when_idle && self.busy.load(Ordering::SeqCst) == 0 {
@@ -205,11 +217,12 @@ impl Worker {
                 self.runtime.block_on(listener.wait(Duration::from_secs(2)));
                 continue;
             };
+            tracing::info!(worker = self.id, batch = job.batch, rollout_id = job.rollout_id, attempt = job.attempts, "rollout claimed");
             self.busy.fetch_add(1, Ordering::SeqCst);
             let ended = self.run_job(&job);
             self.busy.fetch_sub(1, Ordering::SeqCst);
             if let Err(e) = ended {
-                eprintln!("worker {}: {}/{}: {e:#}", self.id, job.batch, job.rollout_id);
+                tracing::error!(worker = self.id, batch = job.batch, rollout_id = job.rollout_id, error = format!("{e:#}"), "rollout not finished");
             }
         }
     }
@@ -246,8 +259,33 @@ impl Worker {
                 Some(why) if outcome != "SUCCESS" && outcome != "FAIL" => eprintln!("{}/{}: {outcome} ({why})", job.batch, job.rollout_id),
                 _ => eprintln!("{}/{}: {outcome}", job.batch, job.rollout_id),
             }
+            let reason = why.filter(|_| !matches!(outcome, "SUCCESS" | "FAIL" | "SIM_TIMEOUT"));
+            macro_rules! line {
+                ($level:ident) => {
+                    tracing::$level!(
+                        worker = self.id,
+                        batch = job.batch,
+                        rollout_id = job.rollout_id,
+                        task = record["task"].as_str(),
+                        level = record["level"].as_u64(),
+                        outcome,
+                        reason,
+                        episode_id = record["episode_id"].as_str(),
+                        steps = record["accepted_agent_steps"].as_u64(),
+                        wall_time_s = record["wall_time_s"].as_f64().map(|s| (s * 1000.0).round() / 1000.0),
+                        artifacts = record["artifacts"].as_str(),
+                        "rollout ended"
+                    )
+                };
+            }
+            if reason.is_some() {
+                line!(warn);
+            } else {
+                line!(info);
+            }
         } else {
             eprintln!("{}/{}: this worker lost its lease meanwhile; the rollout was closed as {WORKER_LOST} and this record is dropped", job.batch, job.rollout_id);
+            tracing::warn!(worker = self.id, batch = job.batch, rollout_id = job.rollout_id, "lease lost meanwhile: the rollout was closed as {WORKER_LOST} and this record is dropped");
         }
         Ok(())
     }
@@ -296,7 +334,7 @@ impl Worker {
         if !INTERRUPTED.load(Ordering::SeqCst)
             && let Err(e) = wait_for_video(&self.server_url, &episode, VIDEO_WAIT)
         {
-            eprintln!("{}/{}: uploading without a finished video: {e:#}", job.batch, job.rollout_id);
+            tracing::warn!(batch = job.batch, rollout_id = job.rollout_id, episode_id = episode, error = format!("{e:#}"), "uploading without a finished video");
         }
         let rollout_dir = ctx.batch_dir.join("rollouts").join(&job.rollout_id);
         let uploaded = self.runtime.block_on(async {
@@ -308,7 +346,13 @@ impl Worker {
         });
         match uploaded {
             Ok(prefix) => rec.artifacts = Some(format!("{}/{prefix}", self.artifacts.url().trim_end_matches('/'))),
-            Err(e) => eprintln!("{}/{}: its files stay on this worker ({}): {e}", job.batch, job.rollout_id, run_dir.display()),
+            Err(e) => tracing::error!(
+                batch = job.batch,
+                rollout_id = job.rollout_id,
+                run_dir = %run_dir.display(),
+                error = %e,
+                "upload failed: the rollout's files stay on this worker"
+            ),
         }
     }
 }
@@ -322,7 +366,7 @@ impl Worker {
         let workspace = rec.workspace.clone().filter(|w| w.starts_with(&ctx.workspace_root) && w != &ctx.workspace_root);
         for path in [Some(home), workspace].into_iter().flatten() {
             if let Err(e) = super::cleanup::remove_tree(&path) {
-                eprintln!("{}/{}: cannot remove {}: {e}", job.batch, job.rollout_id, path.display());
+                tracing::warn!(batch = job.batch, rollout_id = job.rollout_id, path = %path.display(), error = %e, "cannot remove the rollout's files");
             }
         }
     }

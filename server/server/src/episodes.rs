@@ -4,6 +4,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::fs;
 use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 
@@ -19,7 +20,7 @@ use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
 use libero_episode::workspace::{DemoNotice, WorkspaceContract, WorkspaceLayout, create_workspace};
 use libero_episode::video_queue::{VideoJob, VideoProgress, VideoQueue};
 use libero_episode::world::{LiberoWorld, WorldSpec, head_wrist_cameras};
-use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeStatus, Level, RunDir, spawn_episode_live};
+use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeState, EpisodeStatus, Level, RunDir, spawn_episode_live};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
 use rmcp::transport::streamable_http_server::session::SessionManager;
@@ -221,6 +222,94 @@ struct Entry {
     handle: EpisodeHandle,
     /// `None` once released.
     mcp: Option<LiveMcp>,
+    /// What the episode's log lines name, and how far they have followed it (kept by the tombstone).
+    log: Arc<EpisodeLog>,
+}
+
+/// The operator's log of one episode: a line when it is prepared, when `start_episode` succeeds and when it ends,
+/// each with the episode's id, task, level and labels (never its token). Whoever sees a transition first (the store
+/// sync after a tool call or on its tick, an abort, the shutdown) writes its line; each is written once.
+struct EpisodeLog {
+    task: String,
+    level: u8,
+    harness: Option<String>,
+    model: Option<String>,
+    batch: Option<String>,
+    prepared_at: Instant,
+    /// [`Self::PREPARED`], [`Self::STARTED`] or [`Self::ENDED`]: the last line written.
+    phase: AtomicU8,
+}
+
+impl EpisodeLog {
+    const PREPARED: u8 = 0;
+    const STARTED: u8 = 1;
+    const ENDED: u8 = 2;
+
+    fn prepared(id: &str, req: &PrepareRequest, task: &str, workspace: &Path) -> Self {
+        let log = Self {
+            task: task.to_owned(),
+            level: req.level,
+            harness: req.harness.clone(),
+            model: req.model.clone(),
+            batch: req.batch.clone(),
+            prepared_at: Instant::now(),
+            phase: AtomicU8::new(Self::PREPARED),
+        };
+        tracing::info!(
+            episode_id = id,
+            task = log.task,
+            level = log.level,
+            harness = log.harness.as_deref(),
+            model = log.model.as_deref(),
+            batch = log.batch.as_deref(),
+            seed = req.seed,
+            video = req.video,
+            demo = req.demo.as_str(),
+            workspace = %workspace.display(),
+            "episode prepared"
+        );
+        log
+    }
+
+    /// Writes the lines of the transitions `status` shows that were not written yet.
+    fn follow(&self, id: &str, status: &EpisodeStatus) {
+        // The initial observation exists exactly when start_episode succeeded.
+        if status.latest_observation_id.is_some()
+            && self.phase.compare_exchange(Self::PREPARED, Self::STARTED, Ordering::AcqRel, Ordering::Acquire).is_ok()
+        {
+            tracing::info!(
+                episode_id = id,
+                task = self.task,
+                level = self.level,
+                harness = self.harness.as_deref(),
+                model = self.model.as_deref(),
+                batch = self.batch.as_deref(),
+                "episode started"
+            );
+        }
+        let state = match status.state {
+            EpisodeState::Finished => "finished",
+            EpisodeState::Aborted => "aborted",
+            EpisodeState::Prepared | EpisodeState::Active => return,
+        };
+        if self.phase.swap(Self::ENDED, Ordering::AcqRel) == Self::ENDED {
+            return;
+        }
+        tracing::info!(
+            episode_id = id,
+            task = self.task,
+            level = self.level,
+            harness = self.harness.as_deref(),
+            model = self.model.as_deref(),
+            batch = self.batch.as_deref(),
+            state,
+            outcome = status.outcome.map(|o| o.as_str()),
+            steps = status.accepted_agent_steps,
+            reason = status.reason.as_deref(),
+            since_prepared_s = (self.prepared_at.elapsed().as_secs_f64() * 10.0).round() / 10.0,
+            "episode ended"
+        );
+    }
 }
 
 pub struct Episodes {
@@ -291,7 +380,7 @@ impl Episodes {
         let paths = match AssetPaths::discover() {
             Ok(p) => Some(p),
             Err(e) => {
-                eprintln!("warning: {e}; episodes cannot be prepared until the assets are set up");
+                tracing::warn!("{e}; episodes cannot be prepared until the assets are set up");
                 None
             }
         };
@@ -546,7 +635,8 @@ impl Episodes {
             let since = *ending.entry(id.clone()).or_insert(now);
             if now.duration_since(since) >= RELEASE_GRACE {
                 due.push((id.clone(), live.clone()));
-                *entry = Arc::new(Entry { token_sha256: entry.token_sha256, handle: entry.handle.clone(), mcp: None });
+                entry.log.follow(id, &entry.handle.status());
+                *entry = Arc::new(Entry { token_sha256: entry.token_sha256, handle: entry.handle.clone(), mcp: None, log: entry.log.clone() });
                 ending.remove(id);
             }
         }
@@ -561,7 +651,10 @@ impl Episodes {
 
     pub fn status(&self, id: &str) -> Option<EpisodeStatus> {
         let map = self.map.read().ok()?;
-        map.get(id).map(|e| e.handle.status())
+        let entry = map.get(id)?;
+        let status = entry.handle.status();
+        entry.log.follow(id, &status);
+        Some(status)
     }
 
     /// Ends one episode (aborted with `reason` unless it already ended); false if this server does not hold it.
@@ -570,6 +663,7 @@ impl Episodes {
         match entry {
             Some(e) => {
                 e.handle.stop(reason);
+                e.log.follow(id, &e.handle.status());
                 true
             }
             None => false,
@@ -580,10 +674,15 @@ impl Episodes {
     /// in all: an episode thread stuck in the simulation is left behind (the process is ending) rather than
     /// holding the shutdown. Returns how many did not answer in time.
     pub fn stop_all(&self, reason: &str, timeout: std::time::Duration) -> usize {
-        let entries: Vec<Arc<Entry>> = self.map.read().map(|m| m.values().cloned().collect()).unwrap_or_default();
+        let entries: Vec<(String, Arc<Entry>)> =
+            self.map.read().map(|m| m.iter().map(|(id, e)| (id.clone(), e.clone())).collect()).unwrap_or_default();
         let deadline = std::time::Instant::now() + timeout;
-        let pending: Vec<_> = entries.iter().map(|e| e.handle.request_stop(reason)).collect();
-        pending.into_iter().filter(|p| !p.wait_until(deadline)).count()
+        let pending: Vec<_> = entries.iter().map(|(_, e)| e.handle.request_stop(reason)).collect();
+        let stuck = pending.into_iter().filter(|p| !p.wait_until(deadline)).count();
+        for (id, e) in &entries {
+            e.log.follow(id, &e.handle.status());
+        }
+        stuck
     }
 
     /// After a crash or kill: every run directory with an episode record but no result becomes an aborted
@@ -612,6 +711,11 @@ impl Episodes {
     /// Prepares an episode: resolves the task, builds its world on a new episode thread, writes the private
     /// run directory and the workspace, and registers the MCP endpoint.
     pub fn prepare(&self, req: PrepareRequest) -> anyhow::Result<Prepared> {
+        let task = req.task.clone();
+        self.prepare_episode(req).inspect_err(|e| tracing::warn!(task, error = format!("{e:#}"), "episode not prepared"))
+    }
+
+    fn prepare_episode(&self, req: PrepareRequest) -> anyhow::Result<Prepared> {
         req.validate()?;
         let level = Level::from_number(req.level).context("level")?;
         let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
@@ -706,7 +810,8 @@ impl Episodes {
             return Err(e);
         }
         let mcp = LiveMcp::new(EpisodeMcp { handle: handle.clone(), calls: self.calls.clone() });
-        let entry = Arc::new(Entry { token_sha256: token_digest(&token), handle, mcp: Some(mcp) });
+        let log = Arc::new(EpisodeLog::prepared(&episode_id, &req, &task.task_ref, &workspace));
+        let entry = Arc::new(Entry { token_sha256: token_digest(&token), handle, mcp: Some(mcp), log });
         self.map
             .write()
             .map_err(|_| anyhow::anyhow!("episode registry lock poisoned"))?
@@ -723,6 +828,18 @@ impl Episodes {
             instruction: task.instruction,
             level: req.level,
         })
+    }
+}
+
+impl Drop for Episodes {
+    /// The end lines of episodes nothing asked about since they ended (the in-process expert stops its episodes
+    /// through their handles).
+    fn drop(&mut self) {
+        if let Ok(map) = self.map.read() {
+            for (id, e) in map.iter() {
+                e.log.follow(id, &e.handle.status());
+            }
+        }
     }
 }
 
