@@ -208,7 +208,10 @@ mod world_taps {
         video_frames: Arc<AtomicU64>,
         /// Video frames queued at the evaluator reset (the frame of control step c is `origin + c - 1`).
         origin: Arc<AtomicU64>,
-        events_sent: usize,
+        /// How many of the evaluator's private events (an append-only list since the reset) were sent.
+        events_listed: usize,
+        /// Every private event sent since the reset, so the verdict's stage events are sent once.
+        sent: Vec<PrivateEvent>,
         progress_sent: Option<(usize, usize)>,
     }
 
@@ -221,7 +224,8 @@ mod world_taps {
                 telemetry,
                 video_frames: Arc::new(AtomicU64::new(0)),
                 origin: Arc::new(AtomicU64::new(NOT_STARTED)),
-                events_sent: 0,
+                events_listed: 0,
+                sent: Vec::new(),
                 progress_sent: None,
             })
         }
@@ -245,7 +249,8 @@ mod world_taps {
         /// At the evaluator reset (after settling): control step 0.
         pub fn on_reset(&mut self, robot: &RobotReadout, events: &[PrivateEvent], progress: Option<(usize, usize)>) {
             self.origin.store(self.video_frames.load(Ordering::Acquire), Ordering::Release);
-            self.events_sent = 0;
+            self.events_listed = 0;
+            self.sent.clear();
             self.progress_sent = None;
             self.after_step(0, robot, events, progress);
         }
@@ -278,12 +283,33 @@ mod world_taps {
                 }
             }
             (self.sink)(LiveEvent::Step { control_step, sim_time_s: robot.sim_time_s });
-            for e in events.iter().skip(self.events_sent) {
-                if let Ok(event) = serde_json::to_value(e) {
-                    (self.sink)(LiveEvent::Stage { event });
+            for e in events.iter().skip(self.events_listed) {
+                self.send_event(e);
+            }
+            self.events_listed = self.events_listed.max(events.len());
+            self.send_progress(progress);
+        }
+
+        /// At the verdict (finish, or the wall-time expiry): the record's stage events not sent yet (stages judged on
+        /// the final state complete at finish: `bddl_terminal`, tube insertion) and its `completed / K`, so the live
+        /// view ends on the record's figures whatever the evaluator. Sends nothing twice.
+        pub fn on_verdict(&mut self, stage_events: &[PrivateEvent], progress: (usize, usize)) {
+            for e in stage_events {
+                if !self.sent.contains(e) {
+                    self.send_event(e);
                 }
             }
-            self.events_sent = events.len();
+            self.send_progress(Some(progress));
+        }
+
+        fn send_event(&mut self, e: &PrivateEvent) {
+            if let Ok(event) = serde_json::to_value(e) {
+                (self.sink)(LiveEvent::Stage { event });
+            }
+            self.sent.push(e.clone());
+        }
+
+        fn send_progress(&mut self, progress: Option<(usize, usize)>) {
             if progress != self.progress_sent {
                 if let Some((completed, required)) = progress {
                     (self.sink)(LiveEvent::Progress { completed, required });
@@ -301,6 +327,51 @@ mod world_taps {
             .encode(rgb, w, h, jpeg_encoder::ColorType::Rgb)
             .map_err(|e| e.to_string())?;
         Ok(out)
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use std::sync::Mutex;
+
+        use libero_tasks::Tick;
+        use libero_tasks::judge::evaluator::EventKind;
+
+        use super::*;
+
+        fn stage(kind: EventKind, step: u64, name: &str) -> PrivateEvent {
+            let tick = Tick::at_control_step(step, step as f64 * 0.05);
+            PrivateEvent { stage_index: Some(0), stage_name: Some(name.into()), ..PrivateEvent::new(kind, tick) }
+        }
+
+        #[test]
+        fn stage_events_go_out_at_their_step_and_the_verdict_adds_only_what_finish_judged_with_the_records_count() {
+            let seen: Arc<Mutex<Vec<serde_json::Value>>> = Arc::default();
+            let sink: LiveSink = {
+                let seen = seen.clone();
+                Arc::new(move |e| seen.lock().unwrap().push(serde_json::to_value(&e).unwrap()))
+            };
+            let mut tap = WorldTap::new(sink, None).unwrap();
+            let robot = RobotReadout::default();
+            let done = stage(EventKind::StageCompleted, 3, "01_a");
+            tap.on_reset(&robot, &[], Some((0, 2)));
+            tap.after_step(3, &robot, std::slice::from_ref(&done), Some((1, 2)));
+            tap.after_step(4, &robot, std::slice::from_ref(&done), Some((1, 2)));
+            // The record repeats the live stage and adds one judged on the final state.
+            let at_finish = stage(EventKind::StageCompleted, 4, "02_b");
+            tap.on_verdict(&[done.clone(), at_finish.clone()], (2, 2));
+            tap.on_verdict(&[done, at_finish], (2, 2));
+            let seen = seen.lock().unwrap();
+            let kinds: Vec<String> = seen
+                .iter()
+                .map(|e| match e["type"].as_str().unwrap() {
+                    "step" => format!("step {}", e["control_step"]),
+                    "stage" => format!("{} {}", e["event"]["stage_name"].as_str().unwrap(), e["event"]["control_step"]),
+                    "progress" => format!("{}/{}", e["completed"], e["required"]),
+                    other => other.to_owned(),
+                })
+                .collect();
+            assert_eq!(kinds, ["step 0", "0/2", "step 3", "01_a 3", "1/2", "step 4", "02_b 4", "2/2"]);
+        }
     }
 }
 

@@ -209,6 +209,9 @@ impl World for LiberoWorld {
         let stage_events =
             record.stage_events.iter().map(serde_json::to_value).collect::<Result<Vec<_>, _>>().map_err(to_json)?;
         let private_evaluation = serde_json::to_value(&record).map_err(to_json)?;
+        if let Some(tap) = self.live.as_mut() {
+            tap.on_verdict(&record.stage_events, (record.completed_required_stage_count, record.required_stage_count));
+        }
         Ok(Verdict { success: record.success, private_evaluation, stage_events })
     }
 }
@@ -311,7 +314,7 @@ impl LiberoWorld {
         let sim = &self.physics.sim;
         let robot = robot_readout(sim, &BasePose::of(sim, self.base_body));
         let evaluator = &self.physics.evaluator;
-        let (events, progress) = (evaluator.private_events(), evaluator.stage_progress());
+        let (events, progress) = (evaluator.private_events(), Some(evaluator.stage_progress()));
         let control_step = self.physics.control_step;
         if control_step == 0 {
             tap.on_reset(&robot, &events, progress);

@@ -239,7 +239,12 @@ impl StageTracker {
 /// A tracker's stage events and an evaluator's other events in one time-ordered list (stable: at equal ticks,
 /// stage events first), for [`Evaluator::private_events`].
 pub fn merged_events(stages: &StageTracker, others: &[PrivateEvent]) -> Vec<PrivateEvent> {
-    let mut all: Vec<PrivateEvent> = stages.events().iter().chain(others).cloned().collect();
+    merge_events(stages.events(), others)
+}
+
+/// As [`merged_events`], for an evaluator that keeps its stage events itself (no [`StageTracker`]).
+pub fn merge_events(stage_events: &[PrivateEvent], others: &[PrivateEvent]) -> Vec<PrivateEvent> {
+    let mut all: Vec<PrivateEvent> = stage_events.iter().chain(others).cloned().collect();
     all.sort_by(|a, b| {
         let key = |e: &PrivateEvent| (e.tick.control_step, e.tick.substep.unwrap_or(u32::MAX));
         key(a).cmp(&key(b))
@@ -397,15 +402,14 @@ pub trait Evaluator: Send {
     fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {
         Vec::new()
     }
-    /// Private events recorded since the reset (stage events included), in time order, for the operator's live
-    /// dashboard (never the agent). Only called while someone watches.
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        Vec::new()
-    }
-    /// Live `(completed, K)` for the operator's dashboard, where the evaluator can tell before finish.
-    fn stage_progress(&self) -> Option<(usize, usize)> {
-        None
-    }
+    /// Private events recorded since the reset (every stage completion and regression included, as it happens), in
+    /// time order, for the operator's live dashboard (never the agent). Called after every control step of an
+    /// episode with a live view; an event once listed stays listed, in place (the live view sends only the new
+    /// tail). Required of every evaluator: a default would leave a kind's live view silently empty.
+    fn private_events(&self) -> Vec<PrivateEvent>;
+    /// Live `(completed, K)` for the operator's dashboard: the required stages [`Evaluator::finish`] would count
+    /// completed on the current state (so the last value before finish is the record's). Required, as above.
+    fn stage_progress(&self) -> (usize, usize);
 }
 
 pub use crate::judge::commitment::{Commitment, CommitmentKind, CommitmentTracker};

@@ -95,8 +95,8 @@ impl Evaluator for PourWine {
         crate::judge::evaluator::merged_events(&self.stages, &self.events)
     }
 
-    fn stage_progress(&self) -> Option<(usize, usize)> {
-        Some((self.stages.completed_required_count(), self.stages.required_count()))
+    fn stage_progress(&self) -> (usize, usize) {
+        (self.stages.completed_required_count(), self.stages.required_count())
     }
 
     fn checker(&self) -> &str {

@@ -114,7 +114,7 @@ impl Evaluator for BddlTerminal {
     }
 
     /// K = 1: the goal holding now is the stage that finish would complete.
-    fn stage_progress(&self) -> Option<(usize, usize)> {
-        Some((usize::from(self.last_goal == Some(true)), 1))
+    fn stage_progress(&self) -> (usize, usize) {
+        (usize::from(self.last_goal == Some(true)), 1)
     }
 }

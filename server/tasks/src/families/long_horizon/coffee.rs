@@ -298,9 +298,9 @@ impl Evaluator for CoffeeBrewing {
         crate::judge::evaluator::merged_events(self.progress.stages(), &self.events)
     }
 
-    fn stage_progress(&self) -> Option<(usize, usize)> {
+    fn stage_progress(&self) -> (usize, usize) {
         let s = self.progress.stages();
-        Some((s.completed_required_count(), s.required_count()))
+        (s.completed_required_count(), s.required_count())
     }
 }
 

@@ -743,6 +743,16 @@ impl GoalSetTracker {
         self.max_count
     }
 
+    /// Required goals holding at the latest sample: what [`Self::write_into`] counts completed on that state.
+    pub fn current_count(&self) -> usize {
+        self.count(&self.holding)
+    }
+
+    /// Every goal that became true (`stage_completed`) or false (`stage_regressed`) since the reset, in order.
+    pub fn events(&self) -> &[PrivateEvent] {
+        &self.events
+    }
+
     /// Fills the stage fields of `record` from the goals holding on the final state (`now`) and the diagnostics
     /// into `details`; returns whether every required goal holds.
     pub fn write_into(&self, now: &[bool], record: &mut EvaluationRecord, details: &mut serde_json::Map<String, serde_json::Value>) -> bool {
@@ -1090,6 +1100,23 @@ impl Evaluator for StagedEvaluator {
         self.sample(data, tick, true);
         if let Some(e) = self.commitment.observe_event(&self.index, data, tick) {
             self.events.push(e);
+        }
+    }
+
+    /// The stage events of the mode's tracker (the goal set's changes, or the ordered stages' completions,
+    /// regressions and order violation) merged with the other events (pours, failures, forbidden contact,
+    /// commitment): the record's `stage_events` and `events`, as they happen.
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        let stage_events = if self.order == OrderMode::Unordered { self.goals.events() } else { self.tracker.events() };
+        crate::judge::evaluator::merge_events(stage_events, &self.events)
+    }
+
+    /// Unordered: the required goals holding now (they may drop again); ordered: the latched required stages.
+    fn stage_progress(&self) -> (usize, usize) {
+        if self.order == OrderMode::Unordered {
+            (self.goals.current_count(), self.n_required)
+        } else {
+            (self.tracker.completed_required_count(), self.tracker.required_count())
         }
     }
 

@@ -193,6 +193,16 @@ impl Evaluator for PhysicalWeighing {
         self.events.extend(self.commitment.observe_event(&self.index, data, tick));
     }
 
+    fn private_events(&self) -> Vec<PrivateEvent> {
+        crate::judge::evaluator::merge_events(&self.stage_events, &self.events)
+    }
+
+    /// Every weighed mug and the placement, latched as they happen (K = mugs + 1).
+    fn stage_progress(&self) -> (usize, usize) {
+        let done = self.weighed.iter().filter(|w| w.is_some()).count() + usize::from(self.placed.is_some());
+        (done, self.mugs.len() + 1)
+    }
+
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
         let mut record = EvaluationRecord::new(CHECKER);
         record.task_id = self.task_id.clone();

@@ -326,8 +326,8 @@ impl Evaluator for AdaptiveSeesaw {
         self.history.private_events(&self.progress.stages)
     }
 
-    fn stage_progress(&self) -> Option<(usize, usize)> {
-        Some((self.progress.stages.completed_required_count(), self.progress.stages.required_count()))
+    fn stage_progress(&self) -> (usize, usize) {
+        (self.progress.stages.completed_required_count(), self.progress.stages.required_count())
     }
 
     fn reset(&mut self, data: &SimData, _tick: Tick) {

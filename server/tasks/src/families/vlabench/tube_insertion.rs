@@ -111,6 +111,8 @@ pub struct TubeInsertion {
     geom_body: Vec<usize>,
     control_steps: u64,
     steps_all_checks_passed: u64,
+    /// Tubes passing all their checks on the latest observed state: the stages finish would complete there.
+    passing_now: usize,
     events: Vec<PrivateEvent>,
 }
 
@@ -170,6 +172,7 @@ impl TubeInsertion {
             rack_body,
             control_steps: 0,
             steps_all_checks_passed: 0,
+            passing_now: 0,
             events: Vec::new(),
         })
     }
@@ -212,6 +215,11 @@ impl TubeInsertion {
             .collect()
     }
 
+    /// How many tubes pass all their checks on `data`.
+    fn passing(&self, data: &SimData) -> usize {
+        self.judge_all(data).iter().filter(|(_, checks)| checks.iter().all(|c| c.passed)).count()
+    }
+
     fn stage_names(&self) -> Vec<String> {
         if !self.several {
             return vec![STAGE_NAME.to_owned()];
@@ -242,16 +250,23 @@ impl Evaluator for TubeInsertion {
         CHECKER
     }
 
+    /// Terminal judging: the tubes that would pass if the episode finished now (the stages complete at finish).
+    fn stage_progress(&self) -> (usize, usize) {
+        (self.passing_now, self.tubes.len())
+    }
+
     fn reset(&mut self, data: &SimData, _tick: Tick) {
         self.control_steps = 0;
         self.steps_all_checks_passed = 0;
         self.events.clear();
         self.commitment.reset(self.goal.index(), data);
+        self.passing_now = self.passing(data);
     }
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
         self.control_steps += 1;
-        if self.judge_all(data).iter().all(|(_, checks)| checks.iter().all(|c| c.passed)) {
+        self.passing_now = self.passing(data);
+        if self.passing_now == self.tubes.len() {
             self.steps_all_checks_passed += 1;
         }
         self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
