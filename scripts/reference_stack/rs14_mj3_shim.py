@@ -1,5 +1,5 @@
-# Reference tooling, NOT product code. Copied verbatim from /work/shared/reference/golden/scripts/rs14_mj3_shim.py
-# (the shim the golden trajectories were recorded with): lets robosuite 1.4.0 run on mujoco 3.17.0.
+# Reference tooling, NOT product code. Copied verbatim (below these two lines) from the shim the golden trajectories
+# of tests/reference/golden/ were recorded with: lets robosuite 1.4.0 run on mujoco 3.17.0.
 """Minimal compatibility shim: robosuite 1.4.0 (as pinned by LIBERO) on MuJoCo >= 3.x (tested: 3.17.0).
 
 Only two API incompatibilities break robosuite 1.4.0 + LIBERO on MuJoCo 3.17.0; nothing else is patched,

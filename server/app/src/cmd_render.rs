@@ -33,7 +33,7 @@ pub struct RenderArgs {
     /// `--init-file` is given, as for tasks that start from the seeded placement)
     #[arg(long, default_value_t = 0, requires = "bddl")]
     pub seed: u32,
-    /// A compiled MJCF (e.g. `shared/reference/ref/*.xml`; `${ROBOSUITE_ASSETS}`/`${LIBERO_ASSETS}` are substituted).
+    /// A compiled MJCF (e.g. `tests/reference/ref/*.xml`; `${ROBOSUITE_ASSETS}`/`${LIBERO_ASSETS}` are substituted).
     #[arg(long)]
     pub xml: Option<PathBuf>,
     /// Keyframe of `--xml` to render (default: the model's default state).

@@ -23,12 +23,11 @@ fn run_ok(cmd: &mut Command) -> Output {
     out
 }
 
+/// The repository's `tests/reference/golden/` (provenance in `tests/reference/README.md`), or `$LIBERO_GOLDEN_DIR`.
 fn golden_dir() -> PathBuf {
     std::env::var_os("LIBERO_GOLDEN_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/golden"))
-        .canonicalize()
-        .unwrap_or_else(|_| PathBuf::from("/work/shared/reference/golden"))
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/reference/golden"))
 }
 
 fn read_json(p: &std::path::Path) -> Value {

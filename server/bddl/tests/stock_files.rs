@@ -1,5 +1,5 @@
 //! Every BDDL file shipped with hf-libero 0.1.4 parses, and the parse agrees with what the real LIBERO env
-//! reported for the 130 benchmark tasks (`shared/reference/ref/task_survey.json`: problem class, object and
+//! reported for the 130 benchmark tasks (`tests/reference/ref/task_survey.json`: problem class, object and
 //! fixture dict order, goal atoms).
 use std::path::{Path, PathBuf};
 
@@ -10,6 +10,11 @@ fn cache_dir() -> PathBuf {
         return PathBuf::from(d);
     }
     PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent")
+}
+
+/// The repository's `tests/reference/`: data recorded from the real Python stack (provenance in its README.md).
+fn reference_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/reference")
 }
 
 fn bddl_files(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -42,8 +47,7 @@ fn all_stock_bddl_files_parse() {
 
 #[test]
 fn parse_matches_the_real_libero_survey_of_130_tasks() {
-    let survey_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/ref/task_survey.json");
-    let survey_path = if survey_path.exists() { survey_path } else { PathBuf::from("/work/shared/reference/ref/task_survey.json") };
+    let survey_path = reference_dir().join("ref/task_survey.json");
     let text = std::fs::read_to_string(&survey_path).unwrap_or_else(|e| panic!("{}: {e}", survey_path.display()));
     let rows: serde_json::Value = serde_json::from_str(&text).unwrap();
     let rows = rows.as_array().unwrap();

@@ -1,5 +1,5 @@
-//! The metrics reproduce the paper's published numbers (`tests/fixtures/paper_results.json`, transcribed from
-//! shared/reference/paper_results.md): the perception and short-horizon stable SR columns of Table 1
+//! The metrics reproduce the paper's published numbers (`tests/fixtures/paper_results.json`, transcribed from the
+//! LIBERO-Agent paper's Table 1 and per-task tables): the perception and short-horizon stable SR columns of Table 1
 //! recomputed from the per-task "successes out of three" tables, every Score from its components, the
 //! ablation tables' "Overall" columns, and the stable-vs-mean relation of the long-horizon table.
 use libero_metrics::{Outcome, Rollout, ScoreComponents, Split, overall, summarize};

@@ -12,7 +12,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let steps = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(200);
     let golden = std::env::var_os("LIBERO_GOLDEN_DIR")
         .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/golden"));
+        .unwrap_or_else(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/reference/golden"));
     let paths = AssetPaths::discover()?;
     let xml = paths.substitute_placeholders(&std::fs::read_to_string(golden.join(format!("{scene}.mjcf_input.xml")))?);
     let model = Arc::new(compile_with_overrides(&xml, None)?);

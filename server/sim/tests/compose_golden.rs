@@ -1,16 +1,15 @@
 //! The composer reproduces robosuite 1.4.0 + LIBERO's merged MJCF and compiled model for the golden scenes
-//! (`shared/reference/golden/*.mjcf_input.xml`) and the reference scenes (`shared/reference/ref/*.xml`).
-use std::path::{Path, PathBuf};
+//! (`tests/reference/golden/*.mjcf_input.xml`) and the reference scenes (`tests/reference/ref/*.xml`).
+mod common;
+
+use std::path::PathBuf;
 
 use libero_sim::compose::xml::{parse_str, Element};
 use libero_sim::compose::{compose_file, ComposedScene};
 use libero_sim::mujoco_rs::prelude::*;
 use libero_sim::AssetPaths;
 
-fn reference_dir() -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference");
-    if p.exists() { p } else { PathBuf::from("/work/shared/reference") }
-}
+use common::reference_dir;
 
 /// (suite, task) of the golden files.
 const GOLDEN: [(&str, &str); 8] = [
@@ -87,7 +86,7 @@ fn merged_mjcf_matches_robosuite_input_for_all_golden_scenes() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
-/// Reference scenes of `shared/reference/ref/` (robosuite input MJCF) and the stock BDDL each came from.
+/// Reference scenes of `tests/reference/ref/` (robosuite input MJCF) and the stock BDDL each came from.
 const REF: [(&str, &str, &str); 8] = [
     ("goal_open_top_drawer", "libero_goal", "open_the_top_drawer_and_put_the_bowl_inside"),
     ("kitchen3_stove_moka", "libero_10", "KITCHEN_SCENE3_turn_on_the_stove_and_put_the_moka_pot_on_it"),

@@ -1,16 +1,15 @@
 //! Every one of the 130 benchmark tasks composes, with the dimensions and robot base the real LIBERO env reported
-//! (`shared/reference/ref/task_survey.json`); bad inputs fail with messages that name the problem.
-use std::path::{Path, PathBuf};
+//! (`tests/reference/ref/task_survey.json`); bad inputs fail with messages that name the problem.
+mod common;
+
+use std::path::Path;
 
 use libero_bddl::Problem;
 use libero_sim::compose::xml::parse_str;
 use libero_sim::compose::{compose, compose_file};
 use libero_sim::{AssetPaths, SimError};
 
-fn reference_dir() -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference");
-    if p.exists() { p } else { PathBuf::from("/work/shared/reference") }
-}
+use common::reference_dir;
 
 fn survey() -> Vec<serde_json::Value> {
     let text = std::fs::read_to_string(reference_dir().join("ref/task_survey.json")).unwrap();

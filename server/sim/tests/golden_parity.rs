@@ -1,5 +1,5 @@
 //! Parity with golden trajectories recorded from the real robosuite 1.4.0 + LIBERO stack on MuJoCo
-//! 3.17.0 (`shared/reference/golden/`).
+//! 3.17.0 (`tests/reference/golden/`).
 mod common;
 
 use common::*;

@@ -2,6 +2,8 @@
 //! golden `runtime_model_overrides` (fixture body_pos/body_quat, site alphas) and, after applying the stored init
 //! state, the object/fixture poses of `poses_after_set_init_state`; for other seeds and scenes, the reference
 //! stack's dumps in `tests/fixtures/placement_*.json`.
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use libero_sim::compose::{compose_file, ComposedScene};
@@ -10,10 +12,7 @@ use libero_sim::placement::{update_visual_sites, Placement};
 use libero_sim::{AssetPaths, InitStates};
 use serde_json::Value;
 
-fn reference_dir() -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference");
-    if p.exists() { p } else { PathBuf::from("/work/shared/reference") }
-}
+use common::reference_dir;
 
 fn field_row(model: &MjModel, field: &str, id: usize) -> Vec<f64> {
     match field {

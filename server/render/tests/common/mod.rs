@@ -16,15 +16,16 @@ pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repo root")
 }
 
+/// The compiled LIBERO reference scenes recorded from the real Python stack: the repository's
+/// `tests/reference/ref/` (provenance in `tests/reference/README.md`).
 pub fn reference_dir() -> PathBuf {
-    let beside_clone = repo_root().join("../shared/reference/ref");
-    if beside_clone.is_dir() { beside_clone } else { std::path::PathBuf::from("/work/shared/reference/ref") }
+    repo_root().join("tests/reference/ref")
 }
 
-/// The compiled LIBERO scenes of `shared/reference/ref/` (sorted).
+/// The compiled LIBERO scenes of `tests/reference/ref/` (sorted).
 pub fn scenes() -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(reference_dir())
-        .expect("shared/reference/ref is missing")
+        .unwrap_or_else(|e| panic!("{}: {e}", reference_dir().display()))
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.extension().is_some_and(|x| x == "xml"))
         .collect();

@@ -1,5 +1,5 @@
 //! LIBERO's object registry (hf-libero 0.1.4 `envs/objects/*.py`): category key → asset file, placement rotation
-//! and articulation ranges. The values are those of the Python classes (dump: `shared/reference/ref/object_registry.json`).
+//! and articulation ranges. The values are those of the Python classes.
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 
 /// How a placement sampler draws an object's orientation.

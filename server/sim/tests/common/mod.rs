@@ -1,6 +1,6 @@
-//! Shared loading of the golden trajectories in `shared/reference/golden/`.
+//! Shared loading of the golden trajectories in the repository's `tests/reference/golden/` (see its README).
 #![allow(dead_code)]
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use libero_sim::AssetPaths;
@@ -67,12 +67,15 @@ pub struct Sensitivity {
     pub object_div_m: Vec<f64>,
 }
 
+/// The repository's `tests/reference/`: data recorded from the real Python stack (golden trajectories, reference
+/// scenes, the 130-task survey; provenance in its README.md).
+pub fn reference_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/reference")
+}
+
+/// `tests/reference/golden/`, or `$LIBERO_GOLDEN_DIR` (e.g. freshly regenerated trajectories).
 pub fn golden_dir() -> PathBuf {
-    std::env::var_os("LIBERO_GOLDEN_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/golden"))
-        .canonicalize()
-        .unwrap_or_else(|_| PathBuf::from("/work/shared/reference/golden"))
+    std::env::var_os("LIBERO_GOLDEN_DIR").map(PathBuf::from).unwrap_or_else(|| reference_dir().join("golden"))
 }
 
 /// Names `<suite>__<task>` of every `__seqA.json` golden file, sorted.
