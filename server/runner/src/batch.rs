@@ -424,20 +424,24 @@ mod tests {
         assert!(r.to_pool().is_none());
     }
 
+    fn t14_plan() -> super::super::schedule::PlannedRollout {
+        super::super::schedule::PlannedRollout {
+        rollout_id: "w1_t14_level3".into(),
+        task: "T14".into(),
+        task_number: 14,
+        task_name: "open_the_microwave".into(),
+        split: Some(libero_metrics::Split::ShortHorizonEasy),
+        suite: None,
+        stage_count: 1,
+        repetition: 1,
+        level: 3,
+        demo: super::super::schedule::Demo::None,
+    }
+    }
+
     #[test]
     fn every_invalid_rollout_names_a_reason() {
-        let plan = super::super::schedule::PlannedRollout {
-            rollout_id: "w1_t14_level3".into(),
-            task: "T14".into(),
-            task_number: 14,
-            task_name: "open_the_microwave".into(),
-            split: Some(libero_metrics::Split::ShortHorizonEasy),
-            suite: None,
-            stage_count: 1,
-            repetition: 1,
-            level: 3,
-            demo: super::super::schedule::Demo::None,
-        };
+        let plan = t14_plan();
         let mut r = RolloutRecord::planned(&plan);
         r.ensure_reason();
         assert_eq!(r.reason().as_deref(), Some("no episode was prepared for this rollout"));
@@ -461,18 +465,7 @@ mod tests {
     fn a_record_appended_after_a_torn_line_is_read_back() {
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(rollouts_jsonl(dir.path()), b"{\"rollout_id\": \"w1_t14_le").unwrap();
-        let plan = super::super::schedule::PlannedRollout {
-            rollout_id: "w1_t14_level3".into(),
-            task: "T14".into(),
-            task_number: 14,
-            task_name: "open_the_microwave".into(),
-            split: Some(libero_metrics::Split::ShortHorizonEasy),
-            suite: None,
-            stage_count: 1,
-            repetition: 1,
-            level: 3,
-            demo: super::super::schedule::Demo::None,
-        };
+        let plan = t14_plan();
         append_record(dir.path(), &RolloutRecord::planned(&plan)).unwrap();
         let records = read_records(dir.path()).unwrap();
         assert_eq!(records.len(), 1, "the torn line is skipped, the new record is whole");
