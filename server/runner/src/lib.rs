@@ -5,7 +5,6 @@
 //! report and the dashboard read.
 pub mod agent_net;
 pub mod batch;
-pub mod cleanup;
 #[cfg(test)]
 mod cli_checks;
 pub mod harness;

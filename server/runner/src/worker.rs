@@ -359,17 +359,27 @@ impl Worker {
 
 impl Worker {
     /// Removes what the agent left on this machine once its files are uploaded: the workspace and the session
-    /// home (never uploaded), however deep, following no link ([`super::cleanup`]). Only paths inside this
+    /// home (never uploaded), however deep, following no link ([`libero_episode::dirfd::remove_at`]). Only paths inside this
     /// worker's own directories are touched.
     fn clean_up(&self, ctx: &RunContext, job: &libero_store::Job, rec: &RolloutRecord) {
         let home = ctx.batch_dir.join("rollouts").join(&job.rollout_id).join("home");
         let workspace = rec.workspace.clone().filter(|w| w.starts_with(&ctx.workspace_root) && w != &ctx.workspace_root);
         for path in [Some(home), workspace].into_iter().flatten() {
-            if let Err(e) = super::cleanup::remove_tree(&path) {
+            if let Err(e) = remove_path(&path) {
                 tracing::warn!(batch = job.batch, rollout_id = job.rollout_id, path = %path.display(), error = %e, "cannot remove the rollout's files");
             }
         }
     }
+}
+
+/// Removes `path` and everything below it through its parent's directory handle, following no link.
+fn remove_path(path: &Path) -> std::io::Result<()> {
+    use std::os::fd::AsFd;
+    let (Some(parent), Some(name)) = (path.parent(), path.file_name().and_then(|n| n.to_str())) else {
+        return Err(std::io::Error::other(format!("{}: no parent or no UTF-8 name", path.display())));
+    };
+    let dir = libero_episode::dirfd::open_dir_path(parent)?;
+    libero_episode::dirfd::remove_at(dir.as_fd(), name)
 }
 
 /// `<data dir>/workers/<worker id>`: a directory of this worker's own (`~/.local/share/libero-agent/workers/…`).
