@@ -42,6 +42,9 @@ pub enum DemoCommand {
         #[arg(long)]
         agent: Option<String>,
     },
+    /// Play the agent that only replays its demonstration, on demonstration-conditioned episodes of each task;
+    /// fails if a replay solves its episode (the paper: direct replay must not solve the evaluation episode).
+    ReplayAttack(crate::cmd_demo_replay::ReplayAttackArgs),
     /// Export bundles to a LeRobot v3 dataset.
     ExportLerobot {
         #[arg(required = true)]
@@ -93,6 +96,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             }
             println!("{}", json!({"dir": dir, "valid": true}));
         }
+        DemoCommand::ReplayAttack(a) => crate::cmd_demo_replay::run(&a)?,
         DemoCommand::ExportLerobot { dirs, out } => {
             let s = export_lerobot(&dirs, &out)?;
             println!("{}", json!({"out": s.out, "episodes": s.episodes, "frames": s.frames, "tasks": s.tasks}));

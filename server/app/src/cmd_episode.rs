@@ -95,6 +95,7 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         model: p.model,
         batch: p.batch,
         demo: p.demo,
+        layout: None,
     };
     if let Some(file) = &p.operator_token_file {
         libero_server::credential::use_token_file(file);

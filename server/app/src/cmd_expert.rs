@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use libero_episode::demo::record::RecordOptions;
-use libero_episode::demo::{library, record_bundle};
+use libero_episode::demo::{LayoutVariant, library, record_bundle};
 use libero_episode::expert_run::{IDLE, ToolPort, run_expert, run_replica_only};
 use libero_episode::physics::WorldSpec;
 use libero_episode::records::read_result;
@@ -87,9 +87,30 @@ pub struct ExpertArgs {
     /// (`DIR/<task>/<episode id>/`, replayed, rendered and verified). In-process runs only.
     #[arg(long)]
     pub demo_out: Option<PathBuf>,
+    /// Run the task in another layout, as a demonstration's source episode must (issue 31): this placement seed
+    /// instead of the task's own …
+    #[arg(long)]
+    pub layout_seed: Option<u32>,
+    /// … this row of the task's init-state file (tasks with trusted init states) …
+    #[arg(long, default_value_t = 0, requires = "layout_seed")]
+    pub layout_init: usize,
+    /// … and table regions widened by this much on every side, metres (at most 0.1).
+    #[arg(long, default_value_t = 0.0, requires = "layout_seed")]
+    pub region_margin_m: f64,
 }
 
-struct McpPort(McpClient);
+impl ExpertArgs {
+    /// The layout variant the flags ask for.
+    pub(crate) fn layout(&self) -> anyhow::Result<Option<LayoutVariant>> {
+        let Some(placement_seed) = self.layout_seed else { return Ok(None) };
+        let v = LayoutVariant { placement_seed, init_index: self.layout_init, region_margin_m: self.region_margin_m };
+        v.validate()?;
+        Ok(Some(v))
+    }
+}
+
+/// An expert (or any scripted client) driving a server's episode over MCP.
+pub(crate) struct McpPort(pub(crate) McpClient);
 
 impl ToolPort for McpPort {
     fn call_tool(&mut self, tool: &str, arguments: Value) -> Result<Value, EpisodeError> {
@@ -145,7 +166,8 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     }
     let level = Level::from_number(args.level).with_context(|| format!("--level must be 1, 2 or 3 (got {})", args.level))?;
     let paths = AssetPaths::discover().context("assets are missing; run `python3 scripts/setup.py`")?;
-    let (task_id, task) = expert_task(&asked, &paths)?;
+    let (task_id, mut task) = expert_task(&asked, &paths)?;
+    task.layout = args.layout()?;
     let spec = WorldSpec { task, level, seed: args.seed, init_index: 0, paths };
     if args.trace {
         return trace(args, &spec, &task_id);
@@ -237,6 +259,7 @@ pub(crate) fn prepare_request(args: &ExpertArgs, task_id: &str) -> PrepareReques
         seed: args.seed,
         max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
         video: !args.no_video,
+        layout: args.layout().ok().flatten(),
         ..PrepareRequest::new(task_id.to_owned())
     }
 }

@@ -18,6 +18,8 @@ mod bench_soak;
 #[cfg(feature = "episode-serve")]
 mod cmd_demo;
 #[cfg(feature = "episode-serve")]
+mod cmd_demo_replay;
+#[cfg(feature = "episode-serve")]
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
 mod cmd_expert;

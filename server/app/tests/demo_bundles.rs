@@ -1,6 +1,9 @@
-//! Demonstration bundles end to end through the real binary: a scripted-expert recording of T14 verifies by
-//! replay, tampered bundles fail validation naming file and rule, the agent-visible copy placed by `episode prepare
-//! --demo` holds nothing private, and the LeRobot export reads back with independent readers (pyarrow, PyAV).
+//! Demonstration bundles end to end through the real binary: a scripted-expert recording of T14 in another layout
+//! verifies by replay, tampered bundles fail validation naming file and rule, the agent-visible copy placed by
+//! `episode prepare --demo` holds nothing private and follows the paper's schema and words, a bundle from the
+//! target's own configuration or one whose replay solves the target is never handed out, replaying the placed
+//! trajectory through MCP does not solve the episode, and the LeRobot export reads back with independent readers
+//! (pyarrow, PyAV).
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -20,13 +23,20 @@ fn text(o: &Output) -> String {
     format!("stdout:\n{}\nstderr:\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
-/// One T14 expert episode recorded into a library (shared by the tests of this file: it takes ~40 s on a CPU).
+/// A T14 layout whose expert trajectory does not solve the release episode (seed 100, init row 0) by replay: the
+/// sixth source layout the server draws for it (another placement seed and init row, regions widened 6 cm).
+const SOURCE_LAYOUT: [&str; 6] = ["--layout-seed", "39696", "--layout-init", "6", "--region-margin-m", "0.06"];
+
+/// One T14 expert episode in [`SOURCE_LAYOUT`] recorded into a library (shared by the tests of this file: it takes
+/// ~40 s on a CPU).
 fn recorded() -> &'static (tempfile::TempDir, PathBuf, Value) {
     static BUNDLE: OnceLock<(tempfile::TempDir, PathBuf, Value)> = OnceLock::new();
     BUNDLE.get_or_init(|| {
         let root = tempfile::tempdir().expect("tempdir");
         let out = bin()
-            .args(["expert", "--task", "T14", "--runs", "1", "--no-video", "--data"])
+            .args(["expert", "--task", "T14", "--runs", "1", "--no-video"])
+            .args(SOURCE_LAYOUT)
+            .arg("--data")
             .arg(root.path().join("data"))
             .arg("--demo-out")
             .arg(root.path().join("lib"))
@@ -149,22 +159,47 @@ fn files_under(root: &Path) -> Vec<String> {
     out
 }
 
+/// Rewrites `dir`'s manifest with `edit` (the manifest is outside the integrity block: the bundle stays valid).
+fn edit_manifest(dir: &Path, edit: impl FnOnce(&mut Value)) {
+    let path = dir.join("manifest.json");
+    let mut m: Value = serde_json::from_str(&fs::read_to_string(&path).unwrap()).unwrap();
+    edit(&mut m);
+    fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+}
+
 #[test]
-fn prepared_episodes_get_the_demo_and_notice_without_private_data() {
+fn prepared_episodes_get_the_papers_demo_and_notice_without_private_data() {
     let (_root, dir, record) = recorded();
     let data = tempfile::tempdir().unwrap();
-    copy_of(dir, &data.path().join("demos/T14").join(dir.file_name().unwrap()));
+    let lib = data.path().join("demos/T14");
+    // Two decoys that sort first: one claiming the release configuration itself (seed 100, init row 0, no
+    // variant), one whose stored replay check says it solves the release episode. Neither may be handed out.
+    let own = lib.join("ep-00000000T000000Z-00000000");
+    copy_of(dir, &own);
+    edit_manifest(&own, |m| {
+        m["source"]["layout"] = Value::Null;
+        m["source"]["seed"] = 100.into();
+        m["source"]["init_state_index"] = 0.into();
+    });
+    let solving = lib.join("ep-00000000T000000Z-00000001");
+    copy_of(dir, &solving);
+    let good: Value = serde_json::from_str(&fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
+    edit_manifest(&solving, |m| {
+        m["replay_checks"] = serde_json::json!([{
+            "target": {"task": "T14", "effective_layout": {"placement_seed": 100, "init_index": 0, "region_margin_m": 0.0}},
+            "replay_solves": true,
+        }]);
+        m["source"]["episode_id"] = "ep-00000000T000000Z-00000001".into();
+    });
+    assert_eq!(good["replay_checks"], serde_json::json!([]), "a fresh recording has no checks yet");
+    copy_of(dir, &lib.join(dir.file_name().unwrap()));
+    let notice = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/demo_notice.txt")).unwrap();
     let server = common::Server::start(data.path());
-    for (condition, expected_files, notice) in [
-        (
-            "video",
-            vec!["manifest.json", "video/contact_sheets/head_rgb.png", "video/contact_sheets/wrist_rgb.png", "video/head_wrist_rgb.mp4"],
-            "It is RGB video only",
-        ),
+    for (condition, expected_files) in [
+        ("video", vec!["manifest.json", "video/contact_sheets/head_rgb.png", "video/contact_sheets/wrist_rgb.png", "video/head_wrist_rgb.mp4"]),
         (
             "video+traj",
             vec!["manifest.json", "trajectory.jsonl", "video/contact_sheets/head_rgb.png", "video/contact_sheets/wrist_rgb.png", "video/head_wrist_rgb.mp4"],
-            "The measured EEF poses are observations, not actions.",
         ),
     ] {
         let out = bin()
@@ -177,29 +212,56 @@ fn prepared_episodes_get_the_demo_and_notice_without_private_data() {
         let demo = ws.join("benchmark_inputs/expert_demo");
         assert_eq!(files_under(&demo), expected_files, "{condition}");
         let prompt = fs::read_to_string(ws.join("TASK_PROMPT.txt")).unwrap();
-        let lines: Vec<&str> = prompt.lines().collect();
-        assert_eq!(lines[0], "close the top drawer of the cabinet");
-        assert!(lines[1].contains("benchmark_inputs/expert_demo/") && lines[1].contains(notice), "{condition}: {}", lines[1]);
-        assert_eq!(lines[2], "");
+        let golden = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/prompt_demo.txt")).unwrap();
+        assert_eq!(prompt, golden, "{condition}: the paper's prompt and notice");
+        assert_eq!(prompt.lines().nth(1), Some(notice.trim_end()));
         let contract: Value = serde_json::from_str(&fs::read_to_string(ws.join(".libero/episode.json")).unwrap()).unwrap();
         assert_eq!(contract["expert_demo"], "benchmark_inputs/expert_demo");
-        // Nothing private: no source episode id, seed, init index, task id, evaluator record.
+        // Nothing private: no source episode id, seed, init index, layout, task id, evaluator record, states.
         let source_id = record["episode_id"].as_str().unwrap();
         for f in &expected_files {
             if f.ends_with(".json") || f.ends_with(".jsonl") {
                 let t = fs::read_to_string(demo.join(f)).unwrap();
-                for private in [source_id, "\"seed\"", "init_state", "\"T14\"", "private_evaluation", "episode_success", "call_index"] {
+                for private in [
+                    source_id, "\"seed\"", "init_state", "\"T14\"", "private_evaluation", "episode_success", "call_index", "layout\":{", "placement_seed",
+                    "replay_checks", "state_before", "eef_pose",
+                ] {
                     assert!(!t.contains(private), "{condition}: {f} leaks {private:?}");
                 }
             }
+        }
+        if condition == "video+traj" {
+            let rows = fs::read_to_string(demo.join("trajectory.jsonl")).unwrap();
+            for (i, line) in rows.lines().enumerate() {
+                let row: Value = serde_json::from_str(line).unwrap();
+                let keys: Vec<&str> = row.as_object().unwrap().keys().map(String::as_str).collect();
+                assert_eq!(keys, ["action", "action_index"], "the paper's row");
+                assert_eq!(row["action_index"], i);
+                assert_eq!(row["action"]["schema_version"], "libero.normalized_osc_pose_action.v1");
+                assert_eq!(row["action"]["normalized_vector_7d"].as_array().map(Vec::len), Some(7));
+            }
+            assert_eq!(rows.lines().count() as u64, record["actions"].as_u64().unwrap());
         }
         let out = bin().args(["demo", "validate", "--agent", condition]).arg(&demo).output().unwrap();
         assert!(out.status.success(), "{condition}: {}", text(&out));
         let receipt = PathBuf::from(prepared["run_dir"].as_str().unwrap()).join("icl_projection_receipt.json");
         let receipt: Value = serde_json::from_str(&fs::read_to_string(receipt).unwrap()).unwrap();
-        assert_eq!(receipt["source_episode_id"], source_id, "the private receipt names the source");
+        assert_eq!(receipt["source_episode_id"], source_id, "the decoys are passed over");
         assert_ne!(prepared["episode_id"], source_id, "a separate episode");
     }
+    // The replay check was stored once, in the bundle that was used, and says the replay fails.
+    let used: Value = serde_json::from_str(&fs::read_to_string(lib.join(dir.file_name().unwrap()).join("manifest.json")).unwrap()).unwrap();
+    let checks = used["replay_checks"].as_array().unwrap();
+    assert_eq!(checks.len(), 1, "{checks:?}");
+    assert_eq!(checks[0]["target"]["effective_layout"]["placement_seed"], 100);
+    assert_eq!(checks[0]["replay_solves"], false);
+    let own: Value = serde_json::from_str(&fs::read_to_string(own.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(own["replay_checks"], serde_json::json!([]), "the own-configuration decoy is never even replayed");
+    // An agent that only replays the placed trajectory through MCP does not solve the episode.
+    let out = bin().args(["demo", "replay-attack", "--server", &server.url, "--task", "T14"]).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let line: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((line["success"].as_bool(), line["replayed_actions"].as_u64()), (Some(false), record["actions"].as_u64()), "{line}");
 }
 
 #[test]
@@ -258,9 +320,34 @@ fn an_empty_library_gets_a_verified_expert_demo_on_first_use() {
     let manifest: Value = serde_json::from_str(&fs::read_to_string(library[0].join("manifest.json")).unwrap()).unwrap();
     assert_eq!(manifest["verification"]["verified"], true);
     assert_ne!(manifest["source"]["episode_id"], prepared["episode_id"], "the demo comes from a separate episode");
+    assert!(manifest["source"]["layout"]["placement_seed"].as_u64().is_some_and(|s| s != 100), "another layout: {}", manifest["source"]);
+    assert_ne!(manifest["source"]["effective_layout"]["init_index"], 0, "another init row");
+    assert_eq!(manifest["replay_checks"][0]["replay_solves"], false, "{}", manifest["replay_checks"]);
     let ws = PathBuf::from(prepared["workspace"].as_str().unwrap());
     assert!(ws.join("benchmark_inputs/expert_demo/video/head_wrist_rgb.mp4").is_file());
     // An unknown condition is refused by the CLI before reaching the server.
     let out = bin().args(["episode", "prepare", "--server", &server.url, "--task", "T14", "--demo", "trajectory"]).output().unwrap();
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not none, video or video+traj"), "{}", text(&out));
+}
+
+/// Long-horizon sample of the T21–T30 sweep (`tasks/results/demo_replay_attack.jsonl` holds all ten): with an
+/// empty library the server records each demonstration in another layout, and an agent that replays the placed
+/// trajectory through MCP does not solve its episode.
+#[test]
+fn replaying_long_horizon_demonstrations_through_mcp_does_not_solve_them() {
+    let data = tempfile::tempdir().unwrap();
+    let server = common::Server::start(data.path());
+    let out = bin().args(["demo", "replay-attack", "--server", &server.url, "--task", "T28,T29"]).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let lines: Vec<Value> = String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 2, "{lines:?}");
+    for line in &lines {
+        assert_eq!(line["success"], false, "{line}");
+        assert!(line["replayed_actions"].as_u64().is_some_and(|n| n > 50), "a whole demonstration was replayed: {line}");
+        let task = line["task"].as_str().unwrap();
+        let bundles: Vec<PathBuf> = fs::read_dir(data.path().join("demos").join(task)).unwrap().flatten().map(|e| e.path()).collect();
+        let manifest: Value = serde_json::from_str(&fs::read_to_string(bundles[0].join("manifest.json")).unwrap()).unwrap();
+        assert!(manifest["source"]["layout"].is_object(), "{task}: recorded in a layout variant");
+        assert_eq!(manifest["replay_checks"][0]["replay_solves"], false, "{task}");
+    }
 }

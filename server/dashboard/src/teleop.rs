@@ -112,6 +112,10 @@ struct CreateRequest {
     task: String,
     #[serde(default = "default_seed")]
     seed: u64,
+    /// Drive the task in another layout, so the saved demonstration can be shown in release episodes (whose own
+    /// configuration a demonstration never comes from).
+    #[serde(default)]
+    layout: Option<libero_episode::demo::LayoutVariant>,
 }
 
 fn default_seed() -> u64 {
@@ -137,6 +141,7 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
         video: true,
         harness: Some("teleop".into()),
         model: Some("human".into()),
+        layout: req.layout,
         ..PrepareRequest::new(task.clone())
     };
     let prepared = match app.prepare_stored(prepare).await {

@@ -54,24 +54,21 @@ impl WorldPhysics {
         spec: &WorldSpec,
         edit_model: impl FnOnce(&ComposedScene, &mut MjModel, &[f64]) -> Result<(), EpisodeError>,
     ) -> Result<Self, EpisodeError> {
-        let scene = compose_file(&spec.task.bddl, &spec.paths)?;
+        let mut scene = compose_file(&spec.task.bddl, &spec.paths)?;
         let mut model = scene.compile()?;
         let suite = spec.task.suite.as_ref();
-        let seed = match suite.and_then(|s| s.placement_seed) {
-            Some(fixed) => fixed,
-            None => u32::try_from(spec.seed).map_err(|_| EpisodeError::Task("seed must fit in 32 bits".into()))?,
-        };
-        let placement = Placement::sample(&scene, seed, Some(&model))?;
+        let layout = spec.task.effective_layout(spec.seed, spec.init_index)?;
+        widen_table_regions(&mut scene, layout.region_margin_m);
+        let placement = Placement::sample(&scene, layout.placement_seed, Some(&model))?;
         placement.apply(&mut model)?;
         // private parameters that shape the physics (T08's mug masses) reach the model here, never through a file
         apply_private_model_edits(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &mut model)
             .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
         let evaluator = build_evaluator(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &scene, &model)
             .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
-        let init_index = suite.map_or(spec.init_index, |s| s.init_index);
-        let init_row = match &spec.task.init_states {
-            Some(path) => Some(InitStates::read(path)?.get(init_index)?.to_vec()),
-            None => None,
+        let init_row = match (&spec.task.init_states, layout.init_index) {
+            (Some(path), Some(index)) => Some(InitStates::read(path)?.get(index)?.to_vec()),
+            _ => None,
         };
         let qpos = start_qpos(&model, init_row.as_deref(), &placement)?;
         edit_model(&scene, &mut model, &qpos)?;
@@ -222,4 +219,18 @@ fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, Ep
         row[joint(name)?] = *q;
     }
     Ok(row)
+}
+
+/// Widens every table region (those the reset placement samples on the workspace fixture) by `margin_m` on each
+/// side: a demonstration source's layout for tasks whose regions are too narrow for seeds to move anything.
+fn widen_table_regions(scene: &mut ComposedScene, margin_m: f64) {
+    if margin_m <= 0.0 {
+        return;
+    }
+    let workspace = scene.problem_class.workspace_name().to_owned();
+    for region in scene.problem.regions.iter_mut().filter(|r| r.target == workspace) {
+        for r in &mut region.ranges {
+            *r = [r[0] - margin_m, r[1] - margin_m, r[2] + margin_m, r[3] + margin_m];
+        }
+    }
 }

@@ -44,6 +44,73 @@ pub struct TaskSource {
     pub suite: Option<SuiteTask>,
     /// The reference image published with every observation (protocol §3.9; T22's goal image).
     pub task_reference: Option<PathBuf>,
+    /// Set only for a demonstration's source episode: the same scene and evaluator drawn as a different layout, so
+    /// a demonstration never comes from the configuration it is shown in (issue 31). Recorded in the episode
+    /// record, so replays rebuild the same world.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub layout: Option<LayoutVariant>,
+}
+
+/// How a demonstration's source episode differs from the task's release configuration: another placement seed
+/// (seeded-placement tasks), another row of the init-state file (tasks with trusted init states), and table
+/// regions widened on every side (for tasks whose regions are so narrow that every seed gives the same layout).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LayoutVariant {
+    pub placement_seed: u32,
+    pub init_index: usize,
+    /// Added to every side of every table region before placement, metres (0 keeps the task's regions).
+    #[serde(default)]
+    pub region_margin_m: f64,
+}
+
+/// Largest region widening a layout variant may ask for (beyond it objects leave the reachable table).
+pub const MAX_REGION_MARGIN_M: f64 = 0.10;
+
+impl LayoutVariant {
+    /// A variant is usable only with a finite margin in `[0, MAX_REGION_MARGIN_M]`.
+    pub fn validate(&self) -> Result<(), EpisodeError> {
+        if !(self.region_margin_m.is_finite() && (0.0..=MAX_REGION_MARGIN_M).contains(&self.region_margin_m)) {
+            return Err(EpisodeError::Task(format!(
+                "layout region_margin_m must lie in [0, {MAX_REGION_MARGIN_M}] m, not {}",
+                self.region_margin_m
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The physical configuration an episode starts from: what decides its layout, whatever the request said. Two
+/// episodes of one task with equal layouts start from the same state (the level only changes what is published).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct EffectiveLayout {
+    /// Seed of LIBERO's reset placement.
+    pub placement_seed: u32,
+    /// Row of the init-state file, `None` when the task starts from its placement.
+    pub init_index: Option<usize>,
+    pub region_margin_m: f64,
+}
+
+impl TaskSource {
+    /// The layout an episode of this task with request `seed` and `init_index` starts from: the task's fixed
+    /// placement seed and init row where the catalog fixes them, a demonstration source's variant where set.
+    pub fn effective_layout(&self, seed: u64, init_index: usize) -> Result<EffectiveLayout, EpisodeError> {
+        let suite = self.suite.as_ref();
+        if let Some(v) = &self.layout {
+            v.validate()?;
+            return Ok(EffectiveLayout {
+                placement_seed: v.placement_seed,
+                init_index: self.init_states.is_some().then_some(v.init_index),
+                region_margin_m: v.region_margin_m,
+            });
+        }
+        let placement_seed = match suite.and_then(|s| s.placement_seed) {
+            Some(fixed) => fixed,
+            None => u32::try_from(seed).map_err(|_| EpisodeError::Task("seed must fit in 32 bits".into()))?,
+        };
+        let init_index = suite.map_or(init_index, |s| s.init_index);
+        Ok(EffectiveLayout { placement_seed, init_index: self.init_states.is_some().then_some(init_index), region_margin_m: 0.0 })
+    }
 }
 
 /// Resolves `id`: `T01`…`T30` (suite tasks), `suite/name` (a stock LIBERO file), `suite/task_id` or `suite/name` of a
@@ -82,6 +149,7 @@ pub fn resolve_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeE
         bddl,
         suite: None,
         task_reference: None,
+        layout: None,
     })
 }
 
@@ -146,6 +214,7 @@ fn source_from_files(
             settle_before_restore: files.settle_before_restore,
         }),
         task_reference: files.task_reference.map(|(path, _)| path),
+        layout: None,
     }
 }
 
@@ -161,6 +230,7 @@ fn from_bddl_path(id: &str, path: &Path, paths: &AssetPaths) -> TaskSource {
         instruction: libero_bddl::language_from_filename(&stem),
         suite: None,
         task_reference: None,
+        layout: None,
     }
 }
 

@@ -81,12 +81,14 @@ pub fn normalize_instruction(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
-/// The release prompt (§5.1): MCP transport, no resets, no ICL notice.
+/// The release prompt (§5.1): MCP transport, no resets, no demonstration notice.
 pub fn task_prompt(instruction: &str, max_wall_time_s: f64, max_agent_steps: u64) -> String {
     task_prompt_with_notice(instruction, None, max_wall_time_s, max_agent_steps)
 }
 
-/// §5.1 with an ICL notice (§5.2) on the line after the instruction; without one that line is empty.
+/// The paper's shared execution prompt (Appendix C; the original launcher's MCP wording, word for word), with a
+/// demonstration notice on the line after the instruction; without one that line is empty. Golden files:
+/// `tests/fixtures/prompt/`.
 pub fn task_prompt_with_notice(instruction: &str, notice: Option<&str>, max_wall_time_s: f64, max_agent_steps: u64) -> String {
     let instruction = normalize_instruction(instruction);
     let notice = notice.map(normalize_instruction).unwrap_or_default();
@@ -97,19 +99,19 @@ pub fn task_prompt_with_notice(instruction: &str, notice: Option<&str>, max_wall
 \n\
 A LIBERO episode has been prepared for you.\n\
 \n\
-This query has an evaluator wall-clock budget of {t} seconds, shared by all reset attempts; exceeding it ends the \
-query as an official task failure.\n\
+This query has a {t}-second evaluator wall-clock budget shared by all reset attempts. Exceeding it ends the query \
+as an official task failure.\n\
 \n\
-1. Call the `start_episode` robot tool exactly once to begin. It provides the initial observation and the \
-max_agent_steps budget.\n\
+1. Call the `start_episode` robot tool exactly once to begin and receive the initial observation and \
+`max_agent_steps` budget.\n\
 2. Control the robot with the `osc_sequence` robot tool. Its `actions` argument is an array of 1 to \
-{MAX_MICRO_ACTIONS_PER_CALL} normalized 7D OSC_POSE micro actions, each ordered [dx, dy, dz, rx, ry, rz, gripper]. \
-Every component must lie in [-1, 1]. Each vector executes one LIBERO policy interval: translation 1.0 = 0.05 m, \
-rotation 1.0 = a 0.5 rad rotation-vector component, gripper -1 opens and +1 closes. One sequence call counts as one \
-Agent action, with at most {max_agent_steps} accepted calls.\n\
-3. Wait for each action to complete, then inspect {obs} and any referenced files before issuing another command.\n\
-4. When the task is complete, call the `finish_episode` robot tool exactly once. Only finish reports official task \
-success.\n",
+{MAX_MICRO_ACTIONS_PER_CALL} normalized 7D OSC_POSE micro actions in `[dx, dy, dz, rx, ry, rz, gripper]` order. \
+Every component must be within [-1, 1]. Each vector executes one LIBERO policy interval; translation 1.0 corresponds \
+to 0.05 m, rotation 1.0 to a 0.5 rad rotation-vector component, gripper -1 opens, and +1 closes. One sequence call \
+counts as one Agent action, with at most {max_agent_steps} accepted calls.\n\
+3. Wait for each action to complete, then inspect `{obs}` and any referenced files before issuing another command.\n\
+4. When you have completed the task, call the `finish_episode` robot tool exactly once. Only finish reports official \
+task success.\n",
         obs = OBSERVATION_FILE,
     )
 }
@@ -181,13 +183,31 @@ mod tests {
         assert_eq!(lines[0], "put the bowl on the plate");
         assert_eq!((lines[1], lines[2]), ("", ""), "two empty lines when there is no ICL notice");
         assert_eq!(lines[3], "A LIBERO episode has been prepared for you.");
-        assert!(lines[5].contains("wall-clock budget of 1800 seconds"), "{}", lines[5]);
+        assert!(lines[5].starts_with("This query has a 1800-second evaluator wall-clock budget"), "{}", lines[5]);
         assert!(lines[7].starts_with("1. Call the `start_episode`"));
         assert!(lines[8].starts_with("2. ") && lines[8].contains("at most 1000000 accepted calls"));
         assert!(lines[9].starts_with("3. ") && lines[9].contains(OBSERVATION_FILE));
         assert!(lines[10].starts_with("4. Only") || lines[10].starts_with("4. When"));
         assert_eq!(lines.len(), 11);
         assert!(p.ends_with(".\n"));
+    }
+
+    /// The paper's shared execution prompt, without and with the demonstration notice, byte for byte against
+    /// `tests/fixtures/prompt/` (`UPDATE_GOLDEN=1` rewrites them after a deliberate change).
+    #[test]
+    fn prompts_match_the_papers_text() {
+        let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt"));
+        let notice = fs::read_to_string(dir.join("demo_notice.txt")).unwrap();
+        for (file, prompt) in [
+            ("prompt_release.txt", task_prompt("close the top drawer of the cabinet", 1800.0, 1_000_000)),
+            ("prompt_demo.txt", task_prompt_with_notice("close the top drawer of the cabinet", Some(notice.trim_end()), 1800.0, 1_000_000)),
+        ] {
+            if std::env::var_os("UPDATE_GOLDEN").is_some() {
+                fs::write(dir.join(file), &prompt).unwrap();
+            }
+            let want = fs::read_to_string(dir.join(file)).unwrap_or_else(|e| panic!("{file}: {e} (UPDATE_GOLDEN=1 writes it)"));
+            assert_eq!(prompt, want, "{file}");
+        }
     }
 
     #[test]

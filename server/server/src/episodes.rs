@@ -10,7 +10,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use libero_episode::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
-use libero_episode::demo::{DemoCondition, library, project_bundle, record_bundle, verify_bundle};
+use libero_episode::demo::library::TargetEpisode;
+use libero_episode::demo::{DemoCondition, LayoutVariant, layout_from_json, library, project_bundle, record_bundle, verify_bundle};
 use libero_episode::expert_run::run_expert;
 use libero_episode::json::{utc_now_iso, write_json_file};
 use libero_episode::physics::WorldSpec as PhysicsSpec;
@@ -75,6 +76,10 @@ pub struct PrepareRequest {
     /// server's demo library (`<data>/demos/<task>/`), recorded with the task's expert when the library has none.
     #[serde(default)]
     pub demo: DemoCondition,
+    /// Run the task in another layout (a demonstration's source episode: another placement seed or init row,
+    /// regions widened); None for evaluation episodes.
+    #[serde(default)]
+    pub layout: Option<LayoutVariant>,
 }
 
 fn default_video() -> bool {
@@ -97,6 +102,7 @@ impl PrepareRequest {
             model: None,
             batch: None,
             demo: DemoCondition::None,
+            layout: None,
         }
     }
 }
@@ -126,6 +132,12 @@ impl PrepareRequest {
         }
         if self.task.trim().is_empty() {
             bail!("task must name a task (T14, libero_90/<name> or a .bddl path)");
+        }
+        if let Some(layout) = &self.layout {
+            layout.validate()?;
+            if self.demo != DemoCondition::None {
+                bail!("an episode in a layout variant records demonstrations; it cannot be given one");
+            }
         }
         let names = [("task", Some(&self.task)), ("harness", self.harness.as_ref()), ("model", self.model.as_ref()), ("batch", self.batch.as_ref())];
         for (field, value) in names {
@@ -528,39 +540,92 @@ impl Episodes {
         self.data.join("demos")
     }
 
-    /// A valid, verified library bundle of `task`; when there is none, one is recorded now from a scripted-expert
-    /// episode (a separate episode, level 1, no video) and verified by replay.
-    pub fn demo_bundle(&self, task: &TaskSource, seed: u64) -> anyhow::Result<PathBuf> {
+    /// A library bundle that may be shown in the episode (`task`, `seed`, `init_index`): valid, verified,
+    /// recorded in another configuration, and not solving this episode by direct replay (issue 31). When the
+    /// library has none, one is recorded now with the task's scripted expert from the next source layout
+    /// ([`library::source_layout_candidate`]) until one qualifies.
+    pub fn demo_bundle(&self, task: &TaskSource, seed: u64, init_index: usize) -> anyhow::Result<PathBuf> {
         let lib = self.demo_library();
-        if let Some(b) = library::find_verified(&lib, &task.task_ref, None) {
-            return Ok(b);
-        }
+        let paths = self.paths.clone().context("assets are missing")?;
+        let target = TargetEpisode { task: task.clone(), seed, init_index };
+        // replay checks write manifests: one selection or recording at a time
         let _one_at_a_time = self.demo_recording.lock().map_err(|_| anyhow::anyhow!("demo lock poisoned"))?;
-        if let Some(b) = library::find_verified(&lib, &task.task_ref, None) {
-            return Ok(b);
-        }
+        let mut passed_over = match library::select_for_target(&lib, &target, &paths)? {
+            Ok(bundle) => return Ok(bundle),
+            Err(skipped) => skipped.into_iter().map(|s| format!("{}: {}", s.bundle.display(), s.reason)).collect::<Vec<_>>(),
+        };
         let task_ref = task.task_ref.as_str();
         if libero_tasks::expert_behaviours(task_ref).is_none() {
             bail!(
-                "no verified demonstration of {task_ref} in {} and no scripted expert to record one (record one with \
-                 `libero-agent expert --task {task_ref} --demo-out {}`, or by teleoperation)",
+                "no usable demonstration of {task_ref} in {} ({}) and no scripted expert to record one (record one \
+                 in another layout by teleoperation, or with `libero-agent expert --task {task_ref} --layout-seed N \
+                 --demo-out {}`)",
                 library::task_dir(&lib, task_ref).display(),
+                if passed_over.is_empty() { "the library is empty".to_owned() } else { passed_over.join("; ") },
                 lib.display()
             );
         }
-        let req = PrepareRequest { level: 1, seed, video: false, ..PrepareRequest::new(task_ref) };
+        let init_rows = match &task.init_states {
+            Some(path) => Some(libero_sim::InitStates::read(path)?.len()),
+            None => None,
+        };
+        for attempt in 0..library::MAX_SOURCE_ATTEMPTS {
+            let layout = library::source_layout_candidate(&target, attempt, init_rows)?;
+            let what = format!("source layout {}", serde_json::to_string(&layout)?);
+            match self.record_expert_demo(task, layout, &target) {
+                Ok(dir) => {
+                    tracing::info!(task = task_ref, attempt, bundle = %dir.display(), "demonstration recorded");
+                    return Ok(dir);
+                }
+                Err(e) => {
+                    tracing::info!(task = task_ref, attempt, why = format!("{e:#}"), "demonstration source passed over");
+                    passed_over.push(format!("{what}: {e:#}"));
+                }
+            }
+        }
+        bail!(
+            "no demonstration of {task_ref} could be recorded whose replay does not solve the episode (seed {seed}, \
+             init {init_index}): {}",
+            passed_over.join("; ")
+        )
+    }
+
+    /// Records a scripted-expert demonstration of `task` in `layout` (a separate episode, level 1, no video) for
+    /// `target`: the expert's actions are first replayed in the target (physics only), and only a source whose
+    /// replay fails is rendered into a bundle, verified by replay, with that check stored in its manifest.
+    fn record_expert_demo(&self, task: &TaskSource, layout: LayoutVariant, target: &TargetEpisode) -> anyhow::Result<PathBuf> {
+        let task_ref = task.task_ref.as_str();
+        let seed = u64::from(layout.placement_seed);
+        let req = PrepareRequest { level: 1, seed, init_index: layout.init_index, video: false, layout: Some(layout), ..PrepareRequest::new(task_ref) };
         let prepared = self.prepare(req)?;
         let mut handle = self.handle(&prepared.episode_id).context("the demonstration episode vanished")?;
         let paths = self.paths.clone().context("assets are missing")?;
-        let spec = PhysicsSpec { task: task.clone(), level: Level::L1, seed, init_index: 0, paths: paths.clone() };
+        let mut source_task = task.clone();
+        source_task.layout = Some(layout);
+        let spec = PhysicsSpec { task: source_task, level: Level::L1, seed, init_index: layout.init_index, paths: paths.clone() };
         let run = run_expert(&mut handle, &spec, task_ref, libero_tasks::expert::SOLVE, 3000, |_| {});
         handle.stop("demonstration recording over");
-        run.with_context(|| format!("the {task_ref} expert could not record a demonstration"))?;
+        let run = run.with_context(|| format!("the {task_ref} expert could not run"))?;
+        let source = SourceEpisode::read(&RunDir::new(self.runs_dir().join(&prepared.episode_id)))?;
+        if source.success != Some(true) {
+            let record = &run.replica_record;
+            bail!(
+                "the {task_ref} expert did not solve this layout ({} of {} stages)",
+                record["completed_required_stage_count"],
+                record["required_stage_count"]
+            );
+        }
+        let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
+        let replay = library::replay_in_target(&actions, target, &paths)?;
+        if replay.success {
+            bail!("replaying its {} actions solves the target episode", actions.len());
+        }
         let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "libero-agent expert solve".into() };
         let summary = self.record_demo(&prepared.episode_id, &options)?;
         if !summary.verified {
-            bail!("the {task_ref} expert's demonstration did not verify by replay ({})", summary.dir.display());
+            bail!("the expert's demonstration did not verify by replay ({})", summary.dir.display());
         }
+        library::store_replay_check(&summary.dir, target, &replay)?;
         Ok(summary.dir)
     }
 
@@ -719,10 +784,11 @@ impl Episodes {
         req.validate()?;
         let level = Level::from_number(req.level).context("level")?;
         let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
-        let task: TaskSource = resolve_task(&req.task, &paths)?;
+        let mut task: TaskSource = resolve_task(&req.task, &paths)?;
+        task.layout = req.layout;
         let demo_source = match req.demo {
             DemoCondition::None => None,
-            _ => Some(self.demo_bundle(&task, req.seed).context("no demonstration for this episode")?),
+            _ => Some(self.demo_bundle(&task, req.seed, req.init_index).context("no demonstration for this episode")?),
         };
         let episode_id = format!("ep-{}-{}", compact_utc(), random_hex(4)?);
         let token = random_hex(32)?;
@@ -892,7 +958,9 @@ fn spec_from_record(record: &Path, paths: AssetPaths) -> anyhow::Result<WorldSpe
     let level = v["level"].as_u64().and_then(|l| Level::from_number(u8::try_from(l).ok()?)).context("the episode record has no level")?;
     let seed = v["seed"].as_u64().context("the episode record has no seed")?;
     let init_index = v["init_state_index"].as_u64().context("the episode record has no init state index")?;
-    Ok(WorldSpec { task: resolve_task(task_ref, &paths)?, level, seed, init_index: usize::try_from(init_index)?, paths })
+    let mut task = resolve_task(task_ref, &paths)?;
+    task.layout = layout_from_json(&v["task"]["layout"])?;
+    Ok(WorldSpec { task, level, seed, init_index: usize::try_from(init_index)?, paths })
 }
 
 /// The agent's workspace (prompt, MCP config, the demonstration if any) and the prompt's private copy.

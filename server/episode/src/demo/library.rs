@@ -1,8 +1,18 @@
-//! The demonstration library: `<root>/<task>/<source episode id>/`, one library bundle each. Episodes with a
-//! demonstration condition take a valid, verified bundle of their task from here.
+//! The demonstration library: `<root>/<task>/<source episode id>/`, one library bundle each. An episode with a
+//! demonstration condition takes a valid, verified bundle of its task recorded in a *different* configuration
+//! whose trajectory, replayed directly in that episode, does not solve it (issue 31; the paper: "Direct replay of
+//! this trajectory does not solve the evaluation episode"). Each replay check is stored in the bundle's manifest
+//! (`replay_checks`), so a bundle is replayed once per target configuration.
 use std::path::{Path, PathBuf};
 
+use libero_sim::AssetPaths;
+use serde_json::{Value, json};
+
 use super::*;
+use super::record::bundle_source;
+use crate::json::{utc_now_iso, write_json_file};
+use crate::physics::{WorldPhysics, WorldSpec};
+use crate::task::{EffectiveLayout, TaskSource};
 
 /// Directory name of a task in the library (`T14`; `suite/name` and paths become safe names).
 pub fn task_dir_name(task_ref: &str) -> String {
@@ -18,22 +28,191 @@ pub fn bundle_dir(root: &Path, task_ref: &str, episode_id: &str) -> PathBuf {
     task_dir(root, task_ref).join(task_dir_name(episode_id))
 }
 
-/// The first (by name, i.e. oldest episode id) valid and verified bundle of `task_ref`, skipping bundles recorded
-/// from `exclude_episode` (a demonstration must come from a separate episode). Invalid bundles are skipped with a
-/// log line, never used.
-pub fn find_verified(root: &Path, task_ref: &str, exclude_episode: Option<&str>) -> Option<PathBuf> {
+/// The episode a demonstration is wanted for.
+#[derive(Debug, Clone)]
+pub struct TargetEpisode {
+    pub task: TaskSource,
+    pub seed: u64,
+    pub init_index: usize,
+}
+
+impl TargetEpisode {
+    pub fn layout(&self) -> Result<EffectiveLayout, DemoError> {
+        Ok(self.task.effective_layout(self.seed, self.init_index)?)
+    }
+
+    fn spec(&self, paths: &AssetPaths) -> WorldSpec {
+        WorldSpec { task: self.task.clone(), level: crate::Level::L1, seed: self.seed, init_index: self.init_index, paths: paths.clone() }
+    }
+
+    /// What a replay check is stored under: the task and the configuration the target starts from.
+    fn key(&self) -> Result<Value, DemoError> {
+        Ok(json!({"task": self.task.task_ref, "effective_layout": self.layout()?}))
+    }
+}
+
+/// Why a library bundle was passed over for a target, for the error a user sees when none is left.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Skipped {
+    pub bundle: PathBuf,
+    pub reason: String,
+}
+
+/// The valid, verified bundles of `task_ref` (oldest episode id first). Invalid bundles are skipped with a log
+/// line, never used.
+pub fn verified_bundles(root: &Path, task_ref: &str) -> Vec<PathBuf> {
     let dir = task_dir(root, task_ref);
-    let mut entries: Vec<PathBuf> = std::fs::read_dir(&dir).ok()?.flatten().map(|e| e.path()).collect();
+    let Ok(read) = std::fs::read_dir(&dir) else { return Vec::new() };
+    let mut entries: Vec<PathBuf> = read.flatten().map(|e| e.path()).collect();
     entries.sort();
-    entries.into_iter().filter(|p| p.is_dir() && !p.to_string_lossy().ends_with(".partial")).find(|p| {
-        let violations = validate_bundle(p);
-        if !violations.is_empty() {
-            log::warn!("demo library: skipping {} ({} violations, first: {})", p.display(), violations.len(), violations[0]);
-            return false;
+    entries
+        .into_iter()
+        .filter(|p| p.is_dir() && !p.to_string_lossy().ends_with(".partial"))
+        .filter(|p| {
+            let violations = validate_bundle(p);
+            if !violations.is_empty() {
+                log::warn!("demo library: skipping {} ({} violations, first: {})", p.display(), violations.len(), violations[0]);
+                return false;
+            }
+            read_json(&p.join(MANIFEST)).is_ok_and(|m| m["verification"]["verified"] == true && m["task"]["id"] == task_ref)
+        })
+        .collect()
+}
+
+/// The configuration a bundle's source episode started from (recomputed for bundles that predate the field).
+pub fn source_layout(dir: &Path, paths: &AssetPaths) -> Result<EffectiveLayout, DemoError> {
+    let (_, source) = bundle_source(dir)?;
+    let spec = source.spec(paths)?;
+    Ok(spec.task.effective_layout(spec.seed, spec.init_index)?)
+}
+
+/// Replays `actions`, one by one, in the target episode's world (no rendering) and returns the evaluator's record
+/// at the end: what an agent that only replays a demonstration would get.
+pub fn replay_in_target(actions: &[[f64; 7]], target: &TargetEpisode, paths: &AssetPaths) -> Result<libero_tasks::EvaluationRecord, DemoError> {
+    let mut physics = WorldPhysics::build(&target.spec(paths), |_, _, _| Ok(()))?;
+    physics.start(|_| {})?;
+    for a in actions {
+        physics.step(a)?;
+    }
+    Ok(physics.evaluate())
+}
+
+/// Whether replaying `dir` solves `target`, from the manifest's stored check or by replaying now (and storing the
+/// verdict in the manifest).
+pub fn replay_solves(dir: &Path, target: &TargetEpisode, paths: &AssetPaths) -> Result<bool, DemoError> {
+    let key = target.key()?;
+    let manifest = read_json(&dir.join(MANIFEST))?;
+    if let Some(found) = manifest["replay_checks"].as_array().and_then(|a| a.iter().find(|c| c["target"] == key)) {
+        if let Some(solves) = found["replay_solves"].as_bool() {
+            return Ok(solves);
         }
-        let Ok(m) = read_json(&p.join(MANIFEST)) else { return false };
-        m["verification"]["verified"] == true
-            && m["task"]["id"] == task_ref
-            && exclude_episode.is_none_or(|e| m["source"]["episode_id"] != e)
-    })
+    }
+    let (_, source) = bundle_source(dir)?;
+    let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
+    let record = replay_in_target(&actions, target, paths)?;
+    store_replay_check(dir, target, &record)?;
+    Ok(record.success)
+}
+
+/// Writes the outcome of replaying `dir` in `target` into its manifest's `replay_checks` (replacing an older check
+/// of the same target). The manifest is outside the integrity block, so the bundle stays valid.
+pub fn store_replay_check(dir: &Path, target: &TargetEpisode, record: &libero_tasks::EvaluationRecord) -> Result<(), DemoError> {
+    let key = target.key()?;
+    let manifest_path = dir.join(MANIFEST);
+    let mut manifest = read_json(&manifest_path)?;
+    let check = json!({
+        "target": key,
+        "replay_solves": record.success,
+        "completed_required_stage_count": record.completed_required_stage_count,
+        "required_stage_count": record.required_stage_count,
+        "method": "direct_replay_on_world_physics",
+        "checked_at": utc_now_iso(),
+    });
+    let mut checks: Vec<Value> = manifest["replay_checks"].as_array().cloned().unwrap_or_default();
+    checks.retain(|c| c["target"] != key);
+    checks.push(check);
+    manifest["replay_checks"] = Value::Array(checks);
+    write_json_file(&manifest_path, &manifest).map_err(io_err(&manifest_path))
+}
+
+/// A bundle of the target's task that may be shown in the target episode: valid, verified, recorded in another
+/// configuration, and not solving the target by direct replay. `Err(skipped)` lists why each bundle was passed
+/// over when none qualifies.
+pub fn select_for_target(root: &Path, target: &TargetEpisode, paths: &AssetPaths) -> Result<Result<PathBuf, Vec<Skipped>>, DemoError> {
+    let target_layout = target.layout()?;
+    let mut skipped = Vec::new();
+    for bundle in verified_bundles(root, &target.task.task_ref) {
+        let reason = match source_layout(&bundle, paths) {
+            Err(e) => format!("its source cannot be rebuilt: {e}"),
+            Ok(layout) if layout == target_layout => "it was recorded in the target's own configuration".to_owned(),
+            Ok(_) => match replay_solves(&bundle, target, paths) {
+                Err(e) => format!("its replay check failed: {e}"),
+                Ok(true) => "replaying its trajectory solves the target episode".to_owned(),
+                Ok(false) => return Ok(Ok(bundle)),
+            },
+        };
+        skipped.push(Skipped { bundle, reason });
+    }
+    Ok(Err(skipped))
+}
+
+/// How many source layouts are tried for a target before giving up.
+pub const MAX_SOURCE_ATTEMPTS: u32 = 8;
+
+/// The `attempt`-th source layout for `target` (deterministic): another placement seed every time; the next rows
+/// of the init-state file where the task has one (`init_rows` of them); from the third attempt on, table regions
+/// widened by 3 cm and from the fifth by 6 cm on every side, for tasks whose regions are too narrow for another
+/// seed to move anything (buttons in 2 mm regions). Never the target's own configuration.
+pub fn source_layout_candidate(target: &TargetEpisode, attempt: u32, init_rows: Option<usize>) -> Result<LayoutVariant, DemoError> {
+    let layout = target.layout()?;
+    let placement_seed = layout.placement_seed.wrapping_add(1 + attempt.wrapping_mul(7919));
+    let init_index = match (init_rows, layout.init_index) {
+        (Some(rows), Some(index)) if rows > 1 => (index + 1 + attempt as usize % (rows - 1)) % rows,
+        _ => target.init_index,
+    };
+    let region_margin_m = match attempt {
+        0..=1 => 0.0,
+        2..=3 => 0.03,
+        _ => 0.06,
+    };
+    Ok(LayoutVariant { placement_seed, init_index, region_margin_m })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn target(init_states: bool, fixed_seed: Option<u32>) -> TargetEpisode {
+        let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
+        let mut task = crate::task::resolve_task("T14", &paths).unwrap();
+        if !init_states {
+            task.init_states = None;
+        }
+        if let Some(s) = task.suite.as_mut() {
+            s.placement_seed = fixed_seed;
+        }
+        TargetEpisode { task, seed: 100, init_index: 0 }
+    }
+
+    #[test]
+    fn source_layouts_never_repeat_the_target_and_widen_late() {
+        for (init, fixed) in [(true, None), (false, Some(100)), (false, None)] {
+            let t = target(init, fixed);
+            let own = t.layout().unwrap();
+            let mut seen = Vec::new();
+            for attempt in 0..MAX_SOURCE_ATTEMPTS {
+                let v = source_layout_candidate(&t, attempt, init.then_some(50)).unwrap();
+                let mut source = t.clone();
+                source.task.layout = Some(v);
+                let layout = source.layout().unwrap();
+                assert_ne!(layout, own, "attempt {attempt} repeats the target's configuration");
+                assert!(!seen.contains(&layout), "attempt {attempt} repeats an earlier source");
+                if init {
+                    assert_ne!(layout.init_index, own.init_index, "another init row");
+                }
+                assert_eq!(v.region_margin_m > 0.0, attempt >= 2);
+                seen.push(layout);
+            }
+        }
+    }
 }

@@ -25,6 +25,7 @@ pub use project::{DemoCondition, ProjectionReceipt, project_bundle};
 pub use record::{BundleSummary, RecordOptions, SourceEpisode, record_bundle, verify_bundle};
 pub use validate::{Violation, validate_bundle};
 pub use crate::json::sha256_hex;
+pub use crate::task::{EffectiveLayout, LayoutVariant};
 
 /// Schema of a library bundle's `manifest.json`.
 pub const BUNDLE_SCHEMA: &str = "libero_agent.demonstration_bundle.v1";
@@ -218,6 +219,17 @@ pub fn parse_action(v: &Value) -> Option<[f64; 7]> {
     let xs: Vec<f64> = a.iter().map(Value::as_f64).collect::<Option<_>>()?;
     let xs: [f64; 7] = xs.try_into().ok()?;
     xs.iter().all(|x| x.is_finite() && x.abs() <= ACTION_LIMIT).then_some(xs)
+}
+
+/// A manifest's or record's `layout` (absent or null: none); anything else that is not a valid variant is an error.
+pub fn layout_from_json(v: &Value) -> Result<Option<LayoutVariant>, DemoError> {
+    if v.is_null() {
+        return Ok(None);
+    }
+    let layout: LayoutVariant =
+        serde_json::from_value(v.clone()).map_err(|e| DemoError::Source(format!("layout {v}: {e}")))?;
+    layout.validate().map_err(|e| DemoError::Source(e.to_string()))?;
+    Ok(Some(layout))
 }
 
 /// Reads and parses a JSON file.

@@ -1,7 +1,7 @@
 //! The agent-visible copy of a library bundle at `benchmark_inputs/expert_demo/` (§7.4, and our layout for video +
-//! trajectory, which the original never defined: §12 item 5). Nothing private travels: no source episode id, seed,
-//! init-state index, task id, evaluator record or verification details; only the instruction, the videos, the
-//! contact sheets and (video + trajectory) the actions with the measured end-effector states.
+//! trajectory in the paper's Appendix C schema). Nothing private travels: no source episode id, seed, init-state
+//! index, layout, task id, evaluator record or verification details; only the instruction, the video, the contact
+//! sheets and (video + trajectory) the actions, with no measured end-effector stream.
 use std::fs;
 use std::path::{Path, PathBuf};
 
@@ -55,29 +55,19 @@ impl DemoCondition {
         }
     }
 
-    /// The §5.2 notice inserted after the instruction (None for `none`).
+    /// The notice inserted after the instruction (None for `none`): the paper's one notice for both
+    /// demonstration conditions, verbatim (Appendix C). The bundle's files say what the demonstration holds.
     pub fn prompt_notice(self) -> Option<String> {
         match self {
             Self::None => None,
-            Self::Video => Some(
-                "A verified successful demonstration of this task from a separate episode is at \
-`benchmark_inputs/expert_demo/`. It is RGB video only (head and wrist views), with decoder-free contact sheets in \
-`video/contact_sheets/`. The current scene configuration and object or goal poses may differ. No actions, states, \
-depth, camera calibration or annotations are provided."
-                    .into(),
-            ),
-            Self::VideoTraj => Some(
-                "A verified successful demonstration of this task from a separate episode is at \
-`benchmark_inputs/expert_demo/`: RGB video (head and wrist views) with decoder-free contact sheets in \
-`video/contact_sheets/`, and `trajectory.jsonl` with the expert's native per-control-cycle OSC_POSE actions and \
-measured EEF state observations. The current scene configuration and object or goal poses may differ. The measured \
-EEF poses are observations, not actions. Each source action vector has the same component semantics as one \
-`osc_sequence` micro action."
-                    .into(),
-            ),
+            Self::Video | Self::VideoTraj => Some(DEMO_NOTICE.to_owned()),
         }
     }
 }
+
+/// The paper's demonstration notice (Appendix C, "Recorded task and shared execution prompt").
+pub const DEMO_NOTICE: &str = "A demonstration from a separate episode of the same task is available at \
+benchmark_inputs/expert_demo/. The current scene configuration and object or goal poses may differ.";
 
 /// The private record of what was placed (kept in the run directory, never in the workspace).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -172,12 +162,12 @@ pub fn project_bundle(
         }
         _ => {
             write_public_trajectory(source, &partial)?;
-            let mut d = demonstration(&["head_rgb", "wrist_rgb", "actions", "eef_state"]);
+            let mut d = demonstration(&["head_rgb", "wrist_rgb", "actions"]);
             d.insert("frame_count".into(), json!(frame_count));
             d.insert("transition_count".into(), json!(frame_count.saturating_sub(1)));
             d.insert("actions_present".into(), json!(true));
             d.insert("action_representation".into(), json!(ACTION_SCHEMA));
-            d.insert("measured_eef_states_are_observations".into(), json!(true));
+            d.insert("measured_eef_states_present".into(), json!(false));
             d.insert("stepwise_success_present".into(), json!(false));
             d.insert("video".into(), video);
             json!({
@@ -214,26 +204,31 @@ pub fn project_bundle(
     })
 }
 
-/// Public trajectory rows: `{transition_index, source_action, state_before, state_after}`; no call indices (they
-/// would tell how the source agent batched its calls, which is about the source episode, not the task).
+/// Public trajectory rows in the paper's schema (Appendix C): a zero-based `action_index` and an `action` object
+/// with its schema identifier and `normalized_vector_7d`; no measured end-effector stream and no call indices (how
+/// the source batched its calls is about the source episode, not the task).
 fn write_public_trajectory(source: &Path, dest: &Path) -> Result<(), DemoError> {
     let path = source.join(TRAJECTORY);
     let text = fs::read_to_string(&path).map_err(io_err(&path))?;
     let mut out = String::new();
-    for line in text.lines() {
+    for (n, line) in text.lines().enumerate() {
         let row: Value = serde_json::from_str(line).map_err(|e| DemoError::Source(format!("{TRAJECTORY}: {e}")))?;
-        let public = json!({
-            "transition_index": row["action_index"],
-            "source_action": row["action"],
-            "state_before": row["state_before"],
-            "state_after": row["state_after"],
-        });
-        out.push_str(&compact_sorted(&public));
+        let action = parse_action(&row["action"])
+            .ok_or_else(|| DemoError::Source(format!("{TRAJECTORY} line {}: not a valid 7-D action", n + 1)))?;
+        out.push_str(&compact_sorted(&public_trajectory_row(n, &action)));
         out.push('\n');
     }
     let p = dest.join(TRAJECTORY);
     fs::write(&p, out).map_err(io_err(&p))
 }
+
+/// One agent-visible trajectory row.
+pub fn public_trajectory_row(action_index: usize, action: &[f64; 7]) -> Value {
+    json!({"action_index": action_index, "action": action_value(action)})
+}
+
+/// Keys of an agent-visible trajectory row, exactly (the paper's).
+pub const PUBLIC_TRAJECTORY_ROW_KEYS: [&str; 2] = ["action", "action_index"];
 
 /// Checks an agent-visible bundle: the exact file set, manifest keys and schema, artifact sizes and hashes.
 pub fn validate_projection(dir: &Path, condition: DemoCondition) -> Vec<Violation> {
@@ -276,6 +271,16 @@ pub fn validate_projection(dir: &Path, condition: DemoCondition) -> Vec<Violatio
     let mut artifacts = vec![&video["file"], &video["contact_sheets"]["head_rgb"], &video["contact_sheets"]["wrist_rgb"]];
     if condition == DemoCondition::VideoTraj {
         artifacts.push(&m["trajectory"]);
+        let text = fs::read_to_string(dir.join(TRAJECTORY)).unwrap_or_default();
+        for (n, line) in text.lines().enumerate() {
+            let row: Value = serde_json::from_str(line).unwrap_or(Value::Null);
+            let keys: Vec<&str> = row.as_object().map(|o| o.keys().map(String::as_str).collect()).unwrap_or_default();
+            let exact = keys == PUBLIC_TRAJECTORY_ROW_KEYS && row["action_index"] == n && parse_action(&row["action"]).is_some();
+            if !exact {
+                out.push(mk(TRAJECTORY, "trajectory_keys", format!("line {}: not {{action_index: {n}, action}}", n + 1)));
+                break;
+            }
+        }
     }
     for a in artifacts {
         let Some(rel) = a["path"].as_str() else {
@@ -307,10 +312,25 @@ mod tests {
         }
         assert_eq!(DemoCondition::parse("trajectory"), None);
         assert_eq!(DemoCondition::None.prompt_notice(), None, "the release prompt has no notice");
-        let video = DemoCondition::Video.prompt_notice().unwrap();
-        assert!(video.contains("benchmark_inputs/expert_demo/") && video.contains("No actions, states"));
-        let traj = DemoCondition::VideoTraj.prompt_notice().unwrap();
-        assert!(traj.contains("observations, not actions") && traj.contains("`osc_sequence` micro action"));
+        let golden = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/demo_notice.txt"))
+            .expect("tests/fixtures/prompt/demo_notice.txt");
+        for c in [DemoCondition::Video, DemoCondition::VideoTraj] {
+            assert_eq!(c.prompt_notice().as_deref(), Some(golden.trim_end()), "the paper's notice, verbatim, for {c:?}");
+        }
+    }
+
+    /// The paper's row: `action_index` and an `action` object with a schema id and `normalized_vector_7d`; no
+    /// measured stream. Byte-for-byte against the golden row.
+    #[test]
+    fn public_trajectory_rows_have_exactly_the_papers_fields() {
+        let row = public_trajectory_row(0, &[0.5, -0.25, 0.0, 0.0, 0.0, 0.125, -1.0]);
+        let keys: Vec<&str> = row.as_object().unwrap().keys().map(String::as_str).collect();
+        assert_eq!(keys, PUBLIC_TRAJECTORY_ROW_KEYS);
+        let action_keys: Vec<&str> = row["action"].as_object().unwrap().keys().map(String::as_str).collect();
+        assert_eq!(action_keys, ["normalized_vector_7d", "schema_version"]);
+        let golden = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/trajectory_row.jsonl"))
+            .expect("tests/fixtures/prompt/trajectory_row.jsonl");
+        assert_eq!(format!("{}\n", compact_sorted(&row)), golden);
     }
 
     #[test]

@@ -34,6 +34,8 @@ pub struct SourceEpisode {
     pub actions: Vec<(u64, [f64; 7])>,
     /// The evaluator's verdict in `result.json` (None: the episode never finished).
     pub success: Option<bool>,
+    /// The layout variant the source episode ran (None: the task's own configuration for its seed).
+    pub layout: Option<LayoutVariant>,
 }
 
 impl SourceEpisode {
@@ -74,11 +76,14 @@ impl SourceEpisode {
             }
         }
         let success = read_result(run).and_then(|r| r["success"].as_bool());
-        Ok(Self { episode_id, task_ref, instruction, level, seed, init_state_index, actions, success })
+        let layout = layout_from_json(&record["task"]["layout"])?;
+        Ok(Self { episode_id, task_ref, instruction, level, seed, init_state_index, actions, success, layout })
     }
 
-    fn spec(&self, paths: &AssetPaths) -> Result<WorldSpec, DemoError> {
-        let task = resolve_task(&self.task_ref, paths)?;
+    /// The world the source episode ran on (its layout variant included).
+    pub fn spec(&self, paths: &AssetPaths) -> Result<WorldSpec, DemoError> {
+        let mut task = resolve_task(&self.task_ref, paths)?;
+        task.layout = self.layout;
         Ok(WorldSpec { task, level: Level::L1, seed: self.seed, init_index: self.init_state_index, paths: paths.clone() })
     }
 }
@@ -108,6 +113,10 @@ pub(crate) struct ManifestFields<'a> {
     pub source: &'a SourceEpisode,
     pub options: &'a RecordOptions,
     pub replay_success: Option<bool>,
+    /// The configuration the source episode started from (what a target episode must differ from).
+    pub effective_layout: Option<EffectiveLayout>,
+    /// Replays of the trajectory in other episodes, kept across re-verification (`[]` for a new bundle).
+    pub replay_checks: Value,
 }
 
 /// Writes `manifest.json` for the files already in `dir` (artifacts and integrity recomputed from disk).
@@ -125,6 +134,8 @@ pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<Value
             "level": f.source.level,
             "seed": f.source.seed,
             "init_state_index": f.source.init_state_index,
+            "layout": f.source.layout,
+            "effective_layout": f.effective_layout,
             "settle_steps": SETTLE_STEPS,
             "episode_success": f.source.success,
         },
@@ -133,6 +144,7 @@ pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<Value
             "method": "replay_on_world_physics",
             "replay_success": f.replay_success,
         },
+        "replay_checks": f.replay_checks,
         "frame_count": frame_count,
         "transition_count": f.source.actions.len(),
         "action_semantics": action_semantics(),
@@ -269,7 +281,14 @@ pub fn record_bundle(
         write_png(&path, w, h, 3, &rgb).map_err(io_err(&path))?;
     }
     write_trajectory(&partial, &source, &states)?;
-    let manifest = write_manifest(&partial, &ManifestFields { source: &source, options, replay_success: Some(replay_success) })?;
+    let fields = ManifestFields {
+        source: &source,
+        options,
+        replay_success: Some(replay_success),
+        effective_layout: Some(spec.task.effective_layout(spec.seed, spec.init_index)?),
+        replay_checks: json!([]),
+    };
+    let manifest = write_manifest(&partial, &fields)?;
     fs::rename(&partial, out).map_err(io_err(out))?;
     Ok(BundleSummary {
         dir: out.to_owned(),
@@ -304,6 +323,7 @@ pub fn bundle_source(dir: &Path) -> Result<(Value, SourceEpisode), DemoError> {
         init_state_index: s["init_state_index"].as_u64().ok_or_else(|| missing("init_state_index"))? as usize,
         actions,
         success: s["episode_success"].as_bool(),
+        layout: layout_from_json(&s["layout"])?,
     };
     Ok((manifest, source))
 }
@@ -323,7 +343,14 @@ pub fn verify_bundle(dir: &Path, paths: &AssetPaths) -> Result<bool, DemoError> 
         source_type: manifest["source"]["source_type"].as_str().unwrap_or("unknown").to_owned(),
         source_desc: manifest["source"]["source_desc"].as_str().unwrap_or("").to_owned(),
     };
-    write_manifest(dir, &ManifestFields { source: &source, options: &options, replay_success: Some(success) })?;
+    let fields = ManifestFields {
+        source: &source,
+        options: &options,
+        replay_success: Some(success),
+        effective_layout: Some(spec.task.effective_layout(spec.seed, spec.init_index)?),
+        replay_checks: manifest.get("replay_checks").cloned().unwrap_or_else(|| json!([])),
+    };
+    write_manifest(dir, &fields)?;
     Ok(success)
 }
 
@@ -332,6 +359,11 @@ mod tests {
     use super::*;
 
     const GOLDEN_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/demo_bundle");
+
+    fn golden_fields<'a>(source: &'a SourceEpisode, options: &'a RecordOptions, replay: Option<bool>) -> ManifestFields<'a> {
+        let effective_layout = Some(EffectiveLayout { placement_seed: 100, init_index: Some(0), region_margin_m: 0.0 });
+        ManifestFields { source, options, replay_success: replay, effective_layout, replay_checks: json!([]) }
+    }
 
     /// A two-action source with made-up states and placeholder media: the wire format only.
     fn synthetic(dir: &Path) -> SourceEpisode {
@@ -344,6 +376,7 @@ mod tests {
             init_state_index: 0,
             actions: vec![(1, [0.5, -0.25, 0.0, 0.0, 0.0, 0.125, -1.0]), (1, [1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0])],
             success: Some(true),
+            layout: None,
         };
         let state = |k: f64| MeasuredState {
             eef_pose_robot_base_xyzw: [0.5 + k, 0.0, 0.25, 1.0, 0.0, 0.0, 0.0],
@@ -364,7 +397,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let source = synthetic(dir.path());
         let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "golden".into() };
-        let manifest = write_manifest(dir.path(), &ManifestFields { source: &source, options: &options, replay_success: Some(true) }).unwrap();
+        let manifest = write_manifest(dir.path(), &golden_fields(&source, &options, Some(true))).unwrap();
         assert_eq!(manifest["verification"]["verified"], true);
         assert_eq!(manifest["task"]["instruction"], "close the top drawer of the cabinet", "normalized");
         let golden = Path::new(GOLDEN_DIR);
@@ -388,10 +421,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut source = synthetic(dir.path());
         let options = RecordOptions { source_type: "agent".into(), source_desc: String::new() };
-        let m = write_manifest(dir.path(), &ManifestFields { source: &source, options: &options, replay_success: Some(false) }).unwrap();
+        let m = write_manifest(dir.path(), &golden_fields(&source, &options, Some(false))).unwrap();
         assert_eq!(m["verification"]["verified"], false);
         source.success = Some(false);
-        let m = write_manifest(dir.path(), &ManifestFields { source: &source, options: &options, replay_success: Some(true) }).unwrap();
+        let m = write_manifest(dir.path(), &golden_fields(&source, &options, Some(true))).unwrap();
         assert_eq!(m["verification"]["verified"], false);
     }
 

@@ -94,8 +94,12 @@ fn check_manifest_shape(m: &Value, out: &mut Vec<Violation>) {
         out.push(v(MANIFEST, "manifest_keys", "the manifest is not a JSON object"));
         return;
     };
-    let keys: BTreeSet<&str> = obj.keys().map(String::as_str).collect();
+    // `replay_checks` (issue 31) is absent from bundles recorded before replay checks existed
+    let keys: BTreeSet<&str> = obj.keys().map(String::as_str).filter(|k| *k != "replay_checks").collect();
     let allowed: BTreeSet<&str> = MANIFEST_KEYS.into_iter().collect();
+    if obj.get("replay_checks").is_some_and(|c| !c.is_array()) {
+        out.push(v(MANIFEST, "manifest_keys", "replay_checks must be an array"));
+    }
     if keys != allowed {
         let extra: Vec<_> = keys.difference(&allowed).collect();
         let missing: Vec<_> = allowed.difference(&keys).collect();

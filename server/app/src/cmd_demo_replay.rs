@@ -1,0 +1,132 @@
+//! `libero-agent demo replay-attack --task T21 [--task …] [--server URL | --data DIR]`: plays the agent that only
+//! replays its demonstration. For each task it prepares a demonstration-conditioned episode (video + trajectory),
+//! reads `benchmark_inputs/expert_demo/trajectory.jsonl` from the agent's workspace, sends every action through
+//! `osc_sequence` (50 per call, as an agent would), finishes, and prints the verdict. The paper: "Direct replay of
+//! this trajectory does not solve the evaluation episode"; the command exits non-zero if a replay succeeds.
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use libero_episode::demo::{DemoCondition, parse_action};
+use libero_episode::expert_run::ToolPort;
+use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
+use serde_json::{Value, json};
+
+use libero_server::client::{McpClient, prepare_episode};
+use libero_server::default_data_dir;
+
+use crate::cmd_expert::McpPort;
+use libero_server::episodes::{Episodes, PrepareRequest};
+
+#[derive(clap::Args, Debug)]
+pub struct ReplayAttackArgs {
+    /// Tasks to attack (repeatable, or comma-separated): `T21`, pool entries such as `libero_90/35`.
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub task: Vec<String>,
+    /// A running `libero-agent serve` on this machine (the workspace is read from its disk); otherwise the episodes
+    /// run in this process under `--data`.
+    #[arg(long)]
+    pub server: Option<String>,
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    #[arg(long, default_value_t = 100)]
+    pub seed: u64,
+    #[arg(long, default_value_t = 0)]
+    pub init_index: usize,
+}
+
+/// The actions of an agent-visible trajectory, in order.
+pub fn workspace_trajectory(workspace: &Path) -> anyhow::Result<Vec<[f64; 7]>> {
+    let path = workspace.join("benchmark_inputs/expert_demo/trajectory.jsonl");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .map(|(n, line)| {
+            let row: Value = serde_json::from_str(line).with_context(|| format!("{} line {}", path.display(), n + 1))?;
+            parse_action(&row["action"]).with_context(|| format!("{} line {}: no 7-D action", path.display(), n + 1))
+        })
+        .collect()
+}
+
+/// Starts, sends `actions` in calls of at most 50, finishes; returns the finish payload.
+pub fn replay(port: &mut dyn ToolPort, actions: &[[f64; 7]]) -> anyhow::Result<Value> {
+    let start = port.call_tool("start_episode", json!({}))?;
+    if start["ok"] != true {
+        bail!("start_episode refused: {start}");
+    }
+    for chunk in actions.chunks(MAX_MICRO_ACTIONS_PER_CALL) {
+        let r = port.call_tool("osc_sequence", json!({"actions": chunk}))?;
+        if r["ok"] != true && r.get("execution").is_none() {
+            bail!("osc_sequence refused: {r}");
+        }
+    }
+    let finish = port.call_tool("finish_episode", json!({}))?;
+    if finish["ok"] != true {
+        bail!("finish_episode refused: {finish}");
+    }
+    Ok(finish)
+}
+
+pub fn run(args: &ReplayAttackArgs) -> anyhow::Result<()> {
+    let local = match &args.server {
+        Some(_) => None,
+        None => Some(Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?),
+    };
+    let (mut solved, mut failed) = (Vec::new(), Vec::new());
+    for task in &args.task {
+        let t0 = Instant::now();
+        match attack(args, local.as_ref(), task) {
+            Ok((episode_id, actions, success)) => {
+                println!("{}", json!({"task": task, "episode_id": episode_id, "replayed_actions": actions, "success": success, "seconds": t0.elapsed().as_secs_f64()}));
+                if success {
+                    solved.push(task.clone());
+                }
+            }
+            Err(e) => {
+                println!("{}", json!({"task": task, "error": format!("{e:#}"), "seconds": t0.elapsed().as_secs_f64()}));
+                failed.push(task.clone());
+            }
+        }
+    }
+    match (solved.is_empty(), failed.is_empty()) {
+        (true, true) => Ok(()),
+        (false, _) => bail!("direct replay of the demonstration solved {}", solved.join(", ")),
+        (true, false) => bail!("no demonstration-conditioned episode could be replayed for {}", failed.join(", ")),
+    }
+}
+
+/// One task: prepare, replay the placed trajectory, finish. Returns the episode id, the actions sent, and success.
+fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyhow::Result<(String, usize, bool)> {
+    let request = PrepareRequest {
+        level: 1,
+        seed: args.seed,
+        init_index: args.init_index,
+        video: false,
+        demo: DemoCondition::VideoTraj,
+        ..PrepareRequest::new(task.to_owned())
+    };
+    eprintln!("[{task}] preparing a video+traj episode (the first one records a demonstration in another layout)");
+    let (episode_id, actions, finish) = match (local, &args.server) {
+        (Some(episodes), _) => {
+            let prepared = episodes.prepare(request)?;
+            let mut handle = episodes.handle(&prepared.episode_id).context("the episode vanished")?;
+            let actions = workspace_trajectory(&prepared.workspace)?;
+            eprintln!("[{task}] replaying {} actions", actions.len());
+            let finish = replay(&mut handle, &actions);
+            (prepared.episode_id, actions.len(), finish)
+        }
+        (None, Some(server)) => {
+            let prepared = prepare_episode(server, &request)?;
+            let token = prepared.mcp_headers.get("Authorization").context("no token in the server's reply")?;
+            let mut port = McpPort(McpClient::connect_with_token(&prepared.mcp_url, token.trim_start_matches("Bearer "), "libero-agent-replay-attack")?);
+            let actions = workspace_trajectory(&prepared.workspace)?;
+            eprintln!("[{task}] replaying {} actions over MCP", actions.len());
+            let finish = replay(&mut port, &actions);
+            (prepared.episode_id, actions.len(), finish)
+        }
+        (None, None) => unreachable!("either local or remote"),
+    };
+    let finish = finish.with_context(|| format!("replay in {episode_id}"))?;
+    let success = finish["success"].as_bool().context("finish_episode reported no success")?;
+    Ok((episode_id, actions, success))
+}
