@@ -16,6 +16,8 @@ mod bench_teleop;
 #[cfg(feature = "episode-serve")]
 mod bench_soak;
 #[cfg(feature = "episode-serve")]
+mod bench_scale;
+#[cfg(feature = "episode-serve")]
 mod cmd_demo;
 #[cfg(feature = "episode-serve")]
 mod cmd_demo_replay;
@@ -108,6 +110,10 @@ enum BenchCommand {
     /// Many short episodes over MCP: resident memory, threads and open files before, at the peak and after.
     #[cfg(feature = "episode-serve")]
     Soak(bench_soak::BenchSoakArgs),
+    /// Episodes per machine: a real `serve`'s resident memory and threads idle and with 1 and N open episodes
+    /// over K scenes, per-episode increments, open time cold and warm, `osc_sequence` latency with N open.
+    #[cfg(feature = "episode-serve")]
+    Scale(bench_scale::BenchScaleArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -133,6 +139,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(BenchCommand::Teleop(a)) => bench_teleop::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Soak(a)) => bench_soak::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Scale(a)) => bench_scale::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Queue(a)) => bench_queue::run(&a),
         #[cfg(feature = "episode-serve")]
