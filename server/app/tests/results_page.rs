@@ -185,34 +185,118 @@ fn pool_batches_are_shown_per_suite_beside_and_never_inside_the_paper_table() {
     assert!(String::from_utf8_lossy(&csv.stdout).contains("command/pool-fixture,3,none,pool:libero_90,1,1,0.0000,1,2,"));
 }
 
+/// A batch of agent `command/fixture` (`reps` 2) whose rollouts are `(task, level, demo, repetition, outcome, c/K,
+/// private evaluation)`; a rollout with a private evaluation gets a run directory with its `result.json`.
+fn write_fixture_batch(dir: &Path, experiment: &str, rollouts: &[(u32, u8, &str, u32, &str, (u32, u32), Option<Value>)]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let batch = serde_json::json!({
+        "schema_version": "libero_agent.batch.v1", "status": "finished",
+        "settings": {"experiment": experiment, "harness": "command", "model": "fixture", "effort": "high", "reps": 2,
+            "tasks": [], "seed": 100, "wall_time_s": 300.0, "max_agent_steps": 100, "agent_cmd": "true", "sandbox": false},
+        "rollout_count": rollouts.len(), "counts": {"done": rollouts.len(), "running": 0, "left": 0}, "outcomes": {},
+    });
+    std::fs::write(dir.join("batch.json"), batch.to_string()).unwrap();
+    let mut lines = String::new();
+    for (task, level, demo, rep, outcome, (c, k), private) in rollouts {
+        let id = format!("w{rep}_t{task}_level{level}_{demo}");
+        let run_dir = private.as_ref().map(|pe| {
+            let d = dir.join("runs").join(&id);
+            std::fs::create_dir_all(&d).unwrap();
+            std::fs::write(d.join("result.json"), serde_json::json!({"private_evaluation": pe}).to_string()).unwrap();
+            d
+        });
+        let split = libero_metrics::Split::of_task(*task).unwrap().as_str();
+        let r = serde_json::json!({
+            "schema_version": "libero_agent.rollout.v1", "rollout_id": id, "task": format!("T{task}"), "task_number": task,
+            "split": split, "stage_count": k, "repetition": rep, "level": level, "demo": demo, "outcome": outcome,
+            "episode_id": format!("ep-{id}"), "run_dir": run_dir, "completed_stages": c, "wall_time_s": 60.0,
+            "started_at": "2025-01-01T00:00:00Z", "finished_at": "2025-01-01T00:01:00Z",
+        });
+        lines.push_str(&format!("{r}\n"));
+    }
+    std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
+}
+
+/// Tables 2–4, Figure 3 and Appendix E on the page come from all the selected batches of one agent: the
+/// observation batch's L1/L2 rows beside the main table's L3 row, the context batch's Video row beside the main
+/// table's None row, the stage diagnosis and the opening operations read from the rollouts' records, and Figure 3 as
+/// inline SVG drawn by the server; `/api/results` carries the same numbers as `report` over the same batches.
+#[test]
+fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = dir.path().join("extra");
+    write_ablation_batch(&extra.join("abl"));
+    let t16 = |scr: f64, opened: bool| {
+        serde_json::json!({"stage_diagnostics": [{"stage_name": "01_BDDL_Goal_At_Finish", "required": true, "reached": true, "succeeded": opened}],
+            "details": {"opening_operations": [{"stage_name": "01_BDDL_Goal_At_Finish", "operation": "open", "exec_steps": 60,
+                "sustained_contact_ratio_percent": scr, "completed": opened}]}})
+    };
+    let t28 = |unlatched: bool| {
+        serde_json::json!({"stage_diagnostics": [
+            {"stage_name": "01_Unlatch_Door", "type": "mechanism_interaction", "required": true, "reached": true, "succeeded": unlatched},
+            {"stage_name": "02_Open_Door", "type": "mechanism_interaction", "required": true, "reached": unlatched, "succeeded": false}]})
+    };
+    write_fixture_batch(
+        &extra.join("main"),
+        "main_table",
+        &[
+            (11, 3, "none", 1, "SUCCESS", (1, 1), None),
+            (11, 3, "none", 2, "SUCCESS", (1, 1), None),
+            (16, 3, "none", 1, "SUCCESS", (1, 1), Some(t16(40.0, true))),
+            (16, 3, "none", 2, "FAIL", (0, 1), Some(t16(0.0, false))),
+            (28, 3, "none", 1, "FAIL", (1, 2), Some(t28(true))),
+            (28, 3, "none", 2, "FAIL", (0, 2), Some(t28(false))),
+        ],
+    );
+    write_fixture_batch(
+        &extra.join("ctx"),
+        "context",
+        &[(28, 3, "video", 1, "SUCCESS", (2, 2), None), (28, 3, "video", 2, "SUCCESS", (2, 2), None)],
+    );
+    let server = Server::start_with(&dir.path().join("data"), &["--batches", extra.to_str().unwrap()]);
+    let (status, html) = http_get_text(&format!("{}/results?batch=abl&batch=main&batch=ctx", server.url));
+    assert_eq!(status, 200, "{html}");
+    let table = |id: &str| {
+        let start = html.find(&format!("id=\"{id}\"")).unwrap_or_else(|| panic!("no table {id}: {html}"));
+        html[start..start + html[start..].find("</table>").unwrap()].to_owned()
+    };
+    // Table 2: L1/L2 from the observation batch, L3 (T11 stable: easy 100 over 1 of 5) from the main table.
+    let t2 = table("table-2");
+    assert!(t2.contains("<td>L1</td><td>100.0 (1/5)</td><td>— (0/5)</td><td>—</td><td>abl</td>"), "{t2}");
+    assert!(t2.contains("<td>L3</td><td>100.0 (1/5)</td><td>0.0 (1/5)</td><td>50.0</td><td>main</td>"), "{t2}");
+    // Table 3: None from the main table (T28 min c/K 0), Video from the context batch (T28 stable 1.0).
+    let t3 = table("table-3");
+    assert!(t3.contains("<td>None</td><td>— (0/5)</td><td>0.0 (1/5)</td><td>—</td><td>main</td>"), "{t3}");
+    assert!(t3.contains("<td>Video</td><td>— (0/5)</td><td>100.0 (1/5)</td><td>—</td><td>ctx</td>"), "{t3}");
+    // Table 4 from the T28 records: 4 opportunities, 3 reached, 1 success, both mechanism stages.
+    let t4 = table("table-4");
+    assert!(t4.contains("<td>2</td><td>4</td><td>3/4 = 75.0%</td><td>1/4 = 25.0%</td><td>—</td><td>1/3 = 33.3 [6.1, 79.2]</td>"), "{t4}");
+    // Figure 3 from the T16 records: SCR 40 opened, SCR 0 not; and its two plots, drawn inline.
+    let f3 = table("figure-3");
+    // (the T11 rollouts have no run directory: counted as without record)
+    assert!(f3.contains("<td>2 (+2 without record)</td><td>20.0%</td><td>1/2 = 50.0%</td><td>1.000</td><td>0/1 = 0.0 [0.0, 79.3]</td>"), "{f3}");
+    let plots = &html[html.find("id=\"figure-3-plots\"").expect("the plots")..];
+    assert_eq!(plots.matches("<svg xmlns=\"http://www.w3.org/2000/svg\"").count(), 2);
+    assert!(html.contains("id=\"appendix-e-short-horizon\"") && html.contains("id=\"appendix-e-long-horizon\""));
+
+    // The API: the same numbers as `report` over the same three batches.
+    let (_, api) = http_get_json(&format!("{}/api/results?batch=abl&batch=main&batch=ctx", server.url));
+    let dirs: Vec<String> = ["abl", "main", "ctx"].iter().map(|n| extra.join(n).to_string_lossy().into_owned()).collect();
+    let mut args: Vec<&str> = vec!["report", "--format", "json", "--reps", "2"];
+    args.extend(dirs.iter().map(String::as_str));
+    let report: Value = serde_json::from_slice(&libero(&args).stdout).unwrap();
+    for key in ["observation_ablation", "demonstration_ablation", "stage_diagnosis", "sustained_contact", "appendix_e"] {
+        assert_eq!(api["across_batches"][key], report[key], "{key}: the page and `report` disagree");
+    }
+}
+
 /// Chromium opens `/results` and clicks a T14 rollout through to its review page. Needs `python3
 /// scripts/setup.py --test` (chromium, node, playwright-core); fails saying so otherwise.
 #[test]
 fn chromium_clicks_a_results_cell_through_to_the_review() {
-    let chromium = std::env::var_os("LIBERO_AGENT_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| "/usr/bin/chromium".into());
-    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
-    let node_modules = cache.join("node/node_modules");
-    assert!(
-        chromium.is_file() && node_modules.join("playwright-core/package.json").is_file(),
-        "chromium or playwright-core missing: run `python3 scripts/setup.py --test`"
-    );
     let (_dir, server, _batch) = setup();
     let artifacts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/dashboard");
     std::fs::create_dir_all(&artifacts).unwrap();
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/dashboard/results_click.cjs");
-    let out = Command::new("node")
-        .arg(script)
-        .args([server.url.as_str(), "T14"])
-        .arg(&artifacts)
-        .env("NODE_PATH", &node_modules)
-        .env("LIBERO_AGENT_CHROMIUM", &chromium)
-        .env("LIBERO_OPERATOR_TOKEN", &server.token)
-        .output()
-        .expect("run node (Debian: apt-get install nodejs)");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    eprintln!("{stdout}{}", String::from_utf8_lossy(&out.stderr));
-    let last: Value = stdout.lines().last().and_then(|l| serde_json::from_str(l).ok()).expect("a JSON line from the script");
+    let last = common::browser_script("results_click.cjs", &[server.url.as_str(), "T14", &artifacts.to_string_lossy()], &server.token);
     assert_eq!(last["ok"], true, "{last}");
 }

@@ -1,17 +1,19 @@
 //! The Results page and `/api/results`: the paper's tables over the batch directories `libero-agent run`
 //! writes. The server finds batches under `<data>/batches/` and under every `serve --batches DIR` (a batch
 //! directory itself or a folder of them); each is read afresh per request, so a running batch's progress shows
-//! on refresh. Numbers come from [`report_json`] (the same code as `libero-agent report --format json`), one
-//! batch at a time, with the batch's own `--reps` unless `?reps=N`.
+//! on refresh. Numbers come from [`report_json`] (the same code as `libero-agent report --format json`): Table 1,
+//! progress and per-task cells one batch at a time with the batch's own `--reps` unless `?reps=N`; Tables 2–4,
+//! Figure 3 (SVG drawn here, on the server) and Appendix E across the selected batches of each agent, as `report`
+//! merges them, so the level-3 and no-demonstration rows come from the agent's main-table batch.
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use libero_metrics::{PAPER_REPS, Split, overall};
+use libero_metrics::{PAPER_REPS, Split};
 use serde_json::{Value, json};
 
-use libero_runner::report::{Row, coverage, pct, report_json, rows, wilson};
 use libero_runner::batch::{LoadedBatch, RolloutRecord, load_batch};
-use libero_runner::report::pool_rows;
+use libero_runner::report::tables::{DisplayTable, TableChoice, display_tables, paper_tables};
+use libero_runner::report::{Row, coverage, pct, pool_rows, report_json, rows, svg, wilson};
 
 /// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
 pub fn batch_roots(data: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {
@@ -147,8 +149,14 @@ fn episode_json(r: &RolloutRecord) -> Value {
     })
 }
 
+/// The stable rule's repetition count across the selection: the request's, else the first batch's `--reps`.
+fn selection_reps(batches: &[LoadedBatch], sel: &Selection) -> usize {
+    batches.first().map_or(sel.reps.unwrap_or(PAPER_REPS), |b| reps_of(b, sel))
+}
+
 /// `/api/results`: per batch its settings, progress, the report (as `report --format json` of that batch
-/// alone) and every recorded rollout with its review link.
+/// alone) and every recorded rollout with its review link; and `across_batches`, the report over the whole
+/// selection (`report` of every selected batch at once: Tables 2–4, Figure 3 and Appendix E per agent).
 pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) -> Value {
     let list: Vec<Value> = batches
         .iter()
@@ -169,7 +177,12 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
             })
         })
         .collect();
-    json!({"ok": true, "schema_version": "libero_agent.results.v1", "available": names, "batches": list})
+    let reps = selection_reps(batches, sel);
+    let across = report_json(batches, reps);
+    json!({"ok": true, "schema_version": "libero_agent.results.v1", "available": names, "batches": list,
+        "across_batches": {"reps": reps, "observation_ablation": across["observation_ablation"],
+            "demonstration_ablation": across["demonstration_ablation"], "stage_diagnosis": across["stage_diagnosis"],
+            "sustained_contact": across["sustained_contact"], "appendix_e": across["appendix_e"]}})
 }
 
 // ------------------------------------------------------------------------------------------- page view
@@ -246,12 +259,6 @@ pub struct TaskRow {
     pub cells: Vec<TaskCell>,
 }
 
-/// An ablation table: one line per condition of a batch.
-pub struct Ablation {
-    pub title: String,
-    pub heads: Vec<String>,
-    pub rows: Vec<Vec<String>>,
-}
 
 /// One suite of a pool batch (`run --experiment pool`).
 pub struct PoolSuiteRow {
@@ -283,7 +290,10 @@ pub struct View {
     pub progress: Vec<ProgressRow>,
     pub columns: Vec<String>,
     pub tasks: Vec<TaskRow>,
-    pub ablations: Vec<Ablation>,
+    /// Tables 2–4, Figure 3's numbers and Appendix E, across the selected batches of each agent (those with rows).
+    pub paper: Vec<DisplayTable>,
+    /// Figure 3 as inline SVG, drawn by the server (the same as `report --figures`).
+    pub figures: Vec<String>,
     /// Every rollout that does not count, with its reason.
     pub excluded: Vec<ExcludedRow>,
     pub any_running: bool,
@@ -307,7 +317,8 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
         progress: vec![],
         columns: vec![],
         tasks: vec![],
-        ablations: vec![],
+        paper: vec![],
+        figures: vec![],
         excluded: vec![],
         any_running: false,
     };
@@ -391,9 +402,6 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             });
         }
         pool_view(&mut v, b, reps);
-        if let Some(a) = ablation(&experiment, b, &batch_rows) {
-            v.ablations.push(a);
-        }
         cols.extend(batch_rows.into_iter().map(|r| (b, r)));
     }
     v.columns = cols.iter().map(|(b, r)| format!("{} · {} ({})", b.name(), agent_of(b), condition_label(r))).collect();
@@ -438,6 +446,12 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             split: Split::of_task(n).map(|s| s.as_str().to_owned()).unwrap_or_default(),
             cells,
         });
+    }
+    let reps = selection_reps(batches, sel);
+    let paper = paper_tables(batches, &rows(batches, reps), reps);
+    v.paper = display_tables(&paper, TableChoice::All, reps).into_iter().filter(|t| !t.rows.is_empty()).collect();
+    if !paper.sustained_contact.is_empty() {
+        v.figures = vec![svg::success_by_bin(&paper.sustained_contact), svg::mean_scr(&paper.sustained_contact)];
     }
     v
 }
@@ -505,36 +519,6 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
             });
         }
     }
-}
-
-/// The ablation tables of the paper: short-horizon manipulation by observation level, long-horizon context
-/// tasks by demonstration condition (Overall: mean of the easy and hard subsets).
-fn ablation(experiment: &str, b: &LoadedBatch, rows: &[Row]) -> Option<Ablation> {
-    let (title, by, easy, hard) = match experiment {
-        "manip_observation" => ("Observation ablation (short-horizon manipulation by level)", "Level", Split::ShortHorizonEasy, Split::ShortHorizonHard),
-        "context" => ("Context ablation (long-horizon tasks by demonstration)", "Demonstration", Split::LongHorizonEasy, Split::LongHorizonHard),
-        _ => return None,
-    };
-    let lines = rows
-        .iter()
-        .map(|r| {
-            let s = &r.summary;
-            let get = |sp| s.split(sp).and_then(|x| x.stable);
-            let both = get(easy).zip(get(hard)).map(|(e, h)| overall(e, h));
-            vec![
-                if experiment == "context" { r.condition.demo.as_str().to_owned() } else { format!("L{}", r.condition.level) },
-                coverage(s, easy),
-                coverage(s, hard),
-                pct(both),
-                wilson(&s.ordinary),
-            ]
-        })
-        .collect();
-    Some(Ablation {
-        title: format!("{title} — {} · {}", b.name(), agent_of(b)),
-        heads: vec![by.into(), easy.label().into(), hard.label().into(), "Overall".into(), "Ordinary SR [95% Wilson]".into()],
-        rows: lines,
-    })
 }
 
 #[cfg(test)]

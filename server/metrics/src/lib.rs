@@ -10,12 +10,21 @@
 //!
 //! INVALID and INTERRUPTED rollouts are excluded from every denominator (§4.8); a task whose valid rollouts
 //! number fewer than `reps` has no stable value and is listed as incomplete rather than guessed.
+//!
+//! The paper's other tables and its figure: the ablations (Tables 2 and 3, [`ablation`]), the stage-level diagnosis
+//! (Table 4, [`diagnosis`]) and the sustained-contact ratio of opening operations (Figure 3, [`contact`]).
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+pub mod ablation;
+pub mod contact;
+pub mod diagnosis;
 mod pool;
 mod wilson;
+pub use ablation::{AblationKind, AblationRow};
+pub use contact::{ContactSummary, OpeningOperation, ScrBin, ScrBinSummary, pearson, summarize_contact};
+pub use diagnosis::{FailureMode, StageDiagnosis, StageOpportunity, StageType, TypeExecution, diagnose};
 pub use pool::{PoolRollout, PoolSuiteSummary, PoolSummary, PoolTaskSummary, summarize_pool};
 pub use wilson::{Proportion, wilson_interval};
 

@@ -1,9 +1,18 @@
-//! `libero-agent report BATCH… [--format markdown|csv|json|latex]`: the paper's tables from batch
-//! directories, through the metrics crate. Rollouts are grouped by agent (`harness/model`) and condition
-//! (level, demonstration); several batches of the same agent combine (e.g. a re-run of INVALID rollouts).
-//! [`report_json`] is the JSON the dashboard's Results page reads.
+//! `libero-agent report BATCH… [--format markdown|csv|json|latex] [--table …] [--figures DIR]`: the paper's tables
+//! from batch directories, through the metrics crate. Rollouts are grouped by agent (`harness/model`) and condition
+//! (level, demonstration); several batches of the same agent combine (a re-run of INVALID rollouts, and the main
+//! table, observation and context batches whose conditions Tables 2 and 3 put side by side). Table 1 is here;
+//! Tables 2–4, Figure 3's data and Appendix E are in [`tables`], Figure 3's plots in [`svg`]. [`report_json`] is the
+//! JSON the dashboard's Results page reads.
 use std::fmt::Write as _;
 use std::path::PathBuf;
+
+#[path = "report_svg.rs"]
+pub mod svg;
+#[path = "report_tables.rs"]
+pub mod tables;
+
+use tables::TableChoice;
 
 use anyhow::bail;
 use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
@@ -13,6 +22,7 @@ use crate::batch::{Condition, LoadedBatch, RolloutRecord, load_batch, metrics_ro
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
+    #[value(alias = "md")]
     Markdown,
     Csv,
     Json,
@@ -32,6 +42,13 @@ pub struct ReportArgs {
     /// Rollouts per task the stable rule needs.
     #[arg(long, default_value_t = libero_metrics::PAPER_REPS)]
     pub reps: usize,
+    /// Which table Markdown, CSV and LaTeX print (JSON always holds every one): all, table1…table4, figure3 (its data),
+    /// appendix (the per-task tables of Appendix E, wide).
+    #[arg(long, value_enum, default_value = "all")]
+    pub table: TableChoice,
+    /// Also write Figure 3 to this folder: two SVG plots and their data (CSV, JSON).
+    #[arg(long, value_name = "DIR")]
+    pub figures: Option<PathBuf>,
 }
 
 /// One agent under one condition.
@@ -54,9 +71,12 @@ pub fn pool_rows(batches: &[LoadedBatch], reps: usize) -> Vec<(String, PoolSumma
     pool_rollouts(batches).into_iter().map(|(agent, rs)| (agent, summarize_pool(&rs, reps))).collect()
 }
 
-/// The report as JSON: batches (settings, harness version, counts) and per-row summaries.
+/// The report as JSON: batches (settings, harness version, counts), per-row summaries (Table 1), and Tables 2–4,
+/// Figure 3's data and Appendix E across the batches of each agent.
 pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
-    let rows: Vec<Value> = rows(batches, reps)
+    let table1 = rows(batches, reps);
+    let paper = tables::paper_tables(batches, &table1, reps);
+    let rows: Vec<Value> = table1
         .into_iter()
         .map(|r| json!({"agent": r.agent, "level": r.condition.level, "demo": r.condition.demo, "summary": r.summary}))
         .collect();
@@ -74,7 +94,9 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
             "reason": why, "worker": r.worker, "episode_id": r.episode_id}))
         .collect();
     json!({"schema_version": "libero_agent.report.v1", "reps": reps, "batches": meta, "rows": rows, "pool": pool,
-        "excluded": excluded})
+        "excluded": excluded, "observation_ablation": paper.observation_ablation,
+        "demonstration_ablation": paper.demonstration_ablation, "stage_diagnosis": paper.stage_diagnosis,
+        "sustained_contact": paper.sustained_contact, "appendix_e": paper.appendix_e})
 }
 
 /// The batches' rollouts that do not count (INVALID, INTERRUPTED), each with its reason, in batch order.
@@ -88,7 +110,7 @@ pub fn excluded(batches: &[LoadedBatch]) -> Vec<(&LoadedBatch, &RolloutRecord, S
 }
 
 /// `text` as one Markdown table cell.
-fn cell(text: &str) -> String {
+pub(crate) fn cell(text: &str) -> String {
     text.replace('|', "\\|").replace(['\n', '\r'], " ")
 }
 
@@ -130,7 +152,8 @@ fn score(s: &SuiteSummary) -> String {
     }
 }
 
-pub fn markdown(batches: &[LoadedBatch], reps: usize) -> String {
+/// The whole report as Markdown (with `choice`, one table of it).
+pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String {
     let rows = rows(batches, reps);
     let mut o = String::new();
     let _ = writeln!(o, "# LIBERO-Agent results\n");
@@ -150,6 +173,11 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize) -> String {
             b.records.len(),
             b.batch["outcomes"],
         );
+    }
+    let paper = tables::paper_tables(batches, &rows, reps);
+    if choice != TableChoice::All && choice != TableChoice::Table1 {
+        o.push_str(&tables::markdown(&paper, choice, reps));
+        return o;
     }
     let _ = writeln!(o, "\n## Stable performance (Table 1; {reps} rollouts per task, INVALID excluded)\n");
     let _ = writeln!(o, "Partial subsets show (scored/member tasks); a Score over a partial suite is a lower bound (≥).\n");
@@ -251,6 +279,9 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize) -> String {
             }
         }
     }
+    if choice == TableChoice::All {
+        o.push_str(&tables::markdown(&paper, choice, reps));
+    }
     o
 }
 
@@ -262,10 +293,27 @@ pub(crate) fn stable_word(s: Option<bool>) -> &'static str {
     }
 }
 
-pub fn csv(batches: &[LoadedBatch], reps: usize) -> String {
+/// The report as CSV, one block per table (`choice`: all, or one table). A single block prints as plain CSV; several
+/// are each headed by a `# name` line and separated by a blank line.
+pub fn csv(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String {
+    let table1 = rows(batches, reps);
+    let paper = tables::paper_tables(batches, &table1, reps);
+    let mut blocks = Vec::new();
+    if choice.wants(TableChoice::Table1) {
+        blocks.push(("table_1_stable_performance".to_owned(), csv_table1(&table1, batches, reps)));
+    }
+    blocks.extend(tables::csv_blocks(&paper, choice, reps));
+    match blocks.as_slice() {
+        [(_, only)] => only.clone(),
+        _ => blocks.iter().map(|(name, body)| format!("# {name}\n{body}")).collect::<Vec<_>>().join("\n"),
+    }
+}
+
+/// Table 1 (and the pool's per-suite lines) as CSV.
+fn csv_table1(table1: &[Row], batches: &[LoadedBatch], reps: usize) -> String {
     let mut o = String::from("agent,level,demo,split,member_tasks,scored_tasks,stable_percent,ordinary_successes,valid_rollouts,wilson_low_percent,wilson_high_percent\n");
     let f = |x: Option<f64>| x.map(|v| format!("{:.4}", 100.0 * v)).unwrap_or_default();
-    for r in rows(batches, reps) {
+    for r in table1 {
         for sp in &r.summary.splits {
             let _ = writeln!(
                 o,
@@ -296,20 +344,32 @@ pub fn csv(batches: &[LoadedBatch], reps: usize) -> String {
     o
 }
 
-pub fn latex(batches: &[LoadedBatch], reps: usize) -> String {
+/// The report as LaTeX tabulars (booktabs): Table 1, then (with `choice` `all`) the others, each after a `% caption`.
+pub fn latex(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String {
+    let table1 = rows(batches, reps);
+    let paper = tables::paper_tables(batches, &table1, reps);
+    let mut o = String::new();
+    if choice.wants(TableChoice::Table1) {
+        o.push_str(&latex_table1(&table1));
+    }
+    o.push_str(&tables::latex(&paper, choice, reps));
+    o
+}
+
+fn latex_table1(table1: &[Row]) -> String {
     let mut o = String::from(
         "\\begin{tabular}{lrrrrrrrrr}\n\\toprule\nAgent & Judg. Acc. & Perc. SR & Short Easy & Short Hard & Long Easy SC & Long Hard SC & Score & Time (min) & Tokens (M) \\\\\n\\midrule\n",
     );
-    let esc = |s: &str| s.replace('_', "\\_").replace('%', "\\%").replace('&', "\\&");
-    for r in rows(batches, reps) {
+    let esc = tables::tex;
+    for r in table1 {
         let s = &r.summary;
         let c = |sp| s.split(sp).and_then(|x| x.stable);
         let _ = writeln!(
             o,
             "{} & {} & {} & {} & {} & {} & {} & {} & {} & {} \\\\",
-            esc(&label(&r)), pct(s.judgment), pct(c(Split::Perception)), pct(c(Split::ShortHorizonEasy)),
+            esc(&label(r)), pct(s.judgment), pct(c(Split::Perception)), pct(c(Split::ShortHorizonEasy)),
             pct(c(Split::ShortHorizonHard)), pct(c(Split::LongHorizonEasy)), pct(c(Split::LongHorizonHard)),
-            esc(&score(s)).replace('≥', "$\\geq$"), opt(s.avg_wall_time_min, 1), opt(s.avg_tokens_millions, 2)
+            esc(&score(s)), opt(s.avg_wall_time_min, 1), opt(s.avg_tokens_millions, 2)
         );
     }
     o.push_str("\\bottomrule\n\\end{tabular}\n");
@@ -328,11 +388,17 @@ pub fn run(args: ReportArgs) -> anyhow::Result<()> {
         None => args.batches.iter().map(|d| load_batch(d)).collect::<anyhow::Result<Vec<_>>>()?,
     };
     let out = match args.format {
-        Format::Markdown => markdown(&batches, args.reps),
-        Format::Csv => csv(&batches, args.reps),
+        Format::Markdown => markdown(&batches, args.reps, args.table),
+        Format::Csv => csv(&batches, args.reps, args.table),
         Format::Json => serde_json::to_string_pretty(&report_json(&batches, args.reps))? + "\n",
-        Format::Latex => latex(&batches, args.reps),
+        Format::Latex => latex(&batches, args.reps, args.table),
     };
     print!("{out}");
+    if let Some(dir) = &args.figures {
+        let paper = tables::paper_tables(&batches, &rows(&batches, args.reps), args.reps);
+        for path in tables::write_figures(&paper, dir).map_err(|e| anyhow::anyhow!("cannot write figures to {}: {e}", dir.display()))? {
+            eprintln!("wrote {}", path.display());
+        }
+    }
     Ok(())
 }

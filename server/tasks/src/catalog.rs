@@ -114,6 +114,12 @@ impl CheckerSpec {
     pub fn is_bddl_terminal(&self) -> bool {
         matches!(self.kind.as_str(), "bddl_terminal" | "bddl_terminal_open")
     }
+
+    /// Every stage its parameters list (`stages`, then `optional_stages`) with the type it declares (paper Table 4:
+    /// Object Manipulation / Mechanism Interaction); `None` where a stage declares none.
+    pub fn stage_types(&self) -> Result<Vec<(String, Option<crate::judge::stage_types::StageType>)>, String> {
+        crate::judge::stage_types::declared_stage_types(&self.params)
+    }
 }
 
 /// An input the agent receives besides the instruction (protocol §3.9: T22's goal image).
@@ -337,6 +343,7 @@ fn validate(m: &Manifest) -> Result<(), String> {
         if t.implemented && !crate::registry::EVALUATOR_KINDS.contains(&t.checker.kind.as_str()) {
             return Err(at(format!("checker {} has no evaluator in this build", t.checker.kind)));
         }
+        t.checker.stage_types().map_err(at)?;
     }
     Ok(())
 }

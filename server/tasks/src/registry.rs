@@ -20,6 +20,7 @@ use crate::families::vlabench::seesaw_adaptive::{self, AdaptiveSeesaw};
 use crate::families::vlabench::seesaw_comparison::{self, WeightComparison};
 use crate::families::vlabench::tube_insertion::{self, TubeInsertion};
 use crate::families::{adapted, libero, long_horizon, perception, vlabench};
+use crate::judge::annotated::Annotated;
 use crate::judge::evaluator::Evaluator;
 use crate::judge::support::scene_goal_and_commitment;
 
@@ -77,7 +78,9 @@ pub fn apply_private_model_edits(checker: Option<&CheckerSpec>, task_id: Option<
 }
 
 /// The evaluator for `checker` on `scene` (compiled as `model`). `None` — a stock LIBERO task without a suite
-/// entry — is judged like `bddl_terminal`: the scene's own BDDL goal on the final state.
+/// entry — is judged like `bddl_terminal`: the scene's own BDDL goal on the final state. Every evaluator comes
+/// with the catalog's annotations ([`Annotated`]): the declared stage types, and the opening operations of the goal
+/// for kinds that do not delimit operations by stage themselves.
 pub fn build_evaluator(
     checker: Option<&CheckerSpec>,
     task_id: Option<&str>,
@@ -85,6 +88,24 @@ pub fn build_evaluator(
     model: &MjModel,
 ) -> Result<Box<dyn Evaluator>, TasksError> {
     let kind = checker.map_or(bddl_terminal::CHECKER, |c| c.kind.as_str());
+    let stage_types = match checker {
+        Some(c) => c.stage_types().map_err(|message| TasksError::Catalog { path: task_id.unwrap_or("task").to_owned(), message })?,
+        None => Vec::new(),
+    };
+    let typed = stage_types.into_iter().filter_map(|(name, t)| t.map(|t| (name, t))).collect();
+    let staged = matches!(kind, staged::CHECKER_ORDERED | staged::CHECKER_UNORDERED | staged::CHECKER_BUFFER_ROTATION);
+    let inner = build_kind(kind, checker, task_id, scene, model)?;
+    Ok(Box::new(Annotated::new(inner, typed, !staged, scene, model)?))
+}
+
+/// The evaluator of checker type `kind`, unannotated.
+fn build_kind(
+    kind: &str,
+    checker: Option<&CheckerSpec>,
+    task_id: Option<&str>,
+    scene: &ComposedScene,
+    model: &MjModel,
+) -> Result<Box<dyn Evaluator>, TasksError> {
     match kind {
         "bddl_terminal" | "bddl_terminal_open" => {
             let (goal, commitment) = scene_goal_and_commitment(scene, model)?;

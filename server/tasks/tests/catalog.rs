@@ -79,3 +79,46 @@ fn implemented_tasks_run_from_available_files_and_others_say_why_not() {
         }
     }
 }
+
+/// Table 4 labels every stage of a staged task Object Manipulation or Mechanism Interaction: each stage the release
+/// catalog and the pool list (required and optional) declares its type, and the long-horizon tasks' required stages,
+/// typed, are exactly K.
+#[test]
+fn every_stage_of_every_staged_task_declares_its_type() {
+    use libero_tasks::judge::stage_types::{StageType, declared_stage_types};
+    let catalog = Catalog::discover().unwrap();
+    let mut typed = std::collections::BTreeMap::<StageType, usize>::new();
+    for t in catalog.tasks() {
+        let stages = t.checker.stage_types().unwrap_or_else(|e| panic!("{}: {e}", t.id));
+        for (name, ty) in &stages {
+            let ty = ty.unwrap_or_else(|| panic!("{}: stage {name} declares no type", t.id));
+            *typed.entry(ty).or_default() += 1;
+        }
+        if t.category == Category::LongHorizon {
+            let required = t.checker.params["stages"].as_array().map_or(0, Vec::len);
+            assert_eq!(required, t.stage_count, "{}: the typed required stages are the K stages", t.id);
+        }
+    }
+    // The mechanism stages of the long-horizon tasks: the stoves and microwaves of T21/T22, T23's drawers, T27's drawer,
+    // T28's door, T30's seesaw lift; everything else moves objects.
+    let mechanism = |id: &str| -> Vec<String> {
+        let t = catalog.get(id).unwrap();
+        t.checker.stage_types().unwrap().into_iter().filter(|(_, ty)| *ty == Some(StageType::MechanismInteraction)).map(|(n, _)| n).collect()
+    };
+    assert_eq!(mechanism("T21"), ["Second_Stove_On", "First_Stove_On", "Microwave_Open"]);
+    assert_eq!(mechanism("T27"), ["01_Open_Middle_Drawer", "04_Close_Middle_Drawer"]);
+    assert_eq!(mechanism("T28"), ["01_Unlatch_Door", "02_Open_Door"]);
+    assert!(mechanism("T26").is_empty() && mechanism("T29").is_empty());
+    assert!(typed.values().all(|&n| n > 10), "{typed:?}");
+
+    let pool = libero_tasks::Pool::discover().unwrap();
+    let mut pool_stages = 0;
+    for e in pool.entries() {
+        let Some(d) = &e.definition else { continue };
+        for (name, ty) in declared_stage_types(&d.checker_params).unwrap_or_else(|err| panic!("{}: {err}", e.id())) {
+            assert!(ty.is_some(), "{}: stage {name} declares no type", e.id());
+            pool_stages += 1;
+        }
+    }
+    assert!(pool_stages >= 80, "the pool's staged entries were checked: {pool_stages} stages");
+}

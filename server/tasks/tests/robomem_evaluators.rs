@@ -116,7 +116,15 @@ fn t23_occupied_drawer_is_bound_at_reset_to_the_region_nearest_the_hidden_object
     assert_eq!(details["bindings"]["occupied_drawer"], "wooden_cabinet_1_top_region");
     assert!(r.success, "{r:#?}");
     assert_eq!(r.completed_required_stage_count, 8);
-    assert_eq!(details["opening_operations"].as_array().unwrap().len(), 6, "stages 01–06 monitor handle contact");
+    // stages 01–06 name their handle (openings and closings), and stage 07 reopens the bound drawer: an opening found
+    // from its `drawer_open` atom, on the occupied drawer's body
+    let ops = details["opening_operations"].as_array().unwrap();
+    let kinds: Vec<(&str, &str)> = ops.iter().map(|o| (o["stage_name"].as_str().unwrap(), o["operation"].as_str().unwrap())).collect();
+    assert_eq!(kinds.len(), 7, "{kinds:?}");
+    assert_eq!(kinds[1], ("02_Close_Top_Drawer", "close"));
+    assert_eq!(kinds[6], ("07_Open_Occupied_Drawer_Again", "open"));
+    assert_eq!(ops[6]["mechanism_bodies"], serde_json::json!(["wooden_cabinet_1_cabinet_top"]), "the bound top drawer moves");
+    assert_eq!(ops[0]["mechanism_bodies"], ops[6]["mechanism_bodies"], "the named handle is the drawer's moving body");
 
     // the same scene with the cream cheese moved into the middle drawer before the reset: the middle drawer is the
     // occupied one, and reopening the top drawer no longer completes stage 07

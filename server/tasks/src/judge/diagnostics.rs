@@ -8,13 +8,21 @@
 //! * **regressed_during_later_stage** — a completed stage whose condition stopped holding while a later stage was
 //!   being worked on: the paper's cross-stage interference (an action in one stage undoing another's state).
 //! * **failure_reason** — on the first reached stage that did not succeed, why the episode failed.
+//! * **type** — the stage type the catalog declares (Object Manipulation / Mechanism Interaction), for Table 4.
+//! * **operation** — for a stage with a monitored mechanism operation, which way it moves the mechanism, with the
+//!   operation's sustained-contact ratio (see [`crate::judge::mechanism`]).
 use serde::Serialize;
+use serde_json::Value;
 
 use crate::judge::evaluator::{EvaluationRecord, EventKind};
+use crate::judge::mechanism::OperationKind;
+use crate::judge::stage_types::StageType;
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct StageDiagnostic {
     pub stage_name: String,
+    #[serde(rename = "type", skip_serializing_if = "Option::is_none")]
+    pub stage_type: Option<StageType>,
     pub required: bool,
     pub reached: bool,
     pub succeeded: bool,
@@ -22,10 +30,12 @@ pub struct StageDiagnostic {
     pub completed_control_step: Option<u64>,
     pub regressions: u32,
     pub regressed_during_later_stage: bool,
-    /// Share of the operation's control steps inside gripper–handle contact runs of ≥ 5 steps (opening stages of
-    /// evaluators that monitor contact; `None` elsewhere).
+    /// Share of the operation's control steps inside gripper–mechanism contact runs of ≥ 5 steps (stages with a
+    /// monitored mechanism operation; `None` elsewhere).
     pub sustained_contact_ratio_percent: Option<f64>,
     pub contact_exec_steps: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub operation: Option<OperationKind>,
     pub failure_reason: Option<String>,
 }
 
@@ -76,10 +86,21 @@ pub fn stage_diagnostics(record: &EvaluationRecord) -> Vec<StageDiagnostic> {
             regressed_during_later_stage,
             sustained_contact_ratio_percent: op.and_then(|o| o["sustained_contact_ratio_percent"].as_f64()),
             contact_exec_steps: op.and_then(|o| o["exec_steps"].as_u64()),
+            operation: op.and_then(|o| operation_kind(&o["operation"])),
+            stage_type: record.stage_types.iter().find(|(n, _)| n == name).map(|&(_, t)| t),
             failure_reason,
         });
     }
     out
+}
+
+fn operation_kind(v: &Value) -> Option<OperationKind> {
+    match v.as_str()? {
+        "open" => Some(OperationKind::Open),
+        "close" => Some(OperationKind::Close),
+        "operate" => Some(OperationKind::Operate),
+        _ => None,
+    }
 }
 
 #[cfg(test)]
@@ -107,9 +128,20 @@ mod tests {
         r.stage_regressions = vec![StageRegressions { stage_name: "01_Open".into(), count: 1 }];
         r.failure_reason = Some(FailureReason::IncompleteStage);
         r.details = Some(json!({"opening_operations": [
-            {"stage_name": "01_Open", "exec_steps": 40, "sustained_contact_ratio_percent": 62.5}
+            {"stage_name": "01_Open", "operation": "open", "exec_steps": 40, "sustained_contact_ratio_percent": 62.5}
         ]}));
+        r.stage_types = vec![("01_Open".into(), StageType::MechanismInteraction), ("02_Place".into(), StageType::ObjectManipulation)];
         r
+    }
+
+    #[test]
+    fn each_stage_carries_the_type_the_catalog_declares() {
+        let d = stage_diagnostics(&ordered_record());
+        let types: Vec<Option<StageType>> = d.iter().map(|s| s.stage_type).collect();
+        assert_eq!(types, [Some(StageType::MechanismInteraction), Some(StageType::ObjectManipulation), None, None]);
+        assert_eq!(serde_json::to_value(&d[0]).unwrap()["type"], "mechanism_interaction");
+        assert!(serde_json::to_value(&d[2]).unwrap().get("type").is_none());
+        assert_eq!((d[0].operation, d[1].operation), (Some(OperationKind::Open), None));
     }
 
     #[test]

@@ -338,6 +338,10 @@ pub struct EvaluationRecord {
     /// [`EvaluationRecord::with_stage_diagnostics`] (never filled by evaluators themselves).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub stage_diagnostics: Vec<crate::judge::diagnostics::StageDiagnostic>,
+    /// The stage types the catalog declares, by stage name (set by the registry's [`crate::judge::annotated`]
+    /// wrapper, read by the diagnostics; not part of the record's JSON).
+    #[serde(skip)]
+    pub stage_types: Vec<(String, crate::judge::stage_types::StageType)>,
     /// Every stage is available from the start (the unordered cooking goals) instead of one after another; read by
     /// the diagnostics, set by the evaluator that knows (not part of the record's JSON).
     #[serde(skip)]
@@ -371,6 +375,7 @@ impl EvaluationRecord {
             judgment_correct: None,
             details: None,
             stage_diagnostics: Vec::new(),
+            stage_types: Vec::new(),
             stages_unordered: false,
         }
     }

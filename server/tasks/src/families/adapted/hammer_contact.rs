@@ -41,6 +41,7 @@ pub struct HammerParams {
     pub hammer_lift_m: f64,
     pub nail_drive_m: f64,
     pub contact_distance_max_m: f64,
+    #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
 }
 

@@ -28,6 +28,7 @@ pub struct PourParams {
     pub target_site: String,
     #[serde(flatten)]
     pub counter: PourCounterConfig,
+    #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
 }
 

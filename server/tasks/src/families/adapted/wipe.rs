@@ -48,6 +48,7 @@ pub struct WipeParams {
     pub rest_region: String,
     pub release_clear_distance_m: f64,
     pub table_body: String,
+    #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
 }
 

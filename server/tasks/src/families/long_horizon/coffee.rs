@@ -53,6 +53,7 @@ pub struct CoffeeParams {
     pub clearance_m: f64,
     /// Geoms whose name ends with this are the coffee, drawn transparent until brewed.
     pub liquid_geom_suffix: String,
+    #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
 }
 

@@ -40,9 +40,14 @@
 //! `sample_substeps` the stage logic also runs after every physics substep (same rules at both rates).
 //!
 //! Completed stages are re-tested every control step: a completed stage whose conjunction stops holding is recorded
-//! as a regression (event + count), and stays completed. For stages naming a `contact_body` (opening operations), the
-//! sustained-contact ratio is recorded as a diagnostic: over the control steps the stage was current, the share of
-//! steps inside gripper–handle contact runs of ≥ 5 steps (paper_results: SCR = N_sustained / N_exec).
+//! as a regression (event + count), and stays completed. Mechanism operations record the sustained-contact ratio as a
+//! diagnostic (paper Figure 3: SCR = N_sustained / N_exec, [`crate::judge::mechanism`]): every stage whose atoms
+//! open an articulation (`bddl open`, `drawer_open`, a `joint` bound toward its class's open test) is an opening
+//! operation on the moving bodies of the articulations it tests, and a stage naming a `contact_body` is an operation
+//! on that body whatever its direction (T23's closings, T28's latch). Ordered modes count the control steps the stage
+//! was current; the unordered mode, where every goal is available at once, counts from the first gripper contact with
+//! the mechanism while the opening is pending. Each stage's catalog `type` (object_manipulation /
+//! mechanism_interaction) is checked here and reported by the stage diagnostics.
 use std::sync::Arc;
 
 use libero_bddl::{Atom as BddlAtom, Pos};
@@ -58,16 +63,16 @@ use crate::judge::evaluator::{
     TerminalCheck, Tick, score_percent,
 };
 use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{CompiledAtom, EntityRef, SceneIndex, SubtreeContact, in_subtree};
+pub use crate::judge::mechanism::{ContactMonitor, SUSTAINED_RUN_STEPS};
+use crate::judge::mechanism::{GripperContact, OperationKind, PendingOpening, Window, body_names, joint_operation, moving_bodies};
+use crate::judge::predicates::{CompiledAtom, EntityRef, PredicateKind, SceneIndex, SubtreeContact, in_subtree};
+use crate::judge::stage_types::StageType;
 use crate::judge::pouring::{PourCounterConfig, PourTracker};
 
 pub const CHECKER_ORDERED: &str = "private_ordered_stages";
 pub const CHECKER_UNORDERED: &str = "private_unordered_goal_predicates";
 /// T25's checker: strict stages, substep sampling and the bowl–table contact guard, all from the manifest params.
 pub const CHECKER_BUFFER_ROTATION: &str = "private_ordered_buffer_rotation_and_tabletop_avoidance";
-
-/// Minimum contact run (control steps) that counts as sustained.
-pub const SUSTAINED_RUN_STEPS: u32 = 5;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -161,8 +166,12 @@ pub struct FailureMonitorParams {
 #[derive(Debug, Clone, Deserialize)]
 pub struct StageParams {
     pub name: String,
+    /// The stage's type for the stage-level diagnosis (read from the catalog by [`crate::judge::stage_types`]).
+    #[serde(default, rename = "type")]
+    pub stage_type: Option<StageType>,
     pub all: Vec<AtomSpec>,
-    /// Body (subtree) whose contact with the gripper is monitored while this stage is current (opening operations).
+    /// Body (subtree) whose contact with the gripper is monitored while this stage is current, instead of the
+    /// moving bodies its atoms imply (a handle narrower than the door, or a closing).
     #[serde(default)]
     pub contact_body: Option<String>,
 }
@@ -501,11 +510,66 @@ fn compile(spec: &AtomSpec, names: &Names) -> Result<Check, TasksError> {
     })
 }
 
+/// A body of a mechanism operation: fixed, or a bound drawer site's body (known at reset).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum BodySource {
+    Body(usize),
+    BoundSite(usize),
+}
+
+/// The mechanism operation a stage performs: which way, on which bodies' subtrees.
+#[derive(Debug, Clone)]
+struct StageOperation {
+    kind: OperationKind,
+    bodies: Vec<BodySource>,
+}
+
+/// The first articulation direction `atoms` move (searching `any`/`all`, not `not`) with the bodies of every atom
+/// moving that way.
+fn operation_of(atoms: &[AtomSpec], names: &Names) -> Option<StageOperation> {
+    fn walk(a: &AtomSpec, names: &Names, out: &mut Vec<(OperationKind, BodySource)>) {
+        let (index, model) = (names.index, names.model);
+        let site_body = |site: &str| match site.strip_prefix('$') {
+            Some(b) => names.bindings.iter().position(|n| n == b).map(BodySource::BoundSite),
+            None => model.name_to_id(MjtObjBase::mjOBJ_SITE, site).map(|s| BodySource::Body(model.site_bodyid()[s] as usize)),
+        };
+        match a {
+            AtomSpec::Bddl(words) if words.len() == 2 => {
+                let kind = match PredicateKind::parse(&words[0]) {
+                    Some(PredicateKind::Open) => OperationKind::Open,
+                    Some(PredicateKind::Close) => OperationKind::Close,
+                    _ => return,
+                };
+                if let Some(e) = index.resolve(&words[1]) {
+                    out.extend(moving_bodies(index, model, e).into_iter().map(|b| (kind, BodySource::Body(b))));
+                }
+            }
+            AtomSpec::DrawerOpen { site, .. } => out.extend(site_body(site).map(|b| (OperationKind::Open, b))),
+            AtomSpec::DrawerClosed { site, .. } => out.extend(site_body(site).map(|b| (OperationKind::Close, b))),
+            AtomSpec::Joint { name, min, max, abs } => {
+                if let (Some(kind), Some(body)) = (joint_operation(index, name, *min, *max, *abs), crate::judge::mechanism::joint_body(model, name)) {
+                    out.push((kind, BodySource::Body(body)));
+                }
+            }
+            AtomSpec::Any(items) | AtomSpec::All(items) => items.iter().for_each(|i| walk(i, names, out)),
+            _ => {}
+        }
+    }
+    let mut found = Vec::new();
+    atoms.iter().for_each(|a| walk(a, names, &mut found));
+    let kind = found.first()?.0;
+    let mut bodies: Vec<BodySource> = found.into_iter().filter(|(k, _)| *k == kind).map(|(_, b)| b).collect();
+    bodies.dedup();
+    Some(StageOperation { kind, bodies })
+}
+
 #[derive(Debug, Clone)]
 struct Stage {
     name: String,
     all: Vec<Check>,
-    contact_body: Option<usize>,
+    /// The mechanism operation monitored for its sustained-contact ratio: a named `contact_body` (any direction), else
+    /// an opening the atoms imply.
+    operation: Option<StageOperation>,
     /// pour counters its atoms read
     counters: Vec<usize>,
 }
@@ -513,56 +577,22 @@ struct Stage {
 impl Stage {
     fn compile(p: &StageParams, names: &Names) -> Result<Self, TasksError> {
         let all = p.all.iter().map(|a| compile(a, names)).collect::<Result<Vec<_>, _>>()?;
-        let contact_body = match &p.contact_body {
-            Some(b) => Some(names.model.name_to_id(MjtObjBase::mjOBJ_BODY, b).ok_or_else(|| scene_err("body", b))?),
-            None => None,
+        let implied = operation_of(&p.all, names);
+        let operation = match &p.contact_body {
+            Some(b) => {
+                let body = names.model.name_to_id(MjtObjBase::mjOBJ_BODY, b).ok_or_else(|| scene_err("body", b))?;
+                let kind = implied.map_or(OperationKind::Operate, |o| o.kind);
+                Some(StageOperation { kind, bodies: vec![BodySource::Body(body)] })
+            }
+            None => implied.filter(|o| o.kind == OperationKind::Open && !o.bodies.is_empty()),
         };
         let mut counters = Vec::new();
         all.iter().for_each(|a| a.counters(&mut counters));
-        Ok(Self { name: p.name.clone(), all, contact_body, counters })
+        Ok(Self { name: p.name.clone(), all, operation, counters })
     }
 
     fn holds(&self, c: &Ctx) -> bool {
         self.all.iter().all(|a| a.holds(c))
-    }
-}
-
-/// Gripper–handle contact over one operation (the control steps a monitored stage was current).
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct ContactMonitor {
-    pub stage_name: String,
-    pub exec_steps: u32,
-    /// Lengths of the contact runs, in order.
-    pub runs: Vec<u32>,
-    #[serde(skip)]
-    current_run: u32,
-}
-
-impl ContactMonitor {
-    fn step(&mut self, contact: bool) {
-        self.exec_steps += 1;
-        if contact {
-            self.current_run += 1;
-        } else if self.current_run > 0 {
-            self.runs.push(self.current_run);
-            self.current_run = 0;
-        }
-    }
-
-    fn close(&mut self) {
-        if self.current_run > 0 {
-            self.runs.push(self.current_run);
-            self.current_run = 0;
-        }
-    }
-
-    /// Steps inside runs of ≥ [`SUSTAINED_RUN_STEPS`].
-    pub fn sustained_steps(&self) -> u32 {
-        self.runs.iter().chain((self.current_run > 0).then_some(&self.current_run)).filter(|&&r| r >= SUSTAINED_RUN_STEPS).sum()
-    }
-
-    pub fn ratio_percent(&self) -> f64 {
-        if self.exec_steps == 0 { 0.0 } else { 100.0 * f64::from(self.sustained_steps()) / f64::from(self.exec_steps) }
     }
 }
 
@@ -793,10 +823,14 @@ pub struct StagedEvaluator {
     stages: Vec<Stage>,
     n_required: usize,
     terminal: Vec<Stage>,
-    gripper_bodies: Vec<bool>,
+    gripper: GripperContact,
     site_names: Vec<String>,
-    body_parent: Vec<i32>,
-    geom_body: Vec<usize>,
+    /// site id → the body carrying it (a drawer's region site moves with the drawer)
+    site_body: Vec<usize>,
+    /// body id → name, for the operations' records
+    body_name: Vec<String>,
+    /// stage → the bodies of its operation, resolved at reset (bindings are bound then)
+    operation_bodies: Vec<Vec<usize>>,
     base: Baseline,
     bindings: Vec<Binding>,
     pours: Vec<PourSlot>,
@@ -804,8 +838,11 @@ pub struct StagedEvaluator {
     tracker: StageTracker,
     /// unordered mode: the satisfied-goal set over the episode
     goals: GoalSetTracker,
-    monitors: Vec<ContactMonitor>,
+    /// (stage, monitor) of every ordered-mode operation so far
+    monitors: Vec<(usize, ContactMonitor)>,
     monitor_open: Option<(usize, usize)>,
+    /// unordered mode: (stage, its opening) for every stage that opens a mechanism
+    pending_openings: Vec<(usize, PendingOpening)>,
     events: Vec<PrivateEvent>,
     sample_substeps: bool,
     guards: Vec<ForbiddenContactGuard>,
@@ -873,9 +910,6 @@ impl StagedEvaluator {
         let guards =
             params.forbidden_contacts.iter().map(|g| ForbiddenContactGuard::compile(g, &index, model)).collect::<Result<Vec<_>, _>>()?;
         let nbody = model.ffi().nbody as usize;
-        let gripper_bodies = (0..nbody)
-            .map(|b| model.id_to_name(MjtObjBase::mjOBJ_BODY, b).is_some_and(|n| n.starts_with("gripper0_")))
-            .collect();
         let specs = Self::specs(&stages, n_required);
         let goals = GoalSetTracker::new(stages_names(&stages), n_required);
         Ok(Self {
@@ -888,10 +922,11 @@ impl StagedEvaluator {
             stages,
             n_required,
             terminal,
-            gripper_bodies,
+            gripper: GripperContact::new(model),
             site_names: (0..model.ffi().nsite as usize).map(|s| model.id_to_name(MjtObjBase::mjOBJ_SITE, s).unwrap_or_default().to_owned()).collect(),
-            body_parent: model.body_parentid().to_vec(),
-            geom_body: model.geom_bodyid().iter().map(|&b| b as usize).collect(),
+            site_body: model.site_bodyid().iter().map(|&b| b as usize).collect(),
+            body_name: body_names(model, &(0..nbody).collect::<Vec<_>>()),
+            operation_bodies: Vec::new(),
             base: Baseline::default(),
             bindings,
             pours,
@@ -900,6 +935,7 @@ impl StagedEvaluator {
             goals,
             monitors: Vec::new(),
             monitor_open: None,
+            pending_openings: Vec::new(),
             events: Vec::new(),
             sample_substeps: params.sample_substeps,
             guards,
@@ -913,12 +949,30 @@ impl StagedEvaluator {
         stages.iter().enumerate().map(|(i, s)| StageSpec { name: s.name.clone(), required: i < n_required }).collect()
     }
 
-    fn gripper_touches(&self, data: &SimData, body: usize) -> bool {
-        data.contact().iter().any(|c| {
-            let (b1, b2) = (self.geom_body[c.geom[0] as usize], self.geom_body[c.geom[1] as usize]);
-            (self.gripper_bodies[b1] && in_subtree(&self.body_parent, b2, body))
-                || (self.gripper_bodies[b2] && in_subtree(&self.body_parent, b1, body))
-        })
+    /// The bodies of every stage's operation on this episode (a bound site is bound at reset).
+    fn resolve_operation_bodies(&self) -> Vec<Vec<usize>> {
+        self.stages
+            .iter()
+            .map(|s| {
+                let sources = s.operation.iter().flat_map(|o| &o.bodies);
+                let mut bodies: Vec<usize> = sources
+                    .filter_map(|&b| match b {
+                        BodySource::Body(b) => Some(b),
+                        BodySource::BoundSite(k) => self.base.bound.get(k).and_then(|&site| self.site_body.get(site).copied()),
+                    })
+                    .collect();
+                bodies.dedup();
+                bodies
+            })
+            .collect()
+    }
+
+    /// The record of an operation: which way, on which bodies, and whether its stage completed.
+    fn operation_json(&self, stage: usize, monitor: &ContactMonitor, window: Window, completed: bool) -> serde_json::Value {
+        let kind = self.stages[stage].operation.as_ref().map_or(OperationKind::Operate, |o| o.kind);
+        let bodies: Vec<String> =
+            self.operation_bodies.get(stage).into_iter().flatten().map(|&b| self.body_name.get(b).cloned().unwrap_or_default()).collect();
+        monitor.to_json(kind, window, &bodies, completed)
     }
 
     fn site_name(&self, site: usize) -> String {
@@ -980,20 +1034,28 @@ impl StagedEvaluator {
             && current != Some(stage)
         {
             if let Some((_, m)) = self.monitor_open.take() {
-                self.monitors[m].close();
+                self.monitors[m].1.close();
             }
         }
         if let Some(i) = current
-            && let Some(body) = self.stages[i].contact_body
+            && self.stages[i].operation.is_some()
         {
             if self.monitor_open.is_none() {
-                self.monitors.push(ContactMonitor { stage_name: self.stages[i].name.clone(), ..Default::default() });
+                self.monitors.push((i, ContactMonitor::new(self.stages[i].name.clone())));
                 self.monitor_open = Some((i, self.monitors.len() - 1));
             }
-            let contact = self.gripper_touches(data, body);
+            let contact = self.operation_bodies.get(i).is_some_and(|b| self.gripper.touches(data, b));
             if let Some((_, m)) = self.monitor_open {
-                self.monitors[m].step(contact);
+                self.monitors[m].1.step(contact);
             }
+        }
+    }
+
+    /// Unordered mode: each pending opening, after the goals were sampled on this control step.
+    fn observe_pending_openings(&mut self, data: &SimData) {
+        for (i, opening) in &mut self.pending_openings {
+            let touching = self.gripper.touches(data, &opening.bodies);
+            opening.step(touching, self.goals.holding.get(*i).copied().unwrap_or(false));
         }
     }
 
@@ -1076,12 +1138,29 @@ impl Evaluator for StagedEvaluator {
         self.tracker = StageTracker::new(Self::specs(&self.stages, self.n_required));
         self.monitors.clear();
         self.monitor_open = None;
+        self.operation_bodies = self.resolve_operation_bodies();
         self.events.clear();
         self.control_steps = 0;
         self.substeps = 0;
         self.forbidden = None;
         self.commitment.reset(&self.index, data);
         let now = self.holding_now(data);
+        self.pending_openings = if self.order == OrderMode::Unordered {
+            self.stages
+                .iter()
+                .enumerate()
+                .filter(|(_, s)| s.operation.as_ref().is_some_and(|o| o.kind == OperationKind::Open))
+                .map(|(i, s)| {
+                    let bodies = self.operation_bodies[i].clone();
+                    let names = bodies.iter().map(|&b| self.body_name.get(b).cloned().unwrap_or_default()).collect();
+                    let mut opening = PendingOpening::named(s.name.clone(), bodies, names);
+                    opening.reset(now[i]);
+                    (i, opening)
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         self.goals.reset(now, tick);
     }
 
@@ -1098,6 +1177,9 @@ impl Evaluator for StagedEvaluator {
             self.observe_monitor(data);
         }
         self.sample(data, tick, true);
+        if self.forbidden.is_none() && self.order == OrderMode::Unordered {
+            self.observe_pending_openings(data);
+        }
         if let Some(e) = self.commitment.observe_event(&self.index, data, tick) {
             self.events.push(e);
         }
@@ -1143,17 +1225,15 @@ impl Evaluator for StagedEvaluator {
             }
         }
         if let Some((_, m)) = self.monitor_open.take() {
-            self.monitors[m].close();
+            self.monitors[m].1.close();
         }
-        if !self.monitors.is_empty() {
-            let ops: Vec<_> = self
-                .monitors
-                .iter()
-                .map(|m| {
-                    json!({"stage_name": m.stage_name, "exec_steps": m.exec_steps, "contact_runs": m.runs,
-                        "sustained_steps": m.sustained_steps(), "sustained_contact_ratio_percent": m.ratio_percent()})
-                })
-                .collect();
+        let mut ops: Vec<serde_json::Value> = self
+            .monitors
+            .iter()
+            .map(|(i, m)| self.operation_json(*i, m, Window::StageCurrent, self.tracker.is_completed(*i)))
+            .collect();
+        ops.extend(self.pending_openings.iter().filter_map(|(_, o)| o.to_json(None)));
+        if !ops.is_empty() {
             details.insert("opening_operations".into(), json!(ops));
         }
         if !self.bindings.is_empty() {
@@ -1217,18 +1297,6 @@ fn near_xy(dx: f64, dy: f64, max_m: f64, square: bool) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn sustained_contact_counts_only_runs_of_five_or_more() {
-        let mut m = ContactMonitor::default();
-        for c in [true, true, false, true, true, true, true, true, false, false, true] {
-            m.step(c);
-        }
-        m.close();
-        assert_eq!(m.runs, [2, 5, 1]);
-        assert_eq!(m.sustained_steps(), 5);
-        assert!((m.ratio_percent() - 100.0 * 5.0 / 11.0).abs() < 1e-12);
-    }
 
     fn guard() -> ForbiddenContactGuard {
         use GuardSide::*;

@@ -56,6 +56,7 @@ pub struct SeesawParams {
     pub weight_dz_range_m: [f64; 2],
     pub hinge_lift_rad: f64,
     pub target_lift_m: f64,
+    #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
 }
 

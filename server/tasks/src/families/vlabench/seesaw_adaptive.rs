@@ -76,6 +76,7 @@ pub struct AdaptiveParams {
     pub required_mass_fraction: f64,
     pub hinge_lift_rad: f64,
     pub payload_lift_m: f64,
+    #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
 }
 

@@ -73,6 +73,7 @@ pub struct ComparisonParams {
     pub neutral_steps: u32,
     pub neutral_hinge_tolerance_rad: f64,
     pub neutral_hinge_velocity_max_rad_s: f64,
+    #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
 }
 

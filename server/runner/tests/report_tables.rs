@@ -1,0 +1,349 @@
+//! `report` over one agent's three batches — a main-table batch, an observation-ablation batch and a context batch,
+//! written by hand with their rollouts' private records — prints Tables 1–4, Figure 3's data and Appendix E, each
+//! checked against values computed by hand below, in Markdown, CSV, LaTeX and JSON, and `--figures DIR` writes the
+//! two SVG plots with their data. Stable rule over 2 rollouts per task (`--reps 2`).
+//!
+//! Hand computation (agent `command/fixture`):
+//! * main (L3, none): T11 S,S (stable) · T13 S,F · T12 S,S (stable) · T16 F,F → easy 1/2 scored = 50.0 (2/5), hard 50.0
+//!   (2/5); T27 c/K 2/4, 1/4 → 0.25 · T28 2/2, 1/2 → 0.5 → long easy 25.0, hard 50.0; an INVALID T11 rollout counts
+//!   nowhere.
+//! * obs: L1 T11 S,F · T12 F,F → 0.0, 0.0, Overall 0.0; L2 T11 S,S · T12 S,F → 100.0, 0.0, Overall 50.0.
+//! * ctx: video T27 4/4, 3/4 → 0.75 · T28 S,S → 1.0 (Overall 87.5); video+traj T27 2/4, 2/4 → 0.5 · T28 0/2, 1/2 → 0
+//!   (Overall 25.0). The ablation batches' rollouts have no run directory: Table 4 and Figure 3 count them as without
+//!   record.
+//! * Table 4 (L3, none), 12 stage opportunities (T27 ×2 × 4 stages, T28 ×2 × 2): reached 9 (75.0%), success 6
+//!   (50.0%); Object Manipulation: reached 3, succeeded 1; Mechanism Interaction: reached 6, succeeded 5; failures 4:
+//!   local 2 (T27 r1 stage 03, T27 r2 stage 02), interference 2 (T27 r2's drawer closed while a later stage ran; T28
+//!   r2's door blocked by an order violation). T27 r2's record has no stage types: the catalog's are used.
+//! * Figure 3 (L3, none), 8 opening operations (a closing and a legacy record left out / read by name): SCR 0, 8, 20,
+//!   30, 40, 50, 12, 0 with opened F, F, T, T, T, T, T, F → mean 20.0, success 5/8; bins 0: 0/2, (0,10]: 0/1,
+//!   (10,25]: 2/2, >25: 3/3; Pearson r = 52 / √(2408 · 1.875) = 0.77388.
+use std::path::Path;
+
+use libero_runner::batch::{LoadedBatch, load_batch};
+use libero_runner::report::{self, tables::TableChoice};
+use serde_json::{Value, json};
+
+const REPS: usize = 2;
+
+/// One rollout: (task, split, K, repetition, level, demo, outcome, completed stages, private evaluation if any).
+struct Rollout {
+    task: u32,
+    k: u32,
+    rep: u32,
+    level: u8,
+    demo: &'static str,
+    outcome: &'static str,
+    c: u32,
+    private: Option<Value>,
+}
+
+fn split(task: u32) -> &'static str {
+    libero_metrics::Split::of_task(task).unwrap().as_str()
+}
+
+fn r(task: u32, k: u32, rep: u32, level: u8, demo: &'static str, outcome: &'static str, c: u32) -> Rollout {
+    Rollout { task, k, rep, level, demo, outcome, c, private: None }
+}
+
+fn with(mut x: Rollout, private: Value) -> Rollout {
+    x.private = Some(private);
+    x
+}
+
+fn write_batch(dir: &Path, experiment: &str, rollouts: &[Rollout]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let batch = json!({
+        "schema_version": "libero_agent.batch.v1", "status": "finished",
+        "settings": {"experiment": experiment, "harness": "command", "model": "fixture", "effort": "high", "reps": REPS,
+            "tasks": [], "seed": 100, "wall_time_s": 300.0, "max_agent_steps": 100, "agent_cmd": "true", "sandbox": false},
+        "rollout_count": rollouts.len(), "counts": {"done": rollouts.len(), "running": 0, "left": 0}, "outcomes": {},
+    });
+    std::fs::write(dir.join("batch.json"), batch.to_string()).unwrap();
+    let mut lines = String::new();
+    for x in rollouts {
+        let id = format!("w{}_t{}_level{}_{}", x.rep, x.task, x.level, x.demo);
+        let run_dir = x.private.as_ref().map(|pe| {
+            let d = dir.join("runs").join(&id);
+            std::fs::create_dir_all(&d).unwrap();
+            std::fs::write(d.join("result.json"), json!({"status": "finished", "private_evaluation": pe}).to_string()).unwrap();
+            d
+        });
+        let record = json!({
+            "schema_version": "libero_agent.rollout.v1", "rollout_id": id, "task": format!("T{:02}", x.task),
+            "task_number": x.task, "split": split(x.task), "stage_count": x.k, "repetition": x.rep, "level": x.level,
+            "demo": x.demo, "outcome": x.outcome, "episode_id": format!("ep-{id}"), "run_dir": run_dir,
+            "completed_stages": x.c, "wall_time_s": 60.0, "started_at": "2025-01-01T00:00:00Z", "finished_at": "2025-01-01T00:01:00Z",
+        });
+        lines.push_str(&format!("{record}\n"));
+    }
+    std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
+}
+
+/// A stage diagnostic; `ty` None leaves the type out (a record from before the evaluator reported it).
+fn stage(name: &str, ty: Option<&str>, reached: bool, succeeded: bool) -> Value {
+    let mut d = json!({"stage_name": name, "required": true, "reached": reached, "succeeded": succeeded, "regressions": 0,
+        "regressed_during_later_stage": false, "failure_reason": null});
+    if let Some(t) = ty {
+        d["type"] = json!(t);
+    }
+    d
+}
+
+/// An opening operation record (`kind` None: a legacy record without direction or completion).
+fn op(stage: &str, kind: Option<&str>, scr: f64, exec: u64, completed: bool) -> Value {
+    let mut o = json!({"stage_name": stage, "exec_steps": exec, "sustained_contact_ratio_percent": scr});
+    if let Some(k) = kind {
+        o["operation"] = json!(k);
+        o["completed"] = json!(completed);
+    }
+    o
+}
+
+fn pe(stages: Vec<Value>, ops: Vec<Value>) -> Value {
+    json!({"stage_diagnostics": stages, "details": {"opening_operations": ops}})
+}
+
+const MI: Option<&str> = Some("mechanism_interaction");
+const OM: Option<&str> = Some("object_manipulation");
+
+fn batches(root: &Path) -> Vec<LoadedBatch> {
+    let t16 = |scr: f64, exec: u64| pe(vec![stage("01_BDDL_Goal_At_Finish", None, true, false)], vec![op("01_BDDL_Goal_At_Finish", Some("open"), scr, exec, false)]);
+    let mut t27_r2 = vec![
+        stage("01_Open_Middle_Drawer", None, true, true),
+        stage("02_Place_Cookies_Middle_Drawer", None, true, false),
+        stage("03_Place_Chocolate_Middle_Drawer", None, false, false),
+        stage("04_Close_Middle_Drawer", None, false, false),
+    ];
+    t27_r2[0]["regressions"] = json!(1);
+    t27_r2[0]["regressed_during_later_stage"] = json!(true);
+    let mut t28_r2 = vec![stage("01_Unlatch_Door", MI, true, true), stage("02_Open_Door", MI, true, false)];
+    t28_r2[1]["failure_reason"] = json!("order_violation");
+    let main = [
+        r(11, 1, 1, 3, "none", "SUCCESS", 1),
+        r(11, 1, 2, 3, "none", "SUCCESS", 1),
+        r(11, 1, 3, 3, "none", "INVALID", 0),
+        r(13, 1, 1, 3, "none", "SUCCESS", 1),
+        r(13, 1, 2, 3, "none", "FAIL", 0),
+        r(12, 1, 1, 3, "none", "SUCCESS", 1),
+        r(12, 1, 2, 3, "none", "SUCCESS", 1),
+        with(r(16, 1, 1, 3, "none", "FAIL", 0), t16(0.0, 40)),
+        with(r(16, 1, 2, 3, "none", "FAIL", 0), t16(8.0, 50)),
+        with(
+            r(27, 4, 1, 3, "none", "FAIL", 2),
+            pe(
+                vec![
+                    stage("01_Open_Middle_Drawer", MI, true, true),
+                    stage("02_Place_Cookies_Middle_Drawer", OM, true, true),
+                    stage("03_Place_Chocolate_Middle_Drawer", OM, true, false),
+                    stage("04_Close_Middle_Drawer", MI, false, false),
+                ],
+                vec![op("01_Open_Middle_Drawer", Some("open"), 20.0, 100, true)],
+            ),
+        ),
+        with(r(27, 4, 2, 3, "none", "FAIL", 1), pe(t27_r2, vec![op("01_Open_Middle_Drawer", None, 30.0, 90, false)])),
+        with(
+            r(28, 2, 1, 3, "none", "SUCCESS", 2),
+            pe(
+                vec![stage("01_Unlatch_Door", MI, true, true), stage("02_Open_Door", MI, true, true)],
+                vec![
+                    op("01_Unlatch_Door", Some("open"), 40.0, 110, true),
+                    op("02_Open_Door", Some("open"), 50.0, 60, true),
+                    op("03_Close_Door", Some("close"), 10.0, 60, true),
+                ],
+            ),
+        ),
+        with(
+            r(28, 2, 2, 3, "none", "FAIL", 1),
+            pe(t28_r2, vec![op("01_Unlatch_Door", Some("open"), 12.0, 100, true), op("02_Open_Door", Some("open"), 0.0, 80, false)]),
+        ),
+    ];
+    let obs = [
+        r(11, 1, 1, 1, "none", "SUCCESS", 1),
+        r(11, 1, 2, 1, "none", "FAIL", 0),
+        r(12, 1, 1, 1, "none", "FAIL", 0),
+        r(12, 1, 2, 1, "none", "FAIL", 0),
+        r(11, 1, 1, 2, "none", "SUCCESS", 1),
+        r(11, 1, 2, 2, "none", "SUCCESS", 1),
+        r(12, 1, 1, 2, "none", "SUCCESS", 1),
+        r(12, 1, 2, 2, "none", "FAIL", 0),
+    ];
+    let ctx = [
+        r(27, 4, 1, 3, "video", "SUCCESS", 4),
+        r(27, 4, 2, 3, "video", "FAIL", 3),
+        r(28, 2, 1, 3, "video", "SUCCESS", 2),
+        r(28, 2, 2, 3, "video", "SUCCESS", 2),
+        r(27, 4, 1, 3, "video_traj", "FAIL", 2),
+        r(27, 4, 2, 3, "video_traj", "FAIL", 2),
+        r(28, 2, 1, 3, "video_traj", "FAIL", 0),
+        r(28, 2, 2, 3, "video_traj", "FAIL", 1),
+    ];
+    // Every counted main-table rollout has its record; the ablation batches' rollouts have none (no run directory).
+    let main: Vec<Rollout> = main
+        .into_iter()
+        .map(|x| match (&x.private, x.outcome) {
+            (None, "SUCCESS" | "FAIL") => {
+                let ok = x.outcome == "SUCCESS";
+                with(x, pe(vec![stage("01_BDDL_Goal_At_Finish", None, true, ok)], vec![]))
+            }
+            _ => x,
+        })
+        .collect();
+    write_batch(&root.join("main"), "main_table", &main);
+    write_batch(&root.join("obs"), "manip_observation", &obs);
+    write_batch(&root.join("ctx"), "context", &ctx);
+    ["main", "obs", "ctx"].iter().map(|n| load_batch(&root.join(n)).unwrap()).collect()
+}
+
+fn has(text: &str, line: &str) {
+    assert!(text.lines().any(|l| l == line), "missing line\n{line}\nin\n{text}");
+}
+
+#[test]
+fn markdown_prints_tables_1_to_4_figure_3_and_appendix_e_with_the_hand_computed_values() {
+    let dir = tempfile::tempdir().unwrap();
+    let md = report::markdown(&batches(dir.path()), REPS, TableChoice::All);
+    // Table 1: the three conditions of one agent, each from its own batch.
+    assert!(md.contains("| command/fixture (L3, demo none) | — | — (0/10) | 50.0 (2/5) | 50.0 (2/5) | 25.0 (1/5) | 50.0 (1/5) |"), "{md}");
+    // Table 2: L1/L2 from the observation batch, L3 from the main table.
+    has(&md, "| command/fixture | L1 | 0.0 (1/5) | 0.0 (1/5) | 0.0 | obs |");
+    has(&md, "| command/fixture | L2 | 100.0 (1/5) | 0.0 (1/5) | 50.0 | obs |");
+    has(&md, "| command/fixture | L3 | 50.0 (2/5) | 50.0 (2/5) | 50.0 | main |");
+    // Table 3: None from the main table, the demonstrations from the context batch.
+    has(&md, "| command/fixture | None | 25.0 (1/5) | 50.0 (1/5) | 37.5 | main |");
+    has(&md, "| command/fixture | Video | 75.0 (1/5) | 100.0 (1/5) | 87.5 | ctx |");
+    has(&md, "| command/fixture | Video + Traj. | 50.0 (1/5) | 0.0 (1/5) | 25.0 | ctx |");
+    // Table 4.
+    has(
+        &md,
+        "| command/fixture | L3, none | 4 | 12 | 9/12 = 75.0% | 6/12 = 50.0% | 1/3 = 33.3 [6.1, 79.2] | 5/6 = 83.3 [43.6, 97.0] | 4 | 2 (50.0%) | 2 (50.0%) |",
+    );
+    has(&md, "| command/fixture | L3, video | 0 (+4 without record) | 0 | — | — | — | — | 0 | 0 | 0 |");
+    // Figure 3.
+    has(
+        &md,
+        "| command/fixture | L3, none | 8 | 20.0% | 5/8 = 62.5% | 0.774 | 0/2 = 0.0 [0.0, 65.8] | 0/1 = 0.0 [0.0, 79.3] | 2/2 = 100.0 [34.2, 100.0] | 3/3 = 100.0 [43.9, 100.0] |",
+    );
+    has(&md, "| command/fixture | L3, video | 0 (+4 without record) | — | — | — | — | — | — | — |");
+    has(&md, "| command/fixture | L3, none | T28 | 02_Open_Door | 0.0% | 80 | no |");
+    assert!(!md.contains("| 10.0% | 60 |"), "a closing is no opening operation");
+    has(&md, "| command/fixture | L3, none | T27 | 01_Open_Middle_Drawer | 30.0% | 90 | yes |");
+    // Appendix E, wide.
+    has(&md, "| command/fixture | L3, none | 2 | 2 | 1 | — | — | 0 | — | — | — | — |");
+    has(&md, "| command/fixture | L3, none | — | — | — | — | — | — | 0.75 | 1.50 | — | — |");
+    has(&md, "| command/fixture | L3, video | — | — | — | — | — | — | 1.75 | 2.00 | — | — |");
+    // One table alone.
+    let only = report::markdown(&batches(dir.path()), REPS, TableChoice::Table3);
+    assert!(only.contains("Demonstration ablation") && !only.contains("Observation ablation") && !only.contains("## Stable performance"));
+}
+
+#[test]
+fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
+    let dir = tempfile::tempdir().unwrap();
+    let b = batches(dir.path());
+    let csv = report::csv(&b, REPS, TableChoice::All);
+    let blocks: Vec<&str> = csv.lines().filter(|l| l.starts_with("# ")).collect();
+    assert_eq!(
+        blocks,
+        [
+            "# table_1_stable_performance",
+            "# table_2_observation_ablation",
+            "# table_3_demonstration_ablation",
+            "# table_4_stage_diagnosis",
+            "# figure_3_scr_bins",
+            "# figure_3_opening_operations",
+            "# appendix_e_short_horizon",
+            "# appendix_e_long_horizon"
+        ]
+    );
+    let t2 = report::csv(&b, REPS, TableChoice::Table2);
+    assert_eq!(
+        t2,
+        "agent,level,easy_percent,hard_percent,overall_percent,easy_tasks_scored,hard_tasks_scored,member_tasks,batches\n\
+         command/fixture,L1,0.0000,0.0000,0.0000,1,1,5,obs\n\
+         command/fixture,L2,100.0000,0.0000,50.0000,1,1,5,obs\n\
+         command/fixture,L3,50.0000,50.0000,50.0000,2,2,5,main\n"
+    );
+    let t3 = report::csv(&b, REPS, TableChoice::Table3);
+    assert_eq!(
+        t3,
+        "agent,demo,easy_percent,hard_percent,overall_percent,easy_tasks_scored,hard_tasks_scored,member_tasks,batches\n\
+         command/fixture,none,25.0000,50.0000,37.5000,1,1,5,main\n\
+         command/fixture,video,75.0000,100.0000,87.5000,1,1,5,ctx\n\
+         command/fixture,video_traj,50.0000,0.0000,25.0000,1,1,5,ctx\n"
+    );
+    let t4 = report::csv(&b, REPS, TableChoice::Table4);
+    has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,object_manipulation,4,3,1,33.3333,6.1492,79.2340,4,2,2");
+    has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,mechanism_interaction,8,6,5,83.3333,43.6497,96.9947,4,2,2");
+    has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,all,12,9,6,,,,4,2,2");
+    has(&t4, "command/fixture,3,video,0,4,0,0,,0,,all,0,0,0,,,,0,0,0");
+    let f3 = report::csv(&b, REPS, TableChoice::Figure3);
+    has(&f3, "command/fixture,\"L3, none\",\"(10,25%]\",2,2,100.0000,34.2380,100.0000,20.0000,0.773882");
+    has(&f3, "command/fixture,\"L3, none\",all,8,5,62.5000,30.5742,86.3156,20.0000,0.773882");
+    has(&f3, "command/fixture,\"L3, none\",T16,01_BDDL_Goal_At_Finish,8.0000,50,false");
+    let appendix = report::csv(&b, REPS, TableChoice::Appendix);
+    has(&appendix, "agent,level,demo,T11,T12,T13,T14,T15,T16,T17,T18,T19,T20");
+    has(&appendix, "command/fixture,3,none,2,2,1,,,0,,,,");
+    has(&appendix, "command/fixture,1,none,1,0,,,,,,,,");
+    has(&appendix, "command/fixture,3,video_traj,,,,,,,1.00,0.50,,");
+
+    let tex = report::latex(&b, REPS, TableChoice::All);
+    assert_eq!(tex.matches("\\begin{tabular}").count(), 8, "Tables 1–4, Figure 3 and its operations, two appendix tables:\n{tex}");
+    assert_eq!(tex.matches("\\begin{tabular}").count(), tex.matches("\\end{tabular}").count());
+    has(&tex, "command/fixture & L2 & 100.0 (1/5) & 0.0 (1/5) & 50.0 & obs \\\\");
+    has(&tex, "command/fixture & Video + Traj. & 50.0 (1/5) & 0.0 (1/5) & 25.0 & ctx \\\\");
+    has(
+        &tex,
+        "command/fixture & L3, none & 4 & 12 & 9/12 = 75.0\\% & 6/12 = 50.0\\% & 1/3 = 33.3 [6.1, 79.2] & 5/6 = 83.3 [43.6, 97.0] & 4 & 2 (50.0\\%) & 2 (50.0\\%) \\\\",
+    );
+    has(&tex, "command/fixture & L3, none & T28 & 02\\_Open\\_Door & 0.0\\% & 80 & no \\\\");
+    assert!(tex.contains("% Sustained-contact ratio of opening operations (Figure 3)\n\\begin{tabular}{lrrrrrrrrr}"), "{tex}");
+    has(&tex, "command/fixture & L3, none & 2 & 2 & 1 & -- & -- & 0 & -- & -- & -- & -- \\\\");
+    assert!(!tex.contains('—') && !tex.contains("_fix"), "LaTeX-safe cells");
+}
+
+#[test]
+fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() {
+    let dir = tempfile::tempdir().unwrap();
+    let b = batches(dir.path());
+    let v = report::report_json(&b, REPS);
+    let obs = &v["observation_ablation"][0];
+    assert_eq!(obs["agent"], "command/fixture");
+    let l3 = &obs["rows"][2];
+    assert_eq!((l3["condition"].as_str(), l3["easy"].as_f64(), l3["overall"].as_f64()), (Some("L3"), Some(0.5), Some(0.5)));
+    assert_eq!(l3["batches"], json!(["main"]));
+    let none = &v["demonstration_ablation"][0]["rows"][0];
+    assert_eq!((none["easy"].as_f64(), none["hard"].as_f64(), none["overall"].as_f64()), (Some(0.25), Some(0.5), Some(0.375)));
+    let t4 = v["stage_diagnosis"].as_array().unwrap().iter().find(|l| l["demo"] == "none").unwrap();
+    assert_eq!((t4["opportunities"].as_u64(), t4["failures"].as_u64(), t4["cross_stage_interference"].as_u64()), (Some(12), Some(4), Some(2)));
+    assert_eq!(t4["untyped_opportunities"], 0, "T27 r2's stage types come from the catalog");
+    let f3 = v["sustained_contact"].as_array().unwrap().iter().find(|l| l["condition"] == "L3, none").unwrap();
+    assert!((f3["pearson_r"].as_f64().unwrap() - 52.0 / (2408.0f64 * 1.875).sqrt()).abs() < 1e-12);
+    assert_eq!(f3["opening_operations"].as_array().map(Vec::len), Some(8));
+    let bins: Vec<(u64, u64)> = f3["bins"].as_array().unwrap().iter().map(|b| (b["local_success"]["successes"].as_u64().unwrap(), b["local_success"]["trials"].as_u64().unwrap())).collect();
+    assert_eq!(bins, [(0, 2), (0, 1), (2, 2), (3, 3)]);
+    let appendix = v["appendix_e"].as_array().unwrap();
+    assert_eq!(appendix.iter().map(|a| a["rows"].as_array().unwrap().len()).collect::<Vec<_>>(), [0, 3, 3]);
+
+    // The CLI path: `report … --figures DIR` prints the report and writes Figure 3.
+    let figures = dir.path().join("figures");
+    let args = report::ReportArgs {
+        batches: ["main", "obs", "ctx"].iter().map(|n| dir.path().join(n)).collect(),
+        store: None,
+        format: report::Format::Json,
+        reps: REPS,
+        table: TableChoice::All,
+        figures: Some(figures.clone()),
+    };
+    report::run(args).unwrap();
+    let bins_svg = std::fs::read_to_string(figures.join("figure3_success_by_scr_bin.svg")).unwrap();
+    assert!(bins_svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\"") && bins_svg.contains(">3/3<") && bins_svg.contains(">0/2<"));
+    assert!(bins_svg.contains("command/fixture (L3, none) — 8 operations, r = 0.77"), "{bins_svg}");
+    let mean_svg = std::fs::read_to_string(figures.join("figure3_mean_scr.svg")).unwrap();
+    assert!(mean_svg.contains("20.0% · n = 8 · r = 0.77"), "{mean_svg}");
+    let data = std::fs::read_to_string(figures.join("figure3_scr_bins.csv")).unwrap();
+    assert_eq!(data, report::csv(&b, REPS, TableChoice::Figure3).split("\n# ").next().unwrap().trim_start_matches("# figure_3_scr_bins\n"));
+    let json: Value = serde_json::from_str(&std::fs::read_to_string(figures.join("figure3.json")).unwrap()).unwrap();
+    assert_eq!(json, v["sustained_contact"]);
+    assert!(figures.join("figure3_opening_operations.csv").is_file());
+}
