@@ -97,13 +97,21 @@ pub struct ExpertArgs {
     /// … and table regions widened by this much on every side, metres (at most 0.1).
     #[arg(long, default_value_t = 0.0, requires = "layout_seed")]
     pub region_margin_m: f64,
+    /// … and the whole table scene moved by `X,Y` metres (at most 0.1 each).
+    #[arg(long, value_delimiter = ',', num_args = 2, requires = "layout_seed", allow_hyphen_values = true)]
+    pub scene_shift_m: Vec<f64>,
 }
 
 impl ExpertArgs {
     /// The layout variant the flags ask for.
     pub(crate) fn layout(&self) -> anyhow::Result<Option<LayoutVariant>> {
         let Some(placement_seed) = self.layout_seed else { return Ok(None) };
-        let v = LayoutVariant { placement_seed, init_index: self.layout_init, region_margin_m: self.region_margin_m };
+        let scene_shift_m = match self.scene_shift_m.as_slice() {
+            [] => [0.0; 2],
+            [x, y] => [*x, *y],
+            other => bail!("--scene-shift-m takes X,Y (got {other:?})"),
+        };
+        let v = LayoutVariant { placement_seed, init_index: self.layout_init, region_margin_m: self.region_margin_m, scene_shift_m };
         v.validate()?;
         Ok(Some(v))
     }

@@ -24,7 +24,7 @@ fn text(o: &Output) -> String {
 }
 
 /// A T14 layout whose expert trajectory does not solve the release episode (seed 100, init row 0) by replay: the
-/// sixth source layout the server draws for it (another placement seed and init row, regions widened 6 cm).
+/// a source layout the server may draw for it (another placement seed and init row, regions widened 6 cm).
 const SOURCE_LAYOUT: [&str; 6] = ["--layout-seed", "39696", "--layout-init", "6", "--region-margin-m", "0.06"];
 
 /// One T14 expert episode in [`SOURCE_LAYOUT`] recorded into a library (shared by the tests of this file: it takes
@@ -186,7 +186,7 @@ fn prepared_episodes_get_the_papers_demo_and_notice_without_private_data() {
     let good: Value = serde_json::from_str(&fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
     edit_manifest(&solving, |m| {
         m["replay_checks"] = serde_json::json!([{
-            "target": {"task": "T14", "effective_layout": {"placement_seed": 100, "init_index": 0, "region_margin_m": 0.0}},
+            "target": {"task": "T14", "effective_layout": {"placement_seed": 100, "init_index": 0, "region_margin_m": 0.0, "scene_shift_m": [0.0, 0.0]}},
             "replay_solves": true,
         }]);
         m["source"]["episode_id"] = "ep-00000000T000000Z-00000001".into();
@@ -320,7 +320,9 @@ fn an_empty_library_gets_a_verified_expert_demo_on_first_use() {
     let manifest: Value = serde_json::from_str(&fs::read_to_string(library[0].join("manifest.json")).unwrap()).unwrap();
     assert_eq!(manifest["verification"]["verified"], true);
     assert_ne!(manifest["source"]["episode_id"], prepared["episode_id"], "the demo comes from a separate episode");
-    assert!(manifest["source"]["layout"]["placement_seed"].as_u64().is_some_and(|s| s != 100), "another layout: {}", manifest["source"]);
+    let release = serde_json::json!({"placement_seed": 100, "init_index": 0, "region_margin_m": 0.0, "scene_shift_m": [0.0, 0.0]});
+    assert!(manifest["source"]["layout"].is_object(), "recorded in a layout variant: {}", manifest["source"]);
+    assert_ne!(manifest["source"]["effective_layout"], release, "another configuration than the episode's");
     assert_ne!(manifest["source"]["effective_layout"]["init_index"], 0, "another init row");
     assert_eq!(manifest["replay_checks"][0]["replay_solves"], false, "{}", manifest["replay_checks"]);
     let ws = PathBuf::from(prepared["workspace"].as_str().unwrap());

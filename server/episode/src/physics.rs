@@ -58,7 +58,7 @@ impl WorldPhysics {
         let mut model = scene.compile()?;
         let suite = spec.task.suite.as_ref();
         let layout = spec.task.effective_layout(spec.seed, spec.init_index)?;
-        widen_table_regions(&mut scene, layout.region_margin_m);
+        adjust_table_regions(&mut scene, layout.region_margin_m, layout.scene_shift_m);
         let placement = Placement::sample(&scene, layout.placement_seed, Some(&model))?;
         placement.apply(&mut model)?;
         // private parameters that shape the physics (T08's mug masses) reach the model here, never through a file
@@ -222,15 +222,16 @@ fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, Ep
 }
 
 /// Widens every table region (those the reset placement samples on the workspace fixture) by `margin_m` on each
-/// side: a demonstration source's layout for tasks whose regions are too narrow for seeds to move anything.
-fn widen_table_regions(scene: &mut ComposedScene, margin_m: f64) {
-    if margin_m <= 0.0 {
+/// side and moves it by `shift_m`: a demonstration source's layout (issue 31). Goal regions keep their sites.
+fn adjust_table_regions(scene: &mut ComposedScene, margin_m: f64, shift_m: [f64; 2]) {
+    if margin_m <= 0.0 && shift_m == [0.0; 2] {
         return;
     }
     let workspace = scene.problem_class.workspace_name().to_owned();
+    let [dx, dy] = shift_m;
     for region in scene.problem.regions.iter_mut().filter(|r| r.target == workspace) {
         for r in &mut region.ranges {
-            *r = [r[0] - margin_m, r[1] - margin_m, r[2] + margin_m, r[3] + margin_m];
+            *r = [r[0] - margin_m + dx, r[1] - margin_m + dy, r[2] + margin_m + dx, r[3] + margin_m + dy];
         }
     }
 }

@@ -62,18 +62,29 @@ pub struct LayoutVariant {
     /// Added to every side of every table region before placement, metres (0 keeps the task's regions).
     #[serde(default)]
     pub region_margin_m: f64,
+    /// Every table region moved by this `(x, y)`, metres: with the target's own seed, the whole sampled scene
+    /// moves rigidly relative to the robot (its relative layout stays one the task's expert knows).
+    #[serde(default)]
+    pub scene_shift_m: [f64; 2],
 }
 
 /// Largest region widening a layout variant may ask for (beyond it objects leave the reachable table).
 pub const MAX_REGION_MARGIN_M: f64 = 0.10;
 
 impl LayoutVariant {
-    /// A variant is usable only with a finite margin in `[0, MAX_REGION_MARGIN_M]`.
+    /// A variant is usable only with a finite margin in `[0, MAX_REGION_MARGIN_M]` and a shift of at most that
+    /// much per axis.
     pub fn validate(&self) -> Result<(), EpisodeError> {
         if !(self.region_margin_m.is_finite() && (0.0..=MAX_REGION_MARGIN_M).contains(&self.region_margin_m)) {
             return Err(EpisodeError::Task(format!(
                 "layout region_margin_m must lie in [0, {MAX_REGION_MARGIN_M}] m, not {}",
                 self.region_margin_m
+            )));
+        }
+        if !self.scene_shift_m.iter().all(|d| d.is_finite() && d.abs() <= MAX_REGION_MARGIN_M) {
+            return Err(EpisodeError::Task(format!(
+                "layout scene_shift_m components must lie in [-{MAX_REGION_MARGIN_M}, {MAX_REGION_MARGIN_M}] m, not {:?}",
+                self.scene_shift_m
             )));
         }
         Ok(())
@@ -89,6 +100,7 @@ pub struct EffectiveLayout {
     /// Row of the init-state file, `None` when the task starts from its placement.
     pub init_index: Option<usize>,
     pub region_margin_m: f64,
+    pub scene_shift_m: [f64; 2],
 }
 
 impl TaskSource {
@@ -102,6 +114,7 @@ impl TaskSource {
                 placement_seed: v.placement_seed,
                 init_index: self.init_states.is_some().then_some(v.init_index),
                 region_margin_m: v.region_margin_m,
+                scene_shift_m: v.scene_shift_m,
             });
         }
         let placement_seed = match suite.and_then(|s| s.placement_seed) {
@@ -109,7 +122,8 @@ impl TaskSource {
             None => u32::try_from(seed).map_err(|_| EpisodeError::Task("seed must fit in 32 bits".into()))?,
         };
         let init_index = suite.map_or(init_index, |s| s.init_index);
-        Ok(EffectiveLayout { placement_seed, init_index: self.init_states.is_some().then_some(init_index), region_margin_m: 0.0 })
+        let init_index = self.init_states.is_some().then_some(init_index);
+        Ok(EffectiveLayout { placement_seed, init_index, region_margin_m: 0.0, scene_shift_m: [0.0; 2] })
     }
 }
 

@@ -159,23 +159,29 @@ pub fn select_for_target(root: &Path, target: &TargetEpisode, paths: &AssetPaths
 /// How many source layouts are tried for a target before giving up.
 pub const MAX_SOURCE_ATTEMPTS: u32 = 8;
 
-/// The `attempt`-th source layout for `target` (deterministic): another placement seed every time; the next rows
-/// of the init-state file where the task has one (`init_rows` of them); from the third attempt on, table regions
-/// widened by 3 cm and from the fifth by 6 cm on every side, for tasks whose regions are too narrow for another
-/// seed to move anything (buttons in 2 mm regions). Never the target's own configuration.
+/// The `attempt`-th source layout for `target` (deterministic), never the target's own configuration. Every draw
+/// takes the next row of the init-state file where the task has one (`init_rows` of them). Then, in turn: another
+/// placement seed; the target's seed with the whole table scene moved 4 cm left, right, 3 cm nearer, farther (the
+/// relative layout stays the one the task's expert is tuned to, its poses relative to the robot do not); another
+/// seed with regions widened 3 cm; another with 6 cm (for tasks whose regions are too narrow for a seed to move
+/// anything, such as 2 mm button regions).
 pub fn source_layout_candidate(target: &TargetEpisode, attempt: u32, init_rows: Option<usize>) -> Result<LayoutVariant, DemoError> {
     let layout = target.layout()?;
-    let placement_seed = layout.placement_seed.wrapping_add(1 + attempt.wrapping_mul(7919));
+    let other_seed = layout.placement_seed.wrapping_add(1 + attempt.wrapping_mul(7919));
     let init_index = match (init_rows, layout.init_index) {
         (Some(rows), Some(index)) if rows > 1 => (index + 1 + attempt as usize % (rows - 1)) % rows,
         _ => target.init_index,
     };
-    let region_margin_m = match attempt {
-        0..=1 => 0.0,
-        2..=3 => 0.03,
-        _ => 0.06,
+    let (placement_seed, scene_shift_m, region_margin_m) = match attempt {
+        0 => (other_seed, [0.0, 0.0], 0.0),
+        1 => (layout.placement_seed, [0.0, 0.04], 0.0),
+        2 => (layout.placement_seed, [0.0, -0.04], 0.0),
+        3 => (layout.placement_seed, [-0.03, 0.0], 0.0),
+        4 => (layout.placement_seed, [0.03, 0.0], 0.0),
+        5 => (other_seed, [0.0, 0.0], 0.03),
+        _ => (other_seed, [0.0, 0.0], 0.06),
     };
-    Ok(LayoutVariant { placement_seed, init_index, region_margin_m })
+    Ok(LayoutVariant { placement_seed, init_index, region_margin_m, scene_shift_m })
 }
 
 #[cfg(test)]
@@ -210,7 +216,8 @@ mod tests {
                 if init {
                     assert_ne!(layout.init_index, own.init_index, "another init row");
                 }
-                assert_eq!(v.region_margin_m > 0.0, attempt >= 2);
+                assert_eq!(v.region_margin_m > 0.0, attempt >= 5);
+                assert_eq!(v.scene_shift_m != [0.0; 2], (1..=4).contains(&attempt));
                 seen.push(layout);
             }
         }
