@@ -9,13 +9,18 @@ that is renamed into place, so an interrupted run never leaves a half-written ca
 Cache: $LIBERO_AGENT_CACHE, default ~/.cache/libero-agent. The repository gets one link,
 .deps -> the cache, which .cargo/config.toml uses to find libmujoco at build time.
 
-Usage: setup.py [--test] [--no-apt]
+Usage: setup.py [--test] [--no-apt] | --toolbox | --print-toolbox-dir
   --test    also the test extras: Debian packages for browser tests and MuJoCo's software renderer,
             a Python venv with mujoco/numpy/pillow/mcp/pyarrow/av (independent peers of some tests), and from
             npm: playwright-core for the browser tests (they drive Debian's chromium; no browser download), the
             agent CLIs the runner launches (Claude Code, Codex, Qwen Code, Kimi Code) and the MCP Inspector for the real-CLI
-            tests, and the Node.js 22 runtime those CLIs need (Debian 12 ships Node 18).
+            tests, and the Node.js 22 runtime those CLIs need (Debian 12 ships Node 18); and the agents' toolbox.
+  --toolbox the agents' toolbox only (what `libero-agent run` calls on first use): the lock's scientific Python
+            wheels installed as a venv over Debian's /usr/bin/python3 in cache/toolbox-<name>-<hash>.
+  --print-toolbox-dir  where the lock's toolbox lives (installed or not), and nothing else.
 """
+import configparser
+import fcntl
 import hashlib
 import json
 import os
@@ -89,13 +94,17 @@ def extract(pkg: dict, wheel: Path, target: Path, strip: str) -> None:
             if not any(name == m or (m.endswith("/") and name.startswith(m)) for m in pkg["extract"]):
                 continue
             rel = name[len(strip):] if name.startswith(strip) else name
-            out = target / rel
-            if info.is_dir():
-                out.mkdir(parents=True, exist_ok=True)
-                continue
-            out.parent.mkdir(parents=True, exist_ok=True)
-            with z.open(info) as src, open(out, "wb") as dst:
-                shutil.copyfileobj(src, dst)
+            write_member(z, info, target / rel)
+
+
+def write_member(z: zipfile.ZipFile, info: zipfile.ZipInfo, out: Path) -> None:
+    """One archive member at `out`: a directory made, or a file written (its parents made)."""
+    if info.is_dir():
+        out.mkdir(parents=True, exist_ok=True)
+        return
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with z.open(info) as src, open(out, "wb") as dst:
+        shutil.copyfileobj(src, dst)
 
 
 def install_tree(name: str, marker: str, builder) -> Path:
@@ -152,6 +161,157 @@ def setup_pypi(lock: dict) -> None:
         else:
             shutil.rmtree(deps)
     deps.symlink_to(root)
+
+
+# --- The agents' toolbox -------------------------------------------------------------------------------------------
+# A venv over the host's Debian python3 (the interpreter the sandbox shows, since it binds the host's /usr), built by
+# unpacking the lock's wheels (none has a .data directory or needs a build step), so no pip runs on the target
+# interpreter. It is relocatable: `bin/python3` links to the interpreter and `pyvenv.cfg` sits beside `bin/`, so the
+# sandbox can show it at /opt/libero-toolbox. `include-system-site-packages = true` keeps the user site enabled: pip
+# (ours, in the toolbox) then installs into PYTHONUSERBASE, which the runner points at the rollout's own home.
+
+TOOLBOX_SCHEMA = "libero-agent.toolbox.v1"
+
+
+def toolbox_dir_name(spec: dict) -> str:
+    """`toolbox-<name>-<12 hex>`: the hash covers the interpreter and every wheel's sha256, so a changed lock is a new
+    directory (the runner computes the same name from the same lock: server/runner/src/toolbox.rs)."""
+    text = "\n".join([spec["interpreter"]] + [w["sha256"] for w in spec["wheels"]])
+    return f"toolbox-{spec['name']}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
+
+
+def interpreter_version(interpreter: str) -> str:
+    r = subprocess.run([interpreter, "-c", "import sys; print('%d.%d.%d' % sys.version_info[:3])"],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        fail(f"cannot run {interpreter} (Debian: apt-get install python3): {r.stderr.strip()}")
+    return r.stdout.strip()
+
+
+def install_wheel_files(wheel: Path, site: Path, bin_dir: Path) -> None:
+    """Unpacks `wheel` into `site` as an installer would (root and purelib/platlib members), keeping the archive's
+    executable bits, every file readable by all: the sandbox's agent user is not the cache's owner. Console scripts
+    become small shell wrappers that run the toolbox's own python3, wherever the toolbox is shown."""
+    with zipfile.ZipFile(wheel) as z:
+        for info in z.infolist():
+            parts = info.filename.split("/")
+            if parts[0].endswith(".data"):
+                if len(parts) < 3 or parts[1] not in ("purelib", "platlib"):
+                    fail(f"{wheel.name}: {info.filename}: only purelib/platlib members of .data are installed")
+                parts = parts[2:]
+            if any(p in ("", ".", "..") for p in parts[:-1]) or info.filename.startswith("/"):
+                fail(f"{wheel.name}: unsafe member name {info.filename}")
+            out = site.joinpath(*[p for p in parts if p])
+            write_member(z, info, out)
+            if not info.is_dir():
+                out.chmod(0o755 if (info.external_attr >> 16) & 0o111 else 0o644)
+        for name in z.namelist():
+            if name.endswith(".dist-info/entry_points.txt"):
+                entry_points = configparser.ConfigParser(delimiters=("=",), interpolation=None)
+                entry_points.optionxform = str
+                entry_points.read_string(z.read(name).decode())
+                if entry_points.has_section("console_scripts"):
+                    for script, target in entry_points.items("console_scripts"):
+                        write_console_script(bin_dir / script, target)
+            elif name.endswith(".dist-info/RECORD"):
+                (site / name).parent.joinpath("INSTALLER").write_text("libero-agent scripts/setup.py\n")
+
+
+def write_console_script(path: Path, target: str) -> None:
+    module, _, attr = target.partition(":")
+    attr = attr.split("[")[0].strip()
+    code = f"import sys; from {module.strip()} import {attr.split('.')[0]}; sys.argv[0] = {json.dumps(path.name)}; " \
+           f"sys.exit({attr}())"
+    path.write_text(f'#!/bin/sh\nexec "$(dirname "$0")/python3" -c \'{code}\' "$@"\n')
+    path.chmod(0o755)
+
+
+def readable_by_all(root: Path) -> None:
+    """Directories 0755, files 0644 or 0755 (whatever the umask was): the sandbox's agent user reads the toolbox."""
+    for p in [root, *root.rglob("*")]:
+        if p.is_symlink():
+            continue
+        p.chmod(0o755 if p.is_dir() or p.stat().st_mode & 0o111 else 0o644)
+
+
+def tree_size(root: Path) -> int:
+    return sum(p.lstat().st_size for p in root.rglob("*"))
+
+
+def setup_toolbox(lock: dict) -> Path:
+    """The lock's toolbox in the cache, verified by hash, installed once (a lock file serialises concurrent runs)."""
+    spec = lock["toolbox"]
+    root = cache_dir()
+    root.mkdir(parents=True, exist_ok=True)
+    name = toolbox_dir_name(spec)
+    final = root / name
+    marker = "\n".join(w["sha256"] for w in spec["wheels"])
+    stamp = final / ".complete"
+    if stamp.exists() and stamp.read_text() == marker:
+        return final
+    with open(root / ".toolbox.lock", "w") as guard:
+        fcntl.flock(guard, fcntl.LOCK_EX)
+        if stamp.exists() and stamp.read_text() == marker:
+            return final
+        interpreter = spec["interpreter"]
+        version = interpreter_version(interpreter)
+        if not (version + ".").startswith(spec["python"] + "."):
+            fail(f"the toolbox's wheels are for CPython {spec['python']} (Debian 12's {interpreter}); this host's "
+                 f"{interpreter} is {version}. Run agents with `libero-agent run --toolbox none` or a toolbox of your own "
+                 f"(--toolbox PATH)")
+        say(f"installing the agents' toolbox {spec['name']} for {interpreter} {version} into {final}")
+        wheels = [fetch_wheel(dict(w, pip_platform=spec["pip_platform"]), root / "wheels") for w in spec["wheels"]]
+
+        def build(tmp: Path) -> None:
+            tmp.chmod(0o755)
+            py = f"python{spec['python']}"
+            site = tmp / "lib" / py / "site-packages"
+            bin_dir = tmp / "bin"
+            site.mkdir(parents=True)
+            bin_dir.mkdir()
+            (bin_dir / "python3").symlink_to(interpreter)
+            (bin_dir / "python").symlink_to("python3")
+            (bin_dir / py).symlink_to("python3")
+            (tmp / "pyvenv.cfg").write_text(f"home = {Path(interpreter).parent}\ninclude-system-site-packages = true\n"
+                                            f"version = {version}\n")
+            for i, (w, path) in enumerate(zip(spec["wheels"], wheels), 1):
+                say(f"  [{i}/{len(wheels)}] {w['pypi']} {w['version']}")
+                install_wheel_files(path, site, bin_dir)
+            # Compiled once here: the sandbox shows the toolbox read-only, where Python could not cache its bytecode.
+            say("  compiling the toolbox's Python modules")
+            if subprocess.call([str(bin_dir / "python3"), "-m", "compileall", "-q", "-j0", str(tmp / "lib")],
+                               stdout=subprocess.DEVNULL) != 0:
+                fail("python3 -m compileall failed on the toolbox")
+            check_toolbox(tmp, spec)
+            (tmp / "toolbox.json").write_text(json.dumps({
+                "schema": TOOLBOX_SCHEMA, "name": spec["name"], "interpreter": interpreter, "python": version,
+                "packages": [{"name": w["pypi"], "version": w["version"], "file": w["file"], "sha256": w["sha256"]}
+                             for w in spec["wheels"]],
+                "size_bytes": tree_size(tmp)}, indent=2) + "\n")
+            readable_by_all(tmp)
+
+        install_tree(name, marker, build)
+        stamp.chmod(0o644)
+        (root / ".toolbox.lock").chmod(0o644)
+        say(f"toolbox {name}: {tree_size(final) / 1e6:.0f} MB on disk")
+    return final
+
+
+def check_toolbox(root: Path, spec: dict) -> None:
+    """Every package imports under the toolbox's own python3, at the locked version."""
+    wanted = {w.get("import", w["pypi"].replace("-", "_")): (w["pypi"], w["version"]) for w in spec["wheels"]}
+    code = ("import importlib, importlib.metadata as m, json, sys; "
+            "w = json.loads(sys.argv[1]); [importlib.import_module(k) for k in w]; "
+            "print(json.dumps({k: m.version(d) for k, (d, _) in w.items()}))")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
+    r = subprocess.run([str(root / "bin" / "python3"), "-c", code, json.dumps(wanted)], capture_output=True, text=True,
+                       env=env)
+    if r.returncode != 0:
+        fail(f"the toolbox does not import its packages: {r.stderr.strip()[-2000:]}")
+    got = json.loads(r.stdout)
+    bad = {k: v for k, v in got.items() if v != wanted[k][1]}
+    if bad:
+        fail(f"the toolbox imports other versions than the lock's: {bad}")
 
 
 def dpkg_installed(name: str) -> bool:
@@ -256,6 +416,12 @@ def setup_s3_server(spec: dict) -> None:
 def main() -> None:
     args = set(sys.argv[1:])
     lock = json.loads(LOCK.read_text())
+    if "--print-toolbox-dir" in args:
+        print(cache_dir() / toolbox_dir_name(lock["toolbox"]))
+        return
+    if "--toolbox" in args:
+        say(f"toolbox ready: {setup_toolbox(lock)}")
+        return
     if "--no-apt" not in args:
         setup_apt(lock["debian"]["run"] + (lock["debian"]["test"] if "--test" in args else []))
     setup_pypi(lock)
@@ -263,6 +429,7 @@ def main() -> None:
         setup_venv(lock["python_test_venv"])
         setup_node(lock["node_test"])
         setup_s3_server(lock["s3_test_server"])
+        setup_toolbox(lock)
     say(f"ready (cache {cache_dir()})")
 
 

@@ -63,3 +63,42 @@ export function showEvaluatorEvent(e, stages, progress) {
   else return false;
   return true;
 }
+
+/** One line of the agent's transcript (`agent_events.jsonl`, docs/agent_transcript.md) as short text. */
+export function agentEventText(e) {
+  const clip = (s, n = 240) => (s && s.length > n ? `${s.slice(0, n)}…` : s ?? '');
+  switch (e.kind) {
+    case 'message': return `says: ${clip(e.text)}`;
+    case 'reasoning': return `thinks: ${clip(e.text)}`;
+    case 'shell': return `$ ${clip(e.command, 160)}${e.exit_code != null ? ` → exit ${e.exit_code}` : e.is_error ? ' → failed' : ''}`;
+    case 'file_read': return `reads ${e.workspace_path ?? e.path}`;
+    case 'image_view': return `views ${e.workspace_path ?? e.path}`;
+    case 'tool_call': return e.robot_tool
+      ? `calls ${e.robot_tool}${e.observation_id ? ` on ${e.observation_id}` : ''}`
+      : `calls ${e.tool} ${clip(e.arguments, 120)}`;
+    case 'tool_result': return `${e.tool ?? 'tool'} → ${e.observation_id ?? ''} ${clip(e.text, 160)}`;
+    case 'usage': {
+      const t = e.tokens ?? {};
+      const src = e.source === 'model_api_gateway' ? 'gateway' : 'as printed';
+      return `tokens in ${t.input_tokens ?? '–'} (cached ${t.cached_input_tokens ?? '–'}) out ${t.output_tokens ?? '–'} (${src})`;
+    }
+    case 'stderr': return `stderr: ${clip(e.text)}`;
+    default: return clip(e.text) || e.kind;
+  }
+}
+
+/** A list item for a transcript event: its text, and for shell commands and results their bounded output. */
+export function agentEventItem(e) {
+  const li = el('li', { class: `agent ${e.kind}${e.is_error ? ' error' : ''}`, title: e.t ?? '' });
+  const more = e.kind === 'shell' ? e.output : e.kind === 'tool_result' || e.kind === 'message' || e.kind === 'reasoning' ? e.text : null;
+  if (more && more.length > 240) {
+    const d = el('details');
+    d.append(el('summary', {}, agentEventText(e)), el('pre', { class: 'state' }, more));
+    li.append(d);
+  } else {
+    li.textContent = agentEventText(e);
+    if (e.kind === 'shell' && e.output) li.append(el('pre', { class: 'state' }, e.output));
+  }
+  if (e.truncated) li.append(el('span', { class: 'muted' }, ' (cut)'));
+  return li;
+}

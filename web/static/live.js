@@ -1,6 +1,7 @@
-// Live episode page: head | wrist frames, calls, private evaluator events and budgets as they happen.
+// Live episode page: head | wrist frames, calls, private evaluator events, the agent's transcript and budgets as
+// they happen.
 // Frames arrive as binary messages (4-byte LE header length, JSON header, JPEG); everything else as JSON.
-import { wsUrl, el, fmtS, callSummary, parseFrame, showBlob, showEvaluatorEvent } from './common.js';
+import { wsUrl, el, fmtS, callSummary, parseFrame, showBlob, showEvaluatorEvent, agentEventItem } from './common.js';
 
 const root = document.querySelector('.live');
 const id = root.dataset.episode;
@@ -45,6 +46,14 @@ function onEvent(e) {
       budget.wall = e.wall_time_s; budget.at = e.at_unix_s;
       break;
     }
+    case 'agent': {
+      // The runner appends the agent's events as its CLI prints them; newest first, the last 500 kept.
+      const list = $('agent');
+      if (list.firstElementChild?.classList.contains('muted')) list.replaceChildren();
+      for (const ev of e.events) list.prepend(agentEventItem(ev));
+      while (list.children.length > 500) list.lastElementChild.remove();
+      break;
+    }
     case 'step':
       $('step').textContent = `${e.control_step} (${fmtS(e.sim_time_s)} s)`;
       break;
@@ -76,7 +85,7 @@ function connect() {
   ws.onclose = () => {
     if (budget.running) { $('state').textContent = 'reconnecting'; setTimeout(connect, 2000); }
   };
-  ws.onopen = () => { $('calls').replaceChildren(); $('stages').replaceChildren(); };
+  ws.onopen = () => { $('calls').replaceChildren(); $('stages').replaceChildren(); $('agent').replaceChildren(); };
 }
 
 connect();

@@ -1,7 +1,7 @@
-// Review page: the private continuous video synchronised with the calls, private stage events, telemetry plots
-// and the observation the agent received at each call. ←/→ step one control step, space plays or pauses,
-// ?t=seconds opens a moment.
-import { el, fmtS, callSummary, stageText } from './common.js';
+// Review page: the private continuous video synchronised with the calls, private stage events, telemetry plots,
+// the observation the agent received at each call and what the agent read, thought and ran before it (its
+// transcript, /api/episodes/{id}/agent). ←/→ step one control step, space plays or pauses, ?t=seconds opens a moment.
+import { el, fmtS, callSummary, stageText, agentEventItem, agentEventText } from './common.js';
 
 const root = document.querySelector('.review');
 const id = root.dataset.episode;
@@ -12,6 +12,8 @@ let fps = 20;
 let byFrame = new Map(); // video frame -> telemetry row
 let duration = 0;
 let shownObservation = null;
+// The agent's transcript cut at the robot's calls: call event_index -> the agent events before it.
+const agent = { before: new Map(), after: [], shownFor: undefined, loaded: false, pinned: null };
 
 /** Video time (s) of the state after control step c (middle of its frame). */
 function timeOfStep(c) {
@@ -59,6 +61,12 @@ function drawTimeline() {
     g.fillRect(x0, 8, Math.max(2, x1 - x0), 24);
     g.fillStyle = call.ok ? '#2563eb' : '#dc2626';
     g.fillRect(x1 - 1, 4, 2, 32);
+  }
+  // A tick where the agent did something between two calls (the video stands still meanwhile).
+  g.fillStyle = '#7c3aed';
+  for (const call of data.calls) {
+    if ((agent.before.get(call.event_index) ?? []).length === 0) continue;
+    if (call.t != null) g.fillRect(xOf(call.t, c.width) - 1, 60, 3, 9);
   }
   for (const e of data.stage_events) {
     if (e.t == null) continue;
@@ -137,13 +145,79 @@ function update() {
   $('cstep').textContent = step ?? 'settle';
   const link = new URL(location.href); link.searchParams.set('t', t.toFixed(2));
   $('deeplink').href = link.pathname + link.search;
-  const call = callAt(t);
+  // A call picked from the transcript stays selected while the video stays at its moment (calls without control
+  // steps share their moment with the call before them).
+  const pinned = agent.pinned && Math.abs(t - agent.pinned.at) < 0.5 / fps ? agent.pinned.call : null;
+  if (!pinned) agent.pinned = null;
+  const call = pinned ?? callAt(t);
   $('call-detail').textContent = call
     ? `#${call.event_index} ${callSummary(call.tool, call.actions)} → ${call.ok ? 'ok' : `${call.error_type}: ${call.error}`} (steps ${call.control_step_begin}–${call.control_step_end})`
     : '–';
   showObservation(call?.observation_id ?? null);
+  showAgent(call);
   for (const li of $('events').children) li.classList.toggle('current', li.dataset.t && Math.abs(Number(li.dataset.t) - (call?.t ?? -1)) < 1e-9);
   drawAll();
+}
+
+/** What the agent did before `call`: its transcript between the previous call and this one, and the images it
+ * viewed there (published observation files open from the episode's private copy; others are named only). */
+function showAgent(call) {
+  const key = call?.event_index ?? null;
+  if (!agent.loaded || agent.shownFor === key) return;
+  agent.shownFor = key;
+  const events = call ? agent.before.get(call.event_index) ?? [] : [];
+  $('agent-count').textContent = call ? `(${events.length} events before call #${call.event_index})` : '';
+  $('agent-before').replaceChildren(...(events.length ? events.map(agentEventItem) : [el('li', { class: 'muted' }, call ? 'nothing between the previous call and this one' : '–')]));
+  const views = events.filter((e) => e.kind === 'image_view');
+  const box = $('agent-images');
+  box.classList.toggle('muted', views.length === 0);
+  box.replaceChildren(...(views.length ? views.map((e) => {
+    const fig = el('figure');
+    if (e.observation_url) fig.append(el('img', { src: e.observation_url, alt: e.observation_file, width: 128, height: 128 }));
+    fig.append(el('figcaption', {}, e.observation_url ? `${e.observation_id}/${e.observation_file}` : `${e.path} (not a published observation file: not shown)`));
+    return fig;
+  }) : [document.createTextNode('–')]));
+}
+
+/** Loads the agent's timeline page by page and cuts it at the robot's calls. */
+async function loadAgent() {
+  const api = `/api/episodes/${encodeURIComponent(id)}/agent`;
+  let page = await (await fetch(api)).json();
+  const items = [...(page.timeline ?? [])];
+  const available = page.available;
+  while (page.timeline_next) {
+    const q = new URLSearchParams(Object.entries(page.timeline_next).filter(([, v]) => v !== null && v !== undefined));
+    page = await (await fetch(`${api}?${q}`)).json();
+    items.push(...(page.timeline ?? []));
+  }
+  const byIndex = new Map(data.calls.map((c) => [c.event_index, c]));
+  const log = [];
+  let pending = [];
+  for (const it of items) {
+    if (it.kind === 'robot_call') {
+      agent.before.set(it.event_index, pending);
+      for (const e of pending) log.push([e, byIndex.get(it.event_index)]);
+      pending = [];
+    } else pending.push(it);
+  }
+  agent.after = pending;
+  for (const e of pending) log.push([e, null]);
+  agent.loaded = true;
+  $('agent-log').replaceChildren(...(log.length ? log.map(([e, call]) => {
+    const li = agentEventItem(e);
+    if (call) {
+      li.title = `${e.t} · before call #${call.event_index} ${call.tool}`;
+      li.addEventListener('click', () => {
+        video.pause();
+        seek(call.t ?? 0);
+        agent.pinned = { call, at: video.currentTime };
+        update();
+      });
+    } else li.title = `${e.t} · after the last call`;
+    return li;
+  }) : [el('li', { class: 'muted' }, available ? 'the transcript is empty' : 'no transcript for this episode (not run by libero-agent run)')]));
+  document.body.dataset.agentEvents = String(log.length);
+  document.body.dataset.agentText = log.map(([e]) => agentEventText(e)).join('\n').slice(0, 20000);
 }
 
 function buildEvents() {
@@ -282,6 +356,7 @@ async function load() {
   if (!data.video) awaitVideo(api, data.video_status);
   buildEvents();
   buildStages();
+  await loadAgent().catch((err) => { $('agent-log').replaceChildren(el('li', { class: 'error' }, `cannot load the agent's transcript: ${err}`)); });
   const t = Number(new URL(location.href).searchParams.get('t'));
   const start = () => { if (Number.isFinite(t) && t > 0) seek(t); else update(); };
   if (video.readyState >= 1) start(); else video.addEventListener('loadedmetadata', start, { once: true });

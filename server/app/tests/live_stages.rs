@@ -9,11 +9,9 @@
 //!   [`PLAYS`] fails the test, so a new evaluator cannot ship without live progress.
 //! * Over a real socket: `libero-agent serve`, a T28 episode driven over MCP while `/ws/episodes/{id}` is open.
 use std::collections::HashSet;
-use std::io::{BufReader, Read, Write};
-use std::net::TcpStream;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use libero_episode::expert_run::{ToolPort, run_expert};
 use libero_episode::records::{RunDir, read_result};
@@ -275,66 +273,6 @@ fn every_evaluator_kind_reports_each_stage_live_as_it_happens() {
 
 // ------------------------------------------------------------------------------------------- a real socket
 
-/// A minimal WebSocket client of the episode socket: every text message until `finished` or the close.
-fn read_socket(url: &str, operator_token: &str) -> std::thread::JoinHandle<Result<Vec<Value>, String>> {
-    let rest = url.strip_prefix("http://").expect("http url").to_owned();
-    let (host, path) = rest.split_at(rest.find('/').expect("path"));
-    let (host, path) = (host.to_owned(), path.to_owned());
-    let mut stream = TcpStream::connect(&host).expect("connect");
-    stream.set_read_timeout(Some(Duration::from_secs(300))).expect("timeout");
-    write!(
-        stream,
-        "GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n\
-         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nAuthorization: Bearer {operator_token}\r\n\r\n"
-    )
-    .expect("handshake");
-    let mut r = BufReader::new(stream);
-    // The answer's head, byte by byte up to the blank line (the frames follow at once).
-    let mut head = Vec::new();
-    while !head.ends_with(b"\r\n\r\n") {
-        let mut b = [0u8; 1];
-        r.read_exact(&mut b).expect("handshake answer");
-        head.push(b[0]);
-    }
-    assert!(head.starts_with(b"HTTP/1.1 101"), "{}", String::from_utf8_lossy(&head));
-    std::thread::spawn(move || {
-        let mut texts = Vec::new();
-        loop {
-            let mut h = [0u8; 2];
-            if r.read_exact(&mut h).is_err() {
-                return Ok(texts);
-            }
-            let mut len = u64::from(h[1] & 0x7f);
-            if len == 126 {
-                let mut l = [0u8; 2];
-                r.read_exact(&mut l).map_err(|e| e.to_string())?;
-                len = u64::from(u16::from_be_bytes(l));
-            } else if len == 127 {
-                let mut l = [0u8; 8];
-                r.read_exact(&mut l).map_err(|e| e.to_string())?;
-                len = u64::from_be_bytes(l);
-            }
-            let mut payload = vec![0u8; usize::try_from(len).map_err(|e| e.to_string())?];
-            r.read_exact(&mut payload).map_err(|e| e.to_string())?;
-            match h[0] & 0x0f {
-                1 => {
-                    let v: Value = serde_json::from_slice(&payload).map_err(|e| e.to_string())?;
-                    if v["type"] == "reset" {
-                        return Err("the socket fell behind the events and was sent the history again".into());
-                    }
-                    let end = v["type"] == "finished";
-                    texts.push(v);
-                    if end {
-                        return Ok(texts);
-                    }
-                }
-                8 => return Ok(texts),
-                _ => {} // frames (binary), pings
-            }
-        }
-    })
-}
-
 struct McpPort(libero_server::client::McpClient);
 
 impl ToolPort for McpPort {
@@ -357,7 +295,7 @@ fn a_long_horizon_episode_streams_every_stage_over_the_real_socket() {
     let id = prepared["episode_id"].as_str().expect("episode id");
     let token = prepared["mcp_headers"]["Authorization"].as_str().expect("token").trim_start_matches("Bearer ");
     // Watching before the agent starts: everything arrives as it happens.
-    let socket = read_socket(&format!("{}/ws/episodes/{id}", server.url), &server.token);
+    let socket = common::read_socket(&format!("{}/ws/episodes/{id}", server.url), &server.token);
     let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
     let spec = WorldSpec { task: resolve_task("T28", &paths).expect("T28"), level: Level::L1, seed: 100, init_index: 0, paths };
     let client = libero_server::client::McpClient::connect_with_token(prepared["mcp_url"].as_str().expect("mcp url"), token, "live-stages-test")

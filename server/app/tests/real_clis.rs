@@ -12,20 +12,16 @@
 //! episode from the workspace's own `.libero/mcp.json`, a second independent client beside the Python SDK.
 //! A missing CLI fails the test with the command that installs it.
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output, Stdio};
 
 use serde_json::{Value, json};
 
 mod common;
-use common::{Server, bin, python};
+use common::scripted_model::{API_KEY, ScriptedModel};
+use common::{Server, bin};
 
 const SETUP_HINT: &str = "run `python3 scripts/setup.py --test`, which installs the pinned agent CLIs and the MCP \
                           Inspector with npm into ~/.cache/libero-agent/node";
-const API_KEY: &str = "sk-scripted-0123456789abcdef";
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
 
 fn cli_dir() -> PathBuf {
     let cache = std::env::var_os("LIBERO_AGENT_CACHE")
@@ -48,42 +44,6 @@ fn cli_path() -> String {
 fn jsonl(path: &Path) -> Vec<Value> {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     text.lines().filter(|l| !l.trim().is_empty()).map(|l| serde_json::from_str(l).unwrap()).collect()
-}
-
-/// `tests/clis/scripted_model.py` on a free loopback port; killed on drop.
-struct ScriptedModel {
-    child: Child,
-    port: u16,
-    log: PathBuf,
-}
-
-impl ScriptedModel {
-    fn start(dir: &Path) -> Self {
-        let log = dir.join("model_requests.jsonl");
-        let mut child = Command::new(python())
-            .arg(repo_root().join("tests/clis/scripted_model.py"))
-            .arg("--log")
-            .arg(&log)
-            .env("SCRIPTED_MODEL_API_KEY", API_KEY)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start the scripted model");
-        let port = common::first_json_line(&mut child)["port"].as_u64().expect("port") as u16;
-        Self { child, port, log }
-    }
-
-    /// The requests it answered (not the refused ones).
-    fn answered(&self) -> Vec<Value> {
-        jsonl(&self.log).into_iter().filter(|r| r["method"] == "POST" && r.get("refused").is_none()).collect()
-    }
-}
-
-impl Drop for ScriptedModel {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
 }
 
 /// Sum of one usage figure over the endpoint's answers (`pointer` into each reported usage).
@@ -124,8 +84,7 @@ fn run_t14(harness: &str, cli: &str) -> Rollout {
     require_cli(cli);
     let tmp = tempfile::tempdir().unwrap();
     let model = ScriptedModel::start(tmp.path());
-    let creds = tmp.path().join("credentials");
-    std::fs::write(&creds, format!("APIKEY={API_KEY}\nAPIURL=http://127.0.0.1:{}\n", model.port)).unwrap();
+    let creds = model.credentials(tmp.path());
     let (batch, workspaces) = (tmp.path().join("batch"), tmp.path().join("workspaces"));
     let t0 = std::time::Instant::now();
     let out = Command::new(bin())
@@ -189,6 +148,26 @@ fn check_rollout(r: &Rollout) {
     let via_gateway = manifest["model_api"]["requests"].as_u64().unwrap_or(0) - manifest["model_api"]["refused"].as_u64().unwrap_or(0);
     assert!(via_gateway >= r.answers.len() as u64, "{} answers, {via_gateway} requests through the gateway: {manifest}", r.answers.len());
     assert_eq!(manifest["sandbox_report"]["network_interfaces"], serde_json::json!(["lo"]), "{manifest}");
+
+    // The transcript the runner followed while the CLI ran (docs/agent_transcript.md): the robot calls in order,
+    // each after the observation it acted on, the gateway's usage per answered request, no key.
+    let transcript = Path::new(r.record["run_dir"].as_str().unwrap()).join("agent_events.jsonl");
+    let text = std::fs::read_to_string(&transcript).unwrap_or_else(|e| panic!("{}: {e}", transcript.display()));
+    assert!(!text.contains(API_KEY));
+    let events: Vec<Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let calls: Vec<(&str, Option<&str>)> = events
+        .iter()
+        .filter(|e| e["kind"] == "tool_call" && e["robot_tool"].is_string())
+        .map(|e| (e["robot_tool"].as_str().unwrap(), e["observation_id"].as_str()))
+        .collect();
+    assert_eq!(
+        calls,
+        [("start_episode", None), ("osc_sequence", Some("obs_000000")), ("osc_sequence", Some("obs_000001")), ("finish_episode", Some("obs_000002"))],
+        "{text}"
+    );
+    let gateway_usage = events.iter().filter(|e| e["kind"] == "usage" && e["source"] == "model_api_gateway").count();
+    assert_eq!(gateway_usage, r.answers.len(), "one usage event per answered request: {text}");
+    assert_eq!(manifest["agent_events"]["events"].as_u64(), Some(events.len() as u64), "{manifest}");
 }
 
 /// The record's usage is the sum of what the endpoint reported, read under the provider's own names:
@@ -323,13 +302,7 @@ fn mcp_inspector_cli_plays_a_whole_episode() {
     let tmp = tempfile::tempdir().unwrap();
     let server = Server::start(&tmp.path().join("data"));
     let ws = tmp.path().join("ws");
-    let out = Command::new(bin())
-        .args(["episode", "prepare", "--server", &server.url, "--task", "T14", "--wall-time-s", "300", "--workspace"])
-        .arg(&ws)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "prepare: {}", String::from_utf8_lossy(&out.stderr));
-    let prepared: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let prepared = common::prepare_t14(&server.url, &ws);
     let config = ws.join(".libero/mcp.json");
 
     let (out, listed) = inspector(&config, &["--method", "tools/list"]);

@@ -1,8 +1,9 @@
 //! The browser console: server-rendered pages (askama templates in `web/templates/`), vanilla ES modules and
 //! CSS from `web/static/` (compiled into the binary, so an installed server needs no web folder), the live
-//! WebSockets (episode list, one episode's events and frames), and the review page's data: the private video
-//! with HTTP range support, the private observation copies, telemetry, calls and stage events. Every route here
-//! is behind the operator guard; nothing here is reachable with an episode token.
+//! WebSockets (episode list, one episode's events, frames and agent transcript), and the review page's data: the
+//! private video with HTTP range support, the private observation copies, telemetry, calls, stage events and the
+//! agent's transcript on the calls' timeline. Every route here is behind the operator guard; nothing here is
+//! reachable with an episode token.
 use std::path::{Component, Path as FsPath};
 use std::sync::Arc;
 use std::time::Duration;
@@ -40,6 +41,7 @@ pub fn compressed_routes() -> Router<AppState> {
         .route("/episodes/{id}", get(live_page))
         .route("/episodes/{id}/review", get(review_page))
         .route("/api/episodes/{id}/review", get(review_data))
+        .route("/api/episodes/{id}/agent", get(agent_data))
         .route("/api/tasks", get(tasks_json))
         .route("/results", get(results_page))
         .route("/api/results", get(results_api))
@@ -474,7 +476,8 @@ fn runs_elsewhere(app: &App, row: &libero_server::store::EpisodeRow, source: Row
 
 async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
     if let Some(hub) = app.hubs.get(&id) {
-        return ws.on_upgrade(move |socket| episode_stream(socket, hub));
+        let transcript = RunDir::new(app.episodes.runs_dir().join(&id)).agent_events_jsonl();
+        return ws.on_upgrade(move |socket| episode_stream(socket, hub, transcript));
     }
     let (row, source) = match row_and_source(&app, &id).await {
         Ok(r) => r,
@@ -570,10 +573,20 @@ async fn send_text(socket: &mut WebSocket, text: &str) -> bool {
     socket.send(Message::Text(text.into())).await.is_ok()
 }
 
-/// Catch-up (history, latest step, newest frame) then everything as it happens. The episode never waits:
-/// frames come from a watch channel (a slow socket skips to the newest), events from a broadcast channel (a
-/// viewer that falls behind is sent the whole history again, marked `reset`).
-async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>) {
+/// New events of the agent's transcript since `offset` (`None`: the newest ones) as one `agent` message, if any.
+async fn agent_message(path: &std::path::Path, offset: &mut Option<u64>) -> Option<String> {
+    let (p, from) = (path.to_path_buf(), *offset);
+    let max = if from.is_some() { LIVE_AGENT_TICK_BYTES } else { LIVE_AGENT_CATCH_UP_BYTES };
+    let (events, next) = tokio::task::spawn_blocking(move || read_transcript_lines(&p, from, max)).await.ok()?;
+    *offset = Some(next);
+    (!events.is_empty()).then(|| json!({"type": "agent", "events": events}).to_string())
+}
+
+/// Catch-up (history, latest step, newest frame, the newest of the agent's transcript) then everything as it
+/// happens. The episode never waits: frames come from a watch channel (a slow socket skips to the newest), events
+/// from a broadcast channel (a viewer that falls behind is sent the whole history again, marked `reset`); the
+/// transcript the runner appends to the run directory is read every half second.
+async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>, transcript: std::path::PathBuf) {
     let Some(sub) = hub.subscribe() else { return };
     let hello = json!({"type": "hello", "max_agent_steps": hub.max_agent_steps, "max_wall_time_s": hub.max_wall_time_s});
     if !send_text(&mut socket, &hello.to_string()).await {
@@ -591,12 +604,26 @@ async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>) {
             return;
         }
     }
+    let mut agent_offset = None;
+    if let Some(text) = agent_message(&transcript, &mut agent_offset).await
+        && !send_text(&mut socket, &text).await
+    {
+        return;
+    }
     // Closed while this viewer subscribed: the history it was sent ends with `finished`.
     if *closed.borrow_and_update() {
         return;
     }
+    let mut agent_tick = tokio::time::interval(LIVE_AGENT_TICK);
     loop {
         tokio::select! {
+            _ = agent_tick.tick() => {
+                if let Some(text) = agent_message(&transcript, &mut agent_offset).await
+                    && !send_text(&mut socket, &text).await
+                {
+                    return;
+                }
+            }
             event = events.recv() => match event {
                 Ok(text) => if !send_text(&mut socket, &text).await { return },
                 Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {
@@ -657,21 +684,29 @@ fn read_jsonl(path: &FsPath) -> Vec<Value> {
     read_jsonl_page(path, 0, usize::MAX).0
 }
 
-/// Lines `from..from + limit` of a JSON-lines file, read as a stream (a long episode's file is never held
-/// whole), and the index of the next line if the file goes on.
+/// Up to `limit` parsed lines of a JSON-lines file from line `from` on, read as a stream (a long episode's file is
+/// never held whole), and the index of the next line if the file goes on.
 fn read_jsonl_page(path: &FsPath, from: u64, limit: usize) -> (Vec<Value>, Option<u64>) {
+    let (lines, next) = read_jsonl_indexed(path, from, limit);
+    (lines.into_iter().map(|(_, v)| v).collect(), next)
+}
+
+/// [`read_jsonl_page`] with each value's line index (lines that do not parse are skipped, not counted).
+fn read_jsonl_indexed(path: &FsPath, from: u64, limit: usize) -> (Vec<(u64, Value)>, Option<u64>) {
     use std::io::BufRead;
     let Ok(file) = std::fs::File::open(path) else { return (Vec::new(), None) };
     let mut out = Vec::new();
     let mut lines = std::io::BufReader::new(file).lines().skip(usize::try_from(from).unwrap_or(usize::MAX));
+    let mut index = from;
     for line in lines.by_ref() {
         let Ok(line) = line else { break };
         if let Ok(v) = serde_json::from_str(&line) {
-            out.push(v);
+            out.push((index, v));
         }
+        index += 1;
         if out.len() >= limit {
             let more = lines.next().is_some();
-            return (out, more.then_some(from + limit as u64));
+            return (out, more.then_some(index));
         }
     }
     (out, None)
@@ -773,6 +808,146 @@ async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(
     }
 }
 
+// ---------------------------------------------------------------------------------------------- agent transcript
+
+/// Items per page of the agent timeline.
+const AGENT_PAGE_ITEMS: usize = 2000;
+
+/// Where a page of the agent timeline starts: the transcript's line, the action log's line and control step, the
+/// observation current there, and whether a robot tool call of the transcript already stands before the next
+/// robot call (all from the previous page's `timeline_next`).
+#[derive(serde::Deserialize, serde::Serialize, Default, Clone)]
+struct AgentQuery {
+    #[serde(default)]
+    from: u64,
+    #[serde(default)]
+    calls_from: u64,
+    #[serde(default)]
+    control_step: u64,
+    observation: Option<String>,
+    #[serde(default)]
+    claimed: bool,
+}
+
+/// The served copy of an image or file the agent looked at: only a published observation file, from the
+/// episode's private copy of the observation current at that moment; anything else stays a path.
+fn observation_copy(run: &RunDir, id: &str, observation: Option<&str>, file: Option<&str>) -> Option<(String, String)> {
+    let (obs, file) = (observation?, file?);
+    let plain = plain_relative(obs) && !obs.contains('/') && plain_relative(file);
+    (plain && run.private_observations().join(obs).join(file).is_file())
+        .then(|| (obs.to_owned(), format!("/episodes/{id}/observations/{obs}/{file}")))
+}
+
+/// One page of the agent's transcript merged with the robot's calls by time (`kind: robot_call` items are the
+/// calls as the review's timeline has them, `t` their `recorded_at`). A robot tool call of the transcript stands
+/// before the robot call it made even when the runner captured it a little after the server recorded the call.
+/// Images and files the agent viewed that are published observation files get `observation_url`.
+fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
+    let transcript = run.agent_events_jsonl();
+    let available = transcript.is_file();
+    let (events, events_next) = read_jsonl_indexed(&transcript, q.from, AGENT_PAGE_ITEMS);
+    let (lines, calls_next) = read_jsonl_indexed(&run.actions_jsonl(), q.calls_from, AGENT_PAGE_ITEMS);
+    let call_lines: Vec<Value> = lines.iter().map(|(_, v)| v.clone()).collect();
+    let (calls, _) = timeline_calls(&call_lines, q.control_step);
+    let mut cursor = q.clone();
+    let (mut i, mut j) = (0, 0);
+    let mut out = Vec::new();
+    while out.len() < AGENT_PAGE_ITEMS {
+        let take_event = match (events.get(i), calls.get(j)) {
+            (None, None) => break,
+            // The other file goes on: the next page decides what comes first.
+            (Some(_), None) if calls_next.is_some() => break,
+            (None, Some(_)) if events_next.is_some() => break,
+            (Some(_), None) => true,
+            (None, Some(_)) => false,
+            (Some((_, e)), Some(c)) => {
+                let before = e["t"].as_str().unwrap_or("") <= c["recorded_at"].as_str().unwrap_or("");
+                let its_call = e["kind"] == "tool_call" && !e["robot_tool"].is_null() && e["robot_tool"] == c["tool"] && !cursor.claimed;
+                before || its_call
+            }
+        };
+        if take_event {
+            let (line, mut e) = events[i].clone();
+            if e["kind"] == "tool_call" && !e["robot_tool"].is_null() {
+                cursor.claimed = true;
+            }
+            if matches!(e["kind"].as_str(), Some("image_view" | "file_read"))
+                && let Some((obs, url)) = observation_copy(run, id, cursor.observation.as_deref(), e["observation_file"].as_str())
+                && let Some(obj) = e.as_object_mut()
+            {
+                obj.insert("observation_id".into(), json!(obs));
+                obj.insert("observation_url".into(), json!(url));
+            }
+            out.push(e);
+            cursor.from = line + 1;
+            i += 1;
+        } else {
+            let mut c = calls[j].clone();
+            if c["ok"] == true
+                && let Some(obs) = c["observation_id"].as_str()
+            {
+                cursor.observation = Some(obs.to_owned());
+            }
+            cursor.claimed = false;
+            cursor.calls_from = lines[j].0 + 1;
+            cursor.control_step = c["control_step_end"].as_u64().unwrap_or(cursor.control_step);
+            if let Some(obj) = c.as_object_mut() {
+                obj.insert("kind".into(), json!("robot_call"));
+                obj.insert("t".into(), obj.get("recorded_at").cloned().unwrap_or(Value::Null));
+            }
+            out.push(c);
+            j += 1;
+        }
+    }
+    let done = i == events.len() && j == calls.len() && events_next.is_none() && calls_next.is_none();
+    // Unparsable lines at the end of a page are passed over with it.
+    if i == events.len() && let Some(n) = events_next {
+        cursor.from = cursor.from.max(n);
+    }
+    if j == calls.len() && let Some(n) = calls_next {
+        cursor.calls_from = cursor.calls_from.max(n);
+    }
+    json!({"ok": true, "available": available, "timeline": out, "timeline_next": if done { Value::Null } else { json!(cursor) }})
+}
+
+/// `GET /api/episodes/{id}/agent`: the agent's transcript on the robot's timeline, in pages the caller follows
+/// through `timeline_next` (its fields are the next request's query). Operator-only, as the review.
+async fn agent_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<AgentQuery>) -> Response {
+    let run = match stored_row(&app, &id).await {
+        Ok(row) => RunDir::new(row.episode.run_dir),
+        Err(resp) => return resp,
+    };
+    match tokio::task::spawn_blocking(move || agent_timeline(&run, &id, &q)).await {
+        Ok(v) => axum::Json(v).into_response(),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("agent transcript: {e}")),
+    }
+}
+
+/// Most transcript events a live viewer is sent when it connects (the newest ones; the review has them all).
+const LIVE_AGENT_CATCH_UP_BYTES: u64 = 256 << 10;
+/// Most transcript bytes sent to a live viewer per tick.
+const LIVE_AGENT_TICK_BYTES: u64 = 256 << 10;
+/// How often a live viewer's transcript is read for new events.
+const LIVE_AGENT_TICK: Duration = Duration::from_millis(500);
+
+/// The complete lines of `path` from byte `offset` on (at most `max` bytes; from the last `max` bytes when
+/// `offset` is None, beginning at a line start) as JSON, and the offset after them.
+fn read_transcript_lines(path: &FsPath, offset: Option<u64>, max: u64) -> (Vec<Value>, u64) {
+    use std::io::{Read, Seek};
+    let Ok(mut f) = std::fs::File::open(path) else { return (Vec::new(), offset.unwrap_or(0)) };
+    let size = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let start = offset.unwrap_or(size.saturating_sub(max)).min(size);
+    let mut buf = Vec::new();
+    if f.seek(std::io::SeekFrom::Start(start)).is_err() || f.take(max).read_to_end(&mut buf).is_err() {
+        return (Vec::new(), start);
+    }
+    // Only whole lines; a tail catch-up starts after its first newline (unless it starts the file).
+    let first = if offset.is_none() && start > 0 { buf.iter().position(|&b| b == b'\n').map_or(buf.len(), |p| p + 1) } else { 0 };
+    let end = buf.iter().rposition(|&b| b == b'\n').map_or(first, |p| p + 1).max(first);
+    let values = buf[first..end].split(|&b| b == b'\n').filter_map(|l| serde_json::from_slice(l).ok()).collect();
+    (values, start + end as u64)
+}
+
 /// A file served with range support (the video, observation images).
 pub(crate) async fn serve_file(path: std::path::PathBuf, req: Request<Body>) -> Response {
     match ServeFile::new(path).oneshot(req).await {
@@ -801,12 +976,17 @@ async fn video(State(app): State<AppState>, Path(id): Path<String>, req: Request
     }
 }
 
+/// A plain relative path of the private observation copies: normal components of `[A-Za-z0-9-_.]` only.
+fn plain_relative(rel: &str) -> bool {
+    !rel.is_empty()
+        && FsPath::new(rel).components().all(|c| matches!(c, Component::Normal(_)))
+        && rel.chars().all(|c| c.is_ascii_alphanumeric() || "-_./".contains(c))
+}
+
 /// `observations/<obs_id>/<file>`: only plain relative names inside the private copy.
 async fn observation_file(State(app): State<AppState>, Path((id, rel)): Path<(String, String)>, req: Request<Body>) -> Response {
     let rel_path = FsPath::new(&rel);
-    let plain = rel_path.components().all(|c| matches!(c, Component::Normal(_)))
-        && rel.chars().all(|c| c.is_ascii_alphanumeric() || "-_./".contains(c));
-    let Some(run) = run_dir_of(&app, &id).await.filter(|_| plain) else {
+    let Some(run) = run_dir_of(&app, &id).await.filter(|_| plain_relative(&rel)) else {
         return json_error(StatusCode::NOT_FOUND, "no such observation file");
     };
     let path = run.private_observations().join(rel_path);

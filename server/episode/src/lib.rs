@@ -10,7 +10,7 @@ pub mod error;
 pub mod expert_run;
 pub mod live;
 /// The run directory, its records and JSON helpers live in `libero-records` (the store reads them without the simulator).
-pub use libero_records::{json, records};
+pub use libero_records::{agent_events, json, records};
 pub mod observation;
 pub mod physics;
 pub mod publish;

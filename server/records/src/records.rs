@@ -55,6 +55,10 @@ impl RunDir {
     pub fn telemetry_jsonl(&self) -> PathBuf {
         self.root.join(TELEMETRY_FILE)
     }
+    /// The agent's transcript, written by the runner ([`crate::agent_events`]).
+    pub fn agent_events_jsonl(&self) -> PathBuf {
+        self.root.join(crate::agent_events::AGENT_EVENTS_FILE)
+    }
 }
 
 /// Serialized size above which a logged field is recorded as a digest and a prefix (see [`bounded_for_log`]).

@@ -183,7 +183,8 @@ pub struct Contained {
 
 /// Prepares `launch` to run sandboxed (or plainly, without a sandbox): the relays and the gateway started with
 /// their sockets in a fresh short-named directory, the sandbox's files (`hosts`, the gateway's records) in `private/`, the workspace and session home handed to
-/// the agent's user when the runner is root, and the argv wrapped in bubblewrap and `sandbox-net`.
+/// the agent's user when the runner is root, the sandbox's toolbox first on the agent's `PATH`, and the argv wrapped
+/// in bubblewrap and `sandbox-net`.
 pub fn contain(
     sandbox: Option<&Sandbox>,
     plan: Option<&NetPlan>,
@@ -259,6 +260,10 @@ pub fn contain(
     let path = env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
     let mut readable = own_binary_files(agent_exe);
     readable.extend(launch.argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
+    // The CLI is found on the runner's PATH above; the agent's own `python3` is the toolbox's.
+    if let Some(tb) = &sb.toolbox {
+        tb.agent_env(&mut env, home);
+    }
     let spec = SandboxSpec {
         writable: vec![workspace.to_path_buf(), home.to_path_buf()],
         readable,

@@ -8,6 +8,7 @@ pub mod batch;
 #[cfg(test)]
 mod cli_checks;
 pub mod harness;
+pub mod lines;
 pub mod logs;
 pub mod netgate;
 pub mod queue;
@@ -16,6 +17,8 @@ pub mod rollout;
 pub mod sandbox;
 pub mod sandbox_net;
 pub mod schedule;
+pub mod toolbox;
+pub mod transcript;
 pub mod usage;
 pub mod worker;
 
@@ -36,6 +39,7 @@ use batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord, append_record, read_reco
 use harness::{Credentials, Harness, default_credentials_file};
 use sandbox::Sandbox;
 use schedule::{Experiment, PlannedRollout, plan, plan_pool};
+use toolbox::{Toolbox, ToolboxChoice};
 
 use libero_server::client::InProcessServer;
 
@@ -104,6 +108,12 @@ pub struct RunArgs {
     /// Run agents without the bubblewrap sandbox (they can then read everything this user can).
     #[arg(long)]
     pub no_sandbox: bool,
+    /// The agent's Python, shown read-only in the sandbox at /opt/libero-toolbox and first on its PATH as
+    /// python3/python/pip: a directory laid out as a venv over a python3 the sandbox shows (`bin/python3`,
+    /// `lib/python3.X/site-packages`), or `none` for the system's python3 alone. Default: the project's (numpy,
+    /// scipy, Pillow, OpenCV, imageio; assets/third_party.lock.json), installed into the cache on first use.
+    #[arg(long, value_name = "PATH|none")]
+    pub toolbox: Option<ToolboxChoice>,
     /// The store. `postgres://…`: the batch is queued there (`--batch` is then its name) and run by
     /// `libero-agent worker`s on any machine, while this command follows its progress. `sqlite://PATH` (or
     /// `--local`): the batch runs here and is also written to the store as it changes, for `report --store URL
@@ -262,6 +272,11 @@ pub(crate) fn probe_version(harness: Harness, npm_cli_installed: bool) -> Value 
     json!({"requested": argv[..argv.len() - 1].join(" "), "observed": observed, "probe_output": text.trim().chars().take(500).collect::<String>()})
 }
 
+/// `numpy 1.26.4, scipy 1.14.1, …` for the progress line.
+fn package_list(t: &Toolbox) -> String {
+    t.packages.iter().map(|p| format!("{} {}", p.name, p.version)).collect::<Vec<_>>().join(", ")
+}
+
 pub(crate) fn default_batch_dir() -> PathBuf {
     let stamp: String = utc_now_iso()[..19].chars().filter(|c| c.is_ascii_digit() || *c == 'T').collect();
     PathBuf::from("agent_runs").join(format!("batch_{stamp}Z"))
@@ -368,6 +383,7 @@ fn batch_value(ctx: &RunContext, status: &str, created_at: &str, p: &Progress, s
         "settings_sha256": ctx.settings.sha256(),
         "harness": {"name": ctx.harness.as_str(), "version": ctx.harness_version},
         "sandbox": ctx.sandbox.as_ref().map(|s| json!({"kind": "bubblewrap", "version": s.version})),
+        "toolbox": ctx.sandbox.as_ref().and_then(|s| s.toolbox.as_ref()).map(Toolbox::describe),
         "server_url": ctx.server_url,
         "workspace_root": ctx.workspace_root,
         "max_outer_retries": 0,
@@ -473,9 +489,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     let sandbox = if args.no_sandbox {
         eprintln!("warning: --no-sandbox: agents run without isolation and can read every file this user can");
+        if matches!(args.toolbox, Some(ToolboxChoice::Path(_))) {
+            bail!("--toolbox is shown inside the sandbox; with --no-sandbox the agent runs the host's own python3");
+        }
         None
     } else {
-        Some(Sandbox::detect()?)
+        let sandbox = Sandbox::detect()?;
+        let toolbox = toolbox::resolve(args.toolbox.as_ref())?;
+        match &toolbox {
+            Some(t) => eprintln!("the agents' toolbox: {} at {} ({})", t.name, toolbox::INSIDE, package_list(t)),
+            None => eprintln!("no toolbox: agents run the system's python3 alone"),
+        }
+        Some(sandbox.with_toolbox(toolbox))
     };
     let batch_name = batch_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "batch".into());
     if let Some(c) = &credentials

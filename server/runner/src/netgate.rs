@@ -47,6 +47,7 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpStream, UnixListener, UnixStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore, oneshot};
 
+use libero_episode::agent_events::Tokens;
 use libero_episode::json::iso_from_system_time;
 
 /// Largest request head (request line and headers) the gateway reads; beyond it, 431.
@@ -115,18 +116,11 @@ pub enum Mode {
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct TokenUsage {
     pub api: String,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub input_tokens: Option<u64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub output_tokens: Option<u64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub cached_input_tokens: Option<u64>,
+    /// Input, output, cached input, reasoning and total tokens, the transcript's counts (same JSON fields).
+    #[serde(flatten)]
+    pub counts: Tokens,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cache_creation_input_tokens: Option<u64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub reasoning_tokens: Option<u64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub total_tokens: Option<u64>,
 }
 
 /// One line of the records file: one request (or one tunnel), written when it ended.
@@ -195,6 +189,7 @@ impl UsageSummary {
             cache_read_input_tokens: some(self.cached_input_tokens),
             reasoning_tokens: some(self.reasoning_tokens),
             total_tokens: some(self.total_tokens),
+            ..crate::usage::Usage::default()
         }
     }
 }
@@ -215,12 +210,12 @@ pub fn summarize(records: &Path) -> std::io::Result<UsageSummary> {
         s.response_bytes += r.response_bytes;
         if let Some(u) = &r.usage {
             s.responses_with_usage += 1;
-            s.input_tokens += u.input_tokens.unwrap_or(0);
-            s.output_tokens += u.output_tokens.unwrap_or(0);
-            s.cached_input_tokens += u.cached_input_tokens.unwrap_or(0);
+            s.input_tokens += u.counts.input_tokens.unwrap_or(0);
+            s.output_tokens += u.counts.output_tokens.unwrap_or(0);
+            s.cached_input_tokens += u.counts.cached_input_tokens.unwrap_or(0);
             s.cache_creation_input_tokens += u.cache_creation_input_tokens.unwrap_or(0);
-            s.reasoning_tokens += u.reasoning_tokens.unwrap_or(0);
-            s.total_tokens += u.total_tokens.unwrap_or(0);
+            s.reasoning_tokens += u.counts.reasoning_tokens.unwrap_or(0);
+            s.total_tokens += u.counts.total_tokens.unwrap_or(0);
         }
     }
     Ok(s)
@@ -1082,9 +1077,9 @@ impl UsageAcc {
     fn merge_anthropic(&mut self, u: &Map<String, Value>) {
         let a = self.anthropic.get_or_insert_with(|| TokenUsage { api: "anthropic_messages".into(), ..TokenUsage::default() });
         for (key, field) in [
-            ("input_tokens", &mut a.input_tokens),
-            ("output_tokens", &mut a.output_tokens),
-            ("cache_read_input_tokens", &mut a.cached_input_tokens),
+            ("input_tokens", &mut a.counts.input_tokens),
+            ("output_tokens", &mut a.counts.output_tokens),
+            ("cache_read_input_tokens", &mut a.counts.cached_input_tokens),
             ("cache_creation_input_tokens", &mut a.cache_creation_input_tokens),
         ] {
             if let Some(n) = count(u, &[key]) {
@@ -1095,8 +1090,9 @@ impl UsageAcc {
 
     fn result(self) -> Option<TokenUsage> {
         let mut u = self.anthropic.or(self.last)?;
-        if u.total_tokens.is_none() && (u.input_tokens.is_some() || u.output_tokens.is_some()) {
-            u.total_tokens = Some(u.input_tokens.unwrap_or(0) + u.output_tokens.unwrap_or(0));
+        let c = &mut u.counts;
+        if c.total_tokens.is_none() && (c.input_tokens.is_some() || c.output_tokens.is_some()) {
+            c.total_tokens = Some(c.input_tokens.unwrap_or(0) + c.output_tokens.unwrap_or(0));
         }
         Some(u)
     }
@@ -1107,14 +1103,16 @@ impl UsageAcc {
 fn chat_usage(u: &Map<String, Value>) -> TokenUsage {
     TokenUsage {
         api: "openai_chat".into(),
-        input_tokens: count(u, &["prompt_tokens"]),
-        output_tokens: count(u, &["completion_tokens"]),
-        cached_input_tokens: count(u, &["prompt_tokens_details", "cached_tokens"])
-            .or_else(|| count(u, &["prompt_cache_hit_tokens"]))
-            .or_else(|| count(u, &["cached_tokens"])),
+        counts: Tokens {
+            input_tokens: count(u, &["prompt_tokens"]),
+            output_tokens: count(u, &["completion_tokens"]),
+            cached_input_tokens: count(u, &["prompt_tokens_details", "cached_tokens"])
+                .or_else(|| count(u, &["prompt_cache_hit_tokens"]))
+                .or_else(|| count(u, &["cached_tokens"])),
+            reasoning_tokens: count(u, &["completion_tokens_details", "reasoning_tokens"]).or_else(|| count(u, &["reasoning_tokens"])),
+            total_tokens: count(u, &["total_tokens"]),
+        },
         cache_creation_input_tokens: None,
-        reasoning_tokens: count(u, &["completion_tokens_details", "reasoning_tokens"]).or_else(|| count(u, &["reasoning_tokens"])),
-        total_tokens: count(u, &["total_tokens"]),
     }
 }
 
@@ -1122,12 +1120,14 @@ fn chat_usage(u: &Map<String, Value>) -> TokenUsage {
 fn responses_usage(u: &Map<String, Value>) -> TokenUsage {
     TokenUsage {
         api: "openai_responses".into(),
-        input_tokens: count(u, &["input_tokens"]),
-        output_tokens: count(u, &["output_tokens"]),
-        cached_input_tokens: count(u, &["input_tokens_details", "cached_tokens"]),
+        counts: Tokens {
+            input_tokens: count(u, &["input_tokens"]),
+            output_tokens: count(u, &["output_tokens"]),
+            cached_input_tokens: count(u, &["input_tokens_details", "cached_tokens"]),
+            reasoning_tokens: count(u, &["output_tokens_details", "reasoning_tokens"]),
+            total_tokens: count(u, &["total_tokens"]),
+        },
         cache_creation_input_tokens: None,
-        reasoning_tokens: count(u, &["output_tokens_details", "reasoning_tokens"]),
-        total_tokens: count(u, &["total_tokens"]),
     }
 }
 
@@ -1379,10 +1379,10 @@ mod tests {
         assert!(rs.iter().all(|r| r.request_bytes > 0 && r.response_bytes > 0), "{rs:?}");
         assert_eq!(rs[3].path, "/v1/responses", "no query");
         let usage = |i: usize| rs[i].usage.clone().unwrap();
-        assert_eq!(usage(0), TokenUsage { api: "openai_chat".into(), input_tokens: Some(11), output_tokens: Some(7), cached_input_tokens: Some(3), total_tokens: Some(18), ..TokenUsage::default() });
-        assert_eq!(usage(1), TokenUsage { api: "openai_chat".into(), input_tokens: Some(20), output_tokens: Some(5), cached_input_tokens: Some(4), reasoning_tokens: Some(2), total_tokens: Some(25), ..TokenUsage::default() });
-        assert_eq!(usage(2), TokenUsage { api: "anthropic_messages".into(), input_tokens: Some(30), output_tokens: Some(15), cached_input_tokens: Some(100), cache_creation_input_tokens: Some(10), total_tokens: Some(45), ..TokenUsage::default() });
-        assert_eq!(usage(3), TokenUsage { api: "openai_responses".into(), input_tokens: Some(40), output_tokens: Some(9), cached_input_tokens: Some(8), reasoning_tokens: Some(6), total_tokens: Some(49), ..TokenUsage::default() });
+        assert_eq!(usage(0), TokenUsage { api: "openai_chat".into(), counts: Tokens { input_tokens: Some(11), output_tokens: Some(7), cached_input_tokens: Some(3), total_tokens: Some(18), ..Tokens::default() }, ..TokenUsage::default() });
+        assert_eq!(usage(1), TokenUsage { api: "openai_chat".into(), counts: Tokens { input_tokens: Some(20), output_tokens: Some(5), cached_input_tokens: Some(4), reasoning_tokens: Some(2), total_tokens: Some(25) }, ..TokenUsage::default() });
+        assert_eq!(usage(2), TokenUsage { api: "anthropic_messages".into(), counts: Tokens { input_tokens: Some(30), output_tokens: Some(15), cached_input_tokens: Some(100), total_tokens: Some(45), ..Tokens::default() }, cache_creation_input_tokens: Some(10) });
+        assert_eq!(usage(3), TokenUsage { api: "openai_responses".into(), counts: Tokens { input_tokens: Some(40), output_tokens: Some(9), cached_input_tokens: Some(8), reasoning_tokens: Some(6), total_tokens: Some(49) }, ..TokenUsage::default() });
         let text = std::fs::read_to_string(&f.records).unwrap();
         assert!(!text.contains("SECRET") && !text.contains("Bearer"), "{text}");
 
@@ -1521,7 +1521,7 @@ mod tests {
         c.push(b"event: message_delta\ndata: {\"type\":\"message_delta\",\"usage\":{\"output_tokens\":900}}\n\n");
         assert!(c.head.len() + c.tail.len() <= HEAD_KEEP + 2 * TAIL_KEEP && c.total > 1 << 20);
         let u = c.usage().unwrap();
-        assert_eq!((u.input_tokens, u.cached_input_tokens, u.output_tokens, u.total_tokens), (Some(7), Some(70), Some(900), Some(907)));
+        assert_eq!((u.counts.input_tokens, u.counts.cached_input_tokens, u.counts.output_tokens, u.counts.total_tokens), (Some(7), Some(70), Some(900), Some(907)));
         // A JSON completion of ~1 MiB: `usage` comes last.
         let mut c = Capture::default();
         c.push(br#"{"choices":[{"message":{"content":""#);
@@ -1530,7 +1530,7 @@ mod tests {
         }
         c.push(br#""}}],"usage":{"prompt_tokens":123,"completion_tokens":45,"total_tokens":168}}"#);
         let u = c.usage().unwrap();
-        assert_eq!((u.api.as_str(), u.input_tokens, u.output_tokens, u.total_tokens), ("openai_chat", Some(123), Some(45), Some(168)));
+        assert_eq!((u.api.as_str(), u.counts.input_tokens, u.counts.output_tokens, u.counts.total_tokens), ("openai_chat", Some(123), Some(45), Some(168)));
         // Compressed against our asking: not read. No usage at all: none.
         let mut c = Capture { encoded: true, ..Capture::default() };
         c.push(br#"{"usage":{"prompt_tokens":1}}"#);
@@ -1541,7 +1541,7 @@ mod tests {
         // DeepSeek's cache hits, Moonshot's top-level cached_tokens.
         let mut acc = UsageAcc::default();
         acc.feed(&serde_json::json!({"usage": {"prompt_tokens": 10, "completion_tokens": 2, "prompt_cache_hit_tokens": 6}}));
-        assert_eq!(acc.result().unwrap().cached_input_tokens, Some(6));
+        assert_eq!(acc.result().unwrap().counts.cached_input_tokens, Some(6));
     }
 
     /// An https upstream goes through rustls with this machine's roots: here a server that only echoes, so the

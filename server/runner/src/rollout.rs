@@ -20,6 +20,7 @@ use super::harness::{Harness, Launch, LaunchContext, build_launch};
 use super::agent_net::{NetPlan, contain};
 use super::schedule::{Demo, PlannedRollout};
 use super::logs::{Limits, scrub_log, scrub_text};
+use super::toolbox::Toolbox;
 use super::usage::{Usage, UsageFormat, UsageScanner};
 use super::{INTERRUPTED, RunContext};
 use libero_server::client::{get_json, post_json, prepare_episode};
@@ -261,6 +262,8 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         "credential_source": ctx.credentials.as_ref().map(|c| c.source.clone()),
         "credential_material": "never_recorded",
         "sandbox": ctx.sandbox.as_ref().map(|s| s.describe()),
+        // A result is only comparable with the same toolbox: null is the system's python3 alone.
+        "toolbox": ctx.sandbox.as_ref().and_then(|s| s.toolbox.as_ref()).map(Toolbox::describe),
         "network": net.as_ref().map(NetPlan::describe),
         "episode_id": prepared.episode_id,
         "workspace": prepared.workspace,
@@ -280,6 +283,17 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     let t0 = Instant::now();
     let mut child = cmd.spawn().with_context(|| format!("cannot start {}", contained.argv[0]))?;
     contained.spawned();
+    // The agent's transcript as it prints it, beside the robot's calls (docs/agent_transcript.md).
+    let transcript = super::transcript::follow_rollout(super::transcript::RolloutTranscript {
+        harness: ctx.harness,
+        workspace: &prepared.workspace,
+        secrets: &ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect::<Vec<_>>(),
+        streams: super::transcript::Streams { stdout: stdout_path.clone(), stderr: stderr_path.clone(), gateway: contained.model_api_records.clone() },
+        server_url: &ctx.server_url,
+        episode_id: &prepared.episode_id,
+        run_dir: &prepared.run_dir,
+        rollout_dir: &dir,
+    });
     // What the sandbox is, as its first process saw it before the agent started (ids, capabilities, mounts).
     let sandbox_report = if ctx.sandbox.is_some() { contained.report(Duration::from_secs(30)) } else { None };
     if let Some(m) = manifest.as_object_mut() {
@@ -329,6 +343,8 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     // The agent is gone: its relays and gateway stop, their sockets go; the gateway's records stay.
     let model_api_records = contained.model_api_records.clone();
     drop(contained);
+    // Before the logs are scrubbed in place: the last lines, and the gateway's last records.
+    let transcript = transcript.finish();
     if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
         let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
         let _ = post_json(&ctx.server_url, &format!("/api/episodes/{}/abort", prepared.episode_id), &json!({"reason": reason}));
@@ -364,14 +380,11 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     // the MCP configs the token.
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
     let (usage, logs) = scrub_logs(ctx.harness, &stdout_path, &stderr_path, &secrets);
-    // What the runner's gateway saw of the agent's model traffic (never a file the agent can write); its token
-    // figures stand in where the harness prints none on stdout (Kimi Code, DeepSeek's harness).
+    // What the runner's gateway saw of the agent's model traffic (never a file the agent can write): its token
+    // figures count whenever it has any, stdout's only without them (the agent can print into its CLI's stdout).
     let model_api = model_api_records.as_deref().and_then(|p| super::netgate::summarize(p).ok());
-    let (usage, usage_source) = match &model_api {
-        _ if usage.available => (usage, "harness_stdout"),
-        Some(m) if m.responses_with_usage > 0 => (m.to_usage(), "model_api_gateway"),
-        _ => (usage, "unavailable"),
-    };
+    let usage = super::usage::choose(usage, model_api.as_ref());
+    let usage_source = usage.source.clone();
     rec.usage = Some(usage);
     scrub_launch_files(&home, &launch, &secrets);
     if let Some(m) = manifest.as_object_mut() {
@@ -384,6 +397,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         m.insert("outcome".into(), json!(rec.outcome));
         m.insert("logs".into(), logs);
         m.insert("usage_source".into(), json!(usage_source));
+        m.insert("agent_events".into(), json!(transcript));
         m.insert("model_api".into(), json!(model_api.as_ref().map(|m| serde_json::to_value(m).unwrap_or_default())));
     }
     write_json_file(&dir.join("harness_manifest.json"), &manifest)?;

@@ -13,13 +13,17 @@
 //! unprivileged [`AGENT_UID`]/[`AGENT_GID`], clears every capability set, sets no_new_privs and installs a seccomp
 //! filter that refuses new namespaces before it starts the agent. Read-only mounts then stay read-only: remounting
 //! needs CAP_SYS_ADMIN, which no process of the agent has in any namespace.
+//!
+//! The agent's toolbox ([`crate::toolbox`]), when the run has one, is shown read-only at [`toolbox::INSIDE`].
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, bail};
 
+use super::toolbox::{self, Toolbox};
+
 /// System directories visible read-only (symlinks such as Debian's `/lib -> usr/lib` are recreated as links).
-const SYSTEM_DIRS: [&str; 7] = ["/usr", "/etc", "/bin", "/sbin", "/lib", "/lib64", "/lib32"];
+pub(crate) const SYSTEM_DIRS: [&str; 7] = ["/usr", "/etc", "/bin", "/sbin", "/lib", "/lib64", "/lib32"];
 
 /// The host uid and gid a sandboxed agent runs as when the runner is root (`nobody`/`nogroup` on Debian).
 pub const AGENT_UID: u32 = 65534;
@@ -39,6 +43,8 @@ pub struct Sandbox {
     /// The unprivileged host ids the agent is switched to (`Some` when the runner is root; an ordinary user's
     /// agent keeps that user's ids inside a user namespace of its own).
     pub agent_ids: Option<(u32, u32)>,
+    /// The agent's Python toolbox, bound read-only at [`toolbox::INSIDE`] (`None`: the system's python3 alone).
+    pub toolbox: Option<Toolbox>,
 }
 
 /// What one agent may see.
@@ -84,7 +90,7 @@ impl Sandbox {
             .unwrap_or_default();
         // SAFETY: geteuid(2) has no preconditions.
         let agent_ids = (unsafe { libc::geteuid() } == 0).then_some((AGENT_UID, AGENT_GID));
-        let s = Self { bwrap, version, agent_ids };
+        let s = Self { bwrap, version, agent_ids, toolbox: None };
         let probe = s.command(&["/bin/true".to_owned()], &SandboxSpec { cwd: "/".into(), ..Default::default() });
         let out = Command::new(&probe[0]).args(&probe[1..]).output().context("cannot run bwrap")?;
         if !out.status.success() {
@@ -97,6 +103,11 @@ impl Sandbox {
             );
         }
         Ok(s)
+    }
+
+    /// The same sandbox with `toolbox` as the agent's Python.
+    pub fn with_toolbox(self, toolbox: Option<Toolbox>) -> Self {
+        Self { toolbox, ..self }
     }
 
     /// How the sandbox isolates, for the harness manifest (what the agent itself reports comes beside it).
@@ -142,7 +153,14 @@ impl Sandbox {
         // bubblewrap makes missing parents of a mount point private (0700) when it runs as root: the agent's user
         // could not reach its own workspace or CLI below them. Every parent is made first, world-searchable.
         let relay = spec.relay_dir.as_ref().map(|_| PathBuf::from(RELAY_DIR));
-        let dests = spec.readable.iter().chain(&spec.writable).chain(spec.files.iter().map(|(_, inside)| inside)).chain(relay.iter());
+        let toolbox_inside = self.toolbox.as_ref().map(|_| PathBuf::from(toolbox::INSIDE));
+        let dests = spec
+            .readable
+            .iter()
+            .chain(&spec.writable)
+            .chain(spec.files.iter().map(|(_, inside)| inside))
+            .chain(relay.iter())
+            .chain(toolbox_inside.iter());
         let mut parents: Vec<&Path> = dests
             .flat_map(|p| p.ancestors().skip(1))
             .filter(|d| *d != Path::new("/") && !d.as_os_str().is_empty() && !SYSTEM_DIRS.iter().any(|s| d.starts_with(s)))
@@ -153,6 +171,9 @@ impl Sandbox {
             if d != Path::new("/tmp") && d != Path::new("/run") {
                 push(&["--perms", "0755", "--dir", &d.to_string_lossy()]);
             }
+        }
+        if let Some(tb) = &self.toolbox {
+            push(&["--ro-bind", &tb.root.to_string_lossy(), toolbox::INSIDE]);
         }
         // Later mounts win: system first, then the extras, then the writable directories. A link stays a link
         // (npm's `node_modules/.bin/x -> ../pkg/cli.js`): a script finds its modules relative to its real path.
@@ -279,7 +300,7 @@ mod tests {
 
     #[test]
     fn the_command_binds_only_what_the_spec_names() {
-        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None, toolbox: None };
         let spec = SandboxSpec {
             writable: vec!["/tmp/ws/w1".into()],
             readable: vec!["/usr/bin/codex".into(), "/opt/tool".into()],
@@ -305,7 +326,7 @@ mod tests {
     #[test]
     fn a_root_runner_s_sandbox_keeps_only_the_capabilities_to_drop_to_the_agent_s_user() {
         let spec = SandboxSpec { writable: vec!["/root/b/home".into()], cwd: "/".into(), relay_dir: Some("/root/b/net".into()), ..Default::default() };
-        let root = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)) };
+        let root = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)), toolbox: None };
         let joined = root.command(&["x".into()], &spec).join(" ");
         assert!(joined.contains("--cap-drop ALL --cap-add CAP_SETUID --cap-add CAP_SETGID --cap-add CAP_SETPCAP"), "{joined}");
         assert!(!joined.contains("--unshare-user") && joined.contains("--unshare-net"), "{joined}");
@@ -314,6 +335,27 @@ mod tests {
         let user = Sandbox { agent_ids: None, ..root };
         let joined = user.command(&["x".into()], &spec).join(" ");
         assert!(joined.contains("--unshare-user --disable-userns --cap-drop ALL") && !joined.contains("--cap-add"), "{joined}");
+    }
+
+    /// The cache lies below the runner's home (`/root`, 0700): the agent's user reaches the toolbox at a neutral
+    /// path of its own, read-only, with world-searchable parents.
+    #[test]
+    fn the_toolbox_is_bound_read_only_at_a_neutral_path() {
+        let tb = Toolbox {
+            name: "t".into(),
+            root: "/root/.cache/libero-agent/toolbox-t-0".into(),
+            interpreter: "/usr/bin/python3.11".into(),
+            python: None,
+            packages: Vec::new(),
+            size_bytes: None,
+            project: true,
+        };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)), toolbox: None };
+        let spec = SandboxSpec { cwd: "/".into(), ..Default::default() };
+        assert!(!s.command(&["x".into()], &spec).join(" ").contains(toolbox::INSIDE));
+        let joined = s.with_toolbox(Some(tb)).command(&["x".into()], &spec).join(" ");
+        assert!(joined.contains("--perms 0755 --dir /opt --ro-bind /root/.cache/libero-agent/toolbox-t-0 /opt/libero-toolbox"), "{joined}");
+        assert!(!joined.contains("--dir /root"), "nothing of the runner's home is made: {joined}");
     }
 
     /// An npm install as the runner sees it: `.bin/tool -> ../@scope/tool/cli.js`, a script run by `node`.
@@ -341,7 +383,7 @@ mod tests {
         std::fs::write(dir.path().join("native"), b"\x7fELF\x02\x01").unwrap();
         assert_eq!(script_interpreter(&dir.path().join("native")), None);
         // Inside the sandbox the link is recreated as a link, so the script resolves its modules where it lives.
-        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None, toolbox: None };
         let spec = SandboxSpec { readable: paths, cwd: "/".into(), ..Default::default() };
         let joined = s.command(&["tool".into()], &spec).join(" ");
         assert!(joined.contains(&format!("--symlink ../@scope/tool/bin/cli.js {}", nm.join(".bin/tool").display())), "{joined}");

@@ -5,6 +5,11 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
+use libero_episode::agent_events::Tokens;
+
+use crate::lines::{Line, LineSplitter};
+
+/// A rollout's token figures (the record's `usage`, `harness_usage.json`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Usage {
     pub available: bool,
@@ -15,6 +20,65 @@ pub struct Usage {
     pub cache_read_input_tokens: Option<u64>,
     pub reasoning_tokens: Option<u64>,
     pub total_tokens: Option<u64>,
+    /// Where the figures come from ([`SOURCE_GATEWAY`], [`SOURCE_STDOUT`] or [`SOURCE_NONE`]); absent in records
+    /// written before sources were recorded (those took stdout first).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
+    /// What the harness printed on stdout when the gateway's figures were taken instead, for comparison.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub harness_stdout: Option<StdoutFigures>,
+}
+
+/// The runner's model-API gateway records (`sandbox/model_api.jsonl`), which the agent cannot write.
+pub const SOURCE_GATEWAY: &str = "model_api_gateway";
+/// The usage the harness printed on its stdout, which the agent's own commands can write to as well.
+pub const SOURCE_STDOUT: &str = "harness_stdout";
+/// Neither reported any.
+pub const SOURCE_NONE: &str = "unavailable";
+
+/// The harness's own stdout figures beside the gateway's.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct StdoutFigures {
+    pub input_tokens: Option<u64>,
+    pub output_tokens: Option<u64>,
+    pub total_tokens: Option<u64>,
+    /// Input, output and total equal the gateway's.
+    pub agrees: bool,
+}
+
+/// The rollout's usage: the gateway's records when they hold any usage (every model request of a sandboxed
+/// agent passes the gateway, and the agent cannot write its records), else what the harness printed on stdout
+/// (runs without the sandbox), else nothing. Lines the agent prints into its CLI's stdout thus never count
+/// when the gateway saw the traffic.
+pub fn choose(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> Usage {
+    match gateway {
+        Some(g) if g.responses_with_usage > 0 => {
+            let mut u = g.to_usage();
+            if stdout.available {
+                let agrees = (stdout.input_tokens, stdout.output_tokens, stdout.total_tokens) == (u.input_tokens, u.output_tokens, u.total_tokens);
+                u.harness_stdout = Some(StdoutFigures {
+                    input_tokens: stdout.input_tokens,
+                    output_tokens: stdout.output_tokens,
+                    total_tokens: stdout.total_tokens,
+                    agrees,
+                });
+            }
+            u.source = Some(SOURCE_GATEWAY.into());
+            u
+        }
+        _ if stdout.available => Usage { source: Some(SOURCE_STDOUT.into()), ..stdout },
+        _ => Usage { source: Some(SOURCE_NONE.into()), ..stdout },
+    }
+}
+
+/// The token counts of a `usage` mapping, for a transcript's `usage` event.
+pub(crate) fn tokens_of(usage: &Map<String, Value>) -> Option<Tokens> {
+    record_of(usage).map(Record::tokens)
+}
+
+/// A Codex `turn.completed` event's counts.
+pub(crate) fn codex_turn_tokens(v: &Value) -> Option<Tokens> {
+    codex_turn_record(v).map(Record::tokens)
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -24,6 +88,12 @@ struct Record {
     cache_read: Option<u64>,
     reasoning: Option<u64>,
     total: Option<u64>,
+}
+
+impl Record {
+    fn tokens(self) -> Tokens {
+        Tokens { input_tokens: self.input, output_tokens: self.output, cached_input_tokens: self.cache_read, reasoning_tokens: self.reasoning, total_tokens: self.total }
+    }
 }
 
 fn int(m: &Map<String, Value>, keys: &[&str]) -> Option<u64> {
@@ -145,6 +215,7 @@ impl Sum {
             cache_read_input_tokens: self.cache_read,
             reasoning_tokens: self.reasoning,
             total_tokens: self.total,
+            ..Usage::default()
         }
     }
 }
@@ -155,10 +226,14 @@ impl Sum {
 /// consecutive identical records collapse. Codex: the `turn.completed` events add up.
 #[derive(Debug)]
 pub struct UsageScanner {
+    lines: LineSplitter,
+    sums: Sums,
+}
+
+/// What the lines of one log added up to so far.
+#[derive(Debug)]
+struct Sums {
     format: UsageFormat,
-    line: Vec<u8>,
-    /// The current line outgrew the limit: it is counted, not parsed.
-    overlong: bool,
     lines: u64,
     all: Sum,
     results: Sum,
@@ -166,56 +241,43 @@ pub struct UsageScanner {
 
 impl UsageScanner {
     pub fn new(format: UsageFormat) -> Self {
-        Self { format, line: Vec::new(), overlong: false, lines: 0, all: Sum::default(), results: Sum::default() }
+        Self { lines: LineSplitter::new(MAX_USAGE_LINE_BYTES), sums: Sums { format, lines: 0, all: Sum::default(), results: Sum::default() } }
     }
 
     /// The next bytes of the log.
-    pub fn push(&mut self, mut bytes: &[u8]) {
-        if self.format == UsageFormat::None {
+    pub fn push(&mut self, bytes: &[u8]) {
+        if self.sums.format == UsageFormat::None {
             return;
         }
-        while let Some(i) = bytes.iter().position(|&b| b == b'\n') {
-            self.append(&bytes[..i]);
-            self.end_line();
-            bytes = &bytes[i + 1..];
-        }
-        self.append(bytes);
+        self.lines.push(bytes, |l| self.sums.line(l));
     }
 
     /// Bytes of the log were skipped here: the line under way ends.
     pub fn gap(&mut self) {
-        self.end_line();
+        self.lines.end(|l| self.sums.line(l));
     }
 
     pub fn finish(mut self) -> Usage {
-        self.end_line();
-        match self.format {
+        self.gap();
+        let s = self.sums;
+        match s.format {
             UsageFormat::None => Usage::default(),
-            UsageFormat::CodexExec => self.all.usage(self.lines),
-            UsageFormat::Jsonl if self.results.count > 0 => self.results.usage(self.lines),
-            UsageFormat::Jsonl => self.all.usage(self.lines),
+            UsageFormat::CodexExec => s.all.usage(s.lines),
+            UsageFormat::Jsonl if s.results.count > 0 => s.results.usage(s.lines),
+            UsageFormat::Jsonl => s.all.usage(s.lines),
         }
     }
+}
 
-    fn append(&mut self, bytes: &[u8]) {
-        if self.overlong {
-            return;
-        }
-        if self.line.len() + bytes.len() > MAX_USAGE_LINE_BYTES {
-            self.overlong = true;
-            self.line = Vec::new();
-            return;
-        }
-        self.line.extend_from_slice(bytes);
-    }
-
-    fn end_line(&mut self) {
-        let line = std::mem::take(&mut self.line);
-        let overlong = std::mem::replace(&mut self.overlong, false);
-        if overlong {
-            self.lines += 1;
-            return;
-        }
+impl Sums {
+    fn line(&mut self, line: Line<'_>) {
+        let line = match line {
+            Line::Overlong(_) => {
+                self.lines += 1;
+                return;
+            }
+            Line::Complete(l) => l,
+        };
         if line.iter().all(u8::is_ascii_whitespace) {
             return;
         }
@@ -225,21 +287,12 @@ impl UsageScanner {
         if !line.windows(needle.len()).any(|w| w == needle) {
             return;
         }
-        let Ok(v) = serde_json::from_slice::<Value>(&line) else { return };
+        let Ok(v) = serde_json::from_slice::<Value>(line) else { return };
         match self.format {
             UsageFormat::None => {}
             UsageFormat::CodexExec => {
-                if v["type"] != "turn.completed" {
-                    return;
-                }
-                if let Some(Value::Object(u)) = v.get("usage") {
-                    let mut u = u.clone();
-                    if let Some(r) = u.get("reasoning_output_tokens").cloned() {
-                        u.insert("reasoning_tokens".into(), r);
-                    }
-                    if let Some(r) = record_of(&u) {
-                        self.all.add(r, false);
-                    }
+                if let Some(r) = codex_turn_record(&v) {
+                    self.all.add(r, false);
                 }
             }
             UsageFormat::Jsonl => {
@@ -255,6 +308,18 @@ impl UsageScanner {
             }
         }
     }
+}
+
+/// A Codex `turn.completed` event's usage (its `reasoning_output_tokens` are reasoning tokens).
+fn codex_turn_record(v: &Value) -> Option<Record> {
+    if v["type"] != "turn.completed" {
+        return None;
+    }
+    let mut u = v.get("usage")?.as_object()?.clone();
+    if let Some(r) = u.get("reasoning_output_tokens").cloned() {
+        u.insert("reasoning_tokens".into(), r);
+    }
+    record_of(&u)
 }
 
 #[cfg(test)]

@@ -303,7 +303,11 @@ impl Worker {
         let settings: BatchSettings = serde_json::from_value(stored.doc["settings"].clone()).context("the batch's settings")?;
         let harness: Harness = serde_json::from_value(json!(settings.harness)).context("the batch's harness")?;
         let credentials = if harness.needs_credentials() { Some(Credentials::load(&self.credentials_file)?) } else { None };
-        let sandbox = if settings.sandbox { Some(Sandbox::detect()?) } else { None };
+        // the project's toolbox, as `run` gives its agents by default (installed on first use)
+        let sandbox = match settings.sandbox {
+            true => Some(Sandbox::detect()?.with_toolbox(Some(crate::toolbox::ensure_project()?))),
+            false => None,
+        };
         let npm_cli_installed = pinned_npm_cli_installed(harness);
         let name = libero_artifacts::check_name(batch)?;
         let attempt_dir = super::fresh_dir(&self.data.join("batches").join(name), &format!("a{attempt}"))?;

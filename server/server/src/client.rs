@@ -130,7 +130,12 @@ pub fn get_json(base: &str, path: &str) -> anyhow::Result<(u16, Value)> {
 
 /// `POST <base><path>` of the operator API with a JSON body (status, body).
 pub fn post_json(base: &str, path: &str, body: &Value) -> anyhow::Result<(u16, Value)> {
-    let resp = operator_request("POST", base, path, body.to_string().as_bytes(), CALL_TIMEOUT)?;
+    post_json_within(base, path, body, CALL_TIMEOUT)
+}
+
+/// [`post_json`] that gives up after `timeout` (calls that must not hold their caller for minutes).
+pub fn post_json_within(base: &str, path: &str, body: &Value, timeout: Duration) -> anyhow::Result<(u16, Value)> {
+    let resp = operator_request("POST", base, path, body.to_string().as_bytes(), timeout)?;
     Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
 }
 

@@ -17,6 +17,7 @@ pub mod mcp;
 pub mod mcp_gate;
 pub mod memory;
 pub mod store;
+pub mod transcript;
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -536,7 +537,8 @@ pub fn router(state: AppState) -> Router {
         .route("/api/episodes", post(prepare).get(list_episodes))
         .route("/api/episodes/{id}", get(episode_status))
         .route("/api/episodes/{id}/video", get(episode_video))
-        .route("/api/episodes/{id}/abort", post(abort_episode));
+        .route("/api/episodes/{id}/abort", post(abort_episode))
+        .route("/api/episodes/{id}/agent/events", post(transcript::ingest));
     let mut raw = Router::new();
     let mut public = Router::new();
     if let Some(console) = state.console {

@@ -8,6 +8,7 @@ use std::time::Duration;
 use serde_json::Value;
 
 pub mod postgres;
+pub mod scripted_model;
 
 /// The test venv's interpreter (`scripts/setup.py --test`): the independent Python peers of some tests.
 pub fn python() -> PathBuf {
@@ -181,4 +182,100 @@ pub fn wait_success(child: &mut Child, limit: std::time::Duration, what: &str) {
         }
         std::thread::sleep(std::time::Duration::from_millis(200));
     }
+}
+
+/// A minimal WebSocket client of the episode socket: every text message until `finished` or the close.
+pub fn read_socket(url: &str, operator_token: &str) -> std::thread::JoinHandle<Result<Vec<Value>, String>> {
+    let rest = url.strip_prefix("http://").expect("http url").to_owned();
+    let (host, path) = rest.split_at(rest.find('/').expect("path"));
+    let (host, path) = (host.to_owned(), path.to_owned());
+    let mut stream = std::net::TcpStream::connect(&host).expect("connect");
+    stream.set_read_timeout(Some(Duration::from_secs(300))).expect("timeout");
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\n\
+         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nAuthorization: Bearer {operator_token}\r\n\r\n"
+    )
+    .expect("handshake");
+    let mut r = BufReader::new(stream);
+    // The answer's head, byte by byte up to the blank line (the frames follow at once).
+    let mut head = Vec::new();
+    while !head.ends_with(b"\r\n\r\n") {
+        let mut b = [0u8; 1];
+        r.read_exact(&mut b).expect("handshake answer");
+        head.push(b[0]);
+    }
+    assert!(head.starts_with(b"HTTP/1.1 101"), "{}", String::from_utf8_lossy(&head));
+    std::thread::spawn(move || {
+        let mut texts = Vec::new();
+        loop {
+            let mut h = [0u8; 2];
+            if r.read_exact(&mut h).is_err() {
+                return Ok(texts);
+            }
+            let mut len = u64::from(h[1] & 0x7f);
+            if len == 126 {
+                let mut l = [0u8; 2];
+                r.read_exact(&mut l).map_err(|e| e.to_string())?;
+                len = u64::from(u16::from_be_bytes(l));
+            } else if len == 127 {
+                let mut l = [0u8; 8];
+                r.read_exact(&mut l).map_err(|e| e.to_string())?;
+                len = u64::from_be_bytes(l);
+            }
+            let mut payload = vec![0u8; usize::try_from(len).map_err(|e| e.to_string())?];
+            r.read_exact(&mut payload).map_err(|e| e.to_string())?;
+            match h[0] & 0x0f {
+                1 => {
+                    let v: Value = serde_json::from_slice(&payload).map_err(|e| e.to_string())?;
+                    if v["type"] == "reset" {
+                        return Err("the socket fell behind the events and was sent the history again".into());
+                    }
+                    let end = v["type"] == "finished";
+                    texts.push(v);
+                    if end {
+                        return Ok(texts);
+                    }
+                }
+                8 => return Ok(texts),
+                _ => {} // frames (binary), pings
+            }
+        }
+    })
+}
+
+/// Runs a browser script of `tests/dashboard/` (node, playwright-core, Debian's chromium; `scripts/setup.py --test`
+/// installs them) with `args` and the operator token, and returns its last JSON line; fails saying what is missing.
+pub fn browser_script(script: &str, args: &[&str], operator_token: &str) -> Value {
+    let chromium = std::env::var_os("LIBERO_AGENT_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| "/usr/bin/chromium".into());
+    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
+    let node_modules = cache.join("node/node_modules");
+    assert!(
+        chromium.is_file() && node_modules.join("playwright-core/package.json").is_file(),
+        "chromium or playwright-core missing: run `python3 scripts/setup.py --test`"
+    );
+    let out = Command::new("node")
+        .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/dashboard").join(script))
+        .args(args)
+        .env("NODE_PATH", &node_modules)
+        .env("LIBERO_AGENT_CHROMIUM", &chromium)
+        .env("LIBERO_OPERATOR_TOKEN", operator_token)
+        .output()
+        .expect("run node (Debian: apt-get install nodejs)");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    eprintln!("{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    stdout.lines().last().and_then(|l| serde_json::from_str(l).ok()).expect("a JSON line from the script")
+}
+
+/// `episode prepare --server URL --task T14` into `workspace`: the prepared episode as `prepare` prints it.
+pub fn prepare_t14(server_url: &str, workspace: &Path) -> Value {
+    let out = Command::new(bin())
+        .args(["episode", "prepare", "--server", server_url, "--task", "T14", "--wall-time-s", "300", "--workspace"])
+        .arg(workspace)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "prepare: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
 }

@@ -1,0 +1,65 @@
+//! `POST /api/episodes/{id}/agent/events`: a runner whose agent ran on another machine than this server (`run
+//! --server URL` against a remote server) adds its agent's transcript events to the episode's run directory here,
+//! where the review and the live page read them (`agent_events.jsonl`, docs/agent_transcript.md). Operator-only
+//! like the rest of the operator API; every event is bounded again here and the file stays within its limit.
+use axum::body::Bytes;
+use axum::extract::{Path, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use libero_episode::RunDir;
+use libero_episode::agent_events::{AgentEvent, TranscriptFile};
+use serde_json::json;
+
+use crate::{AppState, json_error};
+
+/// Most events one request may add.
+pub const MAX_EVENTS_PER_POST: usize = 1000;
+/// Most bytes of one request's body (axum's default body limit; the runner posts at most 1 MiB at a time).
+pub const MAX_POST_BYTES: usize = 2 << 20;
+
+#[derive(serde::Deserialize)]
+struct Posted {
+    events: Vec<AgentEvent>,
+}
+
+/// Episode ids are `ep-<utc>-<hex>`; anything else never reaches the filesystem.
+fn plain_id(id: &str) -> bool {
+    !id.is_empty() && id.len() <= 96 && id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+pub async fn ingest(State(app): State<AppState>, Path(id): Path<String>, body: Bytes) -> Response {
+    if body.len() > MAX_POST_BYTES {
+        return json_error(StatusCode::PAYLOAD_TOO_LARGE, format!("at most {MAX_POST_BYTES} bytes per request"));
+    }
+    let posted: Posted = match serde_json::from_slice(&body) {
+        Ok(p) => p,
+        Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"events\": [agent events]}}: {e}")),
+    };
+    if posted.events.len() > MAX_EVENTS_PER_POST {
+        return json_error(StatusCode::PAYLOAD_TOO_LARGE, format!("at most {MAX_EVENTS_PER_POST} events per request"));
+    }
+    if !plain_id(&id) {
+        return json_error(StatusCode::NOT_FOUND, "no such episode");
+    }
+    let run = match app.store.get(&id).await {
+        Ok(Some(row)) => RunDir::new(row.episode.run_dir),
+        Ok(None) => return json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
+        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+    };
+    let written = tokio::task::spawn_blocking(move || -> std::io::Result<(u64, bool)> {
+        if !run.root.is_dir() {
+            return Err(std::io::Error::new(std::io::ErrorKind::NotFound, "the episode's run directory is not on this server"));
+        }
+        let mut file = TranscriptFile::open(&run.agent_events_jsonl())?;
+        file.append(posted.events)?;
+        file.sync()?;
+        Ok((file.written().events, file.is_full()))
+    })
+    .await;
+    match written {
+        Ok(Ok((accepted, full))) => axum::Json(json!({"ok": true, "accepted": accepted, "full": full})).into_response(),
+        Ok(Err(e)) if e.kind() == std::io::ErrorKind::NotFound => json_error(StatusCode::CONFLICT, e.to_string()),
+        Ok(Err(e)) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("cannot write the transcript: {e}")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("transcript: {e}")),
+    }
+}
