@@ -181,7 +181,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         return trace(args, &spec, &task_id);
     }
     // the episode is the address's (a pool entry keeps its own instruction); the expert is its definition's
-    let request = prepare_request(args, &spec.task.task_ref);
+    let request = PrepareRequest { layout: spec.task.layout, ..prepare_request(args, &spec.task.task_ref) };
     if args.demo_out.is_some() && args.server.is_some() {
         bail!("--demo-out needs the run directories here: run without --server");
     }
@@ -267,7 +267,6 @@ pub(crate) fn prepare_request(args: &ExpertArgs, task_id: &str) -> PrepareReques
         seed: args.seed,
         max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
         video: !args.no_video,
-        layout: args.layout().ok().flatten(),
         ..PrepareRequest::new(task_id.to_owned())
     }
 }

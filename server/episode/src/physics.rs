@@ -54,12 +54,14 @@ impl WorldPhysics {
         spec: &WorldSpec,
         edit_model: impl FnOnce(&ComposedScene, &mut MjModel, &[f64]) -> Result<(), EpisodeError>,
     ) -> Result<Self, EpisodeError> {
-        let mut scene = compose_file(&spec.task.bddl, &spec.paths)?;
+        let scene = compose_file(&spec.task.bddl, &spec.paths)?;
         let mut model = scene.compile()?;
         let suite = spec.task.suite.as_ref();
         let layout = spec.task.effective_layout(spec.seed, spec.init_index)?;
-        adjust_table_regions(&mut scene, layout.region_margin_m, layout.scene_shift_m);
-        let placement = Placement::sample(&scene, layout.placement_seed, Some(&model))?;
+        let placement = match adjusted_table_regions(&scene, layout.region_margin_m, layout.scene_shift_m) {
+            Some(moved) => Placement::sample(&moved, layout.placement_seed, Some(&model))?,
+            None => Placement::sample(&scene, layout.placement_seed, Some(&model))?,
+        };
         placement.apply(&mut model)?;
         // private parameters that shape the physics (T08's mug masses) reach the model here, never through a file
         apply_private_model_edits(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &mut model)
@@ -221,17 +223,21 @@ fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, Ep
     Ok(row)
 }
 
-/// Widens every table region (those the reset placement samples on the workspace fixture) by `margin_m` on each
-/// side and moves it by `shift_m`: a demonstration source's layout (issue 31). Goal regions keep their sites.
-fn adjust_table_regions(scene: &mut ComposedScene, margin_m: f64, shift_m: [f64; 2]) {
+/// The scene to sample a layout variant's placement from (issue 31): every table region (those the reset placement
+/// samples on the workspace fixture) widened by `margin_m` on each side and moved by `shift_m`. Only the placement
+/// sees it; the episode keeps the task's own scene, so goal regions and evaluators are untouched. None without a
+/// variant.
+fn adjusted_table_regions(scene: &ComposedScene, margin_m: f64, shift_m: [f64; 2]) -> Option<ComposedScene> {
     if margin_m <= 0.0 && shift_m == [0.0; 2] {
-        return;
+        return None;
     }
-    let workspace = scene.problem_class.workspace_name().to_owned();
+    let mut moved = scene.clone();
+    let workspace = moved.problem_class.workspace_name().to_owned();
     let [dx, dy] = shift_m;
-    for region in scene.problem.regions.iter_mut().filter(|r| r.target == workspace) {
+    for region in moved.problem.regions.iter_mut().filter(|r| r.target == workspace) {
         for r in &mut region.ranges {
             *r = [r[0] - margin_m + dx, r[1] - margin_m + dy, r[2] + margin_m + dx, r[3] + margin_m + dy];
         }
     }
+    Some(moved)
 }
