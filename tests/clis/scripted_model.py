@@ -4,20 +4,24 @@ It speaks the wire APIs the CLIs use, streaming as they ask:
   POST .../v1/messages          Anthropic Messages (SSE when "stream": true)   — Claude Code
   POST .../v1/responses         OpenAI Responses (SSE when "stream": true)    — Codex
   POST .../v1/chat/completions  OpenAI Chat Completions (SSE when streaming)  — OpenAI-compatible harnesses
-Every answer depends only on the request: the number of episode tool calls already in the conversation picks
-the next step of SCRIPT (start_episode, two osc_sequence calls, finish_episode, then a final text answer), and
+Every answer depends only on the request: the number of script tool calls already in the conversation picks
+the next step of the script (`--script robot`, the default: start_episode, two osc_sequence calls, finish_episode,
+then a final text answer; `--script perception`: start_episode, then the CLI's own shell tool running
+tests/clis/perception_program.py — Appendix F's back-projection with numpy, scipy, Pillow and OpenCV —, then an
+osc_sequence whose action is read from that command's output as the model saw it, finish_episode, a text), and
 the tool is called by whatever name the CLI offered for it (e.g. `mcp__libero__start_episode`, or `start_episode`
 in Codex's `mcp__libero` namespace). A CLI that keeps MCP tools behind a search tool first gets the search. A
 request that offers none of the episode's tools (a CLI's side request) gets a short text answer. Each reply reports fixed
 token usage, and one JSON line per request is appended to --log (path, whether the API key matched, the tool
 names offered, the step, what was answered, the usage reported), never the key itself.
 
-Usage: SCRIPTED_MODEL_API_KEY=KEY scripted_model.py --log FILE   (prints {"port": N} on stdout, serves until
+Usage: SCRIPTED_MODEL_API_KEY=KEY scripted_model.py --log FILE [--script robot|perception]   (prints {"port": N} on stdout, serves until
 killed; the key comes from the environment so that it is on no command line)
 """
 import argparse
 import json
 import os
+import re
 import sys
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -29,6 +33,19 @@ SCRIPT = [
     ("finish_episode", {}),
 ]
 SCRIPT_TOOLS = ["start_episode", "osc_sequence", "finish_episode"]
+# The shell tools of the CLIs: Codex's unified exec, Claude Code's Bash, Qwen Code's, Kimi Code's.
+SHELL_TOOLS = ["exec_command", "Bash", "run_shell_command", "Shell", "shell"]
+SHELL = "<shell>"
+PROGRAM = open(os.path.join(os.path.dirname(os.path.abspath(__file__)), "perception_program.py")).read()
+PERCEPTION_COMMAND = "python3 - <<'PY'\n" + PROGRAM + "PY"
+MARKER = re.compile(r"LIBERO_PERCEPTION action=([-0-9.,e]+)")
+PERCEPTION = [
+    ("start_episode", {}),
+    (SHELL, PERCEPTION_COMMAND),
+    ("osc_sequence", "from the command's output"),
+    ("finish_episode", {}),
+]
+SCRIPTS = {"robot": SCRIPT, "perception": PERCEPTION}
 FINAL_TEXT = "The episode is finished."
 # Usage reported by every reply (per request): input, of which cached, and output tokens.
 INPUT_TOKENS, CACHED_TOKENS, OUTPUT_TOKENS = 1200, 400, 30
@@ -64,6 +81,56 @@ def offered(tools: list, wanted: str):
     return None
 
 
+def shell_offered(tools: list):
+    """The CLI's shell tool, if it offers one."""
+    for wanted in SHELL_TOOLS:
+        for tool in tools:
+            if tool[1] == wanted:
+                return tool
+    return None
+
+
+def shell_arguments(body: dict, tool, command: str) -> dict:
+    """The shell call's arguments under the CLI's own parameter names (`cmd` for Codex, `command` for the rest;
+    an array-typed command is an argv)."""
+    for t in body.get("tools") or []:
+        if not isinstance(t, dict) or (t.get("name") or (t.get("function") or {}).get("name")) != tool[1]:
+            continue
+        schema = t.get("parameters") or t.get("input_schema") or (t.get("function") or {}).get("parameters") or {}
+        props = schema.get("properties") or {}
+        if "cmd" in props:
+            return {"cmd": command}
+        if (props.get("command") or {}).get("type") == "array":
+            return {"command": ["bash", "-c", command]}
+    return {"command": command, "description": "Back-project the head depth into the robot base frame"}
+
+
+def strings_in(v):
+    """Every string inside a JSON value, and inside strings that are themselves JSON."""
+    if isinstance(v, str):
+        yield v
+        if v[:1] in "{[":
+            try:
+                yield from strings_in(json.loads(v))
+            except ValueError:
+                pass
+    elif isinstance(v, dict):
+        for x in v.values():
+            yield from strings_in(x)
+    elif isinstance(v, list):
+        for x in v:
+            yield from strings_in(x)
+
+
+def perceived_action(body: dict):
+    """The action the perception program printed, as the conversation the CLI sent carries it (the last one)."""
+    found = [m for s in strings_in(body.get("messages") or body.get("input") or []) for m in MARKER.findall(s)]
+    if not found:
+        return None
+    values = [float(x) for x in found[-1].split(",") if x]
+    return values if len(values) == 7 else None
+
+
 def calls_made(body: dict) -> list:
     """The names of the tool calls already in the conversation (Anthropic, Responses or Chat Completions)."""
     names = []
@@ -80,19 +147,30 @@ def calls_made(body: dict) -> list:
     return names
 
 
-def next_step(body: dict):
+def next_step(body: dict, script: list):
     """((namespace, name) as offered, arguments, step) or (None, text, step). A CLI that keeps MCP tools behind a
     search tool (Qwen Code's `tool_search`) gets that search first, as a model would do."""
     tools = tools_offered(body)
     made = calls_made(body)
-    step = sum(1 for name in made if any(name == t or name.endswith("__" + t) for t, _ in SCRIPT))
-    if not any(offered(tools, t) for t, _ in SCRIPT):
+    step = sum(1 for name in made if any(name == t or name.endswith("__" + t) for t in SCRIPT_TOOLS)
+               or name in SHELL_TOOLS)
+    if not any(offered(tools, t) for t in SCRIPT_TOOLS):
         search = offered(tools, "tool_search")
         if search and step == 0 and not any(n.endswith("tool_search") for n in made):
             return search, {"query": "select:" + ",".join(f"mcp__libero__{t}" for t in SCRIPT_TOOLS)}, "search"
         return None, "ok", None
-    if step < len(SCRIPT):
-        wanted, args = SCRIPT[step]
+    if step < len(script):
+        wanted, args = script[step]
+        if wanted == SHELL:
+            shell = shell_offered(tools)
+            if shell is None:
+                return None, "this CLI offers no shell tool", step
+            return shell, shell_arguments(body, shell, args), step
+        if isinstance(args, str):
+            action = perceived_action(body)
+            if action is None:
+                return None, "the perception program's output did not reach me", step
+            return offered(tools, wanted), {"actions": [action, action]}, step
         return offered(tools, wanted), args, step
     return None, FINAL_TEXT, step
 
@@ -248,22 +326,25 @@ class Handler(BaseHTTPRequestHandler):
         with LOCK:
             Handler.counter += 1
             n = Handler.counter
-        tool, payload, step = next_step(body)
+        tool, payload, step = next_step(body, SCRIPTS[self.server.script])
         ctype, data, usage = api(body, tool, payload, n)
         self.record({"method": "POST", "path": self.path, "auth_ok": auth_ok, "stream": bool(body.get("stream")),
                      "model": body.get("model"), "tools": [display(t) for t in tools_offered(body)],
-                     "step": step, "answer": display(tool) if tool else "text", "usage": usage})
+                     "step": step, "answer": display(tool) if tool else "text", "usage": usage,
+                     "arguments": payload if tool else None, "text": None if tool else payload})
         self.reply(200, ctype, data)
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--log", required=True)
+    ap.add_argument("--script", choices=sorted(SCRIPTS), default="robot")
     ap.add_argument("--dump", help="also write every request body into this directory (for debugging)")
     args = ap.parse_args()
     server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
     server.log_path = args.log
     server.dump = args.dump
+    server.script = args.script
     server.api_key = os.environ["SCRIPTED_MODEL_API_KEY"]
     print(json.dumps({"port": server.server_address[1]}), flush=True)
     server.serve_forever()

@@ -13,15 +13,8 @@ import sys
 import time
 import urllib.request
 
-WS = os.environ["LIBERO_AGENT_WORKSPACE"]
-CONFIG = json.load(open(os.path.join(WS, ".libero", "mcp.json")))
-SERVER = next(iter(CONFIG["mcpServers"].values()))
-# Loopback is reached directly: the proxy variables point at the gateway, which refuses the MCP endpoint.
-OPENER = urllib.request.build_opener(urllib.request.ProxyHandler({}))
-HEADERS = {"Content-Type": "application/json", "Accept": "application/json, text/event-stream",
-           "Authorization": SERVER["headers"]["Authorization"]}
+# From tests/clis/mcp_http.py, inlined before this script: WS, OPENER, rpc, initialize, call.
 PAUSE_S = float(sys.argv[1]) if len(sys.argv) > 1 else 1.0
-ids = iter(range(1, 1000))
 
 
 def say(text):
@@ -30,35 +23,8 @@ def say(text):
     time.sleep(PAUSE_S)
 
 
-def rpc(method, params, notify=False):
-    body = {"jsonrpc": "2.0", "method": method, "params": params}
-    if not notify:
-        body["id"] = next(ids)
-    req = urllib.request.Request(SERVER["url"], data=json.dumps(body).encode(), headers=HEADERS, method="POST")
-    with OPENER.open(req, timeout=600) as r:
-        session = r.headers.get("Mcp-Session-Id")
-        raw = r.read().decode()
-    if session:
-        HEADERS["Mcp-Session-Id"] = session
-    if notify:
-        return None
-    messages = [json.loads(raw)] if raw.lstrip().startswith("{") else [
-        json.loads(line[5:]) for line in raw.splitlines() if line.startswith("data:") and line[5:].strip()]
-    reply = next(m for m in messages if m.get("id") == body["id"])
-    return reply
-
-
-def call(tool, arguments):
-    payload = rpc("tools/call", {"name": tool, "arguments": arguments})["result"]["structuredContent"]
-    assert payload["ok"], payload
-    return payload
-
-
 say("agent line 1: reading TASK_PROMPT.txt")
-init = rpc("initialize", {"protocolVersion": "2025-06-18", "capabilities": {},
-                          "clientInfo": {"name": "transcript-agent", "version": "1"}})
-HEADERS["Mcp-Protocol-Version"] = init["result"]["protocolVersion"]
-rpc("notifications/initialized", {}, notify=True)
+initialize("transcript-agent")
 say("agent line 2: starting the episode")
 start = call("start_episode", {})
 say(f"agent line 3: got {start['observation_id']}")

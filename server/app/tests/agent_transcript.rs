@@ -18,28 +18,7 @@ use serde_json::{Value, json};
 
 mod common;
 use common::scripted_model::{API_KEY, ScriptedModel};
-use common::{Server, bin, http, http_get_json, wait_success};
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// Every item of the agent timeline, following `timeline_next` to its end.
-fn timeline(server: &Server, id: &str) -> (Vec<Value>, usize) {
-    let mut items = Vec::new();
-    let mut query = String::new();
-    let mut pages = 0;
-    loop {
-        let (status, page) = http_get_json(&format!("{}/api/episodes/{id}/agent{query}", server.url));
-        assert_eq!(status, 200, "{page}");
-        assert_eq!(page["available"], true, "{page}");
-        items.extend(page["timeline"].as_array().unwrap().iter().cloned());
-        pages += 1;
-        let Some(next) = page["timeline_next"].as_object() else { return (items, pages) };
-        let pairs: Vec<String> = next.iter().filter(|(_, v)| !v.is_null()).map(|(k, v)| format!("{k}={}", v.as_str().map_or(v.to_string(), str::to_owned))).collect();
-        query = format!("?{}", pairs.join("&"));
-    }
-}
+use common::{Server, bin, http, http_get_json, timeline, wait_success};
 
 /// The agent's numbered lines and the robot's calls, in the timeline's order.
 fn story(items: &[Value]) -> Vec<String> {
@@ -65,8 +44,7 @@ fn a_sandboxed_agents_printed_lines_stream_live_and_come_back_in_order_with_the_
     let model = ScriptedModel::start(tmp.path());
     let creds = model.credentials(tmp.path());
     let server = Server::start(&tmp.path().join("data"));
-    let script = std::fs::read_to_string(repo_root().join("tests/clis/transcript_agent.py")).unwrap();
-    let agent_cmd = format!("python3 - 1.0 <<'PY'\n{script}\nPY");
+    let agent_cmd = common::inline_python_agent("transcript_agent.py", "1.0");
     let batch = tmp.path().join("batch");
     let log = tmp.path().join("run.log");
     let mut run = Command::new(bin())

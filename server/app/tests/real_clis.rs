@@ -18,7 +18,7 @@ use serde_json::{Value, json};
 
 mod common;
 use common::scripted_model::{API_KEY, ScriptedModel};
-use common::{Server, bin};
+use common::{Server, bin, timeline};
 
 const SETUP_HINT: &str = "run `python3 scripts/setup.py --test`, which installs the pinned agent CLIs and the MCP \
                           Inspector with npm into ~/.cache/libero-agent/node";
@@ -333,4 +333,89 @@ fn mcp_inspector_cli_plays_a_whole_episode() {
     std::fs::write(&wrong_config, wrong.to_string()).unwrap();
     let (out, v) = inspector(&wrong_config, &["--method", "tools/list"]);
     assert!(!out.status.success() && v["tools"].is_null(), "a wrong token lists nothing: {v}");
+}
+
+/// The action `LIBERO_PERCEPTION action=…` line of a command's output.
+fn perceived_action(output: &str) -> Option<Vec<f64>> {
+    let line = output.lines().rev().find_map(|l| l.trim().strip_prefix("LIBERO_PERCEPTION action="))?;
+    line.split(',').map(|x| x.trim().parse::<f64>().ok()).collect()
+}
+
+/// What the paper's agents did (Appendix F), by a real CLI in the real sandbox, played on a real server: the
+/// scripted model (`--script perception`) starts the episode, has the CLI's own shell tool run
+/// `tests/clis/perception_program.py` (numpy, scipy, Pillow and OpenCV back-projecting the published head depth
+/// through the published calibration), reads the action that program printed from the command's output in the
+/// conversation, acts with it through `osc_sequence` and finishes. Checked: the program ran with the toolbox
+/// inside the sandbox (its interpreter and numpy under `/opt/libero-toolbox`), exited 0, its output reached the
+/// model (the executed action is the printed one), and the review API returns the command, its output and the
+/// robot's calls in the order they happened.
+fn check_perception(harness: &str, cli: &str, shell_tool: &str) {
+    require_cli(cli);
+    let tmp = tempfile::tempdir().unwrap();
+    let model = ScriptedModel::start_script(tmp.path(), "perception");
+    let creds = model.credentials(tmp.path());
+    let server = Server::start(&tmp.path().join("data"));
+    let batch = tmp.path().join("batch");
+    let out = Command::new(bin())
+        .args(["run", "--experiment", "main_table", "--tasks", "T14", "--reps", "1", "--harness", harness, "--model", "scripted"])
+        .args(["--wall-time-s", "300", "--server", &server.url, "--credentials-file"])
+        .arg(&creds)
+        .arg("--batch")
+        .arg(&batch)
+        .arg("--workspace-root")
+        .arg(tmp.path().join("ws"))
+        .env("PATH", cli_path())
+        .output()
+        .expect("run libero-agent run");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let records = jsonl(&batch.join("rollouts.jsonl"));
+    let record = &records[0];
+    let answers = model.answered();
+    let steps: Vec<&str> = answers.iter().filter(|a| a["step"].is_u64()).filter_map(|a| a["answer"].as_str()).collect();
+    assert!(out.status.success(), "run failed: {stderr}\n{record}\nthe model answered {steps:?}: {answers:?}");
+    assert_eq!(
+        steps,
+        ["mcp__libero__start_episode", shell_tool, "mcp__libero__osc_sequence", "mcp__libero__finish_episode", "text"],
+        "the whole perception script: {answers:?}"
+    );
+    assert_eq!((record["result_status"].as_str(), record["accepted_agent_steps"].as_u64()), (Some("finished"), Some(1)), "{record}");
+    assert!(record["outcome"] == "SUCCESS" || record["outcome"] == "FAIL", "{record}");
+
+    // The review API: the shell command with its output, between the start and the call it led to.
+    let id = record["episode_id"].as_str().unwrap();
+    let (items, _) = timeline(&server, id);
+    let at = |pred: &dyn Fn(&Value) -> bool| items.iter().position(|i| pred(i)).unwrap_or_else(|| panic!("not in the timeline: {items:#?}"));
+    let shell = at(&|i| i["kind"] == "shell" && i["output"].as_str().is_some_and(|o| o.contains("LIBERO_PERCEPTION")));
+    let item = &items[shell];
+    let (command, output) = (item["command"].as_str().unwrap(), item["output"].as_str().unwrap());
+    assert!(command.contains("from scipy.spatial.transform import Rotation") && command.contains("np.load("), "the program as the model sent it: {item}");
+    // Codex reports the exit code; Claude Code's Bash result says only whether it failed.
+    assert!(item["exit_code"] == 0 || (item["exit_code"].is_null() && item["is_error"] == false), "it ran without error: {item}");
+    assert!(output.contains("python=/opt/libero-toolbox/bin/python3") && output.contains("numpy=/opt/libero-toolbox/"), "the toolbox's python3 and numpy ran it: {output}");
+    assert!(output.contains("valid depth pixels back-projected"), "{output}");
+    let printed = perceived_action(output).expect("the printed action");
+    let start = at(&|i| i["kind"] == "robot_call" && i["tool"] == "start_episode");
+    let act = at(&|i| i["kind"] == "robot_call" && i["tool"] == "osc_sequence");
+    let finish = at(&|i| i["kind"] == "robot_call" && i["tool"] == "finish_episode");
+    let asked = at(&|i| i["kind"] == "tool_call" && i["robot_tool"] == "osc_sequence");
+    assert!(start < shell && shell < asked && asked <= act + 1 && act < finish, "start {start}, shell {shell}, osc call {asked}/{act}, finish {finish}: {items:#?}");
+
+    // The output reached the model: the action the server executed is the one the program printed.
+    let run_dir = PathBuf::from(record["run_dir"].as_str().unwrap());
+    let calls = jsonl(&run_dir.join("actions.jsonl"));
+    let osc = calls.iter().find(|c| c["request"]["tool"] == "osc_sequence").expect("the osc_sequence call");
+    let executed: Vec<f64> = osc["request"]["arguments"]["actions"][0].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    assert_eq!(executed.len(), 7);
+    assert!(executed.iter().zip(&printed).all(|(a, b)| (a - b).abs() < 1e-9), "executed {executed:?}, printed {printed:?}");
+    assert!(printed[..3].iter().any(|x| x.abs() > 1e-3), "a move computed from the depth, not zeros: {printed:?}");
+}
+
+#[test]
+fn codex_runs_the_papers_depth_back_projection_with_the_toolbox_and_acts_on_it() {
+    check_perception("codex", "codex", "exec_command");
+}
+
+#[test]
+fn claude_code_runs_the_papers_depth_back_projection_with_the_toolbox_and_acts_on_it() {
+    check_perception("claude_code", "claude", "Bash");
 }

@@ -239,12 +239,17 @@ pub fn contain(
     let hosts = private.join("hosts");
     std::fs::write(&hosts, plan.hosts_file())?;
     set_mode(&hosts, 0o644)?;
+    let mut env = launch.env.clone();
+    env.extend(plan.proxy_env());
+    // The agent's own `python3` is the toolbox's.
+    if let Some(tb) = &sb.toolbox {
+        tb.agent_env(&mut env, home);
+    }
+    write_login_profile(home, &env)?;
     if let Some(ids) = sb.agent_ids {
         give_to_agent(workspace, ids, &["benchmark_inputs"])?;
         give_to_agent(home, ids, &[])?;
     }
-    let mut env = launch.env.clone();
-    env.extend(plan.proxy_env());
     // The report pipe: close-on-exec here, opened for the sandbox's first process only (see `command`).
     let (read, write) = rustix::pipe::pipe_with(rustix::pipe::PipeFlags::CLOEXEC).context("cannot create the report pipe")?;
     let mut inner = vec![agent_exe.to_string_lossy().into_owned(), "sandbox-net".into()];
@@ -257,13 +262,10 @@ pub fn contain(
     }
     inner.push("--".into());
     inner.extend(launch.argv.iter().cloned());
-    let path = env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
+    // The CLI is found on the runner's PATH (the launch's, before the toolbox went first).
+    let path = launch.env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
     let mut readable = own_binary_files(agent_exe);
     readable.extend(launch.argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
-    // The CLI is found on the runner's PATH above; the agent's own `python3` is the toolbox's.
-    if let Some(tb) = &sb.toolbox {
-        tb.agent_env(&mut env, home);
-    }
     let spec = SandboxSpec {
         writable: vec![workspace.to_path_buf(), home.to_path_buf()],
         readable,
@@ -281,6 +283,22 @@ pub fn contain(
         _gateway: Some(gateway),
         relay_dir: Some(net),
     })
+}
+
+/// `<home>/.profile`, which restores the agent's `PATH`: the CLIs run their shell commands in login shells
+/// (Codex's `exec_command` does by default), and a login shell's `/etc/profile` sets `PATH` anew (Debian's does),
+/// which would hide the toolbox's `python3` behind the system's. The file is the agent's own to change.
+fn write_login_profile(home: &Path, env: &[(String, String)]) -> anyhow::Result<()> {
+    let Some((_, path)) = env.iter().find(|(k, _)| k == "PATH") else { return Ok(()) };
+    let quoted = format!("'{}'", path.replace('\'', "'\\''"));
+    let text = format!(
+        "# Written by libero-agent's runner: a login shell's /etc/profile sets PATH anew, which would hide the\n\
+         # toolbox's python3 (/opt/libero-toolbox/bin) behind the system's; this restores the PATH the agent was given.\n\
+         PATH={quoted}\nexport PATH\n"
+    );
+    let p = home.join(".profile");
+    std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))?;
+    set_mode(&p, 0o644)
 }
 
 /// A random address of 127.0.0.0/8 other than 127.0.0.1 and 127.0.1.1 (names of this host).

@@ -51,12 +51,14 @@ impl Server {
         Self::start_with(data, &[])
     }
 
-    /// With more `serve` arguments (e.g. `--batches DIR`).
+    /// With more `serve` arguments (e.g. `--batches DIR`). Thumbnails are not rendered ahead (every test server
+    /// would otherwise render every task's in the background) unless `extra` asks with `--thumbnails-ahead`.
     pub fn start_with(data: &Path, extra: &[&str]) -> Self {
         let mut child = Command::new(bin())
             .args(["serve", "--addr", "127.0.0.1:0", "--data"])
             .arg(data)
             .args(extra)
+            .env("LIBERO_AGENT_THUMBNAILS_AHEAD", "off")
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
@@ -278,4 +280,30 @@ pub fn prepare_t14(server_url: &str, workspace: &Path) -> Value {
         .unwrap();
     assert!(out.status.success(), "prepare: {}", String::from_utf8_lossy(&out.stderr));
     serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// Every item of the agent timeline, following `timeline_next` to its end.
+pub fn timeline(server: &Server, id: &str) -> (Vec<Value>, usize) {
+    let mut items = Vec::new();
+    let mut query = String::new();
+    let mut pages = 0;
+    loop {
+        let (status, page) = http_get_json(&format!("{}/api/episodes/{id}/agent{query}", server.url));
+        assert_eq!(status, 200, "{page}");
+        assert_eq!(page["available"], true, "{page}");
+        items.extend(page["timeline"].as_array().unwrap().iter().cloned());
+        pages += 1;
+        let Some(next) = page["timeline_next"].as_object() else { return (items, pages) };
+        let pairs: Vec<String> = next.iter().filter(|(_, v)| !v.is_null()).map(|(k, v)| format!("{k}={}", v.as_str().map_or(v.to_string(), str::to_owned))).collect();
+        query = format!("?{}", pairs.join("&"));
+    }
+}
+
+/// An `--agent-cmd` running `tests/clis/<script>` with `args`, inlined after the test agents' MCP client
+/// (`tests/clis/mcp_http.py`) in a heredoc: the sandbox shows the workspace, not the repository.
+pub fn inline_python_agent(script: &str, args: &str) -> String {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/clis");
+    let client = std::fs::read_to_string(dir.join("mcp_http.py")).unwrap();
+    let agent = std::fs::read_to_string(dir.join(script)).unwrap();
+    format!("python3 - {args} <<'PY'\n{client}\n{agent}\nPY")
 }

@@ -18,12 +18,19 @@ pub struct ScriptedModel {
 
 impl ScriptedModel {
     pub fn start(dir: &Path) -> Self {
+        Self::start_script(dir, "robot")
+    }
+
+    /// With one of its scripts: `robot` (the episode's tools only) or `perception` (start, the CLI's shell running
+    /// `tests/clis/perception_program.py`, an `osc_sequence` read from its output, finish).
+    pub fn start_script(dir: &Path, script: &str) -> Self {
         let log = dir.join("model_requests.jsonl");
-        let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/clis/scripted_model.py");
+        let program = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/clis/scripted_model.py");
         let mut child = Command::new(python())
-            .arg(script)
+            .arg(program)
             .arg("--log")
             .arg(&log)
+            .args(["--script", script])
             .env("SCRIPTED_MODEL_API_KEY", API_KEY)
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
