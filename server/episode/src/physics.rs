@@ -74,7 +74,8 @@ impl WorldPhysics {
         };
         let qpos = start_qpos(&model, init_row.as_deref(), &placement)?;
         edit_model(&scene, &mut model, &qpos)?;
-        let sim = Simulation::new(Arc::new(model))?;
+        // Final from here on: episodes that built the same model share one (libero_sim::shared_model).
+        let sim = Simulation::new(libero_sim::shared_model::share(model))?;
         let poses = suite.map_or(&[][..], |s| s.init_poses_in_body.as_slice());
         let reset_row = posed_row(sim.model(), placement_row(&sim, &placement)?, &placement, poses)?;
         let settle_steps = suite.map_or(0, |s| s.init_settle_steps);

@@ -115,6 +115,10 @@ impl ModelHandle {
     pub fn scene(&self) -> &Arc<SceneModel> {
         &self.gpu.scene
     }
+    /// Whether both handles use the same upload (episodes of one scene share theirs).
+    pub fn shares_upload_with(&self, other: &ModelHandle) -> bool {
+        Arc::ptr_eq(&self.gpu, &other.gpu)
+    }
     /// Process-unique id of this upload.
     pub fn id(&self) -> u64 {
         self.id
@@ -402,6 +406,33 @@ struct Inner {
     /// Uploads by compiled model, held weakly on both sides: an upload lives exactly as long as a world, a
     /// recorder or a caller holds its handle, so ended episodes leave no GPU memory behind.
     model_cache: Mutex<HashMap<usize, CachedUpload>>,
+    /// Uploads by content ([`content_key`]), held weakly: every episode of a scene compiles its own model, and
+    /// all of them share one upload of its meshes and textures (a LIBERO kitchen's are hundreds of MB) for as long
+    /// as any of them holds it.
+    content_cache: Mutex<HashMap<[u8; 32], (u64, Weak<GpuModel>)>>,
+}
+
+/// A key of everything an upload is made from: two scenes with the same key get the same upload. The
+/// description without bulk data is hashed through its `Debug` text (exact for every number it holds), the
+/// vertices and pixels as bytes, every length included.
+fn content_key(scene: &SceneModel) -> [u8; 32] {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    h.update(format!("{:?}", scene.without_bulk_data()).as_bytes());
+    for m in &scene.meshes {
+        h.update((m.positions.len() as u64).to_le_bytes());
+        h.update(bytemuck::cast_slice(&m.positions));
+        h.update((m.normals.len() as u64).to_le_bytes());
+        h.update(bytemuck::cast_slice(&m.normals));
+        let uv = m.texcoords.as_deref().unwrap_or_default();
+        h.update((uv.len() as u64).to_le_bytes());
+        h.update(bytemuck::cast_slice(uv));
+    }
+    for t in &scene.textures {
+        h.update((t.rgba8.len() as u64).to_le_bytes());
+        h.update(&t.rgba8);
+    }
+    h.finalize().into()
 }
 
 /// One entry of [`Inner::model_cache`].
@@ -608,6 +639,7 @@ impl Renderer {
                 next_model_id: AtomicU64::new(1),
                 foreground_waiting: AtomicUsize::new(0),
                 model_cache: Mutex::new(HashMap::new()),
+                content_cache: Mutex::new(HashMap::new()),
             }),
         })
     }
@@ -620,7 +652,23 @@ impl Renderer {
         {
             return Ok(handle);
         }
-        let handle = self.prepare_scene(Arc::new(SceneModel::from_mujoco(model)?))?;
+        let scene = SceneModel::from_mujoco(model)?;
+        let content = content_key(&scene);
+        let shared = self.inner.content_cache.lock().ok().and_then(|c| {
+            let (id, gpu) = c.get(&content)?;
+            Some(ModelHandle { id: *id, gpu: gpu.upgrade()? })
+        });
+        let handle = match shared {
+            Some(h) => h,
+            None => {
+                let h = self.prepare_scene(Arc::new(scene))?;
+                if let Ok(mut cache) = self.inner.content_cache.lock() {
+                    cache.retain(|_, (_, gpu)| gpu.strong_count() > 0);
+                    cache.insert(content, (h.id, Arc::downgrade(&h.gpu)));
+                }
+                h
+            }
+        };
         if let Ok(mut cache) = self.inner.model_cache.lock() {
             cache.retain(|_, c| !c.is_dead());
             let entry = CachedUpload { model: Arc::downgrade(model), id: handle.id, gpu: Arc::downgrade(&handle.gpu) };

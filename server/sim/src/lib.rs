@@ -8,6 +8,7 @@ pub mod compose;
 pub mod numpy_rng;
 pub mod placement;
 pub mod scene_setup;
+pub mod shared_model;
 
 // Panda, OSC_POSE, stepping, faults, init states (simulation core)
 pub mod benchmark;
