@@ -23,6 +23,12 @@ async function main() {
     const href = await link.getAttribute('href');
     check(/^\/episodes\/[^/]+\/review$/.test(href), `a review link, got ${href}`);
     await shot(page, 'results');
+    // tokens with their source on every main-table row, and the toolbox each batch ran with
+    const tokenCells = await page.locator('#main-table td.tokens').allTextContents();
+    check(tokenCells.length > 0 && tokenCells.every((t) => /\(.+\)/.test(t)), `every main-table row names its token source: ${tokenCells}`);
+    check(await page.locator('#toolboxes tbody tr').count() > 0, 'the toolbox table has a row per batch');
+    await page.locator('#toolboxes').screenshot({ path: require('path').join(artifacts, 'results-toolbox.png') });
+    await page.locator('#main-table').screenshot({ path: require('path').join(artifacts, 'results-main-tokens.png') });
     // the pool batch's per-suite table and per-task rows, beside the paper's table
     check(await page.locator('#pool-suites tbody tr').count() >= 2, 'the task-pool table has a row per suite');
     check(await page.locator('#pool-tasks a.outcome').count() >= 4, 'every pool rollout links to its review');

@@ -9,10 +9,17 @@ function row(e) {
   // Open episodes go to the live page, ended ones straight to their review.
   const ended = e.outcome && e.outcome !== 'RUNNING';
   const link = el('a', { href: `/episodes/${encodeURIComponent(e.id)}${ended ? '/review' : ''}` }, e.id);
+  // A branch names its parent and step (issue 33).
+  const idCell = e.branch_parent ? el('span') : link;
+  if (e.branch_parent) {
+    const note = el('small', { class: 'branch-of muted' }, 'branch of ');
+    note.append(el('a', { href: `/episodes/${encodeURIComponent(e.branch_parent)}/review` }, e.branch_parent), ` at step ${e.branch_step}`);
+    idCell.append(link, el('br'), note);
+  }
   const progress = e.completed_stage_count != null && e.required_stage_count != null
     ? `${e.completed_stage_count}/${e.required_stage_count}` : '–';
   const cells = [
-    link, e.task_ref, e.harness ?? '', e.model ?? '', e.batch ?? '', String(e.level),
+    idCell, e.task_ref, e.harness ?? '', e.model ?? '', e.batch ?? '', String(e.level),
     e.outcome ?? 'RUNNING', progress, e.wall_time_s != null ? `${fmtS(e.wall_time_s, 1)} s` : '–',
     e.accepted_agent_steps != null ? String(e.accepted_agent_steps) : '–',
   ];

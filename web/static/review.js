@@ -78,16 +78,48 @@ function drawTimeline() {
   g.fillStyle = '#111'; g.fillRect(x - 1, 0, 2, c.height);
 }
 
-function drawPlot(canvasId, title, series, colors) {
+/** Seconds between time-axis ticks: a round step giving at most about 10 ticks over `span` seconds. */
+function tickStep(span) {
+  return [0.5, 1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 1200, 1800, 3600].find((s) => span / s <= 10) ?? 7200;
+}
+
+/**
+ * One telemetry plot against video time (= sim time): title with the unit, a legend naming each coloured line,
+ * the value range at the right, and a time axis in seconds at the bottom.
+ */
+function drawPlot(canvasId, title, series, labels, colors) {
   const c = $(canvasId); const g = c.getContext('2d');
   g.clearRect(0, 0, c.width, c.height);
   const rows = data.telemetry.filter((r) => r.video_frame != null);
   const values = series.flatMap((f) => rows.map(f)).filter(Number.isFinite);
-  g.fillStyle = '#374151'; g.font = '12px sans-serif'; g.fillText(title, 4, 12);
+  g.font = '12px sans-serif'; g.textBaseline = 'alphabetic';
+  g.fillStyle = '#374151'; g.fillText(title, 4, 12);
+  // Legend: a swatch and a name per line, after the title.
+  let lx = g.measureText(title).width + 16;
+  labels.forEach((label, k) => {
+    g.fillStyle = colors[k]; g.fillRect(lx, 5, 14, 3);
+    g.fillStyle = '#374151'; g.fillText(label, lx + 18, 12);
+    lx += 18 + g.measureText(label).width + 12;
+  });
+  const top = 18; const axis = 16; const h = c.height - top - axis;
+  // Time axis: ticks every round number of seconds of video (= sim) time.
+  g.strokeStyle = '#9ca3af'; g.lineWidth = 1; g.beginPath(); g.moveTo(0, top + h + 0.5); g.lineTo(c.width, top + h + 0.5); g.stroke();
+  if (duration > 0) {
+    const step = tickStep(duration);
+    g.fillStyle = '#6b7280'; g.font = '10px sans-serif';
+    for (let t = 0; t <= duration + 1e-9; t += step) {
+      const x = xOf(t, c.width);
+      g.fillRect(x, top + h, 1, 4);
+      const label = `${Number.isInteger(t) ? t : t.toFixed(1)} s`;
+      const w = g.measureText(label).width;
+      if (x + w / 2 < c.width - 46) g.fillText(label, Math.max(0, x - w / 2), c.height - 2); // clear of the unit
+    }
+    g.fillText('time (s)', c.width - 38, c.height - 2);
+    g.font = '12px sans-serif';
+  }
   if (rows.length < 2 || values.length === 0) return;
   let lo = Math.min(...values); let hi = Math.max(...values);
   if (hi - lo < 1e-9) { lo -= 1; hi += 1; }
-  const top = 16; const h = c.height - top - 4;
   const yOf = (v) => top + h - ((v - lo) / (hi - lo)) * h;
   series.forEach((f, k) => {
     g.strokeStyle = colors[k]; g.lineWidth = 1.5; g.beginPath();
@@ -97,7 +129,8 @@ function drawPlot(canvasId, title, series, colors) {
     });
     g.stroke();
   });
-  g.fillStyle = '#6b7280'; g.fillText(`${hi.toPrecision(3)}`, c.width - 60, 12); g.fillText(`${lo.toPrecision(3)}`, c.width - 60, c.height - 4);
+  g.fillStyle = '#6b7280'; g.font = '11px sans-serif';
+  g.fillText(`${hi.toPrecision(3)}`, c.width - 60, top + 10); g.fillText(`${lo.toPrecision(3)}`, c.width - 60, top + h - 3);
   const x = xOf(video.currentTime, c.width);
   g.fillStyle = '#111'; g.fillRect(x - 1, top, 2, h);
 }
@@ -105,9 +138,11 @@ function drawPlot(canvasId, title, series, colors) {
 function drawAll() {
   if (!data) return;
   drawTimeline();
-  drawPlot('plot-eef', 'end-effector position in base (m): x y z', [(r) => r.eef_pos_in_base_m[0], (r) => r.eef_pos_in_base_m[1], (r) => r.eef_pos_in_base_m[2]], ['#dc2626', '#16a34a', '#2563eb']);
-  drawPlot('plot-gripper', 'gripper opening (m): finger joint 1 − finger joint 2', [(r) => r.gripper_qpos_m[0] - r.gripper_qpos_m[1]], ['#7c3aed']);
-  drawPlot('plot-force', 'wrist force (N): x y z |f|', [(r) => r.wrist_force_n[0], (r) => r.wrist_force_n[1], (r) => r.wrist_force_n[2], (r) => Math.hypot(...r.wrist_force_n)], ['#dc2626', '#16a34a', '#2563eb', '#111']);
+  drawPlot('plot-eef', 'end-effector position in robot base (m)', [(r) => r.eef_pos_in_base_m[0], (r) => r.eef_pos_in_base_m[1], (r) => r.eef_pos_in_base_m[2]],
+    ['x', 'y', 'z'], ['#dc2626', '#16a34a', '#2563eb']);
+  drawPlot('plot-gripper', 'gripper opening (m)', [(r) => r.gripper_qpos_m[0] - r.gripper_qpos_m[1]], ['finger joint 1 − finger joint 2'], ['#7c3aed']);
+  drawPlot('plot-force', 'wrist force (N)', [(r) => r.wrist_force_n[0], (r) => r.wrist_force_n[1], (r) => r.wrist_force_n[2], (r) => Math.hypot(...r.wrist_force_n)],
+    ['x', 'y', 'z', '|f|'], ['#dc2626', '#16a34a', '#2563eb', '#111']);
 }
 
 // ---- panels
@@ -120,16 +155,25 @@ async function showObservation(obsId) {
   const base = `/episodes/${encodeURIComponent(id)}/observations/${obsId}`;
   box.replaceChildren(el('div', { class: 'muted' }, obsId));
   const imgs = el('div', { class: 'obs-images' });
+  const slots = {};
   for (const cam of ['head', 'wrist']) {
     imgs.append(el('img', { src: `${base}/${cam}/rgb.png`, alt: `${cam} rgb`, title: `${cam} rgb`, width: 128, height: 128 }));
-    const depth = el('img', { src: `${base}/${cam}/depth_visualization.png`, alt: `${cam} depth`, title: `${cam} depth preview`, width: 128, height: 128 });
-    depth.onerror = () => depth.remove(); // levels 1-2 publish no depth
-    imgs.append(depth);
+    slots[cam] = el('span');
+    imgs.append(slots[cam]);
   }
   box.append(imgs);
   try {
-    const doc = await (await fetch(`${base}/observation.json`)).json();
+    const r = await fetch(`${base}/observation.json`);
+    if (!r.ok) throw new Error(`HTTP ${r.status}`);
+    const doc = await r.json();
     if (shownObservation !== obsId) return;
+    // Depth only where the observation names a preview file (level 3): levels 1-2 publish none, so none is asked for.
+    for (const cam of ['head', 'wrist']) {
+      const file = doc.cameras?.[cam]?.depth?.preview_file;
+      if (typeof file === 'string' && /^[a-z]+\/[a-z_]+\.png$/.test(file)) {
+        slots[cam].replaceWith(el('img', { src: `${base}/${file}`, alt: `${cam} depth`, title: `${cam} depth preview`, width: 128, height: 128 }));
+      }
+    }
     const robot = doc.robot_state ?? doc.robot ?? doc.proprioception ?? doc;
     box.append(el('pre', { class: 'state' }, JSON.stringify(robot, null, 1).slice(0, 4000)));
   } catch (err) {
@@ -239,6 +283,22 @@ function node(tag, attrs, ...children) {
   return e;
 }
 
+/**
+ * A record's `failure_reason` in words (the record keeps its machine-readable value). `terminal_state_invalid` is
+ * the ordinary "the goal did not hold when the episode ended", not an error of the episode.
+ */
+const FAILURE_TEXT = {
+  terminal_state_invalid: 'goal not met at the end',
+  incomplete_stage: 'stage not completed',
+  order_violation: 'done out of order',
+  extra_pour: 'poured more than asked',
+  forbidden_contact: 'forbidden contact',
+  premature_lift_detected: 'lifted too early',
+};
+function failureText(reason) {
+  return FAILURE_TEXT[reason] ?? String(reason).replaceAll('_', ' ');
+}
+
 /** Per-stage diagnostics of the record (reached / succeeded / regressions / sustained-contact ratio). */
 function buildStages() {
   const stages = data.result?.private_evaluation?.stage_diagnostics ?? [];
@@ -255,7 +315,7 @@ function buildStages() {
       ? `${s.sustained_contact_ratio_percent.toFixed(0)}% of ${s.contact_exec_steps} steps` : '';
     const regressed = s.regressions > 0
       ? `${s.regressions}×${s.regressed_during_later_stage ? ' (undone by a later stage)' : ''}` : '';
-    const name = `${s.stage_name}${s.required ? '' : ' (optional)'}${s.failure_reason ? ` — ${s.failure_reason.replaceAll('_', ' ')}` : ''}`;
+    const name = `${s.stage_name}${s.required ? '' : ' (optional)'}${s.failure_reason ? ` — ${failureText(s.failure_reason)}` : ''}`;
     const tr = node('tr', { class: state, 'data-t': t ?? undefined },
       el('td', { class: 'mark' }, s.succeeded ? '✔' : s.reached ? '✘' : '·'),
       el('td', {}, name),

@@ -147,7 +147,9 @@ function onEvent(e) {
 /** Prepares and starts a new operator episode of this task and seed, then opens its two sockets. */
 async function start() {
   setState('preparing');
-  const r = await postJson('/api/teleop', { task, seed });
+  // A branch page (the review's "Continue from here") starts every episode from the parent's state at that step.
+  const branch = root.dataset.branchParent ? { parent: root.dataset.branchParent, step: Number(root.dataset.branchStep) } : undefined;
+  const r = await postJson('/api/teleop', branch ? { branch } : { task, seed });
   if (!r.ok) { setState('error'); $('save-result').textContent = r.error; $('save-result').classList.remove('hidden'); return; }
   s = newSession(r.episode_id);
   $('episode').textContent = r.episode_id;

@@ -96,6 +96,7 @@ fn prepare(p: PrepareArgs) -> anyhow::Result<()> {
         batch: p.batch,
         demo: p.demo,
         layout: None,
+        branch: None,
     };
     if let Some(file) = &p.operator_token_file {
         libero_server::credential::use_token_file(file);

@@ -83,6 +83,11 @@ pub struct ExpertArgs {
     /// Upper bound on the actions one run may send.
     #[arg(long, default_value_t = 3000)]
     pub max_actions: u64,
+    /// `fast` (default): every call as soon as the last one is answered. `realtime`: 20 actions per second of wall
+    /// time, the control rate, so a person can watch the expert live in the dashboard (an `osc_sequence` of n
+    /// actions takes at least n/20 s).
+    #[arg(long, value_enum, default_value_t = Pace::Fast)]
+    pub pace: Pace,
     /// Record every successful run as a demonstration bundle into this library directory
     /// (`DIR/<task>/<episode id>/`, replayed, rendered and verified). In-process runs only.
     #[arg(long)]
@@ -114,6 +119,48 @@ impl ExpertArgs {
         let v = LayoutVariant { placement_seed, init_index: self.layout_init, region_margin_m: self.region_margin_m, scene_shift_m };
         v.validate()?;
         Ok(Some(v))
+    }
+}
+
+/// How fast an expert sends its actions.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Pace {
+    /// As fast as the server answers.
+    Fast,
+    /// 20 actions per second of wall time (the 20 Hz control rate).
+    Realtime,
+}
+
+/// Actions per second of wall time at [`Pace::Realtime`].
+const REALTIME_ACTIONS_PER_S: f64 = 20.0;
+
+/// A port that holds each `osc_sequence` of n actions to at least n/20 s of wall time at [`Pace::Realtime`]
+/// (the call itself counts: only what is left of the n/20 s is slept).
+pub(crate) struct Paced<'a> {
+    inner: &'a mut dyn ToolPort,
+    pace: Pace,
+}
+
+impl<'a> Paced<'a> {
+    pub(crate) fn new(inner: &'a mut dyn ToolPort, pace: Pace) -> Self {
+        Self { inner, pace }
+    }
+}
+
+impl ToolPort for Paced<'_> {
+    fn call_tool(&mut self, tool: &str, arguments: Value) -> Result<Value, EpisodeError> {
+        let actions = match (self.pace, tool) {
+            (Pace::Realtime, "osc_sequence") => arguments["actions"].as_array().map_or(0, Vec::len),
+            _ => 0,
+        };
+        let started = Instant::now();
+        let answer = self.inner.call_tool(tool, arguments);
+        let due = Duration::from_secs_f64(actions as f64 / REALTIME_ACTIONS_PER_S);
+        if let Some(left) = due.checked_sub(started.elapsed()) {
+            std::thread::sleep(left);
+        }
+        answer
     }
 }
 
@@ -165,9 +212,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     if args.list {
         return list();
     }
-    if args.all {
-        return crate::cmd_expert_all::run_all(args);
-    }
+    // `--all` (without `--list`) is `cmd_expert_all::run_all`, dispatched by main.
     let asked = normalize_task_id(args.task.as_deref().unwrap_or_default());
     if args.runs == 0 {
         bail!("--runs must be at least 1");
@@ -199,7 +244,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         let (mut episode_wall_time_s, mut video_ready_s) = (None, None);
         let (episode_id, outcome, record, run_dir) = match (&local, &args.server) {
             (Some(episodes), _) => {
-                let r = run_local(episodes, &request, &spec, &task_id, &args.behaviour, args.max_actions, &progress)?;
+                let r = run_local(episodes, &request, &spec, &task_id, &args.behaviour, args.max_actions, args.pace, &progress)?;
                 (episode_wall_time_s, video_ready_s) = (r.episode_wall_time_s, r.video_ready_s);
                 (r.episode_id, r.outcome, r.record, Some(r.run_dir))
             }
@@ -209,7 +254,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
                 let token = token.trim_start_matches("Bearer ");
                 let mut port = McpPort(McpClient::connect_with_token(&prepared.mcp_url, token, "libero-agent-expert")?);
                 let episode_id = prepared.episode_id;
-                let outcome = run_expert(&mut port, &spec, &task_id, &args.behaviour, args.max_actions, progress);
+                let outcome = run_expert(&mut Paced::new(&mut port, args.pace), &spec, &task_id, &args.behaviour, args.max_actions, progress);
                 (episode_id, outcome, None, None)
             }
             (None, None) => unreachable!("either local or remote"),
@@ -235,6 +280,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         let line = json!({
             "task": task_id,
             "behaviour": args.behaviour,
+            "pace": args.pace,
             "run": run_index,
             "episode_id": episode_id,
             "success": success,
@@ -261,14 +307,27 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
 }
 
 /// The episode an expert run of `task_id` prepares (the agent step cap, so that budgets never end a run early).
+/// The dashboard's table shows and filters it as harness `expert`, model = the behaviour, batch = this command.
 pub(crate) fn prepare_request(args: &ExpertArgs, task_id: &str) -> PrepareRequest {
     PrepareRequest {
         level: args.level,
         seed: args.seed,
         max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
         video: !args.no_video,
+        harness: Some("expert".into()),
+        model: Some(args.behaviour.clone()),
+        batch: Some(expert_batch().to_owned()),
         ..PrepareRequest::new(task_id.to_owned())
     }
+}
+
+/// `expert_<UTC time>`: one batch name for every episode of this command.
+fn expert_batch() -> &'static str {
+    static NAME: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    NAME.get_or_init(|| {
+        let stamp: String = libero_episode::json::utc_now_iso().chars().take(19).filter(|c| c.is_ascii_digit() || *c == 'T').collect();
+        format!("expert_{stamp}Z")
+    })
 }
 
 /// One in-process expert episode.
@@ -282,7 +341,9 @@ pub(crate) struct LocalRun {
     pub video_ready_s: Option<f64>,
 }
 
-/// Prepares an episode on `episodes`, plays `behaviour` on it, and waits for its private video when it records one.
+/// Prepares an episode on `episodes`, plays `behaviour` on it at `pace`, and waits for its private video when it
+/// records one.
+#[allow(clippy::too_many_arguments)] // each is one of the run's own settings, passed as given
 pub(crate) fn run_local(
     episodes: &Episodes,
     request: &PrepareRequest,
@@ -290,11 +351,12 @@ pub(crate) fn run_local(
     task_id: &str,
     behaviour: &str,
     max_actions: u64,
+    pace: Pace,
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<LocalRun> {
     let prepared = episodes.prepare(request.clone())?;
     let mut handle = episodes.handle(&prepared.episode_id).context("prepared episode vanished")?;
-    let outcome = run_expert(&mut handle, spec, task_id, behaviour, max_actions, progress);
+    let outcome = run_expert(&mut Paced::new(&mut handle, pace), spec, task_id, behaviour, max_actions, progress);
     handle.stop("expert run over");
     let run = RunDir::new(&prepared.run_dir);
     let ended = Instant::now();

@@ -115,7 +115,7 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
                             eprintln!("[{}/{} {task_id} run {run_index}/{}] {line}", k + 1, tasks.len(), args.runs);
                         }
                     };
-                    let r = run_local(&episodes, &request, &spec, task_id, expert::SOLVE, args.max_actions, &progress)?;
+                    let r = run_local(&episodes, &request, &spec, task_id, expert::SOLVE, args.max_actions, args.pace, &progress)?;
                     match r.outcome {
                         Ok(run) => {
                             let record = r.record.unwrap_or(run.replica_record);

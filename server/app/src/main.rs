@@ -152,6 +152,8 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::Episode(a) => cmd_episode::run_episode(a),
         #[cfg(feature = "episode-serve")]
+        Command::Expert(a) if a.all && !a.list => cmd_expert_all::run_all(&a),
+        #[cfg(feature = "episode-serve")]
         Command::Expert(a) => cmd_expert::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Demo(a) => cmd_demo::run(a),

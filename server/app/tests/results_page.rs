@@ -119,7 +119,9 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     assert_eq!(status, 200, "{html}");
     assert!(html.contains("id=\"main-table\"") && html.contains("command + reference") && html.contains("≥ "), "{html}");
     assert!(html.contains("id=\"ordinary\"") && html.contains(" = ") && html.contains("["), "Wilson intervals");
-    assert!(html.contains("<td>T14</td>") && html.contains("<td>T11</td>"), "per-task rows");
+    // each per-task row names its task as a link to the task's page
+    let task_cell = |t: &str| format!("<td><a class=\"task-page-link\" href=\"/tasks/{t}\">{t}</a></td>");
+    assert!(html.contains(&task_cell("T14")) && html.contains(&task_cell("T11")), "per-task rows");
     for e in episodes {
         let id = e["episode_id"].as_str().expect("episode id");
         let href = format!("href=\"/episodes/{id}/review\"");
@@ -145,7 +147,7 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     assert_eq!(names, ["main", "abl"]);
     assert_eq!(two["batches"][0]["reps"], 3);
     let (_, html) = http_get_text(&format!("{}/results?batch=main", server.url));
-    assert!(html.contains("<td>T14</td>") && !html.contains("<td>T11</td>") && !html.contains("http-equiv=\"refresh\""));
+    assert!(html.contains(&task_cell("T14")) && !html.contains(&task_cell("T11")) && !html.contains("http-equiv=\"refresh\""));
     let (status, _) = http_get_json(&format!("{}/api/results?batch=nope", server.url));
     assert_eq!(status, 404);
 }
@@ -174,7 +176,7 @@ fn pool_batches_are_shown_per_suite_beside_and_never_inside_the_paper_table() {
     assert_eq!(status, 200, "{html}");
     assert!(html.contains("id=\"pool-suites\"") && html.contains("<td>robomemarena</td>") && html.contains("<td>libero_90</td>"), "{html}");
     assert!(!html.contains("id=\"main-table\""), "a pool-only selection has no paper table");
-    assert!(html.contains("id=\"pool-tasks\"") && html.contains("<td>robomemarena/18</td>") && html.contains("min c/K 0.50"), "{html}");
+    assert!(html.contains("id=\"pool-tasks\"") && html.contains("<td><a class=\"task-page-link\" href=\"/tasks/robomemarena/18\">robomemarena/18</a></td>") && html.contains("min c/K 0.50"), "{html}");
     for key in ["libero_90_035-1", "libero_90_035-2", "robomemarena_018-1", "robomemarena_018-2"] {
         assert!(html.contains(&format!("href=\"/episodes/ep-pool-{key}/review\"")), "a review link per pool rollout: {key}");
     }

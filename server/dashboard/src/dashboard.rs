@@ -70,16 +70,6 @@ pub(crate) fn page(t: impl Template) -> Response {
     }
 }
 
-#[derive(Template)]
-#[template(path = "login.html")]
-struct LoginPage {
-    failed: bool,
-}
-
-pub fn login_page(failed: bool) -> String {
-    LoginPage { failed }.render().unwrap_or_else(|e| format!("template error: {e}"))
-}
-
 /// Episode ids are `ep-<utc>-<hex>`; anything else never reaches the filesystem.
 pub(crate) fn valid_id(id: &str) -> bool {
     !id.is_empty() && id.len() <= 96 && id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
@@ -191,7 +181,7 @@ struct ResultsPage {
 
 /// Loads the selected batches: batch directories off the async workers (they are files of any size), and the
 /// batches only the store holds (`run --store`) from the store.
-async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<libero_runner::batch::LoadedBatch>), Response> {
+pub(crate) async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<libero_runner::batch::LoadedBatch>), Response> {
     let internal = |e: String| json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("results: {e}"));
     let stored = app.store.batch_names().await.map_err(|e| internal(format!("{e:#}")))?;
     let (roots, sel) = (app.batch_roots.clone(), sel.clone());
@@ -247,6 +237,9 @@ struct HomePage {
     filter_task: String,
     filter_outcome: String,
     filter_batch: String,
+    filter_harness: String,
+    /// Suggestions for the harness filter: the runner's harnesses and the operator's own kinds of episode.
+    harnesses: Vec<&'static str>,
     outcomes: Vec<String>,
     rows: Vec<HomeRow>,
     tasks: Vec<String>,
@@ -264,6 +257,8 @@ struct HomeRow {
     progress: String,
     wall_time: String,
     submissions: String,
+    /// A branch's parent episode and control step (issue 33).
+    branch: Option<(String, i64)>,
 }
 
 impl HomeRow {
@@ -284,8 +279,14 @@ impl HomeRow {
             progress,
             wall_time: v["wall_time_s"].as_f64().map(|s| format!("{s:.1} s")).unwrap_or_else(|| "–".into()),
             submissions: v["accepted_agent_steps"].as_i64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
+            branch: branch_of(v),
         }
     }
+}
+
+/// The parent episode and control step of a stored row that is a branch.
+fn branch_of(v: &Value) -> Option<(String, i64)> {
+    Some((v["branch_parent"].as_str()?.to_owned(), v["branch_step"].as_i64()?))
 }
 
 /// The stored rows with the live figures of episodes this process is running.
@@ -333,6 +334,8 @@ async fn home(State(app): State<AppState>, headers: axum::http::HeaderMap, Query
         filter_task: filter.task.unwrap_or_default(),
         filter_outcome: filter.outcome.unwrap_or_default(),
         filter_batch: filter.batch.unwrap_or_default(),
+        filter_harness: filter.harness.unwrap_or_default(),
+        harnesses: vec!["expert", "teleop", "command", "codex", "claude_code", "kimi_code", "qwen_code", "deepseek"],
         outcomes: ["RUNNING", "SUCCESS", "FAIL", "SIM_TIMEOUT", "INVALID"].map(String::from).to_vec(),
         tasks,
     })
@@ -402,9 +405,14 @@ async fn next_wake(socket: &mut WebSocket, changes: &mut tokio::sync::broadcast:
 struct LivePage {
     id: String,
     task: String,
+    /// The task's page and instruction (empty for a task outside the catalog and pool).
+    task_href: String,
+    instruction: String,
     level: i64,
     max_agent_steps: u64,
     max_wall_time_s: f64,
+    /// A branch's parent episode and control step.
+    branch: Option<(String, i64)>,
 }
 
 /// An open episode another server of the shared store runs: what the store knows, and the link to its live view.
@@ -451,12 +459,16 @@ async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Respo
         // Ended, or run by this server before a restart: only the review exists.
         return Redirect::to(&format!("/episodes/{id}/review")).into_response();
     };
+    let (task_href, instruction) = task_link(&row.episode.task_ref);
     page(LivePage {
         id,
         task: row.episode.task_ref,
+        task_href,
+        instruction,
         level: row.episode.level,
         max_agent_steps: hub.max_agent_steps,
         max_wall_time_s: hub.max_wall_time_s,
+        branch: row.episode.branch_parent.clone().zip(row.episode.branch_step),
     })
 }
 
@@ -588,7 +600,8 @@ async fn agent_message(path: &std::path::Path, offset: &mut Option<u64>) -> Opti
 /// transcript the runner appends to the run directory is read every half second.
 async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>, transcript: std::path::PathBuf) {
     let Some(sub) = hub.subscribe() else { return };
-    let hello = json!({"type": "hello", "max_agent_steps": hub.max_agent_steps, "max_wall_time_s": hub.max_wall_time_s});
+    let branch = hub.branch().map(|(parent, step)| json!({"parent_episode_id": parent, "parent_control_step": step}));
+    let hello = json!({"type": "hello", "max_agent_steps": hub.max_agent_steps, "max_wall_time_s": hub.max_wall_time_s, "branch": branch});
     if !send_text(&mut socket, &hello.to_string()).await {
         return;
     }
@@ -661,8 +674,13 @@ async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>, transcript: std::p
 struct ReviewPage {
     id: String,
     task: String,
+    /// The task's page and instruction (empty for a task outside the catalog and pool).
+    task_href: String,
+    instruction: String,
     level: i64,
     outcome: String,
+    /// A branch's parent episode and control step.
+    branch: Option<(String, i64)>,
 }
 
 async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -672,12 +690,20 @@ async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Res
     match stored_row(&app, &id).await {
         Ok(row) => page(ReviewPage {
             id,
+            task_href: task_link(&row.episode.task_ref).0,
+            instruction: task_link(&row.episode.task_ref).1,
+            branch: row.episode.branch_parent.clone().zip(row.episode.branch_step),
             task: row.episode.task_ref,
             level: row.episode.level,
             outcome: row.outcome.unwrap_or_else(|| "RUNNING".into()),
         }),
         Err(resp) => resp,
     }
+}
+
+/// The task page and instruction of an episode's task reference, or empty strings.
+fn task_link(task_ref: &str) -> (String, String) {
+    crate::task_page::task_of_ref(task_ref).unwrap_or_default()
 }
 
 fn read_jsonl(path: &FsPath) -> Vec<Value> {
@@ -1191,23 +1217,38 @@ async fn tasks_json() -> Response {
     }
 }
 
-/// Renders once (seconds), then served from the cache; one render at a time so a page of thumbnails does not
-/// build thirty worlds at once.
-async fn thumbnail(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
-    thumbnail_of(app, id, req).await
+/// `?camera=head` (default) or `?camera=wrist`.
+#[derive(serde::Deserialize)]
+struct ThumbnailQuery {
+    camera: Option<String>,
+}
+
+/// `/tasks/{id}/thumbnail.png[?camera=wrist]`: from the thumbnail cache, which the server fills ahead at start;
+/// one not rendered yet renders now (seconds).
+async fn thumbnail(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ThumbnailQuery>, req: Request<Body>) -> Response {
+    thumbnail_of(app, id, q, req).await
 }
 
 /// `/tasks/{suite}/{task_id}/thumbnail.png`: a runnable pool entry.
-async fn pool_thumbnail(State(app): State<AppState>, Path((suite, task_id)): Path<(String, String)>, req: Request<Body>) -> Response {
-    thumbnail_of(app, format!("{suite}/{task_id}"), req).await
+async fn pool_thumbnail(
+    State(app): State<AppState>,
+    Path((suite, task_id)): Path<(String, String)>,
+    Query(q): Query<ThumbnailQuery>,
+    req: Request<Body>,
+) -> Response {
+    thumbnail_of(app, format!("{suite}/{task_id}"), q, req).await
 }
 
-async fn thumbnail_of(app: AppState, id: String, req: Request<Body>) -> Response {
-    let _one_at_a_time = app.thumbnail_lock.lock().await;
-    let episodes = app.episodes.clone();
-    match tokio::task::spawn_blocking(move || episodes.task_thumbnail(&id)).await {
+async fn thumbnail_of(app: AppState, id: String, q: ThumbnailQuery, req: Request<Body>) -> Response {
+    use libero_server::thumbnails::{Camera, ThumbnailError};
+    let Some(camera) = Camera::parse(q.camera.as_deref()) else {
+        return json_error(StatusCode::BAD_REQUEST, "camera must be head or wrist");
+    };
+    let thumbnails = app.thumbnails.clone();
+    match tokio::task::spawn_blocking(move || thumbnails.get(&id, camera)).await {
         Ok(Ok(path)) => serve_file(path, req).await,
-        Ok(Err(e)) => json_error(StatusCode::NOT_FOUND, format!("{e:#}")),
+        Ok(Err(e @ ThumbnailError::NoSuchTask(_))) => json_error(StatusCode::NOT_FOUND, e.to_string()),
+        Ok(Err(e)) => json_error(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()),
         Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("thumbnail: {e}")),
     }
 }
@@ -1230,6 +1271,7 @@ async fn static_file(Path(file): Path<String>) -> Response {
         "teleop.js" => (web_static!("teleop.js"), "text/javascript; charset=utf-8"),
         "demos.js" => (web_static!("demos.js"), "text/javascript; charset=utf-8"),
         "elsewhere.js" => (web_static!("elsewhere.js"), "text/javascript; charset=utf-8"),
+        "branch.js" => (web_static!("branch.js"), "text/javascript; charset=utf-8"),
         _ => return json_error(StatusCode::NOT_FOUND, "no such file"),
     };
     ([(header::CONTENT_TYPE, kind), (header::CACHE_CONTROL, "no-cache")], body).into_response()

@@ -13,7 +13,8 @@ use serde_json::{Value, json};
 
 use libero_runner::batch::{LoadedBatch, RolloutRecord, load_batch};
 use libero_runner::report::tables::{DisplayTable, TableChoice, display_tables, paper_tables};
-use libero_runner::report::{Row, coverage, pct, pool_rows, report_json, rows, svg, wilson};
+use libero_runner::report::tokens::{self, RolloutTokens, TokenSummary};
+use libero_runner::report::{Row, coverage, default_reps, pct, pool_rows, report_json, row_records, rows, suite_records, svg, toolbox_text, wilson};
 
 /// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
 pub fn batch_roots(data: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {
@@ -91,11 +92,10 @@ impl Selection {
 /// Largest `?reps=` the Results page accepts (the paper uses 3).
 const MAX_REPS: usize = 100;
 
-/// The rule's repetition count for `b`: the request's, else the batch's `--reps`, else the paper's 3.
+/// The rule's repetition count for `b`: the request's, else the batch's `--reps` (as `report` defaults), else the
+/// paper's 3.
 fn reps_of(b: &LoadedBatch, sel: &Selection) -> usize {
-    sel.reps
-        .or_else(|| b.batch["settings"]["reps"].as_u64().map(|n| n as usize).filter(|&n| n > 0))
-        .unwrap_or(PAPER_REPS)
+    sel.reps.unwrap_or_else(|| default_reps(std::slice::from_ref(b)))
 }
 
 /// A selected batch: read from its directory, or one only the store holds (`run --store`), to be read from there.
@@ -146,6 +146,7 @@ fn episode_json(r: &RolloutRecord) -> Value {
         "review": r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")),
         "wall_time_s": r.wall_time_s, "judgment_correct": r.judgment_correct,
         "reason": (!r.outcome.is_valid()).then(|| r.reason()).flatten(), "worker": r.worker,
+        "tokens": RolloutTokens::of(r),
     })
 }
 
@@ -170,6 +171,7 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
                 "harness": b.batch["settings"]["harness"],
                 "model": b.batch["settings"]["model"],
                 "reps": reps,
+                "toolbox": b.batch["toolbox"],
                 "progress": {"rollout_count": b.batch["rollout_count"], "counts": b.batch["counts"],
                     "running": b.batch["running"], "outcomes": b.batch["outcomes"], "updated_at": b.batch["updated_at"]},
                 "report": report_json(std::slice::from_ref(b), reps),
@@ -207,8 +209,19 @@ pub struct MainRow {
     /// The suite is incomplete: the Score shown is the metrics crate's lower bound.
     pub score_is_bound: bool,
     pub time: String,
+    /// Mean total tokens with where the figures came from (`8,610 (gateway 2/2)`, `– (no usage: 2 rollouts)`).
     pub tokens: String,
     pub ordinary: Vec<String>,
+}
+
+/// The agent toolbox a batch ran with: results are comparable only with the same toolbox.
+pub struct ToolboxRow {
+    pub batch: String,
+    pub name: String,
+    /// `numpy 1.26.4, scipy 1.14.1, …`
+    pub packages: String,
+    pub python: String,
+    pub source: String,
 }
 
 /// A batch's progress line (done/running/left, outcomes so far).
@@ -226,6 +239,7 @@ pub struct ProgressRow {
 }
 
 /// One rollout in a per-task cell.
+#[derive(Clone)]
 pub struct EpisodeLink {
     pub href: String,
     pub label: String,
@@ -250,6 +264,8 @@ pub struct TaskCell {
     /// `successes/valid` (plus excluded), empty when the column has no rollout of the task.
     pub summary: String,
     pub stable: String,
+    /// Each valid rollout's total tokens with its source mark (`8,610 G · 9,020 G`).
+    pub tokens: String,
     pub links: Vec<EpisodeLink>,
 }
 
@@ -271,6 +287,7 @@ pub struct PoolSuiteRow {
     pub mean_sc: String,
     pub ordinary: String,
     pub time: String,
+    pub tokens: String,
 }
 
 /// One pool task of a batch with its rollouts.
@@ -280,6 +297,7 @@ pub struct PoolTaskRow {
     pub suite: String,
     pub summary: String,
     pub stable: String,
+    pub tokens: String,
     pub links: Vec<EpisodeLink>,
 }
 
@@ -296,6 +314,10 @@ pub struct View {
     pub figures: Vec<String>,
     /// Every rollout that does not count, with its reason.
     pub excluded: Vec<ExcludedRow>,
+    /// Each shown batch's agent toolbox.
+    pub toolboxes: Vec<ToolboxRow>,
+    /// [`tokens::LEGEND`].
+    pub token_legend: &'static str,
     pub any_running: bool,
 }
 
@@ -320,6 +342,8 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
         paper: vec![],
         figures: vec![],
         excluded: vec![],
+        toolboxes: vec![],
+        token_legend: tokens::LEGEND,
         any_running: false,
     };
     // (column index, batch, condition row) for the per-task table.
@@ -335,6 +359,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             .filter(|s| !s.is_empty())
             .unwrap_or_else(|| "none yet".into());
         let experiment = b.batch["settings"]["experiment"].as_str().unwrap_or("?").to_owned();
+        v.toolboxes.push(toolbox_row(b));
         v.progress.push(ProgressRow {
             batch: b.name(),
             status,
@@ -381,7 +406,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                 },
                 score_is_bound: s.score.is_none(),
                 time: s.avg_wall_time_min.map(|m| format!("{m:.1} min")).unwrap_or_else(|| "—".into()),
-                tokens: s.avg_tokens_millions.map(|t| format!("{t:.2} M")).unwrap_or_else(|| "—".into()),
+                tokens: TokenSummary::of(row_records(std::slice::from_ref(b), &r.agent, r.condition)).text(),
                 ordinary: Split::ALL
                     .iter()
                     .map(|sp| s.split(*sp).map(|x| wilson(&x.ordinary)).unwrap_or_default())
@@ -418,6 +443,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                 let mut recs = recs;
                 recs.sort_by_key(|x| x.repetition);
                 TaskCell {
+                    tokens: tokens::per_rollout_text(recs.iter().copied().filter(|x| x.outcome.is_valid())),
                     summary: t
                         .map(|t| {
                             let excluded = if t.excluded_rollouts > 0 { format!(" (+{} excluded)", t.excluded_rollouts) } else { String::new() };
@@ -456,6 +482,25 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
     v
 }
 
+/// The toolbox line of a batch (`batch.json`'s `toolbox`, as `Toolbox::describe` wrote it).
+fn toolbox_row(b: &LoadedBatch) -> ToolboxRow {
+    let t = &b.batch["toolbox"];
+    let text = |k: &str| t[k].as_str().unwrap_or_default().to_owned();
+    let described = toolbox_text(t);
+    let (name, packages) = match described.split_once(" (") {
+        Some((name, rest)) => (name.to_owned(), rest.trim_end_matches(')').to_owned()),
+        None => (described, String::new()),
+    };
+    let name = if t.is_object() {
+        name
+    } else if b.batch["settings"]["sandbox"] == false {
+        "none (run without the sandbox: the host's python3)".into()
+    } else {
+        "none".into()
+    };
+    ToolboxRow { batch: b.name(), name, packages, python: text("python"), source: text("source") }
+}
+
 /// A rollout as `c/K`, linked to its review.
 fn episode_link(x: &RolloutRecord) -> EpisodeLink {
     let c = x.completed_stages.map(|c| c.to_string()).unwrap_or_else(|| "?".into());
@@ -466,7 +511,7 @@ fn episode_link(x: &RolloutRecord) -> EpisodeLink {
         outcome: x.outcome.as_str().to_owned(),
         title: match &reason {
             Some(why) => format!("repetition {}: {} ({}): {why}", x.repetition, x.outcome.as_str(), x.rollout_id),
-            None => format!("repetition {}: {} ({})", x.repetition, x.outcome.as_str(), x.rollout_id),
+            None => format!("repetition {}: {} ({}), tokens {}", x.repetition, x.outcome.as_str(), x.rollout_id, RolloutTokens::of(x).short()),
         },
         reason: reason.map(|why| shorten(&why, 80)).unwrap_or_default(),
     }
@@ -496,6 +541,7 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
                 mean_sc: pct(s.mean_stage_completion),
                 ordinary: wilson(&s.ordinary),
                 time: s.avg_wall_time_min.map(|m| format!("{m:.1} min")).unwrap_or_else(|| "—".into()),
+                tokens: TokenSummary::of(suite_records(std::slice::from_ref(b), &libero_runner::batch::agent_of(b), &s.suite)).text(),
             });
         }
         for t in &p.tasks {
@@ -509,6 +555,7 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
                 task: t.task.clone(),
                 suite: t.suite.clone(),
                 summary: format!("{}/{}{excluded}", c.successes, c.valid_rollouts),
+                tokens: tokens::per_rollout_text(recs.iter().copied().filter(|x| x.outcome.is_valid())),
                 stable: match (c.stable_success, c.stable_stage_fraction) {
                     (Some(true), _) => "stable".into(),
                     (Some(false), Some(f)) if t.stage_count > 1 => format!("not stable, min c/K {f:.2}"),

@@ -11,7 +11,7 @@ use askama::Template;
 use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path, Request, State};
+use axum::extract::{Path, Query, Request, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -24,7 +24,7 @@ use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use crate::dashboard::{page, serve_file, valid_id};
-use libero_server::episodes::{PrepareRequest, random_hex};
+use libero_server::episodes::{BranchRequest, PrepareRequest, random_hex};
 use libero_server::{AppState, json_error};
 
 /// Wall-clock budget of an operator episode: long enough for unhurried driving.
@@ -89,26 +89,52 @@ struct TeleopPage {
     instruction: String,
     k: usize,
     seed: u64,
+    /// Drive a branch of this episode at this control step (`?branch=ID&step=N`, the review's "Continue from
+    /// here"): every episode the page makes (Reset too) starts from that state.
+    branch: Option<(String, u64)>,
 }
 
-async fn teleop_page(Path(task): Path<String>) -> Response {
-    teleop_page_of(&task)
+/// `?branch=ID&step=N` of a teleop page.
+#[derive(Deserialize, Default)]
+struct BranchQuery {
+    branch: Option<String>,
+    step: Option<u64>,
+}
+
+impl BranchQuery {
+    fn origin(self) -> Result<Option<(String, u64)>, String> {
+        match (self.branch, self.step) {
+            (None, None) => Ok(None),
+            (Some(parent), Some(step)) if libero_server::episodes::valid_episode_id(&parent) => Ok(Some((parent, step))),
+            _ => Err("a branch needs ?branch=<episode id>&step=<control step>".into()),
+        }
+    }
+}
+
+async fn teleop_page(Path(task): Path<String>, Query(q): Query<BranchQuery>) -> Response {
+    teleop_page_of(&task, q)
 }
 
 /// `/teleop/{suite}/{task_id}`: a pool entry.
-async fn pool_teleop_page(Path((suite, task_id)): Path<(String, String)>) -> Response {
-    teleop_page_of(&format!("{suite}/{task_id}"))
+async fn pool_teleop_page(Path((suite, task_id)): Path<(String, String)>, Query(q): Query<BranchQuery>) -> Response {
+    teleop_page_of(&format!("{suite}/{task_id}"), q)
 }
 
-fn teleop_page_of(task: &str) -> Response {
+fn teleop_page_of(task: &str, q: BranchQuery) -> Response {
+    let branch = match q.origin() {
+        Ok(b) => b,
+        Err(e) => return json_error(StatusCode::BAD_REQUEST, e),
+    };
     match implemented_task(task) {
-        Ok((task, instruction, k)) => page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED }),
+        Ok((task, instruction, k)) => page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED, branch }),
         Err(e) => json_error(StatusCode::NOT_FOUND, e),
     }
 }
 
 #[derive(Deserialize)]
 struct CreateRequest {
+    /// The task; a branch runs its parent's (leave it out or name that one).
+    #[serde(default)]
     task: String,
     #[serde(default = "default_seed")]
     seed: u64,
@@ -116,6 +142,10 @@ struct CreateRequest {
     /// configuration a demonstration never comes from).
     #[serde(default)]
     layout: Option<libero_episode::demo::LayoutVariant>,
+    /// Continue another episode from one of its control steps (its task, seed, init state and layout; the
+    /// parent's actions replayed), as `POST /api/episodes` does.
+    #[serde(default)]
+    branch: Option<BranchRequest>,
 }
 
 fn default_seed() -> u64 {
@@ -130,9 +160,14 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
         Ok(r) => r,
         Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"task\": \"T14\", \"seed\": 100}}: {e}")),
     };
-    let task = match implemented_task(&req.task) {
-        Ok((task, ..)) => task,
-        Err(e) => return json_error(StatusCode::UNPROCESSABLE_ENTITY, e),
+    // A branch's task is its parent's: prepare resolves it (and says 404/400 for a parent or step it cannot use).
+    let task = if req.branch.is_some() && req.task.is_empty() {
+        String::new()
+    } else {
+        match implemented_task(&req.task) {
+            Ok((task, ..)) => task,
+            Err(e) => return json_error(StatusCode::UNPROCESSABLE_ENTITY, e),
+        }
     };
     let prepare = PrepareRequest {
         level: 1,
@@ -141,13 +176,17 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
         video: true,
         harness: Some("teleop".into()),
         model: Some("human".into()),
+        // Teleop episodes are one batch on the home page's filter.
+        batch: Some("teleop".into()),
         layout: req.layout,
+        branch: req.branch.clone(),
         ..PrepareRequest::new(task.clone())
     };
     let prepared = match app.prepare_stored(prepare).await {
         Ok(p) => p,
         Err(resp) => return resp,
     };
+    let task = prepared.task.clone();
     let eps = app.episodes.clone();
     let id = prepared.episode_id.clone();
     let started = tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
@@ -169,7 +208,7 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
         m.insert(prepared.episode_id.clone(), task.clone());
     }
     app.sync(&prepared.episode_id).await;
-    ok_json(json!({"ok": true, "episode_id": prepared.episode_id, "task": task, "seed": req.seed}))
+    ok_json(json!({"ok": true, "episode_id": prepared.episode_id, "task": task, "seed": req.seed, "branch": prepared.branch}))
 }
 
 /// The handle and task of an operator episode; agents' episodes are never returned.
@@ -296,33 +335,43 @@ fn bundle_path(app: &libero_server::App, task: &str, bundle: &str) -> Option<Pat
 
 /// Every bundle of the library with what the table shows (newest first).
 fn list_bundles(root: &FsPath) -> Vec<Value> {
-    let mut rows = Vec::new();
-    for task_dir in std::fs::read_dir(root).into_iter().flatten().flatten() {
-        for b in std::fs::read_dir(task_dir.path()).into_iter().flatten().flatten() {
-            let dir = b.path();
-            let name = b.file_name().to_string_lossy().into_owned();
-            if !dir.is_dir() || name.ends_with(".partial") {
-                continue;
-            }
-            let Ok(m) = read_json(&dir.join(MANIFEST)) else { continue };
-            let modified = std::fs::metadata(dir.join(MANIFEST))
-                .and_then(|md| md.modified())
-                .ok()
-                .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-                .map(|d| d.as_secs_f64());
-            let violations = validate_bundle(&dir);
-            rows.push(json!({
-                "key": format!("{}/{name}", task_dir.file_name().to_string_lossy()),
-                "task": m["task"]["id"], "instruction": m["task"]["instruction"],
-                "verified": m["verification"]["verified"], "replay_success": m["verification"]["replay_success"],
-                "actions": m["transition_count"], "source_type": m["source"]["source_type"],
-                "episode_id": m["source"]["episode_id"], "modified_unix_s": modified,
-                "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
-            }));
-        }
-    }
-    rows.sort_by(|a, b| b["modified_unix_s"].as_f64().partial_cmp(&a["modified_unix_s"].as_f64()).unwrap_or(std::cmp::Ordering::Equal));
+    let mut rows: Vec<Value> = std::fs::read_dir(root).into_iter().flatten().flatten().flat_map(|d| task_bundles(&d.path())).collect();
+    newest_first(&mut rows);
     rows
+}
+
+/// The bundles of one task's library folder (`<library>/<task>`), as [`list_bundles`] shows them, newest first.
+pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
+    let mut rows = Vec::new();
+    let task_name = task_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    for b in std::fs::read_dir(task_dir).into_iter().flatten().flatten() {
+        let dir = b.path();
+        let name = b.file_name().to_string_lossy().into_owned();
+        if !dir.is_dir() || name.ends_with(".partial") {
+            continue;
+        }
+        let Ok(m) = read_json(&dir.join(MANIFEST)) else { continue };
+        let modified = std::fs::metadata(dir.join(MANIFEST))
+            .and_then(|md| md.modified())
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map(|d| d.as_secs_f64());
+        let violations = validate_bundle(&dir);
+        rows.push(json!({
+            "key": format!("{task_name}/{name}"),
+            "task": m["task"]["id"], "instruction": m["task"]["instruction"],
+            "verified": m["verification"]["verified"], "replay_success": m["verification"]["replay_success"],
+            "actions": m["transition_count"], "source_type": m["source"]["source_type"],
+            "episode_id": m["source"]["episode_id"], "modified_unix_s": modified,
+            "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
+        }));
+    }
+    newest_first(&mut rows);
+    rows
+}
+
+fn newest_first(rows: &mut [Value]) {
+    rows.sort_by(|a, b| b["modified_unix_s"].as_f64().partial_cmp(&a["modified_unix_s"].as_f64()).unwrap_or(std::cmp::Ordering::Equal));
 }
 
 async fn demos_json(State(app): State<AppState>) -> Response {

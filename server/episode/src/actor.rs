@@ -25,6 +25,8 @@ use crate::workspace::OBSERVATION_FILE;
 pub const IDLE_POLL: Duration = Duration::from_millis(500);
 const BUDGET_SCOPE: &str = "per_episode_across_resets";
 const EXPIRY_REASON: &str = "episode_wall_time_budget_exhausted";
+/// `termination_reason` of an episode whose agent ended without `finish_episode` (docs/protocol.md §4.8).
+pub const FORFEIT_REASON: &str = "agent_ended_without_finish_episode";
 const FINISHED_TEXT: &str = "the episode is already finished; finish_episode was called and no further commands are accepted";
 const ABORTED_TEXT: &str = "the episode was stopped by the server and accepts no further commands";
 const START_TWICE_TEXT: &str = "start may be called exactly once";
@@ -99,6 +101,8 @@ pub struct EpisodeStatus {
 enum Command {
     Call { name: String, arguments: Option<Map<String, Value>>, reply: mpsc::Sender<Value> },
     Stop { reason: String, done: mpsc::Sender<()> },
+    /// The agent's harness ended without `finish_episode`: the agent's own FAIL, never INVALID.
+    Forfeit { reason: String, done: mpsc::Sender<()> },
 }
 
 /// How an episode ended, kept after its thread and world are gone: enough to answer any later call exactly as
@@ -244,6 +248,16 @@ impl EpisodeHandle {
             let _ = rx.recv();
         }
         self.exited.wait();
+    }
+
+    /// Ends an unfinished episode as its agent's FAIL: the agent (or its harness) ended without `finish_episode`.
+    /// Judged not successful whatever the scene shows (the agent never declared it done), the verdict's
+    /// diagnostics kept; waits like [`EpisodeHandle::stop`]. An episode that already ended is left as it is.
+    pub fn forfeit(&self, reason: &str) {
+        let (done, rx) = mpsc::channel();
+        if self.tx.send(Command::Forfeit { reason: reason.to_owned(), done }).is_ok() {
+            let _ = rx.recv();
+        }
     }
 
     /// Asks the episode to end as [`EpisodeHandle::stop`] does, without waiting: what a shutdown sends to every
@@ -465,6 +479,10 @@ impl<W: World> Actor<W> {
                 self.abort_if_unfinished(&reason);
                 let _ = done.send(());
                 return false;
+            }
+            Ok(Command::Forfeit { reason, done }) => {
+                self.forfeit(&reason);
+                let _ = done.send(());
             }
             Err(RecvTimeoutError::Timeout) => {
                 if self.deadline_passed() {
@@ -740,6 +758,27 @@ impl<W: World> Actor<W> {
             log::error!("episode {}: cannot log expiry: {e}", self.config.episode_id);
         }
         self.phase = Phase::Expired { payload };
+        self.world = None;
+        self.update_status();
+    }
+
+    /// The agent ended without `finish_episode`: finished, not successful, with the reason in the action log.
+    fn forfeit(&mut self, reason: &str) {
+        if !matches!(self.phase, Phase::Prepared | Phase::Active { .. }) {
+            return;
+        }
+        let wall = self.wall_time_s().unwrap_or(0.0);
+        let verdict = self.world.as_mut().and_then(|w| w.verdict().ok());
+        let mut payload = self.finished_payload(false, wall);
+        payload["termination_reason"] = json!(FORFEIT_REASON);
+        if let Err(e) = self.write_final(&payload, verdict.as_ref()) {
+            self.abort(&format!("result.json write failed: {e}"));
+            return;
+        }
+        if let Err(e) = self.log.append(&json!({"command": FORFEIT_REASON, "reason": reason}), &payload, 1) {
+            log::error!("episode {}: cannot log the forfeit: {e}", self.config.episode_id);
+        }
+        self.phase = Phase::Finished;
         self.world = None;
         self.update_status();
     }

@@ -2,6 +2,7 @@
 //! validation, budgets, the episode actor thread, observation publishing into the agent's workspace and
 //! the evaluator-private records. No HTTP here: the `app` crate serves these over MCP.
 pub mod actor;
+pub mod branch;
 pub mod call;
 #[cfg(feature = "world")]
 pub mod demo;

@@ -28,6 +28,11 @@ pub const WRIST_CAMERA: &str = "robot0_eye_in_hand";
 
 pub struct LiberoWorld {
     physics: WorldPhysics,
+    /// What the world was built from: the live view's preview of the start state builds a twin from it.
+    spec: WorldSpec,
+    /// A branch's replayed prefix: the parent episode's first actions, run by [`World::start`] after settling,
+    /// the evaluator observing them (see [`LiberoWorld::set_start_prefix`]). Empty for an ordinary episode.
+    start_prefix: Vec<MicroAction>,
     renderer: Renderer,
     gpu_model: ModelHandle,
     base_body: usize,
@@ -48,6 +53,7 @@ pub struct LiberoWorld {
 /// on). The model is shared read-only, so the world keeps the site colours and hands them to the renderer with
 /// each frame. An image shows the colours from before the latest step's toggle, as LIBERO renders the
 /// observation first (port notes §4.3).
+#[derive(Clone)]
 struct VisualToggles {
     sites: TurnOnSites,
     /// `site_rgba` after `set_init_state`'s toggle.
@@ -96,7 +102,43 @@ impl LiberoWorld {
         let gpu_model = renderer.prepare_model(&model).map_err(|e| EpisodeError::Render(e.to_string()))?;
         let toggles = VisualToggles::new(&physics.scene, &model)?;
         let task_reference = spec.task.task_reference.as_deref().map(RgbImage::read_png).transpose()?;
-        Ok(Self { physics, renderer, gpu_model, base_body, level: spec.level, toggles, live: None, live_frames: None, task_reference, video: None })
+        Ok(Self {
+            physics,
+            spec: spec.clone(),
+            start_prefix: Vec::new(),
+            renderer,
+            gpu_model,
+            base_body,
+            level: spec.level,
+            toggles,
+            live: None,
+            live_frames: None,
+            task_reference,
+            video: None,
+        })
+    }
+
+    /// Makes this world a branch of another episode: [`World::start`] settles as usual, then replays `actions`
+    /// (the parent's first control steps) with the evaluator observing them, so the start state is the parent's
+    /// state after them, bit for bit, with the stages it had reached. Call before [`Self::set_live`] and
+    /// [`Self::record_video`] (the preview and the video then show the branch's start).
+    pub fn set_start_prefix(&mut self, actions: Vec<MicroAction>) {
+        self.start_prefix = actions;
+    }
+
+    /// The state [`World::start`] will leave (settled, branch prefix replayed) and its sim time, for the live view
+    /// before the start: the same start run on a twin of this world's physics built from the same spec, so it
+    /// is that state bit for bit (the determinism contract) and the episode's own simulation is not touched.
+    fn start_preview(&self) -> Result<(FrameState, f64), EpisodeError> {
+        let mut twin = WorldPhysics::build(&self.spec, observation_site_visibility)?;
+        let mut toggles = self.toggles.clone();
+        toggles.reset();
+        twin.start(|sim| toggles.after_step(sim.data().qpos()))?;
+        for action in &self.start_prefix {
+            twin.step(action)?;
+            toggles.after_step(twin.sim.data().qpos());
+        }
+        Ok((frame_state_of(&twin, &toggles), twin.sim.time_s()))
     }
 
     /// Whether the next image shows a turned-on fixture's visual site (the stove's burner ring).
@@ -126,15 +168,7 @@ impl LiberoWorld {
 
     /// The poses and colours an image of the current state shows (burner rings, evaluator highlights).
     fn frame_state(&self) -> FrameState {
-        let sim = &self.physics.sim;
-        let mut state = FrameState::from_mujoco(sim.model(), sim.data());
-        self.toggles.apply(&mut state);
-        for (geom, rgba) in self.physics.evaluator.geom_rgba_overrides() {
-            if let Some(slot) = state.geom_rgba.get_mut(geom) {
-                *slot = rgba;
-            }
-        }
-        state
+        frame_state_of(&self.physics, &self.toggles)
     }
 
     fn render(&self) -> Result<(CameraFrame, CameraFrame), EpisodeError> {
@@ -171,6 +205,20 @@ impl LiberoWorld {
     }
 }
 
+/// The poses and colours an image of `physics`'s current state shows, with `toggles`' burner rings and the
+/// evaluator's highlights.
+fn frame_state_of(physics: &WorldPhysics, toggles: &VisualToggles) -> FrameState {
+    let sim = &physics.sim;
+    let mut state = FrameState::from_mujoco(sim.model(), sim.data());
+    toggles.apply(&mut state);
+    for (geom, rgba) in physics.evaluator.geom_rgba_overrides() {
+        if let Some(slot) = state.geom_rgba.get_mut(geom) {
+            *slot = rgba;
+        }
+    }
+    state
+}
+
 /// What robosuite's reset does to sites before the first image: hide robot, gripper and object sites in
 /// observation images, then LIBERO's `set_visualization` shows a stove burner only if its knob starts on.
 fn observation_site_visibility(scene: &ComposedScene, model: &mut MjModel, start_qpos: &[f64]) -> Result<(), EpisodeError> {
@@ -185,7 +233,12 @@ impl World for LiberoWorld {
         let toggles = &mut self.toggles;
         self.physics.start(|sim| toggles.after_step(sim.data().qpos()))?;
         self.report_live();
-        Ok(())
+        // A branch: the parent's actions up to the branch point, each an ordinary control step (evaluator, burner
+        // toggles, telemetry, live events and the state record see it as the parent's episode did).
+        let prefix = std::mem::take(&mut self.start_prefix);
+        let replayed = prefix.iter().try_for_each(|a| self.step(a));
+        self.start_prefix = prefix;
+        replayed
     }
 
     fn step(&mut self, action: &MicroAction) -> Result<(), EpisodeError> {
@@ -290,9 +343,10 @@ impl LiberoWorld {
         self.live = Some(WorldTap::new(sink.clone(), telemetry)?);
         let frames = LiveRenderer::spawn(self.renderer.clone(), self.gpu_model.clone(), head_wrist_cameras(), sink, viewers)
             .map_err(|e| EpisodeError::Render(format!("live renderer thread: {e}")))?;
-        // Before the start a viewer sees the composed scene (a settle state, `control_step` null).
-        let sim_time_s = self.physics.sim.time_s();
-        frames.publish(LiveState { state: self.frame_state(), control_step: None, sim_time_s, video_frame: None, rendered: None });
+        // Before the start a viewer sees the state the start will leave (settled, a branch's prefix replayed),
+        // `control_step` null: never the composed scene before its init state, which lacks the placed objects.
+        let (state, sim_time_s) = self.start_preview()?;
+        frames.publish(LiveState { state, control_step: None, sim_time_s, video_frame: None, rendered: None });
         self.live_frames = Some(frames);
         Ok(())
     }

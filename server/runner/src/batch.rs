@@ -312,6 +312,88 @@ impl StoreMirror {
     }
 }
 
+/// The batch registered with the server its episodes run on (`run --server URL`): after every change to the batch
+/// directory the runner posts `batch.json`'s document and the records that server does not have yet to its
+/// operator API (`POST /api/batches`), so that server's Results page lists the batch wherever its directory is.
+/// The directory stays the source of truth: a server that cannot be reached is warned about and tried again at
+/// the next change; one that refuses the batch (another batch of the same name, a wrong token) stops the run.
+pub struct ServerMirror {
+    url: String,
+    /// Records of `rollouts.jsonl` the server has.
+    posted: usize,
+    /// Set once the server lacks the route (an older server): nothing more is posted.
+    unsupported: bool,
+    warned: bool,
+}
+
+/// Most records and bytes of records one registration request carries (the server takes up to 500 and 2 MiB).
+const MIRROR_RECORDS: usize = 200;
+const MIRROR_BYTES: usize = 1 << 20;
+/// A registration must not hold a rollout's worker for long.
+const MIRROR_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(20);
+
+impl ServerMirror {
+    pub fn new(url: &str) -> Self {
+        Self { url: url.trim_end_matches('/').to_owned(), posted: 0, unsupported: false, warned: false }
+    }
+
+    /// The Results page of the batch named `name` on this server.
+    pub fn results_url(&self, name: &str) -> String {
+        format!("{}/results?batch={name}", self.url)
+    }
+
+    /// Posts the batch directory's current state; `Err` only when the server refuses the batch.
+    pub fn sync(&mut self, dir: &Path) -> anyhow::Result<()> {
+        if self.unsupported {
+            return Ok(());
+        }
+        let b = load_batch(dir)?;
+        let name = b.name();
+        let records: Vec<Value> = b.records.iter().map(serde_json::to_value).collect::<Result<_, _>>()?;
+        loop {
+            let from = self.posted.min(records.len());
+            let mut end = from;
+            let mut bytes = 0;
+            while end < records.len() && end - from < MIRROR_RECORDS {
+                let size = records[end].to_string().len();
+                if end > from && bytes + size > MIRROR_BYTES {
+                    break;
+                }
+                bytes += size;
+                end += 1;
+            }
+            let body = serde_json::json!({"name": name, "dir": b.dir, "doc": b.batch, "from": from, "records": &records[from..end]});
+            match libero_server::client::post_json_within(&self.url, "/api/batches", &body, MIRROR_TIMEOUT) {
+                Ok((200, v)) => {
+                    self.posted = v["have"].as_u64().map_or(end, |n| n as usize);
+                    if self.posted >= records.len() {
+                        return Ok(());
+                    }
+                }
+                // The server has fewer records than this runner thought (a fresh store): send them from there.
+                Ok((409, v)) if v["have"].as_u64().is_some_and(|n| (n as usize) < from) && v["error"].as_str().is_some_and(|e| e.starts_with("records from")) => {
+                    self.posted = v["have"].as_u64().map_or(0, |n| n as usize);
+                }
+                Ok((404 | 405, _)) => {
+                    eprintln!("warning: {} has no batch registration (an older server): its Results page will not list batch {name}", self.url);
+                    self.unsupported = true;
+                    return Ok(());
+                }
+                Ok((status, v)) => {
+                    bail!("{} refused to register batch {name} (HTTP {status}): {}", self.url, v["error"].as_str().map_or_else(|| v.to_string(), str::to_owned))
+                }
+                Err(e) => {
+                    if !self.warned {
+                        eprintln!("warning: cannot register batch {name} with {} (tried again at the next change): {e:#}", self.url);
+                        self.warned = true;
+                    }
+                    return Ok(());
+                }
+            }
+        }
+    }
+}
+
 /// A batch read from the store, in the shape [`load_batch`] gives.
 pub fn from_stored(b: libero_server::store::StoredBatch) -> anyhow::Result<LoadedBatch> {
     if b.doc["schema_version"] != BATCH_SCHEMA {

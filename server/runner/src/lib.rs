@@ -188,6 +188,10 @@ pub struct RunContext {
     pub npm_cli_installed: bool,
     /// `--store`: the batch is written there after every change too.
     pub store: Option<batch::StoreMirror>,
+    /// The batch's name, as its episodes carry it on the server (a queued batch's name, else its directory's).
+    pub batch_name: String,
+    /// `--server`: the batch is registered with that server after every change, for its Results page.
+    pub server_mirror: Option<Mutex<batch::ServerMirror>>,
 }
 
 impl RunContext {
@@ -204,10 +208,13 @@ impl RunContext {
     }
 
     fn sync_store(&self) -> anyhow::Result<()> {
-        match &self.store {
-            Some(m) => m.sync(&self.batch_dir).context("writing the batch to --store"),
-            None => Ok(()),
+        if let Some(m) = &self.store {
+            m.sync(&self.batch_dir).context("writing the batch to --store")?;
         }
+        if let Some(m) = &self.server_mirror {
+            m.lock().map_err(|_| anyhow::anyhow!("server mirror poisoned"))?.sync(&self.batch_dir)?;
+        }
+        Ok(())
     }
 }
 
@@ -550,11 +557,16 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         self_exe,
         npm_cli_installed,
         store,
+        batch_name: batch_name.clone(),
+        server_mirror: args.server.as_deref().map(|url| Mutex::new(batch::ServerMirror::new(url))),
     });
     install_signal_handlers();
     let skipped = Arc::new(skipped);
     ctx.write_batch(&batch_value(&ctx, "running", &created_at, &progress, &skipped))?;
     eprintln!("batch {} — {}", batch_dir.display(), progress.line());
+    if let Some(url) = args.server.as_deref() {
+        eprintln!("registered with {url}: its Results page lists the batch as it runs");
+    }
     tracing::info!(
         batch = batch_name,
         dir = %batch_dir.display(),
@@ -638,12 +650,31 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bail!("interrupted; `--resume` continues the batch (interrupted rollouts are not retried)");
     }
     // A batch none of whose rollouts ran is a failure of the run, not a result.
+    print_where_to_look(&ctx, &batch_dir);
     let records = read_records(&batch_dir)?;
     let ours = records.iter().filter(|r| schedule.iter().any(|s| s.rollout_id == r.rollout_id));
     if let Some(msg) = batch::all_invalid_message(&batch_name, ours.map(|r| (r.rollout_id.as_str(), r.outcome.as_str(), r.reason()))) {
         bail!("{msg}");
     }
     Ok(())
+}
+
+/// Where the ended batch can be seen: the Results page of `--server` (which has it registered), else how to
+/// show it on one, and the `report` command. Printed on stderr with the progress.
+fn print_where_to_look(ctx: &RunContext, batch_dir: &Path) {
+    let dir = harness::shell_quote(&batch_dir.to_string_lossy());
+    match &ctx.server_mirror {
+        Some(m) => {
+            if let Ok(m) = m.lock() {
+                eprintln!("results: {}", m.results_url(&ctx.batch_name));
+            }
+        }
+        None => {
+            let parent = batch_dir.parent().map(|p| harness::shell_quote(&p.to_string_lossy())).unwrap_or_else(|| dir.clone());
+            eprintln!("results: not on any server yet (run it with --server URL, or `libero-agent serve --batches {parent}`)");
+        }
+    }
+    eprintln!("report: libero-agent report {dir}");
 }
 
 /// The log line of an ended rollout (`run` and workers): info for an outcome of the agent's, a warning with its

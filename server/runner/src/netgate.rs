@@ -221,6 +221,24 @@ pub fn summarize(records: &Path) -> std::io::Result<UsageSummary> {
     Ok(s)
 }
 
+/// Why the model API failed the agent, if it did: the last request the gateway passed on (to the upstream or an
+/// allowed host) was answered 429 or 5xx (502 when the upstream was unreachable), or its response broke off
+/// upstream. What the agent's own side does (a refused host, a client that went away, an unreadable head, a 4xx)
+/// is not a failure of the model API: only this may make an agent that quit without `finish_episode` INVALID.
+pub fn last_model_api_failure(records: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(records).ok()?;
+    let last = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Record>(l).ok())
+        .filter(|r| matches!(r.mode, Mode::Reverse | Mode::Forward))
+        .max_by_key(|r| r.unix_ms)?;
+    let upstream_broke = last.error.as_deref().is_some_and(|e| e.starts_with("upstream"));
+    (last.status == 429 || last.status >= 500 || upstream_broke).then(|| {
+        let why = last.error.as_deref().map(|e| format!(": {e}")).unwrap_or_default();
+        format!("the model API answered {} to {} {}{why}", last.status, last.method, last.path)
+    })
+}
+
 /// A running gateway; stopped by [`Gateway::stop`] or when dropped.
 pub struct Gateway {
     running: Running,
@@ -1134,6 +1152,37 @@ fn responses_usage(u: &Map<String, Value>) -> TokenUsage {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn record(unix_ms: u64, mode: Mode, status: u16, error: Option<&str>) -> String {
+        let r = Record {
+            time: String::new(), unix_ms, mode, method: "POST".into(), host: "api:443".into(), path: "/v1/responses".into(),
+            status, request_bytes: 1, response_bytes: 1, duration_ms: 1, content_type: None, usage: None, error: error.map(str::to_owned),
+        };
+        serde_json::to_string(&r).unwrap()
+    }
+
+    /// Only what the agent cannot cause makes an early exit INVALID: the provider's 429/5xx (502: unreachable)
+    /// or a response broken off upstream, on the last request passed on; never refusals, 4xx or a client gone.
+    #[test]
+    fn a_model_api_failure_is_only_the_last_passed_on_request_failing_upstream() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("model_api.jsonl");
+        let case = |lines: &[String]| {
+            std::fs::write(&p, lines.join("\n")).unwrap();
+            last_model_api_failure(&p)
+        };
+        assert!(case(&[record(1, Mode::Reverse, 502, Some("upstream: connection refused"))]).is_some_and(|w| w.contains("answered 502")));
+        assert!(case(&[record(1, Mode::Reverse, 200, None), record(2, Mode::Forward, 429, None)]).is_some());
+        assert!(case(&[record(1, Mode::Reverse, 200, Some("upstream response: reset"))]).is_some());
+        // An early failure the CLI got past, then an answered request: not a failure.
+        assert!(case(&[record(1, Mode::Reverse, 503, None), record(2, Mode::Reverse, 200, None)]).is_none());
+        // The agent's own doing: refused hosts, a 4xx, a client gone, a tunnel.
+        assert!(case(&[record(1, Mode::Reverse, 200, None), record(2, Mode::Refused, 403, None)]).is_none());
+        assert!(case(&[record(1, Mode::Reverse, 401, None)]).is_none());
+        assert!(case(&[record(1, Mode::Reverse, 200, Some("client gone"))]).is_none());
+        assert!(case(&[record(1, Mode::Connect, 502, None)]).is_none());
+        assert!(case(&[]).is_none());
+    }
     use http_body_util::{BodyExt, Either, Full};
     use std::io::{Read, Write};
     use std::os::unix::net::UnixStream as StdUnixStream;

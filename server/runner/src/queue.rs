@@ -139,6 +139,9 @@ async fn follow(store: &Store, url: &str, name: &str) -> anyhow::Result<()> {
                 eprintln!("  {} INVALID: {}", r["rollout_id"].as_str().unwrap_or("?"), record_reason(r));
             }
             println!("{}", json!({"batch": name, "status": "finished", "counts": b.doc["counts"], "outcomes": b.doc["outcomes"]}));
+            // Every dashboard on this store lists it (`serve --store URL`); `report` reads it from the store.
+            eprintln!("results: the Results page of any `libero-agent serve --store {}`", libero_store::redact(url));
+            eprintln!("report: libero-agent report --store {} {name}", libero_store::redact(url));
             let rollouts = b.records.iter().map(|r| (r["rollout_id"].as_str().unwrap_or("?"), r["outcome"].as_str().unwrap_or("?"), Some(record_reason(r))));
             if let Some(msg) = super::batch::all_invalid_message(name, rollouts) {
                 bail!("{msg}");

@@ -11,14 +11,17 @@ use std::path::PathBuf;
 pub mod svg;
 #[path = "report_tables.rs"]
 pub mod tables;
+#[path = "report_tokens.rs"]
+pub mod tokens;
 
 use tables::TableChoice;
+use tokens::{RolloutTokens, TokenSummary};
 
 use anyhow::bail;
 use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
 use serde_json::{Value, json};
 
-use crate::batch::{Condition, LoadedBatch, RolloutRecord, load_batch, metrics_rollouts, pool_rollouts};
+use crate::batch::{Condition, LoadedBatch, RolloutRecord, agent_of, load_batch, metrics_rollouts, pool_rollouts};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
@@ -39,9 +42,9 @@ pub struct ReportArgs {
     pub store: Option<String>,
     #[arg(long, value_enum, default_value = "markdown")]
     pub format: Format,
-    /// Rollouts per task the stable rule needs.
-    #[arg(long, default_value_t = libero_metrics::PAPER_REPS)]
-    pub reps: usize,
+    /// Rollouts per task the stable rule needs (default: the first batch's own `--reps`, as the Results page uses).
+    #[arg(long)]
+    pub reps: Option<usize>,
     /// Which table Markdown, CSV and LaTeX print (JSON always holds every one): all, table1…table4, figure3 (its data),
     /// appendix (the per-task tables of Appendix E, wide).
     #[arg(long, value_enum, default_value = "all")]
@@ -56,6 +59,43 @@ pub struct Row {
     pub agent: String,
     pub condition: Condition,
     pub summary: SuiteSummary,
+}
+
+/// The stable rule's repetitions a batch was run with (its `--reps`), if its settings say.
+pub fn batch_reps(b: &LoadedBatch) -> Option<usize> {
+    b.batch["settings"]["reps"].as_u64().map(|n| n as usize).filter(|&n| n > 0)
+}
+
+/// The repetitions `report` and the Results page use unless told otherwise: the first batch's own `--reps` (so a
+/// 1-rep batch is judged on 1 rollout per task in both), else the paper's 3.
+pub fn default_reps(batches: &[LoadedBatch]) -> usize {
+    batches.first().and_then(batch_reps).unwrap_or(libero_metrics::PAPER_REPS)
+}
+
+/// The records of a Table 1 row: the agent's rollouts under the row's condition, from every batch (pool rollouts
+/// are not in the paper's rows).
+pub fn row_records<'a>(batches: &'a [LoadedBatch], agent: &str, condition: Condition) -> Vec<&'a RolloutRecord> {
+    batches
+        .iter()
+        .filter(|b| agent_of(b) == agent)
+        .flat_map(|b| b.records.iter())
+        .filter(|r| r.suite.is_none() && r.level == condition.level && r.demo == condition.demo)
+        .collect()
+}
+
+/// The records of one pool suite of an agent.
+pub fn suite_records<'a>(batches: &'a [LoadedBatch], agent: &str, suite: &str) -> Vec<&'a RolloutRecord> {
+    batches.iter().filter(|b| agent_of(b) == agent).flat_map(|b| b.records.iter()).filter(|r| r.suite.as_deref() == Some(suite)).collect()
+}
+
+/// The tokens of a row's rollouts with their sources: the summary, and every rollout's figures.
+fn tokens_json(records: &[&RolloutRecord]) -> (Value, Value) {
+    let per_rollout: Vec<Value> = records
+        .iter()
+        .map(|r| json!({"rollout_id": r.rollout_id, "task": r.task, "repetition": r.repetition, "outcome": r.outcome,
+            "tokens": RolloutTokens::of(r)}))
+        .collect();
+    (json!(TokenSummary::of(records.iter().copied())), Value::Array(per_rollout))
 }
 
 /// Computes every (agent, condition) summary of the batches.
@@ -78,16 +118,29 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
     let paper = tables::paper_tables(batches, &table1, reps);
     let rows: Vec<Value> = table1
         .into_iter()
-        .map(|r| json!({"agent": r.agent, "level": r.condition.level, "demo": r.condition.demo, "summary": r.summary}))
+        .map(|r| {
+            let (tokens, per_rollout) = tokens_json(&row_records(batches, &r.agent, r.condition));
+            json!({"agent": r.agent, "level": r.condition.level, "demo": r.condition.demo, "summary": r.summary,
+                "tokens": tokens, "rollout_tokens": per_rollout})
+        })
         .collect();
     let meta: Vec<Value> = batches
         .iter()
         .map(|b| json!({"name": b.name(), "dir": b.dir, "status": b.batch["status"], "settings": b.batch["settings"],
-            "harness": b.batch["harness"], "sandbox": b.batch["sandbox"], "counts": b.batch["counts"],
+            "harness": b.batch["harness"], "sandbox": b.batch["sandbox"], "toolbox": b.batch["toolbox"], "counts": b.batch["counts"],
             "outcomes": b.batch["outcomes"], "rollouts_recorded": b.records.len()}))
         .collect();
-    let pool: Vec<Value> =
-        pool_rows(batches, reps).into_iter().map(|(agent, summary)| json!({"agent": agent, "summary": summary})).collect();
+    let pool: Vec<Value> = pool_rows(batches, reps)
+        .into_iter()
+        .map(|(agent, summary)| {
+            let tokens: serde_json::Map<String, Value> = summary
+                .suites
+                .iter()
+                .map(|s| (s.suite.clone(), json!(TokenSummary::of(suite_records(batches, &agent, &s.suite)))))
+                .collect();
+            json!({"agent": agent, "summary": summary, "tokens": tokens})
+        })
+        .collect();
     let excluded: Vec<Value> = excluded(batches)
         .into_iter()
         .map(|(b, r, why)| json!({"batch": b.name(), "rollout_id": r.rollout_id, "task": r.task, "outcome": r.outcome,
@@ -161,7 +214,7 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
         let h = &b.batch["harness"];
         let _ = writeln!(
             o,
-            "- batch `{}`: {} {} `{}` effort {}, harness version {}, sandbox {}, status {}, {} rollouts recorded, outcomes {}",
+            "- batch `{}`: {} {} `{}` effort {}, harness version {}, sandbox {}, toolbox {}, status {}, {} rollouts recorded, outcomes {}",
             b.name(),
             b.batch["settings"]["experiment"].as_str().unwrap_or("?"),
             h["name"].as_str().unwrap_or("?"),
@@ -169,6 +222,7 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
             b.batch["settings"]["effort"].as_str().unwrap_or("?"),
             h["version"]["observed"].as_str().unwrap_or("unknown"),
             b.batch["sandbox"]["version"].as_str().unwrap_or("none"),
+            toolbox_text(&b.batch["toolbox"]),
             b.batch["status"].as_str().unwrap_or("?"),
             b.records.len(),
             b.batch["outcomes"],
@@ -188,7 +242,7 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
         let j = if s.judgment_tasks_scored == 0 { "—".into() } else { format!("{} ({}/10)", pct(s.judgment), s.judgment_tasks_scored) };
         let _ = writeln!(
             o,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} min | {}M |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} min | {} |",
             label(r),
             j,
             coverage(s, Split::Perception),
@@ -198,9 +252,10 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
             coverage(s, Split::LongHorizonHard),
             score(s),
             opt(s.avg_wall_time_min, 1),
-            opt(s.avg_tokens_millions, 2),
+            cell(&TokenSummary::of(row_records(batches, &r.agent, r.condition)).millions_text()),
         );
     }
+    let _ = writeln!(o, "\n{}", tokens::LEGEND);
     let _ = writeln!(o, "\n## Ordinary success rates (SUCCESS / valid rollouts, 95% Wilson interval)\n");
     let _ = writeln!(o, "| Agent | Perception | Short Easy | Short Hard | Long Easy | Long Hard | All |");
     let _ = writeln!(o, "|---|---|---|---|---|---|---|");
@@ -210,14 +265,16 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
         let _ = writeln!(o, "| {} | {} | {} |", label(r), cells.join(" | "), wilson(&s.ordinary));
     }
     let _ = writeln!(o, "\n## Per task\n");
-    let _ = writeln!(o, "| Agent | Task | Split | Valid | Excluded | Successes | Stable | Stage fraction (min / sum) |");
-    let _ = writeln!(o, "|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(o, "| Agent | Task | Split | Valid | Excluded | Successes | Stable | Stage fraction (min / sum) | Tokens per rollout (source) |");
+    let _ = writeln!(o, "|---|---|---|---|---|---|---|---|---|");
     for r in &rows {
+        let recs = row_records(batches, &r.agent, r.condition);
         for t in &r.summary.tasks {
             let stable = stable_word(t.stable_success);
+            let task_tokens = tokens::per_rollout_text(recs.iter().copied().filter(|x| x.task_number == t.task_number && x.outcome.is_valid()));
             let _ = writeln!(
                 o,
-                "| {} | T{:02} | {} | {} | {} | {} | {} | {} / {} |",
+                "| {} | T{:02} | {} | {} | {} | {} | {} | {} / {} | {} |",
                 label(r),
                 t.task_number,
                 t.split.as_str(),
@@ -227,6 +284,7 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
                 stable,
                 opt(t.stable_stage_fraction, 2),
                 opt(t.stage_fraction_sum, 2),
+                cell(&task_tokens),
             );
         }
     }
@@ -252,15 +310,16 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
     if !pool.is_empty() {
         let _ = writeln!(o, "\n## Task pool, per suite (`run --experiment pool`; not part of the Score)\n");
         let _ = writeln!(o, "Stable SR: every one of the {reps} rollouts succeeded; stable SC: the minimum c/K, averaged over the suite's scored tasks.\n");
-        let _ = writeln!(o, "| Agent | Suite | Tasks (scored) | Stable SR | Stable SC | Mean c/K | Ordinary SR [95% Wilson] | Avg. time |");
-        let _ = writeln!(o, "|---|---|---|---|---|---|---|---|");
+        let _ = writeln!(o, "| Agent | Suite | Tasks (scored) | Stable SR | Stable SC | Mean c/K | Ordinary SR [95% Wilson] | Avg. time | Avg. tokens (source) |");
+        let _ = writeln!(o, "|---|---|---|---|---|---|---|---|---|");
         for (agent, p) in &pool {
             for s in &p.suites {
                 let _ = writeln!(
                     o,
-                    "| {agent} | {} | {} ({}) | {} | {} | {} | {} | {} min |",
+                    "| {agent} | {} | {} ({}) | {} | {} | {} | {} | {} min | {} |",
                     s.suite, s.tasks, s.tasks_scored, pct(s.stable_success), pct(s.stable_stage_completion),
                     pct(s.mean_stage_completion), wilson(&s.ordinary), opt(s.avg_wall_time_min, 1),
+                    cell(&TokenSummary::of(suite_records(batches, agent, &s.suite)).text()),
                 );
             }
         }
@@ -302,6 +361,9 @@ pub fn csv(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String 
     if choice.wants(TableChoice::Table1) {
         blocks.push(("table_1_stable_performance".to_owned(), csv_table1(&table1, batches, reps)));
     }
+    if choice == TableChoice::All {
+        blocks.push(("tokens_per_rollout".to_owned(), csv_rollout_tokens(&table1, batches)));
+    }
     blocks.extend(tables::csv_blocks(&paper, choice, reps));
     match blocks.as_slice() {
         [(_, only)] => only.clone(),
@@ -311,13 +373,18 @@ pub fn csv(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String 
 
 /// Table 1 (and the pool's per-suite lines) as CSV.
 fn csv_table1(table1: &[Row], batches: &[LoadedBatch], reps: usize) -> String {
-    let mut o = String::from("agent,level,demo,split,member_tasks,scored_tasks,stable_percent,ordinary_successes,valid_rollouts,wilson_low_percent,wilson_high_percent\n");
+    let mut o = String::from("agent,level,demo,split,member_tasks,scored_tasks,stable_percent,ordinary_successes,valid_rollouts,wilson_low_percent,wilson_high_percent,mean_total_tokens,rollouts_with_usage,tokens_sources,stdout_disagrees\n");
     let f = |x: Option<f64>| x.map(|v| format!("{:.4}", 100.0 * v)).unwrap_or_default();
+    // Every line carries its row's tokens and where they came from (empty mean: no usage, never 0).
+    let t = |tk: &TokenSummary| {
+        format!("{},{},{},{}", tk.mean_total.map(|m| format!("{m:.1}")).unwrap_or_default(), tk.rollouts_with_usage, tk.sources_field(), tk.stdout_disagrees.len())
+    };
     for r in table1 {
+        let tk = t(&TokenSummary::of(row_records(batches, &r.agent, r.condition)));
         for sp in &r.summary.splits {
             let _ = writeln!(
                 o,
-                "{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{tk}",
                 r.agent, r.condition.level, r.condition.demo.as_str(), sp.split.as_str(), sp.member_count, sp.tasks_scored,
                 f(sp.stable), sp.ordinary.successes, sp.ordinary.trials, f(sp.ordinary.wilson_low), f(sp.ordinary.wilson_high)
             );
@@ -325,7 +392,7 @@ fn csv_table1(table1: &[Row], batches: &[LoadedBatch], reps: usize) -> String {
         let s = &r.summary;
         let _ = writeln!(
             o,
-            "{},{},{},score,30,,{},,,,",
+            "{},{},{},score,30,,{},,,,,{tk}",
             r.agent, r.condition.level, r.condition.demo.as_str(),
             s.score.map(|x| format!("{x:.4}")).unwrap_or_default()
         );
@@ -333,9 +400,10 @@ fn csv_table1(table1: &[Row], batches: &[LoadedBatch], reps: usize) -> String {
     // Pool suites: `split` is `pool:<suite>`, member tasks are the suite's tasks in the batches.
     for (agent, p) in pool_rows(batches, reps) {
         for s in &p.suites {
+            let tk = t(&TokenSummary::of(suite_records(batches, &agent, &s.suite)));
             let _ = writeln!(
                 o,
-                "{agent},3,none,pool:{},{},{},{},{},{},{},{}",
+                "{agent},3,none,pool:{},{},{},{},{},{},{},{},{tk}",
                 s.suite, s.tasks, s.tasks_scored, f(s.stable_success), s.ordinary.successes, s.ordinary.trials,
                 f(s.ordinary.wilson_low), f(s.ordinary.wilson_high)
             );
@@ -344,32 +412,73 @@ fn csv_table1(table1: &[Row], batches: &[LoadedBatch], reps: usize) -> String {
     o
 }
 
+/// Every counted row's rollouts with their tokens and source, one line each (pool rollouts as `pool:<suite>`).
+fn csv_rollout_tokens(table1: &[Row], batches: &[LoadedBatch]) -> String {
+    let mut o = String::from("agent,level,demo,rollout_id,task,repetition,outcome,total_tokens,input_tokens,cached_input_tokens,output_tokens,tokens_source\n");
+    let n = |x: Option<u64>| x.map(|v| v.to_string()).unwrap_or_default();
+    let mut line = |agent: &str, level: String, demo: &str, r: &RolloutRecord| {
+        let t = RolloutTokens::of(r);
+        let _ = writeln!(
+            o,
+            "{agent},{level},{demo},{},{},{},{},{},{},{},{},{}",
+            r.rollout_id, r.task, r.repetition, r.outcome.as_str(), n(t.total), n(t.input), n(t.cached), n(t.output), t.source
+        );
+    };
+    for r in table1 {
+        for x in row_records(batches, &r.agent, r.condition) {
+            line(&r.agent, r.condition.level.to_string(), r.condition.demo.as_str(), x);
+        }
+    }
+    for b in batches {
+        for x in b.records.iter().filter(|x| x.suite.is_some()) {
+            line(&agent_of(b), x.level.to_string(), &format!("pool:{}", x.suite.as_deref().unwrap_or("?")), x);
+        }
+    }
+    o
+}
+
+/// A batch's toolbox as `libero-toolbox (numpy 1.26.4, scipy 1.14.1, …)`; `none` when the batch ran without one.
+pub fn toolbox_text(t: &Value) -> String {
+    match t["name"].as_str() {
+        Some(name) => {
+            let packages: Vec<String> = t["packages"]
+                .as_array()
+                .map(|ps| ps.iter().map(|p| format!("{} {}", p["name"].as_str().unwrap_or("?"), p["version"].as_str().unwrap_or("?"))).collect())
+                .unwrap_or_default();
+            if packages.is_empty() { name.to_owned() } else { format!("{name} ({})", packages.join(", ")) }
+        }
+        None => "none".into(),
+    }
+}
+
 /// The report as LaTeX tabulars (booktabs): Table 1, then (with `choice` `all`) the others, each after a `% caption`.
 pub fn latex(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String {
     let table1 = rows(batches, reps);
     let paper = tables::paper_tables(batches, &table1, reps);
     let mut o = String::new();
     if choice.wants(TableChoice::Table1) {
-        o.push_str(&latex_table1(&table1));
+        o.push_str(&latex_table1(&table1, batches));
     }
     o.push_str(&tables::latex(&paper, choice, reps));
     o
 }
 
-fn latex_table1(table1: &[Row]) -> String {
+fn latex_table1(table1: &[Row], batches: &[LoadedBatch]) -> String {
     let mut o = String::from(
-        "\\begin{tabular}{lrrrrrrrrr}\n\\toprule\nAgent & Judg. Acc. & Perc. SR & Short Easy & Short Hard & Long Easy SC & Long Hard SC & Score & Time (min) & Tokens (M) \\\\\n\\midrule\n",
+        "\\begin{tabular}{lrrrrrrrrrl}\n\\toprule\nAgent & Judg. Acc. & Perc. SR & Short Easy & Short Hard & Long Easy SC & Long Hard SC & Score & Time (min) & Tokens (M) & Token source \\\\\n\\midrule\n",
     );
     let esc = tables::tex;
     for r in table1 {
         let s = &r.summary;
         let c = |sp| s.split(sp).and_then(|x| x.stable);
+        let tk = TokenSummary::of(row_records(batches, &r.agent, r.condition));
         let _ = writeln!(
             o,
-            "{} & {} & {} & {} & {} & {} & {} & {} & {} & {} \\\\",
+            "{} & {} & {} & {} & {} & {} & {} & {} & {} & {} & {} \\\\",
             esc(&label(r)), pct(s.judgment), pct(c(Split::Perception)), pct(c(Split::ShortHorizonEasy)),
             pct(c(Split::ShortHorizonHard)), pct(c(Split::LongHorizonEasy)), pct(c(Split::LongHorizonHard)),
-            esc(&score(s)), opt(s.avg_wall_time_min, 1), opt(s.avg_tokens_millions, 2)
+            esc(&score(s)), opt(s.avg_wall_time_min, 1),
+            opt(tk.mean_total.map(|t| t / 1e6), 2), esc(&tk.sources_text())
         );
     }
     o.push_str("\\bottomrule\n\\end{tabular}\n");
@@ -377,7 +486,7 @@ fn latex_table1(table1: &[Row]) -> String {
 }
 
 pub fn run(args: ReportArgs) -> anyhow::Result<()> {
-    if args.reps == 0 {
+    if args.reps == Some(0) {
         bail!("--reps must be at least 1");
     }
     let batches = match &args.store {
@@ -387,15 +496,19 @@ pub fn run(args: ReportArgs) -> anyhow::Result<()> {
         }
         None => args.batches.iter().map(|d| load_batch(d)).collect::<anyhow::Result<Vec<_>>>()?,
     };
+    let reps = args.reps.unwrap_or_else(|| default_reps(&batches));
+    if args.reps.is_none() && batches.iter().filter_map(batch_reps).any(|n| n != reps) {
+        eprintln!("note: the batches were run with different --reps; the stable rule uses {reps} (the first batch's); pass --reps N to choose");
+    }
     let out = match args.format {
-        Format::Markdown => markdown(&batches, args.reps, args.table),
-        Format::Csv => csv(&batches, args.reps, args.table),
-        Format::Json => serde_json::to_string_pretty(&report_json(&batches, args.reps))? + "\n",
-        Format::Latex => latex(&batches, args.reps, args.table),
+        Format::Markdown => markdown(&batches, reps, args.table),
+        Format::Csv => csv(&batches, reps, args.table),
+        Format::Json => serde_json::to_string_pretty(&report_json(&batches, reps))? + "\n",
+        Format::Latex => latex(&batches, reps, args.table),
     };
     print!("{out}");
     if let Some(dir) = &args.figures {
-        let paper = tables::paper_tables(&batches, &rows(&batches, args.reps), args.reps);
+        let paper = tables::paper_tables(&batches, &rows(&batches, reps), reps);
         for path in tables::write_figures(&paper, dir).map_err(|e| anyhow::anyhow!("cannot write figures to {}: {e}", dir.display()))? {
             eprintln!("wrote {}", path.display());
         }

@@ -63,6 +63,19 @@ pub fn classify(result: Option<&Value>, infra: Option<&str>, budget_s: f64) -> O
     }
 }
 
+/// Why an agent whose harness exited before `finish_episode` should not be judged, if anything but the agent
+/// caused it: the sandbox never started, or the model API failed it (the gateway's records, which the agent cannot
+/// write). Without a sandbox there is no gateway and no boundary, so every early exit stays the harness's error.
+fn quit_cause(sandboxed: bool, sandbox_reported: bool, model_api_records: Option<&Path>) -> Option<String> {
+    if !sandboxed {
+        return Some("unsandboxed runs cannot tell an agent's exit from a harness failure".into());
+    }
+    if !sandbox_reported {
+        return Some("the sandbox did not start".into());
+    }
+    model_api_records.and_then(super::netgate::last_model_api_failure)
+}
+
 /// Replaces the API key, `sk-…` tokens and `Bearer …` values with `<redacted>` (the same matcher as the logs'
 /// streaming scrubber, [`super::logs`]).
 pub fn scrub(text: &str, secrets: &[&str]) -> String {
@@ -211,6 +224,10 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
             Demo::Video => DemoCondition::Video,
             Demo::VideoTraj => DemoCondition::VideoTraj,
         },
+        // The dashboard's episode table shows and filters by these.
+        harness: Some(ctx.settings.harness.clone()),
+        model: Some(ctx.settings.model.clone()),
+        batch: Some(ctx.batch_name.clone()),
         ..PrepareRequest::new(plan.task.clone())
     };
     let prepared = prepare_episode(&ctx.server_url, &req).context("episode preparation failed")?;
@@ -306,6 +323,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     let mut ended_at: Option<Instant> = None;
     let mut exited_at: Option<Instant> = None;
     let mut exit_code = None;
+    let mut quit_before_finish = false;
     loop {
         if exit_code.is_none()
             && let Ok(Some(st)) = child.try_wait()
@@ -324,7 +342,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
             (Some(_), Some(_)) => break,
             (Some(e), None) if e.elapsed() >= AFTER_FINISH_GRACE => break,
             (None, Some(x)) if x.elapsed() >= AGENT_EXIT_GRACE => {
-                infra = Some(format!("harness exited before finish_episode (exit code {})", exit_code.unwrap_or(-1)));
+                quit_before_finish = true;
                 break;
             }
             _ => {}
@@ -345,6 +363,21 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     drop(contained);
     // Before the logs are scrubbed in place: the last lines, and the gateway's last records.
     let transcript = transcript.finish();
+    if quit_before_finish {
+        let exited = format!("harness exited before finish_episode (exit code {})", exit_code.unwrap_or(-1));
+        match quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), model_api_records.as_deref()) {
+            // The infrastructure failed the agent: excluded and rescheduled, as the original does.
+            Some(cause) => infra = Some(format!("{exited}: {cause}")),
+            // The agent's own doing (it stopped, or killed its CLI): its FAIL, never a free rerun.
+            None => {
+                let reason = format!("the agent's {exited}");
+                let url = format!("/api/episodes/{}/forfeit", prepared.episode_id);
+                if let Err(e) = post_json(&ctx.server_url, &url, &json!({"reason": reason})) {
+                    infra = Some(format!("{exited}, and the server could not record it as the agent's failure: {e}"));
+                }
+            }
+        }
+    }
     if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
         let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
         let _ = post_json(&ctx.server_url, &format!("/api/episodes/{}/abort", prepared.episode_id), &json!({"reason": reason}));

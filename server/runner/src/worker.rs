@@ -111,6 +111,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         addr: args.addr,
         data: Some(data.join("server")),
         operator_token_file: args.operator_token_file.clone(),
+        rotate_token: false,
         public_hosts: args.public_hosts.clone(),
         public_url: args.public_url.clone(),
         batches: vec![],
@@ -118,6 +119,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         artifacts: None,
         limits: libero_server::listener::ConnLimits::default(),
         console: args.console,
+        thumbnails: libero_server::ThumbnailArgs::off(),
     };
     let has_console = serve_args.console.is_some();
     let server = InProcessServer::start_args(serve_args, "worker_stopped_before_finish")?;
@@ -324,6 +326,9 @@ impl Worker {
             self_exe: super::agent_exe()?,
             npm_cli_installed,
             store: None,
+            // The batch is in the shared store already (every dashboard on it lists it); episodes carry its name.
+            batch_name: batch.to_owned(),
+            server_mirror: None,
         });
         std::fs::create_dir_all(&ctx.workspace_root)?;
         std::fs::create_dir_all(ctx.batch_dir.join("rollouts"))?;

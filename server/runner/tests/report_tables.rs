@@ -247,6 +247,7 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
         blocks,
         [
             "# table_1_stable_performance",
+            "# tokens_per_rollout",
             "# table_2_observation_ablation",
             "# table_3_demonstration_ablation",
             "# table_4_stage_diagnosis",
@@ -331,7 +332,7 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
         batches: ["main", "obs", "ctx"].iter().map(|n| dir.path().join(n)).collect(),
         store: None,
         format: report::Format::Json,
-        reps: REPS,
+        reps: Some(REPS),
         table: TableChoice::All,
         figures: Some(figures.clone()),
     };
@@ -346,4 +347,93 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
     let json: Value = serde_json::from_str(&std::fs::read_to_string(figures.join("figure3.json")).unwrap()).unwrap();
     assert_eq!(json, v["sustained_contact"]);
     assert!(figures.join("figure3_opening_operations.csv").is_file());
+}
+
+/// A 1-rep batch of agent `codex/tokens` whose five T11–T15 rollouts took their tokens from each source: the gateway
+/// (harness stdout disagreeing), the harness's stdout, none, a record from before sources were recorded, and an
+/// INVALID rollout (never counted).
+fn write_token_batch(dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    let batch = json!({
+        "schema_version": "libero_agent.batch.v1", "status": "finished",
+        "settings": {"experiment": "main_table", "harness": "codex", "model": "tokens", "effort": "high", "reps": 1,
+            "tasks": [], "seed": 100, "wall_time_s": 300.0, "max_agent_steps": 100, "agent_cmd": null, "sandbox": true},
+        "rollout_count": 5, "counts": {"done": 5, "running": 0, "left": 0}, "outcomes": {},
+    });
+    std::fs::write(dir.join("batch.json"), batch.to_string()).unwrap();
+    let u = |total: u64, source: Option<&str>| {
+        let mut v = json!({"available": true, "requests_with_usage": 1, "lines_scanned": 1, "input_tokens": total - 100,
+            "output_tokens": 100, "cache_read_input_tokens": 50, "total_tokens": total});
+        if let Some(s) = source {
+            v["source"] = json!(s);
+        }
+        v
+    };
+    let mut gateway = u(9000, Some("model_api_gateway"));
+    gateway["harness_stdout"] = json!({"input_tokens": 1, "output_tokens": 1, "total_tokens": 2, "agrees": false});
+    let none = json!({"available": false, "requests_with_usage": 0, "lines_scanned": 3, "source": "unavailable"});
+    let rollouts = [(11, "SUCCESS", gateway), (12, "FAIL", u(3000, Some("harness_stdout"))), (13, "FAIL", none),
+        (14, "SUCCESS", u(6000, None)), (15, "INVALID", u(100_000, Some("model_api_gateway")))];
+    let mut lines = String::new();
+    for (task, outcome, usage) in rollouts {
+        let r = json!({
+            "schema_version": "libero_agent.rollout.v1", "rollout_id": format!("w1_t{task}_level3"), "task": format!("T{task}"),
+            "task_number": task, "split": split(task), "stage_count": 1, "repetition": 1, "level": 3, "demo": "none",
+            "outcome": outcome, "completed_stages": u32::from(outcome == "SUCCESS"), "wall_time_s": 60.0, "usage": usage,
+            "infrastructure_error": if outcome == "INVALID" { json!("harness exited") } else { Value::Null },
+            "started_at": "2025-01-01T00:00:00Z", "finished_at": "2025-01-01T00:01:00Z",
+        });
+        lines.push_str(&format!("{r}\n"));
+    }
+    std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
+}
+
+#[test]
+fn every_row_carries_its_tokens_with_their_source_in_every_format() {
+    let dir = tempfile::tempdir().unwrap();
+    write_token_batch(&dir.path().join("tok"));
+    let b = vec![load_batch(&dir.path().join("tok")).unwrap()];
+    assert_eq!(report::default_reps(&b), 1, "the batch's own repetitions");
+    let reps = report::default_reps(&b);
+    let part = |text: &str, piece: &str| assert!(text.contains(piece), "missing\n{piece}\nin\n{text}");
+
+    // JSON: the row's mean over valid rollouts with usage (9000, 3000, 6000), the sources, the disagreement.
+    let v = report::report_json(&b, reps);
+    let t = &v["rows"][0]["tokens"];
+    assert_eq!(t["mean_total"], 6000.0, "{t}");
+    assert_eq!((t["rollouts_with_usage"].as_u64(), t["rollouts"].as_u64()), (Some(3), Some(4)), "INVALID never counts");
+    assert_eq!(t["sources"], json!({"model_api_gateway": 1, "harness_stdout": 1, "unavailable": 1, "not_recorded": 1}));
+    assert_eq!(t["stdout_disagrees"], json!([{"rollout_id": "w1_t11_level3", "gateway": {"input": 8900, "output": 100, "total": 9000},
+        "harness_stdout": {"input": 1, "output": 1, "total": 2}}]));
+    let per: Vec<(String, String)> = v["rows"][0]["rollout_tokens"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| (r["rollout_id"].as_str().unwrap().to_owned(), r["tokens"]["source"].as_str().unwrap().to_owned()))
+        .collect();
+    assert_eq!(per.iter().map(|(_, s)| s.as_str()).collect::<Vec<_>>(),
+        ["model_api_gateway", "harness_stdout", "unavailable", "not_recorded", "model_api_gateway"]);
+
+    // Markdown: Table 1 with the sources, per-task cells with marks, and the legend.
+    let md = report::markdown(&b, reps, TableChoice::All);
+    part(&md, "| 0.01M (gateway 1, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1) |");
+    part(&md, "| 9,000 G |");
+    part(&md, "| 3,000 S |");
+    part(&md, "| – |");
+    part(&md, "| 6,000 ? |");
+    part(&md, "Token sources: G the runner's model-API gateway");
+
+    // CSV: every Table 1 line carries the row's tokens and sources; every rollout its figure and source.
+    let csv = report::csv(&b, reps, TableChoice::All);
+    part(&csv, "mean_total_tokens,rollouts_with_usage,tokens_sources,stdout_disagrees");
+    part(&csv, "codex/tokens,3,none,score,30,,");
+    part(&csv, ",6000.0,3,model_api_gateway=1 harness_stdout=1 unavailable=1 not_recorded=1,1\n");
+    part(&csv, "codex/tokens,3,none,w1_t11_level3,T11,1,SUCCESS,9000,8900,50,100,model_api_gateway\n");
+    part(&csv, "codex/tokens,3,none,w1_t13_level3,T13,1,FAIL,,,,,unavailable\n");
+    part(&csv, "codex/tokens,3,none,w1_t14_level3,T14,1,SUCCESS,6000,5900,50,100,not_recorded\n");
+
+    // LaTeX: the mean and its source column.
+    let tex = report::latex(&b, reps, TableChoice::Table1);
+    part(&tex, "& Tokens (M) & Token source \\\\");
+    part(&tex, "& 0.01 & gateway 1, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1 \\\\");
 }

@@ -9,65 +9,155 @@
 //! to the server through a name it controls.
 use std::collections::VecDeque;
 use std::net::SocketAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
+use anyhow::Context;
 use axum::extract::{Request, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Redirect, Response};
+use libero_episode::json::sha256_hex;
 
 use crate::credential::{self, TOKEN_FILE};
 use crate::episodes::{random_hex, tokens_equal};
 
 /// Name of the dashboard's session cookie.
 pub const COOKIE: &str = "libero_session";
+/// Where, beside the token, the open browser sessions and unused login links are kept (0600, hashes only), so a
+/// restart logs nobody out and a used link stays used.
+pub const SESSIONS_FILE: &str = "operator_sessions";
 /// Browser sessions kept at once; the oldest is forgotten first.
 const MAX_SESSIONS: usize = 256;
+/// Unused one-time login links kept at once (one is printed per start); the oldest is forgotten first.
+const MAX_LOGIN_CODES: usize = 16;
+/// How long a printed login link stays usable: a link left in a terminal's scrollback must not open the console
+/// forever.
+const LOGIN_CODE_TTL_S: u64 = 24 * 3600;
+/// Largest sessions file read at start (256 sessions and 16 links take about 20 kB).
+const MAX_SESSIONS_FILE_BYTES: u64 = 1 << 20;
 
-/// The operator's secret and the browser sessions it opened.
+/// What the login form may say about this server; `failed` when the token just given was wrong.
+#[derive(Debug, Clone, Default)]
+pub struct LoginInfo {
+    pub failed: bool,
+    /// The address the server listens on (`127.0.0.1:8080`), if known.
+    pub listen: Option<SocketAddr>,
+    /// Whether that address is a loopback address (only this machine reaches the server).
+    pub loopback_only: bool,
+    /// The absolute path of `<data>/operator_token`, if this server keeps one.
+    pub token_file: Option<PathBuf>,
+}
+
+/// What survives a restart: hashes of open sessions and unused login codes, tied to the token they belong to.
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+struct Persisted {
+    /// sha256 of the operator token these belong to: a rotated or replaced token drops them all.
+    token_sha256: String,
+    /// sha256 of each open session id, oldest first.
+    sessions: VecDeque<String>,
+    /// sha256 of each unused one-time login code and when it was made (Unix seconds), oldest first.
+    login_codes: VecDeque<(String, u64)>,
+}
+
+/// The operator's secret, the browser sessions it opened and the one-time login links not used yet.
 #[derive(Clone)]
 pub struct Operator {
     token: Arc<str>,
-    sessions: Arc<Mutex<VecDeque<String>>>,
+    state: Arc<Mutex<Persisted>>,
+    /// `<data>/operator_sessions`, where [`Persisted`] is kept; `None` keeps everything in memory.
+    state_file: Option<Arc<Path>>,
     /// The login form (the console's, or [`plain_login_page`] on a server without one).
-    login_page: fn(bool) -> String,
+    login_page: fn(&LoginInfo) -> String,
+    /// What the login form tells about this server (`failed` is set per answer).
+    info: Arc<LoginInfo>,
 }
 
 /// The login form of a server without a console: the operator API's browser sessions still open through it.
-pub fn plain_login_page(failed: bool) -> String {
-    let notice = if failed { "<p role=\"alert\">That token is not this server's operator token.</p>" } else { "" };
+pub fn plain_login_page(info: &LoginInfo) -> String {
+    let notice = if info.failed { "<p role=\"alert\">That token is not this server's operator token.</p>" } else { "" };
+    let file = info.token_file.as_ref().map(|f| format!("<p>The operator token is in <code>{}</code>.</p>", html_escape(&f.display().to_string()))).unwrap_or_default();
     format!(
         "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>libero-agent: sign in</title></head><body>\
-         <h1>Operator sign-in</h1>{notice}<form method=\"post\" action=\"/login\"><label>Operator token \
+         <h1>Operator sign-in</h1>{notice}{file}<form method=\"post\" action=\"/login\"><label>Operator token \
          <input type=\"password\" name=\"token\" autocomplete=\"current-password\"></label> \
          <button type=\"submit\">Sign in</button></form></body></html>"
     )
 }
 
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+fn now_s() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0)
+}
+
 impl Operator {
-    /// The token from `file`, or a fresh random one; either way kept (0600) in `<data>/operator_token`, where
-    /// client commands of the same user find it.
-    pub fn for_server(data: &Path, file: Option<&Path>) -> anyhow::Result<Self> {
-        let token = match file {
-            Some(f) => credential::read_token_file(f)?,
-            None => random_hex(32)?,
+    /// The operator of the server on `data`: the token from `file`, a fresh random one when `rotate`, otherwise the
+    /// one kept in `<data>/operator_token` (made at the first start), so a restart keeps everyone signed in.
+    /// Either way it is kept (0600) in `<data>/operator_token`, where client commands of the same user find it.
+    /// Sessions and unused login links of the same token come back from `<data>/operator_sessions`.
+    pub fn for_server(data: &Path, file: Option<&Path>, rotate: bool) -> anyhow::Result<Self> {
+        let kept = data.join(TOKEN_FILE);
+        let token = match (file, rotate) {
+            (Some(f), _) => credential::read_token_file(f)?,
+            (None, true) => random_hex(32)?,
+            (None, false) => match std::fs::symlink_metadata(&kept) {
+                Ok(meta) => {
+                    use std::os::unix::fs::PermissionsExt;
+                    if meta.permissions().mode() & 0o077 != 0 {
+                        eprintln!(
+                            "warning: {} was readable by other users; it is 0600 again, but pass --rotate-token if they may have read it",
+                            kept.display()
+                        );
+                    }
+                    credential::read_token_file(&kept)
+                        .with_context(|| format!("{} holds no usable operator token; pass --rotate-token to replace it", kept.display()))?
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => random_hex(32)?,
+                Err(e) => return Err(e).with_context(|| format!("cannot read {}", kept.display())),
+            },
         };
-        credential::write_private(&data.join(TOKEN_FILE), &token)?;
-        Ok(Self::with_token(token))
+        credential::write_private(&kept, &token)?;
+        let state_file = data.join(SESSIONS_FILE);
+        let state = load_state(&state_file, &token);
+        let op = Self { state_file: Some(state_file.into()), state: Arc::new(Mutex::new(state)), ..Self::with_token(token) };
+        op.persist().context("cannot keep the operator's sessions")?;
+        Ok(op)
     }
 
+    /// An operator whose sessions live in memory only (tests, and servers without a data directory).
     pub fn with_token(token: String) -> Self {
-        Self { token: token.into(), sessions: Arc::default(), login_page: plain_login_page }
+        let state = Persisted { token_sha256: sha256_hex(token.as_bytes()), ..Persisted::default() };
+        Self {
+            token: token.into(),
+            state: Arc::new(Mutex::new(state)),
+            state_file: None,
+            login_page: plain_login_page,
+            info: Arc::new(LoginInfo::default()),
+        }
     }
 
     /// The same operator, answering browsers with `page` as its login form.
-    pub fn with_login_page(self, page: fn(bool) -> String) -> Self {
+    pub fn with_login_page(self, page: fn(&LoginInfo) -> String) -> Self {
         Self { login_page: page, ..self }
+    }
+
+    /// The same operator, its login form saying where the server listens and where its token is.
+    pub fn listening_on(self, addr: SocketAddr, token_file: Option<PathBuf>) -> Self {
+        let token_file = token_file.map(|f| std::path::absolute(&f).unwrap_or(f));
+        let info = LoginInfo { failed: false, listen: Some(addr), loopback_only: addr.ip().is_loopback(), token_file };
+        Self { info: Arc::new(info), ..self }
     }
 
     pub fn token(&self) -> &str {
         &self.token
+    }
+
+    /// The login form's HTML.
+    fn login_html(&self, failed: bool) -> String {
+        (self.login_page)(&LoginInfo { failed, ..(*self.info).clone() })
     }
 
     /// Whether `headers` carry the operator token (bearer) or an open browser session (cookie).
@@ -77,24 +167,115 @@ impl Operator {
             return true;
         }
         let Some(session) = cookie(headers, COOKIE) else { return false };
-        let Ok(sessions) = self.sessions.lock() else { return false };
-        sessions.iter().any(|s| tokens_equal(s, session))
+        if session.len() > 128 {
+            return false;
+        }
+        let hash = sha256_hex(session.as_bytes());
+        let Ok(state) = self.state.lock() else { return false };
+        state.sessions.iter().any(|s| tokens_equal(s, &hash))
     }
 
-    /// Opens a browser session; returns its `Set-Cookie` value.
+    /// Writes the sessions and login codes to `<data>/operator_sessions` (nothing without a data directory).
+    fn persist_locked(&self, state: &Persisted) -> anyhow::Result<()> {
+        let Some(file) = &self.state_file else { return Ok(()) };
+        credential::write_private(file, &serde_json::to_string(state)?)
+    }
+
+    fn persist(&self) -> anyhow::Result<()> {
+        let state = self.state.lock().map_err(|_| anyhow::anyhow!("operator state poisoned"))?;
+        self.persist_locked(&state)
+    }
+
+    /// Opens a browser session, kept across restarts; returns its `Set-Cookie` value.
     fn open_session(&self) -> Option<String> {
         let id = random_hex(32).ok()?;
-        let mut sessions = self.sessions.lock().ok()?;
-        if sessions.len() >= MAX_SESSIONS {
-            sessions.pop_front();
+        let mut state = self.state.lock().ok()?;
+        while state.sessions.len() >= MAX_SESSIONS {
+            state.sessions.pop_front();
         }
-        sessions.push_back(id.clone());
+        state.sessions.push_back(sha256_hex(id.as_bytes()));
+        if let Err(e) = self.persist_locked(&state) {
+            // The session still works until this server stops.
+            eprintln!("warning: the new browser session will not survive a restart: {e:#}");
+        }
         Some(format!("{COOKIE}={id}; HttpOnly; SameSite=Strict; Path=/"))
+    }
+
+    /// A new one-time login code (for the link `serve` prints): it opens one browser session, once, within
+    /// [`LOGIN_CODE_TTL_S`], also after a restart; `--rotate-token` voids it.
+    pub fn new_login_code(&self) -> anyhow::Result<String> {
+        let code = random_hex(32)?;
+        let mut state = self.state.lock().map_err(|_| anyhow::anyhow!("operator state poisoned"))?;
+        let now = now_s();
+        state.login_codes.retain(|(_, made)| now.saturating_sub(*made) < LOGIN_CODE_TTL_S);
+        while state.login_codes.len() >= MAX_LOGIN_CODES {
+            state.login_codes.pop_front();
+        }
+        state.login_codes.push_back((sha256_hex(code.as_bytes()), now));
+        self.persist_locked(&state)?;
+        Ok(code)
+    }
+
+    /// Uses up login code `candidate`: `Ok(true)` if it was an unused, unexpired code; the use is on disk before
+    /// this returns, so the link cannot work again, not even after a restart.
+    fn consume_login_code(&self, candidate: &str) -> anyhow::Result<bool> {
+        if candidate.len() > 128 {
+            return Ok(false);
+        }
+        let hash = sha256_hex(candidate.as_bytes());
+        let mut state = self.state.lock().map_err(|_| anyhow::anyhow!("operator state poisoned"))?;
+        let now = now_s();
+        let Some(i) = state.login_codes.iter().position(|(h, made)| tokens_equal(h, &hash) && now.saturating_sub(*made) < LOGIN_CODE_TTL_S)
+        else {
+            return Ok(false);
+        };
+        state.login_codes.remove(i);
+        self.persist_locked(&state)?;
+        Ok(true)
     }
 
     fn token_matches(&self, candidate: &str) -> bool {
         tokens_equal(candidate.trim(), &self.token)
     }
+}
+
+/// The kept sessions and login codes of `token` from `file`; none when the file is missing, unreadable, too large,
+/// or belongs to another token (a rotated or replaced one).
+fn load_state(file: &Path, token: &str) -> Persisted {
+    let fresh = Persisted { token_sha256: sha256_hex(token.as_bytes()), ..Persisted::default() };
+    let text = match std::fs::metadata(file) {
+        Ok(m) if m.len() > MAX_SESSIONS_FILE_BYTES => {
+            eprintln!("warning: {} is larger than {MAX_SESSIONS_FILE_BYTES} bytes; browser sessions start afresh", file.display());
+            return fresh;
+        }
+        Ok(_) => match std::fs::read_to_string(file) {
+            Ok(t) => t,
+            Err(e) => {
+                eprintln!("warning: cannot read {}: {e}; browser sessions start afresh", file.display());
+                return fresh;
+            }
+        },
+        Err(_) => return fresh,
+    };
+    let mut state: Persisted = match serde_json::from_str(&text) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("warning: {} is not a sessions file ({e}); browser sessions start afresh", file.display());
+            return fresh;
+        }
+    };
+    if !tokens_equal(&state.token_sha256, &fresh.token_sha256) {
+        return fresh;
+    }
+    let now = now_s();
+    state.login_codes.retain(|(_, made)| now.saturating_sub(*made) < LOGIN_CODE_TTL_S);
+    while state.sessions.len() > MAX_SESSIONS {
+        state.sessions.pop_front();
+    }
+    while state.login_codes.len() > MAX_LOGIN_CODES {
+        state.login_codes.pop_front();
+    }
+    state
 }
 
 /// The value of cookie `name`, if sent.
@@ -215,8 +396,14 @@ pub async fn require_operator(State(op): State<Operator>, req: Request, next: Ne
     let path = req.uri().path().to_owned();
     let is_page = req.method() == axum::http::Method::GET && !path.starts_with("/api/") && !path.starts_with("/ws/");
     if is_page && let Some((token, rest)) = split_token_query(req.uri().query()) {
-        if !op.token_matches(&token) {
-            return (StatusCode::UNAUTHORIZED, axum::response::Html((op.login_page)(true))).into_response();
+        // The operator token itself (a bookmarkable credential, Jupyter's convention) or a one-time login code.
+        let admitted = op.token_matches(&token)
+            || match op.consume_login_code(&token) {
+                Ok(used) => used,
+                Err(e) => return crate::json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("cannot record the login link's use: {e:#}")),
+            };
+        if !admitted {
+            return (StatusCode::UNAUTHORIZED, axum::response::Html(op.login_html(true))).into_response();
         }
         let Some(cookie) = op.open_session() else {
             return crate::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session");
@@ -246,7 +433,7 @@ pub async fn login(State(op): State<Operator>, headers: HeaderMap, axum::Form(fo
         return crate::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
     }
     if !op.token_matches(&form.token) {
-        return (StatusCode::UNAUTHORIZED, axum::response::Html((op.login_page)(true))).into_response();
+        return (StatusCode::UNAUTHORIZED, axum::response::Html(op.login_html(true))).into_response();
     }
     match op.open_session() {
         Some(cookie) => (StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, "/".to_owned())]).into_response(),
@@ -255,7 +442,7 @@ pub async fn login(State(op): State<Operator>, headers: HeaderMap, axum::Form(fo
 }
 
 pub async fn login_form(State(op): State<Operator>) -> Response {
-    axum::response::Html((op.login_page)(false)).into_response()
+    axum::response::Html(op.login_html(false)).into_response()
 }
 
 #[cfg(test)]
@@ -306,6 +493,49 @@ mod tests {
         }
         headers.insert(header::COOKIE, format!("{COOKIE}={id}").parse().unwrap());
         assert!(!op.admits(&headers), "the oldest session is forgotten past the limit");
-        assert_eq!(op.sessions.lock().unwrap().len(), MAX_SESSIONS);
+        assert_eq!(op.state.lock().unwrap().sessions.len(), MAX_SESSIONS);
+    }
+
+    fn session_headers(cookie: &str) -> HeaderMap {
+        let mut headers = HeaderMap::new();
+        headers.insert(header::COOKIE, cookie.split(';').next().unwrap().parse().unwrap());
+        headers
+    }
+
+    #[test]
+    fn the_token_sessions_and_login_codes_outlive_a_restart_until_the_token_is_rotated() {
+        let data = tempfile::tempdir().unwrap();
+        let first = Operator::for_server(data.path(), None, false).unwrap();
+        let cookie = first.open_session().unwrap();
+        let code = first.new_login_code().unwrap();
+        let used = first.new_login_code().unwrap();
+        assert!(first.consume_login_code(&used).unwrap());
+        drop(first);
+
+        let second = Operator::for_server(data.path(), None, false).unwrap();
+        assert!(second.admits(&session_headers(&cookie)), "a session opened before the restart still works");
+        assert!(!second.consume_login_code(&used).unwrap(), "a used login code stays used after a restart");
+        assert!(second.consume_login_code(&code).unwrap(), "an unused code works once after a restart");
+        assert!(!second.consume_login_code(&code).unwrap(), "and only once");
+        let kept = std::fs::read_to_string(data.path().join(SESSIONS_FILE)).unwrap();
+        assert!(!kept.contains(&code) && !kept.contains(cookie.split(';').next().unwrap().split('=').nth(1).unwrap()), "only hashes on disk");
+        let token = second.token().to_owned();
+        let pending = second.new_login_code().unwrap();
+        drop(second);
+
+        let rotated = Operator::for_server(data.path(), None, true).unwrap();
+        assert_ne!(rotated.token(), token);
+        assert!(!rotated.admits(&session_headers(&cookie)), "rotation ends every session");
+        assert!(!rotated.consume_login_code(&pending).unwrap(), "rotation voids unused links");
+        assert_eq!(credential::read_token_file(&data.path().join(TOKEN_FILE)).unwrap(), rotated.token());
+    }
+
+    #[test]
+    fn a_corrupt_token_file_is_an_error_that_names_the_way_out() {
+        let data = tempfile::tempdir().unwrap();
+        std::fs::write(data.path().join(TOKEN_FILE), "short\n").unwrap();
+        let err = Operator::for_server(data.path(), None, false).err().expect("refused");
+        assert!(format!("{err:#}").contains("--rotate-token"), "{err:#}");
+        assert!(Operator::for_server(data.path(), None, true).is_ok());
     }
 }

@@ -180,6 +180,7 @@ impl InProcessServer {
             addr: std::net::SocketAddr::from(([127, 0, 0, 1], 0)),
             data: Some(data),
             operator_token_file: None,
+            rotate_token: false,
             public_hosts: vec![],
             public_url: None,
             batches: vec![],
@@ -187,6 +188,7 @@ impl InProcessServer {
             artifacts: None,
             limits: crate::listener::ConnLimits::default(),
             console,
+            thumbnails: crate::ThumbnailArgs::off(),
         };
         Self::start_args(args, stop_reason)
     }

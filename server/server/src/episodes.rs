@@ -47,7 +47,9 @@ pub const RELEASE_GRACE: Duration = Duration::from_secs(2);
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PrepareRequest {
-    /// `T01`…`T30`, `<suite>/<task>` or a `.bddl` path.
+    /// `T01`…`T30`, `<suite>/<task>` or a `.bddl` path. A branch runs its parent's task: leave it out (or name
+    /// the parent's).
+    #[serde(default)]
     pub task: String,
     #[serde(default = "default_level")]
     pub level: u8,
@@ -80,6 +82,56 @@ pub struct PrepareRequest {
     /// regions widened); None for evaluation episodes.
     #[serde(default)]
     pub layout: Option<LayoutVariant>,
+    /// Start from another episode's state at one of its control steps (issue 33): its task, seed, init state
+    /// and layout, its first `step` executed actions replayed. The replayed steps do not count toward
+    /// `max_agent_steps`: the agent gets a normal fresh start whose first observation shows the branch state.
+    #[serde(default)]
+    pub branch: Option<BranchRequest>,
+}
+
+/// Whether `id` has the shape of an episode id (what may name a run directory).
+pub fn valid_episode_id(id: &str) -> bool {
+    !id.is_empty() && id.len() <= 96 && id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// Where a branch starts: episode `parent` after its control step `step` (0: its settled start).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BranchRequest {
+    pub parent: String,
+    pub step: u64,
+}
+
+/// Why a branch cannot be prepared; each maps to its own HTTP status ([`BranchError::http_status`]).
+#[derive(Debug, thiserror::Error)]
+pub enum BranchError {
+    #[error("no episode {0:?} to branch from")]
+    UnknownParent(String),
+    #[error("step {step} is beyond the parent's action log ({available} control steps were executed)")]
+    StepOutOfRange { step: u64, available: u64 },
+    #[error("the parent episode {parent} cannot be replayed: {why}")]
+    NotReplayable { parent: String, why: String },
+    #[error("a branch runs its parent's task {parent_task}, not {asked}; leave task out")]
+    OtherTask { parent_task: String, asked: String },
+}
+
+impl BranchError {
+    /// 404 for an unknown parent, 400 for a step or task the parent cannot give, 422 for a parent whose record
+    /// cannot be replayed.
+    pub fn http_status(&self) -> u16 {
+        match self {
+            Self::UnknownParent(_) => 404,
+            Self::StepOutOfRange { .. } | Self::OtherTask { .. } => 400,
+            Self::NotReplayable { .. } => 422,
+        }
+    }
+}
+
+/// A resolved branch: the parent's world and the actions replayed to the branch point.
+struct BranchSource {
+    request: BranchRequest,
+    spec: WorldSpec,
+    prefix: Vec<[f64; 7]>,
 }
 
 fn default_video() -> bool {
@@ -103,6 +155,7 @@ impl PrepareRequest {
             batch: None,
             demo: DemoCondition::None,
             layout: None,
+            branch: None,
         }
     }
 }
@@ -130,8 +183,16 @@ impl PrepareRequest {
         if self.init_index > MAX_INIT_INDEX {
             bail!("init_index must be at most {MAX_INIT_INDEX} (got {})", self.init_index);
         }
-        if self.task.trim().is_empty() {
+        if self.task.trim().is_empty() && self.branch.is_none() {
             bail!("task must name a task (T14, libero_90/<name> or a .bddl path)");
+        }
+        if let Some(branch) = &self.branch {
+            if !valid_episode_id(&branch.parent) {
+                bail!("branch.parent must be an episode id (got {:?})", branch.parent);
+            }
+            if self.layout.is_some() {
+                bail!("a branch runs its parent's layout; leave layout out");
+            }
         }
         if let Some(layout) = &self.layout {
             layout.validate()?;
@@ -178,6 +239,9 @@ pub struct Prepared {
     pub task: String,
     pub instruction: String,
     pub level: u8,
+    /// The episode and control step a branch started from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub branch: Option<BranchRequest>,
 }
 
 /// One running episode's MCP service, with what its session cap needs.
@@ -521,7 +585,12 @@ impl Episodes {
         self.map.read().map(|m| m.keys().cloned().collect()).unwrap_or_default()
     }
 
-    fn renderer(&self) -> anyhow::Result<Renderer> {
+    /// The asset set, when it is installed (thumbnails resolve tasks with it).
+    pub(crate) fn asset_paths(&self) -> Option<&AssetPaths> {
+        self.paths.as_ref()
+    }
+
+    pub(crate) fn renderer(&self) -> anyhow::Result<Renderer> {
         let mut slot = self.renderer.lock().map_err(|_| anyhow::anyhow!("renderer lock poisoned"))?;
         if let Some(r) = slot.as_ref() {
             return Ok(r.clone());
@@ -735,6 +804,20 @@ impl Episodes {
         }
     }
 
+    /// Ends one unfinished episode as its agent's FAIL (the agent ended without `finish_episode`); false if this
+    /// server does not hold it.
+    pub fn forfeit(&self, id: &str, reason: &str) -> bool {
+        let entry = self.map.read().ok().and_then(|m| m.get(id).cloned());
+        match entry {
+            Some(e) => {
+                e.handle.forfeit(reason);
+                e.log.follow(id, &e.handle.status());
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Records every unfinished episode as aborted with `reason` (server shutdown), waiting at most `timeout`
     /// in all: an episode thread stuck in the simulation is left behind (the process is ending) rather than
     /// holding the shutdown. Returns how many did not answer in time.
@@ -774,17 +857,63 @@ impl Episodes {
     }
 
     /// Prepares an episode: resolves the task, builds its world on a new episode thread, writes the private
-    /// run directory and the workspace, and registers the MCP endpoint.
+    /// run directory and the workspace, and registers the MCP endpoint. A branch's parent is looked for in this
+    /// server's run directories.
     pub fn prepare(&self, req: PrepareRequest) -> anyhow::Result<Prepared> {
-        let task = req.task.clone();
-        self.prepare_episode(req).inspect_err(|e| tracing::warn!(task, error = format!("{e:#}"), "episode not prepared"))
+        self.prepare_with_parent(req, None)
     }
 
-    fn prepare_episode(&self, req: PrepareRequest) -> anyhow::Result<Prepared> {
+    /// [`Self::prepare`], a branch's parent read from `parent_run` (its run directory as the store knows it)
+    /// when given. Errors about the branch are [`BranchError`]s.
+    pub fn prepare_with_parent(&self, req: PrepareRequest, parent_run: Option<PathBuf>) -> anyhow::Result<Prepared> {
+        let task = req.task.clone();
+        let prepared = self.prepare_episode(req, parent_run).inspect_err(|e| tracing::warn!(task, error = format!("{e:#}"), "episode not prepared"));
+        // Building a world allocates and frees hundreds of MB in small blocks (the MuJoCo compile of a model the
+        // scene may already share, its upload): give them back now, so an open episode costs what it keeps.
+        crate::memory::return_freed_memory();
+        prepared
+    }
+
+    /// Reads the parent's record and action log and checks the branch point (nothing is replayed yet: the branch's
+    /// world replays the prefix when it starts, and its live preview at preparation).
+    fn branch_source(&self, branch: &BranchRequest, parent_run: Option<PathBuf>, paths: &AssetPaths) -> Result<BranchSource, BranchError> {
+        let parent = branch.parent.clone();
+        let run = RunDir::new(parent_run.unwrap_or_else(|| self.runs_dir().join(&parent)));
+        if !valid_episode_id(&parent) || !run.episode_record().is_file() {
+            return Err(BranchError::UnknownParent(parent));
+        }
+        let not_replayable = |why: String| BranchError::NotReplayable { parent: parent.clone(), why };
+        let source = SourceEpisode::read(&run).map_err(|e| not_replayable(e.to_string()))?;
+        let mut spec = spec_from_record(&run.episode_record(), paths.clone()).map_err(|e| not_replayable(format!("{e:#}")))?;
+        // the parent's own init state (a suite task fixes its row; the record keeps what the episode used)
+        spec.init_index = source.init_state_index;
+        let available = source.actions.len() as u64;
+        if branch.step > available {
+            return Err(BranchError::StepOutOfRange { step: branch.step, available });
+        }
+        let prefix = source.actions.iter().take(branch.step as usize).map(|(_, a)| *a).collect();
+        Ok(BranchSource { request: branch.clone(), spec, prefix })
+    }
+
+    fn prepare_episode(&self, mut req: PrepareRequest, parent_run: Option<PathBuf>) -> anyhow::Result<Prepared> {
         req.validate()?;
         let level = Level::from_number(req.level).context("level")?;
         let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
-        let mut task: TaskSource = resolve_task(&req.task, &paths)?;
+        let branch = req.branch.as_ref().map(|b| self.branch_source(b, parent_run, &paths)).transpose()?;
+        let mut task: TaskSource = match &branch {
+            Some(b) => {
+                let parent_task = b.spec.task.task_ref.clone();
+                if !req.task.trim().is_empty() && req.task != parent_task {
+                    return Err(BranchError::OtherTask { parent_task, asked: req.task.clone() }.into());
+                }
+                req.task = parent_task;
+                req.seed = b.spec.seed;
+                req.init_index = b.spec.init_index;
+                req.layout = b.spec.task.layout;
+                b.spec.task.clone()
+            }
+            None => resolve_task(&req.task, &paths)?,
+        };
         task.layout = req.layout;
         let demo_source = match req.demo {
             DemoCondition::None => None,
@@ -824,8 +953,23 @@ impl Episodes {
             "model": req.model,
             "batch": req.batch,
         });
+        let mut record = record;
+        if let Some(b) = &branch {
+            record["branch"] = json!({
+                "parent_episode_id": b.request.parent,
+                "parent_control_step": b.request.step,
+                "replayed_actions": b.prefix.len(),
+                "prefix_file": libero_episode::branch::PREFIX_FILE,
+                "counts_toward_max_agent_steps": false,
+            });
+        }
         let run = RunDir::new(&run_dir);
         write_json_file(&run.episode_record(), &record)?;
+        if let Some(b) = &branch {
+            libero_episode::branch::write_prefix(&run, &b.prefix).context("cannot keep the branch's replayed actions")?;
+            libero_episode::branch::log_branch_point(&run, &b.request.parent, b.request.step).context("cannot start the branch's action log")?;
+        }
+        let prefix = branch.as_ref().map(|b| b.prefix.clone()).unwrap_or_default();
         let config = EpisodeConfig {
             episode_id: episode_id.clone(),
             instruction: task.instruction.clone(),
@@ -841,9 +985,13 @@ impl Episodes {
         let (video, state_record) = (run.continuous_video(), run.state_record());
         let telemetry = run.telemetry_jsonl();
         let live = self.live.as_ref().map(|hubs| hubs.open(&episode_id, config.agent_step_limit(), config.max_wall_time_s));
+        if let (Some(hubs), Some(b)) = (&self.live, &branch) {
+            hubs.mark_branch(&episode_id, &b.request.parent, b.request.step);
+        }
         let world_live = live.clone();
         let make_world = move || {
             let mut world = LiberoWorld::new(&spec, renderer)?;
+            world.set_start_prefix(prefix);
             if let Some((sink, viewers)) = world_live {
                 world.set_live(sink, viewers, Some(&telemetry))?;
             }
@@ -893,6 +1041,7 @@ impl Episodes {
             task: task.task_ref,
             instruction: task.instruction,
             level: req.level,
+            branch: branch.map(|b| b.request),
         })
     }
 }
@@ -906,43 +1055,6 @@ impl Drop for Episodes {
                 e.log.follow(id, &e.handle.status());
             }
         }
-    }
-}
-
-impl Episodes {
-    /// The settled initial head-camera view of task `id` (`T14`, or a runnable pool entry `suite/task_id`) as a
-    /// PNG, rendered through the same world set-up as an episode (placement, init state, settle) and cached in
-    /// `<data>/thumbnails/` (rendered once).
-    pub fn task_thumbnail(&self, id: &str) -> anyhow::Result<PathBuf> {
-        let file = match id.split_once('/') {
-            // only registered entries: the suite is one of fifteen fixed names, the task id a number
-            Some(_) => {
-                let pool = libero_tasks::Pool::discover()?;
-                let entry = pool.lookup(id).map_err(anyhow::Error::msg)?;
-                if let Some(why) = entry.why_not() {
-                    bail!("{} is {why}", entry.id());
-                }
-                format!("{}__{}.png", entry.suite, entry.task_id)
-            }
-            None if id.len() <= 8 && id.chars().all(|c| c.is_ascii_alphanumeric()) => format!("{id}.png"),
-            None => bail!("bad task id {id:?}"),
-        };
-        let path = self.data.join("thumbnails").join(file);
-        if path.is_file() {
-            return Ok(path);
-        }
-        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
-        let task = resolve_task(id, &paths)?;
-        let spec = WorldSpec { task, level: Level::L1, seed: 100, init_index: 0, paths };
-        let mut world = LiberoWorld::new(&spec, self.renderer()?)?;
-        libero_episode::World::start(&mut world)?;
-        let frame = libero_episode::World::frame(&mut world, 0)?;
-        let image = &frame.head.image;
-        fs::create_dir_all(self.data.join("thumbnails"))?;
-        let partial = path.with_extension("png.partial");
-        libero_episode::observation::write_png(&partial, image.width, image.height, 3, &image.rgb)?;
-        fs::rename(&partial, &path)?;
-        Ok(path)
     }
 }
 

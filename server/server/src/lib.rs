@@ -7,6 +7,7 @@
 //! Every listener (the address asked for and its loopback twin) serves through [`listener`]: connection caps per
 //! peer address and in total, header, idle and body timeouts, and a file-descriptor reserve for the episodes.
 pub mod auth;
+pub mod batches;
 pub mod client;
 pub mod credential;
 pub mod episodes;
@@ -17,6 +18,7 @@ pub mod mcp;
 pub mod mcp_gate;
 pub mod memory;
 pub mod store;
+pub mod thumbnails;
 pub mod transcript;
 
 use std::collections::HashMap;
@@ -51,10 +53,15 @@ pub struct ServeArgs {
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// File holding the operator token for the dashboard and operator API (at least 16 characters). Without
-    /// it, a fresh random token is generated at every start. Either way it is kept in `<data>/operator_token`
-    /// (0600) and registered for this user's client commands; the login URL is printed once to stderr.
+    /// it, the token kept in `<data>/operator_token` (0600) is used again, or a random one is made at the first
+    /// start. Either way it is kept there and registered for this user's client commands; a one-time login link is
+    /// printed to stderr at each start.
     #[arg(long)]
     pub operator_token_file: Option<PathBuf>,
+    /// Replace the kept operator token with a new random one: every browser session, unused login link and
+    /// client holding the old token is refused from now on.
+    #[arg(long, conflicts_with = "operator_token_file")]
+    pub rotate_token: bool,
     /// A host name (or `name:port`) besides the loopback names under which this server is reached, e.g. behind
     /// a reverse proxy; requests naming any other `Host` are refused with 421. Repeatable.
     #[arg(long = "public-host", value_name = "NAME")]
@@ -84,6 +91,35 @@ pub struct ServeArgs {
     /// The browser console this server serves, if any (set by the binary, never from the command line).
     #[arg(skip)]
     pub console: Option<Console>,
+    /// Which task thumbnails a server with a console renders ahead, at start.
+    #[command(flatten)]
+    pub thumbnails: ThumbnailArgs,
+}
+
+/// Task thumbnails rendered ahead at start by a server with a console ([`thumbnails`]).
+#[derive(clap::Args, Debug, Clone)]
+pub struct ThumbnailArgs {
+    /// Task thumbnails a server with a console renders at start, in the background at low priority (cached under
+    /// `<data>/thumbnails/`, reused across restarts): `all` (every release task, then every runnable pool entry),
+    /// `off`, or a comma-separated list of `release`, pool suites and task ids (`T14,libero_90/35`).
+    #[arg(long = "thumbnails-ahead", value_name = "SET", default_value = "all", env = "LIBERO_AGENT_THUMBNAILS_AHEAD")]
+    pub ahead: String,
+    /// How many thumbnails render at once in that background pass (default: a quarter of the CPUs, at least 1).
+    #[arg(long = "thumbnail-threads", value_name = "N", value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub threads: Option<u16>,
+}
+
+impl ThumbnailArgs {
+    /// None ahead (in-process servers of `run` and workers: nobody browses their Tasks page first).
+    pub fn off() -> Self {
+        Self { ahead: "off".into(), threads: None }
+    }
+
+    fn threads(&self) -> usize {
+        self.threads.map(usize::from).unwrap_or_else(|| {
+            std::thread::available_parallelism().map(|n| n.get() / 4).unwrap_or(1).clamp(1, 4)
+        })
+    }
 }
 
 /// What a browser console adds to the server: its routes (each `fn` builds a fresh router) and its login page.
@@ -94,8 +130,10 @@ pub struct Console {
     pub operator_compressed: fn() -> Router<AppState>,
     pub operator_raw: fn() -> Router<AppState>,
     pub public: fn() -> Router<AppState>,
-    /// The login form's HTML; `true` when the token just given was wrong.
-    pub login_page: fn(bool) -> String,
+    /// The login form's HTML (whether the token just given was wrong, where the server listens, the token file).
+    pub login_page: fn(&auth::LoginInfo) -> String,
+    /// Wraps the whole router so that browser routes answer errors, unknown routes included, as pages.
+    pub browser_errors: fn(Router<AppState>) -> Router<AppState>,
 }
 
 /// A `--public-url` other machines can follow: `http(s)://` and at most 512 printable characters without spaces
@@ -136,8 +174,8 @@ pub struct App {
     pub operator: auth::Operator,
     /// The `Host` names this server answers to.
     pub hosts: auth::AllowedHosts,
-    /// Task thumbnails render one at a time.
-    pub thumbnail_lock: tokio::sync::Mutex<()>,
+    /// The task thumbnail cache (rendered ahead at start, or on demand).
+    pub thumbnails: Arc<thumbnails::Thumbnails>,
     /// Where the Results page looks for batch directories ([`batch_roots`]).
     pub batch_roots: Vec<PathBuf>,
     /// Episodes the operator drives from the teleop page; only these accept actions from the operator's socket,
@@ -230,10 +268,22 @@ impl App {
     /// Prepares an episode and stores its row; an episode whose row cannot be stored is stopped again.
     pub async fn prepare_stored(&self, req: PrepareRequest) -> Result<episodes::Prepared, Response> {
         req.validate().map_err(|e| json_error(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+        // A branch's parent: its run directory as the store knows it (a run of another server on a shared store
+        // whose directory this machine sees), else this server's own.
+        let parent_run = match &req.branch {
+            Some(b) => self.store.get(&b.parent).await.ok().flatten().map(|row| row.episode.run_dir).filter(|d| d.is_dir()),
+            None => None,
+        };
         let eps = self.episodes.clone();
-        let prepared = match tokio::task::spawn_blocking(move || eps.prepare(req)).await {
+        let prepared = match tokio::task::spawn_blocking(move || eps.prepare_with_parent(req, parent_run)).await {
             Ok(Ok(p)) => p,
-            Ok(Err(e)) => return Err(json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}"))),
+            Ok(Err(e)) => {
+                let status = e
+                    .downcast_ref::<episodes::BranchError>()
+                    .and_then(|b| StatusCode::from_u16(b.http_status()).ok())
+                    .unwrap_or(StatusCode::UNPROCESSABLE_ENTITY);
+                return Err(json_error(status, format!("{e:#}")));
+            }
             Err(e) => return Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("prepare failed: {e}"))),
         };
         if let Err(e) = self.insert_prepared(&prepared).await {
@@ -359,6 +409,8 @@ pub struct Bound {
     reconciled: u64,
     /// Tool-call reports for the store sync, which starts when serving begins.
     calls_rx: UnboundedReceiver<String>,
+    /// Thumbnails to render in the background once serving begins, and how many at once.
+    ahead: (Vec<String>, usize),
     _lock: DataLock,
     _registration: Option<credential::Registration>,
 }
@@ -381,12 +433,13 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     let data = args.data.clone().unwrap_or_else(default_data_dir);
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create data directory {}", data.display()))?;
     let lock = DataLock::acquire(&data)?;
-    let mut operator = auth::Operator::for_server(&data, args.operator_token_file.as_deref())?;
+    let mut operator = auth::Operator::for_server(&data, args.operator_token_file.as_deref(), args.rotate_token)?;
     if let Some(console) = args.console {
         operator = operator.with_login_page(console.login_page);
     }
     let listeners = listener::bind(args.addr).await?;
     let local = listeners.first().context("no listener")?.local_addr()?;
+    let operator = operator.listening_on(local, Some(data.join(credential::TOKEN_FILE)));
     let base_url = format!("http://{local}");
     let registration = credential::Registration::register(local, operator.token());
     let (calls_tx, calls_rx) = unbounded_channel();
@@ -409,6 +462,13 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     if let Some(url) = args.store.as_deref().filter(|_| store.backend() == store::Backend::Postgres) {
         follow_store_changes(url, hubs.clone()).await?;
     }
+    // A bad `--thumbnails-ahead` stops the start; a server without a console renders none ahead.
+    let ahead = match args.console {
+        Some(_) => thumbnails::ahead_ids(&args.thumbnails.ahead).map_err(|e| anyhow::anyhow!("--thumbnails-ahead: {e}"))?,
+        None => Vec::new(),
+    };
+    let ahead = (ahead, args.thumbnails.threads());
+    let thumbnails = Arc::new(thumbnails::Thumbnails::new(episodes.clone()));
     let app = Arc::new(App {
         episodes,
         store,
@@ -417,14 +477,14 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         hubs,
         operator,
         hosts: auth::AllowedHosts::new(local, &args.public_hosts),
-        thumbnail_lock: tokio::sync::Mutex::new(()),
+        thumbnails,
         batch_roots: batch_roots(&data, &args.batches),
         teleop: Mutex::new(HashMap::new()),
         artifacts,
         console: args.console,
         public_url: args.public_url.as_deref().map(|u| u.trim_end_matches('/').to_owned()).unwrap_or_else(|| base_url.clone()),
     });
-    Ok(Bound { app, listeners, limits, base_url, recovered, reconciled, calls_rx, _lock: lock, _registration: registration })
+    Ok(Bound { app, listeners, limits, base_url, recovered, reconciled, calls_rx, ahead, _lock: lock, _registration: registration })
 }
 
 /// On a shared PostgreSQL store, every episode and queue change any machine makes (`LISTEN libero_episodes,
@@ -452,8 +512,14 @@ impl Bound {
 
     /// Serves until `shutdown` yields a stop reason (see [`serve_until`]).
     pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = (String, Duration)> + Send + 'static) -> anyhow::Result<()> {
-        let Bound { app, listeners, limits, base_url, recovered, reconciled, calls_rx, _lock, _registration } = self;
+        let Bound { app, listeners, limits, base_url, recovered, reconciled, calls_rx, ahead, _lock, _registration } = self;
         let sync_task = tokio::spawn(store_sync(app.clone(), calls_rx));
+        // started before `listening`, so whoever reads the line and asks /api/thumbnails sees the pass running
+        let (ahead_ids, ahead_threads) = ahead;
+        if !ahead_ids.is_empty() {
+            tracing::info!(thumbnails = ahead_ids.len(), threads = ahead_threads, "rendering task thumbnails ahead in the background (low priority; cached ones are reused)");
+            app.thumbnails.render_ahead(ahead_ids, ahead_threads);
+        }
         let data = app.episodes.data_dir().to_path_buf();
         listening(json!({
             "event": "listening", "url": base_url, "data": data,
@@ -461,11 +527,18 @@ impl Bound {
             "dashboard": format!("{base_url}/"), "batch_roots": app.batch_roots,
             "operator_token_file": data.join(credential::TOKEN_FILE),
         }));
-        eprintln!(
-            "libero-agent serve: open the dashboard with this one-time login link (it holds the operator token; \
-             client commands of this user find the token themselves):\n  {base_url}/?token={}",
-            app.operator.token()
-        );
+        let token_file = std::path::absolute(data.join(credential::TOKEN_FILE)).unwrap_or_else(|_| data.join(credential::TOKEN_FILE));
+        match app.operator.new_login_code() {
+            Ok(code) => eprintln!(
+                "libero-agent serve: open the dashboard with this one-time login link (it works once; the operator token \
+                 itself is in {}, and client commands of this user find it themselves):\n  {base_url}/?token={code}",
+                token_file.display()
+            ),
+            Err(e) => eprintln!(
+                "libero-agent serve: no login link this time ({e:#}); sign in at {base_url}/login with the token in {}",
+                token_file.display()
+            ),
+        }
         let (stopped_tx, stopped_rx) = tokio::sync::oneshot::channel::<()>();
         let stop = {
             let app = app.clone();
@@ -529,8 +602,15 @@ async fn shutdown_signal() -> String {
     }
 }
 
+/// Gzip for successful responses only: error bodies are short, and a console can still read them to answer a
+/// browser with a page (`Console::browser_errors`).
+fn compression() -> tower_http::compression::CompressionLayer<impl tower_http::compression::Predicate> {
+    use tower_http::compression::predicate::{DefaultPredicate, Predicate};
+    let success = |status: StatusCode, _: axum::http::Version, _: &HeaderMap, _: &axum::http::Extensions| status.is_success();
+    tower_http::compression::CompressionLayer::new().compress_when(DefaultPredicate::new().and(success))
+}
+
 pub fn router(state: AppState) -> Router {
-    use tower_http::compression::CompressionLayer;
     // The operator's side: the operator API and the console's pages, live streams and private media. Episode
     // tokens open none of it.
     let mut compressed = Router::new()
@@ -538,7 +618,10 @@ pub fn router(state: AppState) -> Router {
         .route("/api/episodes/{id}", get(episode_status))
         .route("/api/episodes/{id}/video", get(episode_video))
         .route("/api/episodes/{id}/abort", post(abort_episode))
-        .route("/api/episodes/{id}/agent/events", post(transcript::ingest));
+        .route("/api/episodes/{id}/forfeit", post(forfeit_episode))
+        .route("/api/thumbnails", get(thumbnail_stats))
+        .route("/api/episodes/{id}/agent/events", post(transcript::ingest))
+        .route("/api/batches", post(batches::register));
     let mut raw = Router::new();
     let mut public = Router::new();
     if let Some(console) = state.console {
@@ -547,10 +630,10 @@ pub fn router(state: AppState) -> Router {
         public = public.merge((console.public)());
     }
     let operator = compressed
-        .layer(CompressionLayer::new())
+        .layer(compression())
         .merge(raw)
         .layer(axum::middleware::from_fn_with_state(state.operator.clone(), auth::require_operator));
-    Router::new()
+    let mut all = Router::new()
         .route("/api/health", get(health))
         .route("/mcp/{id}", any(mcp_endpoint))
         .merge(
@@ -558,11 +641,19 @@ pub fn router(state: AppState) -> Router {
                 .route("/login", get(auth::login_form).post(auth::login))
                 .with_state(state.operator.clone()),
         )
-        .merge(public.layer(CompressionLayer::new()))
-        .merge(operator)
-        .layer(axum::middleware::from_fn_with_state(state.hosts.clone(), auth::check_host))
+        .merge(public.layer(compression()))
+        .merge(operator);
+    if let Some(console) = state.console {
+        all = (console.browser_errors)(all);
+    }
+    all.layer(axum::middleware::from_fn_with_state(state.hosts.clone(), auth::check_host))
         .layer(tower_http::trace::TraceLayer::new_for_http())
         .with_state(state)
+}
+
+/// `GET /api/thumbnails`: what the thumbnail cache rendered, reused and has left to render ahead.
+async fn thumbnail_stats(State(app): State<AppState>) -> Response {
+    axum::Json(json!({"ok": true, "thumbnails": app.thumbnails.stats()})).into_response()
 }
 
 async fn health(State(app): State<AppState>) -> Response {
@@ -671,6 +762,26 @@ async fn abort_episode(State(app): State<AppState>, Path(id): Path<String>, body
         }
         Ok(false) => json_error(StatusCode::NOT_FOUND, format!("no open episode {id} on this server")),
         Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("abort failed: {e}")),
+    }
+}
+
+/// `POST /api/episodes/{id}/forfeit {"reason": "…"}`: the runner's word that the agent's harness ended without
+/// `finish_episode`. The episode ends as the agent's FAIL (never INVALID: nothing an agent does may earn it a
+/// rerun); an episode that already ended is left as it is. Operator-only, as abort.
+async fn forfeit_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> Response {
+    let reason = match serde_json::from_slice::<AbortRequest>(&body) {
+        Ok(r) if !r.reason.trim().is_empty() => r.reason.chars().take(1000).collect::<String>(),
+        _ => return json_error(StatusCode::BAD_REQUEST, "body must be {\"reason\": \"…\"}"),
+    };
+    let eps = app.episodes.clone();
+    let id2 = id.clone();
+    match tokio::task::spawn_blocking(move || eps.forfeit(&id2, &reason)).await {
+        Ok(true) => {
+            app.sync(&id).await;
+            episode_status(State(app), Path(id)).await
+        }
+        Ok(false) => json_error(StatusCode::NOT_FOUND, format!("no open episode {id} on this server")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("forfeit failed: {e}")),
     }
 }
 

@@ -42,6 +42,8 @@ pub struct Hub {
     viewers: LiveViewers,
     /// Set when the server lets go of the hub (the episode ended): viewers still streaming it then close.
     closed: watch::Sender<bool>,
+    /// A branch's parent episode and control step, told to every viewer in the socket's `hello`.
+    branch: std::sync::OnceLock<(String, u64)>,
 }
 
 /// A viewer's subscription, taken together with the history so nothing is missed or sent twice.
@@ -115,6 +117,11 @@ impl Hub {
         Some((state.history.clone(), self.events.subscribe()))
     }
 
+    /// The parent episode and control step of a branch (None for an ordinary episode).
+    pub fn branch(&self) -> Option<&(String, u64)> {
+        self.branch.get()
+    }
+
     /// Agent steps accepted so far and (completed, required) stages once the evaluator reported them.
     pub fn progress(&self) -> Option<(u64, Option<(usize, usize)>)> {
         let s = self.state.lock().ok()?;
@@ -177,6 +184,7 @@ impl LiveHubs {
             state: Mutex::new(CatchUp::default()),
             viewers: viewers.clone(),
             closed: watch::channel(false).0,
+            branch: std::sync::OnceLock::new(),
         });
         if let Ok(mut map) = self.map.write() {
             map.insert(id.to_owned(), hub.clone());
@@ -184,6 +192,13 @@ impl LiveHubs {
         self.notify();
         let changes = self.changes.clone();
         (Arc::new(move |event| hub.publish(event, &changes)), viewers)
+    }
+
+    /// Marks `id` as a branch of `parent` at control step `step` (before its first viewer can connect).
+    pub fn mark_branch(&self, id: &str, parent: &str, step: u64) {
+        if let Some(hub) = self.get(id) {
+            let _ = hub.branch.set((parent.to_owned(), step));
+        }
     }
 
     pub fn get(&self, id: &str) -> Option<Arc<Hub>> {

@@ -104,14 +104,21 @@ const SCHEMA_LOCK_KEY: i64 = 0x6c_6962_6572_6f;
 
 /// Nullable columns added after the first schema (the dashboard's filters and wall time); added in place to an
 /// older store by [`Store::open`].
-const ADDED_COLUMNS: [(&str, &str); 5] =
-    [("harness", "TEXT"), ("model", "TEXT"), ("batch", "TEXT"), ("wall_time_s", "DOUBLE PRECISION"), ("server_url", "TEXT")];
+const ADDED_COLUMNS: [(&str, &str); 7] = [
+    ("harness", "TEXT"),
+    ("model", "TEXT"),
+    ("batch", "TEXT"),
+    ("wall_time_s", "DOUBLE PRECISION"),
+    ("server_url", "TEXT"),
+    ("branch_parent", "TEXT"),
+    ("branch_step", "BIGINT"),
+];
 
 /// The columns of a row as read back. `success` is read as a number: sqlx's `Any` driver decodes PostgreSQL's
 /// BOOLEAN but not SQLite's.
 const COLUMNS: &str = "id, task_ref, level, seed, init_index, created_at, started_at, finished_at, outcome, reason, \
     CAST(CASE WHEN success THEN 1 WHEN NOT success THEN 0 END AS BIGINT) AS success, accepted_agent_steps, completed_stage_count, required_stage_count, run_dir, harness, model, batch, \
-    wall_time_s, server_url";
+    wall_time_s, server_url, branch_parent, branch_step";
 
 /// The dashboard's episode filters (`None`: any). Outcome `RUNNING` selects episodes without an outcome yet.
 #[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
@@ -119,13 +126,21 @@ pub struct EpisodeFilter {
     pub task: Option<String>,
     pub outcome: Option<String>,
     pub batch: Option<String>,
+    /// `expert`, `teleop`, `command`, `codex`, …
+    #[serde(default)]
+    pub harness: Option<String>,
 }
 
 impl EpisodeFilter {
     /// Empty strings (an empty form field) mean no filter.
     pub fn normalized(self) -> Self {
         let keep = |v: Option<String>| v.map(|s| s.trim().to_owned()).filter(|s| !s.is_empty());
-        Self { task: keep(self.task), outcome: keep(self.outcome).map(|o| o.to_uppercase()), batch: keep(self.batch) }
+        Self {
+            task: keep(self.task),
+            outcome: keep(self.outcome).map(|o| o.to_uppercase()),
+            batch: keep(self.batch),
+            harness: keep(self.harness),
+        }
     }
 }
 
@@ -170,6 +185,8 @@ impl EpisodeRow {
             model: r.try_get("model")?,
             batch: r.try_get("batch")?,
             server_url: r.try_get("server_url")?,
+            branch_parent: r.try_get("branch_parent")?,
+            branch_step: r.try_get("branch_step")?,
         };
         Ok(Self {
             episode,
@@ -241,6 +258,9 @@ pub struct NewEpisode {
     /// The URL of the server that runs the episode (its `--public-url`), where its live view is: a dashboard on
     /// another machine links there while the episode is open.
     pub server_url: Option<String>,
+    /// A branch's parent episode and the control step it branched at (issue 33).
+    pub branch_parent: Option<String>,
+    pub branch_step: Option<i64>,
 }
 
 impl NewEpisode {
@@ -260,6 +280,8 @@ impl NewEpisode {
             model: r["model"].as_str().map(str::to_owned),
             batch: r["batch"].as_str().map(str::to_owned),
             server_url: None,
+            branch_parent: r["branch"]["parent_episode_id"].as_str().map(str::to_owned),
+            branch_step: r["branch"]["parent_control_step"].as_i64(),
         })
     }
 }
@@ -432,8 +454,8 @@ impl Store {
     /// The row of a newly prepared episode (kept as is if it already exists).
     pub async fn insert_prepared(&self, e: &NewEpisode) -> Result<()> {
         sqlx::query(
-            "INSERT INTO episodes (id, task_ref, level, seed, init_index, created_at, run_dir, harness, model, batch, server_url) \
-             VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11) ON CONFLICT (id) DO NOTHING",
+            "INSERT INTO episodes (id, task_ref, level, seed, init_index, created_at, run_dir, harness, model, batch, server_url, \
+             branch_parent, branch_step) VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13) ON CONFLICT (id) DO NOTHING",
         )
         .bind(&e.id)
         .bind(&e.task_ref)
@@ -446,6 +468,8 @@ impl Store {
         .bind(&e.model)
         .bind(&e.batch)
         .bind(&e.server_url)
+        .bind(&e.branch_parent)
+        .bind(e.branch_step)
         .execute(&self.pool)
         .await
         .with_context(|| format!("store: cannot insert episode {}", e.id))?;
@@ -574,13 +598,14 @@ impl Store {
         let sql = format!(
             "SELECT {COLUMNS} FROM episodes WHERE ($1 IS NULL OR task_ref = $1) \
              AND ($2 IS NULL OR outcome = $2 OR ($2 = 'RUNNING' AND outcome IS NULL)) AND ($3 IS NULL OR batch = $3) \
-             ORDER BY created_at DESC, id DESC LIMIT $4"
+             AND ($5 IS NULL OR harness = $5) ORDER BY created_at DESC, id DESC LIMIT $4"
         );
         let rows = sqlx::query(&sql)
             .bind(&filter.task)
             .bind(&filter.outcome)
             .bind(&filter.batch)
             .bind(limit)
+            .bind(&filter.harness)
             .fetch_all(&self.pool)
             .await
             .context("store: cannot list episodes")?;
@@ -614,6 +639,8 @@ mod tests {
             model: None,
             batch: Some("b1".into()),
             server_url: Some("http://worker-1.lab:8080".into()),
+            branch_parent: Some("ep-parent".into()),
+            branch_step: Some(42),
         }
     }
 
@@ -803,13 +830,16 @@ mod tests {
         assert!(row.public().get("run_dir").is_none(), "paths stay out of the API");
         assert_eq!(store.list(10).await.unwrap(), vec![row.clone()]);
         let filter = |task: &str, outcome: &str, batch: &str| {
-            EpisodeFilter { task: Some(task.into()), outcome: Some(outcome.into()), batch: Some(batch.into()) }.normalized()
+            EpisodeFilter { task: Some(task.into()), outcome: Some(outcome.into()), batch: Some(batch.into()), harness: None }.normalized()
         };
         let task = row.episode.task_ref.clone();
         assert_eq!(store.list_filtered(&filter(&task, "sim_timeout", "b1"), 10).await.unwrap(), vec![row.clone()]);
         assert!(store.list_filtered(&filter(&task, "RUNNING", ""), 10).await.unwrap().is_empty());
         assert!(store.list_filtered(&filter("", "", "b2"), 10).await.unwrap().is_empty());
         assert_eq!(row.episode.harness.as_deref(), Some("codex"));
+        let by_harness = |h: &str| EpisodeFilter { harness: Some(h.into()), ..Default::default() }.normalized();
+        assert_eq!(store.list_filtered(&by_harness("codex"), 10).await.unwrap(), vec![row.clone()]);
+        assert!(store.list_filtered(&by_harness("expert"), 10).await.unwrap().is_empty());
         assert_eq!(row.episode.server_url.as_deref(), Some("http://worker-1.lab:8080"), "where its live view is");
     }
 

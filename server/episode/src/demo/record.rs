@@ -39,7 +39,8 @@ pub struct SourceEpisode {
 }
 
 impl SourceEpisode {
-    /// Reads `episode_record.json`, `actions.jsonl` (accepted `osc_sequence` calls only) and `result.json`.
+    /// Reads `episode_record.json`, `actions.jsonl` (accepted `osc_sequence` calls only, after a branch's replayed
+    /// prefix) and `result.json`.
     pub fn read(run: &RunDir) -> Result<Self, DemoError> {
         let record = read_json(&run.episode_record())?;
         let text = |v: &Value, what: &str| {
@@ -55,7 +56,9 @@ impl SourceEpisode {
         let init_state_index = record["task"]["suite"]["init_index"].as_u64().map_or_else(|| number("init_state_index"), Ok)? as usize;
         let path = run.actions_jsonl();
         let log = fs::read_to_string(&path).map_err(io_err(&path))?;
-        let mut actions = Vec::new();
+        // A branch's actions begin with the parent's it replayed (at the `branch_from` line's index, 0).
+        let mut actions: Vec<(u64, [f64; 7])> =
+            crate::branch::read_prefix(run).map_err(DemoError::Source)?.into_iter().map(|a| (0, a)).collect();
         for (n, line) in log.lines().enumerate() {
             let event: Value = serde_json::from_str(line)
                 .map_err(|e| DemoError::Source(format!("actions.jsonl line {}: not JSON: {e}", n + 1)))?;

@@ -1,0 +1,135 @@
+//! A page per task and thumbnails made ahead, on real servers and in real chromium: `serve --thumbnails-ahead`
+//! renders T14's and a pool entry's thumbnails (both cameras) into `<data>/thumbnails/` with no page asked for, a
+//! restart on the same data directory reuses those files (the server reports nothing rendered; their mtimes do not
+//! change); an expert plays one T14 episode on the restarted server and a hand-written batch records it; then
+//! chromium (`tests/dashboard/task_pages_check.cjs`) checks the Tasks page's cards fit at 1280 and 1920 px, follows a
+//! card to `/tasks/T14` (instruction, K, stages, both images loaded, teleop and back links, the episode, its batch
+//! cell), opens a pool entry's page, the review page's task link and Stages table at 1400 px, the Results page's
+//! task link, and times the warm Tasks page. Unknown tasks answer 404. Screenshots go to
+//! `target/test-artifacts/task_pages/`.
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant, SystemTime};
+
+use common::{Server, bin, http_get_json, http_get_text};
+use serde_json::Value;
+
+/// The pool entry whose page is checked besides T14's (a stock LIBERO scene, K = 1).
+const POOL_TASK: &str = "libero_90/35";
+const POOL_INSTRUCTION: &str = "open the microwave";
+/// What the server renders ahead in this test (two scenes; `all` would be ~200 on a software renderer).
+const AHEAD: &str = "T14,libero_90/35";
+
+/// The thumbnail files and their modification times.
+fn cached(data: &Path) -> BTreeMap<String, SystemTime> {
+    std::fs::read_dir(data.join("thumbnails"))
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".png"))
+        .map(|e| (e.file_name().to_string_lossy().into_owned(), e.metadata().unwrap().modified().unwrap()))
+        .collect()
+}
+
+/// `/api/thumbnails` once the background pass is done (fails after `limit`).
+fn ahead_done(server: &Server, limit: Duration) -> Value {
+    let start = Instant::now();
+    loop {
+        let (status, v) = http_get_json(&format!("{}/api/thumbnails", server.url));
+        assert_eq!(status, 200, "{v}");
+        if v["thumbnails"]["ahead_done"] == true {
+            return v["thumbnails"].clone();
+        }
+        assert!(start.elapsed() < limit, "thumbnails not rendered ahead within {limit:?}: {v}");
+        std::thread::sleep(Duration::from_millis(500));
+    }
+}
+
+/// One T14 episode played by the scripted expert on `server`; its episode id.
+fn play_t14(server: &Server) -> String {
+    let out = Command::new(bin())
+        .args(["expert", "--task", "T14", "--no-video", "--server", &server.url])
+        .output()
+        .expect("run libero-agent expert");
+    assert!(out.status.success(), "expert: {}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().filter(|l| l.trim_start().starts_with('{')).last().expect("a result line");
+    let v: Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{line}: {e}"));
+    v["episode_id"].as_str().map(str::to_owned).unwrap_or_else(|| panic!("no episode_id in {v}"))
+}
+
+/// A finished one-rollout T14 batch whose rollout is `episode`, under `<data>/batches/`.
+fn write_batch(data: &Path, episode: &str) {
+    let dir = data.join("batches/task-page");
+    std::fs::create_dir_all(&dir).unwrap();
+    let batch = serde_json::json!({
+        "schema_version": "libero_agent.batch.v1", "status": "finished",
+        "settings": {"experiment": "main", "harness": "command", "model": "expert", "effort": "high", "reps": 1,
+            "tasks": [14], "seed": 100, "wall_time_s": 300.0, "max_agent_steps": 100, "agent_cmd": "true", "sandbox": false},
+        "rollout_count": 1, "counts": {"done": 1, "running": 0, "left": 0}, "running": [], "outcomes": {"SUCCESS": 1},
+    });
+    std::fs::write(dir.join("batch.json"), batch.to_string()).unwrap();
+    let r = serde_json::json!({
+        "schema_version": "libero_agent.rollout.v1", "rollout_id": "w1_t14_level3", "task": "T14", "task_number": 14,
+        "split": "short_horizon_easy", "stage_count": 1, "repetition": 1, "level": 3, "demo": "none",
+        "outcome": "SUCCESS", "episode_id": episode, "completed_stages": 1, "wall_time_s": 30.0,
+        "started_at": "2025-01-01T00:00:00Z", "finished_at": "2025-01-01T00:00:30Z",
+    });
+    std::fs::write(dir.join("rollouts.jsonl"), format!("{r}\n")).unwrap();
+}
+
+#[test]
+fn task_pages_show_a_task_and_its_episodes_and_thumbnails_are_rendered_ahead_and_reused() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let artifacts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/task_pages");
+    std::fs::create_dir_all(&artifacts).unwrap();
+
+    // 1. Rendered ahead at start, before any page asks: both cameras of both scenes.
+    let mut server = Server::start_with(&data, &["--thumbnails-ahead", AHEAD]);
+    let first = ahead_done(&server, Duration::from_secs(600));
+    assert_eq!(first["rendered"], 2, "two scenes rendered ahead: {first}");
+    let files = cached(&data);
+    assert_eq!(files.len(), 4, "head and wrist of each scene: {files:?}");
+    assert_eq!(files.keys().filter(|f| f.ends_with("-head.png")).count(), 2, "{files:?}");
+    assert_eq!(files.keys().filter(|f| f.ends_with("-wrist.png")).count(), 2, "{files:?}");
+    server.kill();
+
+    // 2. A restart reuses them: nothing rendered, the files untouched.
+    let server = Server::start_with(&data, &["--thumbnails-ahead", AHEAD]);
+    let second = ahead_done(&server, Duration::from_secs(120));
+    assert_eq!(second["rendered"], 0, "a restart renders nothing again: {second}");
+    assert_eq!(second["reused"], 2, "{second}");
+    assert_eq!(cached(&data), files, "the cached files were not rewritten");
+
+    // 3. Unknown tasks are a clear 404 page; a bad camera is refused.
+    for unknown in ["/tasks/T99", "/tasks/libero_90/9999", "/tasks/no_such_suite/1"] {
+        let (status, body) = http_get_text(&format!("{}{unknown}", server.url));
+        assert_eq!(status, 404, "{unknown}: {body}");
+        assert!(body.contains("<html") && body.to_lowercase().contains("no"), "{unknown} answers an HTML page: {body}");
+    }
+    let (status, _) = http_get_text(&format!("{}/tasks/T14/thumbnail.png?camera=depth", server.url));
+    assert_eq!(status, 400, "only head and wrist cameras");
+
+    // 4. A finished T14 episode and a batch that records it.
+    let episode = play_t14(&server);
+    write_batch(&data, &episode);
+    let (status, page) = http_get_text(&format!("{}/tasks/T14", server.url));
+    assert_eq!(status, 200);
+    assert!(page.contains(&episode), "the T14 page lists {episode}");
+
+    // 5. In chromium.
+    let last = common::browser_script(
+        "task_pages_check.cjs",
+        &[&server.url, &episode, POOL_TASK, POOL_INSTRUCTION, &artifacts.to_string_lossy()],
+        &server.token,
+    );
+    assert_eq!(last["ok"], true, "{last}");
+    eprintln!("task pages: {last}");
+    // the pages asked for nothing but cached thumbnails of these two scenes
+    let (_, v) = http_get_json(&format!("{}/api/thumbnails", server.url));
+    assert_eq!(v["thumbnails"]["rendered"], 0, "{v}");
+}

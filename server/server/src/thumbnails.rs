@@ -1,0 +1,363 @@
+//! Task thumbnails: the settled initial head- and wrist-camera views of a task (`T14`, or a runnable pool entry
+//! `suite/task_id`), rendered through the same world set-up as an episode (placement, init state, settle) at seed
+//! 100, init row 0, level 1.
+//!
+//! They are cached under `<data>/thumbnails/<scene hash>-{head,wrist}.png`, where the hash covers everything
+//! that decides the scene: the BDDL file's bytes, the init-state file's bytes, the catalog's start settings
+//! (placement seed, init row, settle steps, poses) and the asset roots. So a cache entry survives restarts,
+//! a changed scene gets a fresh one, and pool entries that run on a release task's scene share its files.
+//!
+//! A server with a console renders them ahead at start ([`Thumbnails::render_ahead`]), in background threads
+//! at the lowest CPU priority that also wait while any episode is open, so benchmark episodes and the
+//! server's answers never queue behind them. A page asking for one not rendered yet renders it on demand.
+use std::collections::HashMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use libero_episode::Level;
+use libero_episode::task::resolve_task;
+use libero_episode::world::{LiberoWorld, WorldSpec};
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+use crate::episodes::Episodes;
+
+/// Bumped whenever how a thumbnail is made changes (seed, row, level, image format): every old entry is stale.
+const SCHEME: &str = "libero-agent thumbnails v2: seed 100, init row 0, level 1, settled start, frame 0";
+/// The seed every thumbnail's world is set up with (the teleop page's default seed too).
+const SEED: u64 = 100;
+/// Longest task id accepted (`vlabench_tube_precision/12` and the like).
+const MAX_ID_LEN: usize = 80;
+/// How long a background render waits for open episodes to end before it looks again.
+const EPISODE_POLL: Duration = Duration::from_secs(2);
+
+/// Which camera's view.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Camera {
+    /// `agentview`.
+    Head,
+    /// `robot0_eye_in_hand`.
+    Wrist,
+}
+
+impl Camera {
+    /// `head` / `wrist` (the `?camera=` value and the file suffix).
+    pub fn parse(s: Option<&str>) -> Option<Self> {
+        match s.unwrap_or("head") {
+            "head" => Some(Self::Head),
+            "wrist" => Some(Self::Wrist),
+            _ => None,
+        }
+    }
+
+    fn suffix(self) -> &'static str {
+        match self {
+            Self::Head => "head",
+            Self::Wrist => "wrist",
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ThumbnailError {
+    /// Not a release task or runnable pool entry (the page answers 404).
+    #[error("{0}")]
+    NoSuchTask(String),
+    #[error("assets are missing; run `python3 scripts/setup.py`")]
+    NoAssets,
+    #[error("cannot render the thumbnail of {task}: {cause}")]
+    Render { task: String, cause: String },
+    #[error("thumbnail cache {path}: {cause}")]
+    Io { path: String, cause: std::io::Error },
+}
+
+impl ThumbnailError {
+    fn io(path: &Path) -> impl FnOnce(std::io::Error) -> Self + '_ {
+        move |cause| Self::Io { path: path.display().to_string(), cause }
+    }
+}
+
+/// What the cache did since the server started (`GET /api/thumbnails`).
+#[derive(Debug, Default, Serialize)]
+pub struct ThumbnailStats {
+    /// Scenes rendered (both cameras each).
+    pub rendered: u64,
+    /// Scenes asked for (ahead or by a page) whose files were on disk already.
+    pub reused: u64,
+    pub failed: u64,
+    /// Tasks the background pass has still to look at.
+    pub ahead_pending: u64,
+    /// Whether the background pass has run through its list.
+    pub ahead_done: bool,
+}
+
+/// The thumbnail cache of one data directory.
+pub struct Thumbnails {
+    episodes: Arc<Episodes>,
+    dir: PathBuf,
+    /// One lock per scene hash: a page asking for a scene the background pass is rendering waits for that
+    /// render instead of starting a second one.
+    scenes: Mutex<HashMap<String, Arc<Mutex<()>>>>,
+    /// Renders asked for by pages run one at a time, so a page of thumbnails does not build thirty worlds at once.
+    on_demand: Mutex<()>,
+    rendered: AtomicU64,
+    reused: AtomicU64,
+    failed: AtomicU64,
+    ahead_pending: AtomicU64,
+    ahead_running: AtomicU64,
+}
+
+impl Thumbnails {
+    pub fn new(episodes: Arc<Episodes>) -> Self {
+        let dir = episodes.data_dir().join("thumbnails");
+        Self {
+            episodes,
+            dir,
+            scenes: Mutex::new(HashMap::new()),
+            on_demand: Mutex::new(()),
+            rendered: AtomicU64::new(0),
+            reused: AtomicU64::new(0),
+            failed: AtomicU64::new(0),
+            ahead_pending: AtomicU64::new(0),
+            ahead_running: AtomicU64::new(0),
+        }
+    }
+
+    pub fn stats(&self) -> ThumbnailStats {
+        ThumbnailStats {
+            rendered: self.rendered.load(Ordering::Relaxed),
+            reused: self.reused.load(Ordering::Relaxed),
+            failed: self.failed.load(Ordering::Relaxed),
+            ahead_pending: self.ahead_pending.load(Ordering::Relaxed),
+            ahead_done: self.ahead_running.load(Ordering::Relaxed) == 0,
+        }
+    }
+
+    /// The cached PNG of `camera` for task `id`, rendered now (seconds; blocking) if it is not on disk yet.
+    pub fn get(&self, id: &str, camera: Camera) -> Result<PathBuf, ThumbnailError> {
+        let (hash, task) = self.scene(id)?;
+        let path = self.file(&hash, camera);
+        if path.is_file() {
+            return Ok(path);
+        }
+        let _one_page_render = self.on_demand.lock().unwrap_or_else(|p| p.into_inner());
+        self.ensure(&hash, id, task)?;
+        Ok(path)
+    }
+
+    /// The scene hash of `id` and its resolved task.
+    fn scene(&self, id: &str) -> Result<(String, libero_episode::task::TaskSource), ThumbnailError> {
+        let id = checked_id(id)?;
+        let paths = self.episodes.asset_paths().ok_or(ThumbnailError::NoAssets)?;
+        let task = resolve_task(id, paths).map_err(|e| ThumbnailError::NoSuchTask(e.to_string()))?;
+        Ok((scene_hash(&task, paths)?, task))
+    }
+
+    fn file(&self, hash: &str, camera: Camera) -> PathBuf {
+        self.dir.join(format!("{hash}-{}.png", camera.suffix()))
+    }
+
+    /// Renders both cameras of scene `hash` unless both files are there; counts what it did.
+    fn ensure(&self, hash: &str, id: &str, task: libero_episode::task::TaskSource) -> Result<(), ThumbnailError> {
+        let lock = {
+            let mut scenes = self.scenes.lock().unwrap_or_else(|p| p.into_inner());
+            scenes.entry(hash.to_owned()).or_default().clone()
+        };
+        let _this_scene = lock.lock().unwrap_or_else(|p| p.into_inner());
+        let (head, wrist) = (self.file(hash, Camera::Head), self.file(hash, Camera::Wrist));
+        if head.is_file() && wrist.is_file() {
+            self.reused.fetch_add(1, Ordering::Relaxed);
+            return Ok(());
+        }
+        match self.render(id, task, &head, &wrist) {
+            Ok(()) => {
+                self.rendered.fetch_add(1, Ordering::Relaxed);
+                Ok(())
+            }
+            Err(e) => {
+                self.failed.fetch_add(1, Ordering::Relaxed);
+                Err(e)
+            }
+        }
+    }
+
+    fn render(&self, id: &str, task: libero_episode::task::TaskSource, head: &Path, wrist: &Path) -> Result<(), ThumbnailError> {
+        let failed = |cause: String| ThumbnailError::Render { task: id.to_owned(), cause };
+        let paths = self.episodes.asset_paths().ok_or(ThumbnailError::NoAssets)?.clone();
+        let spec = WorldSpec { task, level: Level::L1, seed: SEED, init_index: 0, paths };
+        let renderer = self.episodes.renderer().map_err(|e| failed(format!("{e:#}")))?;
+        let mut world = LiberoWorld::new(&spec, renderer).map_err(|e| failed(e.to_string()))?;
+        libero_episode::World::start(&mut world).map_err(|e| failed(e.to_string()))?;
+        let frame = libero_episode::World::frame(&mut world, 0).map_err(|e| failed(e.to_string()))?;
+        fs::create_dir_all(&self.dir).map_err(ThumbnailError::io(&self.dir))?;
+        for (image, path) in [(&frame.wrist.image, wrist), (&frame.head.image, head)] {
+            // written aside and renamed: a reader never sees half a PNG, and the head file (the one the Tasks
+            // page shows) appears last, once the scene is complete
+            let partial = path.with_extension("png.partial");
+            libero_episode::observation::write_png(&partial, image.width, image.height, 3, &image.rgb)
+                .map_err(ThumbnailError::io(&partial))?;
+            fs::rename(&partial, path).map_err(ThumbnailError::io(path))?;
+        }
+        Ok(())
+    }
+
+    /// Renders every task of `ids` that is not cached yet, `concurrency` at a time, in background threads at the
+    /// lowest CPU priority that wait while any episode is open. Returns at once.
+    pub fn render_ahead(self: &Arc<Self>, ids: Vec<String>, concurrency: usize) {
+        if ids.is_empty() {
+            return;
+        }
+        self.ahead_pending.store(ids.len() as u64, Ordering::Relaxed);
+        let queue = Arc::new(Mutex::new(ids.into_iter()));
+        let workers = concurrency.max(1);
+        self.ahead_running.store(workers as u64, Ordering::Relaxed);
+        for n in 0..workers {
+            let (me, queue) = (self.clone(), queue.clone());
+            let spawned = std::thread::Builder::new().name(format!("thumbnails-{n}")).spawn(move || me.ahead_worker(&queue));
+            if let Err(e) = spawned {
+                tracing::warn!("cannot start a thumbnail thread: {e}");
+                self.ahead_running.fetch_sub(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    fn ahead_worker(&self, queue: &Mutex<std::vec::IntoIter<String>>) {
+        // The shared renderer is opened at normal priority first: a software renderer's worker threads inherit
+        // the priority of the thread that starts them, and episodes use the same renderer afterwards.
+        if let Err(e) = self.episodes.renderer() {
+            tracing::warn!("thumbnails are not rendered ahead: {e:#}");
+            self.ahead_pending.store(0, Ordering::Relaxed);
+            self.ahead_running.fetch_sub(1, Ordering::Relaxed);
+            return;
+        }
+        lowest_priority();
+        loop {
+            let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
+            let Some(id) = next else { break };
+            while self.episodes.count() > 0 {
+                std::thread::sleep(EPISODE_POLL);
+            }
+            let done = self.scene(&id).and_then(|(hash, task)| self.ensure(&hash, &id, task));
+            if let Err(e) = done {
+                tracing::warn!("thumbnail of {id}: {e}");
+            }
+            self.ahead_pending.fetch_sub(1, Ordering::Relaxed);
+        }
+        self.ahead_running.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// The tasks `--thumbnails-ahead` names: `all` (every implemented release task, then every runnable pool entry),
+/// `off`, or a comma-separated list of `release`, suite names and task ids.
+pub fn ahead_ids(selection: &str) -> Result<Vec<String>, String> {
+    let selection = selection.trim();
+    if selection == "off" || selection.is_empty() {
+        return Ok(Vec::new());
+    }
+    let catalog = libero_tasks::Catalog::discover().map_err(|e| e.to_string())?;
+    let pool = libero_tasks::Pool::discover().map_err(|e| e.to_string())?;
+    let release = || catalog.tasks().iter().filter(|t| t.implemented).map(|t| t.id.clone()).collect::<Vec<_>>();
+    let suite = |s: &str| pool.select(s, None).filter(|e| e.why_not().is_none()).map(|e| e.id()).collect::<Vec<_>>();
+    let mut ids: Vec<String> = Vec::new();
+    for part in selection.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let more = match part {
+            "all" => release().into_iter().chain(suite("all")).collect(),
+            "release" => release(),
+            s if libero_tasks::pool::REGISTERED_SUITES.iter().any(|(name, _)| *name == s) => suite(s),
+            id if catalog.get(id).is_some_and(|t| t.implemented) => vec![id.to_owned()],
+            id if id.contains('/') => {
+                let e = pool.lookup(id)?;
+                if let Some(why) = e.why_not() {
+                    return Err(format!("{} is {why}", e.id()));
+                }
+                vec![e.id()]
+            }
+            other => return Err(format!("--thumbnails-ahead: {other:?} is not all, off, release, a pool suite or a task that runs")),
+        };
+        for id in more {
+            if !ids.contains(&id) {
+                ids.push(id);
+            }
+        }
+    }
+    Ok(ids)
+}
+
+/// A task id as the routes give it: `T14` or `suite/task_id`, short and of plain characters.
+fn checked_id(id: &str) -> Result<&str, ThumbnailError> {
+    let plain = |s: &str| !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    let ok = id.len() <= MAX_ID_LEN
+        && match id.split_once('/') {
+            Some((suite, task)) => plain(suite) && plain(task),
+            None => plain(id),
+        };
+    if ok { Ok(id) } else { Err(ThumbnailError::NoSuchTask(format!("bad task id {id:?}"))) }
+}
+
+/// SHA-256 over what decides the rendered scene (first 20 hex digits): [`SCHEME`], the start settings the task
+/// resolves to (its BDDL and init-state files by content, not by path; never the instruction or task name), and
+/// the asset roots.
+fn scene_hash(task: &libero_episode::task::TaskSource, paths: &libero_sim::AssetPaths) -> Result<String, ThumbnailError> {
+    let mut h = Sha256::new();
+    h.update(SCHEME.as_bytes());
+    for file in std::iter::once(&task.bddl).chain(task.init_states.as_ref()) {
+        let bytes = fs::read(file).map_err(ThumbnailError::io(file))?;
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(&bytes);
+    }
+    // the start settings (placement seed, init row, settle steps, poses, layout); the checker is part of the
+    // suite record, so a changed checker also renews the files, which is harmless
+    let start = serde_json::json!({"suite": task.suite, "layout": task.layout, "init": task.init_states.is_some()});
+    h.update(start.to_string().as_bytes());
+    for root in [&paths.robosuite_assets, &paths.libero_assets, &paths.libero_root, &paths.project_assets] {
+        h.update(root.to_string_lossy().as_bytes());
+        h.update([0]);
+    }
+    let digest = h.finalize();
+    Ok(digest.iter().take(10).map(|b| format!("{b:02x}")).collect())
+}
+
+/// This thread at nice 19 (Linux: the nice value is per thread).
+fn lowest_priority() {
+    // SAFETY: setpriority on the calling thread (`who` 0) with a constant; no memory is passed.
+    let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, 19) };
+    if rc != 0 {
+        tracing::debug!("cannot lower the thumbnail thread's priority: {}", std::io::Error::last_os_error());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn task_ids_with_path_tricks_or_odd_characters_are_refused() {
+        for bad in ["", "../etc", "T14/../x", "a/b/c", "T 14", "libero_90/", "/35", &"x".repeat(81)] {
+            assert!(checked_id(bad).is_err(), "{bad:?} must be refused");
+        }
+        for good in ["T14", "libero_90/35", "vlabench_tube_precision/1"] {
+            assert!(checked_id(good).is_ok(), "{good:?}");
+        }
+    }
+
+    #[test]
+    fn camera_names_are_head_by_default_and_nothing_else_but_wrist() {
+        assert_eq!(Camera::parse(None), Some(Camera::Head));
+        assert_eq!(Camera::parse(Some("wrist")), Some(Camera::Wrist));
+        assert_eq!(Camera::parse(Some("depth")), None);
+    }
+
+    #[test]
+    fn ahead_selection_takes_suites_and_ids_once_each_and_refuses_unknown_words() {
+        let ids = ahead_ids("T14, release,libero_90/35").unwrap();
+        assert_eq!(ids.first().map(String::as_str), Some("T14"));
+        assert_eq!(ids.iter().filter(|i| *i == "T14").count(), 1);
+        assert!(ids.contains(&"libero_90/35".to_owned()));
+        assert!(ahead_ids("off").unwrap().is_empty());
+        assert!(ahead_ids("everything").is_err());
+    }
+}
