@@ -31,7 +31,7 @@ use libero_server::episodes::PrepareRequest;
 /// a tabletop), each a world of its own.
 pub const DEFAULT_SCENES: [&str; 8] = ["T14", "T11", "T16", "T15", "T17", "T12", "T20", "T13"];
 
-/// The main table's batch (README, "Experiments"): T01–T30 at level 3, 3 rollouts each.
+/// The main table's batch (docs/commands.md, "Experiments"): T01–T30 at level 3, 3 rollouts each.
 const MAIN_TABLE_TASKS: usize = 30;
 const MAIN_TABLE_ROLLOUTS: usize = 90;
 

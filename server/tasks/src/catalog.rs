@@ -340,7 +340,7 @@ fn validate(m: &Manifest) -> Result<(), String> {
         if t.implemented == t.not_implemented_reason.is_some() {
             return Err(at("exactly the unimplemented tasks carry a not_implemented_reason".into()));
         }
-        if t.implemented && !crate::registry::EVALUATOR_KINDS.contains(&t.checker.kind.as_str()) {
+        if t.implemented && !crate::checkers::EVALUATOR_KINDS.contains(&t.checker.kind.as_str()) {
             return Err(at(format!("checker {} has no evaluator in this build", t.checker.kind)));
         }
         t.checker.stage_types().map_err(at)?;

@@ -6,6 +6,7 @@
 //! for the scripted experts; `families/<family>` holds a task family's evaluators and experts; `registry` is the one
 //! place that knows every checker kind and every family's experts.
 pub mod catalog;
+pub mod checkers;
 pub mod error;
 pub mod expert;
 pub mod families;

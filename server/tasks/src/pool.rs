@@ -345,7 +345,7 @@ fn validate_entry(e: &PoolEntry, catalog: &Catalog, names: &BTreeSet<String>, fa
                     ));
                 }
             }
-            (None, Some(d)) if crate::registry::EVALUATOR_KINDS.contains(&e.checker.as_str()) => {
+            (None, Some(d)) if crate::checkers::EVALUATOR_KINDS.contains(&e.checker.as_str()) => {
                 crate::judge::stage_types::declared_stage_types(&d.checker_params)?;
             }
             (None, Some(_)) => return Err(format!("checker {} has no evaluator in this build", e.checker)),

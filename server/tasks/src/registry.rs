@@ -24,23 +24,9 @@ use crate::judge::annotated::Annotated;
 use crate::judge::evaluator::Evaluator;
 use crate::judge::support::scene_goal_and_commitment;
 
-/// The checker types this build can judge (the catalog refuses an implemented task whose checker is not here).
-pub const EVALUATOR_KINDS: &[&str] = &[
-    bddl_terminal::CHECKER,
-    "bddl_terminal_open",
-    button_press::CHECKER,
-    button_press::GATED_CHECKER,
-    tube_insertion::CHECKER,
-    wipe::CHECKER,
-    pour::CHECKER,
-    staged::CHECKER_ORDERED,
-    staged::CHECKER_UNORDERED,
-    staged::CHECKER_BUFFER_ROTATION,
-    coffee::CHECKER,
-    weighing::CHECKER,
-    hammer_contact::CHECKER,
-    seesaw::CHECKER,
-];
+/// The checker types this build can judge (defined beside the catalog, which refuses an implemented task whose
+/// checker is not among them).
+pub use crate::checkers::EVALUATOR_KINDS;
 
 /// The manifest's `checker.params` for `kind` (missing fields take the catalog's defaults where the type has them).
 fn params<T: serde::de::DeserializeOwned>(checker: Option<&CheckerSpec>, kind: &str, task_id: Option<&str>) -> Result<T, TasksError> {

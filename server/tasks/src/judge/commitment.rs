@@ -19,7 +19,7 @@ use libero_sim::simulation::SimData;
 use serde::Serialize;
 
 use crate::TasksError;
-use crate::judge::evaluator::{EventKind, PrivateEvent, Tick};
+use crate::judge::events::{EventKind, PrivateEvent, Tick};
 use crate::judge::predicates::{JointKind, SceneIndex};
 
 /// Lift (m) above the reset height that, with a grasp, commits to an object.

@@ -11,32 +11,18 @@
 //! * **type** — the stage type the catalog declares (Object Manipulation / Mechanism Interaction), for Table 4.
 //! * **operation** — for a stage with a monitored mechanism operation, which way it moves the mechanism, with the
 //!   operation's sustained-contact ratio (see [`crate::judge::mechanism`]).
-use serde::Serialize;
 use serde_json::Value;
 
+pub use crate::judge::evaluator::StageDiagnostic;
 use crate::judge::evaluator::{EvaluationRecord, EventKind};
 use crate::judge::mechanism::OperationKind;
-use crate::judge::stage_types::StageType;
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct StageDiagnostic {
-    pub stage_name: String,
-    #[serde(rename = "type", skip_serializing_if = "Option::is_none")]
-    pub stage_type: Option<StageType>,
-    pub required: bool,
-    pub reached: bool,
-    pub succeeded: bool,
-    /// Control step at which the stage first completed.
-    pub completed_control_step: Option<u64>,
-    pub regressions: u32,
-    pub regressed_during_later_stage: bool,
-    /// Share of the operation's control steps inside gripper–mechanism contact runs of ≥ 5 steps (stages with a
-    /// monitored mechanism operation; `None` elsewhere).
-    pub sustained_contact_ratio_percent: Option<f64>,
-    pub contact_exec_steps: Option<u64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub operation: Option<OperationKind>,
-    pub failure_reason: Option<String>,
+impl EvaluationRecord {
+    /// The record with its per-stage diagnostics filled in (see [`stage_diagnostics`]).
+    pub fn with_stage_diagnostics(mut self) -> Self {
+        self.stage_diagnostics = stage_diagnostics(&self);
+        self
+    }
 }
 
 /// The diagnostics of every stage (required ones first, then optional), empty for records without named stages.
@@ -109,6 +95,7 @@ mod tests {
 
     use super::*;
     use crate::judge::evaluator::FailureReason;
+    use crate::judge::stage_types::StageType;
     use crate::judge::evaluator::{PrivateEvent, StageRegressions, Tick};
 
     fn event(kind: EventKind, step: u64, name: &str) -> PrivateEvent {

@@ -9,72 +9,10 @@
 use libero_sim::simulation::SimData;
 use serde::{Deserialize, Serialize};
 
+pub use crate::judge::events::{EventKind, PrivateEvent, Tick};
 use crate::judge::goal::GoalReport;
 
 pub const RECORD_SCHEMA: &str = "libero_agent.private_evaluation.v1";
-
-/// When something was observed. `control_step` counts control steps since the evaluator reset (0 = the reset
-/// state); `substep` is 1…25 inside the control step for substep samples, `None` for control-rate samples.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Tick {
-    pub control_step: u64,
-    pub substep: Option<u32>,
-    pub sim_time_s: f64,
-}
-
-impl Tick {
-    pub fn at_control_step(control_step: u64, sim_time_s: f64) -> Self {
-        Self { control_step, substep: None, sim_time_s }
-    }
-}
-
-/// What a private event records.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum EventKind {
-    /// A stage latched as completed.
-    StageCompleted,
-    /// A completed stage's condition stopped holding (the stage stays completed).
-    StageRegressed,
-    /// A later stage held before the current one (strict-order evaluators; latches failure; `subject` names it
-    /// `<later>_before_<current>`).
-    OrderViolation,
-    /// A forbidden contact was seen (T25: a bowl touched the tabletop; latches failure; `subject` names it
-    /// `<object>_touched_<label>`).
-    ForbiddenContact,
-    /// The first commitment of the episode (see [`CommitmentTracker`]).
-    FirstCommitment,
-    /// Diagnostic: the BDDL goal conjunction became true / false at this tick (never scored).
-    GoalSatisfied,
-    GoalUnsatisfied,
-    /// A spill marker was wiped (T19; `subject` = the marker geom).
-    SpillMarkerCovered,
-    /// The pour counter registered a pour (T20, T24; the pour began 2 control steps before this tick).
-    PourDetected,
-    /// A failure monitor latched a permanent failure (T24 `extra_pour`; `subject` = the monitor's name).
-    FailureLatched,
-}
-
-/// A time-stamped private event (never shown to the agent).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct PrivateEvent {
-    pub kind: EventKind,
-    #[serde(flatten)]
-    pub tick: Tick,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub stage_index: Option<usize>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub stage_name: Option<String>,
-    /// The object or fixture concerned, where there is one.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub subject: Option<String>,
-}
-
-impl PrivateEvent {
-    pub fn new(kind: EventKind, tick: Tick) -> Self {
-        Self { kind, tick, stage_index: None, stage_name: None, subject: None }
-    }
-}
 
 /// One stage of an evaluator.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -337,7 +275,7 @@ pub struct EvaluationRecord {
     /// Per-stage reached / succeeded / regressions / sustained-contact ratio, derived from the fields above by
     /// [`EvaluationRecord::with_stage_diagnostics`] (never filled by evaluators themselves).
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub stage_diagnostics: Vec<crate::judge::diagnostics::StageDiagnostic>,
+    pub stage_diagnostics: Vec<StageDiagnostic>,
     /// The stage types the catalog declares, by stage name (set by the registry's [`crate::judge::annotated`]
     /// wrapper, read by the diagnostics; not part of the record's JSON).
     #[serde(skip)]
@@ -346,6 +284,28 @@ pub struct EvaluationRecord {
     /// the diagnostics, set by the evaluator that knows (not part of the record's JSON).
     #[serde(skip)]
     pub stages_unordered: bool,
+}
+
+/// One stage's diagnostics in the record (computed by [`crate::judge::diagnostics`], which documents each field).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StageDiagnostic {
+    pub stage_name: String,
+    #[serde(rename = "type", skip_serializing_if = "Option::is_none")]
+    pub stage_type: Option<crate::judge::stage_types::StageType>,
+    pub required: bool,
+    pub reached: bool,
+    pub succeeded: bool,
+    /// Control step at which the stage first completed.
+    pub completed_control_step: Option<u64>,
+    pub regressions: u32,
+    pub regressed_during_later_stage: bool,
+    /// Share of the operation's control steps inside gripper–mechanism contact runs of ≥ 5 steps (stages with a
+    /// monitored mechanism operation; `None` elsewhere).
+    pub sustained_contact_ratio_percent: Option<f64>,
+    pub contact_exec_steps: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub operation: Option<crate::judge::mechanism::OperationKind>,
+    pub failure_reason: Option<String>,
 }
 
 impl EvaluationRecord {
@@ -380,11 +340,6 @@ impl EvaluationRecord {
         }
     }
 
-    /// The record with its per-stage diagnostics filled in (see [`crate::judge::diagnostics`]).
-    pub fn with_stage_diagnostics(mut self) -> Self {
-        self.stage_diagnostics = crate::judge::diagnostics::stage_diagnostics(&self);
-        self
-    }
 }
 
 /// A private evaluator. Implementations own whatever scene index they need; they only read the data.

@@ -5,6 +5,7 @@ pub mod annotated;
 pub mod commitment;
 pub mod diagnostics;
 pub mod evaluator;
+pub mod events;
 pub mod goal;
 pub mod mechanism;
 pub mod pouring;

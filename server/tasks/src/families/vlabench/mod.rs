@@ -17,13 +17,18 @@ use crate::expert::{Expert, SceneRefs};
 
 /// The tasks this family scripts, with their near-miss behaviours.
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    expert::behaviours(task_id).or_else(|| seesaw_expert::behaviours(task_id)).or_else(|| cluster_expert::behaviours(task_id))
+    expert::behaviours(task_id)
+        .or_else(|| seesaw_expert::behaviours(task_id))
+        .or_else(|| seesaw_pool_expert::behaviours(task_id))
+        .or_else(|| cluster_expert::behaviours(task_id))
 }
 
 /// This family's expert for `task_id` (one of [`behaviours`]).
 pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
     if seesaw_expert::behaviours(task_id).is_some() {
         seesaw_expert::build(task_id, behaviour, refs)
+    } else if seesaw_pool_expert::behaviours(task_id).is_some() {
+        seesaw_pool_expert::build(task_id, behaviour, refs)
     } else if cluster_expert::behaviours(task_id).is_some() {
         cluster_expert::build(task_id, behaviour, refs)
     } else {

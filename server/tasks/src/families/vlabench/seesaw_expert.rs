@@ -19,15 +19,10 @@ use crate::expert::motion::{
 use crate::expert::{Expert, SOLVE, SceneRefs};
 use crate::TasksError;
 
-/// The pool's adaptive seesaw (`vlabench_physical/1`) and weight comparison (`vlabench_physical/2`), by reference.
-pub const ADAPTIVE: &str = "vlabench_physical/adaptive_seesaw_usage";
-pub const COMPARISON: &str = "vlabench_physical/active_weight_comparison";
-
+/// T30's behaviours (the pool's seesaw variants, which reuse this script's pieces, are in `seesaw_pool_expert`).
 pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
     Some(match task_id {
         "T30" => &["partial_1", "partial_2", "partial_3", "undo", "lift_by_hand"],
-        ADAPTIVE => &["light_pair", "partial_3"],
-        COMPARISON => &["skip_probing", "lighter_in_basket"],
         _ => return None,
     })
 }
@@ -35,8 +30,6 @@ pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
 pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
     match task_id {
         "T30" => seesaw(refs, behaviour),
-        ADAPTIVE => super::seesaw_pool_expert::adaptive(refs, behaviour),
-        COMPARISON => super::seesaw_pool_expert::comparison(refs, behaviour),
         _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
     }
 }
