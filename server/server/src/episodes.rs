@@ -793,29 +793,21 @@ impl Episodes {
 
     /// Ends one episode (aborted with `reason` unless it already ended); false if this server does not hold it.
     pub fn stop(&self, id: &str, reason: &str) -> bool {
-        let entry = self.map.read().ok().and_then(|m| m.get(id).cloned());
-        match entry {
-            Some(e) => {
-                e.handle.stop(reason);
-                e.log.follow(id, &e.handle.status());
-                true
-            }
-            None => false,
-        }
+        self.end_with(id, |h| h.stop(reason))
     }
 
     /// Ends one unfinished episode as its agent's FAIL (the agent ended without `finish_episode`); false if this
     /// server does not hold it.
     pub fn forfeit(&self, id: &str, reason: &str) -> bool {
-        let entry = self.map.read().ok().and_then(|m| m.get(id).cloned());
-        match entry {
-            Some(e) => {
-                e.handle.forfeit(reason);
-                e.log.follow(id, &e.handle.status());
-                true
-            }
-            None => false,
-        }
+        self.end_with(id, |h| h.forfeit(reason))
+    }
+
+    /// Runs `end` on `id`'s handle and records the state it leaves; false if this server does not hold it.
+    fn end_with(&self, id: &str, end: impl FnOnce(&EpisodeHandle)) -> bool {
+        let Some(e) = self.map.read().ok().and_then(|m| m.get(id).cloned()) else { return false };
+        end(&e.handle);
+        e.log.follow(id, &e.handle.status());
+        true
     }
 
     /// Records every unfinished episode as aborted with `reason` (server shutdown), waiting at most `timeout`

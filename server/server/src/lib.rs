@@ -746,42 +746,35 @@ struct AbortRequest {
 }
 
 /// Ends an open episode as aborted (INVALID) with the caller's reason: the batch runner's answer to an agent
-/// that exited or was killed before `finish_episode` (the original launcher killed its server instead).
-/// A finished episode is left as it is.
+/// that exited or was killed before `finish_episode` without the sandbox (the original launcher killed its
+/// server instead). A finished episode is left as it is.
 async fn abort_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> Response {
-    let reason = match serde_json::from_slice::<AbortRequest>(&body) {
-        Ok(r) if !r.reason.trim().is_empty() => r.reason,
-        _ => return json_error(StatusCode::BAD_REQUEST, "body must be {\"reason\": \"…\"}"),
-    };
-    let eps = app.episodes.clone();
-    let id2 = id.clone();
-    match tokio::task::spawn_blocking(move || eps.stop(&id2, &reason)).await {
-        Ok(true) => {
-            app.sync(&id).await;
-            episode_status(State(app), Path(id)).await
-        }
-        Ok(false) => json_error(StatusCode::NOT_FOUND, format!("no open episode {id} on this server")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("abort failed: {e}")),
-    }
+    end_episode(app, id, body, false).await
 }
 
 /// `POST /api/episodes/{id}/forfeit {"reason": "…"}`: the runner's word that the agent's harness ended without
 /// `finish_episode`. The episode ends as the agent's FAIL (never INVALID: nothing an agent does may earn it a
 /// rerun); an episode that already ended is left as it is. Operator-only, as abort.
 async fn forfeit_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> Response {
+    end_episode(app, id, body, true).await
+}
+
+/// Abort or forfeit: the reason (at most 1000 characters kept), the ending on a blocking thread, the store synced.
+async fn end_episode(app: AppState, id: String, body: axum::body::Bytes, forfeit: bool) -> Response {
     let reason = match serde_json::from_slice::<AbortRequest>(&body) {
         Ok(r) if !r.reason.trim().is_empty() => r.reason.chars().take(1000).collect::<String>(),
         _ => return json_error(StatusCode::BAD_REQUEST, "body must be {\"reason\": \"…\"}"),
     };
     let eps = app.episodes.clone();
     let id2 = id.clone();
-    match tokio::task::spawn_blocking(move || eps.forfeit(&id2, &reason)).await {
+    let ended = tokio::task::spawn_blocking(move || if forfeit { eps.forfeit(&id2, &reason) } else { eps.stop(&id2, &reason) });
+    match ended.await {
         Ok(true) => {
             app.sync(&id).await;
             episode_status(State(app), Path(id)).await
         }
         Ok(false) => json_error(StatusCode::NOT_FOUND, format!("no open episode {id} on this server")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("forfeit failed: {e}")),
+        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("ending the episode failed: {e}")),
     }
 }
 
