@@ -116,7 +116,8 @@ impl ServeProcess {
         std::fs::create_dir_all(data).with_context(|| format!("creating {}", data.display()))?;
         let log = data.join("serve.log");
         let mut child = Command::new(std::env::current_exe().context("which binary is this?")?)
-            .args(["serve", "--addr", "127.0.0.1:0", "--data"])
+            // Thumbnails rendered ahead at start would be counted as the idle server's memory and CPU.
+            .args(["serve", "--addr", "127.0.0.1:0", "--thumbnails-ahead", "off", "--data"])
             .arg(data)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())

@@ -45,6 +45,9 @@ pub struct WorldPhysics {
     pub evaluator: Box<dyn Evaluator>,
     /// Control steps since the evaluator reset.
     pub control_step: u64,
+    /// The scene as compiled, before this world's edits: held so that the next world of the scene copies it
+    /// instead of compiling again (`libero_sim::shared_model::compiled`).
+    _compiled: Arc<MjModel>,
 }
 
 impl WorldPhysics {
@@ -55,7 +58,7 @@ impl WorldPhysics {
         edit_model: impl FnOnce(&ComposedScene, &mut MjModel, &[f64]) -> Result<(), EpisodeError>,
     ) -> Result<Self, EpisodeError> {
         let scene = compose_file(&spec.task.bddl, &spec.paths)?;
-        let mut model = scene.compile()?;
+        let (mut model, compiled) = scene.compile_shared()?;
         let suite = spec.task.suite.as_ref();
         let layout = spec.task.effective_layout(spec.seed, spec.init_index)?;
         let placement = match adjusted_table_regions(&scene, layout.region_margin_m, layout.scene_shift_m) {
@@ -85,7 +88,28 @@ impl WorldPhysics {
             None => reset_row.clone(),
         };
         let settle_before_restore = suite.is_some_and(|s| s.settle_before_restore);
-        Ok(Self { scene, sim, start_row, reset_row, settle_before_restore, evaluator, control_step: 0 })
+        Ok(Self { scene, sim, start_row, reset_row, settle_before_restore, evaluator, control_step: 0, _compiled: compiled })
+    }
+
+    /// Another world as [`Self::build`] from the same `spec` leaves it, without composing or compiling again: the
+    /// same shared model (placement, private edits and site visibility included), a fresh `mjData` and a new
+    /// evaluator. Bit-identical to a second build: `build` only reads its simulation, and the evaluator is built
+    /// from the same scene and model, whose only later edit (site colours for the images) no evaluator reads.
+    /// Whatever state `self` has reached, the fork starts from the build state.
+    pub fn fork(&self, spec: &WorldSpec) -> Result<Self, EpisodeError> {
+        let suite = spec.task.suite.as_ref();
+        let evaluator = build_evaluator(suite.map(|s| &s.checker), suite.map(|s| s.id.as_str()), &self.scene, self.model())
+            .map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
+        Ok(Self {
+            scene: self.scene.clone(),
+            sim: Simulation::new(self.model().clone())?,
+            start_row: self.start_row.clone(),
+            reset_row: self.reset_row.clone(),
+            settle_before_restore: self.settle_before_restore,
+            evaluator,
+            control_step: 0,
+            _compiled: self._compiled.clone(),
+        })
     }
 
     pub fn model(&self) -> &Arc<MjModel> {

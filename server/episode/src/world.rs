@@ -28,7 +28,7 @@ pub const WRIST_CAMERA: &str = "robot0_eye_in_hand";
 
 pub struct LiberoWorld {
     physics: WorldPhysics,
-    /// What the world was built from: the live view's preview of the start state builds a twin from it.
+    /// What the world was built from: the live view's preview of the start state forks its physics with it.
     spec: WorldSpec,
     /// A branch's replayed prefix: the parent episode's first actions, run by [`World::start`] after settling,
     /// the evaluator observing them (see [`LiberoWorld::set_start_prefix`]). Empty for an ordinary episode.
@@ -127,10 +127,10 @@ impl LiberoWorld {
     }
 
     /// The state [`World::start`] will leave (settled, branch prefix replayed) and its sim time, for the live view
-    /// before the start: the same start run on a twin of this world's physics built from the same spec, so it
-    /// is that state bit for bit (the determinism contract) and the episode's own simulation is not touched.
+    /// before the start: the same start run on a fork of this world's physics (its model, fresh state), so it is
+    /// that state bit for bit (the determinism contract) and the episode's own simulation is not touched.
     fn start_preview(&self) -> Result<(FrameState, f64), EpisodeError> {
-        let mut twin = WorldPhysics::build(&self.spec, observation_site_visibility)?;
+        let mut twin = self.physics.fork(&self.spec)?;
         let mut toggles = self.toggles.clone();
         toggles.reset();
         twin.start(|sim| toggles.after_step(sim.data().qpos()))?;

@@ -747,6 +747,8 @@ impl Episodes {
             self.close_live(id);
         }
         if !due.is_empty() {
+            // Models other episodes' models read their large arrays from, now that no such episode is left.
+            libero_sim::shared_model::release_unused();
             let _ = tokio::task::spawn_blocking(crate::memory::return_freed_memory).await;
         }
         due.into_iter().map(|(id, _)| id).collect()

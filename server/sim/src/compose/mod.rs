@@ -294,6 +294,13 @@ pub struct ComposedScene {
 }
 
 impl ComposedScene {
+    /// [`Self::compile`], once per scene while an episode of it is alive: returns a private copy to edit and the
+    /// compiled scene it was copied from, which the caller holds for as long as it uses the copy (see
+    /// [`crate::shared_model::compiled`]).
+    pub fn compile_shared(&self) -> Result<(MjModel, std::sync::Arc<MjModel>), SimError> {
+        crate::shared_model::compiled(&self.mjcf, || self.compile())
+    }
+
     /// Compile through MuJoCo's model-editing API.
     pub fn compile(&self) -> Result<MjModel, SimError> {
         if self.mjcf.contains('\0') {
