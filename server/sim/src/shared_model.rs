@@ -61,23 +61,27 @@ static DERIVED: LazyLock<Mutex<Vec<(Weak<MjModel>, Arc<MjModel>)>>> = LazyLock::
 /// after this point may touch it: it is shared read-only).
 pub fn share(model: MjModel) -> Arc<MjModel> {
     release_unused();
-    let Some(key) = content_key(&model) else { return Arc::new(model) };
+    let mut model = model;
+    let base = BASES.lock().ok().and_then(|bases| bases.iter().filter_map(Weak::upgrade).find(|b| same_layout(b, &model)));
+    // SAFETY: `base` is alive and kept alive (below, in DERIVED) for as long as `model` is; `model` is ours alone.
+    let derived = base.and_then(|base| unsafe { read_large_arrays_from(&base, &mut model) }.map(|key| (base, key)));
+    // A derived model's identity is its base's and its own arrays' (a hash of a few MB); any other model's is
+    // its whole serialisation (hundreds of MB, hashed once per scene).
+    let key = match &derived {
+        Some((_, key)) => *key,
+        None => match content_key(&model) {
+            Some(key) => key,
+            None => return Arc::new(model),
+        },
+    };
     let Ok(mut cache) = MODELS.lock() else { return Arc::new(model) };
     if let Some(alive) = cache.get(&key).and_then(Weak::upgrade) {
         return alive;
     }
     cache.retain(|_, m| m.strong_count() > 0);
-    let mut model = model;
-    let base = BASES.lock().ok().and_then(|bases| bases.iter().filter_map(Weak::upgrade).find(|b| same_layout(b, &model)));
-    let derived = base.and_then(|base| {
-        // SAFETY: `base` is alive and kept alive (below) for as long as `model` is; `model` is ours alone.
-        let private = unsafe { read_large_arrays_from(&base, &mut model) }?;
-        log::debug!("model shares its large arrays with a live model of its scene; {private} bytes of its own");
-        Some(base)
-    });
     let model = Arc::new(model);
     match derived {
-        Some(base) => {
+        Some((base, _)) => {
             if let Ok(mut d) = DERIVED.lock() {
                 d.push((Arc::downgrade(&model), base));
             }
@@ -227,13 +231,15 @@ fn same_layout(a: &MjModel, b: &MjModel) -> bool {
 }
 
 /// Points `model`'s large arrays that equal `base`'s at `base`'s, and moves the rest into a new private buffer
-/// (freeing the old one). Returns the private buffer's size, or `None` (and leaves `model` as it was) when the
-/// layouts differ, the base is itself derived, or nothing large is in common.
+/// (freeing the old one). Returns the derived model's identity: a SHA-256 of the base's address (alive as long
+/// as the derived model), the model's counts, options and signature, and per array in buffer order whether it
+/// is the base's or its own bytes. `None` (and `model` as it was) when the layouts differ, the base is itself
+/// derived, or nothing large is in common.
 ///
 /// # Safety
 /// `base` must outlive `model`'s use of it (the caller keeps it alive while `model` is); `model` must not be
 /// in use elsewhere.
-unsafe fn read_large_arrays_from(base: &MjModel, model: &mut MjModel) -> Option<usize> {
+unsafe fn read_large_arrays_from(base: &MjModel, model: &mut MjModel) -> Option<[u8; 32]> {
     if !same_layout(base, model) {
         return None;
     }
@@ -254,16 +260,27 @@ unsafe fn read_large_arrays_from(base: &MjModel, model: &mut MjModel) -> Option<
     let mut shared_len = 0usize;
     let mut offsets: Vec<(&usize, &usize)> = ext_m.iter().collect();
     offsets.sort_unstable();
+    let mut identity = Sha256::new();
+    identity.update((b as *const mjModel as usize).to_le_bytes());
+    // SAFETY: the struct's bytes before `buffer` are counts and the option/visual/statistic structs.
+    identity.update(unsafe { std::slice::from_raw_parts((m as *const mjModel).cast::<u8>(), offset_of!(mjModel, buffer)) });
+    identity.update(m.signature.to_le_bytes());
     for (&off, &len) in offsets {
         // SAFETY: both arrays lie within their buffers (`extents`), `len` bytes from `off`.
         let equal = len >= SHARED_ARRAY_MIN_BYTES
             && unsafe {
                 std::slice::from_raw_parts((lo_m + off) as *const u8, len) == std::slice::from_raw_parts((lo_b + off) as *const u8, len)
             };
+        identity.update((off as u64).to_le_bytes());
+        identity.update((len as u64).to_le_bytes());
         if equal {
+            identity.update([0u8]);
             plan.insert(off, None);
             shared_len += len;
         } else {
+            identity.update([1u8]);
+            // SAFETY: as above.
+            identity.update(unsafe { std::slice::from_raw_parts((lo_m + off) as *const u8, len) });
             plan.insert(off, Some(private_len));
             private_len += len.div_ceil(ARRAY_ALIGN) * ARRAY_ALIGN;
         }
@@ -303,5 +320,6 @@ unsafe fn read_large_arrays_from(base: &MjModel, model: &mut MjModel) -> Option<
     m.buffer = private as *mut std::ffi::c_void;
     // SAFETY: the old buffer was allocated by MuJoCo (mju_malloc) and nothing points into it any more.
     unsafe { mju_free(old) };
-    Some(private_len)
+    log::debug!("model reads {shared_len} bytes of arrays from its scene's model; {private_len} bytes of its own");
+    Some(identity.finalize().into())
 }
