@@ -9,6 +9,9 @@ setup:
 serve: setup
 	cargo run --release -p libero-agent --features episode-serve -- serve --addr $(ADDR)
 
+# Every feature combination the manifests offer compiles too (the offline toolkit without `episode-serve`, the
+# protocol core without `world`): only `cargo check`, since each is its own dependency graph (about 1 min).
 test:
 	python3 scripts/setup.py --test
+	cargo check --quiet -p libero-agent -p libero-episode -p libero-store --no-default-features
 	cargo test --workspace --no-fail-fast

@@ -3,8 +3,12 @@
 //! run's result record as one JSON object per line. With `--server`, the episodes are prepared on that server and
 //! driven over MCP, so they show in its dashboard; otherwise they run in this process under `--data`.
 //!
-//! `expert --all [--suite S] [--runs N]`: every task with an expert (the release tasks and the 130 stock LIBERO
-//! tasks of the generic expert), one JSON line per task, then a table and the line "N of M solved k/k".
+//! `--behaviour solve,idle,push_half` or `--behaviour all` plays several behaviours in one process (one renderer,
+//! one data directory), one record per run as for a single behaviour.
+//!
+//! `expert --all [--suite S] [--runs N] [--jobs N]`: every entry with an expert (the release tasks, the 130 stock
+//! LIBERO tasks of the generic expert and the pool's own definitions), one JSON line per task, then a table and the
+//! line "N of M solved k/k"; see `cmd_expert_all`.
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -38,8 +42,8 @@ pub struct ExpertArgs {
     #[arg(long, conflicts_with_all = ["task", "list", "server", "trace", "demo_out"])]
     pub all: bool,
     /// With `--all`: only this suite (`release`, `libero_spatial`, `libero_object`, `libero_goal`, `libero_10`,
-    /// `libero_90`, `stock` for all five stock suites, or a pool suite such as `robomemarena` for its entries with a
-    /// definition and an expert of their own); repeatable, or comma-separated.
+    /// `libero_90`, `stock` for all five stock suites, a pool suite such as `robomemarena` for its entries with a
+    /// definition and an expert of their own, or `all` for everything); repeatable, or comma-separated.
     #[arg(long, value_delimiter = ',')]
     pub suite: Vec<String>,
     /// With `--all`: only tasks whose id contains one of these (repeatable, or comma-separated).
@@ -48,13 +52,24 @@ pub struct ExpertArgs {
     /// With `--all`: print only the JSON lines (the summary as a last JSON line), no table.
     #[arg(long)]
     pub json: bool,
-    /// How many episodes to run.
+    /// With `--all`: run this many tasks at a time, each on its own thread (the rows are the same as with 1).
+    #[arg(long, default_value_t = 1, requires = "all")]
+    pub jobs: usize,
+    /// With `--all`: write the sweep table here (one JSON row per entry) and its metadata beside it
+    /// (`<name>.meta.json`). Default: `tasks/results/expert_sweep.jsonl` for an unfiltered `--suite all`, else none.
+    #[arg(long, requires = "all")]
+    pub out: Option<PathBuf>,
+    /// With `--all`: run nothing; print the sweep file (`--out`, or the default) as a Markdown table per suite.
+    #[arg(long, requires = "all")]
+    pub markdown: bool,
+    /// How many episodes to run (of each behaviour; with `--behaviour all`, of `solve`).
     #[arg(long, default_value_t = 1)]
     pub runs: u32,
-    /// `solve`, `idle` (start, then finish), or one of the task's near-miss behaviours (see `--list`).
+    /// `solve`, `idle` (start, then finish), or one of the task's near-miss behaviours (see `--list`); several
+    /// comma-separated, or `all`: `solve` `--runs` times, then `idle` and every near-miss once each.
     #[arg(long, default_value = expert::SOLVE)]
     pub behaviour: String,
-    /// List the tasks with experts and their behaviours, then exit.
+    /// List every entry with an expert (release, stock and pool) and its behaviours, one JSON line each, then exit.
     #[arg(long)]
     pub list: bool,
     /// A running `libero-agent serve` to run the episodes on (watchable in its dashboard).
@@ -173,17 +188,40 @@ impl ToolPort for McpPort {
     }
 }
 
-/// Tasks of the catalog with an expert, and their behaviours.
+/// Every entry with an expert and its behaviours, one JSON line each: the release tasks first, then the stock
+/// LIBERO tasks and the pool's own definitions, in the order `expert --all` runs them.
 fn list() -> anyhow::Result<()> {
-    let catalog = libero_tasks::Catalog::discover()?;
-    for entry in catalog.tasks() {
-        if let Some(b) = libero_tasks::expert_behaviours(&entry.id) {
+    for t in crate::cmd_expert_all::selected_tasks(&[crate::cmd_expert_all::ALL.to_owned()])? {
+        if let Some(b) = libero_tasks::expert_behaviours(&t.task) {
             let all: Vec<&str> = [expert::SOLVE, IDLE].into_iter().chain(b.iter().copied()).collect();
-            let line = json!({"task": entry.id, "behaviours": all});
+            let mut line = json!({"task": t.task, "suite": t.suite, "behaviours": all});
+            if let Some(entry) = &t.entry {
+                line["entry"] = json!(entry);
+            }
             println!("{line}");
         }
     }
     Ok(())
+}
+
+/// The `(behaviour, runs)` that `--behaviour` asks of `task_id`, checked against its expert before anything runs.
+fn behaviour_plan(task_id: &str, asked: &str, runs: u32) -> anyhow::Result<Vec<(String, u32)>> {
+    let known = libero_tasks::expert_behaviours(task_id).unwrap_or_default();
+    if asked.trim() == "all" {
+        let rest = [IDLE].into_iter().chain(known.iter().copied()).map(|b| (b.to_owned(), 1));
+        return Ok([(expert::SOLVE.to_owned(), runs)].into_iter().chain(rest).collect());
+    }
+    let mut plan = Vec::new();
+    for b in asked.split(',').map(str::trim).filter(|b| !b.is_empty()) {
+        if b != expert::SOLVE && b != IDLE && !known.contains(&b) {
+            bail!("task {task_id} has no expert behaviour {b:?}; known: {}, {IDLE}, {}", expert::SOLVE, known.join(", "));
+        }
+        plan.push((b.to_owned(), runs));
+    }
+    if plan.is_empty() {
+        bail!("--behaviour names no behaviour");
+    }
+    Ok(plan)
 }
 
 /// `t14` → `T14`; stock ids (`suite/NAME`) and paths as given.
@@ -225,8 +263,7 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
     if args.trace {
         return trace(args, &spec, &task_id);
     }
-    // the episode is the address's (a pool entry keeps its own instruction); the expert is its definition's
-    let request = PrepareRequest { layout: spec.task.layout, ..prepare_request(args, &spec.task.task_ref) };
+    let behaviours = behaviour_plan(&task_id, &args.behaviour, args.runs)?;
     if args.demo_out.is_some() && args.server.is_some() {
         bail!("--demo-out needs the run directories here: run without --server");
     }
@@ -238,84 +275,106 @@ pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
         Some(_) => None,
         None => Some(Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?),
     };
-    let mut failures = 0;
-    for run_index in 1..=args.runs {
-        let progress = |line: &str| eprintln!("[{task_id} {} run {run_index}/{}] {line}", args.behaviour, args.runs);
-        let (mut episode_wall_time_s, mut video_ready_s) = (None, None);
-        let (episode_id, outcome, record, run_dir) = match (&local, &args.server) {
-            (Some(episodes), _) => {
-                let r = run_local(episodes, &request, &spec, &task_id, &args.behaviour, args.max_actions, args.pace, &progress)?;
-                (episode_wall_time_s, video_ready_s) = (r.episode_wall_time_s, r.video_ready_s);
-                (r.episode_id, r.outcome, r.record, Some(r.run_dir))
-            }
-            (None, Some(server)) => {
-                let prepared = prepare_episode(server, &request)?;
-                let token = prepared.mcp_headers.get("Authorization").context("no token in the server's reply")?;
-                let token = token.trim_start_matches("Bearer ");
-                let mut port = McpPort(McpClient::connect_with_token(&prepared.mcp_url, token, "libero-agent-expert")?);
-                let episode_id = prepared.episode_id;
-                let outcome = run_expert(&mut Paced::new(&mut port, args.pace), &spec, &task_id, &args.behaviour, args.max_actions, progress);
-                (episode_id, outcome, None, None)
-            }
-            (None, None) => unreachable!("either local or remote"),
-        };
-        let run = outcome.with_context(|| format!("{task_id} run {run_index} ({episode_id})"))?;
-        let record = record.unwrap_or_else(|| run.replica_record.clone());
-        let success = record["success"].as_bool().unwrap_or(false);
-        failures += u32::from(!success && args.behaviour == expert::SOLVE);
-        let demo = match (&args.demo_out, &renderer, &run_dir) {
-            (Some(lib), Some(renderer), Some(run_dir)) if success => {
-                let out = library::bundle_dir(lib, &spec.task.task_ref, &episode_id);
-                let options = RecordOptions {
-                    source_type: "scripted_expert".into(),
-                    source_desc: format!("libero-agent expert --behaviour {}", args.behaviour),
-                };
-                let s = record_bundle(run_dir, &out, &options, renderer.clone(), &spec.paths)
-                    .with_context(|| format!("recording the demonstration of {episode_id}"))?;
-                progress(&format!("demonstration {} ({} frames, verified {})", out.display(), s.frame_count, s.verified));
-                json!({"dir": out, "frame_count": s.frame_count, "verified": s.verified})
-            }
-            _ => Value::Null,
-        };
-        let line = json!({
-            "task": task_id,
-            "behaviour": args.behaviour,
-            "pace": args.pace,
-            "run": run_index,
-            "episode_id": episode_id,
-            "success": success,
-            "completed_stage_count": record["completed_required_stage_count"],
-            "required_stage_count": record["required_stage_count"],
-            "completed_stage_names": record["completed_stage_names"],
-            "stage_regressions": record["stage_regressions"],
-            "stage_diagnostics": record["stage_diagnostics"],
-            "failure_reason": record["failure_reason"],
-            "first_commitment": record["first_commitment"],
-            "judgment_correct": record["judgment_correct"],
-            "osc_sequence_calls": run.osc_calls,
-            "actions": run.actions,
-            "demo": demo,
-            "episode_wall_time_s": episode_wall_time_s,
-            "video_ready_s": video_ready_s,
-        });
-        println!("{line}");
+    let (mut failures, mut solves) = (0, 0);
+    for (behaviour, runs) in &behaviours {
+        // the episode is the address's (a pool entry keeps its own instruction); the expert is its definition's
+        let request = PrepareRequest { layout: spec.task.layout, ..prepare_request(args, &spec.task.task_ref, behaviour) };
+        solves += if behaviour == expert::SOLVE { *runs } else { 0 };
+        for run_index in 1..=*runs {
+            let outcome = run_once(args, &spec, &task_id, behaviour, (run_index, *runs), &request, local.as_ref(), renderer.as_ref())?;
+            failures += u32::from(!outcome && behaviour == expert::SOLVE);
+        }
     }
     if failures > 0 {
-        bail!("the {task_id} expert failed {failures} of {} runs", args.runs);
+        bail!("the {task_id} expert failed {failures} of {solves} runs");
     }
     Ok(())
 }
 
+/// One run of `behaviour` (number `run_index` of `runs`): plays it, prints its record, records its demonstration
+/// when asked; whether it succeeded.
+#[allow(clippy::too_many_arguments)] // the run's own settings, passed as given
+fn run_once(
+    args: &ExpertArgs,
+    spec: &WorldSpec,
+    task_id: &str,
+    behaviour: &str,
+    (run_index, runs): (u32, u32),
+    request: &PrepareRequest,
+    local: Option<&Episodes>,
+    renderer: Option<&libero_render::Renderer>,
+) -> anyhow::Result<bool> {
+    let progress = |line: &str| eprintln!("[{task_id} {behaviour} run {run_index}/{runs}] {line}");
+    let (mut episode_wall_time_s, mut video_ready_s) = (None, None);
+    let (episode_id, outcome, record, run_dir) = match (local, &args.server) {
+        (Some(episodes), _) => {
+            let r = run_local(episodes, request, spec, task_id, behaviour, args.max_actions, args.pace, &progress)?;
+            (episode_wall_time_s, video_ready_s) = (r.episode_wall_time_s, r.video_ready_s);
+            (r.episode_id, r.outcome, r.record, Some(r.run_dir))
+        }
+        (None, Some(server)) => {
+            let prepared = prepare_episode(server, request)?;
+            let token = prepared.mcp_headers.get("Authorization").context("no token in the server's reply")?;
+            let token = token.trim_start_matches("Bearer ");
+            let mut port = McpPort(McpClient::connect_with_token(&prepared.mcp_url, token, "libero-agent-expert")?);
+            let episode_id = prepared.episode_id;
+            let outcome = run_expert(&mut Paced::new(&mut port, args.pace), spec, task_id, behaviour, args.max_actions, progress);
+            (episode_id, outcome, None, None)
+        }
+        (None, None) => unreachable!("either local or remote"),
+    };
+    let run = outcome.with_context(|| format!("{task_id} run {run_index} ({episode_id})"))?;
+    let record = record.unwrap_or_else(|| run.replica_record.clone());
+    let success = record["success"].as_bool().unwrap_or(false);
+    let demo = match (&args.demo_out, renderer, &run_dir) {
+        (Some(lib), Some(renderer), Some(run_dir)) if success => {
+            let out = library::bundle_dir(lib, &spec.task.task_ref, &episode_id);
+            let options = RecordOptions {
+                source_type: "scripted_expert".into(),
+                source_desc: format!("libero-agent expert --behaviour {}", behaviour),
+            };
+            let s = record_bundle(run_dir, &out, &options, renderer.clone(), &spec.paths)
+                .with_context(|| format!("recording the demonstration of {episode_id}"))?;
+            progress(&format!("demonstration {} ({} frames, verified {})", out.display(), s.frame_count, s.verified));
+            json!({"dir": out, "frame_count": s.frame_count, "verified": s.verified})
+        }
+        _ => Value::Null,
+    };
+    let line = json!({
+        "task": task_id,
+        "behaviour": behaviour,
+        "pace": args.pace,
+        "run": run_index,
+        "episode_id": episode_id,
+        "success": success,
+        "completed_stage_count": record["completed_required_stage_count"],
+        "required_stage_count": record["required_stage_count"],
+        "completed_stage_names": record["completed_stage_names"],
+        "stage_regressions": record["stage_regressions"],
+        "stage_diagnostics": record["stage_diagnostics"],
+        "failure_reason": record["failure_reason"],
+        "first_commitment": record["first_commitment"],
+        "judgment_correct": record["judgment_correct"],
+        "osc_sequence_calls": run.osc_calls,
+        "actions": run.actions,
+        "demo": demo,
+        "episode_wall_time_s": episode_wall_time_s,
+        "video_ready_s": video_ready_s,
+    });
+    println!("{line}");
+    Ok(success)
+}
+
 /// The episode an expert run of `task_id` prepares (the agent step cap, so that budgets never end a run early).
 /// The dashboard's table shows and filters it as harness `expert`, model = the behaviour, batch = this command.
-pub(crate) fn prepare_request(args: &ExpertArgs, task_id: &str) -> PrepareRequest {
+pub(crate) fn prepare_request(args: &ExpertArgs, task_id: &str, behaviour: &str) -> PrepareRequest {
     PrepareRequest {
         level: args.level,
         seed: args.seed,
         max_agent_steps: libero_episode::tools::MAX_AGENT_STEPS_CAP,
         video: !args.no_video,
         harness: Some("expert".into()),
-        model: Some(args.behaviour.clone()),
+        model: Some(behaviour.to_owned()),
         batch: Some(expert_batch().to_owned()),
         ..PrepareRequest::new(task_id.to_owned())
     }

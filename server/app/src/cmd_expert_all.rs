@@ -1,9 +1,18 @@
-//! `libero-agent expert --all [--suite S] [--filter PART] [--runs N] [--no-video] [--json]`: the solvability table. Every release task
-//! with a scripted expert, every stock LIBERO task (the generic expert, planned from its BDDL goal) and every pool
-//! entry with a definition of its own and an expert (RoboMemArena tasks, …) runs its
-//! solving expert `--runs` times in this process; one JSON line per task, then a table and the summary line
-//! "N of M solved k/k". A stock task whose goal the generic expert cannot plan is listed as "no expert" with the atom
-//! it could not plan.
+//! `libero-agent expert --all [--suite S] [--filter PART] [--runs N] [--jobs N] [--no-video] [--json] [--out PATH]`:
+//! the solvability table. Every release task with a scripted expert, every stock LIBERO task (the generic expert,
+//! planned from its BDDL goal) and every pool entry with a definition of its own and an expert (RoboMemArena tasks,
+//! …) runs its solving expert `--runs` times in this process, `--jobs` tasks at a time; one JSON line per task (in
+//! task order whatever `--jobs`), then a table and the summary line "N of M solved k/k". A stock task whose goal the
+//! generic expert cannot plan is listed as "no expert" with the atom it could not plan; a task that errors keeps its
+//! row, with the error. Progress (done/total, failures so far, time left) goes to stderr.
+//!
+//! The table is written to `--out` (default `tasks/results/expert_sweep.jsonl` for an unfiltered `--suite all`)
+//! with `<name>.meta.json` beside it (date, commit, command line, cores): the dashboard's task pages show it.
+//! `--markdown` prints that file as the README's table per suite instead of running anything.
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -20,17 +29,31 @@ use libero_server::episodes::Episodes;
 
 /// The suite name `--suite release` selects (the 30 release tasks).
 const RELEASE: &str = "release";
+/// The suite name that selects everything: release, stock and the pool's own definitions.
+pub(crate) const ALL: &str = "all";
 
-/// `(suite, task id)` of every task `--suite` selects: release tasks first, then stock tasks by suite in task
-/// order, then the pool's own definitions with an expert, by suite.
-fn selected_tasks(suites: &[String]) -> anyhow::Result<Vec<(String, String)>> {
+/// One entry a sweep runs.
+#[derive(Debug, Clone)]
+pub(crate) struct SweepTask {
+    /// `release`, a stock suite or a pool suite.
+    pub suite: String,
+    /// The id the expert runs under: `T14`, `libero_90/<NAME>`, `robomemarena/<name>`.
+    pub task: String,
+    /// The pool address of a pool entry (`libero_90/35`): its dashboard page.
+    pub entry: Option<String>,
+}
+
+/// Every task `--suite` selects: release tasks first, then stock tasks by suite in task order, then the pool's own
+/// definitions with an expert, by suite.
+pub(crate) fn selected_tasks(suites: &[String]) -> anyhow::Result<Vec<SweepTask>> {
     let stock = |s: &str| libero_tasks::STOCK_SUITES.contains(&s);
-    let wanted = |s: &str| suites.is_empty() || suites.iter().any(|w| w == s || (w == "stock" && stock(s)));
+    let everything = suites.is_empty() || suites.iter().any(|w| w == ALL);
+    let wanted = |s: &str| everything || suites.iter().any(|w| w == s || (w == "stock" && stock(s)));
     let registered = |s: &str| libero_tasks::pool::REGISTERED_SUITES.iter().any(|(r, _)| *r == s);
     for w in suites {
-        if w != RELEASE && w != "stock" && !registered(w) {
+        if w != RELEASE && w != ALL && w != "stock" && !registered(w) {
             bail!(
-                "unknown suite {w:?}: expected {RELEASE}, stock or one of {}",
+                "unknown suite {w:?}: expected {ALL}, {RELEASE}, stock or one of {}",
                 libero_tasks::pool::REGISTERED_SUITES.map(|(s, _)| s).join(", ")
             );
         }
@@ -40,20 +63,20 @@ fn selected_tasks(suites: &[String]) -> anyhow::Result<Vec<(String, String)>> {
         let catalog = libero_tasks::Catalog::discover()?;
         for entry in catalog.tasks() {
             if libero_tasks::expert_behaviours(&entry.id).is_some() {
-                tasks.push((RELEASE.to_owned(), entry.id.clone()));
+                tasks.push(SweepTask { suite: RELEASE.to_owned(), task: entry.id.clone(), entry: None });
             }
         }
     }
     // the stock entries of the pool, in the original's task order
     let pool = libero_tasks::Pool::discover()?;
     for suite in libero_tasks::STOCK_SUITES.iter().filter(|s| wanted(s)) {
-        tasks.extend(pool.select(suite, None).map(|e| (suite.to_string(), e.reference())));
+        tasks.extend(pool.select(suite, None).map(|e| SweepTask { suite: suite.to_string(), task: e.reference(), entry: Some(e.id()) }));
     }
     // entries that run on a definition of their own (not a release task's, not a stock file) and have an expert
     for e in pool.entries().iter().filter(|e| !stock(&e.suite) && wanted(&e.suite)) {
         let own = e.definition.is_some() && e.status() == libero_tasks::pool::EntryStatus::Runs;
         if own && libero_tasks::expert_behaviours(&e.reference()).is_some() {
-            tasks.push((e.suite.clone(), e.reference()));
+            tasks.push(SweepTask { suite: e.suite.clone(), task: e.reference(), entry: Some(e.id()) });
         }
     }
     Ok(tasks)
@@ -78,73 +101,104 @@ fn failed_checks(record: &Value) -> Vec<String> {
     vec![format!("{done} of {} stages", record["required_stage_count"])]
 }
 
+/// The sweep file a full `--suite all` writes by default, where the dashboard reads it.
+pub(crate) fn default_sweep_path() -> PathBuf {
+    libero_tasks::catalog::tasks_dir().join("results").join("expert_sweep.jsonl")
+}
+
+/// `expert_sweep.jsonl` → `expert_sweep.meta.json`.
+fn meta_path(out: &Path) -> PathBuf {
+    let stem = out.file_stem().map_or_else(|| "expert_sweep".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.meta.json"))
+}
+
+/// What the progress line needs from the tasks done so far.
+#[derive(Default)]
+struct Tally {
+    done: usize,
+    failed: usize,
+    task_seconds: f64,
+}
+
 pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
+    if args.markdown {
+        let path = args.out.clone().unwrap_or_else(default_sweep_path);
+        print!("{}", markdown(&read_rows(&path)?));
+        return Ok(());
+    }
     if args.runs == 0 {
         bail!("--runs must be at least 1");
+    }
+    if args.jobs == 0 {
+        bail!("--jobs must be at least 1");
     }
     let level = Level::from_number(args.level).with_context(|| format!("--level must be 1, 2 or 3 (got {})", args.level))?;
     let paths = AssetPaths::discover().context("assets are missing; run `python3 scripts/setup.py`")?;
     let mut tasks = selected_tasks(&args.suite)?;
     if !args.filter.is_empty() {
-        tasks.retain(|(_, id)| args.filter.iter().any(|f| id.contains(f.as_str())));
+        tasks.retain(|t| args.filter.iter().any(|f| t.task.contains(f.as_str())));
     }
     if tasks.is_empty() {
         bail!("no task with an expert matches --suite {:?} --filter {:?}", args.suite, args.filter);
     }
+    // a partial sweep never replaces the whole pool's table unless asked to
+    let whole = args.filter.is_empty() && args.suite.iter().any(|s| s == ALL);
+    let out = args.out.clone().or_else(|| whole.then(default_sweep_path));
     let episodes = Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?;
-    let mut rows = Vec::with_capacity(tasks.len());
-    for (k, (suite, task_id)) in tasks.iter().enumerate() {
-        let started = Instant::now();
-        let spec = WorldSpec { task: resolve_task(task_id, &paths)?, level, seed: args.seed, init_index: 0, paths: paths.clone() };
-        let mut row = json!({"task": task_id, "suite": suite, "runs": args.runs, "successes": 0, "expert": true});
-        match plan(&spec, task_id) {
-            Err(e) => {
-                row["expert"] = json!(false);
-                row["runs"] = json!(0);
-                row["no_expert"] = json!(format!("{e:#}"));
-            }
-            Ok(steps) => {
-                if !steps.is_empty() {
-                    row["plan"] = json!(steps);
-                }
-                let request = prepare_request(args, task_id);
-                let (mut successes, mut failures, mut actions) = (0u32, Vec::new(), Vec::new());
-                for run_index in 1..=args.runs {
-                    let progress = |line: &str| {
-                        if line.starts_with("waiting") || line.starts_with("video") {
-                            eprintln!("[{}/{} {task_id} run {run_index}/{}] {line}", k + 1, tasks.len(), args.runs);
-                        }
+    let (total, jobs) = (tasks.len(), args.jobs.min(tasks.len()));
+    let started = Instant::now();
+    let next = AtomicUsize::new(0);
+    let rows: Mutex<Vec<Option<Value>>> = Mutex::new(vec![None; total]);
+    let tally = Mutex::new(Tally::default());
+    std::thread::scope(|s| {
+        for _ in 0..jobs {
+            s.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, Ordering::SeqCst);
+                    let Some(task) = tasks.get(k) else { break };
+                    let t0 = Instant::now();
+                    let run = std::panic::AssertUnwindSafe(|| sweep_task(args, &episodes, &paths, level, task));
+                    let mut row = match std::panic::catch_unwind(run) {
+                        Ok(Ok(row)) => row,
+                        Ok(Err(e)) => error_row(args, task, format!("{e:#}")),
+                        Err(panic) => error_row(args, task, format!("panicked: {}", panic_text(&*panic))),
                     };
-                    let r = run_local(&episodes, &request, &spec, task_id, expert::SOLVE, args.max_actions, args.pace, &progress)?;
-                    match r.outcome {
-                        Ok(run) => {
-                            let record = r.record.unwrap_or(run.replica_record);
-                            actions.push(run.actions);
-                            if record["success"] == true {
-                                successes += 1;
-                            } else {
-                                failures.push(json!({"run": run_index, "episode_id": r.episode_id, "failed": failed_checks(&record)}));
-                            }
-                        }
-                        Err(e) => failures.push(json!({"run": run_index, "episode_id": r.episode_id, "error": e.to_string()})),
-                    }
+                    let seconds = t0.elapsed().as_secs_f64();
+                    row["seconds"] = json!((seconds * 10.0).round() / 10.0);
+                    let line = {
+                        let mut t = tally.lock().unwrap_or_else(|e| e.into_inner());
+                        t.done += 1;
+                        t.failed += usize::from(!solved(&row, args.runs));
+                        t.task_seconds += seconds;
+                        let left = t.task_seconds / t.done as f64 * (total - t.done) as f64 / jobs as f64;
+                        format!(
+                            "[{}/{total}] {}: {} in {seconds:.1} s; {} failed so far, {} elapsed, about {} left",
+                            t.done,
+                            task.task,
+                            verdict(&row),
+                            t.failed,
+                            clock(started.elapsed().as_secs_f64()),
+                            clock(left)
+                        )
+                    };
+                    eprintln!("{line}");
+                    rows.lock().unwrap_or_else(|e| e.into_inner())[k] = Some(row);
                 }
-                row["successes"] = json!(successes);
-                row["actions"] = json!(actions);
-                if !failures.is_empty() {
-                    row["failures"] = json!(failures);
-                }
-            }
+            });
         }
-        row["wall_time_s"] = json!((started.elapsed().as_secs_f64() * 10.0).round() / 10.0);
-        eprintln!("[{}/{}] {task_id}: {}", k + 1, tasks.len(), verdict(&row));
+    });
+    let rows: Vec<Value> = rows.into_inner().unwrap_or_else(|e| e.into_inner()).into_iter().flatten().collect();
+    for row in &rows {
         println!("{row}");
-        rows.push(row);
     }
-    let solved = rows.iter().filter(|r| r["expert"] == true && r["successes"] == args.runs).count();
-    let summary = format!("{solved} of {} solved {}/{}", rows.len(), args.runs, args.runs);
+    let solved_count = rows.iter().filter(|r| solved(r, args.runs)).count();
+    let summary = format!("{solved_count} of {} solved {}/{}", rows.len(), args.runs, args.runs);
+    if let Some(out) = &out {
+        write_sweep(out, &rows, args, jobs, started.elapsed().as_secs_f64(), &summary)?;
+        eprintln!("wrote {} and {}", out.display(), meta_path(out).display());
+    }
     if args.json {
-        println!("{}", json!({"summary": summary, "solved": solved, "tasks": rows.len(), "runs": args.runs}));
+        println!("{}", json!({"summary": summary, "solved": solved_count, "tasks": rows.len(), "runs": args.runs}));
     } else {
         print_table(&rows);
         println!("{summary}");
@@ -152,10 +206,168 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Whether a row is an expert that solved every run.
+fn solved(row: &Value, runs: u32) -> bool {
+    row["expert"] == true && row["successes"] == runs && row.get("error").is_none()
+}
+
+/// The row of a task whose sweep could not run (it still counts, with the reason).
+fn error_row(args: &ExpertArgs, task: &SweepTask, error: String) -> Value {
+    let mut row = json!({"task": task.task, "suite": task.suite, "runs": args.runs, "successes": 0, "expert": true, "error": error});
+    if let Some(entry) = &task.entry {
+        row["entry"] = json!(entry);
+    }
+    row
+}
+
+fn panic_text(panic: &(dyn std::any::Any + Send)) -> String {
+    panic.downcast_ref::<String>().cloned().or_else(|| panic.downcast_ref::<&str>().map(|s| (*s).to_owned())).unwrap_or_default()
+}
+
+/// `95 s`, `12 min`, `1 h 05 min`.
+fn clock(seconds: f64) -> String {
+    let s = seconds.max(0.0).round() as u64;
+    match s {
+        0..120 => format!("{s} s"),
+        120..3600 => format!("{} min", (s + 30) / 60),
+        _ => format!("{} h {:02} min", s / 3600, (s % 3600 + 30) / 60),
+    }
+}
+
+/// Plans `task` and runs its solving expert `--runs` times: its row (a run that errors is a failure with the error).
+fn sweep_task(args: &ExpertArgs, episodes: &Episodes, paths: &AssetPaths, level: Level, task: &SweepTask) -> anyhow::Result<Value> {
+    let task_id = task.task.as_str();
+    let spec = WorldSpec { task: resolve_task(task_id, paths)?, level, seed: args.seed, init_index: 0, paths: paths.clone() };
+    let mut row = json!({"task": task_id, "suite": task.suite, "runs": args.runs, "successes": 0, "expert": true});
+    if let Some(entry) = &task.entry {
+        row["entry"] = json!(entry);
+    }
+    let steps = match plan(&spec, task_id) {
+        Ok(steps) => steps,
+        Err(e) => {
+            row["expert"] = json!(false);
+            row["runs"] = json!(0);
+            row["no_expert"] = json!(format!("{e:#}"));
+            return Ok(row);
+        }
+    };
+    if !steps.is_empty() {
+        row["plan"] = json!(steps);
+    }
+    let request = prepare_request(args, task_id, expert::SOLVE);
+    let (mut successes, mut failures, mut actions) = (0u32, Vec::new(), Vec::new());
+    for run_index in 1..=args.runs {
+        let progress = |line: &str| {
+            if line.starts_with("waiting") || line.starts_with("video") {
+                eprintln!("[{task_id} run {run_index}/{}] {line}", args.runs);
+            }
+        };
+        let r = run_local(episodes, &request, &spec, task_id, expert::SOLVE, args.max_actions, args.pace, &progress)?;
+        match r.outcome {
+            Ok(run) => {
+                let record = r.record.unwrap_or(run.replica_record);
+                actions.push(run.actions);
+                if record["success"] == true {
+                    successes += 1;
+                } else {
+                    failures.push(json!({"run": run_index, "episode_id": r.episode_id, "failed": failed_checks(&record)}));
+                }
+            }
+            Err(e) => failures.push(json!({"run": run_index, "episode_id": r.episode_id, "error": e.to_string()})),
+        }
+    }
+    row["successes"] = json!(successes);
+    row["actions"] = json!(actions);
+    if !failures.is_empty() {
+        row["failures"] = json!(failures);
+    }
+    Ok(row)
+}
+
+/// `git rev-parse --short HEAD` of the working directory, or `unknown`.
+fn git_commit() -> String {
+    std::process::Command::new("git")
+        .args(["rev-parse", "--short", "HEAD"])
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned())
+        .filter(|c| !c.is_empty())
+        .unwrap_or_else(|| "unknown".into())
+}
+
+/// Writes the rows (one JSON line each, in task order) and the metadata beside them.
+fn write_sweep(out: &Path, rows: &[Value], args: &ExpertArgs, jobs: usize, seconds: f64, summary: &str) -> anyhow::Result<()> {
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let text: String = rows.iter().map(|r| format!("{r}\n")).collect();
+    std::fs::write(out, text).with_context(|| format!("cannot write {}", out.display()))?;
+    let meta = json!({
+        "schema_version": "libero.expert_sweep_meta.v1",
+        "date_utc": format!("{}Z", libero_episode::json::utc_now_iso().chars().take(19).collect::<String>()),
+        "commit": git_commit(),
+        "command": std::env::args().collect::<Vec<_>>().join(" "),
+        "cores": std::thread::available_parallelism().map_or(1, |n| n.get()),
+        "jobs": jobs,
+        "runs": args.runs,
+        "tasks": rows.len(),
+        "summary": summary,
+        "seconds": (seconds * 10.0).round() / 10.0,
+    });
+    let meta_file = meta_path(out);
+    std::fs::write(&meta_file, format!("{meta:#}\n")).with_context(|| format!("cannot write {}", meta_file.display()))?;
+    Ok(())
+}
+
+/// The rows of a sweep file.
+fn read_rows(path: &Path) -> anyhow::Result<Vec<Value>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read the sweep file {}", path.display()))?;
+    text.lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| serde_json::from_str(l).with_context(|| format!("{}: not a JSON row: {l}", path.display())))
+        .collect()
+}
+
+/// The README's pool table: per suite, its entries, how many have an expert, and how many it solved every run.
+fn markdown(rows: &[Value]) -> String {
+    let mut suites: BTreeMap<String, (usize, usize, usize)> = BTreeMap::new();
+    let mut order = Vec::new();
+    // summary lines (older tables end with one) are not entries
+    for r in rows.iter().filter(|r| r["task"].is_string()) {
+        let suite = r["suite"].as_str().unwrap_or("?").to_owned();
+        if !suites.contains_key(&suite) {
+            order.push(suite.clone());
+        }
+        let e = suites.entry(suite).or_default();
+        let runs = r["runs"].as_u64().unwrap_or(0);
+        e.0 += 1;
+        e.1 += usize::from(r["expert"] == true && r.get("error").is_none());
+        e.2 += usize::from(r["expert"] == true && runs > 0 && r["successes"].as_u64() == Some(runs));
+    }
+    let runs: std::collections::BTreeSet<u64> = rows.iter().filter_map(|r| r["runs"].as_u64()).filter(|n| *n > 0).collect();
+    let solved = match runs.iter().collect::<Vec<_>>()[..] {
+        [n] => format!("solved {n}/{n}"),
+        _ => "solved every run".to_owned(),
+    };
+    let mut text = format!("| suite | entries | with expert | {solved} |\n|---|---|---|---|\n");
+    let mut all = (0, 0, 0);
+    for suite in &order {
+        let (n, e, s) = suites[suite];
+        text.push_str(&format!("| {suite} | {n} | {e} | {s} |\n"));
+        all = (all.0 + n, all.1 + e, all.2 + s);
+    }
+    text.push_str(&format!("| **all** | **{}** | **{}** | **{}** |\n", all.0, all.1, all.2));
+    text
+}
+
 /// `3/3`, `1/3 failed: (on a b)`, `no expert: …`.
 fn verdict(row: &Value) -> String {
     if row["expert"] == false {
         return format!("no expert: {}", row["no_expert"].as_str().unwrap_or(""));
+    }
+    if let Some(e) = row["error"].as_str() {
+        return format!("error: {e}");
     }
     let mut v = format!("{}/{}", row["successes"], row["runs"]);
     if let Some(f) = row["failures"].as_array().and_then(|f| f.first()) {
@@ -174,7 +386,7 @@ fn print_table(rows: &[Value]) {
     for r in rows {
         let solved = if r["expert"] == true { format!("{}/{}", r["successes"], r["runs"]) } else { "-".into() };
         let task = r["task"].as_str().unwrap_or("");
-        let wall_s = r["wall_time_s"].as_f64().unwrap_or(0.0);
+        let wall_s = r["seconds"].as_f64().unwrap_or(0.0);
         println!("{task:<width$}  {solved:>7}  {wall_s:>8.1}  {}", verdict(r));
     }
 }

@@ -25,6 +25,7 @@ mod cmd_demo_replay;
 mod cmd_episode;
 #[cfg(feature = "episode-serve")]
 mod cmd_expert;
+#[cfg(feature = "episode-serve")]
 mod cmd_expert_all;
 #[cfg(feature = "episode-serve")]
 mod cmd_mcp_stdio;

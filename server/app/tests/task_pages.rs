@@ -133,3 +133,58 @@ fn task_pages_show_a_task_and_its_episodes_and_thumbnails_are_rendered_ahead_and
     let (_, v) = http_get_json(&format!("{}/api/thumbnails", server.url));
     assert_eq!(v["thumbnails"]["rendered"], 0, "{v}");
 }
+
+/// Copies the repository's `tasks/` folder (catalog, pool, definitions; not its results) to `to`.
+fn copy_tasks(from: &Path, to: &Path) {
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        let (src, dst) = (e.path(), to.join(e.file_name()));
+        if e.file_type().unwrap().is_dir() {
+            if e.file_name() != "results" {
+                std::fs::create_dir_all(&dst).unwrap();
+                copy_tasks(&src, &dst);
+            }
+        } else {
+            std::fs::copy(&src, &dst).unwrap();
+        }
+    }
+}
+
+/// The `<article>` of the Tasks page whose opening tag names `marker` (its id or data-id).
+fn card<'a>(page: &'a str, marker: &str) -> &'a str {
+    page.split("<article").find(|a| a.split('>').next().is_some_and(|tag| tag.contains(marker))).unwrap_or_else(|| panic!("no card {marker}"))
+}
+
+/// The last expert sweep of the tasks folder (`results/expert_sweep.jsonl` and its `.meta.json`, as `libero-agent
+/// expert --all --suite all` writes them) shows on the Tasks page's cards and on the task pages of the entries it
+/// has, release tasks and pool entries alike, as "solved k/n on DATE at COMMIT"; an entry it lacks shows none.
+#[test]
+fn the_expert_sweep_shows_on_the_task_pages_of_the_entries_it_covers_only() {
+    let (tasks, data) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    copy_tasks(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tasks"), tasks.path());
+    let results = tasks.path().join("results");
+    std::fs::create_dir_all(&results).unwrap();
+    let rows = [
+        r#"{"task":"T14","suite":"release","runs":3,"successes":3,"expert":true,"actions":[76,76,76],"seconds":9.1}"#,
+        r#"{"task":"libero_90/KITCHEN_SCENE7_open_the_microwave","entry":"libero_90/35","suite":"libero_90","runs":3,"successes":2,"expert":true,"seconds":20.0}"#,
+    ];
+    std::fs::write(results.join("expert_sweep.jsonl"), rows.join("\n") + "\n").unwrap();
+    std::fs::write(results.join("expert_sweep.meta.json"), r#"{"date_utc":"2026-11-27T10:00:00Z","commit":"abc1234"}"#).unwrap();
+    let server = Server::start_with_env(data.path(), &[], &[("LIBERO_AGENT_TASKS_DIR", tasks.path().as_os_str())]);
+
+    let (status, page) = http_get_text(&format!("{}/tasks", server.url));
+    assert_eq!(status, 200, "{page}");
+    assert!(card(&page, "id=\"T14\"").contains("solved 3/3 on 2026-11-27 at abc1234"), "{}", card(&page, "id=\"T14\""));
+    assert!(!card(&page, "id=\"T01\"").contains("expert-sweep"), "T01 is not in the sweep: {}", card(&page, "id=\"T01\""));
+    let (status, page) = http_get_text(&format!("{}/tasks?suite=libero_90", server.url));
+    assert_eq!(status, 200, "{page}");
+    assert!(card(&page, &format!("data-id=\"{POOL_TASK}\"")).contains("solved 2/3 on 2026-11-27 at abc1234"), "{page}");
+
+    let (status, page) = http_get_text(&format!("{}/tasks/T14", server.url));
+    assert_eq!(status, 200, "{page}");
+    assert!(page.contains(r#"<dd id="expert-sweep">solved 3/3 on 2026-11-27 at abc1234</dd>"#), "{page}");
+    let (_, page) = http_get_text(&format!("{}/tasks/{POOL_TASK}", server.url));
+    assert!(page.contains(r#"<dd id="expert-sweep">solved 2/3 on 2026-11-27 at abc1234</dd>"#), "{page}");
+    let (status, page) = http_get_text(&format!("{}/tasks/T01", server.url));
+    assert_eq!(status, 200, "{page}");
+    assert!(!page.contains("expert-sweep"), "T01 is not in the sweep: {page}");
+}

@@ -14,7 +14,7 @@ use axum::Router;
 use axum::body::Body;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, Query, RawQuery, Request, State};
-use axum::http::{StatusCode, header};
+use axum::http::header;
 use axum::response::{Html, IntoResponse, Redirect, Response};
 use axum::routing::get;
 use libero_episode::RunDir;
@@ -26,7 +26,7 @@ use tower_http::services::ServeFile;
 use libero_server::live::Hub;
 use crate::results::{self, Selection};
 use libero_server::store::EpisodeFilter;
-use libero_server::{App, AppState, episode_json, json_error};
+use libero_server::{ApiError, ApiResult, App, AppState, episode_json};
 
 /// Largest episode list the home page shows.
 const HOME_LIST_LIMIT: i64 = 500;
@@ -66,7 +66,7 @@ pub fn static_routes() -> Router<AppState> {
 pub(crate) fn page(t: impl Template) -> Response {
     match t.render() {
         Ok(html) => Html(html).into_response(),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("template: {e}")),
+        Err(e) => ApiError::internal(format!("template: {e}")).into_response(),
     }
 }
 
@@ -76,7 +76,7 @@ pub(crate) fn valid_id(id: &str) -> bool {
 }
 
 /// The stored row of episode `id`, or the response saying why there is none.
-async fn stored_row(app: &App, id: &str) -> Result<libero_server::store::EpisodeRow, Response> {
+async fn stored_row(app: &App, id: &str) -> ApiResult<libero_server::store::EpisodeRow> {
     row_and_source(app, id).await.map(|(row, _)| row)
 }
 
@@ -89,17 +89,16 @@ enum RowSource {
     BatchDir,
 }
 
-async fn row_and_source(app: &App, id: &str) -> Result<(libero_server::store::EpisodeRow, RowSource), Response> {
+async fn row_and_source(app: &App, id: &str) -> ApiResult<(libero_server::store::EpisodeRow, RowSource)> {
     if !valid_id(id) {
-        return Err(json_error(StatusCode::NOT_FOUND, "no such episode"));
+        return Err(ApiError::not_found("no such episode"));
     }
-    match app.store.get(id).await {
-        Ok(Some(row)) => Ok((fetched_if_elsewhere(app, row).await, RowSource::Store)),
-        Ok(None) => batch_episode(app, id)
+    match app.store.get(id).await? {
+        Some(row) => Ok((fetched_if_elsewhere(app, row).await, RowSource::Store)),
+        None => batch_episode(app, id)
             .await
             .map(|row| (row, RowSource::BatchDir))
-            .ok_or_else(|| json_error(StatusCode::NOT_FOUND, format!("no episode {id}"))),
-        Err(e) => Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}"))),
+            .ok_or_else(|| ApiError::not_found(format!("no episode {id}"))),
     }
 }
 
@@ -181,13 +180,13 @@ struct ResultsPage {
 
 /// Loads the selected batches: batch directories off the async workers (they are files of any size), and the
 /// batches only the store holds (`run --store`) from the store.
-pub(crate) async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>, Vec<libero_runner::batch::LoadedBatch>), Response> {
-    let internal = |e: String| json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("results: {e}"));
+pub(crate) async fn selected(app: &App, sel: &Selection) -> ApiResult<(Vec<String>, Vec<libero_runner::batch::LoadedBatch>)> {
+    let internal = |e: String| ApiError::internal(format!("results: {e}"));
     let stored = app.store.batch_names().await.map_err(|e| internal(format!("{e:#}")))?;
     let (roots, sel) = (app.batch_roots.clone(), sel.clone());
     let (names, picked) = match tokio::task::spawn_blocking(move || results::load_selected(&roots, &stored, &sel)).await {
         Ok(Ok(x)) => x,
-        Ok(Err(e)) => return Err(json_error(StatusCode::NOT_FOUND, e)),
+        Ok(Err(e)) => return Err(ApiError::not_found(e)),
         Err(e) => return Err(internal(e.to_string())),
     };
     let mut batches = Vec::with_capacity(picked.len());
@@ -204,26 +203,21 @@ pub(crate) async fn selected(app: &App, sel: &Selection) -> Result<(Vec<String>,
     Ok((names, batches))
 }
 
-async fn results_page(State(app): State<AppState>, RawQuery(query): RawQuery) -> Response {
+async fn results_page(State(app): State<AppState>, RawQuery(query): RawQuery) -> ApiResult {
     let sel = Selection::parse(query.as_deref());
-    let (names, batches) = match selected(&app, &sel).await {
-        Ok(x) => x,
-        Err(resp) => return resp,
-    };
+    let (names, batches) = selected(&app, &sel).await?;
     let view = results::view(&batches, &sel);
-    page(ResultsPage {
+    Ok(page(ResultsPage {
         available: names.into_iter().map(|n| (n.clone(), sel.batches.contains(&n))).collect(),
         reps: sel.reps.map(|n| n.to_string()).unwrap_or_default(),
         view,
-    })
+    }))
 }
 
-async fn results_api(State(app): State<AppState>, RawQuery(query): RawQuery) -> Response {
+async fn results_api(State(app): State<AppState>, RawQuery(query): RawQuery) -> ApiResult {
     let sel = Selection::parse(query.as_deref());
-    match selected(&app, &sel).await {
-        Ok((names, batches)) => axum::Json(results::results_json(&names, &batches, &sel)).into_response(),
-        Err(resp) => resp,
-    }
+    let (names, batches) = selected(&app, &sel).await?;
+    Ok(axum::Json(results::results_json(&names, &batches, &sel)).into_response())
 }
 
 // ---------------------------------------------------------------------------------------------- home page
@@ -321,7 +315,7 @@ async fn home(State(app): State<AppState>, headers: axum::http::HeaderMap, Query
     let filter = filter.normalized();
     let list = match episode_list(&app, &filter).await {
         Ok(l) => l,
-        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+        Err(e) => return ApiError::internal(format!("{e:#}")).into_response(),
     };
     let tasks = libero_tasks::Catalog::discover().map(|c| c.tasks().iter().map(|t| t.id.clone()).collect()).unwrap_or_default();
     // The Host header passed the allow-list, so it names this server.
@@ -437,7 +431,7 @@ struct LiveElsewherePage {
 async fn live_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
     let (row, source) = match row_and_source(&app, &id).await {
         Ok(r) => r,
-        Err(resp) => return resp,
+        Err(e) => return e.into_response(),
     };
     let Some(hub) = app.hubs.get(&id) else {
         if let Some(server_url) = runs_elsewhere(&app, &row, source) {
@@ -493,7 +487,7 @@ async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(
     }
     let (row, source) = match row_and_source(&app, &id).await {
         Ok(r) => r,
-        Err(resp) => return resp,
+        Err(e) => return e.into_response(),
     };
     if runs_elsewhere(&app, &row, source).is_some() {
         return ws.on_upgrade(move |socket| elsewhere_stream(socket, app, row));
@@ -697,7 +691,7 @@ async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Res
             level: row.episode.level,
             outcome: row.outcome.unwrap_or_else(|| "RUNNING".into()),
         }),
-        Err(resp) => resp,
+        Err(e) => e.into_response(),
     }
 }
 
@@ -794,11 +788,8 @@ fn telemetry_page(run: &RunDir, from: u64) -> Value {
 
 /// Everything the review page shows, from the private run directory, with the long parts (calls, telemetry)
 /// in pages the page follows through `calls_next` / `telemetry_next`. Operator-only.
-async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ReviewQuery>) -> Response {
-    let run = match stored_row(&app, &id).await {
-        Ok(row) => RunDir::new(row.episode.run_dir),
-        Err(resp) => return resp,
-    };
+async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ReviewQuery>) -> ApiResult {
+    let run = RunDir::new(stored_row(&app, &id).await?.episode.run_dir);
     let episodes = app.episodes.clone();
     let data = tokio::task::spawn_blocking(move || match q.part.as_deref() {
         Some("calls") => Ok(calls_page(&run, q.from, q.control_step)),
@@ -827,10 +818,9 @@ async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(
         }
     })
     .await;
-    match data {
-        Ok(Ok(v)) => axum::Json(v).into_response(),
-        Ok(Err(msg)) => json_error(StatusCode::BAD_REQUEST, msg),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("review: {e}")),
+    match data.map_err(|e| ApiError::internal(format!("review: {e}")))? {
+        Ok(v) => Ok(axum::Json(v).into_response()),
+        Err(msg) => Err(ApiError::bad_request(msg)),
     }
 }
 
@@ -938,15 +928,12 @@ fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
 
 /// `GET /api/episodes/{id}/agent`: the agent's transcript on the robot's timeline, in pages the caller follows
 /// through `timeline_next` (its fields are the next request's query). Operator-only, as the review.
-async fn agent_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<AgentQuery>) -> Response {
-    let run = match stored_row(&app, &id).await {
-        Ok(row) => RunDir::new(row.episode.run_dir),
-        Err(resp) => return resp,
-    };
-    match tokio::task::spawn_blocking(move || agent_timeline(&run, &id, &q)).await {
-        Ok(v) => axum::Json(v).into_response(),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("agent transcript: {e}")),
-    }
+async fn agent_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<AgentQuery>) -> ApiResult {
+    let run = RunDir::new(stored_row(&app, &id).await?.episode.run_dir);
+    let v = tokio::task::spawn_blocking(move || agent_timeline(&run, &id, &q))
+        .await
+        .map_err(|e| ApiError::internal(format!("agent transcript: {e}")))?;
+    Ok(axum::Json(v).into_response())
 }
 
 /// Most transcript events a live viewer is sent when it connects (the newest ones; the review has them all).
@@ -978,7 +965,7 @@ fn read_transcript_lines(path: &FsPath, offset: Option<u64>, max: u64) -> (Vec<V
 pub(crate) async fn serve_file(path: std::path::PathBuf, req: Request<Body>) -> Response {
     match ServeFile::new(path).oneshot(req).await {
         Ok(resp) => resp.map(Body::new).into_response(),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("file: {e}")),
+        Err(e) => ApiError::internal(format!("file: {e}")).into_response(),
     }
 }
 
@@ -996,9 +983,9 @@ async fn video(State(app): State<AppState>, Path(id): Path<String>, req: Request
                 Some(p) => format!("the video is not ready yet (video rendering, {} %)", p.percent().unwrap_or(0)),
                 None => "this episode records no video".to_owned(),
             };
-            json_error(StatusCode::NOT_FOUND, message)
+            ApiError::not_found(message).into_response()
         }
-        None => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
+        None => ApiError::not_found(format!("no episode {id}")).into_response(),
     }
 }
 
@@ -1013,11 +1000,11 @@ fn plain_relative(rel: &str) -> bool {
 async fn observation_file(State(app): State<AppState>, Path((id, rel)): Path<(String, String)>, req: Request<Body>) -> Response {
     let rel_path = FsPath::new(&rel);
     let Some(run) = run_dir_of(&app, &id).await.filter(|_| plain_relative(&rel)) else {
-        return json_error(StatusCode::NOT_FOUND, "no such observation file");
+        return ApiError::not_found("no such observation file").into_response();
     };
     let path = run.private_observations().join(rel_path);
     if !path.is_file() {
-        return json_error(StatusCode::NOT_FOUND, "no such observation file");
+        return ApiError::not_found("no such observation file").into_response();
     }
     serve_file(path, req).await
 }
@@ -1038,6 +1025,8 @@ struct TaskCard {
     checks: String,
     implemented: bool,
     not_implemented_reason: String,
+    /// What the last expert sweep says of it ("solved 3/3 on DATE at COMMIT"), or empty.
+    expert: String,
 }
 
 fn enum_text<T: serde::Serialize>(v: &T) -> String {
@@ -1065,6 +1054,7 @@ fn task_cards() -> anyhow::Result<Vec<TaskCard>> {
             },
             implemented: t.implemented,
             not_implemented_reason: t.not_implemented_reason.clone().unwrap_or_default(),
+            expert: crate::expert_sweep::expert_line(&[&t.id]),
         })
         .collect())
 }
@@ -1085,6 +1075,8 @@ struct PoolCard {
     /// Empty when the entry does not run.
     thumbnail: String,
     teleop: String,
+    /// What the last expert sweep says of it, or empty.
+    expert: String,
 }
 
 fn pool_card(e: &libero_tasks::PoolEntry) -> PoolCard {
@@ -1108,6 +1100,7 @@ fn pool_card(e: &libero_tasks::PoolEntry) -> PoolCard {
         runs,
         thumbnail,
         teleop: if runs { format!("/teleop/{}", e.id()) } else { String::new() },
+        expert: crate::expert_sweep::expert_line(&[&e.id(), &e.reference()]),
     }
 }
 
@@ -1206,14 +1199,14 @@ fn tasks_view(query: &TasksQuery) -> anyhow::Result<TasksPage> {
 async fn tasks_page(Query(query): Query<TasksQuery>) -> Response {
     match tasks_view(&query) {
         Ok(view) => page(view),
-        Err(e) => json_error(StatusCode::BAD_REQUEST, format!("{e:#}")),
+        Err(e) => ApiError::bad_request(format!("{e:#}")).into_response(),
     }
 }
 
 async fn tasks_json() -> Response {
     match task_cards() {
         Ok(tasks) => axum::Json(json!({"ok": true, "tasks": tasks})).into_response(),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
+        Err(e) => ApiError::internal(format!("{e:#}")).into_response(),
     }
 }
 
@@ -1242,14 +1235,14 @@ async fn pool_thumbnail(
 async fn thumbnail_of(app: AppState, id: String, q: ThumbnailQuery, req: Request<Body>) -> Response {
     use libero_server::thumbnails::{Camera, ThumbnailError};
     let Some(camera) = Camera::parse(q.camera.as_deref()) else {
-        return json_error(StatusCode::BAD_REQUEST, "camera must be head or wrist");
+        return ApiError::bad_request("camera must be head or wrist").into_response();
     };
     let thumbnails = app.thumbnails.clone();
     match tokio::task::spawn_blocking(move || thumbnails.get(&id, camera)).await {
         Ok(Ok(path)) => serve_file(path, req).await,
-        Ok(Err(e @ ThumbnailError::NoSuchTask(_))) => json_error(StatusCode::NOT_FOUND, e.to_string()),
-        Ok(Err(e)) => json_error(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("thumbnail: {e}")),
+        Ok(Err(e @ ThumbnailError::NoSuchTask(_))) => ApiError::not_found(e.to_string()).into_response(),
+        Ok(Err(e)) => ApiError::internal(e.to_string()).into_response(),
+        Err(e) => ApiError::internal(format!("thumbnail: {e}")).into_response(),
     }
 }
 
@@ -1272,7 +1265,7 @@ async fn static_file(Path(file): Path<String>) -> Response {
         "demos.js" => (web_static!("demos.js"), "text/javascript; charset=utf-8"),
         "elsewhere.js" => (web_static!("elsewhere.js"), "text/javascript; charset=utf-8"),
         "branch.js" => (web_static!("branch.js"), "text/javascript; charset=utf-8"),
-        _ => return json_error(StatusCode::NOT_FOUND, "no such file"),
+        _ => return ApiError::not_found("no such file").into_response(),
     };
     ([(header::CONTENT_TYPE, kind), (header::CACHE_CONTROL, "no-cache")], body).into_response()
 }

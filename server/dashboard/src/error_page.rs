@@ -2,7 +2,7 @@
 //! query gets a page with the console's navigation and a plain sentence, not a JSON object or an empty 404.
 //! `/api/`, `/ws/` and `/mcp/` keep answering JSON: scripts read those.
 //!
-//! The handlers keep answering errors as they always did (`json_error`, axum's rejections); one middleware around
+//! The handlers keep answering errors as they always did (`libero_server::ApiError`, axum's rejections); one middleware around
 //! the whole router turns an error answer of a browser route into [`render`]'s page with the same status and
 //! message, and a fallback answers unknown routes. So a new page is covered without doing anything.
 use askama::Template;
@@ -12,7 +12,7 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
-use libero_server::{AppState, json_error};
+use libero_server::{ApiError, AppState};
 
 /// Longest error body read to find its message; longer ones are not read and get the status's own words.
 const MAX_ERROR_BODY: usize = 64 * 1024;
@@ -43,7 +43,7 @@ pub fn render(status: StatusCode, message: &str, path: &str) -> Response {
     let page = ErrorPage { status: status.as_u16(), title, message: &message, path: &path, sign_in: status == StatusCode::UNAUTHORIZED };
     match page.render() {
         Ok(html) => (status, Html(html)).into_response(),
-        Err(e) => json_error(status, format!("{message} (and the error page failed: {e})")),
+        Err(e) => ApiError::new(status, format!("{message} (and the error page failed: {e})")).into_response(),
     }
 }
 
@@ -67,7 +67,7 @@ async fn unknown_route(req: Request) -> Response {
     if is_browser_path(path) {
         return render(StatusCode::NOT_FOUND, "There is no page at this address. The console's pages are linked above.", path);
     }
-    json_error(StatusCode::NOT_FOUND, format!("no route {} {path}", req.method()))
+    ApiError::not_found(format!("no route {} {path}", req.method())).into_response()
 }
 
 /// Middleware: an error answer (4xx, 5xx) of a browser route that is not a page already becomes the error page,

@@ -3,6 +3,7 @@
 //! episode server, the runner and the worker do not depend on it.
 pub mod dashboard;
 pub mod error_page;
+pub mod expert_sweep;
 pub mod login;
 pub mod results;
 pub mod task_page;

@@ -107,6 +107,8 @@ struct TaskPage {
     teleop: String,
     /// The task reference its episodes and demonstrations are recorded under.
     task_ref: String,
+    /// What the last expert sweep says of it ("solved 3/3 on DATE at COMMIT"), or empty.
+    expert: String,
     /// (label, href) of related task pages: the release task a pool entry runs as, pool entries of a release task.
     related: Vec<(String, String)>,
     demos: Vec<DemoLine>,
@@ -301,6 +303,7 @@ async fn gather(app: &App, f: TaskFacts) -> anyhow::Result<TaskPage> {
             Some((suite, _)) => format!("/tasks?suite={suite}#{}", f.id),
             None => format!("/tasks#{}", f.id),
         },
+        expert: crate::expert_sweep::expert_line(&[&f.id, &f.task_ref]),
         id: f.id,
         name: f.name,
         instruction: f.instruction,

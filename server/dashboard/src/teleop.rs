@@ -12,7 +12,6 @@ use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, Query, Request, State};
-use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use libero_episode::EpisodeHandle;
@@ -25,7 +24,7 @@ use serde_json::{Map, Value, json};
 
 use crate::dashboard::{page, serve_file, valid_id};
 use libero_server::episodes::{BranchRequest, PrepareRequest, random_hex};
-use libero_server::{AppState, json_error};
+use libero_server::{ApiError, ApiResult, AppState};
 
 /// Wall-clock budget of an operator episode: long enough for unhurried driving.
 const TELEOP_WALL_TIME_S: f64 = 3600.0;
@@ -123,11 +122,11 @@ async fn pool_teleop_page(Path((suite, task_id)): Path<(String, String)>, Query(
 fn teleop_page_of(task: &str, q: BranchQuery) -> Response {
     let branch = match q.origin() {
         Ok(b) => b,
-        Err(e) => return json_error(StatusCode::BAD_REQUEST, e),
+        Err(e) => return ApiError::bad_request(e).into_response(),
     };
     match implemented_task(task) {
         Ok((task, instruction, k)) => page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED, branch }),
-        Err(e) => json_error(StatusCode::NOT_FOUND, e),
+        Err(e) => ApiError::not_found(e).into_response(),
     }
 }
 
@@ -155,19 +154,14 @@ fn default_seed() -> u64 {
 /// Prepares and starts an operator episode (level 1, private video on for the bundle; live frames are rendered
 /// on demand while the page watches); a reset is
 /// simply a new one of the same task and seed, which starts from the same init state.
-async fn create(State(app): State<AppState>, body: Bytes) -> Response {
-    let req: CreateRequest = match serde_json::from_slice(&body) {
-        Ok(r) => r,
-        Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"task\": \"T14\", \"seed\": 100}}: {e}")),
-    };
+async fn create(State(app): State<AppState>, body: Bytes) -> ApiResult {
+    let req: CreateRequest = serde_json::from_slice(&body)
+        .map_err(|e| ApiError::bad_request(format!("body must be {{\"task\": \"T14\", \"seed\": 100}}: {e}")))?;
     // A branch's task is its parent's: prepare resolves it (and says 404/400 for a parent or step it cannot use).
     let task = if req.branch.is_some() && req.task.is_empty() {
         String::new()
     } else {
-        match implemented_task(&req.task) {
-            Ok((task, ..)) => task,
-            Err(e) => return json_error(StatusCode::UNPROCESSABLE_ENTITY, e),
-        }
+        implemented_task(&req.task).map_err(ApiError::unprocessable)?.0
     };
     let prepare = PrepareRequest {
         level: 1,
@@ -182,10 +176,7 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
         branch: req.branch.clone(),
         ..PrepareRequest::new(task.clone())
     };
-    let prepared = match app.prepare_stored(prepare).await {
-        Ok(p) => p,
-        Err(resp) => return resp,
-    };
+    let prepared = app.prepare_stored(prepare).await?;
     let task = prepared.task.clone();
     let eps = app.episodes.clone();
     let id = prepared.episode_id.clone();
@@ -198,17 +189,14 @@ async fn create(State(app): State<AppState>, body: Bytes) -> Response {
         }
         Ok(())
     })
-    .await;
-    match started {
-        Ok(Ok(())) => {}
-        Ok(Err(e)) => return json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
-        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("teleop start: {e}")),
-    }
+    .await
+    .map_err(|e| ApiError::internal(format!("teleop start: {e}")))?;
+    started.map_err(|e| ApiError::unprocessable(format!("{e:#}")))?;
     if let Ok(mut m) = app.teleop.lock() {
         m.insert(prepared.episode_id.clone(), task.clone());
     }
     app.sync(&prepared.episode_id).await;
-    ok_json(json!({"ok": true, "episode_id": prepared.episode_id, "task": task, "seed": req.seed, "branch": prepared.branch}))
+    Ok(ok_json(json!({"ok": true, "episode_id": prepared.episode_id, "task": task, "seed": req.seed, "branch": prepared.branch})))
 }
 
 /// The handle and task of an operator episode; agents' episodes are never returned.
@@ -219,7 +207,7 @@ fn teleop_episode(app: &libero_server::App, id: &str) -> Option<(EpisodeHandle, 
 
 async fn control_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
     let Some((handle, _)) = teleop_episode(&app, &id) else {
-        return json_error(StatusCode::NOT_FOUND, format!("{id} is not an operator episode of this server"));
+        return ApiError::not_found(format!("{id} is not an operator episode of this server")).into_response();
     };
     ws.on_upgrade(move |socket| control_stream(socket, app, id, handle))
 }
@@ -273,7 +261,7 @@ async fn run_batch(handle: &EpisodeHandle, batch: ActionBatch) -> Value {
 /// not verified when it is not.
 async fn save(State(app): State<AppState>, Path(id): Path<String>) -> Response {
     let Some((handle, task)) = teleop_episode(&app, &id) else {
-        return json_error(StatusCode::NOT_FOUND, format!("{id} is not an operator episode of this server"));
+        return ApiError::not_found(format!("{id} is not an operator episode of this server")).into_response();
     };
     let eps = app.episodes.clone();
     let episode = id.clone();
@@ -308,8 +296,8 @@ async fn save(State(app): State<AppState>, Path(id): Path<String>) -> Response {
     }
     match saved {
         Ok(Ok(v)) => ok_json(v),
-        Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("save: {e}")),
+        Ok(Err(e)) => ApiError::unprocessable(format!("{e:#}")).into_response(),
+        Err(e) => ApiError::internal(format!("save: {e}")).into_response(),
     }
 }
 
@@ -378,20 +366,20 @@ async fn demos_json(State(app): State<AppState>) -> Response {
     let root = app.episodes.demo_library();
     match tokio::task::spawn_blocking(move || list_bundles(&root)).await {
         Ok(rows) => ok_json(json!({"ok": true, "bundles": rows})),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("demos: {e}")),
+        Err(e) => ApiError::internal(format!("demos: {e}")).into_response(),
     }
 }
 
 async fn bundle_video(State(app): State<AppState>, Path((task, bundle)): Path<(String, String)>, req: Request<Body>) -> Response {
     match bundle_path(&app, &task, &bundle) {
         Some(dir) => serve_file(dir.join(VIDEO_HEAD_WRIST), req).await,
-        None => json_error(StatusCode::NOT_FOUND, "no such bundle"),
+        None => ApiError::not_found("no such bundle").into_response(),
     }
 }
 
 /// Validates, then replays; the manifest's verification is rewritten by the library.
 async fn verify(State(app): State<AppState>, Path((task, bundle)): Path<(String, String)>) -> Response {
-    let Some(dir) = bundle_path(&app, &task, &bundle) else { return json_error(StatusCode::NOT_FOUND, "no such bundle") };
+    let Some(dir) = bundle_path(&app, &task, &bundle) else { return ApiError::not_found("no such bundle").into_response() };
     let eps = app.episodes.clone();
     let result = tokio::task::spawn_blocking(move || -> anyhow::Result<Value> {
         let violations: Vec<String> = validate_bundle(&dir).iter().map(ToString::to_string).collect();
@@ -405,16 +393,16 @@ async fn verify(State(app): State<AppState>, Path((task, bundle)): Path<(String,
     .await;
     match result {
         Ok(Ok(v)) => ok_json(v),
-        Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("verify: {e}")),
+        Ok(Err(e)) => ApiError::unprocessable(format!("{e:#}")).into_response(),
+        Err(e) => ApiError::internal(format!("verify: {e}")).into_response(),
     }
 }
 
 async fn delete(State(app): State<AppState>, Path((task, bundle)): Path<(String, String)>) -> Response {
-    let Some(dir) = bundle_path(&app, &task, &bundle) else { return json_error(StatusCode::NOT_FOUND, "no such bundle") };
+    let Some(dir) = bundle_path(&app, &task, &bundle) else { return ApiError::not_found("no such bundle").into_response() };
     match std::fs::remove_dir_all(&dir) {
         Ok(()) => ok_json(json!({"ok": true, "deleted": format!("{task}/{bundle}")})),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("delete {task}/{bundle}: {e}")),
+        Err(e) => ApiError::internal(format!("delete {task}/{bundle}: {e}")).into_response(),
     }
 }
 
@@ -428,21 +416,21 @@ struct ExportRequest {
 async fn export(State(app): State<AppState>, body: Bytes) -> Response {
     let req: ExportRequest = match serde_json::from_slice(&body) {
         Ok(r) => r,
-        Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"bundles\": [\"T14/ep-…\"]}}: {e}")),
+        Err(e) => return ApiError::bad_request(format!("body must be {{\"bundles\": [\"T14/ep-…\"]}}: {e}")).into_response(),
     };
     let mut dirs = Vec::new();
     for key in &req.bundles {
         match key.split_once('/').and_then(|(t, b)| bundle_path(&app, t, b)) {
             Some(d) => dirs.push(d),
-            None => return json_error(StatusCode::NOT_FOUND, format!("no bundle {key}")),
+            None => return ApiError::not_found(format!("no bundle {key}")).into_response(),
         }
     }
     if dirs.is_empty() {
-        return json_error(StatusCode::BAD_REQUEST, "choose at least one bundle");
+        return ApiError::bad_request("choose at least one bundle").into_response();
     }
     let suffix = match random_hex(3) {
         Ok(s) => s,
-        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e}")),
+        Err(e) => return ApiError::internal(format!("{e}")).into_response(),
     };
     let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
     let out = app.episodes.data_dir().join("exports").join(format!("lerobot-{stamp}-{suffix}"));
@@ -453,7 +441,7 @@ async fn export(State(app): State<AppState>, body: Bytes) -> Response {
     .await;
     match result {
         Ok(Ok(s)) => ok_json(json!({"ok": true, "out": s.out, "episodes": s.episodes, "frames": s.frames, "tasks": s.tasks})),
-        Ok(Err(e)) => json_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{e:#}")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("export: {e}")),
+        Ok(Err(e)) => ApiError::unprocessable(format!("{e:#}")).into_response(),
+        Err(e) => ApiError::internal(format!("export: {e}")).into_response(),
     }
 }

@@ -22,29 +22,25 @@ use super::queue::{WORKER_LOST, worker_lost_record};
 use super::sandbox::Sandbox;
 use super::schedule::PlannedRollout;
 use super::{INTERRUPTED, RunContext};
-use libero_server::ServeArgs;
+use libero_server::{ServeArgs, ServerFlags, StoreFlags};
 use libero_server::client::{InProcessServer, wait_for_video};
 
 /// How long a rollout's video may take to be written before its files are uploaded without it.
 const VIDEO_WAIT: Duration = Duration::from_secs(600);
 
+/// The store, artifact and server flags are `serve`'s own ([`StoreFlags`], [`ServerFlags`]); a worker needs
+/// both stores, and its server takes any free port unless told one.
 #[derive(clap::Args, Debug, Clone)]
+#[command(mut_arg("store", |a| a.required(true)), mut_arg("artifacts", |a| a.required(true)))]
+#[command(mut_arg("addr", |a| a.default_value("127.0.0.1:0")))]
 pub struct WorkerArgs {
-    /// The shared store with the queue (`postgres://…`; `sqlite://PATH` for workers on one machine).
-    #[arg(long, value_name = "URL", env = "LIBERO_AGENT_STORE")]
-    pub store: String,
-    /// Where run directories go: a shared directory (`/srv/artifacts`, `file:///…`) or `s3://BUCKET[/PREFIX]`
-    /// (endpoint and credentials from the `AWS_*` environment).
-    #[arg(long, value_name = "URL", env = "LIBERO_AGENT_ARTIFACTS")]
-    pub artifacts: String,
+    #[command(flatten)]
+    pub stores: StoreFlags,
     /// Rollouts this machine runs at once.
     #[arg(long, default_value_t = 1)]
     pub slots: usize,
-    /// This worker's directory: its server's data (run directories), the runner's files per batch. Default: a
-    /// directory of its own, `~/.local/share/libero-agent/workers/<worker id>` (under `$LIBERO_AGENT_DATA` when
-    /// set), so any number of workers run on one machine without flags; printed at start.
-    #[arg(long)]
-    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub server: ServerFlags,
     #[command(flatten)]
     pub paths: super::LocalPaths,
     /// The lease on a claimed rollout, renewed every third of it: a worker silent for this long is lost.
@@ -53,22 +49,6 @@ pub struct WorkerArgs {
     /// Exit once nothing is queued and this worker's rollouts ended (default: wait for more work).
     #[arg(long)]
     pub exit_when_idle: bool,
-    /// The URL under which other machines reach this worker's server (its live views), shown on dashboards
-    /// (default: the address it listens on).
-    #[arg(long)]
-    pub public_url: Option<String>,
-    /// Where this worker's server listens: its episodes' MCP endpoints (for the agents, on loopback) and, when
-    /// the binary gives it a console, the live views other dashboards link to. Port 0 picks a free port.
-    #[arg(long, default_value = "127.0.0.1:0")]
-    pub addr: std::net::SocketAddr,
-    /// The operator token of this worker's server (a file, at least 16 characters), so operators can open its
-    /// live views; without it the token is random and known to this process only.
-    #[arg(long)]
-    pub operator_token_file: Option<PathBuf>,
-    /// A host name (or `name:port`) besides the loopback names under which this worker's server is reached
-    /// (the host of `--public-url`, behind a proxy). Repeatable.
-    #[arg(long = "public-host", value_name = "NAME")]
-    pub public_hosts: Vec<String>,
     /// The browser console the worker's server serves (set by the binary; never from the command line).
     #[arg(skip)]
     pub console: Option<libero_server::Console>,
@@ -99,24 +79,23 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     }
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_else(|_| "unknown".into());
     let id = format!("{host}-{}-{}", std::process::id(), &libero_episode::json::random_name("")?[..6]);
-    let data = match &args.data {
+    // Both are required on the command line; a caller building the arguments itself is told the same.
+    let store_url = args.stores.store.clone().context("a worker needs --store (or $LIBERO_AGENT_STORE)")?;
+    let artifacts_url = args.stores.artifacts.as_deref().context("a worker needs --artifacts (or $LIBERO_AGENT_ARTIFACTS)")?;
+    let data = match &args.server.data {
         Some(d) => super::absolute(d)?,
         None => default_worker_dir(&id)?,
     };
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create the worker's directory {}", data.display()))?;
-    let artifacts = Artifacts::open(&args.artifacts)?;
+    let artifacts = Artifacts::open(artifacts_url)?;
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
-    let store = runtime.block_on(Store::connect(&args.store))?;
+    let store = runtime.block_on(Store::connect(&store_url))?;
     let serve_args = ServeArgs {
-        addr: args.addr,
-        data: Some(data.join("server")),
-        operator_token_file: args.operator_token_file.clone(),
+        server: ServerFlags { data: Some(data.join("server")), ..args.server.clone() },
         rotate_token: false,
-        public_hosts: args.public_hosts.clone(),
-        public_url: args.public_url.clone(),
         batches: vec![],
-        store: Some(args.store.clone()),
-        artifacts: None,
+        // The worker uploads to the artifact store itself; its server reads run directories from its own disk.
+        stores: StoreFlags { store: Some(store_url.clone()), artifacts: None },
         limits: libero_server::listener::ConnLimits::default(),
         console: args.console,
         thumbnails: libero_server::ThumbnailArgs::off(),
@@ -124,13 +103,13 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     let has_console = serve_args.console.is_some();
     let server = InProcessServer::start_args(serve_args, "worker_stopped_before_finish")?;
     // Without a console (`libero-worker`) there is no live view to link to.
-    let live_url = has_console.then(|| args.public_url.clone().unwrap_or_else(|| server.url.clone()));
+    let live_url = has_console.then(|| args.server.public_url.clone().unwrap_or_else(|| server.url.clone()));
     runtime.block_on(store.register_worker(&id, &host, args.slots as i64, live_url.as_deref()))?;
     let workspace_base = args.paths.workspace_base()?;
     eprintln!(
         "worker {id}: {} slot(s), store {}, artifacts {}, server {}, data {}, workspaces {}",
         args.slots,
-        libero_store::redact(&args.store),
+        libero_store::redact(&store_url),
         artifacts.url(),
         server.url,
         data.display(),
@@ -139,7 +118,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     tracing::info!(
         worker = id,
         slots = args.slots,
-        store = libero_store::redact(&args.store),
+        store = libero_store::redact(&store_url),
         artifacts = artifacts.url(),
         server = server.url,
         data = %data.display(),
@@ -178,7 +157,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     };
     let slots: Vec<_> = (0..args.slots)
         .map(|_| {
-            let (w, url, exit_when_idle) = (worker.clone(), args.store.clone(), args.exit_when_idle);
+            let (w, url, exit_when_idle) = (worker.clone(), store_url.clone(), args.exit_when_idle);
             std::thread::spawn(move || w.slot(&url, exit_when_idle))
         })
         .collect();

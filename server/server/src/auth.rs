@@ -21,6 +21,7 @@ use libero_episode::json::sha256_hex;
 
 use crate::credential::{self, TOKEN_FILE};
 use crate::episodes::{random_hex, tokens_equal};
+use crate::{ApiError, ApiResult};
 
 /// Name of the dashboard's session cookie.
 pub const COOKIE: &str = "libero_session";
@@ -350,15 +351,12 @@ pub async fn check_host(State(hosts): State<AllowedHosts>, req: Request, next: N
     if host.is_some_and(|h| hosts.allows(h)) {
         return next.run(req).await;
     }
-    (
+    ApiError::new(
         StatusCode::MISDIRECTED_REQUEST,
-        [(header::CONNECTION, "close")],
-        axum::Json(serde_json::json!({
-            "ok": false,
-            "error": format!("this server does not answer to Host {:?}; use 127.0.0.1:{} or a name given with --public-host", host.unwrap_or(""), hosts.port),
-        })),
+        format!("this server does not answer to Host {:?}; use 127.0.0.1:{} or a name given with --public-host", host.unwrap_or(""), hosts.port),
     )
-        .into_response()
+    .with_header(header::CONNECTION, "close")
+    .into_response()
 }
 
 /// Whether a browser sent this request from another site: its `Origin` names a different host than `Host`.
@@ -389,9 +387,9 @@ fn split_token_query(query: Option<&str>) -> Option<(String, String)> {
 /// Middleware: cross-site requests answer 403; a page URL with the right `?token=` opens a session and
 /// redirects to itself without the token; without the credential, pages redirect to the login form and
 /// everything else answers 401.
-pub async fn require_operator(State(op): State<Operator>, req: Request, next: Next) -> Response {
+pub async fn require_operator(State(op): State<Operator>, req: Request, next: Next) -> ApiResult {
     if cross_site(req.headers()) {
-        return crate::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
+        return Err(ApiError::forbidden(CROSS_SITE));
     }
     let path = req.uri().path().to_owned();
     let is_page = req.method() == axum::http::Method::GET && !path.starts_with("/api/") && !path.starts_with("/ws/");
@@ -400,27 +398,26 @@ pub async fn require_operator(State(op): State<Operator>, req: Request, next: Ne
         let admitted = op.token_matches(&token)
             || match op.consume_login_code(&token) {
                 Ok(used) => used,
-                Err(e) => return crate::json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("cannot record the login link's use: {e:#}")),
+                Err(e) => return Err(ApiError::internal(format!("cannot record the login link's use: {e:#}"))),
             };
         if !admitted {
-            return (StatusCode::UNAUTHORIZED, axum::response::Html(op.login_html(true))).into_response();
+            return Ok((StatusCode::UNAUTHORIZED, axum::response::Html(op.login_html(true))).into_response());
         }
-        let Some(cookie) = op.open_session() else {
-            return crate::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session");
-        };
+        let cookie = op.open_session().ok_or_else(|| ApiError::internal(NO_SESSION))?;
         let location = if rest.is_empty() { path } else { format!("{path}?{rest}") };
-        return (StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, location)]).into_response();
+        return Ok((StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, location)]).into_response());
     }
     if op.admits(req.headers()) {
-        return next.run(req).await;
+        return Ok(next.run(req).await);
     }
     if is_page {
-        return Redirect::to("/login").into_response();
+        return Ok(Redirect::to("/login").into_response());
     }
-    let mut resp = crate::json_error(StatusCode::UNAUTHORIZED, "operator token required");
-    resp.headers_mut().insert(header::WWW_AUTHENTICATE, header::HeaderValue::from_static("Bearer"));
-    resp
+    Err(ApiError::unauthorized("operator token required").with_header(header::WWW_AUTHENTICATE, "Bearer"))
 }
+
+const CROSS_SITE: &str = "cross-site requests to the dashboard are refused";
+const NO_SESSION: &str = "cannot open a session";
 
 #[derive(serde::Deserialize)]
 pub struct LoginForm {
@@ -428,17 +425,15 @@ pub struct LoginForm {
 }
 
 /// `POST /login`: the right token opens a session (HttpOnly, SameSite=Strict cookie).
-pub async fn login(State(op): State<Operator>, headers: HeaderMap, axum::Form(form): axum::Form<LoginForm>) -> Response {
+pub async fn login(State(op): State<Operator>, headers: HeaderMap, axum::Form(form): axum::Form<LoginForm>) -> ApiResult {
     if cross_site(&headers) {
-        return crate::json_error(StatusCode::FORBIDDEN, "cross-site requests to the dashboard are refused");
+        return Err(ApiError::forbidden(CROSS_SITE));
     }
     if !op.token_matches(&form.token) {
-        return (StatusCode::UNAUTHORIZED, axum::response::Html(op.login_html(true))).into_response();
+        return Ok((StatusCode::UNAUTHORIZED, axum::response::Html(op.login_html(true))).into_response());
     }
-    match op.open_session() {
-        Some(cookie) => (StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, "/".to_owned())]).into_response(),
-        None => crate::json_error(StatusCode::INTERNAL_SERVER_ERROR, "cannot open a session"),
-    }
+    let cookie = op.open_session().ok_or_else(|| ApiError::internal(NO_SESSION))?;
+    Ok((StatusCode::SEE_OTHER, [(header::SET_COOKIE, cookie), (header::LOCATION, "/".to_owned())]).into_response())
 }
 
 pub async fn login_form(State(op): State<Operator>) -> Response {

@@ -5,12 +5,11 @@
 //! once). Operator-only like the rest of the operator API; every size is bounded here.
 use axum::body::Bytes;
 use axum::extract::State;
-use axum::http::StatusCode;
-use axum::response::{IntoResponse, Response};
+use axum::response::IntoResponse;
 use serde_json::{Value, json};
 
 use crate::store::StoredBatch;
-use crate::{AppState, json_error};
+use crate::{ApiError, ApiResult, AppState};
 
 /// Most bytes of one request's body (the runner posts at most [`MAX_POST_RECORDS`] records and 1 MiB at a time).
 pub const MAX_POST_BYTES: usize = 2 << 20;
@@ -76,43 +75,30 @@ fn same_batch(stored: &StoredBatch, p: &Posted) -> bool {
     stored.dir.to_str() == Some(p.dir.as_str()) && stored.doc["created_at"] == p.doc["created_at"]
 }
 
-pub async fn register(State(app): State<AppState>, body: Bytes) -> Response {
+pub async fn register(State(app): State<AppState>, body: Bytes) -> ApiResult {
     if body.len() > MAX_POST_BYTES {
-        return json_error(StatusCode::PAYLOAD_TOO_LARGE, format!("at most {MAX_POST_BYTES} bytes per request"));
+        return Err(ApiError::too_large(format!("at most {MAX_POST_BYTES} bytes per request")));
     }
-    let posted: Posted = match serde_json::from_slice(&body) {
-        Ok(p) => p,
-        Err(e) => {
-            return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"name\", \"dir\", \"doc\", \"from\", \"records\"}}: {e}"));
-        }
-    };
-    if let Err(e) = check(&posted) {
-        return json_error(StatusCode::BAD_REQUEST, e);
-    }
-    let internal = |e: crate::store::StoreError| json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}"));
-    let stored = match app.store.batch(&posted.name).await {
-        Ok(s) => s,
-        Err(e) => return internal(e),
-    };
+    let posted: Posted = serde_json::from_slice(&body).map_err(|e| {
+        ApiError::bad_request(format!("body must be {{\"name\", \"dir\", \"doc\", \"from\", \"records\"}}: {e}"))
+    })?;
+    check(&posted).map_err(ApiError::bad_request)?;
+    let stored = app.store.batch(&posted.name).await?;
     let have = stored.as_ref().map_or(0, |s| s.records.len());
     if let Some(s) = &stored
         && !same_batch(s, &posted)
     {
-        return (
-            StatusCode::CONFLICT,
-            axum::Json(json!({"ok": false, "have": have, "error": format!(
-                "this server already has a batch named {:?} from {} (created {}): name the new batch's directory differently",
-                posted.name, s.dir.display(), s.doc["created_at"].as_str().unwrap_or("?"))})),
-        )
-            .into_response();
+        return Err(ApiError::conflict(format!(
+            "this server already has a batch named {:?} from {} (created {}): name the new batch's directory differently",
+            posted.name,
+            s.dir.display(),
+            s.doc["created_at"].as_str().unwrap_or("?")
+        ))
+        .with_field("have", have));
     }
     if posted.from > have {
         // Records are stored by position: a gap would misplace them. The runner sends again from `have`.
-        return (
-            StatusCode::CONFLICT,
-            axum::Json(json!({"ok": false, "have": have, "error": format!("records from {} posted, but the server has {have}", posted.from)})),
-        )
-            .into_response();
+        return Err(ApiError::conflict(format!("records from {} posted, but the server has {have}", posted.from)).with_field("have", have));
     }
     let name = posted.name.clone();
     // `put_batch` keeps the records it has by position and appends the rest: positions before `from` are ones
@@ -121,11 +107,9 @@ pub async fn register(State(app): State<AppState>, body: Bytes) -> Response {
     records.extend(posted.records);
     let total = records.len();
     let batch = StoredBatch { name: posted.name, dir: posted.dir.into(), doc: posted.doc, records };
-    if let Err(e) = app.store.put_batch(&batch).await {
-        return internal(e);
-    }
+    app.store.put_batch(&batch).await?;
     tracing::debug!(batch = name, records = total.max(have), "batch registered");
-    axum::Json(json!({"ok": true, "name": name, "have": total.max(have), "results": format!("/results?batch={name}")})).into_response()
+    Ok(axum::Json(json!({"ok": true, "name": name, "have": total.max(have), "results": format!("/results?batch={name}")})).into_response())
 }
 
 #[cfg(test)]

@@ -177,15 +177,16 @@ impl InProcessServer {
     /// `console`'s pages when given one.
     pub fn start_with(data: PathBuf, store: Option<String>, console: Option<crate::Console>, stop_reason: &str) -> anyhow::Result<Self> {
         let args = ServeArgs {
-            addr: std::net::SocketAddr::from(([127, 0, 0, 1], 0)),
-            data: Some(data),
-            operator_token_file: None,
+            server: crate::ServerFlags {
+                addr: std::net::SocketAddr::from(([127, 0, 0, 1], 0)),
+                data: Some(data),
+                operator_token_file: None,
+                public_hosts: vec![],
+                public_url: None,
+            },
             rotate_token: false,
-            public_hosts: vec![],
-            public_url: None,
             batches: vec![],
-            store,
-            artifacts: None,
+            stores: crate::StoreFlags { store, artifacts: None },
             limits: crate::listener::ConnLimits::default(),
             console,
             thumbnails: crate::ThumbnailArgs::off(),
@@ -315,6 +316,36 @@ mod tests {
         assert_eq!(row.episode.server_url, None, "a server without a console has no live view for other dashboards to link to");
         assert!(row.required_stage_count.is_some_and(|r| r > 0), "the evaluator's stage count is stored while open: {row:?}");
         client.call_tool("finish_episode", json!({})).unwrap();
+        server.stop_now().unwrap();
+    }
+
+    /// Different routes, middleware and handlers alike, fail in the one shape of `ApiError`.
+    #[test]
+    fn failing_routes_answer_the_same_error_shape() {
+        let dir = tempfile::tempdir().unwrap();
+        let server = InProcessServer::start(dir.path().join("data"), "test_finished").unwrap();
+        let operator = credential::operator_headers(&server.url).unwrap();
+        let call = |method: &str, path: &str, headers: &[(String, String)], body: &[u8]| {
+            let url = HttpUrl::parse(&format!("{}{path}", server.url)).unwrap();
+            let resp = request(method, &url, headers, body, Duration::from_secs(30)).unwrap();
+            let value: Value = serde_json::from_slice(&resp.body).unwrap_or_else(|e| panic!("{path}: {e}"));
+            (resp.status, value)
+        };
+        let failures = [
+            (call("GET", "/api/episodes/ep-none", &operator, b""), 404, "no episode ep-none"),
+            (call("POST", "/api/batches", &operator, b"{}"), 400, "body must be"),
+            (call("POST", "/api/episodes/ep-none/abort", &operator, b"{\"reason\": \"x\"}"), 404, "no open episode ep-none"),
+            (call("GET", "/api/episodes", &[], b""), 401, "operator token required"),
+            (call("POST", "/mcp/ep-none", &[], b"{}"), 401, "missing or invalid episode token"),
+        ];
+        for ((status, body), want_status, want_start) in failures {
+            assert_eq!(status, want_status, "{body}");
+            let mut keys: Vec<&str> = body.as_object().map(|o| o.keys().map(String::as_str).collect()).unwrap_or_default();
+            keys.sort_unstable();
+            assert_eq!(keys, ["error", "ok"], "{body}");
+            assert_eq!(body["ok"], false, "{body}");
+            assert!(body["error"].as_str().is_some_and(|e| e.starts_with(want_start)), "{body}");
+        }
         server.stop_now().unwrap();
     }
 

@@ -6,6 +6,8 @@
 //! here: a [`Console`] (the `libero-dashboard` crate's) adds its pages, so a worker's server can run without it.
 //! Every listener (the address asked for and its loopback twin) serves through [`listener`]: connection caps per
 //! peer address and in total, header, idle and body timeouts, and a file-descriptor reserve for the episodes.
+//! Every error answer, the console's included, is an [`ApiError`] (`api_error`: the one place its JSON shape lives).
+pub mod api_error;
 pub mod auth;
 pub mod batches;
 pub mod client;
@@ -40,16 +42,23 @@ use libero_episode::{EpisodeState, EpisodeStatus, RunDir};
 use serde_json::{Value, json};
 use tokio::sync::mpsc::{UnboundedReceiver, unbounded_channel};
 
+pub use api_error::{ApiError, ApiResult};
 use episodes::{Episodes, PrepareRequest};
 use store::{EpisodeEnd, NewEpisode, STORE_FILE, Store};
 
+/// Where a server listens, under which names it is reached and whose token opens it: the flags `serve` and
+/// `worker` share, defined once here so their names, defaults and help cannot drift apart. A worker changes
+/// only `--addr`'s default (its server is for its own agents first, so any free port will do).
 #[derive(clap::Args, Debug, Clone)]
-pub struct ServeArgs {
-    /// Address to listen on (port 0 picks a free port; the chosen URL is printed as JSON on stdout).
+pub struct ServerFlags {
+    /// Address to listen on (port 0 picks a free port). `serve` prints the chosen URL as JSON on stdout; a
+    /// worker's server answers its agents' MCP calls and, with a console, the live views other dashboards link to.
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: SocketAddr,
     /// Data directory for run records and default workspaces (default: $LIBERO_AGENT_DATA or
-    /// ~/.local/share/libero-agent).
+    /// ~/.local/share/libero-agent). A worker's default is `workers/<worker id>` in there, a directory of its
+    /// own, so any number of workers run on one machine without flags (printed at start): its server's data in
+    /// `server/`, the runner's files per batch beside it.
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// File holding the operator token for the dashboard and operator API (at least 16 characters). Without
@@ -58,10 +67,6 @@ pub struct ServeArgs {
     /// printed to stderr at each start.
     #[arg(long)]
     pub operator_token_file: Option<PathBuf>,
-    /// Replace the kept operator token with a new random one: every browser session, unused login link and
-    /// client holding the old token is refused from now on.
-    #[arg(long, conflicts_with = "operator_token_file")]
-    pub rotate_token: bool,
     /// A host name (or `name:port`) besides the loopback names under which this server is reached, e.g. behind
     /// a reverse proxy; requests naming any other `Host` are refused with 421. Repeatable.
     #[arg(long = "public-host", value_name = "NAME")]
@@ -71,20 +76,39 @@ pub struct ServeArgs {
     /// (default: the address it listens on).
     #[arg(long, value_name = "URL")]
     pub public_url: Option<String>,
-    /// More batch directories for the Results page, besides `<data>/batches/`: a batch directory itself or a
-    /// folder of them (e.g. `./agent_runs`, where `run` puts batches by default). Repeatable.
-    #[arg(long = "batches", value_name = "DIR")]
-    pub batches: Vec<PathBuf>,
+}
+
+/// The stores a server shares with other machines: `serve` and `worker` take the same two flags (a worker
+/// requires both: it claims from the queue in the one and uploads to the other).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct StoreFlags {
     /// The episode store: `sqlite://PATH` (default `<data>/episodes.sqlite`, embedded) or
     /// `postgres://USER@HOST:PORT/DB`, one store several servers can share (the password may come from
-    /// `PGPASSWORD` or `~/.pgpass` instead of the URL). Also $LIBERO_AGENT_STORE.
+    /// `PGPASSWORD` or `~/.pgpass` instead of the URL). A worker needs one: its queue is there. Also
+    /// $LIBERO_AGENT_STORE.
     #[arg(long, value_name = "URL", env = "LIBERO_AGENT_STORE")]
     pub store: Option<String>,
     /// The artifact store workers upload run directories to (`/shared/dir`, `file:///…` or `s3://BUCKET[/PREFIX]`
     /// with the `AWS_*` environment): reviews and videos of episodes run on other machines are fetched from there
-    /// on first view and kept under `<data>/artifact_cache/`. Also $LIBERO_AGENT_ARTIFACTS.
+    /// on first view and kept under `<data>/artifact_cache/`. A worker needs one. Also $LIBERO_AGENT_ARTIFACTS.
     #[arg(long, value_name = "URL", env = "LIBERO_AGENT_ARTIFACTS")]
     pub artifacts: Option<String>,
+}
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct ServeArgs {
+    #[command(flatten)]
+    pub server: ServerFlags,
+    /// Replace the kept operator token with a new random one: every browser session, unused login link and
+    /// client holding the old token is refused from now on.
+    #[arg(long, conflicts_with = "operator_token_file")]
+    pub rotate_token: bool,
+    /// More batch directories for the Results page, besides `<data>/batches/`: a batch directory itself or a
+    /// folder of them (e.g. `./agent_runs`, where `run` puts batches by default). Repeatable.
+    #[arg(long = "batches", value_name = "DIR")]
+    pub batches: Vec<PathBuf>,
+    #[command(flatten)]
+    pub stores: StoreFlags,
     /// Connection limits and timeouts of every listener (see [`listener`]).
     #[command(flatten)]
     pub limits: listener::ConnLimits,
@@ -266,8 +290,8 @@ impl App {
     }
 
     /// Prepares an episode and stores its row; an episode whose row cannot be stored is stopped again.
-    pub async fn prepare_stored(&self, req: PrepareRequest) -> Result<episodes::Prepared, Response> {
-        req.validate().map_err(|e| json_error(StatusCode::BAD_REQUEST, format!("{e:#}")))?;
+    pub async fn prepare_stored(&self, req: PrepareRequest) -> ApiResult<episodes::Prepared> {
+        req.validate().map_err(|e| ApiError::bad_request(format!("{e:#}")))?;
         // A branch's parent: its run directory as the store knows it (a run of another server on a shared store
         // whose directory this machine sees), else this server's own.
         let parent_run = match &req.branch {
@@ -282,15 +306,15 @@ impl App {
                     .downcast_ref::<episodes::BranchError>()
                     .and_then(|b| StatusCode::from_u16(b.http_status()).ok())
                     .unwrap_or(StatusCode::UNPROCESSABLE_ENTITY);
-                return Err(json_error(status, format!("{e:#}")));
+                return Err(ApiError::new(status, format!("{e:#}")));
             }
-            Err(e) => return Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("prepare failed: {e}"))),
+            Err(e) => return Err(ApiError::internal(format!("prepare failed: {e}"))),
         };
         if let Err(e) = self.insert_prepared(&prepared).await {
             let eps = self.episodes.clone();
             let id = prepared.episode_id.clone();
             let _ = tokio::task::spawn_blocking(move || eps.stop(&id, "the episode store refused its row")).await;
-            return Err(json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("cannot store the episode: {e:#}")));
+            return Err(ApiError::internal(format!("cannot store the episode: {e:#}")));
         }
         Ok(prepared)
     }
@@ -417,7 +441,8 @@ pub struct Bound {
 
 /// Locks the data directory, binds and opens everything a server needs.
 pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
-    if let Some(url) = &args.public_url {
+    let (flags, stores) = (&args.server, &args.stores);
+    if let Some(url) = &flags.public_url {
         check_public_url(url)?;
     }
     // Descriptors for a flood of connections and for the episodes' own files, renders and store.
@@ -430,14 +455,14 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
             limits.max_total, args.limits.max_connections
         );
     }
-    let data = args.data.clone().unwrap_or_else(default_data_dir);
+    let data = flags.data.clone().unwrap_or_else(default_data_dir);
     std::fs::create_dir_all(&data).with_context(|| format!("cannot create data directory {}", data.display()))?;
     let lock = DataLock::acquire(&data)?;
-    let mut operator = auth::Operator::for_server(&data, args.operator_token_file.as_deref(), args.rotate_token)?;
+    let mut operator = auth::Operator::for_server(&data, flags.operator_token_file.as_deref(), args.rotate_token)?;
     if let Some(console) = args.console {
         operator = operator.with_login_page(console.login_page);
     }
-    let listeners = listener::bind(args.addr).await?;
+    let listeners = listener::bind(flags.addr).await?;
     let local = listeners.first().context("no listener")?.local_addr()?;
     let operator = operator.listening_on(local, Some(data.join(credential::TOKEN_FILE)));
     let base_url = format!("http://{local}");
@@ -450,16 +475,16 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     if rebuilding > 0 {
         eprintln!("libero-agent serve: rebuilding {rebuilding} private video(s) from their state records in the background");
     }
-    let store = match &args.store {
+    let store = match &stores.store {
         Some(url) => Store::connect(url).await?,
         None => Store::open(&episodes.data_dir().join(STORE_FILE)).await?,
     };
     if store.backend() == store::Backend::Postgres {
-        eprintln!("libero-agent serve: episode store {}", store::redact(args.store.as_deref().unwrap_or_default()));
+        eprintln!("libero-agent serve: episode store {}", store::redact(stores.store.as_deref().unwrap_or_default()));
     }
     let reconciled = store.reconcile(&episodes.runs_dir()).await?;
-    let artifacts = args.artifacts.as_deref().map(libero_artifacts::Artifacts::open).transpose()?;
-    if let Some(url) = args.store.as_deref().filter(|_| store.backend() == store::Backend::Postgres) {
+    let artifacts = stores.artifacts.as_deref().map(libero_artifacts::Artifacts::open).transpose()?;
+    if let Some(url) = stores.store.as_deref().filter(|_| store.backend() == store::Backend::Postgres) {
         follow_store_changes(url, hubs.clone()).await?;
     }
     // A bad `--thumbnails-ahead` stops the start; a server without a console renders none ahead.
@@ -476,13 +501,13 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         progressed: Mutex::new(HashMap::new()),
         hubs,
         operator,
-        hosts: auth::AllowedHosts::new(local, &args.public_hosts),
+        hosts: auth::AllowedHosts::new(local, &flags.public_hosts),
         thumbnails,
         batch_roots: batch_roots(&data, &args.batches),
         teleop: Mutex::new(HashMap::new()),
         artifacts,
         console: args.console,
-        public_url: args.public_url.as_deref().map(|u| u.trim_end_matches('/').to_owned()).unwrap_or_else(|| base_url.clone()),
+        public_url: flags.public_url.as_deref().map(|u| u.trim_end_matches('/').to_owned()).unwrap_or_else(|| base_url.clone()),
     });
     Ok(Bound { app, listeners, limits, base_url, recovered, reconciled, calls_rx, ahead, _lock: lock, _registration: registration })
 }
@@ -660,19 +685,11 @@ async fn health(State(app): State<AppState>) -> Response {
     axum::Json(json!({"ok": true, "episodes": app.episodes.count(), "version": env!("CARGO_PKG_VERSION")})).into_response()
 }
 
-pub fn json_error(status: StatusCode, message: impl Into<String>) -> Response {
-    (status, axum::Json(json!({"ok": false, "error": message.into()}))).into_response()
-}
-
-async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> Response {
-    let req: PrepareRequest = match serde_json::from_slice(&body) {
-        Ok(r) => r,
-        Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("invalid prepare request: {e}")),
-    };
-    match app.prepare_stored(req).await {
-        Ok(prepared) => (StatusCode::CREATED, axum::Json(prepared)).into_response(),
-        Err(resp) => resp,
-    }
+async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> ApiResult {
+    let req: PrepareRequest =
+        serde_json::from_slice(&body).map_err(|e| ApiError::bad_request(format!("invalid prepare request: {e}")))?;
+    let prepared = app.prepare_stored(req).await?;
+    Ok((StatusCode::CREATED, axum::Json(prepared)).into_response())
 }
 
 /// A stored row for the API: no paths, plus the live state while this process serves the episode.
@@ -694,25 +711,18 @@ struct ListQuery {
 /// Largest page of `GET /api/episodes`.
 const MAX_LIST_LIMIT: i64 = 10_000;
 
-async fn list_episodes(State(app): State<AppState>, Query(q): Query<ListQuery>) -> Response {
+async fn list_episodes(State(app): State<AppState>, Query(q): Query<ListQuery>) -> ApiResult {
     app.sync_all().await;
     let limit = q.limit.unwrap_or(1000).clamp(1, MAX_LIST_LIMIT);
-    match app.store.list(limit).await {
-        Ok(rows) => {
-            let episodes: Vec<Value> = rows.iter().map(|r| episode_json(&app, r)).collect();
-            axum::Json(json!({"ok": true, "episodes": episodes})).into_response()
-        }
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
-    }
+    let rows = app.store.list(limit).await?;
+    let episodes: Vec<Value> = rows.iter().map(|r| episode_json(&app, r)).collect();
+    Ok(axum::Json(json!({"ok": true, "episodes": episodes})).into_response())
 }
 
-async fn episode_status(State(app): State<AppState>, Path(id): Path<String>) -> Response {
+async fn episode_status(State(app): State<AppState>, Path(id): Path<String>) -> ApiResult {
     app.sync(&id).await;
-    match app.store.get(&id).await {
-        Ok(Some(row)) => axum::Json(episode_json(&app, &row)).into_response(),
-        Ok(None) => json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
-    }
+    let row = app.store.get(&id).await?.ok_or_else(|| ApiError::not_found(format!("no episode {id}")))?;
+    Ok(axum::Json(episode_json(&app, &row)).into_response())
 }
 
 /// Whether the private video is there (`video`), and where its rendering stands (`video_status`: `state`
@@ -727,17 +737,14 @@ pub fn video_part(episodes: &Episodes, run: &RunDir) -> Value {
 }
 
 /// `GET /api/episodes/{id}/video`: [`video_part`] of a stored episode (what a worker waits on before uploading).
-async fn episode_video(State(app): State<AppState>, Path(id): Path<String>) -> Response {
-    let run = match app.store.get(&id).await {
-        Ok(Some(row)) => RunDir::new(row.episode.run_dir),
-        Ok(None) => return json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
-        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
-    };
+async fn episode_video(State(app): State<AppState>, Path(id): Path<String>) -> ApiResult {
+    let row = app.store.get(&id).await?.ok_or_else(|| ApiError::not_found(format!("no episode {id}")))?;
+    let run = RunDir::new(row.episode.run_dir);
     let episodes = app.episodes.clone();
-    match tokio::task::spawn_blocking(move || video_part(&episodes, &run)).await {
-        Ok(v) => axum::Json(v).into_response(),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("video: {e}")),
-    }
+    let v = tokio::task::spawn_blocking(move || video_part(&episodes, &run))
+        .await
+        .map_err(|e| ApiError::internal(format!("video: {e}")))?;
+    Ok(axum::Json(v).into_response())
 }
 
 #[derive(serde::Deserialize)]
@@ -748,34 +755,33 @@ struct AbortRequest {
 /// Ends an open episode as aborted (INVALID) with the caller's reason: the batch runner's answer to an agent
 /// that exited or was killed before `finish_episode` without the sandbox (the original launcher killed its
 /// server instead). A finished episode is left as it is.
-async fn abort_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> Response {
+async fn abort_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> ApiResult {
     end_episode(app, id, body, false).await
 }
 
 /// `POST /api/episodes/{id}/forfeit {"reason": "…"}`: the runner's word that the agent's harness ended without
 /// `finish_episode`. The episode ends as the agent's FAIL (never INVALID: nothing an agent does may earn it a
 /// rerun); an episode that already ended is left as it is. Operator-only, as abort.
-async fn forfeit_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> Response {
+async fn forfeit_episode(State(app): State<AppState>, Path(id): Path<String>, body: axum::body::Bytes) -> ApiResult {
     end_episode(app, id, body, true).await
 }
 
 /// Abort or forfeit: the reason (at most 1000 characters kept), the ending on a blocking thread, the store synced.
-async fn end_episode(app: AppState, id: String, body: axum::body::Bytes, forfeit: bool) -> Response {
+async fn end_episode(app: AppState, id: String, body: axum::body::Bytes, forfeit: bool) -> ApiResult {
     let reason = match serde_json::from_slice::<AbortRequest>(&body) {
         Ok(r) if !r.reason.trim().is_empty() => r.reason.chars().take(1000).collect::<String>(),
-        _ => return json_error(StatusCode::BAD_REQUEST, "body must be {\"reason\": \"…\"}"),
+        _ => return Err(ApiError::bad_request("body must be {\"reason\": \"…\"}")),
     };
     let eps = app.episodes.clone();
     let id2 = id.clone();
-    let ended = tokio::task::spawn_blocking(move || if forfeit { eps.forfeit(&id2, &reason) } else { eps.stop(&id2, &reason) });
-    match ended.await {
-        Ok(true) => {
-            app.sync(&id).await;
-            episode_status(State(app), Path(id)).await
-        }
-        Ok(false) => json_error(StatusCode::NOT_FOUND, format!("no open episode {id} on this server")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("ending the episode failed: {e}")),
+    let ended = tokio::task::spawn_blocking(move || if forfeit { eps.forfeit(&id2, &reason) } else { eps.stop(&id2, &reason) })
+        .await
+        .map_err(|e| ApiError::internal(format!("ending the episode failed: {e}")))?;
+    if !ended {
+        return Err(ApiError::not_found(format!("no open episode {id} on this server")));
     }
+    app.sync(&id).await;
+    episode_status(State(app), Path(id)).await
 }
 
 /// `Authorization: Bearer <token>`, if present.
@@ -787,11 +793,9 @@ pub fn bearer(headers: &HeaderMap) -> Option<&str> {
 async fn mcp_endpoint(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
     let Some(access) = app.episodes.mcp_access(&id, bearer(req.headers())) else {
         // The body is not read: close the connection so a keep-alive client never reuses it mid-body.
-        return (
-            StatusCode::UNAUTHORIZED,
-            [(header::WWW_AUTHENTICATE, "Bearer"), (header::CONNECTION, "close")],
-            axum::Json(json!({"ok": false, "error": "missing or invalid episode token"})),
-        )
+        return ApiError::unauthorized("missing or invalid episode token")
+            .with_header(header::WWW_AUTHENTICATE, "Bearer")
+            .with_header(header::CONNECTION, "close")
             .into_response();
     };
     mcp_gate::serve(access, &id, req).await

@@ -14,6 +14,7 @@ use serde_json::{Map, Value, json};
 
 use crate::episodes::{LiveMcp, MAX_SESSIONS_PER_EPISODE, McpAccess};
 use crate::mcp::envelope;
+use crate::{ApiError, ApiResult};
 
 /// Largest MCP request body read; a 50-action `osc_sequence` is a few kilobytes.
 const MAX_MCP_BODY_BYTES: usize = 4 << 20;
@@ -30,22 +31,17 @@ pub async fn serve(access: McpAccess, id: &str, req: Request<Body>) -> Response 
 
 /// The whole body, read before anything answers: a service that answers early (415, 413) without reading it
 /// would leave the rest on a kept-alive connection and break the client's next request.
-async fn read_body(body: Body) -> Result<Bytes, Response> {
-    axum::body::to_bytes(body, MAX_MCP_BODY_BYTES).await.map_err(|_| {
-        (
-            StatusCode::PAYLOAD_TOO_LARGE,
-            [(header::CONNECTION, "close")],
-            axum::Json(json!({"ok": false, "error": format!("request body over {MAX_MCP_BODY_BYTES} bytes")})),
-        )
-            .into_response()
-    })
+async fn read_body(body: Body) -> ApiResult<Bytes> {
+    axum::body::to_bytes(body, MAX_MCP_BODY_BYTES)
+        .await
+        .map_err(|_| ApiError::too_large(format!("request body over {MAX_MCP_BODY_BYTES} bytes")).with_header(header::CONNECTION, "close"))
 }
 
 async fn serve_live(live: LiveMcp, id: &str, req: Request<Body>) -> Response {
     let (parts, body) = req.into_parts();
     let bytes = match read_body(body).await {
         Ok(b) => b,
-        Err(resp) => return resp,
+        Err(e) => return e.into_response(),
     };
     let message: Value = serde_json::from_slice(&bytes).unwrap_or(Value::Null);
     // A new session is admitted only under the cap; the guard is held until rmcp has registered it.
@@ -84,17 +80,12 @@ async fn serve_ended(handle: &EpisodeHandle, id: &str, req: Request<Body>) -> Re
         Method::DELETE => return StatusCode::NO_CONTENT.into_response(),
         // No event stream to open: MCP clients take 405 as "this server offers none" and stop asking.
         _ => {
-            return (
-                StatusCode::METHOD_NOT_ALLOWED,
-                [(header::ALLOW, "POST, DELETE")],
-                axum::Json(json!({"ok": false, "error": ended.message})),
-            )
-                .into_response();
+            return ApiError::new(StatusCode::METHOD_NOT_ALLOWED, ended.message).with_header(header::ALLOW, "POST, DELETE").into_response();
         }
     }
     let bytes = match read_body(body).await {
         Ok(b) => b,
-        Err(resp) => return resp,
+        Err(e) => return e.into_response(),
     };
     let message: Value = serde_json::from_slice(&bytes).unwrap_or(Value::Null);
     let Some(request_id) = message.get("id").filter(|_| message.get("method").is_some()) else {

@@ -4,13 +4,12 @@
 //! like the rest of the operator API; every event is bounded again here and the file stays within its limit.
 use axum::body::Bytes;
 use axum::extract::{Path, State};
-use axum::http::StatusCode;
-use axum::response::{IntoResponse, Response};
+use axum::response::IntoResponse;
 use libero_episode::RunDir;
 use libero_episode::agent_events::{AgentEvent, TranscriptFile};
 use serde_json::json;
 
-use crate::{AppState, json_error};
+use crate::{ApiError, ApiResult, AppState};
 
 /// Most events one request may add.
 pub const MAX_EVENTS_PER_POST: usize = 1000;
@@ -27,25 +26,20 @@ fn plain_id(id: &str) -> bool {
     !id.is_empty() && id.len() <= 96 && id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
-pub async fn ingest(State(app): State<AppState>, Path(id): Path<String>, body: Bytes) -> Response {
+pub async fn ingest(State(app): State<AppState>, Path(id): Path<String>, body: Bytes) -> ApiResult {
     if body.len() > MAX_POST_BYTES {
-        return json_error(StatusCode::PAYLOAD_TOO_LARGE, format!("at most {MAX_POST_BYTES} bytes per request"));
+        return Err(ApiError::too_large(format!("at most {MAX_POST_BYTES} bytes per request")));
     }
-    let posted: Posted = match serde_json::from_slice(&body) {
-        Ok(p) => p,
-        Err(e) => return json_error(StatusCode::BAD_REQUEST, format!("body must be {{\"events\": [agent events]}}: {e}")),
-    };
+    let posted: Posted = serde_json::from_slice(&body)
+        .map_err(|e| ApiError::bad_request(format!("body must be {{\"events\": [agent events]}}: {e}")))?;
     if posted.events.len() > MAX_EVENTS_PER_POST {
-        return json_error(StatusCode::PAYLOAD_TOO_LARGE, format!("at most {MAX_EVENTS_PER_POST} events per request"));
+        return Err(ApiError::too_large(format!("at most {MAX_EVENTS_PER_POST} events per request")));
     }
     if !plain_id(&id) {
-        return json_error(StatusCode::NOT_FOUND, "no such episode");
+        return Err(ApiError::not_found("no such episode"));
     }
-    let run = match app.store.get(&id).await {
-        Ok(Some(row)) => RunDir::new(row.episode.run_dir),
-        Ok(None) => return json_error(StatusCode::NOT_FOUND, format!("no episode {id}")),
-        Err(e) => return json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")),
-    };
+    let row = app.store.get(&id).await?.ok_or_else(|| ApiError::not_found(format!("no episode {id}")))?;
+    let run = RunDir::new(row.episode.run_dir);
     let written = tokio::task::spawn_blocking(move || -> std::io::Result<(u64, bool)> {
         if !run.root.is_dir() {
             return Err(std::io::Error::new(std::io::ErrorKind::NotFound, "the episode's run directory is not on this server"));
@@ -55,11 +49,11 @@ pub async fn ingest(State(app): State<AppState>, Path(id): Path<String>, body: B
         file.sync()?;
         Ok((file.written().events, file.is_full()))
     })
-    .await;
+    .await
+    .map_err(|e| ApiError::internal(format!("transcript: {e}")))?;
     match written {
-        Ok(Ok((accepted, full))) => axum::Json(json!({"ok": true, "accepted": accepted, "full": full})).into_response(),
-        Ok(Err(e)) if e.kind() == std::io::ErrorKind::NotFound => json_error(StatusCode::CONFLICT, e.to_string()),
-        Ok(Err(e)) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("cannot write the transcript: {e}")),
-        Err(e) => json_error(StatusCode::INTERNAL_SERVER_ERROR, format!("transcript: {e}")),
+        Ok((accepted, full)) => Ok(axum::Json(json!({"ok": true, "accepted": accepted, "full": full})).into_response()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(ApiError::conflict(e.to_string())),
+        Err(e) => Err(ApiError::internal(format!("cannot write the transcript: {e}"))),
     }
 }

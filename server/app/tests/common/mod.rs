@@ -54,11 +54,17 @@ impl Server {
     /// With more `serve` arguments (e.g. `--batches DIR`). Thumbnails are not rendered ahead (every test server
     /// would otherwise render every task's in the background) unless `extra` asks with `--thumbnails-ahead`.
     pub fn start_with(data: &Path, extra: &[&str]) -> Self {
+        Self::start_with_env(data, extra, &[])
+    }
+
+    /// With more `serve` arguments and environment variables (e.g. `LIBERO_AGENT_TASKS_DIR`).
+    pub fn start_with_env(data: &Path, extra: &[&str], env: &[(&str, &std::ffi::OsStr)]) -> Self {
         let mut child = Command::new(bin())
             .args(["serve", "--addr", "127.0.0.1:0", "--data"])
             .arg(data)
             .args(extra)
             .env("LIBERO_AGENT_THUMBNAILS_AHEAD", "off")
+            .envs(env.iter().copied())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()

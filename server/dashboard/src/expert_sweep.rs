@@ -1,0 +1,103 @@
+//! The last expert sweep of the pool (`libero-agent expert --all --suite all`: `tasks/results/expert_sweep.jsonl`
+//! and its `expert_sweep.meta.json`), as the Tasks page and the task pages show it: "expert: solved 3/3 on
+//! 2026-11-27 at b63b099". Read on demand and kept until either file's modification time changes, so a new sweep
+//! shows without a restart; a missing or unreadable file shows nothing (it is a note, not a page's reason to fail).
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::SystemTime;
+
+use serde_json::Value;
+
+/// The sweep file under the tasks folder (`$LIBERO_AGENT_TASKS_DIR`, else the repository's `tasks/`).
+fn sweep_path() -> PathBuf {
+    libero_tasks::catalog::tasks_dir().join("results").join("expert_sweep.jsonl")
+}
+
+/// `expert_sweep.jsonl` → `expert_sweep.meta.json` (as `expert --all` writes it).
+fn meta_path(sweep: &Path) -> PathBuf {
+    sweep.with_file_name("expert_sweep.meta.json")
+}
+
+fn modified(path: &Path) -> Option<SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
+}
+
+/// The files' identity a cached reading stands for.
+type Stamp = (PathBuf, Option<SystemTime>, Option<SystemTime>);
+
+/// The line per task: keyed by the expert's task id (`T14`, `libero_90/<NAME>`) and by the pool address.
+type Lines = Arc<HashMap<String, String>>;
+
+/// The last reading and the files' identity it stands for.
+static CACHE: Mutex<Option<(Stamp, Lines)>> = Mutex::new(None);
+
+/// "solved 3/3 on 2026-11-27 at b63b099" for a sweep row (no expert, an error, or a failure say so instead).
+fn line_of(row: &Value, date: &str, commit: &str) -> String {
+    let runs = row["runs"].as_u64().unwrap_or(0);
+    let what = if row["expert"] == false {
+        "no plan for its goal".to_owned()
+    } else if row.get("error").is_some_and(|e| !e.is_null()) {
+        "the run failed with an error".to_owned()
+    } else {
+        format!("solved {}/{runs}", row["successes"].as_u64().unwrap_or(0))
+    };
+    let mut line = what;
+    if !date.is_empty() {
+        line.push_str(&format!(" on {date}"));
+    }
+    if !commit.is_empty() {
+        line.push_str(&format!(" at {commit}"));
+    }
+    line
+}
+
+/// Reads the sweep and its metadata; `None` when there is no readable sweep.
+fn read(sweep: &Path) -> Option<HashMap<String, String>> {
+    let text = std::fs::read_to_string(sweep).ok()?;
+    let meta: Value = std::fs::read_to_string(meta_path(sweep)).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or(Value::Null);
+    let date: String = meta["date_utc"].as_str().unwrap_or("").chars().take(10).collect();
+    let commit = meta["commit"].as_str().unwrap_or("");
+    let mut lines = HashMap::new();
+    for row in text.lines().filter_map(|l| serde_json::from_str::<Value>(l).ok()) {
+        let line = line_of(&row, &date, commit);
+        for key in ["task", "entry"] {
+            if let Some(k) = row[key].as_str() {
+                lines.insert(k.to_owned(), line.clone());
+            }
+        }
+    }
+    Some(lines)
+}
+
+/// The sweep's lines as of now (re-read when the files changed).
+fn current() -> Lines {
+    let sweep = sweep_path();
+    let stamp = (sweep.clone(), modified(&sweep), modified(&meta_path(&sweep)));
+    let Ok(mut cache) = CACHE.lock() else { return Arc::default() };
+    if let Some((_, lines)) = cache.as_ref().filter(|(s, _)| *s == stamp) {
+        return lines.clone();
+    }
+    let lines = Arc::new(read(&sweep).unwrap_or_default());
+    *cache = Some((stamp, lines.clone()));
+    lines
+}
+
+/// What the last sweep says of the first of `ids` it has (a task id, a pool address, a task reference), or "".
+pub fn expert_line(ids: &[&str]) -> String {
+    let lines = current();
+    ids.iter().find_map(|id| lines.get(*id).cloned()).unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn rows_read_as_solved_counts_with_the_sweeps_date_and_commit() {
+        assert_eq!(line_of(&json!({"runs": 3, "successes": 2, "expert": true}), "2026-11-27", "b63b099"), "solved 2/3 on 2026-11-27 at b63b099");
+        assert_eq!(line_of(&json!({"runs": 0, "expert": false}), "", ""), "no plan for its goal");
+        assert_eq!(line_of(&json!({"runs": 3, "expert": true, "error": "boom"}), "2026-11-27", ""), "the run failed with an error on 2026-11-27");
+    }
+}
