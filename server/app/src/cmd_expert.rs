@@ -188,22 +188,6 @@ impl ToolPort for McpPort {
     }
 }
 
-/// Every entry with an expert and its behaviours, one JSON line each: the release tasks first, then the stock
-/// LIBERO tasks and the pool's own definitions, in the order `expert --all` runs them.
-fn list() -> anyhow::Result<()> {
-    for t in crate::cmd_expert_all::selected_tasks(&[crate::cmd_expert_all::ALL.to_owned()])? {
-        if let Some(b) = libero_tasks::expert_behaviours(&t.task) {
-            let all: Vec<&str> = [expert::SOLVE, IDLE].into_iter().chain(b.iter().copied()).collect();
-            let mut line = json!({"task": t.task, "suite": t.suite, "behaviours": all});
-            if let Some(entry) = &t.entry {
-                line["entry"] = json!(entry);
-            }
-            println!("{line}");
-        }
-    }
-    Ok(())
-}
-
 /// The `(behaviour, runs)` that `--behaviour` asks of `task_id`, checked against its expert before anything runs.
 fn behaviour_plan(task_id: &str, asked: &str, runs: u32) -> anyhow::Result<Vec<(String, u32)>> {
     let known = libero_tasks::expert_behaviours(task_id).unwrap_or_default();
@@ -247,10 +231,7 @@ fn expert_task(asked: &str, paths: &AssetPaths) -> anyhow::Result<(String, liber
 }
 
 pub fn run(args: &ExpertArgs) -> anyhow::Result<()> {
-    if args.list {
-        return list();
-    }
-    // `--all` (without `--list`) is `cmd_expert_all::run_all`, dispatched by main.
+    // `--list` and `--all` are `cmd_expert_all`'s, dispatched by main.
     let asked = normalize_task_id(args.task.as_deref().unwrap_or_default());
     if args.runs == 0 {
         bail!("--runs must be at least 1");

@@ -390,3 +390,19 @@ fn print_table(rows: &[Value]) {
         println!("{task:<width$}  {solved:>7}  {wall_s:>8.1}  {}", verdict(r));
     }
 }
+
+/// Every entry with an expert and its behaviours, one JSON line each: the release tasks first, then the stock
+/// LIBERO tasks and the pool's own definitions, in the order `expert --all` runs them.
+pub fn list() -> anyhow::Result<()> {
+    for t in selected_tasks(&[ALL.to_owned()])? {
+        if let Some(b) = libero_tasks::expert_behaviours(&t.task) {
+            let all: Vec<&str> = [expert::SOLVE, libero_episode::expert_run::IDLE].into_iter().chain(b.iter().copied()).collect();
+            let mut line = json!({"task": t.task, "suite": t.suite, "behaviours": all});
+            if let Some(entry) = &t.entry {
+                line["entry"] = json!(entry);
+            }
+            println!("{line}");
+        }
+    }
+    Ok(())
+}

@@ -153,7 +153,9 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::Episode(a) => cmd_episode::run_episode(a),
         #[cfg(feature = "episode-serve")]
-        Command::Expert(a) if a.all && !a.list => cmd_expert_all::run_all(&a),
+        Command::Expert(a) if a.list => cmd_expert_all::list(),
+        #[cfg(feature = "episode-serve")]
+        Command::Expert(a) if a.all => cmd_expert_all::run_all(&a),
         #[cfg(feature = "episode-serve")]
         Command::Expert(a) => cmd_expert::run(&a),
         #[cfg(feature = "episode-serve")]
