@@ -140,12 +140,17 @@ pub fn release_unused() {
 
 /// Compiled scenes alive (for tests and benchmarks).
 pub fn compiled_scenes_alive() -> usize {
-    COMPILED.lock().map(|c| c.values().filter(|m| m.strong_count() > 0).count()).unwrap_or(0)
+    count_alive(&COMPILED)
 }
 
 /// Models alive in the cache (for tests and benchmarks).
 pub fn alive() -> usize {
-    MODELS.lock().map(|c| c.values().filter(|m| m.strong_count() > 0).count()).unwrap_or(0)
+    count_alive(&MODELS)
+}
+
+/// Entries of a weak cache whose model is still alive.
+fn count_alive(cache: &Mutex<HashMap<[u8; 32], Weak<MjModel>>>) -> usize {
+    cache.lock().map(|c| c.values().filter(|m| m.strong_count() > 0).count()).unwrap_or(0)
 }
 
 /// The model whose buffer `model` reads its large arrays from, and how many bytes of arrays it reads there;
@@ -187,6 +192,10 @@ unsafe fn read_word(m: &mjModel, off: usize) -> usize {
     unsafe { std::ptr::read_unaligned((m as *const mjModel).cast::<u8>().add(off).cast::<usize>()) }
 }
 
+/// Writes the word at byte offset `off` of the struct.
+///
+/// # Safety
+/// As [`read_word`]; the word is one of the model's array pointers.
 unsafe fn write_word(m: &mut mjModel, off: usize, value: usize) {
     unsafe { std::ptr::write_unaligned((m as *mut mjModel).cast::<u8>().add(off).cast::<usize>(), value) }
 }
