@@ -33,8 +33,6 @@ pub const PAPER_REPS: usize = 3;
 
 #[derive(Debug, thiserror::Error)]
 pub enum MetricsError {
-    #[error("unknown outcome {0:?}")]
-    UnknownOutcome(String),
     #[error("unknown split {0:?}")]
     UnknownSplit(String),
 }
@@ -104,45 +102,8 @@ impl std::str::FromStr for Split {
     }
 }
 
-/// Batch outcome of one rollout (protocol §4.8).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "SCREAMING_SNAKE_CASE")]
-pub enum Outcome {
-    Success,
-    Fail,
-    SimTimeout,
-    WatchdogTimeout,
-    Invalid,
-    Interrupted,
-}
-
-impl Outcome {
-    pub const ALL: [Outcome; 6] =
-        [Outcome::Success, Outcome::Fail, Outcome::SimTimeout, Outcome::WatchdogTimeout, Outcome::Invalid, Outcome::Interrupted];
-
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Outcome::Success => "SUCCESS",
-            Outcome::Fail => "FAIL",
-            Outcome::SimTimeout => "SIM_TIMEOUT",
-            Outcome::WatchdogTimeout => "WATCHDOG_TIMEOUT",
-            Outcome::Invalid => "INVALID",
-            Outcome::Interrupted => "INTERRUPTED",
-        }
-    }
-
-    /// Counted in success-rate denominators: timeouts are failures, INVALID/INTERRUPTED are excluded.
-    pub fn is_valid(self) -> bool {
-        !matches!(self, Outcome::Invalid | Outcome::Interrupted)
-    }
-}
-
-impl std::str::FromStr for Outcome {
-    type Err = MetricsError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Outcome::ALL.into_iter().find(|x| x.as_str() == s).ok_or_else(|| MetricsError::UnknownOutcome(s.to_owned()))
-    }
-}
+/// Batch outcome of one rollout (protocol §4.8): defined once, with the records.
+pub use libero_records::records::{Outcome, UnknownOutcome};
 
 /// What the metrics need of one rollout.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

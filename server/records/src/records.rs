@@ -149,28 +149,62 @@ pub fn aborted_result(reason: &str, max_wall_time_s: f64, wall_time_s: Option<f6
     })
 }
 
-/// Batch outcome of one episode (§4.8; the harness-level WATCHDOG_TIMEOUT/INTERRUPTED are not ours).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+/// The outcome class of one episode or rollout (§4.8): the one definition the episode, the runner, the store and
+/// the metrics share. An episode alone ends SUCCESS, FAIL, SIM_TIMEOUT or INVALID ([`classify`]); the harness adds
+/// WATCHDOG_TIMEOUT and INTERRUPTED ([`classify_rollout`], and a batch interrupted before its rollout ran).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "SCREAMING_SNAKE_CASE")]
 pub enum Outcome {
     Success,
     Fail,
     SimTimeout,
+    WatchdogTimeout,
     Invalid,
+    Interrupted,
 }
 
 impl Outcome {
+    pub const ALL: [Outcome; 6] =
+        [Outcome::Success, Outcome::Fail, Outcome::SimTimeout, Outcome::WatchdogTimeout, Outcome::Invalid, Outcome::Interrupted];
+
     pub fn as_str(self) -> &'static str {
         match self {
             Outcome::Success => "SUCCESS",
             Outcome::Fail => "FAIL",
             Outcome::SimTimeout => "SIM_TIMEOUT",
+            Outcome::WatchdogTimeout => "WATCHDOG_TIMEOUT",
             Outcome::Invalid => "INVALID",
+            Outcome::Interrupted => "INTERRUPTED",
         }
+    }
+
+    /// Counted in success-rate denominators: timeouts are failures, INVALID/INTERRUPTED are excluded.
+    pub fn is_valid(self) -> bool {
+        !matches!(self, Outcome::Invalid | Outcome::Interrupted)
     }
 }
 
-/// `classify()`: a missing result is INVALID.
+/// A string that names no outcome class.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnknownOutcome(pub String);
+
+impl std::fmt::Display for UnknownOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "unknown outcome {:?} (one of SUCCESS, FAIL, SIM_TIMEOUT, WATCHDOG_TIMEOUT, INVALID, INTERRUPTED)", self.0)
+    }
+}
+
+impl std::error::Error for UnknownOutcome {}
+
+impl std::str::FromStr for Outcome {
+    type Err = UnknownOutcome;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Outcome::ALL.into_iter().find(|x| x.as_str() == s).ok_or_else(|| UnknownOutcome(s.to_owned()))
+    }
+}
+
+/// An episode's outcome from its `result.json` (§4.8): a missing, unfinished or infrastructure-failed result is
+/// INVALID; a success SUCCESS; an exhausted wall-time budget SIM_TIMEOUT; anything else FAIL.
 pub fn classify(result: Option<&Value>) -> Outcome {
     let Some(r) = result else { return Outcome::Invalid };
     let infra = r.get("infrastructure_error").is_some_and(|v| !v.is_null());
@@ -184,6 +218,25 @@ pub fn classify(result: Option<&Value>) -> Outcome {
     } else {
         Outcome::Fail
     }
+}
+
+/// The harness's watchdog error text (§8.4), which [`classify_rollout`] reads as WATCHDOG_TIMEOUT once the episode
+/// has used its whole wall budget.
+pub const WATCHDOG_ERROR: &str = "multi-agent rollout wall-clock supervision timeout";
+
+/// A rollout's outcome (§4.8 with the harness): the watchdog's kill of an agent past a spent `budget_s` is
+/// WATCHDOG_TIMEOUT; any other harness infrastructure error INVALID; else the episode's own [`classify`].
+pub fn classify_rollout(result: Option<&Value>, infra: Option<&str>, budget_s: f64) -> Outcome {
+    if let (Some(r), Some(e)) = (result, infra)
+        && e.contains("wall-clock supervision timeout")
+        && r["wall_time_seconds"].as_f64().is_some_and(|w| w >= budget_s)
+    {
+        return Outcome::WatchdogTimeout;
+    }
+    if infra.is_some() {
+        return Outcome::Invalid;
+    }
+    classify(result)
 }
 
 /// Reads `result.json` if present and parseable.

@@ -37,31 +37,8 @@ pub const WATCHDOG_GRACE_S: f64 = 45.0;
 /// SIGTERM → SIGKILL grace for the agent's process group.
 const KILL_GRACE: Duration = Duration::from_secs(10);
 
-pub const WATCHDOG_ERROR: &str = "multi-agent rollout wall-clock supervision timeout";
-
-/// §4.8 with the harness's infrastructure error.
-pub fn classify(result: Option<&Value>, infra: Option<&str>, budget_s: f64) -> Outcome {
-    if let (Some(r), Some(e)) = (result, infra)
-        && e.contains("wall-clock supervision timeout")
-        && r["wall_time_seconds"].as_f64().is_some_and(|w| w >= budget_s)
-    {
-        return Outcome::WatchdogTimeout;
-    }
-    if infra.is_some() {
-        return Outcome::Invalid;
-    }
-    let Some(r) = result else { return Outcome::Invalid };
-    if r["status"] != "finished" || r.get("infrastructure_error").is_some_and(|v| !v.is_null()) {
-        return Outcome::Invalid;
-    }
-    if r["success"] == true {
-        Outcome::Success
-    } else if r["termination_reason"] == "episode_wall_time_budget_exhausted" {
-        Outcome::SimTimeout
-    } else {
-        Outcome::Fail
-    }
-}
+/// The rollout's outcome rule and the watchdog's error text live with the records (one home for §4.8).
+pub use libero_episode::records::{WATCHDOG_ERROR, classify_rollout as classify};
 
 /// Why an agent whose harness exited before `finish_episode` should not be judged, if anything but the agent
 /// caused it: the sandbox never started, or the model API failed it (the gateway's records, which the agent cannot
