@@ -343,6 +343,9 @@ fn validate(m: &Manifest) -> Result<(), String> {
         if t.implemented && !crate::checkers::EVALUATOR_KINDS.contains(&t.checker.kind.as_str()) {
             return Err(at(format!("checker {} has no evaluator in this build", t.checker.kind)));
         }
+        if t.implemented {
+            crate::checkers::check_params(&t.checker.kind, &t.checker.params, &t.id).map_err(at)?;
+        }
         t.checker.stage_types().map_err(at)?;
     }
     Ok(())

@@ -34,8 +34,9 @@ pub const REGISTERED_SUITES: [(&str, usize); 15] = [
     ("robomemarena", 26),
 ];
 
-/// Stock LIBERO suites: their entries run the stock BDDL and init file of the same name.
-pub const STOCK_SUITES: [&str; 5] = ["libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90"];
+/// Stock LIBERO suites: their entries run the stock BDDL and init file of the same name. Defined beside the generic
+/// stock expert that plays them, so that family needs nothing of the pool.
+pub use crate::families::libero::stock::STOCK_SUITES;
 
 /// The one suite whose task ids start at 1 (RoboMemArena Tasks 1–26).
 const ONE_BASED_SUITE: &str = "robomemarena";
@@ -347,6 +348,7 @@ fn validate_entry(e: &PoolEntry, catalog: &Catalog, names: &BTreeSet<String>, fa
             }
             (None, Some(d)) if crate::checkers::EVALUATOR_KINDS.contains(&e.checker.as_str()) => {
                 crate::judge::stage_types::declared_stage_types(&d.checker_params)?;
+                crate::checkers::check_params(&e.checker, &d.checker_params, &e.id())?;
             }
             (None, Some(_)) => return Err(format!("checker {} has no evaluator in this build", e.checker)),
             _ => return Err("an implemented entry outside stock LIBERO runs as a release task or on its own definition, not both".into()),

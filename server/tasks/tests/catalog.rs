@@ -122,3 +122,48 @@ fn every_stage_of_every_staged_task_declares_its_type() {
     }
     assert!(pool_stages >= 80, "the pool's staged entries were checked: {pool_stages} stages");
 }
+
+/// Copies the tasks folder's manifest, applies `edit` to it, and loads it: the error, or "" when it loads.
+fn load_edited_manifest(edit: impl FnOnce(&mut serde_json::Value)) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let src = libero_tasks::catalog::tasks_dir();
+    let mut manifest: serde_json::Value = serde_json::from_slice(&std::fs::read(src.join("manifest.json")).unwrap()).unwrap();
+    edit(&mut manifest);
+    std::fs::write(dir.path().join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
+    Catalog::load(dir.path()).map(|_| String::new()).unwrap_or_else(|e| e.to_string())
+}
+
+/// The manifest is the one source of every checker threshold: a params field the checker does not know, or one it
+/// needs and the manifest lacks, is refused when the manifest loads, naming the task and the field.
+#[test]
+fn a_checker_with_an_unknown_or_missing_params_field_is_refused_naming_it() {
+    assert_eq!(load_edited_manifest(|_| {}), "", "the unedited copy loads");
+    let index = |m: &serde_json::Value, id: &str| m["tasks"].as_array().unwrap().iter().position(|t| t["id"] == id).unwrap();
+    let err = load_edited_manifest(|m| {
+        let i = index(m, "T29");
+        m["tasks"][i]["checker"]["params"]["nail_drive_mm"] = 75.into();
+    });
+    assert!(err.contains("T29") && err.contains("unknown field `nail_drive_mm`"), "{err}");
+    let err = load_edited_manifest(|m| {
+        let i = index(m, "T19");
+        m["tasks"][i]["checker"]["params"].as_object_mut().unwrap().remove("cover_radius_m");
+    });
+    assert!(err.contains("T19") && err.contains("missing field `cover_radius_m`"), "{err}");
+    // the pour counter's thresholds are flattened into T20's params: refused there too
+    let err = load_edited_manifest(|m| {
+        let i = index(m, "T20");
+        m["tasks"][i]["checker"]["params"].as_object_mut().unwrap().remove("tilt_enter_rad");
+    });
+    assert!(err.contains("T20") && err.contains("missing field `tilt_enter_rad`"), "{err}");
+    let err = load_edited_manifest(|m| {
+        let i = index(m, "T20");
+        m["tasks"][i]["checker"]["params"]["tilt_rad"] = 0.7.into();
+    });
+    assert!(err.contains("T20") && err.contains("tilt_rad"), "{err}");
+    // a staged atom with a misspelt threshold
+    let err = load_edited_manifest(|m| {
+        let i = index(m, "T24");
+        m["tasks"][i]["checker"]["params"]["pour_counters"][0]["lift_delta"] = 0.03.into();
+    });
+    assert!(err.contains("T24") && err.contains("lift_delta"), "{err}");
+}

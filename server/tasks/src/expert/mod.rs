@@ -22,6 +22,36 @@ use crate::judge::predicates::SceneIndex;
 /// The behaviour that solves the task.
 pub const SOLVE: &str = "solve";
 
+/// Builds a task's expert: `(scene, behaviour, task id)`, the behaviour [`SOLVE`] or one of the entry's near misses.
+pub type BuildExpert = fn(&SceneRefs, &str, &str) -> Result<Box<dyn Expert>, TasksError>;
+
+/// One task's scripted expert as a table row: each expert module lists its tasks this way and the registry
+/// concatenates the families' tables, so a task id is written once, beside its behaviours and its script.
+#[derive(Debug, Clone, Copy)]
+pub struct ExpertEntry {
+    /// The task id (`T11`, `suite/name`).
+    pub task: &'static str,
+    /// The near-miss behaviours, in the order they are listed to users (besides [`SOLVE`]).
+    pub behaviours: &'static [&'static str],
+    pub build: BuildExpert,
+}
+
+/// An expert that plays every task of whole suites (`suite/NAME`): the generic stock LIBERO expert, which plans
+/// from each scene's own goal, so it has no per-task rows.
+#[derive(Debug, Clone, Copy)]
+pub struct SuiteExpert {
+    pub suites: &'static [&'static str],
+    pub behaviours: &'static [&'static str],
+    pub build: BuildExpert,
+}
+
+impl SuiteExpert {
+    /// Whether `task_id` is `suite/NAME` of one of the suites (NAME non-empty, one level).
+    pub fn plays(&self, task_id: &str) -> bool {
+        task_id.split_once('/').is_some_and(|(s, n)| self.suites.contains(&s) && !n.is_empty() && !n.contains('/'))
+    }
+}
+
 /// A policy over privileged state, one control step at a time.
 pub trait Expert: Send {
     /// The next normalized 7-vector action for the current state, or `None` when the expert is done.

@@ -11,10 +11,10 @@ use libero_sim::simulation::SimData;
 use nalgebra::Matrix3;
 use serde::Deserialize;
 
-/// The pour counter's thresholds (RoboMemArena `PourCounterConfig`; defaults = the catalog's), shared by T20's
-/// evaluator and the staged evaluator's `pour_count` atom (T24).
+/// The pour counter's thresholds (RoboMemArena `PourCounterConfig`; every one from the task's params), shared by
+/// T20's evaluator and the staged evaluator's `pour_count` atom (T24). Flattened into those params, so it cannot
+/// refuse unknown fields itself: the params that contain it do.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default)]
 pub struct PourCounterConfig {
     pub lift_delta_m: f64,
     pub target_radius_m: f64,
@@ -22,19 +22,6 @@ pub struct PourCounterConfig {
     pub tilt_return_rad: f64,
     pub enter_dwell_steps: u32,
     pub return_dwell_steps: u32,
-}
-
-impl Default for PourCounterConfig {
-    fn default() -> Self {
-        Self {
-            lift_delta_m: 0.03,
-            target_radius_m: 0.20,
-            tilt_enter_rad: 0.70,
-            tilt_return_rad: 0.20,
-            enter_dwell_steps: 3,
-            return_dwell_steps: 5,
-        }
-    }
 }
 
 /// A registered pour: the control step its in-pour run began and the step it was counted.
@@ -177,8 +164,9 @@ pub fn geodesic_angle(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
 mod tests {
     use super::*;
 
+    /// T20's thresholds, as its manifest params give them.
     fn counter() -> PourCounter {
-        PourCounter::new(&PourCounterConfig::default())
+        PourCounter::new(&crate::judge::test_params::parsed("T20"))
     }
 
     /// Feeds `(lifted, tilt, distance)` per step from step 1; returns the counted steps.

@@ -11,17 +11,14 @@ use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 use libero_sim::Simulation;
 
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, Script, body_point, grip_pose, mat3, rotation_error};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    (task_id == "T28").then_some(&["partial_1", "undo", "pull_without_unlatching"][..])
-}
+pub const EXPERTS: &[ExpertEntry] =
+    &[ExpertEntry { task: "T28", behaviours: &["partial_1", "undo", "pull_without_unlatching"], build: open_door }];
 
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    if task_id != "T28" {
-        return Err(TasksError::Scene(format!("no scripted door expert for task {task_id}")));
-    }
+/// T28: grip the handle, then per behaviour (see the module documentation).
+fn open_door(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let door = Door {
         body: refs.body("latched_door_1_door")?,
         hinge_adr: refs.joint("latched_door_1_hinge")?.0,
@@ -50,7 +47,7 @@ pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn
             phases.push(pull_door(door, "pull_latched_door", 0.0, OPEN_GOAL_RAD, 80));
             phases.extend(let_go(door, 0.0));
         }
-        b => return Err(TasksError::Scene(format!("T28: unknown behaviour {b}"))),
+        b => return Err(TasksError::Scene(format!("{task_id}: unknown behaviour {b}"))),
     }
     Ok(Box::new(Script::new(phases)))
 }

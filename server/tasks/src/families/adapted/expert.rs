@@ -4,24 +4,14 @@ use libero_sim::Simulation;
 use nalgebra::Vector3;
 
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, rotate_world, vec3};
-use crate::expert::{Expert, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SceneRefs};
 use crate::TasksError;
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T19" => &["wipe_half", "keep_holding"],
-        "T20" => &["tilt_far_from_mug", "lift_only"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T19" => wipe_spill(refs, behaviour),
-        "T20" => pour_wine(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+/// T19 and T20, with their near misses.
+pub const EXPERTS: &[ExpertEntry] = &[
+    ExpertEntry { task: "T19", behaviours: &["wipe_half", "keep_holding"], build: |refs, b, _| wipe_spill(refs, b) },
+    ExpertEntry { task: "T20", behaviours: &["tilt_far_from_mug", "lift_only"], build: |refs, b, _| pour_wine(refs, b) },
+];
 
 fn pos(sim: &Simulation, body: usize) -> Vector3<f64> {
     vec3(&sim.data().xpos()[body])

@@ -24,16 +24,17 @@ use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{
     EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
 };
-use crate::judge::support::missing_in_model;
+use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
 use crate::judge::goal::GoalChecker;
+use crate::judge::kind::{EvaluatorKind, check};
 use crate::judge::predicates::{SceneIndex, SubtreeContact};
 
 pub const CHECKER: &str = "private_ordered_hammer_contact";
 pub const STAGES: [&str; 3] = ["01_Lift_Hammer", "02_Hammer_Contacts_Nail", "03_Drive_Nail"];
 
-/// The manifest's `checker.params` (defaults = the catalog's values).
+/// The manifest's `checker.params` (every field from the manifest: it is the one source of the thresholds).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default)]
+#[serde(deny_unknown_fields)]
 pub struct HammerParams {
     pub hammer: String,
     pub nail_body: String,
@@ -45,19 +46,11 @@ pub struct HammerParams {
     pub stages: Vec<String>,
 }
 
-impl Default for HammerParams {
-    fn default() -> Self {
-        Self {
-            hammer: "hammer_1".into(),
-            nail_body: "hammer_block_1_nail_link".into(),
-            nail_joint: "hammer_block_1_nail_slide".into(),
-            hammer_lift_m: 0.045,
-            nail_drive_m: 0.075,
-            contact_distance_max_m: 1e-3,
-            stages: STAGES.iter().map(|s| s.to_string()).collect(),
-        }
-    }
-}
+/// The kind's table row.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<HammerParams>, |checker, scene, model| {
+    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+    Ok(Box::new(HammerContact::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+});
 
 /// What one tick reads from the simulation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -301,7 +294,7 @@ mod tests {
     }
 
     fn progress() -> HammerProgress {
-        HammerProgress::new(&HammerParams::default(), Z0, Q0)
+        HammerProgress::new(&crate::judge::test_params::parsed("T29"), Z0, Q0)
     }
 
     fn at(z_above_m: f64, q_m: f64, contact: bool) -> HammerSample {
@@ -366,7 +359,7 @@ mod tests {
 
     #[test]
     fn drive_needs_7_5_cm_from_the_reset_position() {
-        let mut p = HammerProgress::new(&HammerParams::default(), Z0, 0.01);
+        let mut p = HammerProgress::new(&crate::judge::test_params::parsed("T29"), Z0, 0.01);
         feed(&mut p, &[at(0.05, 0.0, true), at(0.05, 0.0, true), at(0.05, 0.084, true)]);
         assert_eq!(completed(&p), 2, "0.084 − 0.01 < 0.075");
         feed(&mut p, &[at(0.05, 0.086, true)]);

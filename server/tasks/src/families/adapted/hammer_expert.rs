@@ -16,22 +16,14 @@ use crate::expert::motion::{
     GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, body_point, grip_pose, open_along, rotate_world,
     rotation_error, vec3,
 };
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T29" => &["partial_1", "partial_2", "undo", "push_with_gripper"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T29" => drive_nail(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+pub const EXPERTS: &[ExpertEntry] = &[ExpertEntry {
+    task: "T29",
+    behaviours: &["partial_1", "partial_2", "undo", "push_with_gripper"],
+    build: drive_nail,
+}];
 
 /// Where the fingers close on the handle, along the hammer's local x (0 = handle centre, the head is at 0.16): far
 /// enough back that the hand stays clear of the block while the head reaches the nail.
@@ -110,7 +102,7 @@ fn grasp_rot(sim: &Simulation, r: Refs, home: &Matrix3<f64>) -> Matrix3<f64> {
     open_along(home, body_dir(sim, r.hammer, [0.0, 1.0, 0.0]))
 }
 
-fn drive_nail(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+fn drive_nail(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let r = Refs {
         hammer: refs.instance_body("hammer_1")?,
         head_site: refs.site("hammer_1_head_site")?,
@@ -118,7 +110,7 @@ fn drive_nail(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Task
         nail_q_adr: refs.joint("hammer_block_1_nail_slide")?.0,
     };
     if ![SOLVE, "partial_1", "partial_2", "undo", "push_with_gripper"].contains(&behaviour) {
-        return Err(TasksError::Scene(format!("T29: unknown behaviour {behaviour}")));
+        return Err(TasksError::Scene(format!("{task_id}: unknown behaviour {behaviour}")));
     }
     // start state: the hammer's resting height and the grasp orientation, captured before anything moves
     let rest_z: Memo<f64> = Memo::default();

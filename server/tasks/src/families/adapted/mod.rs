@@ -8,21 +8,13 @@ mod expert;
 mod door_expert;
 mod hammer_expert;
 
-use crate::TasksError;
-use crate::expert::{Expert, SceneRefs};
+use crate::expert::ExpertEntry;
+use crate::judge::kind::EvaluatorKind;
 
-/// The tasks this family scripts, with their near-miss behaviours.
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    expert::behaviours(task_id).or_else(|| door_expert::behaviours(task_id)).or_else(|| hammer_expert::behaviours(task_id))
+/// This family's experts, a row per task.
+pub fn experts() -> impl Iterator<Item = ExpertEntry> {
+    [expert::EXPERTS, door_expert::EXPERTS, hammer_expert::EXPERTS].into_iter().flatten().copied()
 }
 
-/// This family's expert for `task_id` (one of [`behaviours`]).
-pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    if door_expert::behaviours(task_id).is_some() {
-        door_expert::build(task_id, behaviour, refs)
-    } else if hammer_expert::behaviours(task_id).is_some() {
-        hammer_expert::build(task_id, behaviour, refs)
-    } else {
-        expert::build(task_id, behaviour, refs)
-    }
-}
+/// The checker kinds this family judges.
+pub const EVALUATORS: &[EvaluatorKind] = &[wipe::EVALUATOR, pour_wine::EVALUATOR, hammer_contact::EVALUATOR];

@@ -13,16 +13,17 @@ use crate::judge::evaluator::{
     EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
 };
 use crate::judge::goal::GoalChecker;
+use crate::judge::kind::{EvaluatorKind, check};
 use crate::judge::pouring::{PourCounterConfig, PourTracker};
-use crate::judge::support::fill_history;
+use crate::judge::support::{fill_history, scene_goal_and_commitment};
 use crate::judge::predicates::SceneIndex;
 
 pub const CHECKER: &str = "private_ordered_physical_pour";
 pub const STAGES: [&str; 2] = ["01_Lift_Wine_Bottle", "02_Pour_Wine_Into_Mug"];
 
-/// T20's parameters (manifest `checker.params`; defaults = the catalog's).
+/// T20's parameters (manifest `checker.params`, every field from there).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default)]
+#[serde(deny_unknown_fields)]
 pub struct PourParams {
     pub bottle: String,
     pub target_site: String,
@@ -32,16 +33,11 @@ pub struct PourParams {
     pub stages: Vec<String>,
 }
 
-impl Default for PourParams {
-    fn default() -> Self {
-        Self {
-            bottle: "wine_bottle_1".into(),
-            target_site: "white_yellow_mug_1_default_site".into(),
-            counter: PourCounterConfig::default(),
-            stages: STAGES.iter().map(|s| s.to_string()).collect(),
-        }
-    }
-}
+/// The kind's table row.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<PourParams>, |checker, scene, model| {
+    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+    Ok(Box::new(PourWine::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+});
 
 pub struct PourWine {
     params: PourParams,

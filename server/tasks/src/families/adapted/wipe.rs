@@ -27,6 +27,8 @@ use crate::judge::evaluator::{
     EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
 };
 use crate::judge::goal::GoalChecker;
+use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::scene_goal_and_commitment;
 use crate::judge::predicates::{CompiledAtom, SceneIndex, SubtreeContact};
 
 pub const CHECKER: &str = "private_ordered_physical_wipe";
@@ -37,9 +39,9 @@ pub const MARKER_ALPHA_COVERED: f32 = 0.0;
 /// Body contact counts only with a penetration/gap distance at most this (catalog §0 "Body contact").
 pub const BODY_CONTACT_MAX_DIST_M: f64 = 1e-3;
 
-/// The manifest's `checker.params` (defaults = the catalog's values).
+/// The manifest's `checker.params` (every field from the manifest: it is the one source of the thresholds).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default)]
+#[serde(deny_unknown_fields)]
 pub struct WipeParams {
     pub sponge: String,
     pub spill_patch: String,
@@ -52,20 +54,11 @@ pub struct WipeParams {
     pub stages: Vec<String>,
 }
 
-impl Default for WipeParams {
-    fn default() -> Self {
-        Self {
-            sponge: "sponge_1".into(),
-            spill_patch: "spill_patch_1".into(),
-            markers: 7,
-            cover_radius_m: 0.052,
-            rest_region: "spill_patch_1_sponge_rest_region".into(),
-            release_clear_distance_m: 0.055,
-            table_body: "table".into(),
-            stages: STAGES.iter().map(|s| s.to_string()).collect(),
-        }
-    }
-}
+/// The kind's table row.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<WipeParams>, |checker, scene, model| {
+    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+    Ok(Box::new(SpillWipe::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+});
 
 /// Which markers a sponge at `sponge_xy` covers: those whose centre is within `radius` (xy).
 pub fn markers_under(sponge_xy: [f64; 2], markers_xy: &[[f64; 2]], radius: f64) -> impl Iterator<Item = usize> + '_ {

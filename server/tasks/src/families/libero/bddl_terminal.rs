@@ -5,7 +5,13 @@
 //! Perception tasks judged by the terminal goal (the bin family T01–T05, T07) name their private target in the
 //! manifest (`params.judgment_target`); the record then carries `judgment_correct`: the first object grasped and
 //! lifted ≥ 0.04 m is the target (task catalog §8.6).
+use libero_sim::compose::ComposedScene;
+use libero_sim::mujoco_rs::prelude::MjModel;
 use libero_sim::simulation::SimData;
+
+use crate::TasksError;
+use crate::judge::kind::{CheckerParams, EvaluatorKind, check};
+use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
 
 use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{
@@ -14,6 +20,24 @@ use crate::judge::evaluator::{
 use crate::judge::goal::GoalChecker;
 
 pub const CHECKER: &str = "bddl_terminal";
+/// The same rule under the name the open-vocabulary tasks use.
+pub const OPEN_CHECKER: &str = "bddl_terminal_open";
+
+/// Both names' table rows.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<BddlTerminalParams>, build);
+pub const OPEN_EVALUATOR: EvaluatorKind = EvaluatorKind::plain(OPEN_CHECKER, check::<BddlTerminalParams>, build);
+
+fn build(checker: &CheckerParams, scene: &ComposedScene, model: &MjModel) -> Result<Box<dyn Evaluator>, TasksError> {
+    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+    let p: BddlTerminalParams = checker.parse()?;
+    if let Some(t) = &p.judgment_target
+        && goal.index().instance(t).is_none()
+    {
+        return Err(missing_in_model(checker.kind, "instance", t));
+    }
+    let e = BddlTerminal::new(checker.kind, goal, commitment, checker.task_id_owned());
+    Ok(Box::new(e.with_judgment_target(p.judgment_target)))
+}
 /// The single stage of a terminal task.
 pub const STAGE_NAME: &str = "01_BDDL_Goal_At_Finish";
 

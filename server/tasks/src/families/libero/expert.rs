@@ -4,32 +4,18 @@ use std::f64::consts::FRAC_PI_2;
 use nalgebra::Vector3;
 
 use crate::expert::motion::{GRIPPER_CLOSED, Goal, Phase, Script, body_dir, body_point, rotate_world};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T11" => &["drop_beside"],
-        "T12" => &["push_short"],
-        "T14" => &["push_half"],
-        "T15" => &["pull_half"],
-        "T16" => &["open_partly"],
-        "T17" => &["turn_slightly"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T11" => super::objects::pick_soup_into_basket(refs, behaviour),
-        "T12" => super::objects::push_plate(refs, behaviour),
-        "T14" => close_top_drawer(refs, behaviour),
-        "T15" => crate::expert::fixtures::open_top_drawer(refs, behaviour),
-        "T16" => crate::expert::fixtures::open_microwave(refs, behaviour),
-        "T17" => crate::expert::fixtures::turn_on_stove(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+/// The release tasks on stock scenes, each with its near misses.
+pub const EXPERTS: &[ExpertEntry] = &[
+    ExpertEntry { task: "T11", behaviours: &["drop_beside"], build: |refs, b, _| super::objects::pick_soup_into_basket(refs, b) },
+    ExpertEntry { task: "T12", behaviours: &["push_short"], build: |refs, b, _| super::objects::push_plate(refs, b) },
+    ExpertEntry { task: "T14", behaviours: &["push_half"], build: |refs, b, _| close_top_drawer(refs, b) },
+    ExpertEntry { task: "T15", behaviours: &["pull_half"], build: |refs, b, _| crate::expert::fixtures::open_top_drawer(refs, b) },
+    ExpertEntry { task: "T16", behaviours: &["open_partly"], build: |refs, b, _| crate::expert::fixtures::open_microwave(refs, b) },
+    ExpertEntry { task: "T17", behaviours: &["turn_slightly"], build: |refs, b, _| crate::expert::fixtures::turn_on_stove(refs, b) },
+];
 
 /// LIBERO wooden cabinet drawer: the handle bar's centre in the drawer body's frame, and the drawer's outward
 /// direction (it opens along local −y, the slide joint's negative direction).

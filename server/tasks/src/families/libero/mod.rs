@@ -6,18 +6,13 @@ mod expert;
 mod objects;
 pub mod stock;
 
-use crate::TasksError;
-use crate::expert::{Expert, SceneRefs};
+use crate::expert::ExpertEntry;
+use crate::judge::kind::EvaluatorKind;
 
-/// The tasks this family scripts, with their near-miss behaviours.
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    expert::behaviours(task_id).or_else(|| stock::behaviours(task_id))
+/// This family's per-task experts (the stock suites' generic one is [`stock::SUITE_EXPERT`]).
+pub fn experts() -> impl Iterator<Item = ExpertEntry> {
+    expert::EXPERTS.iter().copied()
 }
 
-/// This family's expert for `task_id` (one of [`behaviours`]).
-pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    if stock::is_stock_id(task_id) {
-        return stock::build(behaviour, refs);
-    }
-    expert::build(task_id, behaviour, refs)
-}
+/// The checker kinds this family judges.
+pub const EVALUATORS: &[EvaluatorKind] = &[bddl_terminal::EVALUATOR, bddl_terminal::OPEN_EVALUATOR];

@@ -29,23 +29,19 @@ use crate::expert::motion::{
 use crate::expert::skills::{
     BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, carry, extent, pos, pull_drawer, push_drawer, xy_dist,
 };
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, SOLVE, SceneRefs, SuiteExpert};
 use crate::judge::goal::GoalChecker;
-use crate::pool::STOCK_SUITES;
 use crate::judge::predicates::{CompiledAtom, EntityRef, PredicateKind, SceneIndex};
 
 /// Near miss: the last step stops short.
 pub const STOP_SHORT: &str = "stop_short";
 const BEHAVIOURS: &[&str] = &[STOP_SHORT];
 
-/// `suite/NAME` of a stock suite (the suites this expert plays).
-pub fn is_stock_id(task_id: &str) -> bool {
-    task_id.split_once('/').is_some_and(|(s, n)| STOCK_SUITES.contains(&s) && !n.is_empty() && !n.contains('/'))
-}
+/// Stock LIBERO suites: their entries run the stock BDDL and init file of the same name (the pool re-exports this).
+pub const STOCK_SUITES: [&str; 5] = ["libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90"];
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    is_stock_id(task_id).then_some(BEHAVIOURS)
-}
+/// The generic expert of every stock task (`suite/NAME`): planned from the scene's goal, so no per-task rows.
+pub const SUITE_EXPERT: SuiteExpert = SuiteExpert { suites: &STOCK_SUITES, behaviours: BEHAVIOURS, build: |refs, b, _| build(b, refs) };
 
 /// Drawer slide targets (m): open needs q < −0.14 (range −0.16…0.01), closed q > 0.
 const DRAWER_OPEN_Q_M: f64 = -0.152;

@@ -18,22 +18,14 @@ use nalgebra::Vector3;
 
 use crate::expert::skills::{RotFn, TargetFn, memo, partial_count, pick_place_turned, pos, xy_dist};
 use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T25" => &["partial_1", "partial_2", "partial_3", "undo", "touch_table", "skip_buffer"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T25" => rotate_bowls(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+pub const EXPERTS: &[ExpertEntry] = &[ExpertEntry {
+    task: "T25",
+    behaviours: &["partial_1", "partial_2", "partial_3", "undo", "touch_table", "skip_buffer"],
+    build: rotate_bowls,
+}];
 
 /// Where the fingers pinch a bowl's wall, from its root (world frame): on the +y side, at the wall's radius ≈ 1.4 cm
 /// below the rim (the wall rises from 1.5 to 5.2 cm above the root, flaring from 4.2 to 5.4 cm radius).
@@ -50,7 +42,7 @@ const SETTLE_STEPS: u32 = 15;
 /// every plate is used.
 const TABLE_SPOTS_XY_M: [[f64; 2]; 3] = [[-0.33, -0.12], [-0.33, 0.05], [-0.33, 0.22]];
 
-fn rotate_bowls(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+fn rotate_bowls(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let bowl = |k: usize| refs.instance_body(&format!("akita_black_bowl_{k}"));
     let plate = |k: usize| refs.instance_body(&format!("plate_{k}"));
     let (b1, b2, b3) = (bowl(1)?, bowl(2)?, bowl(3)?);
@@ -64,7 +56,7 @@ fn rotate_bowls(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Ta
         "touch_table" => vec![(b1, Target::Table([p1, p2, p3, p4]))],
         "skip_buffer" => vec![(b3, Target::Plate(p4)), (b1, Target::Plate(p3))],
         b => {
-            let n = partial_count(b).filter(|&n| (1..4).contains(&n)).ok_or_else(|| TasksError::Scene(format!("T25: unknown behaviour {b}")))?;
+            let n = partial_count(b).filter(|&n| (1..4).contains(&n)).ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?;
             solve[..n].iter().map(|&(b, p)| (b, Target::Plate(p))).collect()
         }
     };

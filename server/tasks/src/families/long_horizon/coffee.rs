@@ -30,15 +30,16 @@ use crate::judge::evaluator::{
 };
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::{CompiledAtom, SceneIndex};
-use crate::judge::support::missing_in_model;
+use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
 
 pub const CHECKER: &str = "private_ordered_coffee_brewing";
 pub const STAGES: [&str; 3] =
     ["01_Place_Mug_Under_Dispenser", "02_Press_Button_While_Mug_Is_Placed", "03_Release_Mug_Under_Dispenser"];
 
-/// The pool definition's `checker_params` (defaults = the original's values).
+/// The pool definition's `checker_params` (every field from there: the original's values).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct CoffeeParams {
     pub mug: String,
     /// The machine's region site the mug must be `In`.
@@ -57,20 +58,11 @@ pub struct CoffeeParams {
     pub stages: Vec<String>,
 }
 
-impl Default for CoffeeParams {
-    fn default() -> Self {
-        Self {
-            mug: "mug_1".into(),
-            mug_region: "coffee_machine_1_mug_region".into(),
-            button_joint: "coffee_machine_1_button_slide".into(),
-            press_threshold_m: 0.015,
-            release_threshold_m: 0.003,
-            clearance_m: 0.055,
-            liquid_geom_suffix: "coffee_liquid_visual".into(),
-            stages: STAGES.iter().map(|s| s.to_string()).collect(),
-        }
-    }
-}
+/// The kind's table row.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<CoffeeParams>, |checker, scene, model| {
+    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+    Ok(Box::new(CoffeeBrewing::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+});
 
 /// What one tick reads from the simulation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -313,8 +305,13 @@ mod tests {
         Tick::at_control_step(step, step as f64 * 0.05)
     }
 
+    /// The pool entry's own params (the one source of the thresholds).
+    fn params() -> CoffeeParams {
+        crate::judge::test_params::parsed("long_horizon_v2/place_mug_and_brew_coffee")
+    }
+
     fn progress() -> CoffeeProgress {
-        CoffeeProgress::new(&CoffeeParams::default(), 0.0)
+        CoffeeProgress::new(&params(), 0.0)
     }
 
     fn at(mug_placed: bool, button_q_m: f64, released: bool) -> CoffeeSample {
@@ -363,7 +360,7 @@ mod tests {
 
     #[test]
     fn thresholds_are_inclusive_at_3_mm_and_15_mm_from_the_reset_position() {
-        let mut p = CoffeeProgress::new(&CoffeeParams::default(), 0.001);
+        let mut p = CoffeeProgress::new(&params(), 0.001);
         feed(&mut p, &[at(true, 0.0041, true)]);
         assert!(!p.armed(), "0.0041 − 0.001 > 0.003");
         feed(&mut p, &[at(true, 0.004, true)]);
@@ -390,10 +387,13 @@ mod tests {
     }
 
     #[test]
-    fn params_parse_from_pool_json_and_refuse_unknown_fields() {
-        let p: CoffeeParams = serde_json::from_value(json!({"mug": "mug_1", "press_threshold_m": 0.015, "stages": STAGES})).unwrap();
+    fn params_parse_from_pool_json_and_refuse_unknown_or_missing_fields() {
+        let p = params();
         assert_eq!((p.press_threshold_m, p.release_threshold_m, p.clearance_m), (0.015, 0.003, 0.055));
         assert_eq!(p.button_joint, "coffee_machine_1_button_slide");
         assert!(serde_json::from_value::<CoffeeParams>(json!({"press_m": 0.02})).is_err());
+        let partial = json!({"mug": "mug_1", "press_threshold_m": 0.015, "stages": STAGES});
+        let e = serde_json::from_value::<CoffeeParams>(partial).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("missing field"), "{e}");
     }
 }

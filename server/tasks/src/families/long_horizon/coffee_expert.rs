@@ -18,22 +18,19 @@ use crate::expert::motion::{
     rotation_error,
 };
 use crate::expert::skills::{RotFn, TargetFn, carry, extent, into_drawer, memo, pos, xy_dist};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
-/// The pool's coffee task (`tasks/pool.json`).
-pub const BREW_COFFEE: &str = "long_horizon_v2/place_mug_and_brew_coffee";
+/// The pool's coffee task (`tasks/pool.json`). `partial_1` places the mug and stops; `press_first` presses the
+/// button before the mug is there, then places the mug and lets go (that press counts for nothing: the evaluator
+/// wants one after the placement).
+pub const EXPERTS: &[ExpertEntry] = &[ExpertEntry {
+    task: "long_horizon_v2/place_mug_and_brew_coffee",
+    behaviours: &["partial_1", "press_first"],
+    build: brew_coffee,
+}];
 
-/// `partial_1` places the mug and stops; `press_first` presses the button before the mug is there, then places the
-/// mug and lets go (that press counts for nothing: the evaluator wants one after the placement).
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    (task_id == BREW_COFFEE).then_some(&["partial_1", "press_first"][..])
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    if task_id != BREW_COFFEE {
-        return Err(TasksError::Scene(format!("no scripted expert for task {task_id}")));
-    }
+fn brew_coffee(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let scene = Scene::of(refs)?;
     let mut phases = Vec::new();
     match behaviour {

@@ -27,28 +27,24 @@ use crate::expert::skills::{RotFn, TargetFn, carry, memo, partial_count, pick_pl
 use crate::expert::motion::{
     GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, Script, body_dir, body_point, grip_pose, open_along, rotate_world, rotation_error,
 };
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
-/// The pool's strict-order cooking task (`long_horizon_v2/3`, tasks/pool.json): T21's scene, its goals in order.
-pub const COOKING_IN_ORDER: &str = "long_horizon_v2/prepare_cooking_with_two_stoves_and_microwave";
+/// T21/T22's near misses (the same scene and script).
+const T21_BEHAVIOURS: &[&str] = &["partial_1", "partial_2", "partial_3", "partial_4", "undo", "swapped"];
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T21" | "T22" => &["partial_1", "partial_2", "partial_3", "partial_4", "undo", "swapped"],
+/// T21, T22 and the pool's strict-order cooking task (`long_horizon_v2/3`, tasks/pool.json: T21's scene, its goals
+/// in order).
+pub const EXPERTS: &[ExpertEntry] = &[
+    ExpertEntry { task: "T21", behaviours: T21_BEHAVIOURS, build: |refs, b, _| prepare_cooking(refs, b, &ORDER) },
+    ExpertEntry { task: "T22", behaviours: T21_BEHAVIOURS, build: |refs, b, _| prepare_cooking(refs, b, &ORDER) },
+    ExpertEntry {
+        task: "long_horizon_v2/prepare_cooking_with_two_stoves_and_microwave",
         // `goal_order`: T21's own order, which reaches the first stove's goal before its turn
-        COOKING_IN_ORDER => &["partial_1", "partial_2", "partial_3", "partial_4", "undo", "goal_order"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match (task_id, behaviour) {
-        ("T21" | "T22", _) | (COOKING_IN_ORDER, "goal_order") => prepare_cooking(refs, behaviour, &ORDER),
-        (COOKING_IN_ORDER, _) => prepare_cooking(refs, behaviour, &INSTRUCTED_ORDER),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+        behaviours: &["partial_1", "partial_2", "partial_3", "partial_4", "undo", "goal_order"],
+        build: |refs, b, _| prepare_cooking(refs, b, if b == "goal_order" { &ORDER } else { &INSTRUCTED_ORDER }),
+    },
+];
 
 /// Knob angle the expert turns to (on needs ≥ 0.5 rad; the knob coasts a little past its goal).
 const KNOB_ON_RAD: f64 = 0.9;

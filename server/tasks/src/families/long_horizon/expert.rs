@@ -10,43 +10,41 @@ use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script, body_dir, open_al
 use crate::expert::skills::{
     Hold, RotFn, TargetFn, main_box, memo, narrow_axis, partial_count, pick_place_turned, pos, transfer, transfer_count,
 };
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 use super::robomem_expert::Drawer;
 
-/// RoboMemArena task 18 as a pool entry of its own (`tasks/pool.json`): T26's scene with two objects.
-pub const ROBOMEM_TASK_18: &str = "robomemarena/robomemarena_task_18";
-
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T26" => &["partial_1", "partial_2", "undo"],
-        ROBOMEM_TASK_18 => &["partial_1", "undo"],
-        "T27" => &["partial_1", "partial_2", "partial_3", "undo"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T26" => cabinet_transfer(refs, behaviour, task_id, &["tomato_sauce_1", "milk_1", "orange_juice_1"]),
-        ROBOMEM_TASK_18 => cabinet_transfer(refs, behaviour, task_id, &["chocolate_pudding_1", "butter_1"]),
-        "T27" => {
+/// T26, RoboMemArena task 18 as a pool entry of its own (`tasks/pool.json`: T26's scene with two low boxes) and T27.
+pub const EXPERTS: &[ExpertEntry] = &[
+    ExpertEntry {
+        task: "T26",
+        behaviours: &["partial_1", "partial_2", "undo"],
+        // the bottles: fingers on the upper half, hand as at home
+        build: |refs, b, id| cabinet_transfer(refs, b, id, &["tomato_sauce_1", "milk_1", "orange_juice_1"], Hold::Above(OBJECT_GRASP_DZ_M)),
+    },
+    ExpertEntry {
+        task: "robomemarena/robomemarena_task_18",
+        behaviours: &["partial_1", "undo"],
+        // low boxes: fingers at the root across the narrow side
+        build: |refs, b, id| cabinet_transfer(refs, b, id, &["chocolate_pudding_1", "butter_1"], Hold::Across),
+    },
+    ExpertEntry {
+        task: "T27",
+        behaviours: &["partial_1", "partial_2", "partial_3", "undo"],
+        build: |refs, b, id| {
             let items = [("cookies_1", -0.045), ("chocolate_pudding_1", 0.05)];
-            drawer_pack(refs, behaviour, task_id, &[DrawerLoad { which: "middle", items: &items, close: true }])
-        }
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+            drawer_pack(refs, b, id, &[DrawerLoad { which: "middle", items: &items, close: true }])
+        },
+    },
+];
 
 /// T26 and RoboMemArena task 18: move `objects` in order from cabinet 1's roof to cabinet 2's roof, each to the spot
 /// it had relative to cabinet 1 (the sampler spread them over the roof without overlap). `partial_<n>` moves the
 /// first n; `undo` moves the first over and then back to where it started.
-fn cabinet_transfer(refs: &SceneRefs, behaviour: &str, task_id: &str, objects: &[&str]) -> Result<Box<dyn Expert>, TasksError> {
+fn cabinet_transfer(refs: &SceneRefs, behaviour: &str, task_id: &str, objects: &[&str], hold: Hold) -> Result<Box<dyn Expert>, TasksError> {
     let cab1 = refs.instance_body("wooden_cabinet_1")?;
     let cab2 = refs.instance_body("wooden_cabinet_2")?;
     let n = transfer_count(behaviour, objects.len(), task_id)?;
-    // the bottles: fingers on the upper half, hand as at home; low boxes: fingers at the root across the narrow side
-    let hold = if task_id == "T26" { Hold::Above(OBJECT_GRASP_DZ_M) } else { Hold::Across };
     let mut moves = Vec::new();
     for name in objects {
         let body = refs.instance_body(name)?;

@@ -11,14 +11,14 @@ use nalgebra::Vector3;
 use crate::TasksError;
 use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, open_along, vec3};
 use crate::expert::skills::{RotFn, TargetFn, pick_place_turned};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use super::robomem_expert::Drawer;
 
-pub const FIND_UNSEEN_OBJECT: &str = "vlabench_additional/find_unseen_object";
-
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    (task_id == FIND_UNSEEN_OBJECT).then_some(&["wrong_drawer", "leave_apple"][..])
-}
+pub const EXPERTS: &[ExpertEntry] = &[ExpertEntry {
+    task: "vlabench_additional/find_unseen_object",
+    behaviours: &["wrong_drawer", "leave_apple"],
+    build: |refs, b, _| find_apple(refs, b),
+}];
 
 /// Apple root height while carried: above the cabinet's roof (kitchen tabletop at 0.90 m, the roof ≈ 0.22 m above
 /// it), so the apple clears the closed top drawer on its way out.
@@ -26,10 +26,7 @@ const APPLE_CARRY_Z_M: f64 = 1.20;
 /// Where the apple is let go, below the tray's region-site centre (the site is 8 cm tall; the floor is near its bottom).
 const TRAY_DROP_BELOW_SITE_M: f64 = 0.02;
 
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    if task_id != FIND_UNSEEN_OBJECT {
-        return Err(TasksError::Scene(format!("no scripted expert for task {task_id}")));
-    }
+fn find_apple(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
     let drawer = Drawer::of(refs, if behaviour == "wrong_drawer" { "top" } else { "middle" })?;
     let mut phases = Vec::new();
     drawer.pull(&mut phases);

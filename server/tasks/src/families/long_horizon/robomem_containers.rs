@@ -13,7 +13,7 @@ use nalgebra::Vector3;
 use crate::TasksError;
 use crate::expert::motion::{Script, mat3, vec3};
 use crate::expert::skills::{Hold, TargetFn, main_box, memo, pos, transfer, transfer_count};
-use crate::expert::{Expert, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SceneRefs};
 use super::expert::{DrawerLoad, drawer_pack};
 use super::robomem_expert::{T23_BEHAVIOURS, drawer_search};
 
@@ -48,23 +48,27 @@ const TASKS: &[Task] = &[
     Task { id: "robomemarena/robomemarena_task_26", container: Container::Plate, objects: &["chocolate_pudding_1", "cream_cheese_1"] },
 ];
 
-fn task(task_id: &str) -> Option<&'static Task> {
-    TASKS.iter().find(|t| t.id == task_id)
+impl Container {
+    /// The near misses a container's tasks have.
+    const fn behaviours(self) -> &'static [&'static str] {
+        match self {
+            Container::MiddleDrawer => &["partial_1", "partial_2", "undo"],
+            Container::EmptyDrawer => T23_BEHAVIOURS,
+            Container::TopThenMiddleDrawer => &["partial_1", "partial_2", "partial_3", "partial_4", "undo"],
+            Container::Plate => &["partial_1", "undo"],
+            // no `undo`: the hand cannot take a box back out from between the basket's walls
+            Container::Basket => &["partial_1"],
+        }
+    }
 }
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    task(task_id).map(|t| match t.container {
-        Container::MiddleDrawer => &["partial_1", "partial_2", "undo"][..],
-        Container::EmptyDrawer => T23_BEHAVIOURS,
-        Container::TopThenMiddleDrawer => &["partial_1", "partial_2", "partial_3", "partial_4", "undo"][..],
-        Container::Plate => &["partial_1", "undo"][..],
-        // no `undo`: the hand cannot take a box back out from between the basket's walls
-        Container::Basket => &["partial_1"][..],
-    })
+/// A row per task of [`TASKS`].
+pub fn experts() -> impl Iterator<Item = ExpertEntry> {
+    TASKS.iter().map(|t| ExpertEntry { task: t.id, behaviours: t.container.behaviours(), build })
 }
 
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    let t = task(task_id).ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))?;
+fn build(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
+    let t = TASKS.iter().find(|t| t.id == task_id).ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))?;
     let moves = match t.container {
         // the drawer is opened first, and the objects go in side by side across its width
         Container::MiddleDrawer => {

@@ -12,28 +12,17 @@ use crate::expert::skills::{
     narrow_axis, partial_count, pick_place_turned, place_held, pos, pour_at, pull_drawer, push_drawer,
 };
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, body_dir, open_along, vec3};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
 /// T23's near misses (the bottom drawer opens because the raised cabinet's close range keeps it off the shelf
 /// above, see `TALL_CABINET_CLOSE_RANGE_M`).
 pub(super) const T23_BEHAVIOURS: &[&str] = &["partial_1", "partial_2", "partial_4", "partial_5", "partial_6", "partial_7", "undo", "wrong_drawer"];
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T23" => T23_BEHAVIOURS,
-        "T24" => &["partial_1", "partial_2", "partial_3", "undo", "three_pours"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T23" => drawer_search(refs, behaviour, task_id, "top", "bottom"),
-        "T24" => pour_twice(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+pub const EXPERTS: &[ExpertEntry] = &[
+    ExpertEntry { task: "T23", behaviours: T23_BEHAVIOURS, build: |refs, b, id| drawer_search(refs, b, id, "top", "bottom") },
+    ExpertEntry { task: "T24", behaviours: &["partial_1", "partial_2", "partial_3", "undo", "three_pours"], build: pour_twice },
+];
 
 /// Slide value the drawers are pulled to (open ⇔ region displaced > 0.10 m; the slide stops at −0.16).
 const PULL_TO_M: f64 = -0.152;
@@ -152,7 +141,7 @@ const DRAINER_CARRY_Z_M: f64 = 0.75;
 /// and back upright for 20 (re-arms the counter) — twice — then set it into the drainer's left slot and let go.
 /// `partial_<n>`: lift (1), one pour (2), two pours (3), holding the bottle afterwards; `undo` lifts the bottle and
 /// puts it back where it stood (the lift stage regresses); `three_pours` pours a third time before placing.
-fn pour_twice(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+fn pour_twice(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let sauce = refs.instance_body("tomato_sauce_1")?;
     let pan = refs.instance_body("frypan_1")?;
     let left = refs.site("bowl_drainer_1_left_region")?;
@@ -162,7 +151,7 @@ fn pour_twice(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, Task
         "undo" => (0, false),
         b => match partial_count(b).filter(|&n| (1..4).contains(&n)) {
             Some(n) => (n - 1, false),
-            None => return Err(TasksError::Scene(format!("T24: unknown behaviour {b}"))),
+            None => return Err(TasksError::Scene(format!("{task_id}: unknown behaviour {b}"))),
         },
     };
     let rest_z = Arc::new(memo(move |sim: &Simulation| pos(sim, sauce).z));

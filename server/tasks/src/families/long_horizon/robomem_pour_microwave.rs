@@ -13,7 +13,7 @@ use crate::expert::skills::{
     TargetFn, across_narrow_side, carry, grasp_bottle, main_box, memo, partial_count, pick_place_turned, place_held, pos, pour_at,
 };
 use crate::expert::fixtures::{microwave_door_phases, push_microwave_door_wider};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 
 /// A pour task: `bottle` grasped `grasp_dz_m` above its root and poured twice over `target`'s root. With `into_pan`
 /// the target is first put into the frying pan; with `drainer`, `solve` sets the bottle into the drainer's left slot
@@ -34,53 +34,54 @@ const HOPE_GRASP_DZ_M: f64 = 0.02;
 /// On the wine bottle's neck, just below the cork (T20's).
 const WINE_GRASP_DZ_M: f64 = 0.13;
 
-fn pour_task(task_id: &str) -> Option<PourTask> {
-    let (bottle, grasp_dz_m, target, into_pan, drainer, microwave) = match task_id.strip_prefix("robomemarena/robomemarena_task_")? {
-        "06" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", false, true, false),
-        "08" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "chocolate_pudding_1", true, true, false),
-        "09" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "butter_1", true, true, false),
-        "10" => ("wine_bottle_1", WINE_GRASP_DZ_M, "white_yellow_mug_1", false, false, false),
-        "15" => ("milk_1", HOPE_GRASP_DZ_M, "butter_1", true, false, false),
-        "16" => ("milk_1", HOPE_GRASP_DZ_M, "red_coffee_mug_1", false, true, false),
-        "22" => ("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", false, false, true),
-        _ => return None,
-    };
-    Some(PourTask { bottle, grasp_dz_m, target, into_pan, drainer, microwave })
+/// A pour task's row of [`POURS`].
+const fn pour_task(
+    bottle: &'static str,
+    grasp_dz_m: f64,
+    target: &'static str,
+    [into_pan, drainer, microwave]: [bool; 3],
+) -> PourTask {
+    PourTask { bottle, grasp_dz_m, target, into_pan, drainer, microwave }
 }
 
-/// A microwave task: the two objects put in, in order.
-fn microwave_task(task_id: &str) -> Option<[&'static str; 2]> {
-    Some(match task_id.strip_prefix("robomemarena/robomemarena_task_")? {
-        "20" => ["cookies_1", "chocolate_pudding_1"],
-        "21" => ["butter_1", "chocolate_pudding_1"],
-        "23" => ["cream_cheese_1", "popcorn_1"],
-        "24" => ["cookies_1", "popcorn_1"],
-        _ => return None,
-    })
+/// The pour tasks by pool reference; the flags are `[into_pan, drainer, microwave]`.
+const POURS: &[(&str, PourTask)] = &[
+    ("robomemarena/robomemarena_task_06", pour_task("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", [false, true, false])),
+    ("robomemarena/robomemarena_task_08", pour_task("tomato_sauce_1", HOPE_GRASP_DZ_M, "chocolate_pudding_1", [true, true, false])),
+    ("robomemarena/robomemarena_task_09", pour_task("tomato_sauce_1", HOPE_GRASP_DZ_M, "butter_1", [true, true, false])),
+    ("robomemarena/robomemarena_task_10", pour_task("wine_bottle_1", WINE_GRASP_DZ_M, "white_yellow_mug_1", [false, false, false])),
+    ("robomemarena/robomemarena_task_15", pour_task("milk_1", HOPE_GRASP_DZ_M, "butter_1", [true, false, false])),
+    ("robomemarena/robomemarena_task_16", pour_task("milk_1", HOPE_GRASP_DZ_M, "red_coffee_mug_1", [false, true, false])),
+    ("robomemarena/robomemarena_task_22", pour_task("tomato_sauce_1", HOPE_GRASP_DZ_M, "cookies_1", [false, false, true])),
+];
+
+/// The microwave tasks by pool reference: the two objects put in, in order.
+const MICROWAVES: &[(&str, [&str; 2])] = &[
+    ("robomemarena/robomemarena_task_20", ["cookies_1", "chocolate_pudding_1"]),
+    ("robomemarena/robomemarena_task_21", ["butter_1", "chocolate_pudding_1"]),
+    ("robomemarena/robomemarena_task_23", ["cream_cheese_1", "popcorn_1"]),
+    ("robomemarena/robomemarena_task_24", ["cookies_1", "popcorn_1"]),
+];
+
+/// A row per pour and per microwave task.
+pub fn experts() -> impl Iterator<Item = ExpertEntry> {
+    let pours = POURS.iter().map(|&(task, _)| ExpertEntry { task, behaviours: &["partial_1", "partial_2", "three_pours"], build });
+    let microwaves = MICROWAVES.iter().map(|&(task, _)| ExpertEntry { task, behaviours: &["partial_1", "partial_2"], build });
+    pours.chain(microwaves)
 }
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    if pour_task(task_id).is_some() {
-        Some(&["partial_1", "partial_2", "three_pours"])
-    } else if microwave_task(task_id).is_some() {
-        Some(&["partial_1", "partial_2"])
-    } else {
-        None
-    }
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
+fn build(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let unknown = || TasksError::Scene(format!("{task_id}: unknown behaviour {behaviour}"));
     // stages reached: 1 lift / door, 2 first pour / object, 3 second
     let stages = match behaviour {
         SOLVE | "three_pours" => 3,
         b => partial_count(b).filter(|n| (1..3).contains(n)).ok_or_else(unknown)?,
     };
-    if let Some(task) = pour_task(task_id) {
+    if let Some((_, task)) = POURS.iter().find(|p| p.0 == task_id) {
         let pours = if behaviour == "three_pours" { 3 } else { stages - 1 };
-        return pour(refs, &task, pours, behaviour == SOLVE);
+        return pour(refs, task, pours, behaviour == SOLVE);
     }
-    let objects = microwave_task(task_id).ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))?;
+    let (_, objects) = MICROWAVES.iter().find(|m| m.0 == task_id).ok_or_else(|| TasksError::Scene(format!("no scripted expert for task {task_id}")))?;
     if behaviour == "three_pours" {
         return Err(unknown());
     }

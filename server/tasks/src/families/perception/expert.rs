@@ -14,7 +14,7 @@ use libero_sim::Simulation;
 use nalgebra::Vector3;
 
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, PhaseCtx, Script, grip_pose, rotate_world, vec3};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
 /// The behaviour that commits to a distractor instead of the target.
@@ -37,8 +37,9 @@ struct BinTask {
     carry_above_rest_m: f64,
 }
 
-fn bin_task(task_id: &str) -> Option<BinTask> {
-    let t = |target, distractor, target_grip_m, distractor_grip_m| BinTask {
+/// A bin task in the perception bin (`bin`, `bin_offset_x_m` and `carry_above_rest_m` at their usual values).
+const fn bin(target: &'static str, distractor: &'static str, target_grip_m: f64, distractor_grip_m: f64) -> BinTask {
+    BinTask {
         target,
         distractor,
         target_grip_m,
@@ -47,83 +48,94 @@ fn bin_task(task_id: &str) -> Option<BinTask> {
         bin: "perception_bin_1",
         bin_offset_x_m: 0.0,
         carry_above_rest_m: CARRY_ABOVE_REST_M,
-    };
-    let condiment = |target, distractor, target_grip_m, distractor_grip_m| BinTask {
-        bin: "basket_1",
-        carry_above_rest_m: 0.20,
-        ..t(target, distractor, target_grip_m, distractor_grip_m)
-    };
-    Some(match task_id {
-        // upright token (root at its centre, 12 cm tall) vs a fallen one (7.2 cm tall, 12 cm across y: turn the hand)
-        "T01" => BinTask { distractor_yaw_rad: std::f64::consts::FRAC_PI_2, ..t("marker_1", "marker_2", 0.013, 0.0) },
-        // bottles: root at the centre of the 11 cm colliding body
-        "T03" => t("candidate_1", "candidate_2", 0.01, 0.01),
-        // blocks and balls: root at the centre
-        "T04" => t("candidate_1", "candidate_2", 0.0, 0.0),
-        // (the near slot, x ≈ 0.2, is at the edge of the arm's reach from straight above: the middle one is taken)
-        "T05" => t("candidate_1", "candidate_2", 0.0, 0.0),
-        // LIBERO condiment bottles standing (root 6 cm above the bottom), carried high over the basket's rim (the basket
-        // stands 9 cm nearer the robot than in the catalog: at x ≈ 0.2 it is beyond a top-down reach)
-        "T02" => condiment("condiment_2", "condiment_1", 0.0, 0.0),
-        // drinks: root at the centre, 15 cm tall
-        "T07" => t("drink_2", "drink_1", 0.028, 0.028),
-        // pool suite vlabench_world_knowledge on definitions of their own (tasks 0–5, 7, 9, 11, 14, 15): the target
-        // in the private checker_params, wrong_target takes the distractor nearest in kind (or in the layout's order).
-        // Condiments with LIBERO's basket, as T02: sugar jar and salt shaker collide 11.2 cm tall, the hot sauce's body 9 cm
-        "vlabench_world_knowledge/select_sweet_condiment" => condiment("condiment_3", "condiment_1", 0.011, 0.011),
-        "vlabench_world_knowledge/select_salty_condiment" => condiment("condiment_2", "condiment_1", 0.011, 0.011),
-        "vlabench_world_knowledge/select_spicy_condiment" => condiment("condiment_3", "condiment_2", 0.0, 0.011),
-        "vlabench_world_knowledge/select_sweet_condiment_explicit_name" => condiment("condiment_2", "condiment_3", 0.011, 0.011),
-        // fruits: T05's balls; drinks: T07's; solution bottles: root at the centre, 12 cm tall
-        "vlabench_world_knowledge/select_vitamin_c_fruit" | "vlabench_world_knowledge/select_between_fruit" => t("fruit_2", "fruit_1", 0.0, 0.0),
-        "vlabench_world_knowledge/select_calcium_drink" => t("drink_2", "drink_1", 0.028, 0.028),
-        "vlabench_world_knowledge/select_nearest_drink" => t("drink_3", "drink_1", 0.028, 0.028),
-        "vlabench_world_knowledge/select_copper_sulfate_solution" | "vlabench_world_knowledge/select_green_solution" => {
-            t("solution_1", "solution_2", 0.015, 0.015)
-        }
-        "vlabench_world_knowledge/select_nearest_solution" => t("solution_3", "solution_1", 0.015, 0.015),
-        // T04's blocks with the spotted one in the top slot
-        "vlabench_perception/select_spotted_object" => t("candidate_1", "candidate_2", 0.0, 0.0),
-        _ => return None,
-    })
+    }
 }
 
-/// Button family (T06, T09, T10 and the pool's question-bank buttons, `vlabench_button` tasks 0–6, by their pool
-/// reference): `(target, the button wrong_target presses)`. The pool entries' target follows the physical property
-/// asked (the same button as their private `checker_params`); wrong_target presses the runner-up.
-fn button_task(task_id: &str) -> Option<(&'static str, &'static str)> {
-    Some(match task_id {
-        "T06" => ("button_1", "button_2"),
-        "T09" => ("button_2", "button_3"),
-        "T10" => ("button_3", "button_2"),
-        "vlabench_button/select_highest_density" => ("button_3", "button_2"),
-        "vlabench_button/select_smallest_mass" => ("button_2", "button_1"),
-        "vlabench_button/select_magnetic_material" => ("button_2", "button_3"),
-        "vlabench_button/select_lowest_friction" => ("button_1", "button_2"),
-        "vlabench_button/select_least_thermal_expansion" => ("button_1", "button_2"),
-        "vlabench_button/select_slowest_sound" => ("button_1", "button_2"),
-        "vlabench_button/select_highest_reflectance" => ("button_3", "button_2"),
-        _ => return None,
-    })
+/// A bin task with LIBERO's basket, carried high over its rim.
+const fn condiment(target: &'static str, distractor: &'static str, target_grip_m: f64, distractor_grip_m: f64) -> BinTask {
+    BinTask { bin: "basket_1", carry_above_rest_m: 0.20, ..bin(target, distractor, target_grip_m, distractor_grip_m) }
 }
+
+/// The bin family, by task id.
+const BIN_TASKS: &[(&str, BinTask)] = &[
+    // upright token (root at its centre, 12 cm tall) vs a fallen one (7.2 cm tall, 12 cm across y: turn the hand)
+    ("T01", BinTask { distractor_yaw_rad: std::f64::consts::FRAC_PI_2, ..bin("marker_1", "marker_2", 0.013, 0.0) }),
+    // bottles: root at the centre of the 11 cm colliding body
+    ("T03", bin("candidate_1", "candidate_2", 0.01, 0.01)),
+    // blocks and balls: root at the centre
+    ("T04", bin("candidate_1", "candidate_2", 0.0, 0.0)),
+    // (the near slot, x ≈ 0.2, is at the edge of the arm's reach from straight above: the middle one is taken)
+    ("T05", bin("candidate_1", "candidate_2", 0.0, 0.0)),
+    // LIBERO condiment bottles standing (root 6 cm above the bottom), carried high over the basket's rim (the basket
+    // stands 9 cm nearer the robot than in the catalog: at x ≈ 0.2 it is beyond a top-down reach)
+    ("T02", condiment("condiment_2", "condiment_1", 0.0, 0.0)),
+    // drinks: root at the centre, 15 cm tall
+    ("T07", bin("drink_2", "drink_1", 0.028, 0.028)),
+    // pool suite vlabench_world_knowledge on definitions of their own (tasks 0–5, 7, 9, 11, 14, 15): the target
+    // in the private checker_params, wrong_target takes the distractor nearest in kind (or in the layout's order).
+    // Condiments with LIBERO's basket, as T02: sugar jar and salt shaker collide 11.2 cm tall, the hot sauce's body 9 cm
+    ("vlabench_world_knowledge/select_sweet_condiment", condiment("condiment_3", "condiment_1", 0.011, 0.011)),
+    ("vlabench_world_knowledge/select_salty_condiment", condiment("condiment_2", "condiment_1", 0.011, 0.011)),
+    ("vlabench_world_knowledge/select_spicy_condiment", condiment("condiment_3", "condiment_2", 0.0, 0.011)),
+    ("vlabench_world_knowledge/select_sweet_condiment_explicit_name", condiment("condiment_2", "condiment_3", 0.011, 0.011)),
+    // fruits: T05's balls; drinks: T07's; solution bottles: root at the centre, 12 cm tall
+    ("vlabench_world_knowledge/select_vitamin_c_fruit", bin("fruit_2", "fruit_1", 0.0, 0.0)),
+    ("vlabench_world_knowledge/select_between_fruit", bin("fruit_2", "fruit_1", 0.0, 0.0)),
+    ("vlabench_world_knowledge/select_calcium_drink", bin("drink_2", "drink_1", 0.028, 0.028)),
+    ("vlabench_world_knowledge/select_nearest_drink", bin("drink_3", "drink_1", 0.028, 0.028)),
+    ("vlabench_world_knowledge/select_copper_sulfate_solution", bin("solution_1", "solution_2", 0.015, 0.015)),
+    ("vlabench_world_knowledge/select_green_solution", bin("solution_1", "solution_2", 0.015, 0.015)),
+    ("vlabench_world_knowledge/select_nearest_solution", bin("solution_3", "solution_1", 0.015, 0.015)),
+    // T04's blocks with the spotted one in the top slot
+    ("vlabench_perception/select_spotted_object", bin("candidate_1", "candidate_2", 0.0, 0.0)),
+];
+
+/// Button family (T06, T09, T10 and the pool's question-bank buttons, `vlabench_button` tasks 0–6, by their pool
+/// reference): `(task, target, the button wrong_target presses)`. The pool entries' target follows the physical
+/// property asked (the same button as their private `checker_params`); wrong_target presses the runner-up.
+const BUTTON_TASKS: &[(&str, &str, &str)] = &[
+    ("T06", "button_1", "button_2"),
+    ("T09", "button_2", "button_3"),
+    ("T10", "button_3", "button_2"),
+    ("vlabench_button/select_highest_density", "button_3", "button_2"),
+    ("vlabench_button/select_smallest_mass", "button_2", "button_1"),
+    ("vlabench_button/select_magnetic_material", "button_2", "button_3"),
+    ("vlabench_button/select_lowest_friction", "button_1", "button_2"),
+    ("vlabench_button/select_least_thermal_expansion", "button_1", "button_2"),
+    ("vlabench_button/select_slowest_sound", "button_1", "button_2"),
+    ("vlabench_button/select_highest_reflectance", "button_3", "button_2"),
+];
 
 /// The cap's top face in the property button's frame (cap centre at (−0.045, 0, 0.085), half height 0.010).
 const PROPERTY_CAP_TOP_LOCAL_M: [f64; 3] = [-0.045, 0.0, 0.095];
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    (bin_task(task_id).is_some() || button_task(task_id).is_some() || task_id == "T08").then_some(&[WRONG_TARGET][..])
+/// Every perception task has the one near miss.
+const BEHAVIOURS: &[&str] = &[WRONG_TARGET];
+
+/// The perception experts: a row per button task, per bin task and T08's weighing.
+pub fn experts() -> impl Iterator<Item = ExpertEntry> {
+    let buttons = BUTTON_TASKS.iter().map(|&(task, ..)| ExpertEntry { task, behaviours: BEHAVIOURS, build: press_button });
+    let bins = BIN_TASKS.iter().map(|&(task, _)| ExpertEntry { task, behaviours: BEHAVIOURS, build: bin_task });
+    let weigh = ExpertEntry { task: "T08", behaviours: BEHAVIOURS, build: |refs, b, _| weigh_and_place(refs, b) };
+    buttons.chain(bins).chain(std::iter::once(weigh))
 }
 
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    if let Some((target, other)) = button_task(task_id) {
-        let button = if behaviour == SOLVE { target } else { other };
-        return crate::expert::skills::press(refs, button, PROPERTY_CAP_TOP_LOCAL_M, true);
-    }
-    match bin_task(task_id) {
-        Some(t) if behaviour == SOLVE => place_in_bin(refs, &t, t.target, t.target_grip_m, 0.0),
-        Some(t) => place_in_bin(refs, &t, t.distractor, t.distractor_grip_m, t.distractor_yaw_rad),
-        None if task_id == "T08" => weigh_and_place(refs, behaviour),
-        None => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
+fn no_expert(task_id: &str) -> TasksError {
+    TasksError::Scene(format!("no scripted expert for task {task_id}"))
+}
+
+fn press_button(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
+    let &(_, target, other) = BUTTON_TASKS.iter().find(|t| t.0 == task_id).ok_or_else(|| no_expert(task_id))?;
+    let button = if behaviour == SOLVE { target } else { other };
+    crate::expert::skills::press(refs, button, PROPERTY_CAP_TOP_LOCAL_M, true)
+}
+
+fn bin_task(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
+    let (_, t) = BIN_TASKS.iter().find(|t| t.0 == task_id).ok_or_else(|| no_expert(task_id))?;
+    if behaviour == SOLVE {
+        place_in_bin(refs, t, t.target, t.target_grip_m, 0.0)
+    } else {
+        place_in_bin(refs, t, t.distractor, t.distractor_grip_m, t.distractor_yaw_rad)
     }
 }
 

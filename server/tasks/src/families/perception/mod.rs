@@ -4,18 +4,16 @@
 pub mod weighing;
 mod expert;
 
-use crate::TasksError;
-use crate::expert::{Expert, SceneRefs};
+use crate::expert::ExpertEntry;
+use crate::judge::kind::EvaluatorKind;
 
-/// The tasks this family scripts, with their near-miss behaviours.
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    expert::behaviours(task_id)
+/// This family's experts, a row per task.
+pub fn experts() -> impl Iterator<Item = ExpertEntry> {
+    expert::experts()
 }
 
-/// This family's expert for `task_id` (one of [`behaviours`]).
-pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    expert::build(task_id, behaviour, refs)
-}
+/// The checker kinds this family judges.
+pub const EVALUATORS: &[EvaluatorKind] = &[weighing::EVALUATOR];
 
 /// T08: the phase at whose end a weighed mug has hung still in the hand (tests read the wrist force there).
 pub fn weigh_hold_phase() -> &'static str {

@@ -25,7 +25,8 @@ use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{
     EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, TerminalCheck, Tick, score_percent,
 };
-use crate::judge::support::missing_in_model;
+use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::{EntityRef, SceneIndex, region_contains};
 
@@ -37,20 +38,11 @@ pub const PLACE_STAGE: &str = "Place_Heaviest_Mug_In_Green_Bin";
 pub struct WeighingParams {
     /// Private: mug instance → mass (kg).
     pub mugs: BTreeMap<String, f64>,
-    #[serde(default = "default_lift")]
     pub weigh_lift_m: f64,
     /// Private: the heaviest mug.
     pub target: String,
     pub receptacle_region: String,
-    #[serde(default = "default_clear")]
     pub release_clear_distance_m: f64,
-}
-
-fn default_lift() -> f64 {
-    0.04
-}
-fn default_clear() -> f64 {
-    0.055
 }
 
 /// Sets each mug instance's mass (scaling every body of its subtree, inertia with it, so the shape's density is
@@ -58,6 +50,15 @@ fn default_clear() -> f64 {
 pub fn apply_mug_masses(params: &WeighingParams, model: &mut MjModel) -> Result<(), TasksError> {
     crate::judge::support::set_instance_masses(CHECKER, &params.mugs, model)
 }
+
+/// The kind's table row: the mug masses are written into the model before the episode.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind {
+    model_edits: Some(|checker, model| apply_mug_masses(&checker.parse()?, model)),
+    ..EvaluatorKind::plain(CHECKER, check::<WeighingParams>, |checker, scene, model| {
+        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+        Ok(Box::new(PhysicalWeighing::new(checker.parse()?, goal, commitment, checker.task_id_owned())?))
+    })
+};
 
 pub struct PhysicalWeighing {
     params: WeighingParams,

@@ -24,9 +24,18 @@ use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, Tick};
 use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
 use crate::judge::goal::GoalChecker;
+use crate::judge::kind::{EvaluatorKind, check};
 
 pub const CHECKER: &str = "private_button_press";
 pub const GATED_CHECKER: &str = "private_contact_gated_button";
+
+/// The two kinds' table rows.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<ButtonPressParams>, |checker, scene, model| {
+    Ok(Box::new(ButtonPress::new(checker.parse()?, scene, model, checker.task_id_owned())?))
+});
+pub const GATED_EVALUATOR: EvaluatorKind = EvaluatorKind::plain(GATED_CHECKER, check::<GatedButtonParams>, |checker, scene, model| {
+    Ok(Box::new(ButtonPress::gated(checker.parse()?, scene, model, checker.task_id_owned())?))
+});
 pub const STAGE_NAME: &str = "01_Press_Button";
 /// The colour a touched cap is drawn in.
 pub const PRESSED_CAP_RGBA: [f32; 4] = [0.12, 0.85, 0.18, 1.0];
@@ -39,11 +48,8 @@ pub const GRIPPER_GEOM_PREFIX: &str = "gripper0_";
 pub struct ButtonPressParams {
     pub button: String,
     pub touch_sensor: String,
-    #[serde(default = "default_touch_min")]
     pub touch_sensor_min: f64,
-    #[serde(default = "default_force_min")]
     pub contact_normal_force_min_n: f64,
-    #[serde(default = "default_streak")]
     pub min_press_streak_substeps: u32,
 }
 
@@ -55,28 +61,10 @@ pub struct GatedButtonParams {
     pub target_button: String,
     /// Every button instance (touch sensor `<b>_button_touch`, cap `<b>_button_cap`).
     pub buttons: Vec<String>,
-    #[serde(default = "default_touch_min")]
     pub touch_sensor_min: f64,
-    #[serde(default = "default_force_min")]
     pub contact_normal_force_min_n: f64,
-    #[serde(default = "default_streak")]
     pub min_press_streak_substeps: u32,
-    #[serde(default = "default_true")]
     pub wrong_press_fails: bool,
-}
-
-fn default_true() -> bool {
-    true
-}
-
-fn default_touch_min() -> f64 {
-    0.001
-}
-fn default_force_min() -> f64 {
-    1e-3
-}
-fn default_streak() -> u32 {
-    11
 }
 
 /// Per-button press history (catalog §1.5 names).

@@ -10,14 +10,12 @@ use nalgebra::Vector3;
 use crate::TasksError;
 use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script};
 use crate::expert::skills::{Hold, TargetFn, memo, pos, transfer};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 
-pub const CLUSTER_SERIES: &str = "vlabench_additional/cluster_series";
 const WRONG_BASKET: &str = "wrong_basket";
 
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    (task_id == CLUSTER_SERIES).then_some(&[WRONG_BASKET][..])
-}
+pub const EXPERTS: &[ExpertEntry] =
+    &[ExpertEntry { task: "vlabench_additional/cluster_series", behaviours: &[WRONG_BASKET], build: sort_fruit }];
 
 /// Root height while carrying over the baskets' rims (the basket stands ≈ 0.15 m tall on the table at z ≈ 0.90).
 const CARRY_Z_M: f64 = 1.13;
@@ -37,7 +35,7 @@ const SOLVE_PLAN: [(&str, &str, [f64; 2]); 4] = [
     ("banana_2", "basket_2", [0.0, 0.025]),
 ];
 
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
+fn sort_fruit(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let mut plan = SOLVE_PLAN;
     match behaviour {
         SOLVE => {}

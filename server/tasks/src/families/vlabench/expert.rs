@@ -5,30 +5,20 @@ use libero_sim::Simulation;
 use nalgebra::Vector3;
 
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, Script, body_point, grip_pose, vec3};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 use crate::expert::skills::press;
 
-/// The pool's two-tube rearrangement (task id `suite/name`).
-pub const REARRANGE_TUBES: &str = "vlabench_tube_precision/rearrange_marked_chemistry_tubes";
-
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T13" => &["tap"],
-        "T18" => &["tilted", "beside_slot"],
-        REARRANGE_TUBES => &["swapped_slots", "one_tube"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T13" => press_button(refs, behaviour),
-        "T18" => insert_tube(refs, behaviour),
-        REARRANGE_TUBES => rearrange_tubes(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+/// T13, T18 and the pool's two-tube rearrangement (T18's insertion twice), with their near misses.
+pub const EXPERTS: &[ExpertEntry] = &[
+    ExpertEntry { task: "T13", behaviours: &["tap"], build: |refs, b, _| press_button(refs, b) },
+    ExpertEntry { task: "T18", behaviours: &["tilted", "beside_slot"], build: |refs, b, _| insert_tube(refs, b) },
+    ExpertEntry {
+        task: "vlabench_tube_precision/rearrange_marked_chemistry_tubes",
+        behaviours: &["swapped_slots", "one_tube"],
+        build: |refs, b, _| rearrange_tubes(refs, b),
+    },
+];
 
 /// The cap's top face in the button body's frame (`vlabench_single_button.xml`: cap centre 0.085, half height 0.010).
 const CAP_TOP_LOCAL_M: [f64; 3] = [0.0, 0.0, 0.095];

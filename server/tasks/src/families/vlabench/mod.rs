@@ -12,26 +12,20 @@ mod expert;
 mod seesaw_expert;
 mod seesaw_pool_expert;
 
-use crate::TasksError;
-use crate::expert::{Expert, SceneRefs};
+use crate::expert::ExpertEntry;
+use crate::judge::kind::EvaluatorKind;
 
-/// The tasks this family scripts, with their near-miss behaviours.
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    expert::behaviours(task_id)
-        .or_else(|| seesaw_expert::behaviours(task_id))
-        .or_else(|| seesaw_pool_expert::behaviours(task_id))
-        .or_else(|| cluster_expert::behaviours(task_id))
+/// This family's experts, a row per task.
+pub fn experts() -> impl Iterator<Item = ExpertEntry> {
+    [expert::EXPERTS, seesaw_expert::EXPERTS, seesaw_pool_expert::EXPERTS, cluster_expert::EXPERTS].into_iter().flatten().copied()
 }
 
-/// This family's expert for `task_id` (one of [`behaviours`]).
-pub fn build_expert(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    if seesaw_expert::behaviours(task_id).is_some() {
-        seesaw_expert::build(task_id, behaviour, refs)
-    } else if seesaw_pool_expert::behaviours(task_id).is_some() {
-        seesaw_pool_expert::build(task_id, behaviour, refs)
-    } else if cluster_expert::behaviours(task_id).is_some() {
-        cluster_expert::build(task_id, behaviour, refs)
-    } else {
-        expert::build(task_id, behaviour, refs)
-    }
-}
+/// The checker kinds this family judges (the seesaw in its three variants).
+pub const EVALUATORS: &[EvaluatorKind] = &[
+    button_press::EVALUATOR,
+    button_press::GATED_EVALUATOR,
+    tube_insertion::EVALUATOR,
+    seesaw::EVALUATOR,
+    seesaw_adaptive::EVALUATOR,
+    seesaw_comparison::EVALUATOR,
+];

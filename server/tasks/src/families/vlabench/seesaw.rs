@@ -30,11 +30,18 @@ use serde::Deserialize;
 use crate::TasksError;
 use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
-use crate::judge::support::missing_in_model;
+use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::{CompiledAtom, SceneIndex, in_subtree};
 
 pub const CHECKER: &str = "private_ordered_physical_seesaw";
+
+/// T30's basic seesaw: the kind's row without a variant.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<SeesawParams>, |checker, scene, model| {
+    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+    Ok(Box::new(PhysicalSeesaw::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+});
 pub const STAGES: [&str; 4] = [
     "01_Place_First_Counterweight",
     "02_Place_Second_Counterweight",
@@ -42,9 +49,9 @@ pub const STAGES: [&str; 4] = [
     "04_Place_Target_In_Basket",
 ];
 
-/// The manifest's `checker.params` (defaults = the catalog's values).
+/// The manifest's `checker.params` (every field from the manifest).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct SeesawParams {
     pub seesaw: String,
     pub hinge_joint: String,
@@ -58,24 +65,6 @@ pub struct SeesawParams {
     pub target_lift_m: f64,
     #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
-}
-
-impl Default for SeesawParams {
-    fn default() -> Self {
-        Self {
-            seesaw: "seesaw_1".into(),
-            hinge_joint: "seesaw_1_seesaw_hinge".into(),
-            far_end_site: "seesaw_1_seesaw_right_region".into(),
-            target: "target_1".into(),
-            weights: vec!["weight_1".into(), "weight_2".into()],
-            basket_region: "basket_1_contain_region".into(),
-            weight_xy_max_m: 0.12,
-            weight_dz_range_m: [-0.15, 0.20],
-            hinge_lift_rad: 0.12,
-            target_lift_m: 0.04,
-            stages: STAGES.iter().map(|s| s.to_string()).collect(),
-        }
-    }
 }
 
 /// What one sample measured.

@@ -42,7 +42,8 @@ use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::CompiledAtom;
-use crate::judge::support::{instance_mass, missing_in_model};
+use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::{instance_mass, missing_in_model, scene_goal_and_commitment, set_instance_masses};
 
 /// The `variant` of the checker's params that selects this evaluator.
 pub const VARIANT: &str = "adaptive_mass_selection";
@@ -53,12 +54,25 @@ pub const STAGES: [&str; 4] = [
     "04_Place_Probed_Payload_In_Basket",
 ];
 
+/// The seesaw kind's row for this variant: the private masses are written into the model before the episode.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind {
+    variant: Some(VARIANT),
+    model_edits: Some(|checker, model| {
+        let p: AdaptiveParams = checker.parse()?;
+        set_instance_masses(CHECKER, &p.masses_kg, model)
+    }),
+    ..EvaluatorKind::plain(CHECKER, check::<AdaptiveParams>, |checker, scene, model| {
+        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+        Ok(Box::new(AdaptiveSeesaw::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+    })
+};
+
 /// How many weights the selection takes.
 const SELECTION: usize = 2;
 
-/// The checker's params (defaults = the original's values; `masses_kg` has none: it is the private part).
+/// The checker's params (every field from the pool entry's definition, `masses_kg` the private part).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct AdaptiveParams {
     pub variant: String,
     pub seesaw: String,
@@ -78,28 +92,6 @@ pub struct AdaptiveParams {
     pub payload_lift_m: f64,
     #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
-}
-
-impl Default for AdaptiveParams {
-    fn default() -> Self {
-        Self {
-            variant: VARIANT.into(),
-            seesaw: "seesaw_1".into(),
-            hinge_joint: "seesaw_1_seesaw_hinge".into(),
-            far_end_site: "seesaw_1_seesaw_right_region".into(),
-            payload: "payload_1".into(),
-            weights: vec!["weight_a".into(), "weight_b".into(), "weight_c".into()],
-            masses_kg: BTreeMap::new(),
-            basket_region: "basket_1_contain_region".into(),
-            weight_xy_max_m: 0.12,
-            weight_dz_range_m: [-0.15, 0.20],
-            required_mass_floor_kg: 0.80,
-            required_mass_fraction: 0.58,
-            hinge_lift_rad: 0.12,
-            payload_lift_m: 0.04,
-            stages: STAGES.iter().map(|s| s.to_string()).collect(),
-        }
-    }
 }
 
 /// What one sample measured, per weight in `weights` order.

@@ -41,7 +41,8 @@ use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::CompiledAtom;
-use crate::judge::support::{instance_mass, missing_in_model};
+use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::{instance_mass, missing_in_model, scene_goal_and_commitment, set_instance_masses};
 
 /// The `variant` of the checker's params that selects this evaluator.
 pub const VARIANT: &str = "active_weight_comparison";
@@ -52,9 +53,22 @@ pub const STAGES: [&str; 4] = [
     "04_Place_Dynamically_Heavier_Candidate",
 ];
 
-/// The checker's params (defaults = the original's values; `masses_kg` has none: it is the private part).
+/// The seesaw kind's row for this variant: the private masses are written into the model before the episode.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind {
+    variant: Some(VARIANT),
+    model_edits: Some(|checker, model| {
+        let p: ComparisonParams = checker.parse()?;
+        set_instance_masses(CHECKER, &p.masses_kg, model)
+    }),
+    ..EvaluatorKind::plain(CHECKER, check::<ComparisonParams>, |checker, scene, model| {
+        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+        Ok(Box::new(WeightComparison::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+    })
+};
+
+/// The checker's params (every field from the pool entry's definition, `masses_kg` the private part).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(deny_unknown_fields)]
 pub struct ComparisonParams {
     pub variant: String,
     pub seesaw: String,
@@ -75,29 +89,6 @@ pub struct ComparisonParams {
     pub neutral_hinge_velocity_max_rad_s: f64,
     #[serde(deserialize_with = "crate::judge::stage_types::stage_names")]
     pub stages: Vec<String>,
-}
-
-impl Default for ComparisonParams {
-    fn default() -> Self {
-        Self {
-            variant: VARIANT.into(),
-            seesaw: "seesaw_1".into(),
-            hinge_joint: "seesaw_1_seesaw_hinge".into(),
-            far_end_site: "seesaw_1_seesaw_right_region".into(),
-            candidates: vec!["candidate_1".into(), "candidate_2".into()],
-            masses_kg: BTreeMap::new(),
-            basket: "basket_1".into(),
-            basket_region: "basket_1_contain_region".into(),
-            weight_xy_max_m: 0.12,
-            weight_dz_range_m: [-0.15, 0.20],
-            min_response_rad: 0.005,
-            response_margin_rad: 0.003,
-            neutral_steps: 3,
-            neutral_hinge_tolerance_rad: 0.05,
-            neutral_hinge_velocity_max_rad_s: 0.20,
-            stages: STAGES.iter().map(|s| s.to_string()).collect(),
-        }
-    }
 }
 
 /// What one sample measured, per candidate in `candidates` order.
@@ -427,7 +418,7 @@ mod tests {
     /// Candidate 0 is the heavier (1.20 kg against 0.30 kg), as the pool entry's.
     fn progress() -> ComparisonProgress {
         let names: Vec<String> = STAGES.iter().map(|s| s.to_string()).collect();
-        ComparisonProgress::new(&names, [1.20, 0.30], (&ComparisonParams::default()).into())
+        ComparisonProgress::new(&names, [1.20, 0.30], (&crate::judge::test_params::parsed::<ComparisonParams>("vlabench_physical/active_weight_comparison")).into())
     }
 
     fn sample(on: [bool; 2], touching: [bool; 2], hinge: f64, velocity: f64, in_basket: [bool; 2]) -> ComparisonSample {

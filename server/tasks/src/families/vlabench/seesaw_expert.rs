@@ -16,23 +16,15 @@ use crate::expert::skills::{TargetFn, carry, memo, partial_count, pick_place, po
 use crate::expert::motion::{
     GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, Script, body_dir, body_point, gripper_width_m, vec3,
 };
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 use crate::TasksError;
 
-/// T30's behaviours (the pool's seesaw variants, which reuse this script's pieces, are in `seesaw_pool_expert`).
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        "T30" => &["partial_1", "partial_2", "partial_3", "undo", "lift_by_hand"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        "T30" => seesaw(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+/// T30 (the pool's seesaw variants, which reuse this script's pieces, are in `seesaw_pool_expert`).
+pub const EXPERTS: &[ExpertEntry] = &[ExpertEntry {
+    task: "T30",
+    behaviours: &["partial_1", "partial_2", "partial_3", "undo", "lift_by_hand"],
+    build: seesaw,
+}];
 
 /// Counterweight half extents (catalog §6.1: box 4.4 × 2.8 × 4.4 cm).
 const WEIGHT_HALF_X_M: f64 = 0.022;
@@ -89,7 +81,7 @@ pub(super) fn stand_clear(phases: &mut Vec<Phase>) {
     );
 }
 
-fn seesaw(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksError> {
+fn seesaw(refs: &SceneRefs, behaviour: &str, task_id: &str) -> Result<Box<dyn Expert>, TasksError> {
     let board = refs.body("seesaw_1_board")?;
     let (hinge_adr, _) = refs.joint("seesaw_1_seesaw_hinge")?;
     let weights = [refs.instance_body("weight_1")?, refs.instance_body("weight_2")?];
@@ -98,7 +90,7 @@ fn seesaw(refs: &SceneRefs, behaviour: &str) -> Result<Box<dyn Expert>, TasksErr
     let steps = match behaviour {
         SOLVE | "lift_by_hand" => 4,
         "undo" => 1,
-        b => partial_count(b).filter(|&n| (1..4).contains(&n)).ok_or_else(|| TasksError::Scene(format!("T30: unknown behaviour {b}")))?,
+        b => partial_count(b).filter(|&n| (1..4).contains(&n)).ok_or_else(|| TasksError::Scene(format!("{task_id}: unknown behaviour {b}")))?,
     };
     // the seesaw's state when the run began (the evaluator's baselines)
     let start = Arc::new(memo(move |sim: &Simulation| (sim.data().qpos()[hinge_adr], pos(sim, carton).z)));

@@ -18,27 +18,21 @@ use super::seesaw_expert::{CARRY_Z_M, WAIT_HINGE_RAD, WAIT_LIFT_M, pick_carton, 
 use crate::TasksError;
 use crate::expert::motion::{GRIPPER_OPEN, Goal, Phase, Script, body_dir, body_point, rotate_world, vec3};
 use crate::expert::skills::{RotFn, TargetFn, memo, partial_count, pick_place, pick_place_turned, pos};
-use crate::expert::{Expert, SOLVE, SceneRefs};
+use crate::expert::{Expert, ExpertEntry, SOLVE, SceneRefs};
 
 /// The pool's adaptive seesaw (`vlabench_physical/1`) and weight comparison (`vlabench_physical/2`), by reference.
-pub const ADAPTIVE: &str = "vlabench_physical/adaptive_seesaw_usage";
-pub const COMPARISON: &str = "vlabench_physical/active_weight_comparison";
-
-pub fn behaviours(task_id: &str) -> Option<&'static [&'static str]> {
-    Some(match task_id {
-        ADAPTIVE => &["light_pair", "partial_3"],
-        COMPARISON => &["skip_probing", "lighter_in_basket"],
-        _ => return None,
-    })
-}
-
-pub fn build(task_id: &str, behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, TasksError> {
-    match task_id {
-        ADAPTIVE => adaptive(refs, behaviour),
-        COMPARISON => comparison(refs, behaviour),
-        _ => Err(TasksError::Scene(format!("no scripted expert for task {task_id}"))),
-    }
-}
+pub const EXPERTS: &[ExpertEntry] = &[
+    ExpertEntry {
+        task: "vlabench_physical/adaptive_seesaw_usage",
+        behaviours: &["light_pair", "partial_3"],
+        build: |refs, b, _| adaptive(refs, b),
+    },
+    ExpertEntry {
+        task: "vlabench_physical/active_weight_comparison",
+        behaviours: &["skip_probing", "lighter_in_basket"],
+        build: |refs, b, _| comparison(refs, b),
+    },
+];
 
 /// An instance's mass in the compiled model (the episode writes the private masses there).
 fn mass_kg(refs: &SceneRefs, instance: &str) -> Result<f64, TasksError> {

@@ -32,8 +32,14 @@ use crate::judge::evaluator::{
 };
 use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
 use crate::judge::goal::GoalChecker;
+use crate::judge::kind::{EvaluatorKind, check};
 
 pub const CHECKER: &str = "private_tube_insertion";
+
+/// The kind's table row.
+pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<TubeInsertionParams>, |checker, scene, model| {
+    Ok(Box::new(TubeInsertion::new(checker.parse()?, scene, model, checker.task_id_owned())?))
+});
 pub const STAGE_NAME: &str = "01_Tube_Inserted_At_Finish";
 
 /// One tube and the slot site it belongs in.

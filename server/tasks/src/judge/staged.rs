@@ -66,13 +66,30 @@ use crate::judge::goal::GoalChecker;
 pub use crate::judge::mechanism::{ContactMonitor, SUSTAINED_RUN_STEPS};
 use crate::judge::mechanism::{GripperContact, OperationKind, PendingOpening, Window, body_names, joint_operation, moving_bodies};
 use crate::judge::predicates::{CompiledAtom, EntityRef, PredicateKind, SceneIndex, SubtreeContact, in_subtree};
+use crate::judge::kind::{EvaluatorKind, check};
 use crate::judge::stage_types::StageType;
+use crate::judge::support::scene_goal_and_commitment;
 use crate::judge::pouring::{PourCounterConfig, PourTracker};
 
 pub const CHECKER_ORDERED: &str = "private_ordered_stages";
 pub const CHECKER_UNORDERED: &str = "private_unordered_goal_predicates";
 /// T25's checker: strict stages, substep sampling and the bowl–table contact guard, all from the manifest params.
 pub const CHECKER_BUFFER_ROTATION: &str = "private_ordered_buffer_rotation_and_tabletop_avoidance";
+
+/// The three staged kinds' table rows (one builder: the params say how the stages are judged). They delimit
+/// operations by their own stages.
+pub const EVALUATORS: &[EvaluatorKind] = &[staged(CHECKER_ORDERED), staged(CHECKER_UNORDERED), staged(CHECKER_BUFFER_ROTATION)];
+
+const fn staged(name: &'static str) -> EvaluatorKind {
+    EvaluatorKind {
+        stages_delimit_operations: true,
+        ..EvaluatorKind::plain(name, check::<StagedParams>, |checker, scene, model| {
+            let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+            let p = checker.parse()?;
+            Ok(Box::new(StagedEvaluator::new(checker.kind, p, goal, commitment, model, checker.task_id_owned())?))
+        })
+    }
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -85,7 +102,7 @@ pub enum OrderMode {
 
 /// One atom of a stage or terminal conjunction.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum AtomSpec {
     /// `[predicate, arg…]`, a LIBERO predicate.
     Bddl(Vec<String>),
@@ -138,6 +155,7 @@ pub enum AtomSpec {
 /// A site chosen per episode: among `sites`, the one whose world position at reset is nearest (3-D) to the root of
 /// `nearest_to`. Atoms name it `$<name>`.
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BindingParams {
     pub name: String,
     pub nearest_to: String,
@@ -146,6 +164,7 @@ pub struct BindingParams {
 
 /// A named pour counter: `bottle` poured over `target_site` (catalog §4 T20 algorithm and thresholds).
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PourCounterParams {
     pub name: String,
     pub bottle: String,
@@ -156,6 +175,7 @@ pub struct PourCounterParams {
 
 /// A permanent failure latched at the first control step, at or after `after_stage` completed, where `when` holds.
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FailureMonitorParams {
     pub name: String,
     pub after_stage: String,
@@ -164,6 +184,7 @@ pub struct FailureMonitorParams {
 }
 
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct StageParams {
     pub name: String,
     /// The stage's type for the stage-level diagnosis (read from the catalog by [`crate::judge::stage_types`]).
@@ -178,6 +199,7 @@ pub struct StageParams {
 
 /// A contact that fails the run for good the first time it is seen (T25: a bowl touching the tabletop).
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ForbiddenContactParams {
     /// Instances none of whose body subtrees may touch `body`.
     pub objects: Vec<String>,
@@ -189,7 +211,10 @@ pub struct ForbiddenContactParams {
     pub max_distance_m: f64,
 }
 
+/// The staged kinds' `checker.params`. The fields that may be left out are structural (no optional stages, no pour
+/// counters, …; `order` is `ordered`); every threshold is in the atoms, which have no defaults.
 #[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct StagedParams {
     #[serde(default)]
     pub order: OrderMode,

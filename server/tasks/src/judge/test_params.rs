@@ -1,0 +1,35 @@
+//! Test fixtures: a task's checker params as the manifest (or the pool's own definitions) gives them, the one source
+//! of every threshold, so unit tests judge with the values the tasks run with instead of restating them.
+use std::path::PathBuf;
+
+fn tasks_dir() -> PathBuf {
+    std::env::var_os("LIBERO_AGENT_TASKS_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tasks"))
+}
+
+fn read(file: &str) -> serde_json::Value {
+    let path = tasks_dir().join(file);
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("read {}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("parse {}: {e}", path.display()))
+}
+
+/// `checker.params` of release task `task` (`T20`), or `definition.checker_params` of pool entry `suite/name`.
+pub(crate) fn checker_params(task: &str) -> serde_json::Value {
+    let found = match task.split_once('/') {
+        None => read("manifest.json")["tasks"]
+            .as_array()
+            .and_then(|tasks| tasks.iter().find(|t| t["id"] == task))
+            .map(|t| t["checker"]["params"].clone()),
+        Some((suite, name)) => read("pool.json")["entries"]
+            .as_array()
+            .and_then(|entries| entries.iter().find(|e| e["suite"] == suite && e["name"] == name))
+            .map(|e| e["definition"]["checker_params"].clone()),
+    };
+    found.unwrap_or_else(|| panic!("no checker params for {task}"))
+}
+
+/// [`checker_params`] as the kind's typed struct.
+pub(crate) fn parsed<T: serde::de::DeserializeOwned>(task: &str) -> T {
+    serde_json::from_value(checker_params(task)).unwrap_or_else(|e| panic!("{task}'s checker params: {e}"))
+}
