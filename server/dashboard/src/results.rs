@@ -1,20 +1,27 @@
-//! The Results page and `/api/results`: the paper's tables over the batch directories `libero-agent run`
-//! writes. The server finds batches under `<data>/batches/` and under every `serve --batches DIR` (a batch
-//! directory itself or a folder of them); each is read afresh per request, so a running batch's progress shows
-//! on refresh. Numbers come from [`report_json`] (the same code as `libero-agent report --format json`): Table 1,
-//! progress and per-task cells one batch at a time with the batch's own `--reps` unless `?reps=N`; Tables 2–4,
-//! Figure 3 (SVG drawn here, on the server) and Appendix E across the selected batches of each agent, as `report`
-//! merges them, so the level-3 and no-demonstration rows come from the agent's main-table batch.
+//! The Results page, `/results` (`web/templates/results.html`), and `/api/results`: the paper's tables over the
+//! batch directories `libero-agent run` writes. The server finds batches under `<data>/batches/` and under every
+//! `serve --batches DIR` (a batch directory itself or a folder of them); each is read afresh per request, so a
+//! running batch's progress shows on refresh. Numbers come from [`report_json`] (the same code as `libero-agent
+//! report --format json`): Table 1, progress and per-task cells one batch at a time with the batch's own `--reps`
+//! unless `?reps=N`; Tables 2–4, Figure 3 (SVG drawn here, on the server) and Appendix E across the selected
+//! batches of each agent, as `report` merges them, so the level-3 and no-demonstration rows come from the agent's
+//! main-table batch.
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+use askama::Template;
+use axum::extract::{RawQuery, State};
+use axum::response::IntoResponse;
 use libero_metrics::{PAPER_REPS, Split};
+use libero_server::{ApiError, ApiResult, App, AppState};
 use serde_json::{Value, json};
 
 use libero_runner::batch::{LoadedBatch, RolloutRecord, load_batch};
 use libero_runner::report::tables::{DisplayTable, TableChoice, display_tables, paper_tables};
 use libero_runner::report::tokens::{self, RolloutTokens, TokenSummary};
 use libero_runner::report::{Row, coverage, default_reps, pct, pool_rows, report_json, row_records, rows, suite_records, svg, toolbox_text, wilson};
+
+use crate::common::page;
 
 /// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
 pub fn batch_roots(data: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {
@@ -566,6 +573,58 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
             });
         }
     }
+}
+
+// ---------------------------------------------------------------------------------------------- the page and /api/results
+
+#[derive(Template)]
+#[template(path = "results.html")]
+struct ResultsPage {
+    available: Vec<(String, bool)>,
+    reps: String,
+    view: View,
+}
+
+/// Loads the selected batches: batch directories off the async workers (they are files of any size), and the
+/// batches only the store holds (`run --store`) from the store.
+pub(crate) async fn selected(app: &App, sel: &Selection) -> ApiResult<(Vec<String>, Vec<libero_runner::batch::LoadedBatch>)> {
+    let internal = |e: String| ApiError::internal(format!("results: {e}"));
+    let stored = app.store.batch_names().await.map_err(|e| internal(format!("{e:#}")))?;
+    let (roots, sel) = (app.batch_roots.clone(), sel.clone());
+    let (names, picked) = match tokio::task::spawn_blocking(move || load_selected(&roots, &stored, &sel)).await {
+        Ok(Ok(x)) => x,
+        Ok(Err(e)) => return Err(ApiError::not_found(e)),
+        Err(e) => return Err(internal(e.to_string())),
+    };
+    let mut batches = Vec::with_capacity(picked.len());
+    for p in picked {
+        batches.push(match p {
+            Selected::Loaded(b) => b,
+            Selected::InStore(name) => {
+                let b = app.store.batch(&name).await.map_err(|e| internal(format!("{e:#}")))?;
+                let b = b.ok_or_else(|| internal(format!("batch {name} left the store")))?;
+                libero_runner::batch::from_stored(b).map_err(|e| internal(format!("{e:#}")))?
+            }
+        });
+    }
+    Ok((names, batches))
+}
+
+pub(crate) async fn results_page(State(app): State<AppState>, RawQuery(query): RawQuery) -> ApiResult {
+    let sel = Selection::parse(query.as_deref());
+    let (names, batches) = selected(&app, &sel).await?;
+    let view = view(&batches, &sel);
+    Ok(page(ResultsPage {
+        available: names.into_iter().map(|n| (n.clone(), sel.batches.contains(&n))).collect(),
+        reps: sel.reps.map(|n| n.to_string()).unwrap_or_default(),
+        view,
+    }))
+}
+
+pub(crate) async fn results_api(State(app): State<AppState>, RawQuery(query): RawQuery) -> ApiResult {
+    let sel = Selection::parse(query.as_deref());
+    let (names, batches) = selected(&app, &sel).await?;
+    Ok(axum::Json(results_json(&names, &batches, &sel)).into_response())
 }
 
 #[cfg(test)]

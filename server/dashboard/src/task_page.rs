@@ -15,7 +15,7 @@ use libero_server::{App, AppState};
 use libero_tasks::catalog::CheckerSpec;
 use serde_json::Value;
 
-use crate::dashboard::page;
+use crate::common::page;
 use crate::error_page;
 use crate::results::{self, EpisodeLink, Selection};
 
@@ -285,7 +285,7 @@ async fn gather(app: &App, f: TaskFacts) -> anyhow::Result<TaskPage> {
     let episodes = rows.iter().map(episode_line).collect();
     let library = libero_episode::demo::library::task_dir(&app.episodes.demo_library(), &f.task_ref);
     let demos = tokio::task::spawn_blocking(move || crate::teleop::task_bundles(&library)).await?.iter().map(demo_line).collect();
-    let (batch_cells, pool_cells) = match crate::dashboard::selected(app, &Selection::default()).await {
+    let (batch_cells, pool_cells) = match results::selected(app, &Selection::default()).await {
         Ok((_, batches)) => batch_cells(&results::view(&batches, &Selection::default()), &f.id),
         // a batch that cannot be read is the Results page's error to show; the task page still opens
         Err(_) => (Vec::new(), Vec::new()),
@@ -394,6 +394,11 @@ pub fn task_of_ref(task_ref: &str) -> Option<(String, String)> {
     let pool = libero_tasks::Pool::discover().ok()?;
     let e = pool.lookup(task_ref).ok()?;
     Some((format!("/tasks/{}", e.id()), e.instruction.clone()))
+}
+
+/// The task page and instruction of an episode's task reference, or empty strings.
+pub(crate) fn task_link(task_ref: &str) -> (String, String) {
+    task_of_ref(task_ref).unwrap_or_default()
 }
 
 #[cfg(test)]

@@ -22,7 +22,7 @@ use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
-use crate::dashboard::{page, serve_file, valid_id};
+use crate::common::{page, serve_file, valid_id};
 use libero_server::episodes::{BranchRequest, PrepareRequest, random_hex};
 use libero_server::{ApiError, ApiResult, AppState};
 

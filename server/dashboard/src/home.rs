@@ -1,0 +1,151 @@
+//! The home page, `/` (`web/templates/home.html`, `web/static/home.js`): the episode table with its filters and
+//! the getting-started commands, kept current by the episode-list WebSocket `/ws/episodes`.
+use askama::Template;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Query, State};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use libero_server::store::EpisodeFilter;
+use libero_server::{ApiError, App, AppState, episode_json};
+use serde_json::{Value, json};
+
+use crate::common::page;
+use crate::rows::{Wake, next_wake};
+
+/// Largest episode list the home page shows.
+const HOME_LIST_LIMIT: i64 = 500;
+
+#[derive(Template)]
+#[template(path = "home.html")]
+struct HomePage {
+    /// This server as the browser reached it, and this binary: the getting-started commands are copied as is.
+    base_url: String,
+    exe: String,
+    filter_task: String,
+    filter_outcome: String,
+    filter_batch: String,
+    filter_harness: String,
+    /// Suggestions for the harness filter: the runner's harnesses and the operator's own kinds of episode.
+    harnesses: Vec<&'static str>,
+    outcomes: Vec<String>,
+    rows: Vec<HomeRow>,
+    tasks: Vec<String>,
+}
+
+/// One line of the episode table (the same fields the live list sends as JSON).
+struct HomeRow {
+    id: String,
+    task: String,
+    harness: String,
+    model: String,
+    batch: String,
+    level: i64,
+    outcome: String,
+    progress: String,
+    wall_time: String,
+    submissions: String,
+    /// A branch's parent episode and control step (issue 33).
+    branch: Option<(String, i64)>,
+}
+
+impl HomeRow {
+    fn of(v: &Value) -> Self {
+        let text = |k: &str| v[k].as_str().unwrap_or("").to_owned();
+        let progress = match (v["completed_stage_count"].as_i64(), v["required_stage_count"].as_i64()) {
+            (Some(c), Some(k)) => format!("{c}/{k}"),
+            _ => "–".into(),
+        };
+        Self {
+            id: text("id"),
+            task: text("task_ref"),
+            harness: text("harness"),
+            model: text("model"),
+            batch: text("batch"),
+            level: v["level"].as_i64().unwrap_or(0),
+            outcome: v["outcome"].as_str().unwrap_or("RUNNING").to_owned(),
+            progress,
+            wall_time: v["wall_time_s"].as_f64().map(|s| format!("{s:.1} s")).unwrap_or_else(|| "–".into()),
+            submissions: v["accepted_agent_steps"].as_i64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
+            branch: branch_of(v),
+        }
+    }
+}
+
+/// The parent episode and control step of a stored row that is a branch.
+fn branch_of(v: &Value) -> Option<(String, i64)> {
+    Some((v["branch_parent"].as_str()?.to_owned(), v["branch_step"].as_i64()?))
+}
+
+/// The stored rows with the live figures of episodes this process is running.
+async fn episode_list(app: &App, filter: &EpisodeFilter) -> anyhow::Result<Vec<Value>> {
+    app.sync_all().await;
+    let rows = app.store.list_filtered(filter, HOME_LIST_LIMIT).await?;
+    Ok(rows
+        .iter()
+        .map(|r| {
+            let mut v = episode_json(app, r);
+            if let (Some(hub), Some(obj)) = (app.hubs.get(&r.episode.id), v.as_object_mut()) {
+                let live = hub.summary();
+                for k in ["completed_stage_count", "required_stage_count", "wall_time_s"] {
+                    if obj.get(k).is_none_or(Value::is_null) && !live[k].is_null() {
+                        obj.insert(k.into(), live[k].clone());
+                    }
+                }
+            }
+            if let Some(obj) = v.as_object_mut() {
+                obj.entry("outcome").and_modify(|o| {
+                    if o.is_null() {
+                        *o = json!("RUNNING");
+                    }
+                });
+            }
+            v
+        })
+        .collect())
+}
+
+pub(crate) async fn home(State(app): State<AppState>, headers: axum::http::HeaderMap, Query(filter): Query<EpisodeFilter>) -> Response {
+    let filter = filter.normalized();
+    let list = match episode_list(&app, &filter).await {
+        Ok(l) => l,
+        Err(e) => return ApiError::internal(format!("{e:#}")).into_response(),
+    };
+    let tasks = libero_tasks::Catalog::discover().map(|c| c.tasks().iter().map(|t| t.id.clone()).collect()).unwrap_or_default();
+    // The Host header passed the allow-list, so it names this server.
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("127.0.0.1:8080");
+    let exe = std::env::current_exe().map(|p| p.display().to_string()).unwrap_or_else(|_| "libero-agent".into());
+    page(HomePage {
+        base_url: format!("http://{host}"),
+        exe,
+        rows: list.iter().map(HomeRow::of).collect(),
+        filter_task: filter.task.unwrap_or_default(),
+        filter_outcome: filter.outcome.unwrap_or_default(),
+        filter_batch: filter.batch.unwrap_or_default(),
+        filter_harness: filter.harness.unwrap_or_default(),
+        harnesses: vec!["expert", "teleop", "command", "codex", "claude_code", "kimi_code", "qwen_code", "deepseek"],
+        outcomes: ["RUNNING", "SUCCESS", "FAIL", "SIM_TIMEOUT", "INVALID"].map(String::from).to_vec(),
+        tasks,
+    })
+}
+
+pub(crate) async fn list_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Query(filter): Query<EpisodeFilter>) -> Response {
+    let filter = filter.normalized();
+    ws.on_upgrade(move |socket| list_stream(socket, app, filter))
+}
+
+/// Sends the filtered list at once and again after every change (at most every 250 ms).
+async fn list_stream(mut socket: WebSocket, app: AppState, filter: EpisodeFilter) {
+    let mut changes = app.hubs.changes();
+    loop {
+        let message = match episode_list(&app, &filter).await {
+            Ok(list) => json!({"type": "episodes", "episodes": list}),
+            Err(e) => json!({"type": "error", "error": format!("{e:#}")}),
+        };
+        if socket.send(Message::Text(message.to_string().into())).await.is_err() {
+            return;
+        }
+        if matches!(next_wake(&mut socket, &mut changes, None).await, Wake::Gone) {
+            return;
+        }
+    }
+}
