@@ -1,6 +1,7 @@
 //! One place where an episode's rules live: the MCP tool contract (names, schemas, messages), action
 //! validation, budgets, the episode actor thread, observation publishing into the agent's workspace and
-//! the evaluator-private records. No HTTP here: the `app` crate serves these over MCP.
+//! the evaluator-private records, and the lifecycle of a process's episodes (`lifecycle`). No HTTP here: the
+//! `libero-server` crate serves these over MCP.
 pub mod actor;
 pub mod branch;
 pub mod call;
@@ -9,7 +10,10 @@ pub mod demo;
 pub mod dirfd;
 pub mod error;
 pub mod expert_run;
+#[cfg(feature = "world")]
+pub mod lifecycle;
 pub mod live;
+pub mod memory;
 /// The run directory, its records and JSON helpers live in `libero-records` (the store reads them without the simulator).
 pub use libero_records::{agent_events, json, records};
 pub mod observation;

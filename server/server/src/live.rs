@@ -8,6 +8,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex, RwLock};
 
 use axum::body::Bytes;
+use libero_episode::lifecycle::LiveViews;
 use libero_episode::live::{LiveViewers, ViewerGuard};
 use libero_episode::{LiveEvent, LiveFrame, LiveSink};
 use serde_json::{Value, json};
@@ -174,7 +175,7 @@ impl Default for LiveHubs {
 impl LiveHubs {
     /// Creates `id`'s hub and returns the sink the episode reports to and its viewer count, for the world's
     /// live renderer.
-    pub fn open(self: &Arc<Self>, id: &str, max_agent_steps: u64, max_wall_time_s: f64) -> (LiveSink, LiveViewers) {
+    pub fn open(&self, id: &str, max_agent_steps: u64, max_wall_time_s: f64) -> (LiveSink, LiveViewers) {
         let viewers = LiveViewers::new();
         let hub = Arc::new(Hub {
             max_agent_steps,
@@ -221,6 +222,21 @@ impl LiveHubs {
 
     pub fn changes(&self) -> broadcast::Receiver<()> {
         self.changes.subscribe()
+    }
+}
+
+/// The lifecycle opens, marks and closes each episode's hub through this.
+impl LiveViews for LiveHubs {
+    fn open(&self, id: &str, max_agent_steps: u64, max_wall_time_s: f64) -> (LiveSink, LiveViewers) {
+        LiveHubs::open(self, id, max_agent_steps, max_wall_time_s)
+    }
+
+    fn mark_branch(&self, id: &str, parent: &str, step: u64) {
+        LiveHubs::mark_branch(self, id, parent, step);
+    }
+
+    fn close(&self, id: &str) {
+        LiveHubs::close(self, id);
     }
 }
 

@@ -16,8 +16,6 @@ use serde_json::{Value, json};
 #[derive(Clone)]
 pub struct EpisodeMcp {
     pub handle: EpisodeHandle,
-    /// Told the episode id after every call, so the store records start and end without polling.
-    pub calls: Option<tokio::sync::mpsc::UnboundedSender<String>>,
 }
 
 /// The tool result envelope: sorted pretty JSON text, the payload as `structuredContent`, and `isError`
@@ -94,9 +92,6 @@ impl ServerHandler for EpisodeMcp {
         let payload = tokio::task::spawn_blocking(move || handle.call(&name, arguments))
             .await
             .unwrap_or_else(|_| libero_episode::ToolError::environment().payload());
-        if let Some(calls) = &self.calls {
-            let _ = calls.send(self.handle.config().episode_id.clone());
-        }
         Ok(envelope(payload).into())
     }
 }

@@ -1,25 +1,43 @@
-//! `/mcp/{id}` past the token check. A running episode's requests go to its rmcp service, a new session only
+//! `/mcp/{id}`: the token check ([`mcp_endpoint`]), then the episode's answer. A running episode's requests go to its rmcp service, a new session only
 //! while the episode has fewer than [`MAX_SESSIONS_PER_EPISODE`] open. An ended episode keeps no sessions: its
 //! requests are answered here from its end record. Tool calls get exactly what the episode would have answered
 //! (the protocol's "already finished" error, the expiry payload, …); anything else (a new `initialize`,
 //! `tools/list`, …) gets HTTP 410 with a JSON-RPC error saying the episode has ended, which MCP clients show
 //! as the error's message.
 use axum::body::{Body, Bytes};
-use axum::extract::Request;
+use axum::extract::{Path, Request, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use libero_episode::actor::Ended;
 use libero_episode::{EpisodeHandle, Outcome};
 use serde_json::{Map, Value, json};
 
+use crate::api_error::{ApiError, ApiResult};
+use crate::app::AppState;
 use crate::episodes::{LiveMcp, MAX_SESSIONS_PER_EPISODE, McpAccess};
 use crate::mcp::envelope;
-use crate::{ApiError, ApiResult};
 
 /// Largest MCP request body read; a 50-action `osc_sequence` is a few kilobytes.
 const MAX_MCP_BODY_BYTES: usize = 4 << 20;
 /// JSON-RPC error code of "this episode has ended" and "too many sessions" (implementation-defined range).
 const EPISODE_ERROR_CODE: i64 = -32000;
+
+/// `Authorization: Bearer <token>`, if present.
+pub fn bearer(headers: &HeaderMap) -> Option<&str> {
+    headers.get(header::AUTHORIZATION)?.to_str().ok()?.strip_prefix("Bearer ").map(str::trim)
+}
+
+/// The token check happens here, before rmcp sees any byte; unknown episode and wrong token look the same.
+pub(crate) async fn mcp_endpoint(State(app): State<AppState>, Path(id): Path<String>, req: Request<Body>) -> Response {
+    let Some(access) = app.episodes.mcp_access(&id, bearer(req.headers())) else {
+        // The body is not read: close the connection so a keep-alive client never reuses it mid-body.
+        return ApiError::unauthorized("missing or invalid episode token")
+            .with_header(header::WWW_AUTHENTICATE, "Bearer")
+            .with_header(header::CONNECTION, "close")
+            .into_response();
+    };
+    serve(access, &id, req).await
+}
 
 /// Serves one authorised request to episode `id`.
 pub async fn serve(access: McpAccess, id: &str, req: Request<Body>) -> Response {

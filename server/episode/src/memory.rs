@@ -1,7 +1,8 @@
-//! The allocator policy of a server that runs for weeks. An episode's world peaks at about a gigabyte (MuJoCo's
-//! compile, the renderer's upload), allocated and freed on the episode's own threads. With glibc's defaults that
-//! freed memory stays in the allocator's per-thread arenas: resident size grew by about 240 MB per episode
-//! although nothing was still in use (`bench soak` reads both figures).
+//! The allocator policy of a server that runs for weeks, set by the episode lifecycle (which builds and frees the
+//! worlds). An episode's world peaks at about a gigabyte (MuJoCo's compile, the renderer's upload), allocated and
+//! freed on the episode's own threads. With glibc's defaults that freed memory stays in the allocator's per-thread
+//! arenas: resident size grew by about 240 MB per episode although nothing was still in use (`bench soak` reads
+//! both figures).
 
 /// Blocks of this size and more get a mapping of their own, returned to the OS when freed. glibc starts at
 /// 128 KiB but raises the threshold itself, up to 32 MiB, each time a big block is freed, after which a world's

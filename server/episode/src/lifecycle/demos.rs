@@ -1,0 +1,131 @@
+//! Demonstration bundles: the library under `<data>/demos/`, choosing or recording (with the task's scripted
+//! expert, in another layout) the bundle an episode is shown, recording a finished episode and verifying one.
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+
+use super::EpisodeSet;
+use super::request::PrepareRequest;
+use crate::demo::library::TargetEpisode;
+use crate::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
+use crate::demo::{LayoutVariant, library, record_bundle, verify_bundle};
+use crate::expert_run::run_expert;
+use crate::physics::WorldSpec as PhysicsSpec;
+use crate::task::TaskSource;
+use crate::{Level, RunDir};
+
+impl EpisodeSet {
+    /// The demonstration library: `<data>/demos/<task>/<source episode id>/`.
+    pub fn demo_library(&self) -> PathBuf {
+        self.data.join("demos")
+    }
+
+    /// A library bundle that may be shown in the episode (`task`, `seed`, `init_index`): valid, verified,
+    /// recorded in another configuration, and not solving this episode by direct replay (issue 31). When the
+    /// library has none, one is recorded now with the task's scripted expert from the next source layout
+    /// ([`library::source_layout_candidate`]) until one qualifies.
+    pub fn demo_bundle(&self, task: &TaskSource, seed: u64, init_index: usize) -> anyhow::Result<PathBuf> {
+        let lib = self.demo_library();
+        let paths = self.paths.clone().context("assets are missing")?;
+        let target = TargetEpisode { task: task.clone(), seed, init_index };
+        // replay checks write manifests: one selection or recording at a time
+        let _one_at_a_time = self.demo_recording.lock().map_err(|_| anyhow::anyhow!("demo lock poisoned"))?;
+        let mut passed_over = match library::select_for_target(&lib, &target, &paths)? {
+            Ok(bundle) => return Ok(bundle),
+            Err(skipped) => skipped.into_iter().map(|s| format!("{}: {}", s.bundle.display(), s.reason)).collect::<Vec<_>>(),
+        };
+        let task_ref = task.task_ref.as_str();
+        if libero_tasks::expert_behaviours(task_ref).is_none() {
+            bail!(
+                "no usable demonstration of {task_ref} in {} ({}) and no scripted expert to record one (record one \
+                 in another layout by teleoperation, or with `libero-agent expert --task {task_ref} --layout-seed N \
+                 --demo-out {}`)",
+                library::task_dir(&lib, task_ref).display(),
+                if passed_over.is_empty() { "the library is empty".to_owned() } else { passed_over.join("; ") },
+                lib.display()
+            );
+        }
+        let init_rows = match &task.init_states {
+            Some(path) => Some(libero_sim::InitStates::read(path)?.len()),
+            None => None,
+        };
+        for attempt in 0..library::MAX_SOURCE_ATTEMPTS {
+            let layout = library::source_layout_candidate(&target, attempt, init_rows)?;
+            let what = format!("source layout {}", serde_json::to_string(&layout)?);
+            match self.record_expert_demo(task, layout, &target) {
+                Ok(dir) => {
+                    tracing::info!(task = task_ref, attempt, bundle = %dir.display(), "demonstration recorded");
+                    return Ok(dir);
+                }
+                Err(e) => {
+                    tracing::info!(task = task_ref, attempt, why = format!("{e:#}"), "demonstration source passed over");
+                    passed_over.push(format!("{what}: {e:#}"));
+                }
+            }
+        }
+        bail!(
+            "no demonstration of {task_ref} could be recorded whose replay does not solve the episode (seed {seed}, \
+             init {init_index}): {}",
+            passed_over.join("; ")
+        )
+    }
+
+    /// Records a scripted-expert demonstration of `task` in `layout` (a separate episode, level 1, no video) for
+    /// `target`: the expert's actions are first replayed in the target (physics only), and only a source whose
+    /// replay fails is rendered into a bundle, verified by replay, with that check stored in its manifest.
+    fn record_expert_demo(&self, task: &TaskSource, layout: LayoutVariant, target: &TargetEpisode) -> anyhow::Result<PathBuf> {
+        let task_ref = task.task_ref.as_str();
+        let seed = u64::from(layout.placement_seed);
+        let req = PrepareRequest { level: 1, seed, init_index: layout.init_index, video: false, layout: Some(layout), ..PrepareRequest::new(task_ref) };
+        let prepared = self.prepare(req)?;
+        let mut handle = self.handle(&prepared.episode_id).context("the demonstration episode vanished")?;
+        let paths = self.paths.clone().context("assets are missing")?;
+        let mut source_task = task.clone();
+        source_task.layout = Some(layout);
+        let spec = PhysicsSpec { task: source_task, level: Level::L1, seed, init_index: layout.init_index, paths: paths.clone() };
+        let run = run_expert(&mut handle, &spec, task_ref, libero_tasks::expert::SOLVE, 3000, |_| {});
+        handle.stop("demonstration recording over");
+        let run = run.with_context(|| format!("the {task_ref} expert could not run"))?;
+        let source = SourceEpisode::read(&RunDir::new(self.runs_dir().join(&prepared.episode_id)))?;
+        if source.success != Some(true) {
+            let record = &run.replica_record;
+            bail!(
+                "the {task_ref} expert did not solve this layout ({} of {} stages)",
+                record["completed_required_stage_count"],
+                record["required_stage_count"]
+            );
+        }
+        let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
+        let replay = library::replay_in_target(&actions, target, &paths)?;
+        if replay.success {
+            bail!("replaying its {} actions solves the target episode", actions.len());
+        }
+        let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "libero-agent expert solve".into() };
+        let summary = self.record_demo(&prepared.episode_id, &options)?;
+        if !summary.verified {
+            bail!("the expert's demonstration did not verify by replay ({})", summary.dir.display());
+        }
+        library::store_replay_check(&summary.dir, target, &replay)?;
+        Ok(summary.dir)
+    }
+
+    /// Records a finished episode of this server into the demo library (`<data>/demos/<task>/<episode id>/`):
+    /// replayed, rendered, and verified if the episode succeeded and the replay reproduces it. What the teleop
+    /// page's "save demonstration" calls.
+    pub fn record_demo(&self, episode_id: &str, options: &RecordOptions) -> anyhow::Result<BundleSummary> {
+        if episode_id.is_empty() || !episode_id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+            bail!("not an episode id: {episode_id:?}");
+        }
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        let run_dir = self.runs_dir().join(episode_id);
+        let source = SourceEpisode::read(&RunDir::new(&run_dir)).with_context(|| format!("episode {episode_id}"))?;
+        let out = library::bundle_dir(&self.demo_library(), &source.task_ref, episode_id);
+        Ok(record_bundle(&run_dir, &out, options, self.renderer()?, &paths)?)
+    }
+
+    /// Replays library bundle `dir` and rewrites its verification; true if the evaluator's success is reproduced.
+    pub fn verify_demo(&self, dir: &Path) -> anyhow::Result<bool> {
+        let paths = self.paths.clone().context("assets are missing; run `python3 scripts/setup.py`")?;
+        Ok(verify_bundle(dir, &paths)?)
+    }
+}
