@@ -8,6 +8,7 @@ pub mod batch;
 #[cfg(test)]
 mod cli_checks;
 pub mod harness;
+mod host_paths;
 pub mod lines;
 pub mod logs;
 pub mod netgate;

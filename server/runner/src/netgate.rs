@@ -174,26 +174,6 @@ pub struct UsageSummary {
     pub unreadable_lines: u64,
 }
 
-impl UsageSummary {
-    /// The rollout's token figures ([`crate::usage::Usage`]) from what the gateway saw, for harnesses whose stdout
-    /// lacks them.
-    pub fn to_usage(&self) -> crate::usage::Usage {
-        let available = self.responses_with_usage > 0;
-        let some = |x: u64| available.then_some(x);
-        crate::usage::Usage {
-            available,
-            requests_with_usage: self.responses_with_usage,
-            lines_scanned: self.requests + self.unreadable_lines,
-            input_tokens: some(self.input_tokens),
-            output_tokens: some(self.output_tokens),
-            cache_read_input_tokens: some(self.cached_input_tokens),
-            reasoning_tokens: some(self.reasoning_tokens),
-            total_tokens: some(self.total_tokens),
-            ..crate::usage::Usage::default()
-        }
-    }
-}
-
 /// Adds up a gateway's records file.
 pub fn summarize(records: &Path) -> std::io::Result<UsageSummary> {
     let text = std::fs::read_to_string(records)?;
@@ -1441,9 +1421,6 @@ mod tests {
         assert_eq!((s.cache_creation_input_tokens, s.reasoning_tokens, s.total_tokens), (10, 8, 137));
         assert_eq!(s.request_bytes, rs.iter().map(|r| r.request_bytes).sum::<u64>());
         assert_eq!(s.response_bytes, rs.iter().map(|r| r.response_bytes).sum::<u64>());
-        let u = s.to_usage();
-        assert!(u.available);
-        assert_eq!((u.requests_with_usage, u.input_tokens, u.total_tokens), (4, Some(101), Some(137)));
         drop(f.dir);
     }
 

@@ -20,10 +20,10 @@ use std::process::Command;
 
 use anyhow::{Context, bail};
 
+use super::host_paths::SYSTEM_DIRS;
+pub use super::host_paths::{which, which_in};
 use super::toolbox::{self, Toolbox};
 
-/// System directories visible read-only (symlinks such as Debian's `/lib -> usr/lib` are recreated as links).
-pub(crate) const SYSTEM_DIRS: [&str; 7] = ["/usr", "/etc", "/bin", "/sbin", "/lib", "/lib64", "/lib32"];
 
 /// The host uid and gid a sandboxed agent runs as when the runner is root (`nobody`/`nogroup` on Debian).
 pub const AGENT_UID: u32 = 65534;
@@ -59,19 +59,6 @@ pub struct SandboxSpec {
     /// A host directory shown at [`RELAY_DIR`] (the runner's relay sockets).
     pub relay_dir: Option<PathBuf>,
     pub cwd: PathBuf,
-}
-
-/// Finds `name` on `PATH` (or takes it as a path).
-pub fn which(name: &str) -> Option<PathBuf> {
-    which_in(name, &std::env::var_os("PATH").unwrap_or_default())
-}
-
-/// Finds `name` on the search path `path` (or takes it as a path).
-pub fn which_in(name: &str, path: &std::ffi::OsStr) -> Option<PathBuf> {
-    if name.contains('/') {
-        return Path::new(name).is_file().then(|| PathBuf::from(name));
-    }
-    std::env::split_paths(path).map(|d| d.join(name)).find(|p| p.is_file())
 }
 
 impl Sandbox {

@@ -14,7 +14,7 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 
-use super::sandbox::{SYSTEM_DIRS, which};
+use super::host_paths::{SYSTEM_DIRS, which};
 
 /// Where the sandbox shows the toolbox: a neutral path, since the cache lies below the runner's home (`/root`
 /// when it runs as root), which the agent's user could not traverse.

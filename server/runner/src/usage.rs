@@ -46,6 +46,26 @@ pub struct StdoutFigures {
     pub agrees: bool,
 }
 
+impl Usage {
+    /// The rollout's token figures from what the gateway saw ([`crate::netgate::UsageSummary`]), for harnesses whose
+    /// stdout lacks them.
+    pub fn from_gateway(g: &crate::netgate::UsageSummary) -> Usage {
+        let available = g.responses_with_usage > 0;
+        let some = |x: u64| available.then_some(x);
+        Usage {
+            available,
+            requests_with_usage: g.responses_with_usage,
+            lines_scanned: g.requests + g.unreadable_lines,
+            input_tokens: some(g.input_tokens),
+            output_tokens: some(g.output_tokens),
+            cache_read_input_tokens: some(g.cached_input_tokens),
+            reasoning_tokens: some(g.reasoning_tokens),
+            total_tokens: some(g.total_tokens),
+            ..Usage::default()
+        }
+    }
+}
+
 /// The rollout's usage: the gateway's records when they hold any usage (every model request of a sandboxed
 /// agent passes the gateway, and the agent cannot write its records), else what the harness printed on stdout
 /// (runs without the sandbox), else nothing. Lines the agent prints into its CLI's stdout thus never count
@@ -53,7 +73,7 @@ pub struct StdoutFigures {
 pub fn choose(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> Usage {
     match gateway {
         Some(g) if g.responses_with_usage > 0 => {
-            let mut u = g.to_usage();
+            let mut u = Usage::from_gateway(g);
             if stdout.available {
                 let agrees = (stdout.input_tokens, stdout.output_tokens, stdout.total_tokens) == (u.input_tokens, u.output_tokens, u.total_tokens);
                 u.harness_stdout = Some(StdoutFigures {
@@ -325,6 +345,23 @@ fn codex_turn_record(v: &Value) -> Option<Record> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_gateways_summary_gives_the_rollouts_figures_only_when_it_saw_usage() {
+        let g = crate::netgate::UsageSummary {
+            requests: 5,
+            responses_with_usage: 4,
+            input_tokens: 101,
+            output_tokens: 36,
+            total_tokens: 137,
+            ..Default::default()
+        };
+        let u = Usage::from_gateway(&g);
+        assert!(u.available);
+        assert_eq!((u.requests_with_usage, u.input_tokens, u.total_tokens), (4, Some(101), Some(137)));
+        let none = Usage::from_gateway(&crate::netgate::UsageSummary { requests: 3, ..Default::default() });
+        assert!(!none.available && none.input_tokens.is_none() && none.total_tokens.is_none());
+    }
 
     #[test]
     fn claude_code_stream_json_counts_the_result_line_only() {

@@ -424,22 +424,11 @@ fn describe(component: &[String], edges: &BTreeMap<String, BTreeMap<String, Stri
     lines.join("\n")
 }
 
-/// Circles found when this test was written in crates other contributors were editing at the time (so they were
-/// left for them): `(unit, the circle's modules)`. Each is tolerated exactly as listed — a new circle, or one of these
-/// growing, fails — and an entry whose circle is gone fails too, so the list only shrinks. Break one by moving the
-/// shared items down (e.g. runner's `SYSTEM_DIRS`/`which` out of `sandbox` into a module both use), then delete it.
-const TOLERATED: &[(&str, &[&str])] = &[
-    ("dashboard", &["dashboard", "task_page", "teleop"]),
-    ("runner", &["sandbox", "toolbox"]),
-    ("runner", &["netgate", "usage"]),
-];
-
 #[test]
 fn no_crate_has_an_import_circle_between_its_modules() {
     let server = server_dir();
     let root = server.join("..").canonicalize().unwrap();
     let mut report = Vec::new();
-    let mut seen_tolerated = Vec::new();
     let mut crates = 0;
     let mut modules = 0;
     let mut entries: Vec<PathBuf> = std::fs::read_dir(&server).unwrap().map(|e| e.unwrap().path()).collect();
@@ -451,20 +440,11 @@ fn no_crate_has_an_import_circle_between_its_modules() {
             let edges = graph(&unit, &root);
             let nodes: BTreeSet<String> = unit.modules.keys().cloned().collect();
             for component in cycles(&edges, &nodes) {
-                let tolerated = TOLERATED.iter().position(|(u, m)| *u == unit.name && *m == component.as_slice());
-                match tolerated {
-                    Some(i) => seen_tolerated.push(i),
-                    None => report.push(format!("{}:\n{}", unit.name, describe(&component, &edges))),
-                }
+                report.push(format!("{}:\n{}", unit.name, describe(&component, &edges)));
             }
         }
     }
     assert!(crates >= 12 && modules > 100, "expected the workspace's crates under {}: {crates} crates, {modules} modules", server.display());
-    for (i, (unit, modules)) in TOLERATED.iter().enumerate() {
-        if !seen_tolerated.contains(&i) {
-            report.push(format!("{unit}: the tolerated circle {modules:?} is gone: delete it from TOLERATED"));
-        }
-    }
     assert!(
         report.is_empty(),
         "import circles between modules (move the shared items to the module lower in the order, or to a small module \
