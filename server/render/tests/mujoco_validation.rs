@@ -6,7 +6,20 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use common::{CAMERAS, comparisons, median, psnr};
 
+/// The three comparisons in one test: the scenes are rendered once per process (`comparisons`), and a runner that
+/// gives each test a process of its own (nextest) would otherwise render them three times. Each comparison runs
+/// whatever the others did; every failing one is named.
 #[test]
+fn depth_segmentation_and_rgb_match_mujocos_own_renderer() {
+    let checks: [(&str, fn()); 3] = [
+        ("depth_matches_mujoco_within_1mm_median", depth_matches_mujoco_within_1mm_median),
+        ("segmentation_matches_mujoco_iou_098_for_geoms_over_50px", segmentation_matches_mujoco_iou_098_for_geoms_over_50px),
+        ("rgb_reaches_25db_psnr_against_mujoco", rgb_reaches_25db_psnr_against_mujoco),
+    ];
+    let failed: Vec<&str> = checks.iter().filter(|(_, check)| std::panic::catch_unwind(check).is_err()).map(|(name, _)| *name).collect();
+    assert!(failed.is_empty(), "failed (their panics are above): {failed:?}");
+}
+
 fn depth_matches_mujoco_within_1mm_median() {
     let mut failures = Vec::new();
     for sc in comparisons() {
@@ -30,7 +43,6 @@ fn depth_matches_mujoco_within_1mm_median() {
 /// levels of detail change in ids, a few dozen pixels along silhouettes, `mesh_lod.rs` bounds against the exact
 /// meshes: a silhouette along a pixel row flips the whole row for any sub-pixel move, which alone takes a
 /// 235-pixel Panda link below 0.98 here.
-#[test]
 fn segmentation_matches_mujoco_iou_098_for_geoms_over_50px() {
     let mut failures = Vec::new();
     for sc in comparisons() {
@@ -75,7 +87,6 @@ fn segmentation_matches_mujoco_iou_098_for_geoms_over_50px() {
     assert!(failures.is_empty(), "segmentation disagrees with MuJoCo: {failures:?}");
 }
 
-#[test]
 fn rgb_reaches_25db_psnr_against_mujoco() {
     let mut failures = Vec::new();
     for sc in comparisons() {

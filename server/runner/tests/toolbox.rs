@@ -61,9 +61,9 @@ struct Published {
 fn published() -> &'static Published {
     static P: OnceLock<Published> = OnceLock::new();
     P.get_or_init(|| {
-        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("toolbox-tests");
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
+        // A directory of this process's own: test runners that run each test in a process of its own (nextest)
+        // run several of these at once. Kept after the process: the static is never dropped.
+        let dir = tempfile::Builder::new().prefix("toolbox-tests-").tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap().keep();
         let server = InProcessServer::start(dir.join("data"), "test_finished").unwrap();
         let req = PrepareRequest {
             level: 3,
