@@ -166,16 +166,20 @@ impl Episodes {
         })
     }
 
-    /// [`EpisodeSet::release_ended`] (on a blocking thread: it trims memory), then closes the released episodes'
-    /// MCP sessions: their endpoints answer from the end record from now on. Returns the ids released.
+    /// [`EpisodeSet::release_ended`], then closes the released episodes' MCP sessions (their endpoints answer
+    /// from the end record from now on) and trims the freed memory on a blocking thread. Only a release uses a
+    /// blocking thread: a periodic one would keep tokio's idle blocking threads from ever timing out (each wake-up
+    /// goes to another of them). Returns the ids released.
     pub async fn release_ended(self: &Arc<Self>) -> Vec<String> {
-        let this = self.clone();
-        let due = tokio::task::spawn_blocking(move || this.set.release_ended()).await.unwrap_or_default();
+        let due = self.set.release_ended();
         for id in &due {
             let live = self.endpoints.write().ok().and_then(|mut m| m.get_mut(id).and_then(|e| e.mcp.take()));
             if let Some(live) = live {
                 live.close_all().await;
             }
+        }
+        if !due.is_empty() {
+            let _ = tokio::task::spawn_blocking(libero_episode::memory::return_freed_memory).await;
         }
         due
     }

@@ -204,9 +204,10 @@ impl EpisodeSet {
     }
 
     /// Releases what episodes that ended at least [`RELEASE_GRACE`] ago, and whose threads have exited, still hold
-    /// here (their live views), then hands the memory their worlds freed back to the OS. Returns the ids released,
-    /// for the owner to let go of its own part (the MCP sessions). Blocks while memory is trimmed. Called
-    /// periodically.
+    /// here (their live views, the models only they read). Returns the ids released, for the owner to let go of its
+    /// own part (the MCP sessions) and, when any were, to hand the freed memory back to the OS
+    /// ([`crate::memory::return_freed_memory`], which blocks). Cheap and non-blocking when nothing is due, so it can
+    /// be called periodically from async code without keeping a blocking thread busy.
     pub fn release_ended(&self) -> Vec<String> {
         let due = self.retire_due(Instant::now());
         for id in &due {
@@ -215,7 +216,6 @@ impl EpisodeSet {
         if !due.is_empty() {
             // Models other episodes' models read their large arrays from, now that no such episode is left.
             libero_sim::shared_model::release_unused();
-            crate::memory::return_freed_memory();
         }
         due
     }
