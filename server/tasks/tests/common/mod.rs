@@ -5,8 +5,10 @@ use std::sync::Arc;
 use libero_sim::compose::{ComposedScene, compose_file};
 use libero_sim::placement::Placement;
 use libero_sim::{AssetPaths, Simulation};
-use libero_tasks::pool::Runs;
-use libero_tasks::{EvaluationRecord, Evaluator, Pool, Tick, build_evaluator};
+use libero_episode::Level;
+use libero_episode::physics::{WorldPhysics, WorldSpec};
+use libero_episode::task::resolve_task;
+use libero_tasks::{EvaluationRecord, Evaluator, Pool, Tick};
 
 /// A task scene composed from `bddl`, placed with LIBERO's seed-100 sampler (the seed the release tasks without
 /// trusted init states use), and a simulation starting from that placement as an episode's does
@@ -33,20 +35,31 @@ pub fn as_sent(a: [f64; 7]) -> [f64; 7] {
     a.map(|x| ((x * 1e6).round() / 1e6).clamp(-1.0, 1.0))
 }
 
-/// An entry's own scene settled like an episode start (10 zero-action steps), and its evaluator reset there.
+/// The seed an episode gets when its request names none (`PrepareRequest`'s default), which the pool entries'
+/// fixed placement seeds override.
+const DEFAULT_SEED: u64 = 100;
+
+/// An entry's world as an episode builds and starts it: the very rule of production
+/// (`libero_episode::physics::WorldPhysics`: the task resolved as `POST /api/episodes` resolves it, its placement or
+/// init state, private model edits, the settle steps, the evaluator reset), so a test passes only where an episode
+/// would.
+#[allow(dead_code)] // not every test binary starts an entry
+pub fn world(entry: &str) -> WorldPhysics {
+    let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
+    let task = resolve_task(entry, &paths).unwrap_or_else(|e| panic!("{entry}: {e}"));
+    let spec = WorldSpec { task, level: Level::L3, seed: DEFAULT_SEED, init_index: 0, paths };
+    let mut world = WorldPhysics::build(&spec, |_, _, _| Ok(())).unwrap_or_else(|e| panic!("{entry}: {e}"));
+    world.start(|_| {}).unwrap();
+    world
+}
+
+/// An entry's own scene started like an episode ([`world`]), and its evaluator reset there.
 #[allow(dead_code)] // not every test binary starts an entry
 pub fn start(entry: &str) -> (String, ComposedScene, Simulation, Box<dyn Evaluator>) {
-    let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
     let pool = Pool::discover().expect("tasks/pool.json loads and validates");
-    let e = pool.get(entry).unwrap();
-    let Runs::Own(files, checker) = pool.runs(e, &paths).unwrap() else { panic!("{entry} runs on its own definition") };
-    let (scene, mut sim) = scene_and_sim(&files.bddl);
-    for _ in 0..10 {
-        sim.step([0.0; 7]).unwrap();
-    }
-    let mut evaluator = build_evaluator(Some(&checker), Some(&e.reference()), &scene, sim.model()).unwrap();
-    evaluator.reset(sim.data(), Tick::at_control_step(0, 0.0));
-    (e.reference(), scene, sim, evaluator)
+    let reference = pool.get(entry).unwrap().reference();
+    let WorldPhysics { scene, sim, evaluator, .. } = world(entry);
+    (reference, scene, sim, evaluator)
 }
 
 /// A record's (success, completed stages, K), the triple the stage tests compare.
@@ -66,28 +79,19 @@ pub fn idle(entry: &str, steps: u64) -> EvaluationRecord {
     evaluator.finish(sim.data(), Tick::at_control_step(steps, 0.05 * steps as f64))
 }
 
-/// Runs `behaviour` of an entry's expert on its own scene (settled like an episode start) under its evaluator, which
-/// also observes every physics substep where it samples them (as `server/episode/src/physics.rs` steps it).
+/// Runs `behaviour` of an entry's expert on its own scene under its evaluator, stepped as an episode steps it
+/// (`WorldPhysics::step`: the evaluator observes every physics substep where it samples them).
 #[allow(dead_code)] // not every test binary plays an expert
 pub fn play(entry: &str, behaviour: &str) -> EvaluationRecord {
-    let (reference, scene, mut sim, mut evaluator) = start(entry);
-    let mut script = libero_tasks::expert_for(&reference, behaviour, &scene, sim.model()).unwrap();
-    let mut step = 0u64;
-    while let Some(action) = script.act(&sim) {
-        let next = step + 1;
-        if evaluator.samples_substeps() {
-            sim.step_with(as_sent(action), |k, data| {
-                evaluator.observe_substep(data, Tick { control_step: next, substep: Some(k as u32), sim_time_s: data.ffi().time })
-            })
-            .unwrap();
-        } else {
-            sim.step(as_sent(action)).unwrap();
-        }
-        step = next;
-        evaluator.observe_control_step(sim.data(), Tick::at_control_step(step, 0.05 * step as f64));
-        assert!(step < 6_000, "{entry} {behaviour}: the script ends");
+    let pool = Pool::discover().expect("tasks/pool.json loads and validates");
+    let reference = pool.get(entry).unwrap().reference();
+    let mut world = world(entry);
+    let mut script = libero_tasks::expert_for(&reference, behaviour, &world.scene, world.model()).unwrap();
+    while let Some(action) = script.act(&world.sim) {
+        world.step(&as_sent(action)).unwrap();
+        assert!(world.control_step < 6_000, "{entry} {behaviour}: the script ends");
     }
-    evaluator.finish(sim.data(), Tick::at_control_step(step, 0.05 * step as f64))
+    world.evaluate()
 }
 
 /// Plays an entry's `solve` and asserts it completes every stage with its first commitment judged right; then plays
