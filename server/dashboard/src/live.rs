@@ -232,10 +232,10 @@ async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>, transcript: std::p
     }
     let (mut events, mut frames, mut closed) = (sub.events, sub.frames, sub.closed);
     let newest = frames.borrow_and_update().clone();
-    if let Some(frame) = newest {
-        if socket.send(Message::Binary(frame)).await.is_err() {
-            return;
-        }
+    if let Some(frame) = newest
+        && socket.send(Message::Binary(frame)).await.is_err()
+    {
+        return;
     }
     let mut agent_offset = None;
     if let Some(text) = agent_message(&transcript, &mut agent_offset).await
@@ -274,8 +274,10 @@ async fn episode_stream(mut socket: WebSocket, hub: Arc<Hub>, transcript: std::p
             changed = frames.changed() => {
                 if changed.is_err() { return }
                 let frame = frames.borrow_and_update().clone();
-                if let Some(frame) = frame {
-                    if socket.send(Message::Binary(frame)).await.is_err() { return }
+                if let Some(frame) = frame
+                    && socket.send(Message::Binary(frame)).await.is_err()
+                {
+                    return;
                 }
             }
             incoming = socket.recv() => {

@@ -14,6 +14,7 @@ use libero_tasks::{EvaluationRecord, Evaluator, Pool, Tick};
 /// trusted init states use), and a simulation starting from that placement as an episode's does
 /// (`server/episode/src/physics.rs`): the robot as its reset leaves it (arm at LIBERO's `init_qpos`), the objects and
 /// articulations where the placement put them.
+#[allow(dead_code)] // not every test binary composes a raw BDDL file
 pub fn scene_and_sim(bddl: &Path) -> (ComposedScene, Simulation) {
     let paths = AssetPaths::discover().expect("assets cached by scripts/setup.py");
     let scene = compose_file(bddl, &paths).unwrap();
