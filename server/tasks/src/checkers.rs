@@ -36,9 +36,7 @@ pub fn kind_of(checker: &CheckerParams) -> Result<&'static EvaluatorKind, TasksE
 /// Whether `params` are well-formed for checker `kind` (known kind and variant, every field present and known), so a
 /// malformed checker is refused when the manifest or the pool loads.
 pub fn check_params(kind: &str, params: &serde_json::Value, task_id: &str) -> Result<(), String> {
-    let empty = serde_json::json!({});
-    let params = if params.is_null() { &empty } else { params };
-    let checker = CheckerParams { kind, params, task_id: Some(task_id) };
+    let checker = CheckerParams::new(kind, params, Some(task_id));
     let message = |e: TasksError| match e {
         TasksError::Catalog { message, .. } => message,
         other => other.to_string(),

@@ -27,10 +27,8 @@ pub use crate::checkers::EVALUATOR_KINDS;
 /// `checker` as its kind's builder sees it; `None` (a stock task without a suite entry) is `bddl_terminal` with
 /// no params.
 fn with_params<R>(checker: Option<&CheckerSpec>, task_id: Option<&str>, f: impl FnOnce(&CheckerParams) -> R) -> R {
-    let empty = serde_json::json!({});
-    let params = checker.map(|c| &c.params).filter(|v| !v.is_null()).unwrap_or(&empty);
     let kind = checker.map_or(bddl_terminal::CHECKER, |c| c.kind.as_str());
-    f(&CheckerParams { kind, params, task_id })
+    f(&CheckerParams::new(kind, checker.map_or(&serde_json::Value::Null, |c| &c.params), task_id))
 }
 
 /// Edits a task's private checker parameters make to the compiled model before the episode starts (T08: each

@@ -18,6 +18,17 @@ pub struct CheckerParams<'a> {
     pub task_id: Option<&'a str>,
 }
 
+/// The params of a checker that has none.
+static NO_PARAMS: std::sync::LazyLock<serde_json::Value> = std::sync::LazyLock::new(|| serde_json::json!({}));
+
+impl<'a> CheckerParams<'a> {
+    /// A checker's params as its builder sees them: `null` (no `params` in the manifest) reads as `{}`.
+    pub fn new(kind: &'a str, params: &'a serde_json::Value, task_id: Option<&'a str>) -> Self {
+        let params = if params.is_null() { &*NO_PARAMS } else { params };
+        Self { kind, params, task_id }
+    }
+}
+
 impl CheckerParams<'_> {
     /// The params as the kind's typed struct. Every field comes from the manifest (the structs have no defaults and
     /// refuse unknown fields), so the error names the field.

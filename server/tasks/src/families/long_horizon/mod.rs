@@ -16,15 +16,12 @@ use crate::judge::kind::EvaluatorKind;
 
 /// This family's experts, a row per task.
 pub fn experts() -> impl Iterator<Item = ExpertEntry> {
-    let tables = [expert::EXPERTS, robomem_expert::EXPERTS, bowls_expert::EXPERTS, cooking_expert::EXPERTS];
-    let more = [find_unseen_expert::EXPERTS, coffee_expert::EXPERTS];
-    tables
+    [expert::EXPERTS, robomem_expert::EXPERTS, bowls_expert::EXPERTS, cooking_expert::EXPERTS]
+        .concat()
         .into_iter()
-        .flatten()
-        .copied()
         .chain(robomem_containers::experts())
         .chain(robomem_pour_microwave::experts())
-        .chain(more.into_iter().flatten().copied())
+        .chain([find_unseen_expert::EXPERTS, coffee_expert::EXPERTS].concat())
 }
 
 /// The checker kinds this family judges.
