@@ -131,18 +131,28 @@ async function main() {
     }
     await shot(tasks, 'tasks');
     // The pool: filter by suite and search by name through the page's own form; a stock entry renders its thumbnail.
-    await tasks.selectOption('select[name="suite"]', 'libero_90');
+    await tasks.fill('input[name="tasks"]', 'libero_90');
     await tasks.fill('input[name="q"]', 'microwave');
     await Promise.all([tasks.waitForNavigation(), tasks.click('form.task-filter button')]);
     const ids = await tasks.locator('article.pool-task').evaluateAll((a) => a.map((e) => e.dataset.id));
     check(ids.includes('libero_90/35') && ids.every((id) => id.startsWith('libero_90/')), `suite + search filter the pool (${ids.join(', ')})`);
     await tasks.waitForFunction(() => document.querySelector('article[data-id="libero_90/35"] img').naturalWidth === 256, null, { timeout: 120000 });
     check(/libero_90\/35/.test(await tasks.locator('article[data-id="libero_90/35"] a.teleop-link').getAttribute('href')), 'a stock entry links to teleop');
-    await tasks.goto(`${base}/tasks?suite=robomemarena&group=long_horizon`);
+    await tasks.goto(`${base}/tasks?tasks=robomemarena&group=long_horizon`);
     const t23 = await tasks.locator('article[data-id="robomemarena/4"]').innerText();
     check(t23.includes('runs as T23'), 'a release-backed entry says what it runs as');
     report.pool = { microwave: ids, summary: await text(tasks, '#task-summary') };
     await shot(tasks, 'tasks-pool');
+    await tasks.goto(`${base}/tasks?suite=vlabench_perception`);
+    // Any task selection, the same syntax as the commands': a release task and pool entries (by id and by name), in
+    // one page; only tasks whose thumbnails the pages above asked for, so no new renders queue ahead of the next page.
+    await tasks.goto(`${base}/tasks?tasks=${encodeURIComponent('T14,libero_90/35,robomemarena/robomemarena_task_04')}`);
+    const mixed = await tasks.locator('article.task').evaluateAll((a) => a.map((e) => e.id || e.dataset.id));
+    check(mixed.join(',') === 'T14,libero_90/35,robomemarena/4', `a selection mixes release tasks and entries in its order (${mixed.join(', ')})`);
+    check((await tasks.locator('input[name="tasks"]').inputValue()) === 'T14,libero_90/35,robomemarena/robomemarena_task_04', 'the field shows the selection');
+    await shot(tasks, 'tasks-selection');
+    await tasks.goto(`${base}/tasks?tasks=T14,kitchen`);
+    check((await tasks.locator('#task-selection-error').innerText()).includes('no pool suite "kitchen"'), 'a selection with a typo says what is accepted');
     await tasks.goto(`${base}/tasks?suite=vlabench_perception`);
     check((await tasks.locator('article[data-id="vlabench_perception/1"]').innerText()).includes('does not run here'), 'an excluded entry says so');
     check(errors.length === 0, `no page errors: ${errors.join('; ')}`);

@@ -55,7 +55,8 @@ pub struct BenchScaleArgs {
     /// Distinct scenes (tasks) the episodes are spread over, round-robin.
     #[arg(long, default_value_t = 2)]
     pub scenes: usize,
-    /// The tasks the scenes are taken from, in order (the first `--scenes` of them are used).
+    /// The tasks the scenes are taken from, in order (the first `--scenes` of them are used): a task selection
+    /// (docs/commands.md, "Selecting tasks"), e.g. `T14,T11` or `libero_goal`; entries that do not run are left out.
     #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_SCENES.map(str::to_owned))]
     pub tasks: Vec<String>,
     #[arg(long, default_value_t = 3)]
@@ -394,17 +395,24 @@ fn measure(bench: &Bench, tasks: &[String]) -> anyhow::Result<Value> {
     }))
 }
 
+/// The tasks a `--tasks` selection names that can open an episode, each once, in order.
+fn scene_tasks(parts: &[String]) -> anyhow::Result<Vec<String>> {
+    let catalog = libero_tasks::Catalog::discover()?;
+    let pool = libero_tasks::Pool::discover()?;
+    let picks = libero_tasks::Selection::from_parts(parts)?.runnable(catalog.tasks(), &pool)?;
+    let ids = picks.iter().map(|p| p.member.id()).collect();
+    Ok(ids)
+}
+
 pub fn run(args: &BenchScaleArgs) -> anyhow::Result<()> {
     if args.episodes == 0 || args.scenes == 0 || args.calls == 0 || args.actions == 0 || args.actions > 50 {
         bail!("--episodes, --scenes and --calls must be positive and --actions between 1 and 50");
     }
-    if args.scenes > args.episodes || args.scenes > args.tasks.len() {
-        bail!("--scenes ({}) must be at most --episodes ({}) and the number of --tasks ({})", args.scenes, args.episodes, args.tasks.len());
+    let selected = scene_tasks(&args.tasks)?;
+    if args.scenes > args.episodes || args.scenes > selected.len() {
+        bail!("--scenes ({}) must be at most --episodes ({}) and the number of --tasks ({})", args.scenes, args.episodes, selected.len());
     }
-    let tasks = &args.tasks[..args.scenes];
-    if (1..tasks.len()).any(|i| tasks[..i].contains(&tasks[i])) {
-        bail!("the scenes must be distinct tasks: {tasks:?}");
-    }
+    let tasks = &selected[..args.scenes];
     let (data, remove_data) = match &args.data {
         Some(d) => (d.clone(), false),
         None => (std::env::temp_dir().join(format!("libero-agent-bench-scale-{}", std::process::id())), true),

@@ -24,7 +24,7 @@ pub struct PrepareArgs {
     /// The server started with `libero-agent serve`.
     #[arg(long, default_value = "http://127.0.0.1:8080")]
     pub server: String,
-    /// Release task (T11), pool entry (`libero_90/35`, `robomemarena/18`, `suite/name`; see `tasks list --suite all`)
+    /// Release task (T11), pool entry (`libero_90/35`, `robomemarena/18`, `suite/name`; see `tasks list --tasks all`)
     /// or a .bddl path.
     #[arg(long)]
     pub task: String,

@@ -6,7 +6,7 @@
 //! `--behaviour solve,idle,push_half` or `--behaviour all` plays several behaviours in one process (one renderer,
 //! one data directory), one record per run as for a single behaviour.
 //!
-//! `expert --all [--suite S] [--runs N] [--jobs N]`: every entry with an expert (the release tasks, the 130 stock
+//! `expert --all | --tasks SELECTION [--runs N] [--jobs N]`: every entry with an expert (the release tasks, the 130 stock
 //! LIBERO tasks of the generic expert and the pool's own definitions), one JSON line per task, then a table and the
 //! line "N of M solved k/k"; see `cmd_expert_all`.
 use std::path::PathBuf;
@@ -33,34 +33,33 @@ use libero_server::client::{McpClient, prepare_episode};
 const VIDEO_WAIT: Duration = Duration::from_secs(3600);
 
 #[derive(clap::Args, Debug)]
+#[command(group(clap::ArgGroup::new("sweep").args(["all", "tasks"]).multiple(false)))]
 pub struct ExpertArgs {
     /// Release task (`T14`, …), stock LIBERO task (`libero_90/KITCHEN_SCENE3_turn_on_the_stove`) or pool entry
     /// (`libero_90/35`, `robomemarena/18`).
-    #[arg(long, required_unless_present_any = ["list", "all"])]
+    #[arg(long, required_unless_present_any = ["list", "all", "tasks"])]
     pub task: Option<String>,
-    /// Run the solving expert of every task that has one (see `--suite`) and print a table.
-    #[arg(long, conflicts_with_all = ["task", "list", "server", "trace", "demo_out"])]
+    /// Run the solving expert of every task that has one and print a table: `--tasks all`.
+    #[arg(long, conflicts_with_all = ["task", "list", "server", "trace", "demo_out", "tasks"])]
     pub all: bool,
-    /// With `--all`: only this suite (`release`, `libero_spatial`, `libero_object`, `libero_goal`, `libero_10`,
-    /// `libero_90`, `stock` for all five stock suites, a pool suite such as `robomemarena` for its entries with a
-    /// definition and an expert of their own, or `all` for everything); repeatable, or comma-separated.
-    #[arg(long, value_delimiter = ',')]
-    pub suite: Vec<String>,
-    /// With `--all`: only tasks whose id contains one of these (repeatable, or comma-separated).
-    #[arg(long, value_delimiter = ',', requires = "all")]
-    pub filter: Vec<String>,
-    /// With `--all`: print only the JSON lines (the summary as a last JSON line), no table.
+    /// Run the solving expert of every task of this selection that has one and print a table (docs/commands.md,
+    /// "Selecting tasks"): `release`, `stock`, a suite (`libero_90`, `robomemarena`), `group:G`, tasks (`T14`,
+    /// `libero_90/35`, `libero_90/<name>`), `match:TEXT`, comma-separated or repeated. A pool entry that runs a
+    /// release task's definition runs as that task.
+    #[arg(long, value_delimiter = ',', conflicts_with_all = ["task", "list", "server", "trace", "demo_out"])]
+    pub tasks: Vec<String>,
+    /// With `--all` or `--tasks`: print only the JSON lines (the summary as a last JSON line), no table.
     #[arg(long)]
     pub json: bool,
-    /// With `--all`: run this many tasks at a time, each on its own thread (the rows are the same as with 1).
-    #[arg(long, default_value_t = 1, requires = "all")]
+    /// With `--all` or `--tasks`: run this many tasks at a time, each on its own thread (the rows are the same as with 1).
+    #[arg(long, default_value_t = 1, requires = "sweep")]
     pub jobs: usize,
-    /// With `--all`: write the sweep table here (one JSON row per entry) and its metadata beside it
-    /// (`<name>.meta.json`). Default: `tasks/results/expert_sweep.jsonl` for an unfiltered `--suite all`, else none.
-    #[arg(long, requires = "all")]
+    /// With `--all` or `--tasks`: write the sweep table here (one JSON row per entry) and its metadata beside it
+    /// (`<name>.meta.json`). Default: `tasks/results/expert_sweep.jsonl` for `--all`, else none.
+    #[arg(long, requires = "sweep")]
     pub out: Option<PathBuf>,
-    /// With `--all`: run nothing; print the sweep file (`--out`, or the default) as a Markdown table per suite.
-    #[arg(long, requires = "all")]
+    /// With `--all` or `--tasks`: run nothing; print the sweep file (`--out`, or the default) as a Markdown table per suite.
+    #[arg(long, requires = "sweep")]
     pub markdown: bool,
     /// How many episodes to run (of each behaviour; with `--behaviour all`, of `solve`).
     #[arg(long, default_value_t = 1)]
@@ -123,6 +122,11 @@ pub struct ExpertArgs {
 }
 
 impl ExpertArgs {
+    /// What a sweep runs: `--tasks`, or everything with `--all`.
+    pub fn selection(&self) -> anyhow::Result<libero_tasks::Selection> {
+        if self.all { Ok(libero_tasks::Selection::all()) } else { Ok(libero_tasks::Selection::from_parts(&self.tasks)?) }
+    }
+
     /// The layout variant the flags ask for.
     pub(crate) fn layout(&self) -> anyhow::Result<Option<LayoutVariant>> {
         let Some(placement_seed) = self.layout_seed else { return Ok(None) };

@@ -1,4 +1,4 @@
-//! `libero-agent expert --all [--suite S] [--filter PART] [--runs N] [--jobs N] [--no-video] [--json] [--out PATH]`:
+//! `libero-agent expert --all | --tasks SELECTION [--runs N] [--jobs N] [--no-video] [--json] [--out PATH]`:
 //! the solvability table. Every release task with a scripted expert, every stock LIBERO task (the generic expert,
 //! planned from its BDDL goal) and every pool entry with a definition of its own and an expert (RoboMemArena tasks,
 //! …) runs its solving expert `--runs` times in this process, `--jobs` tasks at a time; one JSON line per task (in
@@ -6,7 +6,7 @@
 //! generic expert cannot plan is listed as "no expert" with the atom it could not plan; a task that errors keeps its
 //! row, with the error. Progress (done/total, failures so far, time left) goes to stderr.
 //!
-//! The table is written to `--out` (default `tasks/results/expert_sweep.jsonl` for an unfiltered `--suite all`)
+//! The table is written to `--out` (default `tasks/results/expert_sweep.jsonl` for `--all`, that is `--tasks all`)
 //! with `<name>.meta.json` beside it (date, commit, command line, cores): the dashboard's task pages show it.
 //! `--markdown` prints that file as the README's table per suite instead of running anything.
 use std::collections::BTreeMap;
@@ -21,16 +21,16 @@ use libero_episode::physics::WorldSpec;
 use libero_episode::task::resolve_task;
 use libero_sim::AssetPaths;
 use libero_tasks::expert;
+use libero_tasks::pool::EntryStatus;
+use libero_tasks::selector::{Member, Selection, Term};
 use serde_json::{Value, json};
 
 use crate::cmd_expert::{ExpertArgs, prepare_request, run_local};
 use libero_server::default_data_dir;
 use libero_server::episodes::Episodes;
 
-/// The suite name `--suite release` selects (the 30 release tasks).
+/// The suite label of the release tasks in a sweep's rows.
 const RELEASE: &str = "release";
-/// The suite name that selects everything: release, stock and the pool's own definitions.
-pub(crate) const ALL: &str = "all";
 
 /// One entry a sweep runs.
 #[derive(Debug, Clone)]
@@ -43,43 +43,40 @@ pub(crate) struct SweepTask {
     pub entry: Option<String>,
 }
 
-/// Every task `--suite` selects: release tasks first, then stock tasks by suite in task order, then the pool's own
-/// definitions with an expert, by suite.
-pub(crate) fn selected_tasks(suites: &[String]) -> anyhow::Result<Vec<SweepTask>> {
-    let stock = |s: &str| libero_tasks::STOCK_SUITES.contains(&s);
-    let everything = suites.is_empty() || suites.iter().any(|w| w == ALL);
-    let wanted = |s: &str| everything || suites.iter().any(|w| w == s || (w == "stock" && stock(s)));
-    let registered = |s: &str| libero_tasks::pool::REGISTERED_SUITES.iter().any(|(r, _)| *r == s);
-    for w in suites {
-        if w != RELEASE && w != ALL && w != "stock" && !registered(w) {
-            bail!(
-                "unknown suite {w:?}: expected {ALL}, {RELEASE}, stock or one of {}",
-                libero_tasks::pool::REGISTERED_SUITES.map(|(s, _)| s).join(", ")
-            );
-        }
-    }
-    let mut tasks = Vec::new();
-    if wanted(RELEASE) {
-        let catalog = libero_tasks::Catalog::discover()?;
-        for entry in catalog.tasks() {
-            if libero_tasks::expert_behaviours(&entry.id).is_some() {
-                tasks.push(SweepTask { suite: RELEASE.to_owned(), task: entry.id.clone(), entry: None });
-            }
-        }
-    }
-    // the stock entries of the pool, in the original's task order
+/// Every task with an expert that `selection` names, in sweep order: release tasks first, then stock tasks by
+/// suite in task order, then the pool's own definitions with an expert, by suite. A pool entry that runs a release
+/// task's definition (its twin, `perception_v2/3` for T04) runs as that release task; a stock entry runs the generic
+/// stock expert even where it is a release task's twin (`libero_90/35`, T16). A task named on its own that has no
+/// expert is refused; the members of a set without one are left out.
+pub(crate) fn selected_tasks(selection: &Selection) -> anyhow::Result<Vec<SweepTask>> {
+    let catalog = libero_tasks::Catalog::discover()?;
     let pool = libero_tasks::Pool::discover()?;
-    for suite in libero_tasks::STOCK_SUITES.iter().filter(|s| wanted(s)) {
-        tasks.extend(pool.select(suite, None).map(|e| SweepTask { suite: suite.to_string(), task: e.reference(), entry: Some(e.id()) }));
-    }
-    // entries that run on a definition of their own (not a release task's, not a stock file) and have an expert
-    for e in pool.entries().iter().filter(|e| !stock(&e.suite) && wanted(&e.suite)) {
-        let own = e.definition.is_some() && e.status() == libero_tasks::pool::EntryStatus::Runs;
-        if own && libero_tasks::expert_behaviours(&e.reference()).is_some() {
-            tasks.push(SweepTask { suite: e.suite.clone(), task: e.reference(), entry: Some(e.id()) });
+    let has_expert = |id: &str| libero_tasks::expert_behaviours(id).is_some();
+    // (bucket, suite order, place in its list): the sweep's order whatever the selection's
+    let mut keyed: Vec<((usize, usize, usize), SweepTask)> = Vec::new();
+    let release = |t: &libero_tasks::TaskEntry| ((0, 0, t.number as usize), SweepTask { suite: RELEASE.to_owned(), task: t.id.clone(), entry: None });
+    for (place, pick) in selection.resolve(catalog.tasks(), &pool)?.into_iter().enumerate() {
+        let found = match pick.member {
+            Member::Release(t) => has_expert(&t.id).then(|| release(t)),
+            Member::Entry(e) if e.is_stock() => {
+                let suite = libero_tasks::STOCK_SUITES.iter().position(|s| *s == e.suite).unwrap_or(0);
+                Some(((1, suite, e.task_id as usize), SweepTask { suite: e.suite.clone(), task: e.reference(), entry: Some(e.id()) }))
+            }
+            Member::Entry(e) => match e.release_task.as_deref().and_then(|t| catalog.get(t)) {
+                Some(t) if e.definition.is_none() => has_expert(&t.id).then(|| release(t)),
+                _ => (e.definition.is_some() && e.status() == EntryStatus::Runs && has_expert(&e.reference()))
+                    .then(|| ((2, 0, place), SweepTask { suite: e.suite.clone(), task: e.reference(), entry: Some(e.id()) })),
+            },
+        };
+        match found {
+            Some(k) if !keyed.iter().any(|(_, t)| t.task == k.1.task) => keyed.push(k),
+            Some(_) => {}
+            None if pick.named => bail!("{} has no scripted expert (`expert --list` lists those that do)", pick.member.id()),
+            None => {}
         }
     }
-    Ok(tasks)
+    keyed.sort_by_key(|(k, _)| *k);
+    Ok(keyed.into_iter().map(|(_, t)| t).collect())
 }
 
 /// Whether the task's expert can plan its goal; `Err` says which atom it could not.
@@ -101,7 +98,7 @@ fn failed_checks(record: &Value) -> Vec<String> {
     vec![format!("{done} of {} stages", record["required_stage_count"])]
 }
 
-/// The sweep file a full `--suite all` writes by default, where the dashboard reads it.
+/// The sweep file `--all` writes by default, where the dashboard reads it.
 pub(crate) fn default_sweep_path() -> PathBuf {
     libero_tasks::catalog::tasks_dir().join("results").join("expert_sweep.jsonl")
 }
@@ -134,15 +131,13 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     }
     let level = Level::from_number(args.level).with_context(|| format!("--level must be 1, 2 or 3 (got {})", args.level))?;
     let paths = AssetPaths::discover().context("assets are missing; run `python3 scripts/setup.py`")?;
-    let mut tasks = selected_tasks(&args.suite)?;
-    if !args.filter.is_empty() {
-        tasks.retain(|t| args.filter.iter().any(|f| t.task.contains(f.as_str())));
-    }
+    let selection = args.selection()?;
+    let tasks = selected_tasks(&selection)?;
     if tasks.is_empty() {
-        bail!("no task with an expert matches --suite {:?} --filter {:?}", args.suite, args.filter);
+        bail!("no task with an expert in --tasks {selection}");
     }
     // a partial sweep never replaces the whole pool's table unless asked to
-    let whole = args.filter.is_empty() && args.suite.iter().any(|s| s == ALL);
+    let whole = selection.terms() == [Term::All];
     let out = args.out.clone().or_else(|| whole.then(default_sweep_path));
     let episodes = Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?;
     let (total, jobs) = (tasks.len(), args.jobs.min(tasks.len()));
@@ -394,7 +389,7 @@ fn print_table(rows: &[Value]) {
 /// Every entry with an expert and its behaviours, one JSON line each: the release tasks first, then the stock
 /// LIBERO tasks and the pool's own definitions, in the order `expert --all` runs them.
 pub fn list() -> anyhow::Result<()> {
-    for t in selected_tasks(&[ALL.to_owned()])? {
+    for t in selected_tasks(&Selection::all())? {
         if let Some(b) = libero_tasks::expert_behaviours(&t.task) {
             let all: Vec<&str> = [expert::SOLVE, libero_episode::expert_run::IDLE].into_iter().chain(b.iter().copied()).collect();
             let mut line = json!({"task": t.task, "suite": t.suite, "behaviours": all});

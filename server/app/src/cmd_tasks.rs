@@ -2,19 +2,22 @@
 //! (`tasks/pool.json`) for operators. `show` prints the
 //! private checker parameters too: this is an operator tool, never reachable by an agent.
 use anyhow::Context;
-use libero_tasks::pool::{GROUPS, REGISTERED_SUITES};
-use libero_tasks::{Catalog, Pool, PoolEntry, TaskEntry};
+use libero_tasks::pool::GROUPS;
+use libero_tasks::{Catalog, Member, Pool, PoolEntry, Selection, TaskEntry};
 
 #[derive(Debug, clap::Subcommand)]
 pub enum TasksCommand {
-    /// The 30 release tasks as a table (or JSON); with `--suite`, the registered pool (`tasks/pool.json`).
+    /// The 30 release tasks as a table (or JSON); with `--tasks`, the registered pool (`tasks/pool.json`).
     List {
         #[arg(long)]
         json: bool,
-        /// A pool suite (`libero_90`, `robomemarena`, …) or `all`: every registered entry with its status.
-        #[arg(long)]
-        suite: Option<String>,
-        /// Only pool entries of this group (perception, short_horizon, long_horizon); implies `--suite all`.
+        /// A task selection (docs/commands.md, "Selecting tasks"): `all` for every registered entry with its status,
+        /// a suite (`libero_90`, `robomemarena`, …), `stock`, `group:G`, tasks (`T11`, `libero_90/35`), `match:TEXT`;
+        /// comma-separated or repeated. Release tasks alone print the release table; anything else the pool's entries
+        /// (a release task as its pool twins).
+        #[arg(long, value_delimiter = ',')]
+        tasks: Vec<String>,
+        /// Only tasks of this group (perception, short_horizon, long_horizon) among those selected (default `all`).
         #[arg(long)]
         group: Option<String>,
     },
@@ -39,16 +42,47 @@ pub enum TasksCommand {
 pub fn run(cmd: &TasksCommand) -> anyhow::Result<()> {
     let catalog = Catalog::discover().context("loading the task catalog")?;
     match cmd {
-        TasksCommand::List { json, suite: None, group: None } => {
+        TasksCommand::List { json, tasks, group: None } if tasks.is_empty() => {
             if *json {
                 println!("{}", serde_json::to_string_pretty(catalog.tasks())?);
             } else {
                 print!("{}", table(catalog.tasks()));
             }
         }
-        TasksCommand::List { json, suite, group } => {
+        TasksCommand::List { json, tasks, group } => {
             let pool = Pool::discover().context("loading the task pool")?;
-            print!("{}", pool_list(&pool, suite.as_deref().unwrap_or("all"), group.as_deref(), *json)?);
+            let selection = if tasks.is_empty() { Selection::all() } else { Selection::from_parts(tasks)? };
+            if let Some(g) = group.as_deref().filter(|g| !GROUPS.contains(g)) {
+                anyhow::bail!("no group {g:?}; groups: {}", GROUPS.join(", "));
+            }
+            let picks = selection.resolve(catalog.tasks(), &pool)?;
+            let in_group = |g: &str| group.as_deref().is_none_or(|want| want == g);
+            if picks.iter().all(|p| matches!(p.member, Member::Release(_))) {
+                let chosen: Vec<TaskEntry> = picks
+                    .iter()
+                    .filter_map(|p| if let Member::Release(t) = p.member { Some(t.clone()) } else { None })
+                    .filter(|t| in_group(&t.group))
+                    .collect();
+                if *json {
+                    println!("{}", serde_json::to_string_pretty(&chosen)?);
+                } else {
+                    print!("{}", table(&chosen));
+                }
+            } else {
+                let mut entries: Vec<&PoolEntry> = Vec::new();
+                for p in &picks {
+                    let members: Vec<&PoolEntry> = match p.member {
+                        Member::Entry(e) => vec![e],
+                        Member::Release(t) => pool.entries().iter().filter(|e| e.release_task.as_deref() == Some(&t.id)).collect(),
+                    };
+                    for e in members.into_iter().filter(|e| in_group(&e.group)) {
+                        if !entries.iter().any(|x| std::ptr::eq(*x, e)) {
+                            entries.push(e);
+                        }
+                    }
+                }
+                print!("{}", pool_list(&pool, &entries, *json)?);
+            }
         }
         TasksCommand::Show { id, json } if id.contains('/') => {
             let pool = Pool::discover().context("loading the task pool")?;
@@ -155,21 +189,14 @@ fn table(tasks: &[TaskEntry]) -> String {
     let mut out = columns(["ID", "NAME", "CATEGORY", "SPLIT", "DIFFICULTY", "CHECKER", "K", "IMPLEMENTED"], &rows);
     let implemented = tasks.iter().filter(|t| t.implemented).count();
     out.push_str(&format!(
-        "{implemented} of {} tasks implemented; `tasks show <ID>` for details; `tasks list --suite all` for the pool\n",
+        "{implemented} of {} tasks implemented; `tasks show <ID>` for details; `tasks list --tasks all` for the pool\n",
         tasks.len()
     ));
     out
 }
 
-/// The pool entries of `suite` (or `all`) and `group`, as a table with per-suite counts, or as JSON.
-fn pool_list(pool: &Pool, suite: &str, group: Option<&str>, json: bool) -> anyhow::Result<String> {
-    if suite != "all" && !REGISTERED_SUITES.iter().any(|(s, _)| *s == suite) {
-        anyhow::bail!("no pool suite {suite:?}; registered: all, {}", REGISTERED_SUITES.map(|(s, _)| s).join(", "));
-    }
-    if let Some(g) = group.filter(|g| !GROUPS.contains(g)) {
-        anyhow::bail!("no group {g:?}; groups: {}", GROUPS.join(", "));
-    }
-    let entries: Vec<&PoolEntry> = pool.select(suite, group).collect();
+/// The selected pool entries as a table with the counts of their suites, or as JSON.
+fn pool_list(pool: &Pool, entries: &[&PoolEntry], json: bool) -> anyhow::Result<String> {
     if json {
         return Ok(format!("{}\n", serde_json::to_string_pretty(&entries)?));
     }
@@ -185,7 +212,7 @@ fn pool_list(pool: &Pool, suite: &str, group: Option<&str>, json: bool) -> anyho
         })
         .collect();
     let mut out = columns(["ID", "NAME", "GROUP", "SOURCE", "CHECKER", "K", "STATUS"], &rows);
-    for c in pool.suite_counts().iter().filter(|c| suite == "all" || c.suite == suite) {
+    for c in pool.suite_counts().iter().filter(|c| entries.iter().any(|e| e.suite == c.suite)) {
         out.push_str(&format!(
             "{}: {} registered, {} run, {} excluded, {} not implemented\n",
             c.suite, c.registered, c.runs, c.excluded, c.not_implemented

@@ -155,7 +155,7 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::Expert(a) if a.list => cmd_expert_all::list(),
         #[cfg(feature = "episode-serve")]
-        Command::Expert(a) if a.all => cmd_expert_all::run_all(&a),
+        Command::Expert(a) if a.all || !a.tasks.is_empty() => cmd_expert_all::run_all(&a),
         #[cfg(feature = "episode-serve")]
         Command::Expert(a) => cmd_expert::run(&a),
         #[cfg(feature = "episode-serve")]

@@ -12,9 +12,9 @@
 //! a sample of the tasks chosen by the day's seed (printed; `LIBERO_AGENT_EXPERT_SEED=N` repeats a day) and plays
 //! the expert of a second sample once, so every release task is solved on some day of a week's runs. The whole proof: `LIBERO_AGENT_EXPERT_TASKS=all cargo test -p libero-agent
 //! --test experts` (or a comma-separated list of tasks). The 3-run solvability sweep of the whole pool is
-//! `libero-agent expert --all --suite all --runs 3 --no-video --json --jobs N` (writes
+//! `libero-agent expert --all --runs 3 --no-video --json --jobs N` (writes
 //! `tasks/results/expert_sweep.jsonl`, which the dashboard's task pages show); the release tasks' alone,
-//! `libero-agent expert --all --suite release --runs 3 --no-video --jobs N`.
+//! `libero-agent expert --tasks release --runs 3 --no-video --jobs N`.
 use std::process::Command;
 
 use serde_json::Value;
@@ -300,7 +300,7 @@ fn the_expert_sweep_writes_its_rows_and_metadata_and_reports_progress_with_an_et
     let (data, out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     let sweep = out.path().join("sweep.jsonl");
     let run = bin()
-        .args(["expert", "--all", "--suite", "release", "--filter", "T06,T10", "--runs", "1", "--no-video", "--json", "--jobs", "2"])
+        .args(["expert", "--tasks", "T10,T06", "--runs", "1", "--no-video", "--json", "--jobs", "2"])
         .arg("--out")
         .arg(&sweep)
         .arg("--data")

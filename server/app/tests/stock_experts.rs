@@ -1,6 +1,6 @@
 //! The generic expert of the stock LIBERO tasks through the real binary (`libero-agent expert`, episodes prepared
 //! like any other, judged by the task's BDDL goal on the final state). The full table over the 130 tasks is one
-//! command (`expert --all --suite stock`, minutes in a release build); CI runs a sample, one task per skill family:
+//! command (`expert --tasks stock`, minutes in a release build); CI runs a sample, one task per skill family:
 //! a pick-and-place into a basket (libero_object), a bowl onto a plate (libero_spatial), a drawer opening and a stove
 //! knob (libero_goal), and checks that an idle run and the `stop_short` near miss fail.
 use std::process::Command;
@@ -28,9 +28,9 @@ const SAMPLE: [&str; 4] = [
 #[test]
 fn expert_all_solves_a_sample_of_stock_tasks_and_prints_the_table() {
     let data = tempfile::tempdir().expect("tempdir");
-    let filter = SAMPLE.join(",") + ",T14,robomemarena_task_18";
+    let tasks = SAMPLE.join(",") + ",robomemarena/robomemarena_task_18,T14";
     let out = bin()
-        .args(["expert", "--all", "--suite", "release,libero_object,libero_spatial,libero_goal,robomemarena", "--filter", &filter])
+        .args(["expert", "--tasks", &tasks])
         .args(["--runs", "1", "--no-video", "--data"])
         .arg(data.path())
         .output()

@@ -155,7 +155,7 @@ fn card<'a>(page: &'a str, marker: &str) -> &'a str {
 }
 
 /// The last expert sweep of the tasks folder (`results/expert_sweep.jsonl` and its `.meta.json`, as `libero-agent
-/// expert --all --suite all` writes them) shows on the Tasks page's cards and on the task pages of the entries it
+/// expert --all` writes them) shows on the Tasks page's cards and on the task pages of the entries it
 /// has, release tasks and pool entries alike, as "solved k/n on DATE at COMMIT"; an entry it lacks shows none.
 #[test]
 fn the_expert_sweep_shows_on_the_task_pages_of_the_entries_it_covers_only() {

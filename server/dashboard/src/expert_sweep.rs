@@ -1,4 +1,4 @@
-//! The last expert sweep of the pool (`libero-agent expert --all --suite all`: `tasks/results/expert_sweep.jsonl`
+//! The last expert sweep of the pool (`libero-agent expert --all`: `tasks/results/expert_sweep.jsonl`
 //! and its `expert_sweep.meta.json`), as the Tasks page and the task pages show it: "expert: solved 3/3 on
 //! 2026-11-27 at b63b099". Read on demand and kept until either file's modification time changes, so a new sweep
 //! shows without a restart; a missing or unreadable file shows nothing (it is a note, not a page's reason to fail).

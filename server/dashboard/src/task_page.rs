@@ -300,7 +300,7 @@ async fn gather(app: &App, f: TaskFacts) -> anyhow::Result<TaskPage> {
         stages: stage_lines(&f.checker),
         why_not: f.why_not.unwrap_or_default(),
         back: match f.id.split_once('/') {
-            Some((suite, _)) => format!("/tasks?suite={suite}#{}", f.id),
+            Some((suite, _)) => format!("/tasks?tasks={suite}#{}", f.id),
             None => format!("/tasks#{}", f.id),
         },
         expert: crate::expert_sweep::expert_line(&[&f.id, &f.task_ref]),

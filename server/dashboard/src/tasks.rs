@@ -32,9 +32,8 @@ fn enum_text<T: serde::Serialize>(v: &T) -> String {
     serde_json::to_value(v).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default()
 }
 
-fn task_cards() -> anyhow::Result<Vec<TaskCard>> {
-    let catalog = libero_tasks::Catalog::discover()?;
-    Ok(catalog
+fn task_cards(catalog: &libero_tasks::Catalog) -> Vec<TaskCard> {
+    catalog
         .tasks()
         .iter()
         .map(|t| TaskCard {
@@ -55,7 +54,7 @@ fn task_cards() -> anyhow::Result<Vec<TaskCard>> {
             not_implemented_reason: t.not_implemented_reason.clone().unwrap_or_default(),
             expert: crate::expert_sweep::expert_line(&[&t.id]),
         })
-        .collect())
+        .collect()
 }
 
 /// A registered pool entry as the Tasks page shows it.
@@ -103,17 +102,21 @@ fn pool_card(e: &libero_tasks::PoolEntry) -> PoolCard {
     }
 }
 
-/// `/tasks?suite=…&group=…&q=…`: the release tasks (default) or a pool suite (`all` for every entry).
+/// `/tasks?tasks=…&group=…&q=…`: the tasks of a task selection (docs/commands.md, "Selecting tasks": `release`,
+/// the default; `all`; a suite; `group:G`; `T11,libero_90/35`; `match:TEXT`), narrowed by a group and a search.
+/// `suite=` is read as `tasks=` (older links).
 #[derive(serde::Deserialize, Default)]
 pub(crate) struct TasksQuery {
+    tasks: Option<String>,
     suite: Option<String>,
     group: Option<String>,
     q: Option<String>,
 }
 
 impl TasksQuery {
-    fn suite(&self) -> &str {
-        self.suite.as_deref().filter(|s| !s.is_empty()).unwrap_or(RELEASE_SUITE)
+    /// The selection as written, `release` when none is given.
+    fn selection_text(&self) -> &str {
+        [&self.tasks, &self.suite].into_iter().flatten().map(|s| s.trim()).find(|s| !s.is_empty()).unwrap_or(RELEASE_SUITE)
     }
 
     fn group(&self) -> Option<&str> {
@@ -134,77 +137,91 @@ impl TasksQuery {
 /// The Tasks page's name for the 30 release tasks in the suite filter.
 const RELEASE_SUITE: &str = "release";
 
-/// One option of the suite filter.
+/// One suggestion of the selection field.
 struct SuiteOption {
     value: String,
     label: String,
-    selected: bool,
 }
 
 #[derive(Template)]
 #[template(path = "tasks.html")]
 struct TasksPage {
-    release: bool,
     tasks: Vec<TaskCard>,
     pool: Vec<PoolCard>,
+    /// The selection as it reads back (`T14,libero_90/35`), in the field.
+    selection: String,
     suites: Vec<SuiteOption>,
     groups: Vec<(String, bool)>,
     q: String,
     summary: String,
+    /// Why the selection in the field selects nothing (a typo, an unknown suite), shown above the cards.
+    error: String,
 }
 
 fn tasks_view(query: &TasksQuery) -> anyhow::Result<TasksPage> {
+    let catalog = libero_tasks::Catalog::discover()?;
     let pool = libero_tasks::Pool::discover()?;
-    let suite = query.suite();
+    let text = query.selection_text();
+    let picks = text.parse::<libero_tasks::Selection>().and_then(|s| Ok((s.resolve(catalog.tasks(), &pool)?, s.to_string())));
+    let (picks, selection, error) = match picks {
+        Ok((picks, shown)) => (picks, shown, String::new()),
+        Err(e) => (Vec::new(), text.chars().take(200).collect(), e.to_string()),
+    };
     let counts = pool.suite_counts();
-    let mut suites = vec![SuiteOption { value: RELEASE_SUITE.into(), label: "release (T01–T30)".into(), selected: suite == RELEASE_SUITE }];
+    let mut suites = vec![SuiteOption { value: RELEASE_SUITE.into(), label: "release (T01–T30)".into() }];
     let (runs, total): (usize, usize) = counts.iter().fold((0, 0), |(r, t), c| (r + c.runs, t + c.registered));
-    suites.push(SuiteOption { value: "all".into(), label: format!("all registered ({runs} of {total} run)"), selected: suite == "all" });
+    suites.push(SuiteOption { value: "all".into(), label: format!("all registered ({runs} of {total} run)") });
+    suites.push(SuiteOption { value: "stock".into(), label: "stock LIBERO (130 entries)".into() });
     for c in &counts {
-        suites.push(SuiteOption {
-            value: c.suite.clone(),
-            label: format!("{} ({} of {} run)", c.suite, c.runs, c.registered),
-            selected: suite == c.suite,
-        });
+        suites.push(SuiteOption { value: c.suite.clone(), label: format!("{} ({} of {} run)", c.suite, c.runs, c.registered) });
     }
-    if !suites.iter().any(|s| s.selected) {
-        anyhow::bail!("no suite {suite:?}: release, all, or one of {}", counts.iter().map(|c| c.suite.as_str()).collect::<Vec<_>>().join(", "));
+    for g in libero_tasks::pool::GROUPS {
+        suites.push(SuiteOption { value: format!("group:{g}"), label: format!("every {g} entry") });
     }
     let groups = libero_tasks::pool::GROUPS.iter().map(|g| ((*g).to_owned(), query.group() == Some(*g))).collect();
-    let release = suite == RELEASE_SUITE;
     let q = query.query();
-    let (tasks, pool_cards) = if release {
-        let tasks: Vec<TaskCard> =
-            task_cards()?.into_iter().filter(|t| query.keeps(&q, &t.group, [&t.id, &t.name, &t.instruction])).collect();
-        (tasks, Vec::new())
-    } else {
-        let cards = pool
-            .select(suite, None)
-            .filter(|e| query.keeps(&q, &e.group, [&e.id(), &e.name, &e.instruction]))
-            .map(pool_card)
-            .collect();
-        (Vec::new(), cards)
+    let mut release_cards = task_cards(&catalog);
+    let mut tasks = Vec::new();
+    let mut pool_cards = Vec::new();
+    for pick in picks {
+        match pick.member {
+            libero_tasks::Member::Release(t) => {
+                if let Some(i) = release_cards.iter().position(|c| c.id == t.id) {
+                    let card = release_cards.swap_remove(i);
+                    if query.keeps(&q, &card.group, [&card.id, &card.name, &card.instruction]) {
+                        tasks.push(card);
+                    }
+                }
+            }
+            libero_tasks::Member::Entry(e) => {
+                if query.keeps(&q, &e.group, [&e.id(), &e.name, &e.instruction]) {
+                    pool_cards.push(pool_card(e));
+                }
+            }
+        }
+    }
+    let running = pool_cards.iter().filter(|c: &&PoolCard| c.runs).count();
+    let summary = match (tasks.len(), pool_cards.len()) {
+        _ if !error.is_empty() => String::new(),
+        (n, 0) => format!("{n} of the 30 release tasks"),
+        (0, n) => format!("{n} registered entries, {running} of them run here"),
+        (n, m) => format!("{n} of the 30 release tasks and {m} registered entries, {running} of them run here"),
     };
-    let shown = tasks.len() + pool_cards.len();
-    let summary = if release {
-        format!("{shown} of the 30 release tasks")
-    } else {
-        let running = pool_cards.iter().filter(|c: &&PoolCard| c.runs).count();
-        format!("{shown} registered entries, {running} of them run here")
-    };
-    Ok(TasksPage { release, tasks, pool: pool_cards, suites, groups, q: query.q.clone().unwrap_or_default(), summary })
+    Ok(TasksPage { tasks, pool: pool_cards, selection, suites, groups, q: query.q.clone().unwrap_or_default(), summary, error })
 }
 
 pub(crate) async fn tasks_page(Query(query): Query<TasksQuery>) -> Response {
     match tasks_view(&query) {
+        // a selection that cannot be read still gets the page, with the reason and the field to fix it
+        Ok(view) if !view.error.is_empty() => (axum::http::StatusCode::BAD_REQUEST, page(view)).into_response(),
         Ok(view) => page(view),
         Err(e) => ApiError::bad_request(format!("{e:#}")).into_response(),
     }
 }
 
 pub(crate) async fn tasks_json() -> Response {
-    match task_cards() {
-        Ok(tasks) => axum::Json(json!({"ok": true, "tasks": tasks})).into_response(),
+    match libero_tasks::Catalog::discover() {
+        Ok(catalog) => axum::Json(json!({"ok": true, "tasks": task_cards(&catalog)})).into_response(),
         Err(e) => ApiError::internal(format!("{e:#}")).into_response(),
     }
 }

@@ -143,7 +143,7 @@ pub fn resolve_task(id: &str, paths: &AssetPaths) -> Result<TaskSource, EpisodeE
         .filter(|(s, n)| !s.is_empty() && !n.is_empty() && !n.contains('/') && !s.contains(".."))
         .ok_or_else(|| {
             EpisodeError::Task(format!(
-                "unknown task {id:?}: expected T01–T30, <suite>/<task id or name> (`tasks list --suite all`) or a .bddl path"
+                "unknown task {id:?}: expected T01–T30, <suite>/<task id or name> (`tasks list --tasks all`) or a .bddl path"
             ))
         })?;
     let name = name.strip_suffix(".bddl").unwrap_or(name);

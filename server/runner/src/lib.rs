@@ -35,6 +35,7 @@ use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
 use libero_metrics::Outcome;
 use libero_tasks::catalog::Catalog;
 use serde_json::{Value, json};
+use libero_tasks::selector::{Member, Selection, Term};
 
 use batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord, append_record, read_records, write_batch_json};
 use harness::{Credentials, Harness, default_credentials_file};
@@ -68,9 +69,10 @@ pub struct RunArgs {
     /// Rollouts at once in a local run (default 1).
     #[arg(long)]
     pub concurrency: Option<usize>,
-    /// Only these tasks, e.g. `T11,T13` (default: every implemented task of the experiment). With
-    /// `--experiment pool` also `suite:robomemarena`, `suite:release`, `group:long_horizon` and pool addresses
-    /// (`libero_90/35`, `libero_90/<name>`; see `tasks list --suite all`); default every entry that runs.
+    /// Only these tasks, a task selection (docs/commands.md, "Selecting tasks"): `T11,T13`, `release`, `match:TEXT`
+    /// (default: every implemented task of the experiment). With `--experiment pool` also `all`, `stock`, a suite
+    /// (`robomemarena`), `group:long_horizon` and pool entries (`libero_90/35`, `libero_90/<name>`; see `tasks list
+    /// --tasks all`); default every entry that runs.
     #[arg(long, value_delimiter = ',')]
     pub tasks: Vec<String>,
     /// Rollouts per task and condition.
@@ -219,16 +221,22 @@ impl RunContext {
     }
 }
 
-fn parse_tasks(tasks: &[String]) -> anyhow::Result<Vec<u32>> {
-    tasks
-        .iter()
-        .map(|t| {
-            if t.contains(['/', ':']) {
-                bail!("{t:?} is a pool selector: pool tasks run with --experiment pool");
-            }
-            t.trim().trim_start_matches(['T', 't']).parse::<u32>().with_context(|| format!("not a task id: {t:?}"))
-        })
-        .collect()
+fn parse_tasks(tasks: &[String], catalog: &Catalog) -> anyhow::Result<Vec<u32>> {
+    if tasks.iter().all(|t| t.trim().is_empty()) {
+        return Ok(Vec::new());
+    }
+    let selection = Selection::from_parts(tasks)?;
+    if let Some(t) = selection.terms().iter().find(|t| !matches!(t, Term::Release | Term::ReleaseTask(_) | Term::Match(_))) {
+        bail!("{:?} is a pool selector: pool tasks run with --experiment pool", t.to_string());
+    }
+    let pool = libero_tasks::pool::Pool::discover()?;
+    let picks = selection.resolve(catalog.tasks(), &pool)?;
+    // A set leaves out what is not implemented (as the default does); a task named alone is checked by `plan`.
+    let numbers = picks.iter().filter_map(|p| match p.member {
+        Member::Release(t) if p.named || t.implemented => Some(t.number),
+        _ => None,
+    });
+    Ok(numbers.collect())
 }
 
 /// The schedule of `args`, the tasks left out, and the `--tasks` as the settings record them.
@@ -242,7 +250,7 @@ fn schedule_of(args: &RunArgs, catalog: &Catalog) -> anyhow::Result<(Vec<Planned
         let (schedule, skipped) = plan_pool(&pool, catalog.tasks(), &selectors, args.reps)?;
         return Ok((schedule, skipped, Vec::new(), selectors));
     }
-    let only = parse_tasks(&args.tasks)?;
+    let only = parse_tasks(&args.tasks, catalog)?;
     let (schedule, skipped) = plan(args.experiment, catalog.tasks(), (!only.is_empty()).then_some(&only[..]), args.reps)?;
     Ok((schedule, skipped, only, Vec::new()))
 }

@@ -15,7 +15,8 @@
 use anyhow::bail;
 use libero_metrics::Split;
 use libero_tasks::catalog::{Category, TaskEntry};
-use libero_tasks::pool::{EntryStatus, Pool, REGISTERED_SUITES};
+use libero_tasks::pool::Pool;
+use libero_tasks::selector::{Member, Selection};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -181,11 +182,11 @@ fn release_pick(t: &TaskEntry) -> PoolPick {
     }
 }
 
-/// The rollouts of `run --experiment pool`: `selectors` are `suite:S` (a registered suite, `release` for
-/// T01–T30, `all` for every entry), `group:G` (perception, short_horizon, long_horizon), a release id (`T11`)
-/// or a pool address (`libero_90/35`, `libero_90/<name>`); none means `suite:all`. An entry named on its own
-/// that does not run is refused with its reason; one inside a suite or group is left out and returned in the
-/// second list. The same task named twice runs once.
+/// The rollouts of `run --experiment pool`: `selectors` are a task selection (`libero_tasks::selector`: `all`,
+/// `release`, `stock`, a suite, `group:G`, `T11`, `libero_90/35`, `libero_90/<name>`, `match:TEXT`; the old
+/// `suite:S` spelling too); none means `all`, every registered entry. An entry named on its own that does not run is
+/// refused with its reason; one inside a set is left out and returned in the second list. The same task named twice
+/// runs once.
 pub fn plan_pool(
     pool: &Pool,
     catalog: &[TaskEntry],
@@ -195,18 +196,9 @@ pub fn plan_pool(
     if reps == 0 {
         bail!("--reps must be at least 1");
     }
-    let all = ["suite:all".to_owned()];
-    let selectors = if selectors.is_empty() { &all[..] } else { selectors };
+    let selection = if selectors.is_empty() { Selection::all() } else { Selection::from_parts(selectors)? };
     let mut picks: Vec<PoolPick> = Vec::new();
     let mut skipped: Vec<String> = Vec::new();
-    let release = |s: &str| -> anyhow::Result<PoolPick> {
-        let n: u32 = s.trim_start_matches(['T', 't']).parse().map_err(|_| anyhow::anyhow!("not a task: {s:?}"))?;
-        let Some(t) = catalog.iter().find(|t| t.number == n) else { bail!("no task T{n:02} in the catalog") };
-        if !t.implemented {
-            bail!("{} is not implemented in this build: {}", t.id, t.not_implemented_reason.as_deref().unwrap_or("no reason given"));
-        }
-        Ok(release_pick(t))
-    };
     let pool_pick = |e: &libero_tasks::pool::PoolEntry| PoolPick {
         address: e.id(),
         rollout_key: format!("{}_{:03}", e.suite, e.task_id),
@@ -216,41 +208,15 @@ pub fn plan_pool(
         split: None,
         stage_count: e.stage_count,
     };
-    for raw in selectors {
-        let sel = raw.trim();
-        let mut members: Vec<PoolPick> = Vec::new();
-        if let Some(suite) = sel.strip_prefix("suite:") {
-            if suite == RELEASE_SUITE {
-                for t in catalog {
-                    if t.implemented { members.push(release_pick(t)) } else { skipped.push(t.id.clone()) }
-                }
-            } else if suite == "all" || REGISTERED_SUITES.iter().any(|(s, _)| *s == suite) {
-                for e in pool.select(suite, None) {
-                    if e.status() == EntryStatus::Runs { members.push(pool_pick(e)) } else { skipped.push(e.id()) }
-                }
-            } else {
-                bail!("no pool suite {suite:?}; suites: release, all, {}", REGISTERED_SUITES.map(|(s, _)| s).join(", "));
-            }
-        } else if let Some(group) = sel.strip_prefix("group:") {
-            if !libero_tasks::pool::GROUPS.contains(&group) {
-                bail!("no group {group:?}; groups: {}", libero_tasks::pool::GROUPS.join(", "));
-            }
-            for e in pool.select("all", Some(group)) {
-                if e.status() == EntryStatus::Runs { members.push(pool_pick(e)) } else { skipped.push(e.id()) }
-            }
-        } else if sel.contains('/') {
-            let e = pool.lookup(sel).map_err(anyhow::Error::msg)?;
-            if let Some(why) = e.why_not() {
-                bail!("{} ({}) {why}", e.id(), e.name);
-            }
-            members.push(pool_pick(e));
-        } else {
-            members.push(release(sel)?);
-        }
-        for m in members {
-            if !picks.iter().any(|p| p.address == m.address) {
-                picks.push(m);
-            }
+    for pick in selection.resolve(catalog, pool)? {
+        match (pick.member, pick.member.why_not()) {
+            (Member::Release(t), None) => picks.push(release_pick(t)),
+            (Member::Entry(e), None) => picks.push(pool_pick(e)),
+            (m, Some(why)) if pick.named => match m {
+                Member::Entry(e) => bail!("{} ({}) {why}", e.id(), e.name),
+                Member::Release(t) => bail!("{} is {why}", t.id),
+            },
+            (m, Some(_)) => skipped.push(m.id()),
         }
     }
     skipped.retain(|s| !picks.iter().any(|p| &p.address == s));
@@ -281,6 +247,7 @@ mod tests {
 
     use super::*;
     use libero_tasks::catalog::Catalog;
+    use libero_tasks::pool::EntryStatus;
 
     /// The catalog with every task marked implemented, to count the paper's full schedules.
     fn all_implemented() -> Vec<TaskEntry> {

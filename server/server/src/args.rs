@@ -86,9 +86,10 @@ pub struct ServeArgs {
 #[derive(clap::Args, Debug, Clone)]
 pub struct ThumbnailArgs {
     /// Task thumbnails a server with a console renders at start, in the background at low priority (cached under
-    /// `<data>/thumbnails/`, reused across restarts): `all` (every release task, then every runnable pool entry),
-    /// `off`, or a comma-separated list of `release`, pool suites and task ids (`T14,libero_90/35`).
-    #[arg(long = "thumbnails-ahead", value_name = "SET", default_value = "all", env = "LIBERO_AGENT_THUMBNAILS_AHEAD")]
+    /// `<data>/thumbnails/`, reused across restarts): `off`, or a task selection (docs/commands.md, "Selecting
+    /// tasks"): the default `release,all` is every release task, then every runnable pool entry; `T14,libero_90/35`,
+    /// a suite or `group:G` take fewer.
+    #[arg(long = "thumbnails-ahead", value_name = "SELECTION", default_value = "release,all", env = "LIBERO_AGENT_THUMBNAILS_AHEAD")]
     pub ahead: String,
     /// How many thumbnails render at once in that background pass (default: a quarter of the CPUs, at least 1).
     #[arg(long = "thumbnail-threads", value_name = "N", value_parser = clap::value_parser!(u16).range(1..=64))]

@@ -251,39 +251,19 @@ impl Thumbnails {
     }
 }
 
-/// The tasks `--thumbnails-ahead` names: `all` (every implemented release task, then every runnable pool entry),
-/// `off`, or a comma-separated list of `release`, suite names and task ids.
+/// The tasks `--thumbnails-ahead` names: `off`, or a task selection (`libero_tasks::selector`: `release,all` for
+/// every implemented release task, then every runnable pool entry; suites, groups, task ids). A task named on its
+/// own that does not run is refused; the members of a set that do not run are left out.
 pub fn ahead_ids(selection: &str) -> Result<Vec<String>, String> {
     let selection = selection.trim();
     if selection == "off" || selection.is_empty() {
         return Ok(Vec::new());
     }
+    let selection: libero_tasks::Selection = selection.parse().map_err(|e: libero_tasks::SelectionError| e.to_string())?;
     let catalog = libero_tasks::Catalog::discover().map_err(|e| e.to_string())?;
     let pool = libero_tasks::Pool::discover().map_err(|e| e.to_string())?;
-    let release = || catalog.tasks().iter().filter(|t| t.implemented).map(|t| t.id.clone()).collect::<Vec<_>>();
-    let suite = |s: &str| pool.select(s, None).filter(|e| e.why_not().is_none()).map(|e| e.id()).collect::<Vec<_>>();
-    let mut ids: Vec<String> = Vec::new();
-    for part in selection.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let more = match part {
-            "all" => release().into_iter().chain(suite("all")).collect(),
-            "release" => release(),
-            s if libero_tasks::pool::REGISTERED_SUITES.iter().any(|(name, _)| *name == s) => suite(s),
-            id if catalog.get(id).is_some_and(|t| t.implemented) => vec![id.to_owned()],
-            id if id.contains('/') => {
-                let e = pool.lookup(id)?;
-                if let Some(why) = e.why_not() {
-                    return Err(format!("{} is {why}", e.id()));
-                }
-                vec![e.id()]
-            }
-            other => return Err(format!("--thumbnails-ahead: {other:?} is not all, off, release, a pool suite or a task that runs")),
-        };
-        for id in more {
-            if !ids.contains(&id) {
-                ids.push(id);
-            }
-        }
-    }
+    let picks = selection.runnable(catalog.tasks(), &pool).map_err(|e| e.to_string())?;
+    let ids = picks.iter().map(|p| p.member.id()).collect();
     Ok(ids)
 }
 

@@ -13,10 +13,12 @@ pub mod families;
 pub mod judge;
 pub mod pool;
 pub mod registry;
+pub mod selector;
 
 pub use catalog::{Catalog, TaskEntry};
 pub use error::TasksError;
 pub use pool::{Pool, PoolEntry};
+pub use selector::{Member, Pick, Selection, SelectionError};
 pub use judge::evaluator::{EvaluationRecord, Evaluator, Tick};
 pub use judge::goal::{GoalChecker, GoalReport, PredicateValue};
 pub use judge::predicates::{ArticulationRule, EntityRef, JointTest, PredicateKind, SceneIndex, articulation_rule};

@@ -15,7 +15,7 @@ use crate::TasksError;
 
 pub const POOL_SCHEMA: &str = "libero_agent.task_pool.v1";
 
-/// The suites the original registers with their entry counts, in the order `tasks list --suite all` shows them.
+/// The suites the original registers with their entry counts, in the order `tasks list --tasks all` shows them.
 pub const REGISTERED_SUITES: [(&str, usize); 15] = [
     ("perception_v2", 10),
     ("long_horizon_v2", 6),
