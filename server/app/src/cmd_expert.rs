@@ -17,7 +17,7 @@ use libero_episode::demo::record::RecordOptions;
 use libero_episode::demo::{LayoutVariant, library, record_bundle};
 use libero_episode::expert_run::{IDLE, ToolPort, run_expert, run_replica_only};
 use libero_episode::physics::WorldSpec;
-use libero_episode::records::read_result;
+use libero_episode::records::{PrivateEvaluation, RunResult, read_result};
 use libero_episode::task::resolve_task;
 use libero_episode::video_queue::VideoProgress;
 use libero_episode::{EpisodeError, Level, RunDir};
@@ -309,8 +309,8 @@ fn run_once(
         (None, None) => unreachable!("either local or remote"),
     };
     let run = outcome.with_context(|| format!("{task_id} run {run_index} ({episode_id})"))?;
-    let record = record.unwrap_or_else(|| run.replica_record.clone());
-    let success = record["success"].as_bool().unwrap_or(false);
+    let record = PrivateEvaluation::from_value(record.unwrap_or_else(|| run.replica_record.clone())).unwrap_or_default();
+    let success = record.success.unwrap_or(false);
     let demo = match (&args.demo_out, renderer, &run_dir) {
         (Some(lib), Some(renderer), Some(run_dir)) if success => {
             let out = library::bundle_dir(lib, &spec.task.task_ref, &episode_id);
@@ -332,14 +332,14 @@ fn run_once(
         "run": run_index,
         "episode_id": episode_id,
         "success": success,
-        "completed_stage_count": record["completed_required_stage_count"],
-        "required_stage_count": record["required_stage_count"],
-        "completed_stage_names": record["completed_stage_names"],
-        "stage_regressions": record["stage_regressions"],
-        "stage_diagnostics": record["stage_diagnostics"],
-        "failure_reason": record["failure_reason"],
-        "first_commitment": record["first_commitment"],
-        "judgment_correct": record["judgment_correct"],
+        "completed_stage_count": record.completed_required_stage_count,
+        "required_stage_count": record.required_stage_count,
+        "completed_stage_names": record.completed_stage_names,
+        "stage_regressions": record.stage_regressions,
+        "stage_diagnostics": record.stage_diagnostics,
+        "failure_reason": record.failure_reason.flatten(),
+        "first_commitment": record.first_commitment,
+        "judgment_correct": record.judgment_correct,
         "osc_sequence_calls": run.osc_calls,
         "actions": run.actions,
         "demo": demo,
@@ -405,7 +405,7 @@ pub(crate) fn run_local(
     let run = RunDir::new(&prepared.run_dir);
     let ended = Instant::now();
     let result = read_result(&run);
-    let episode_wall_time_s = result.as_ref().and_then(|r| r["wall_time_seconds"].as_f64());
+    let episode_wall_time_s = result.as_ref().and_then(RunResult::wall_time_s);
     let mut video_ready_s = None;
     if request.video {
         let frames = libero_episode::state_record::StateRecordReader::open(&run.state_record()).map(|r| r.frames()).unwrap_or(0);
@@ -419,7 +419,7 @@ pub(crate) fn run_local(
             other => bail!("the private video of {} did not complete: {other:?}", prepared.episode_id),
         }
     }
-    let record = result.and_then(|r| r.get("private_evaluation").cloned());
+    let record = result.and_then(|r| r.private_evaluation).map(|e| e.to_value());
     Ok(LocalRun { episode_id: prepared.episode_id, outcome, record, run_dir: prepared.run_dir, episode_wall_time_s, video_ready_s })
 }
 

@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use libero_episode::expert_run::{ToolPort, run_expert};
-use libero_episode::records::{RunDir, read_result};
+use libero_episode::records::{RunDir, read_result_value};
 use libero_episode::task::resolve_task;
 use libero_episode::tools::MAX_AGENT_STEPS_CAP;
 use libero_episode::world::{LiberoWorld, WorldSpec};
@@ -234,7 +234,7 @@ fn play_in_process(play: &Play, paths: &AssetPaths, renderer: &Renderer, hubs: &
     hubs.close(&id);
     let texts = reader.join().map_err(|_| "the reader panicked".to_owned())??;
     let played = played.map_err(|e| format!("the expert: {e}"))?;
-    let result = read_result(&RunDir::new(&cfg.run_dir)).ok_or("no result.json")?;
+    let result = read_result_value(&RunDir::new(&cfg.run_dir)).ok_or("no result.json")?;
     let summary = check_live(&texts, &result["private_evaluation"], play.regresses)?;
     Ok(format!("{summary}; {} actions", played.actions))
 }
@@ -304,7 +304,7 @@ fn a_long_horizon_episode_streams_every_stage_over_the_real_socket() {
     assert_eq!(played.finish["success"], true, "{}", played.finish);
     let texts = socket.join().expect("socket reader").expect("the socket stream");
     assert_eq!(texts.first().map(|t| t["type"].clone()), Some(json!("hello")), "{texts:?}");
-    let result = read_result(&RunDir::new(data.join("runs").join(id))).expect("result.json");
+    let result = read_result_value(&RunDir::new(data.join("runs").join(id))).expect("result.json");
     let record = &result["private_evaluation"];
     let summary = check_live(&texts, record, false).unwrap_or_else(|e| panic!("{e}"));
     eprintln!("T28 over the socket: {summary}");

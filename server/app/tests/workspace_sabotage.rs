@@ -351,8 +351,8 @@ fn an_agent_sabotaging_its_workspace_gets_fail_or_success_never_invalid() {
         // The records: finished, a verdict, no infrastructure error.
         let run = RunDir::new(&prepared.run_dir);
         let result = read_result(&run).expect("result.json");
-        assert_eq!(result["status"], "finished", "{result}");
-        assert!(result.get("infrastructure_error").is_none_or(Value::is_null), "{result}");
+        assert_eq!(result.status.as_deref(), Some("finished"), "{result}");
+        assert!(!result.has_infrastructure_error(), "{result}");
         let outcome = classify(Some(&result));
         assert!(matches!(outcome, Outcome::Success | Outcome::Fail), "episode {episode}: {outcome:?}");
         let deadline = Instant::now() + Duration::from_secs(30);

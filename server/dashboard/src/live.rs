@@ -12,6 +12,7 @@ use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
 use axum::response::{IntoResponse, Redirect, Response};
 use libero_episode::RunDir;
+use libero_episode::records::read_episode_record;
 use libero_server::live::Hub;
 use libero_server::{App, AppState};
 use serde_json::{Value, json};
@@ -186,11 +187,8 @@ async fn elsewhere_stream(mut socket: WebSocket, app: AppState, mut row: libero_
 /// What a viewer of an episode without a live hub gets: `hello` with the budgets, the final state as a
 /// `finished` event (the live page then stops reconnecting), then the socket closes.
 async fn ended_stream(mut socket: WebSocket, row: libero_server::store::EpisodeRow) {
-    let record: Value = std::fs::read_to_string(RunDir::new(&row.episode.run_dir).episode_record())
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
-        .unwrap_or(Value::Null);
-    let hello = json!({"type": "hello", "max_agent_steps": record["max_agent_steps"], "max_wall_time_s": record["max_wall_time_seconds"]});
+    let record = read_episode_record(&RunDir::new(&row.episode.run_dir)).ok().flatten().unwrap_or_default();
+    let hello = json!({"type": "hello", "max_agent_steps": record.max_agent_steps, "max_wall_time_s": record.max_wall_time_seconds});
     let state = if row.outcome.is_some() { "ended" } else { "not live on this server" };
     let finished = json!({"type": "finished", "state": state, "outcome": row.outcome, "reason": row.reason});
     for message in [hello, finished] {

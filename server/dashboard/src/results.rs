@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use askama::Template;
 use axum::extract::{RawQuery, State};
 use axum::response::IntoResponse;
+use libero_episode::batch_doc::ToolboxDoc;
 use libero_metrics::{PAPER_REPS, Split};
 use libero_server::{ApiError, ApiResult, App, AppState};
 use serde_json::{Value, json};
@@ -107,7 +108,8 @@ fn reps_of(b: &LoadedBatch, sel: &Selection) -> usize {
 
 /// A selected batch: read from its directory, or one only the store holds (`run --store`), to be read from there.
 pub enum Selected {
-    Loaded(LoadedBatch),
+    /// Boxed: a loaded batch's typed document is large beside a name.
+    Loaded(Box<LoadedBatch>),
     InStore(String),
 }
 
@@ -138,7 +140,7 @@ pub fn load_selected(roots: &[PathBuf], stored: &[String], sel: &Selection) -> R
     let mut selected = Vec::new();
     for (name, dir) in wanted {
         selected.push(match dir {
-            Some(dir) => Selected::Loaded(load_batch(dir).map_err(|e| format!("{e:#}"))?),
+            Some(dir) => Selected::Loaded(Box::new(load_batch(dir).map_err(|e| format!("{e:#}"))?)),
             None => Selected::InStore(name.clone()),
         });
     }
@@ -170,17 +172,18 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
         .iter()
         .map(|b| {
             let reps = reps_of(b, sel);
+            let d = &b.batch;
             json!({
                 "name": b.name(),
                 "dir": b.dir,
-                "status": b.batch["status"],
-                "experiment": b.batch["settings"]["experiment"],
-                "harness": b.batch["settings"]["harness"],
-                "model": b.batch["settings"]["model"],
+                "status": d.status,
+                "experiment": d.experiment(),
+                "harness": d.harness_setting(),
+                "model": d.model(),
                 "reps": reps,
-                "toolbox": b.batch["toolbox"],
-                "progress": {"rollout_count": b.batch["rollout_count"], "counts": b.batch["counts"],
-                    "running": b.batch["running"], "outcomes": b.batch["outcomes"], "updated_at": b.batch["updated_at"]},
+                "toolbox": d.toolbox,
+                "progress": {"rollout_count": d.rollout_count, "counts": d.counts,
+                    "running": d.running, "outcomes": d.outcomes, "updated_at": d.updated_at},
                 "report": report_json(std::slice::from_ref(b), reps),
                 "episodes": b.records.iter().map(episode_json).collect::<Vec<_>>(),
             })
@@ -330,11 +333,11 @@ pub struct View {
 
 /// `harness + model`, as the page heads it.
 fn agent_of(b: &LoadedBatch) -> String {
-    format!("{} + {}", b.batch["settings"]["harness"].as_str().unwrap_or("?"), b.batch["settings"]["model"].as_str().unwrap_or("?"))
+    format!("{} + {}", b.batch.harness_setting().unwrap_or("?"), b.batch.model().unwrap_or("?"))
 }
 
-fn count(v: &Value) -> String {
-    v.as_u64().map(|n| n.to_string()).unwrap_or_else(|| "—".into())
+fn count(n: Option<u64>) -> String {
+    n.map(|n| n.to_string()).unwrap_or_else(|| "—".into())
 }
 
 /// Everything the page shows, from the same rows the JSON carries.
@@ -358,36 +361,37 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
     let mut cols: Vec<(&LoadedBatch, Row)> = Vec::new();
     for b in batches {
         let reps = reps_of(b, sel);
-        let status = b.batch["status"].as_str().unwrap_or("?").to_owned();
+        let d = &b.batch;
+        let status = d.status.clone().unwrap_or_else(|| "?".into());
         v.any_running |= status == "running" || status == "queued";
-        let outcomes = b.batch["outcomes"]
-            .as_object()
+        let outcomes = d
+            .outcomes
+            .as_ref()
             .map(|o| o.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "))
             .filter(|s| !s.is_empty())
             .unwrap_or_else(|| "none yet".into());
-        let experiment = b.batch["settings"]["experiment"].as_str().unwrap_or("?").to_owned();
+        let experiment = d.experiment().unwrap_or("?").to_owned();
+        let counts = d.counts.clone().unwrap_or_default();
         v.toolboxes.push(toolbox_row(b));
         v.progress.push(ProgressRow {
             batch: b.name(),
             status,
             experiment: experiment.clone(),
             agent: agent_of(b),
-            done: count(&b.batch["counts"]["done"]),
-            running: count(&b.batch["counts"]["running"]),
-            left: count(&b.batch["counts"]["left"]),
+            done: count(counts.done),
+            running: count(counts.running),
+            left: count(counts.left),
             outcomes,
-            running_on: b.batch["running_on"]
-                .as_array()
-                .map(|a| {
-                    a.iter()
-                        .map(|r| {
-                            let text = |k: &str| r[k].as_str().unwrap_or_default().to_owned();
-                            let live = r["live_url"].as_str().filter(|u| u.starts_with("http://") || u.starts_with("https://")).map(str::to_owned);
-                            (text("rollout_id"), if r["host"].is_string() { text("host") } else { text("worker") }, live)
-                        })
-                        .collect()
+            running_on: d
+                .running_on
+                .iter()
+                .flatten()
+                .map(|r| {
+                    let live = r.live_url.clone().filter(|u| u.starts_with("http://") || u.starts_with("https://"));
+                    let on = r.host.clone().or_else(|| r.worker.clone()).unwrap_or_default();
+                    (r.rollout_id.clone().unwrap_or_default(), on, live)
                 })
-                .unwrap_or_default(),
+                .collect(),
         });
         let batch_rows = rows(std::slice::from_ref(b), reps);
         for r in &batch_rows {
@@ -491,21 +495,21 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
 
 /// The toolbox line of a batch (`batch.json`'s `toolbox`, as `Toolbox::describe` wrote it).
 fn toolbox_row(b: &LoadedBatch) -> ToolboxRow {
-    let t = &b.batch["toolbox"];
-    let text = |k: &str| t[k].as_str().unwrap_or_default().to_owned();
+    let t = b.batch.toolbox.as_ref();
     let described = toolbox_text(t);
     let (name, packages) = match described.split_once(" (") {
         Some((name, rest)) => (name.to_owned(), rest.trim_end_matches(')').to_owned()),
         None => (described, String::new()),
     };
-    let name = if t.is_object() {
+    let name = if t.is_some() {
         name
-    } else if b.batch["settings"]["sandbox"] == false {
+    } else if b.batch.settings.as_ref().and_then(|s| s.sandbox) == Some(false) {
         "none (run without the sandbox: the host's python3)".into()
     } else {
         "none".into()
     };
-    ToolboxRow { batch: b.name(), name, packages, python: text("python"), source: text("source") }
+    let text = |f: fn(&ToolboxDoc) -> Option<&String>| t.and_then(f).cloned().unwrap_or_default();
+    ToolboxRow { batch: b.name(), name, packages, python: text(|t| t.python.as_ref()), source: text(|t| t.source.as_ref()) }
 }
 
 /// A rollout as `c/K`, linked to its review.
@@ -599,7 +603,7 @@ pub(crate) async fn selected(app: &App, sel: &Selection) -> ApiResult<(Vec<Strin
     let mut batches = Vec::with_capacity(picked.len());
     for p in picked {
         batches.push(match p {
-            Selected::Loaded(b) => b,
+            Selected::Loaded(b) => *b,
             Selected::InStore(name) => {
                 let b = app.store.batch(&name).await.map_err(|e| internal(format!("{e:#}")))?;
                 let b = b.ok_or_else(|| internal(format!("batch {name} left the store")))?;

@@ -10,9 +10,11 @@ use axum::body::Body;
 use axum::extract::{Path, Query, Request, State};
 use axum::response::{IntoResponse, Response};
 use libero_episode::RunDir;
-use libero_episode::records::read_result;
+use libero_episode::records::{ActionEvent, PrivateEvent, read_result};
 use libero_episode::video_queue::VideoProgress;
 use libero_server::{ApiError, ApiResult, AppState};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
 
 use crate::common::{page, serve_file, valid_id};
@@ -52,19 +54,19 @@ pub(crate) async fn review_page(State(app): State<AppState>, Path(id): Path<Stri
 }
 
 
-fn read_jsonl(path: &FsPath) -> Vec<Value> {
+fn read_jsonl<T: DeserializeOwned>(path: &FsPath) -> Vec<T> {
     read_jsonl_page(path, 0, usize::MAX).0
 }
 
 /// Up to `limit` parsed lines of a JSON-lines file from line `from` on, read as a stream (a long episode's file is
 /// never held whole), and the index of the next line if the file goes on.
-fn read_jsonl_page(path: &FsPath, from: u64, limit: usize) -> (Vec<Value>, Option<u64>) {
+fn read_jsonl_page<T: DeserializeOwned>(path: &FsPath, from: u64, limit: usize) -> (Vec<T>, Option<u64>) {
     let (lines, next) = read_jsonl_indexed(path, from, limit);
     (lines.into_iter().map(|(_, v)| v).collect(), next)
 }
 
 /// [`read_jsonl_page`] with each value's line index (lines that do not parse are skipped, not counted).
-fn read_jsonl_indexed(path: &FsPath, from: u64, limit: usize) -> (Vec<(u64, Value)>, Option<u64>) {
+fn read_jsonl_indexed<T: DeserializeOwned>(path: &FsPath, from: u64, limit: usize) -> (Vec<(u64, T)>, Option<u64>) {
     use std::io::BufRead;
     let Ok(file) = std::fs::File::open(path) else { return (Vec::new(), None) };
     let mut out = Vec::new();
@@ -84,30 +86,56 @@ fn read_jsonl_indexed(path: &FsPath, from: u64, limit: usize) -> (Vec<(u64, Valu
     (out, None)
 }
 
+/// One call of the review's timeline: an `actions.jsonl` event with the control steps it covered.
+#[derive(Debug, Clone, Serialize)]
+struct TimelineCall {
+    event_index: Option<u64>,
+    recorded_at: Option<String>,
+    tool: Option<String>,
+    /// Micro-actions the call sent.
+    actions: Option<usize>,
+    ok: bool,
+    error_type: Value,
+    error: Value,
+    observation_id: Value,
+    control_step_begin: u64,
+    control_step_end: u64,
+}
+
+impl TimelineCall {
+    /// The call as the agent timeline lists it (`kind: robot_call`, `t` its `recorded_at`).
+    fn robot_call(&self) -> Value {
+        let mut v = json!(self);
+        if let Some(obj) = v.as_object_mut() {
+            obj.insert("kind".into(), json!("robot_call"));
+            obj.insert("t".into(), json!(self.recorded_at));
+        }
+        v
+    }
+}
+
 /// The calls of `actions.jsonl`, each with the control steps it covered (start = step 0; an accepted
 /// `osc_sequence` of n actions advances n steps), counting on from `control_step` (where the previous page ended).
-fn timeline_calls(actions: &[Value], mut control_step: u64) -> (Vec<Value>, u64) {
+fn timeline_calls(actions: &[ActionEvent], mut control_step: u64) -> (Vec<TimelineCall>, u64) {
     let calls = actions
         .iter()
         .map(|e| {
-            let (req, resp) = (&e["request"], &e["response"]);
-            let ok = resp["ok"] == json!(true);
-            let executed = libero_episode::tools::actions_executed(resp);
-            let steps = if executed { resp["execution"]["control_steps"].as_u64().unwrap_or(0) } else { 0 };
+            let steps = if e.actions_executed() { e.control_steps() } else { 0 };
             let begin = control_step;
             control_step = control_step.saturating_add(steps);
-            json!({
-                "event_index": e["event_index"],
-                "recorded_at": e["recorded_at"],
-                "tool": req["tool"].as_str().or(req["command"].as_str()),
-                "actions": req["arguments"]["actions"].as_array().map(Vec::len),
-                "ok": ok,
-                "error_type": resp["error_type"],
-                "error": resp["error"],
-                "observation_id": resp["observation_id"],
-                "control_step_begin": begin,
-                "control_step_end": control_step,
-            })
+            let answered = |key: &str| e.response().get(key).cloned().unwrap_or(Value::Null);
+            TimelineCall {
+                event_index: e.event_index,
+                recorded_at: e.recorded_at.clone(),
+                tool: e.tool().or(e.command()).map(str::to_owned),
+                actions: e.actions().map(Vec::len),
+                ok: e.ok(),
+                error_type: answered("error_type"),
+                error: answered("error"),
+                observation_id: answered("observation_id"),
+                control_step_begin: begin,
+                control_step_end: control_step,
+            }
         })
         .collect();
     (calls, control_step)
@@ -128,13 +156,14 @@ pub(crate) struct ReviewQuery {
 
 /// One page of calls: the calls, and where the next page starts (line and control step), if any.
 fn calls_page(run: &RunDir, from: u64, control_step: u64) -> Value {
-    let (lines, next) = read_jsonl_page(&run.actions_jsonl(), from, REVIEW_PAGE_LINES);
+    let (lines, next) = read_jsonl_page::<ActionEvent>(&run.actions_jsonl(), from, REVIEW_PAGE_LINES);
     let (calls, step) = timeline_calls(&lines, control_step);
     json!({"calls": calls, "calls_next": next.map(|n| json!({"from": n, "control_step": step}))})
 }
 
 fn telemetry_page(run: &RunDir, from: u64) -> Value {
-    let (lines, next) = read_jsonl_page(&run.telemetry_jsonl(), from, REVIEW_PAGE_LINES);
+    // Passed on as written (the review page plots them).
+    let (lines, next) = read_jsonl_page::<Value>(&run.telemetry_jsonl(), from, REVIEW_PAGE_LINES);
     json!({"telemetry": lines, "telemetry_next": next.map(|n| json!({"from": n}))})
 }
 
@@ -150,11 +179,11 @@ pub(crate) async fn review_data(State(app): State<AppState>, Path(id): Path<Stri
         Some(other) => Err(format!("part must be calls, telemetry or video (got {other:?})")),
         None => {
             let result = read_result(&run);
-            let mut stage_events = read_jsonl(&run.stage_events_jsonl());
-            if let Some(events) = result.as_ref().and_then(|r| r["private_evaluation"]["events"].as_array()) {
+            let mut stage_events: Vec<PrivateEvent> = read_jsonl(&run.stage_events_jsonl());
+            if let Some(events) = result.as_ref().and_then(|r| r.private_evaluation.as_ref()?.events.as_ref()) {
                 stage_events.extend(events.iter().cloned());
             }
-            stage_events.sort_by_key(|e| e["control_step"].as_u64().unwrap_or(0));
+            stage_events.sort_by_key(|e| e.control_step.unwrap_or(0));
             let mut v = json!({
                 "ok": true,
                 "stage_events": stage_events,
@@ -213,9 +242,10 @@ fn observation_copy(run: &RunDir, id: &str, observation: Option<&str>, file: Opt
 fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
     let transcript = run.agent_events_jsonl();
     let available = transcript.is_file();
-    let (events, events_next) = read_jsonl_indexed(&transcript, q.from, AGENT_PAGE_ITEMS);
-    let (lines, calls_next) = read_jsonl_indexed(&run.actions_jsonl(), q.calls_from, AGENT_PAGE_ITEMS);
-    let call_lines: Vec<Value> = lines.iter().map(|(_, v)| v.clone()).collect();
+    // The transcript is the agent's CLI output, normalised: its events are passed on as they are.
+    let (events, events_next) = read_jsonl_indexed::<Value>(&transcript, q.from, AGENT_PAGE_ITEMS);
+    let (lines, calls_next) = read_jsonl_indexed::<ActionEvent>(&run.actions_jsonl(), q.calls_from, AGENT_PAGE_ITEMS);
+    let call_lines: Vec<ActionEvent> = lines.iter().map(|(_, v)| v.clone()).collect();
     let (calls, _) = timeline_calls(&call_lines, q.control_step);
     let mut cursor = q.clone();
     let (mut i, mut j) = (0, 0);
@@ -229,8 +259,8 @@ fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
             (Some(_), None) => true,
             (None, Some(_)) => false,
             (Some((_, e)), Some(c)) => {
-                let before = e["t"].as_str().unwrap_or("") <= c["recorded_at"].as_str().unwrap_or("");
-                let its_call = e["kind"] == "tool_call" && !e["robot_tool"].is_null() && e["robot_tool"] == c["tool"] && !cursor.claimed;
+                let before = e["t"].as_str().unwrap_or("") <= c.recorded_at.as_deref().unwrap_or("");
+                let its_call = e["kind"] == "tool_call" && !e["robot_tool"].is_null() && e["robot_tool"] == json!(c.tool) && !cursor.claimed;
                 before || its_call
             }
         };
@@ -250,20 +280,16 @@ fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
             cursor.from = line + 1;
             i += 1;
         } else {
-            let mut c = calls[j].clone();
-            if c["ok"] == true
-                && let Some(obs) = c["observation_id"].as_str()
+            let c = &calls[j];
+            if c.ok
+                && let Some(obs) = c.observation_id.as_str()
             {
                 cursor.observation = Some(obs.to_owned());
             }
             cursor.claimed = false;
             cursor.calls_from = lines[j].0 + 1;
-            cursor.control_step = c["control_step_end"].as_u64().unwrap_or(cursor.control_step);
-            if let Some(obj) = c.as_object_mut() {
-                obj.insert("kind".into(), json!("robot_call"));
-                obj.insert("t".into(), obj.get("recorded_at").cloned().unwrap_or(Value::Null));
-            }
-            out.push(c);
+            cursor.control_step = c.control_step_end;
+            out.push(c.robot_call());
             j += 1;
         }
     }

@@ -17,7 +17,7 @@ use axum::routing::{get, post};
 use libero_episode::EpisodeHandle;
 use libero_episode::demo::lerobot::export_lerobot;
 use libero_episode::demo::record::RecordOptions;
-use libero_episode::demo::{MANIFEST, VIDEO_HEAD_WRIST, library, read_json, validate_bundle};
+use libero_episode::demo::{MANIFEST, VIDEO_HEAD_WRIST, library, read_manifest, validate_bundle};
 use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
@@ -338,7 +338,7 @@ pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
         if !dir.is_dir() || name.ends_with(".partial") {
             continue;
         }
-        let Ok(m) = read_json(&dir.join(MANIFEST)) else { continue };
+        let Ok(m) = read_manifest(&dir.join(MANIFEST)) else { continue };
         let modified = std::fs::metadata(dir.join(MANIFEST))
             .and_then(|md| md.modified())
             .ok()
@@ -347,10 +347,11 @@ pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
         let violations = validate_bundle(&dir);
         rows.push(json!({
             "key": format!("{task_name}/{name}"),
-            "task": m["task"]["id"], "instruction": m["task"]["instruction"],
-            "verified": m["verification"]["verified"], "replay_success": m["verification"]["replay_success"],
-            "actions": m["transition_count"], "source_type": m["source"]["source_type"],
-            "episode_id": m["source"]["episode_id"], "modified_unix_s": modified,
+            "task": m.task_id(), "instruction": m.instruction(),
+            "verified": m.verification.as_ref().and_then(|v| v.verified),
+            "replay_success": m.verification.as_ref().and_then(|v| v.replay_success),
+            "actions": m.transition_count, "source_type": m.source.as_ref().and_then(|s| s.source_type.as_deref()),
+            "episode_id": m.source.as_ref().and_then(|s| s.episode_id.as_deref()), "modified_unix_s": modified,
             "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
         }));
     }

@@ -17,14 +17,14 @@ use crate::json::{compact_sorted, utc_now_iso};
 use crate::live::{LiveEvent, LiveSink, unix_now_s};
 use crate::observation::{EncodedObservation, Frame, Level, encode_observation};
 use crate::publish::{ObservationPublisher, write_private_copy};
-use crate::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, aborted_result, classify, write_result};
+use crate::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, RunResult, aborted_result, classify, write_result};
 use crate::tools::{MAX_AGENT_STEPS_CAP, ToolName};
 use crate::workspace::OBSERVATION_FILE;
 
 /// How often an idle active episode checks its wall clock (the original polled every 0.5 s).
 pub const IDLE_POLL: Duration = Duration::from_millis(500);
-const BUDGET_SCOPE: &str = "per_episode_across_resets";
-const EXPIRY_REASON: &str = "episode_wall_time_budget_exhausted";
+const BUDGET_SCOPE: &str = crate::records::WALL_TIME_BUDGET_SCOPE;
+const EXPIRY_REASON: &str = crate::records::WALL_TIME_EXHAUSTED;
 /// `termination_reason` of an episode whose agent ended without `finish_episode` (docs/protocol.md §4.8).
 pub const FORFEIT_REASON: &str = "agent_ended_without_finish_episode";
 const FINISHED_TEXT: &str = "the episode is already finished; finish_episode was called and no further commands are accepted";
@@ -713,12 +713,13 @@ impl<W: World> Actor<W> {
         })
     }
 
+    /// `result.json`: the finish payload (§2.9) with the schema, the time and the evaluator's record (§4.9).
     fn write_final(&mut self, payload: &Value, verdict: Option<&Verdict>) -> std::io::Result<()> {
-        let mut result = payload.clone();
-        result["schema_version"] = json!(RESULT_SCHEMA);
-        result["finished_at"] = json!(utc_now_iso());
+        let mut result = RunResult::from_value(payload.clone()).map_err(std::io::Error::other)?;
+        result.schema_version = Some(RESULT_SCHEMA.to_owned());
+        result.finished_at = Some(utc_now_iso());
         if let Some(v) = verdict {
-            result["private_evaluation"] = v.private_evaluation.clone();
+            result.set_private_evaluation(v.private_evaluation.clone());
             if !v.stage_events.is_empty() {
                 let mut text = String::new();
                 for e in &v.stage_events {
@@ -1038,7 +1039,7 @@ mod tests {
         let status = h.status();
         assert_eq!((status.state, status.outcome), (EpisodeState::Finished, Some(Outcome::Fail)));
         let result = crate::records::read_result(&RunDir::new(dir.path().join("run"))).unwrap();
-        assert_eq!(result["status"], "finished");
+        assert_eq!(result.status.as_deref(), Some("finished"));
         // Every frame is in the private archive, the unpublished one included.
         for id in ["obs_000000", "obs_000001", "obs_000002"] {
             assert!(dir.path().join("run/private_observations").join(id).join("observation.json").is_file(), "{id}");

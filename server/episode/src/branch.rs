@@ -8,7 +8,7 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use serde_json::{Value, json};
+use serde_json::json;
 
 use crate::call::MicroAction;
 use crate::records::{ActionLog, RunDir};
@@ -66,7 +66,7 @@ pub fn log_branch_point(run: &RunDir, parent: &str, step: u64) -> std::io::Resul
 }
 
 /// The `branch` object of an episode record: `{"parent_episode_id", "parent_control_step"}` or null.
-pub fn record_branch(record: &Value) -> Option<(String, u64)> {
-    let b = record.get("branch")?;
-    Some((b["parent_episode_id"].as_str()?.to_owned(), b["parent_control_step"].as_u64()?))
+pub fn record_branch(record: &crate::records::EpisodeRecord) -> Option<(String, u64)> {
+    let b = record.branch.as_ref()?;
+    Some((b.parent_episode_id.clone()?, b.parent_control_step?))
 }

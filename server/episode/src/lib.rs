@@ -14,8 +14,9 @@ pub mod expert_run;
 pub mod lifecycle;
 pub mod live;
 pub mod memory;
-/// The run directory, its records and JSON helpers live in `libero-records` (the store reads them without the simulator).
-pub use libero_records::{agent_events, json, records};
+/// The run directory, its records and JSON helpers live in `libero-records` (the store reads them without the simulator),
+/// with the batch's records the report reads and the demonstration bundle's manifest.
+pub use libero_records::{agent_events, batch_doc, demo_manifest, json, records};
 pub mod observation;
 pub mod physics;
 pub mod publish;

@@ -128,7 +128,7 @@ pub fn tools_list() -> Value {
 /// actions ran but whose observation the agent's own workspace could not take (`ok: false` with
 /// `execution.command_completed`). Replays and timelines count both.
 pub fn actions_executed(response: &Value) -> bool {
-    response["ok"] == true || response["execution"]["command_completed"] == true
+    crate::records::actions_executed(response)
 }
 
 #[cfg(test)]

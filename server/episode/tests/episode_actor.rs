@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::time::Duration;
 
-use libero_episode::records::{Outcome, RunDir, classify, read_result};
+use libero_episode::records::{Outcome, RunDir, classify, read_result, read_result_value};
 use libero_episode::task::resolve_task;
 use libero_episode::world::{LiberoWorld, WorldSpec};
 use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeState, Level, spawn_episode};
@@ -87,9 +87,9 @@ fn agent_step_budget_rejects_without_simulating_and_idle_wall_clock_ends_as_sim_
     let run = RunDir::new(&h.config().run_dir);
     let result = read_result(&run).expect("result.json written without any call");
     assert_eq!(classify(Some(&result)), Outcome::SimTimeout);
-    assert_eq!(result["termination_reason"], "episode_wall_time_budget_exhausted");
+    assert_eq!(result.termination_reason.as_deref(), Some("episode_wall_time_budget_exhausted"));
     assert_eq!(h.status().outcome, Some(Outcome::SimTimeout));
-    assert_matches_result_fixture(&result, "result_sim_timeout.json");
+    assert_matches_result_fixture(&read_result_value(&run).unwrap(), "result_sim_timeout.json");
     // The next call, whatever it is, gets the expiry payload (ok, not an error).
     let late = h.call("finish_episode", None);
     assert_eq!((late["ok"].clone(), late["success"].clone()), (json!(true), json!(false)));
@@ -123,8 +123,8 @@ fn a_mujoco_fault_ends_only_its_own_episode_as_invalid() {
     let status = faulty.status();
     assert_eq!((status.state, status.outcome), (EpisodeState::Aborted, Some(Outcome::Invalid)));
     let result = read_result(&RunDir::new(&faulty.config().run_dir)).unwrap();
-    assert_eq!(result["status"], "aborted");
-    assert!(result["reason"].as_str().unwrap().contains("simulator fault"), "{result}");
+    assert_eq!(result.status.as_deref(), Some("aborted"));
+    assert!(result.reason.as_deref().unwrap().contains("simulator fault"), "{result}");
     assert!(!faulty.config().workspace.join("benchmark_inputs/current_observation").exists());
     // The other episode keeps going.
     let ok = healthy.call("osc_sequence", args(json!({"actions": [[0.3, 0, 0, 0, 0, 0, 1]]})));
@@ -140,8 +140,8 @@ fn stopping_an_open_episode_records_it_as_aborted_with_the_reason() {
     assert_eq!(h.call("start_episode", None)["ok"], true);
     h.stop("server_received_signal_15_before_finish");
     let result = read_result(&RunDir::new(&h.config().run_dir)).unwrap();
-    assert_eq!(result["reason"], "server_received_signal_15_before_finish");
-    assert!(result["wall_time_seconds"].as_f64().unwrap() >= 0.0);
+    assert_eq!(result.reason.as_deref(), Some("server_received_signal_15_before_finish"));
+    assert!(result.wall_time_s().unwrap() >= 0.0);
     assert_eq!(classify(Some(&result)), Outcome::Invalid);
 }
 

@@ -6,13 +6,18 @@ use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
+pub use crate::action_event::{ACTION_EVENT_SCHEMA, ActionEvent, actions_executed};
+pub use crate::episode_record::{BranchRecord, EPISODE_RECORD_SCHEMA, EpisodeRecord, RecordedSuite, RecordedTask};
 use crate::json::{compact_sorted, open_jsonl_for_append, sha256_hex, utc_now_iso, write_json_file};
+pub use crate::result::{
+    EvaluationDetails, MechanismOperation, PrivateEvaluation, PrivateEvent, RESULT_SCHEMA, RunResult, STATUS_ABORTED,
+    STATUS_FINISHED, StageDiagnostic, StageRegressions, TerminalCheck, WALL_TIME_BUDGET_SCOPE, WALL_TIME_EXHAUSTED,
+};
+pub use crate::typed::RecordError;
+use crate::typed::read_record;
 
 /// `telemetry.jsonl` beside the other private records: one line per control step.
 pub const TELEMETRY_FILE: &str = "telemetry.jsonl";
-
-pub const ACTION_EVENT_SCHEMA: &str = "libero.agent_action_event.v1";
-pub const RESULT_SCHEMA: &str = "libero.agent_run_result.v1";
 
 /// Files of one episode's private run directory.
 #[derive(Debug, Clone)]
@@ -110,15 +115,16 @@ impl ActionLog {
     /// Appends one event and fsyncs it before returning. Oversized request fields and responses are
     /// recorded truncated ([`bounded_for_log`]).
     pub fn append(&mut self, request: &Value, response: &Value, attempt_index: u32) -> std::io::Result<()> {
-        let event = json!({
-            "schema_version": ACTION_EVENT_SCHEMA,
-            "event_index": self.next_index,
-            "recorded_at": utc_now_iso(),
-            "request": bounded_fields(request),
-            "response": bounded_for_log(response),
-            "attempt_index": attempt_index,
-        });
-        let mut line = compact_sorted(&event);
+        let event = ActionEvent {
+            schema_version: Some(ACTION_EVENT_SCHEMA.to_owned()),
+            event_index: Some(self.next_index),
+            recorded_at: Some(utc_now_iso()),
+            request: Some(bounded_fields(request)),
+            response: Some(bounded_for_log(response)),
+            attempt_index: Some(u64::from(attempt_index)),
+            rest: serde_json::Map::new(),
+        };
+        let mut line = compact_sorted(&event.to_value());
         line.push('\n');
         self.file.write_all(line.as_bytes())?;
         self.file.sync_data()?;
@@ -132,21 +138,13 @@ impl ActionLog {
 }
 
 /// Writes `result.json` atomically.
-pub fn write_result(run: &RunDir, result: &Value) -> std::io::Result<()> {
-    write_json_file(&run.result_json(), result)
+pub fn write_result(run: &RunDir, result: &RunResult) -> std::io::Result<()> {
+    write_json_file(&run.result_json(), &result.to_value())
 }
 
-/// The aborted result of §4.7.
-pub fn aborted_result(reason: &str, max_wall_time_s: f64, wall_time_s: Option<f64>) -> Value {
-    json!({
-        "schema_version": RESULT_SCHEMA,
-        "status": "aborted",
-        "reason": reason,
-        "finished_at": utc_now_iso(),
-        "max_wall_time_seconds": max_wall_time_s,
-        "wall_time_budget_scope": "per_episode_across_resets",
-        "wall_time_seconds": wall_time_s,
-    })
+/// The aborted result of §4.7, finished now.
+pub fn aborted_result(reason: &str, max_wall_time_s: f64, wall_time_s: Option<f64>) -> RunResult {
+    RunResult::aborted(reason, max_wall_time_s, wall_time_s, utc_now_iso())
 }
 
 /// The outcome class of one episode or rollout (§4.8): the one definition the episode, the runner, the store and
@@ -205,15 +203,14 @@ impl std::str::FromStr for Outcome {
 
 /// An episode's outcome from its `result.json` (§4.8): a missing, unfinished or infrastructure-failed result is
 /// INVALID; a success SUCCESS; an exhausted wall-time budget SIM_TIMEOUT; anything else FAIL.
-pub fn classify(result: Option<&Value>) -> Outcome {
+pub fn classify(result: Option<&RunResult>) -> Outcome {
     let Some(r) = result else { return Outcome::Invalid };
-    let infra = r.get("infrastructure_error").is_some_and(|v| !v.is_null());
-    if r["status"] != "finished" || infra {
+    if !r.is_finished() || r.has_infrastructure_error() {
         return Outcome::Invalid;
     }
-    if r["success"].as_bool() == Some(true) {
+    if r.success == Some(true) {
         Outcome::Success
-    } else if r["termination_reason"] == "episode_wall_time_budget_exhausted" {
+    } else if r.termination_reason.as_deref() == Some(WALL_TIME_EXHAUSTED) {
         Outcome::SimTimeout
     } else {
         Outcome::Fail
@@ -226,10 +223,10 @@ pub const WATCHDOG_ERROR: &str = "multi-agent rollout wall-clock supervision tim
 
 /// A rollout's outcome (§4.8 with the harness): the watchdog's kill of an agent past a spent `budget_s` is
 /// WATCHDOG_TIMEOUT; any other harness infrastructure error INVALID; else the episode's own [`classify`].
-pub fn classify_rollout(result: Option<&Value>, infra: Option<&str>, budget_s: f64) -> Outcome {
+pub fn classify_rollout(result: Option<&RunResult>, infra: Option<&str>, budget_s: f64) -> Outcome {
     if let (Some(r), Some(e)) = (result, infra)
         && e.contains("wall-clock supervision timeout")
-        && r["wall_time_seconds"].as_f64().is_some_and(|w| w >= budget_s)
+        && r.wall_time_s().is_some_and(|w| w >= budget_s)
     {
         return Outcome::WatchdogTimeout;
     }
@@ -240,9 +237,24 @@ pub fn classify_rollout(result: Option<&Value>, infra: Option<&str>, budget_s: f
 }
 
 /// Reads `result.json` if present and parseable.
-pub fn read_result(run: &RunDir) -> Option<Value> {
+pub fn read_result(run: &RunDir) -> Option<RunResult> {
+    try_read_result(run).ok().flatten()
+}
+
+/// Reads `result.json`: `Ok(None)` while there is none, an error saying why when it cannot be read.
+pub fn try_read_result(run: &RunDir) -> Result<Option<RunResult>, RecordError> {
+    read_record(&run.result_json())
+}
+
+/// `result.json` as it is, for a caller that hands the whole record on (an API response).
+pub fn read_result_value(run: &RunDir) -> Option<Value> {
     let text = std::fs::read_to_string(run.result_json()).ok()?;
     serde_json::from_str(&text).ok()
+}
+
+/// Reads `episode_record.json`: `Ok(None)` when there is none (the episode was never prepared here).
+pub fn read_episode_record(run: &RunDir) -> Result<Option<EpisodeRecord>, RecordError> {
+    read_record(&run.episode_record())
 }
 
 #[cfg(test)]
@@ -269,6 +281,33 @@ mod tests {
         assert_eq!(lines[1]["event_index"], 1);
         assert_eq!(lines[1]["request"], Value::Null);
         assert!(text.lines().next().unwrap().starts_with(r#"{"attempt_index":1,"event_index":0,"#));
+    }
+
+    #[test]
+    fn action_log_lines_are_the_bytes_the_json_literal_wrote() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("actions.jsonl");
+        let mut log = ActionLog::open(&path).unwrap();
+        let request = json!({"tool": "osc_sequence", "command": "osc_sequence", "arguments": {"actions": [[0.5, 0, 0, 0, 0, 0, -1]]}});
+        let response = json!({"ok": true, "observation_id": "obs_000001", "execution": {"control_steps": 1}});
+        log.append(&request, &response, 1).unwrap();
+        log.append(&Value::Null, &json!({"ok": false, "error": "x"}), 2).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        for (i, (line, (req, resp, attempt))) in
+            text.lines().zip([(request, response, 1), (Value::Null, json!({"ok": false, "error": "x"}), 2)]).enumerate()
+        {
+            let written: ActionEvent = serde_json::from_str(line).unwrap();
+            let literal = json!({
+                "schema_version": ACTION_EVENT_SCHEMA,
+                "event_index": i,
+                "recorded_at": written.recorded_at,
+                "request": req,
+                "response": resp,
+                "attempt_index": attempt,
+            });
+            assert_eq!(line, compact_sorted(&literal));
+            assert_eq!(compact_sorted(&written.to_value()), line, "read and written back unchanged");
+        }
     }
 
     #[test]
@@ -324,16 +363,49 @@ mod tests {
             }
             v
         };
-        assert_eq!(classify(Some(&finished(true, None))), Outcome::Success);
-        assert_eq!(classify(Some(&finished(false, None))), Outcome::Fail);
-        assert_eq!(
-            classify(Some(&finished(false, Some("episode_wall_time_budget_exhausted")))),
-            Outcome::SimTimeout
-        );
+        let classify_value = |v: Value| classify(Some(&RunResult::from_value(v).unwrap()));
+        assert_eq!(classify_value(finished(true, None)), Outcome::Success);
+        assert_eq!(classify_value(finished(false, None)), Outcome::Fail);
+        assert_eq!(classify_value(finished(false, Some("episode_wall_time_budget_exhausted"))), Outcome::SimTimeout);
         assert_eq!(classify(Some(&aborted_result("server_stopped_before_finish", 1800.0, None))), Outcome::Invalid);
         let mut infra = finished(true, None);
         infra["infrastructure_error"] = json!("boom");
-        assert_eq!(classify(Some(&infra)), Outcome::Invalid);
+        assert_eq!(classify_value(infra), Outcome::Invalid);
         assert_eq!(classify(None), Outcome::Invalid);
+    }
+
+    #[test]
+    fn a_written_aborted_result_reads_back_and_classifies_invalid() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        assert!(read_result(&run).is_none() && try_read_result(&run).unwrap().is_none(), "none yet");
+        write_result(&run, &aborted_result("server_stopped_before_finish", 1800.0, Some(3.5))).unwrap();
+        let text = std::fs::read_to_string(run.result_json()).unwrap();
+        let r = read_result(&run).expect("the aborted result");
+        assert_eq!((r.status.as_deref(), r.reason.as_deref(), r.wall_time_s()), (Some("aborted"), Some("server_stopped_before_finish"), Some(3.5)));
+        assert_eq!(classify(Some(&r)), Outcome::Invalid);
+        assert_eq!(classify_rollout(Some(&r), Some(WATCHDOG_ERROR), 1800.0), Outcome::Invalid, "3.5 s is not the budget");
+        assert_eq!(classify_rollout(Some(&r), Some(WATCHDOG_ERROR), 3.0), Outcome::WatchdogTimeout);
+        // Read and written back: the same bytes.
+        write_result(&run, &r).unwrap();
+        assert_eq!(std::fs::read_to_string(run.result_json()).unwrap(), text);
+        assert_eq!(read_result_value(&run), Some(serde_json::from_str::<Value>(&text).unwrap()));
+    }
+
+    #[test]
+    fn a_torn_or_foreign_result_is_none_with_a_reason() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        std::fs::write(run.result_json(), r#"{"status": "finis"#).unwrap();
+        assert!(read_result(&run).is_none());
+        let why = try_read_result(&run).unwrap_err().to_string();
+        assert!(why.contains("result.json is not a JSON object"), "{why}");
+        std::fs::write(run.result_json(), "[1, 2]").unwrap();
+        assert!(read_result(&run).is_none(), "a result is an object");
+        // A partial result reads; what it lacks is None, and it is INVALID.
+        std::fs::write(run.result_json(), r#"{"status": "finished", "success": "yes"}"#).unwrap();
+        let r = read_result(&run).unwrap();
+        assert_eq!((r.success, r.rest.get("success")), (None, Some(&json!("yes"))));
+        assert_eq!(classify(Some(&r)), Outcome::Fail, "as r[\"success\"].as_bool() read it");
     }
 }

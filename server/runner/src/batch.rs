@@ -8,9 +8,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use libero_episode::json::write_json_file;
+use libero_episode::batch_doc::BatchDoc;
+use libero_episode::records::RunResult;
 use libero_metrics::{Outcome, PoolRollout, Rollout, Split};
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
+use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 
 use super::schedule::Demo;
@@ -200,12 +202,14 @@ fn result_reason(run_dir: &Path) -> Option<String> {
     use std::io::Read;
     let mut text = String::new();
     std::fs::File::open(run_dir.join("result.json")).ok()?.take(1 << 20).read_to_string(&mut text).ok()?;
-    let v: Value = serde_json::from_str(&text).ok()?;
-    let field = |k: &str| v[k].as_str().filter(|s| !s.is_empty()).map(str::to_owned);
-    field("infrastructure_error")
+    let result: RunResult = serde_json::from_str(&text).ok()?;
+    fn given(s: Option<&str>) -> Option<&str> {
+        s.filter(|s| !s.is_empty())
+    }
+    given(result.infrastructure_error())
         .map(|e| format!("the episode recorded an infrastructure error: {e}"))
-        .or_else(|| field("reason").map(|r| format!("the episode ended: {r}")))
-        .or_else(|| field("status").map(|s| format!("the episode's result is {s:?}, with no reason given")))
+        .or_else(|| given(result.reason.as_deref()).map(|r| format!("the episode ended: {r}")))
+        .or_else(|| given(result.status.as_deref()).map(|s| format!("the episode's result is {s:?}, with no reason given")))
 }
 
 /// When every rollout of `rollouts` (id, outcome, reason) is INVALID, the message saying so with the first
@@ -264,7 +268,7 @@ pub fn write_batch_json(dir: &Path, v: &Value) -> anyhow::Result<()> {
 #[derive(Debug, Clone, Serialize)]
 pub struct LoadedBatch {
     pub dir: PathBuf,
-    pub batch: Value,
+    pub batch: BatchDoc,
     pub records: Vec<RolloutRecord>,
 }
 
@@ -278,8 +282,10 @@ impl LoadedBatch {
 pub fn load_batch(dir: &Path) -> anyhow::Result<LoadedBatch> {
     let text = std::fs::read_to_string(batch_json(dir)).with_context(|| format!("{} is not a batch directory", dir.display()))?;
     let batch: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", batch_json(dir).display()))?;
-    if batch["schema_version"] != BATCH_SCHEMA {
-        bail!("{}: schema_version {}, expected {BATCH_SCHEMA}", batch_json(dir).display(), batch["schema_version"]);
+    // JSON that is no object has no schema_version, and is refused as such.
+    let batch = BatchDoc::from_value(batch).unwrap_or_default();
+    if batch.schema_version.as_deref() != Some(BATCH_SCHEMA) {
+        bail!("{}: schema_version {}, expected {BATCH_SCHEMA}", batch_json(dir).display(), json!(batch.schema_version));
     }
     Ok(LoadedBatch { dir: dir.to_path_buf(), batch, records: read_records(dir)? })
 }
@@ -305,7 +311,7 @@ impl StoreMirror {
         let stored = libero_server::store::StoredBatch {
             name: b.name(),
             dir: b.dir.clone(),
-            doc: b.batch,
+            doc: serde_json::to_value(&b.batch)?,
             records: b.records.iter().map(serde_json::to_value).collect::<Result<_, _>>()?,
         };
         Ok(self.runtime.block_on(self.store.put_batch(&stored))?)
@@ -396,11 +402,12 @@ impl ServerMirror {
 
 /// A batch read from the store, in the shape [`load_batch`] gives.
 pub fn from_stored(b: libero_server::store::StoredBatch) -> anyhow::Result<LoadedBatch> {
-    if b.doc["schema_version"] != BATCH_SCHEMA {
-        bail!("batch {} in the store: schema_version {}, expected {BATCH_SCHEMA}", b.name, b.doc["schema_version"]);
+    let doc = BatchDoc::from_value(b.doc).unwrap_or_default();
+    if doc.schema_version.as_deref() != Some(BATCH_SCHEMA) {
+        bail!("batch {} in the store: schema_version {}, expected {BATCH_SCHEMA}", b.name, json!(doc.schema_version));
     }
     let records = b.records.into_iter().map(serde_json::from_value).collect::<Result<Vec<RolloutRecord>, _>>()?;
-    Ok(LoadedBatch { dir: b.dir, batch: b.doc, records })
+    Ok(LoadedBatch { dir: b.dir, batch: doc, records })
 }
 
 /// Reads batches by name from a store (`report --store URL NAME…`), in the shape [`load_batch`] gives.
@@ -455,11 +462,7 @@ pub fn pool_rollouts(batches: &[LoadedBatch]) -> BTreeMap<String, Vec<PoolRollou
 
 /// `harness/model` of a batch.
 pub fn agent_of(b: &LoadedBatch) -> String {
-    format!(
-        "{}/{}",
-        b.batch["settings"]["harness"].as_str().unwrap_or("?"),
-        b.batch["settings"]["model"].as_str().unwrap_or("?")
-    )
+    format!("{}/{}", b.batch.harness_setting().unwrap_or("?"), b.batch.model().unwrap_or("?"))
 }
 
 #[cfg(test)]

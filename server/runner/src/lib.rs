@@ -30,12 +30,13 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
+use libero_episode::batch_doc::BatchDoc;
 use libero_episode::json::utc_now_iso;
 use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
 use libero_metrics::Outcome;
 use libero_tasks::catalog::Catalog;
-use serde_json::{Value, json};
 use libero_tasks::selector::{Member, Selection, Term};
+use serde_json::{Value, json};
 
 use batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord, append_record, read_records, write_batch_json};
 use harness::{Credentials, Harness, default_credentials_file};
@@ -482,14 +483,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             bail!("{} already holds a batch; pass --resume to continue it", batch_dir.display());
         }
         let old: Value = serde_json::from_str(&std::fs::read_to_string(&existing)?)?;
-        if old["settings_sha256"] != json!(settings.sha256()) {
+        let old = BatchDoc::from_value(old).unwrap_or_default();
+        if old.settings_sha256 != Some(settings.sha256()) {
             bail!(
                 "--resume refuses changed settings: the batch was started with {}, now {}",
-                old["settings"],
+                json!(old.settings),
                 serde_json::to_value(&settings)?
             );
         }
-        (old["created_at"].as_str().unwrap_or_default().to_owned(), read_records(&batch_dir)?)
+        (old.created_at.unwrap_or_default(), read_records(&batch_dir)?)
     } else {
         std::fs::create_dir_all(&batch_dir)?;
         (utc_now_iso(), Vec::new())

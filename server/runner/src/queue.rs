@@ -6,6 +6,7 @@
 use std::time::Duration;
 
 use anyhow::{Context, bail};
+use libero_episode::batch_doc::{BatchDoc, RolloutSummary};
 use libero_episode::json::utc_now_iso;
 use libero_metrics::Outcome;
 use libero_store::{QueueListener, Store, StoredBatch};
@@ -90,10 +91,11 @@ pub fn enqueue_and_follow(
         let store = Store::connect(url).await?;
         match store.batch(&name).await? {
             Some(existing) if args.resume => {
-                if existing.doc["settings_sha256"] != json!(settings.sha256()) {
+                let doc = BatchDoc::from_value(existing.doc).unwrap_or_default();
+                if doc.settings_sha256 != Some(settings.sha256()) {
                     bail!(
                         "--resume refuses changed settings: the batch was started with {}, now {}",
-                        existing.doc["settings"],
+                        json!(doc.settings),
                         serde_json::to_value(settings)?
                     );
                 }
@@ -127,22 +129,25 @@ async fn follow(store: &Store, url: &str, name: &str) -> anyhow::Result<()> {
             eprintln!("{batch}/{id}: INVALID ({WORKER_LOST}: its worker stopped renewing the lease)");
         }
         let Some(b) = store.batch(name).await? else { bail!("batch {name} left the store") };
-        let line = progress_line(&b.doc);
+        let doc = BatchDoc::from_value(b.doc).unwrap_or_default();
+        let line = progress_line(&doc);
         if line != last {
             eprintln!("{line}");
             last = line;
         }
-        if b.doc["status"] == "finished" {
-            let invalid = b.doc["outcomes"][Outcome::Invalid.as_str()].as_u64().unwrap_or(0);
+        if doc.status.as_deref() == Some("finished") {
+            let invalid = doc.outcome_count(Outcome::Invalid.as_str());
             eprintln!("batch {name}: finished{}", if invalid > 0 { format!("; {invalid} INVALID (`run --resume` queues them again)") } else { String::new() });
-            for r in b.records.iter().filter(|r| r["outcome"] == Outcome::Invalid.as_str()).take(10) {
-                eprintln!("  {} INVALID: {}", r["rollout_id"].as_str().unwrap_or("?"), record_reason(r));
+            // A lost worker's record is partial: only the fields every record has are read.
+            let records: Vec<RolloutSummary> = b.records.into_iter().map(|r| RolloutSummary::from_value(r).unwrap_or_default()).collect();
+            for r in records.iter().filter(|r| r.outcome.as_deref() == Some(Outcome::Invalid.as_str())).take(10) {
+                eprintln!("  {} INVALID: {}", r.rollout_id.as_deref().unwrap_or("?"), record_reason(r));
             }
-            println!("{}", json!({"batch": name, "status": "finished", "counts": b.doc["counts"], "outcomes": b.doc["outcomes"]}));
+            println!("{}", json!({"batch": name, "status": "finished", "counts": doc.counts, "outcomes": doc.outcomes}));
             // Every dashboard on this store lists it (`serve --store URL`); `report` reads it from the store.
             eprintln!("results: the Results page of any `libero-agent serve --store {}`", libero_store::redact(url));
             eprintln!("report: libero-agent report --store {} {name}", libero_store::redact(url));
-            let rollouts = b.records.iter().map(|r| (r["rollout_id"].as_str().unwrap_or("?"), r["outcome"].as_str().unwrap_or("?"), Some(record_reason(r))));
+            let rollouts = records.iter().map(|r| (r.rollout_id.as_deref().unwrap_or("?"), r.outcome.as_deref().unwrap_or("?"), Some(record_reason(r))));
             if let Some(msg) = super::batch::all_invalid_message(name, rollouts) {
                 bail!("{msg}");
             }
@@ -158,22 +163,18 @@ async fn follow(store: &Store, url: &str, name: &str) -> anyhow::Result<()> {
 }
 
 /// Why a stored record did not count: its infrastructure error, else its termination reason.
-fn record_reason(r: &Value) -> String {
-    ["infrastructure_error", "termination_reason"]
-        .iter()
-        .find_map(|k| r[*k].as_str().filter(|s| !s.is_empty()))
-        .unwrap_or("no reason recorded")
-        .to_owned()
+fn record_reason(r: &RolloutSummary) -> String {
+    r.reason().unwrap_or("no reason recorded").to_owned()
 }
 
 /// `[########------------] 5/12 ended · 3 running · 4 queued · SUCCESS 4, INVALID 1`
-pub fn progress_line(doc: &Value) -> String {
+pub fn progress_line(doc: &BatchDoc) -> String {
     const WIDTH: u64 = 24;
-    let total = doc["rollout_count"].as_u64().unwrap_or(0);
-    let c = &doc["counts"];
-    let (done, running, left) = (c["done"].as_u64().unwrap_or(0), c["running"].as_u64().unwrap_or(0), c["left"].as_u64().unwrap_or(0));
+    let total = doc.rollout_count.unwrap_or(0);
+    let c = doc.counts.clone().unwrap_or_default();
+    let (done, running, left) = (c.done.unwrap_or(0), c.running.unwrap_or(0), c.left.unwrap_or(0));
     let filled = (done * WIDTH).checked_div(total).unwrap_or(0).min(WIDTH);
-    let outcomes: Vec<String> = doc["outcomes"].as_object().map(|o| o.iter().map(|(k, v)| format!("{k} {v}")).collect()).unwrap_or_default();
+    let outcomes: Vec<String> = doc.outcomes.iter().flatten().map(|(k, v)| format!("{k} {v}")).collect();
     format!(
         "[{}{}] {done}/{total} ended · {running} running · {left} queued · {}",
         "#".repeat(filled as usize),
@@ -189,8 +190,9 @@ mod tests {
     #[test]
     fn the_progress_bar_fills_with_ended_rollouts() {
         let doc = json!({"rollout_count": 12, "counts": {"done": 6, "running": 3, "left": 3}, "outcomes": {"SUCCESS": 5, "INVALID": 1}});
+        let doc = BatchDoc::from_value(doc).unwrap();
         assert_eq!(progress_line(&doc), format!("[{}{}] 6/12 ended · 3 running · 3 queued · INVALID 1, SUCCESS 5", "#".repeat(12), "-".repeat(12)));
-        assert!(progress_line(&json!({})).starts_with("[------------------------] 0/0 ended"));
+        assert!(progress_line(&BatchDoc::default()).starts_with("[------------------------] 0/0 ended"));
     }
 
     #[test]

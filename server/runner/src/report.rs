@@ -18,6 +18,7 @@ use tables::TableChoice;
 use tokens::{RolloutTokens, TokenSummary};
 
 use anyhow::bail;
+use libero_episode::batch_doc::ToolboxDoc;
 use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
 use serde_json::{Value, json};
 
@@ -63,7 +64,7 @@ pub struct Row {
 
 /// The stable rule's repetitions a batch was run with (its `--reps`), if its settings say.
 pub fn batch_reps(b: &LoadedBatch) -> Option<usize> {
-    b.batch["settings"]["reps"].as_u64().map(|n| n as usize).filter(|&n| n > 0)
+    b.batch.settings.as_ref()?.reps.map(|n| n as usize).filter(|&n| n > 0)
 }
 
 /// The repetitions `report` and the Results page use unless told otherwise: the first batch's own `--reps` (so a
@@ -126,9 +127,12 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
         .collect();
     let meta: Vec<Value> = batches
         .iter()
-        .map(|b| json!({"name": b.name(), "dir": b.dir, "status": b.batch["status"], "settings": b.batch["settings"],
-            "harness": b.batch["harness"], "sandbox": b.batch["sandbox"], "toolbox": b.batch["toolbox"], "counts": b.batch["counts"],
-            "outcomes": b.batch["outcomes"], "rollouts_recorded": b.records.len()}))
+        .map(|b| {
+            let d = &b.batch;
+            json!({"name": b.name(), "dir": b.dir, "status": d.status, "settings": d.settings, "harness": d.harness,
+                "sandbox": d.sandbox, "toolbox": d.toolbox, "counts": d.counts, "outcomes": d.outcomes,
+                "rollouts_recorded": b.records.len()})
+        })
         .collect();
     let pool: Vec<Value> = pool_rows(batches, reps)
         .into_iter()
@@ -211,21 +215,21 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
     let mut o = String::new();
     let _ = writeln!(o, "# LIBERO-Agent results\n");
     for b in batches {
-        let h = &b.batch["harness"];
+        let (d, h) = (&b.batch, b.batch.harness.as_ref());
         let _ = writeln!(
             o,
             "- batch `{}`: {} {} `{}` effort {}, harness version {}, sandbox {}, toolbox {}, status {}, {} rollouts recorded, outcomes {}",
             b.name(),
-            b.batch["settings"]["experiment"].as_str().unwrap_or("?"),
-            h["name"].as_str().unwrap_or("?"),
-            b.batch["settings"]["model"].as_str().unwrap_or("?"),
-            b.batch["settings"]["effort"].as_str().unwrap_or("?"),
-            h["version"]["observed"].as_str().unwrap_or("unknown"),
-            b.batch["sandbox"]["version"].as_str().unwrap_or("none"),
-            toolbox_text(&b.batch["toolbox"]),
-            b.batch["status"].as_str().unwrap_or("?"),
+            d.experiment().unwrap_or("?"),
+            h.and_then(|h| h.name.as_deref()).unwrap_or("?"),
+            d.model().unwrap_or("?"),
+            d.settings.as_ref().and_then(|s| s.effort.as_deref()).unwrap_or("?"),
+            h.and_then(|h| h.version.as_ref()?.observed.as_deref()).unwrap_or("unknown"),
+            d.sandbox.as_ref().and_then(|s| s.version.as_deref()).unwrap_or("none"),
+            toolbox_text(d.toolbox.as_ref()),
+            d.status.as_deref().unwrap_or("?"),
             b.records.len(),
-            b.batch["outcomes"],
+            json!(d.outcomes),
         );
     }
     let paper = tables::paper_tables(batches, &rows, reps);
@@ -438,12 +442,16 @@ fn csv_rollout_tokens(table1: &[Row], batches: &[LoadedBatch]) -> String {
 }
 
 /// A batch's toolbox as `libero-toolbox (numpy 1.26.4, scipy 1.14.1, …)`; `none` when the batch ran without one.
-pub fn toolbox_text(t: &Value) -> String {
-    match t["name"].as_str() {
+pub fn toolbox_text(t: Option<&ToolboxDoc>) -> String {
+    match t.and_then(|t| t.name.as_deref()) {
         Some(name) => {
-            let packages: Vec<String> = t["packages"]
-                .as_array()
-                .map(|ps| ps.iter().map(|p| format!("{} {}", p["name"].as_str().unwrap_or("?"), p["version"].as_str().unwrap_or("?"))).collect())
+            let packages: Vec<String> = t
+                .and_then(|t| t.packages.as_ref())
+                .map(|ps| {
+                    ps.iter()
+                        .map(|p| format!("{} {}", p.name.as_deref().unwrap_or("?"), p.version.as_deref().unwrap_or("?")))
+                        .collect()
+                })
                 .unwrap_or_default();
             if packages.is_empty() { name.to_owned() } else { format!("{name} ({})", packages.join(", ")) }
         }

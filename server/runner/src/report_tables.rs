@@ -21,8 +21,8 @@ use libero_metrics::{
     AblationKind, AblationRow, ContactSummary, OpeningOperation, Proportion, Split, StageDiagnosis, StageOpportunity, StageType,
     diagnose, summarize, summarize_contact,
 };
+use libero_episode::records::{PrivateEvaluation, RunDir, read_result};
 use serde::Serialize;
-use serde_json::Value;
 
 use crate::batch::{Condition, LoadedBatch, RolloutRecord, agent_of};
 use crate::report::{Row, cell, pct, wilson};
@@ -138,11 +138,8 @@ fn counted<'a>(records: impl Iterator<Item = &'a RolloutRecord>, reps: usize) ->
 }
 
 /// The rollout's private evaluation (`<run_dir>/result.json` → `private_evaluation`), if it can be read here.
-fn private_evaluation(r: &RolloutRecord) -> Option<Value> {
-    let text = std::fs::read_to_string(r.run_dir.as_deref()?.join("result.json")).ok()?;
-    let mut v: Value = serde_json::from_str(&text).ok()?;
-    let pe = v.get_mut("private_evaluation")?.take();
-    pe.is_object().then_some(pe)
+fn private_evaluation(r: &RolloutRecord) -> Option<PrivateEvaluation> {
+    read_result(&RunDir::new(r.run_dir.as_deref()?))?.private_evaluation
 }
 
 /// Stage types the catalog declares, per task number: for records written before the evaluator reported them.
@@ -155,25 +152,25 @@ fn catalog_stage_types() -> &'static BTreeMap<u32, Vec<(String, Option<StageType
 }
 
 /// The required stages of one long-horizon rollout's record as Table 4's opportunities.
-fn opportunities(r: &RolloutRecord, pe: &Value) -> Vec<StageOpportunity> {
+fn opportunities(r: &RolloutRecord, pe: &PrivateEvaluation) -> Vec<StageOpportunity> {
     let declared = catalog_stage_types().get(&r.task_number);
-    let stages = pe["stage_diagnostics"].as_array().map(Vec::as_slice).unwrap_or_default();
+    let stages = pe.stage_diagnostics.as_deref().unwrap_or_default();
     stages
         .iter()
-        .filter(|d| d["required"] == true)
+        .filter(|d| d.required == Some(true))
         .map(|d| {
-            let name = d["stage_name"].as_str().unwrap_or_default().to_owned();
-            let recorded = serde_json::from_value::<StageType>(d["type"].clone()).ok();
+            let name = d.stage_name.clone().unwrap_or_default();
+            let recorded = d.stage_type.clone().and_then(|t| serde_json::from_value::<StageType>(t).ok());
             let from_catalog = || declared.and_then(|ts| ts.iter().find(|(n, _)| *n == name)).and_then(|(_, t)| *t);
             StageOpportunity {
                 task_number: r.task_number,
                 stage_type: recorded.or_else(from_catalog),
-                reached: d["reached"] == true,
-                succeeded: d["succeeded"] == true,
-                regressions: d["regressions"].as_u64().map_or(0, |n| n as u32),
-                regressed_during_later_stage: d["regressed_during_later_stage"] == true,
+                reached: d.reached == Some(true),
+                succeeded: d.succeeded == Some(true),
+                regressions: d.regressions.map_or(0, |n| n as u32),
+                regressed_during_later_stage: d.regressed_during_later_stage == Some(true),
                 // A strict order latched by a later stage's state made early: that state blocked this stage.
-                blocked_by_other_stage: d["failure_reason"] == "order_violation",
+                blocked_by_other_stage: d.failure_reason.as_ref().and_then(Option::as_deref) == Some("order_violation"),
                 stage_name: name,
             }
         })
@@ -182,28 +179,28 @@ fn opportunities(r: &RolloutRecord, pe: &Value) -> Vec<StageOpportunity> {
 
 /// The opening operations of one rollout's record (Figure 3). Records from before operations carried a direction
 /// name their opening stages `…Open…`/`…Unlatch…`.
-fn opening_operations(r: &RolloutRecord, pe: &Value) -> Vec<OpeningOperation> {
-    let ops = pe["details"]["opening_operations"].as_array().map(Vec::as_slice).unwrap_or_default();
+fn opening_operations(r: &RolloutRecord, pe: &PrivateEvaluation) -> Vec<OpeningOperation> {
+    let ops = pe.details.as_ref().and_then(|d| d.opening_operations.as_deref()).unwrap_or_default();
     let succeeded = |stage: &str| {
-        pe["stage_diagnostics"].as_array().into_iter().flatten().any(|d| d["stage_name"] == stage && d["succeeded"] == true)
+        pe.stage_diagnostics.iter().flatten().any(|d| d.stage_name.as_deref() == Some(stage) && d.succeeded == Some(true))
     };
     ops.iter()
-        .filter(|o| match o["operation"].as_str() {
+        .filter(|o| match o.operation.as_deref() {
             Some(kind) => kind == "open",
-            None => o["stage_name"].as_str().is_some_and(|s| {
+            None => o.stage_name.as_deref().is_some_and(|s| {
                 let s = s.to_ascii_lowercase();
                 s.contains("open") || s.contains("unlatch")
             }),
         })
-        .filter(|o| o["exec_steps"].as_u64().is_some_and(|n| n > 0))
+        .filter(|o| o.exec_steps.is_some_and(|n| n > 0))
         .map(|o| {
-            let stage = o["stage_name"].as_str().map(str::to_owned);
+            let stage = o.stage_name.clone();
             OpeningOperation {
                 task: r.task.clone(),
-                opened: o["completed"].as_bool().unwrap_or_else(|| stage.as_deref().is_some_and(succeeded)),
+                opened: o.completed.unwrap_or_else(|| stage.as_deref().is_some_and(succeeded)),
                 stage_name: stage,
-                scr_percent: o["sustained_contact_ratio_percent"].as_f64().unwrap_or(0.0),
-                exec_steps: o["exec_steps"].as_u64().unwrap_or(0),
+                scr_percent: o.sustained_contact_ratio_percent.unwrap_or(0.0),
+                exec_steps: o.exec_steps.unwrap_or(0),
             }
         })
         .collect()

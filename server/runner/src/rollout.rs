@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use libero_episode::demo::DemoCondition;
 use libero_episode::json::{utc_now_iso, write_json_file};
+use libero_episode::records::{PrivateEvaluation, RunDir, RunResult, STATUS_ABORTED, STATUS_FINISHED};
 use libero_metrics::Outcome;
 use serde_json::{Value, json};
 
@@ -59,8 +60,8 @@ pub fn scrub(text: &str, secrets: &[&str]) -> String {
     scrub_text(text, secrets)
 }
 
-fn read_result(run_dir: &Path) -> Option<Value> {
-    serde_json::from_str(&fs::read_to_string(run_dir.join("result.json")).ok()?).ok()
+fn read_result(run_dir: &Path) -> Option<RunResult> {
+    libero_episode::records::read_result(&RunDir::new(run_dir))
 }
 
 /// The episode's state: from its run directory when this machine sees it, else from the server's API.
@@ -361,10 +362,16 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     }
     let result = read_result(&prepared.run_dir).or_else(|| {
         // A server on another machine: its row carries the verdict.
-        get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)).ok().map(|(_, v)| {
-            json!({"status": if v["outcome"] == "INVALID" { "aborted" } else { "finished" }, "success": v["success"],
-                "accepted_agent_steps": v["accepted_agent_steps"], "reason": v["reason"],
-                "private_evaluation": {"completed_required_stage_count": v["completed_stage_count"]}})
+        get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)).ok().map(|(_, v)| RunResult {
+            status: Some(if v["outcome"] == "INVALID" { STATUS_ABORTED } else { STATUS_FINISHED }.to_owned()),
+            success: v["success"].as_bool(),
+            accepted_agent_steps: v["accepted_agent_steps"].as_u64(),
+            reason: v["reason"].as_str().map(str::to_owned),
+            private_evaluation: Some(PrivateEvaluation {
+                completed_required_stage_count: v["completed_stage_count"].as_u64(),
+                ..PrivateEvaluation::default()
+            }),
+            ..RunResult::default()
         })
     });
     if INTERRUPTED.load(Ordering::SeqCst) && infra.is_some() {
@@ -373,14 +380,14 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         rec.outcome = classify(result.as_ref(), infra.as_deref(), ctx.settings.wall_time_s);
     }
     if let Some(r) = &result {
-        rec.result_status = r["status"].as_str().map(str::to_owned);
-        rec.success = r["success"].as_bool();
-        rec.termination_reason = r["termination_reason"].as_str().or(r["reason"].as_str()).map(str::to_owned);
-        rec.wall_time_s = r["wall_time_seconds"].as_f64();
-        rec.accepted_agent_steps = r["accepted_agent_steps"].as_u64();
-        let pe = &r["private_evaluation"];
-        rec.completed_stages = pe["completed_required_stage_count"].as_u64().and_then(|c| u32::try_from(c).ok());
-        rec.judgment_correct = pe["judgment_correct"].as_bool();
+        rec.result_status = r.status.clone();
+        rec.success = r.success;
+        rec.termination_reason = r.termination_reason.clone().or_else(|| r.reason.clone());
+        rec.wall_time_s = r.wall_time_s();
+        rec.accepted_agent_steps = r.accepted_agent_steps;
+        let pe = r.private_evaluation.as_ref();
+        rec.completed_stages = pe.and_then(|pe| pe.completed_required_stage_count).and_then(|c| u32::try_from(c).ok());
+        rec.judgment_correct = pe.and_then(|pe| pe.judgment_correct);
     }
     rec.infrastructure_error = infra;
     rec.harness_elapsed_s = Some(elapsed_s);
@@ -452,15 +459,15 @@ mod tests {
 
     #[test]
     fn outcomes_follow_section_4_8() {
-        let fin = |ok: bool| json!({"status": "finished", "success": ok, "wall_time_seconds": 12.0});
+        let fin = |ok: bool| RunResult::from_value(json!({"status": "finished", "success": ok, "wall_time_seconds": 12.0})).unwrap();
         assert_eq!(classify(Some(&fin(true)), None, 1800.0), Outcome::Success);
         assert_eq!(classify(Some(&fin(false)), None, 1800.0), Outcome::Fail);
-        let expired = json!({"status": "finished", "success": false, "termination_reason": "episode_wall_time_budget_exhausted",
-            "wall_time_seconds": 1800.2});
+        let expired = RunResult::from_value(json!({"status": "finished", "success": false, "termination_reason": "episode_wall_time_budget_exhausted",
+            "wall_time_seconds": 1800.2})).unwrap();
         assert_eq!(classify(Some(&expired), None, 1800.0), Outcome::SimTimeout);
-        let aborted = json!({"status": "aborted", "wall_time_seconds": 1800.5});
-        assert_eq!(classify(Some(&aborted), Some(WATCHDOG_ERROR), 1800.0), Outcome::WatchdogTimeout);
-        assert_eq!(classify(Some(&json!({"status": "aborted", "wall_time_seconds": 30.0})), Some(WATCHDOG_ERROR), 1800.0), Outcome::Invalid);
+        let aborted = |wall_time_s: f64| RunResult::from_value(json!({"status": "aborted", "wall_time_seconds": wall_time_s})).unwrap();
+        assert_eq!(classify(Some(&aborted(1800.5)), Some(WATCHDOG_ERROR), 1800.0), Outcome::WatchdogTimeout);
+        assert_eq!(classify(Some(&aborted(30.0)), Some(WATCHDOG_ERROR), 1800.0), Outcome::Invalid);
         assert_eq!(classify(Some(&fin(true)), Some("harness exited before finish_episode"), 1800.0), Outcome::Invalid);
         assert_eq!(classify(None, None, 1800.0), Outcome::Invalid);
     }

@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use libero_artifacts::Artifacts;
+use libero_episode::batch_doc::{BatchDoc, RolloutSummary};
 use libero_store::{QueueListener, Store};
 use serde_json::{Value, json};
 
@@ -234,8 +235,10 @@ impl Worker {
 
     fn finish(&self, job: &libero_store::Job, record: &Value) -> anyhow::Result<()> {
         if self.runtime.block_on(self.store.finish(&job.batch, &job.rollout_id, &self.id, record))? {
-            let why = ["infrastructure_error", "termination_reason"].iter().find_map(|k| record[*k].as_str());
-            let outcome = record["outcome"].as_str().unwrap_or("?");
+            // A lost worker's record is partial: only the fields every record has are read.
+            let r = RolloutSummary::from_value(record.clone()).unwrap_or_default();
+            let why = r.infrastructure_error.as_deref().or(r.termination_reason.as_deref());
+            let outcome = r.outcome.as_deref().unwrap_or("?");
             match why {
                 Some(why) if outcome != "SUCCESS" && outcome != "FAIL" => eprintln!("{}/{}: {outcome} ({why})", job.batch, job.rollout_id),
                 _ => eprintln!("{}/{}: {outcome}", job.batch, job.rollout_id),
@@ -247,14 +250,14 @@ impl Worker {
                         worker = self.id,
                         batch = job.batch,
                         rollout_id = job.rollout_id,
-                        task = record["task"].as_str(),
-                        level = record["level"].as_u64(),
+                        task = r.task.as_deref(),
+                        level = r.level,
                         outcome,
                         reason,
-                        episode_id = record["episode_id"].as_str(),
-                        steps = record["accepted_agent_steps"].as_u64(),
-                        wall_time_s = record["wall_time_s"].as_f64().map(|s| (s * 1000.0).round() / 1000.0),
-                        artifacts = record["artifacts"].as_str(),
+                        episode_id = r.episode_id.as_deref(),
+                        steps = r.accepted_agent_steps,
+                        wall_time_s = r.wall_time_s.map(|s| (s * 1000.0).round() / 1000.0),
+                        artifacts = r.artifacts.as_deref(),
                         "rollout ended"
                     )
                 };
@@ -281,7 +284,8 @@ impl Worker {
             return Ok(ctx.clone());
         }
         let stored = self.runtime.block_on(self.store.batch(batch))?.with_context(|| format!("no batch {batch} in the store"))?;
-        let settings: BatchSettings = serde_json::from_value(stored.doc["settings"].clone()).context("the batch's settings")?;
+        let doc = BatchDoc::from_value(stored.doc).unwrap_or_default();
+        let settings: BatchSettings = serde_json::from_value(json!(doc.settings)).context("the batch's settings")?;
         let harness: Harness = serde_json::from_value(json!(settings.harness)).context("the batch's harness")?;
         let credentials = if harness.needs_credentials() { Some(Credentials::load(&self.credentials_file)?) } else { None };
         // the project's toolbox, as `run` gives its agents by default (installed on first use)

@@ -8,8 +8,9 @@
 //! open rows of its own run directories (another server's running episodes in a shared store stay open).
 use std::path::{Path, PathBuf};
 
+use libero_records::batch_doc::RolloutSummary;
 use libero_records::json::utc_now_iso;
-use libero_records::records::{Outcome, RunDir, classify, read_result};
+use libero_records::records::{Outcome, RunDir, RunResult, classify, read_episode_record, read_result};
 use serde::Serialize;
 use serde_json::Value;
 use sqlx::Row;
@@ -223,20 +224,19 @@ impl EpisodeEnd {
         Some(Self::from_result(&result))
     }
 
-    pub fn from_result(result: &Value) -> Self {
+    pub fn from_result(result: &RunResult) -> Self {
         let outcome = classify(Some(result));
-        let text = |k: &str| result.get(k).and_then(Value::as_str).map(str::to_owned);
-        let eval = result.get("private_evaluation");
-        let eval_count = |k: &str| eval.and_then(|e| e.get(k)).and_then(Value::as_i64);
+        let eval = result.private_evaluation.as_ref();
+        let count = |n: Option<u64>| n.and_then(|n| i64::try_from(n).ok());
         Self {
-            finished_at: text("finished_at").unwrap_or_else(utc_now_iso),
+            finished_at: result.finished_at.clone().unwrap_or_else(utc_now_iso),
             outcome,
-            reason: text("reason").or_else(|| text("termination_reason")),
+            reason: result.reason.clone().or_else(|| result.termination_reason.clone()),
             success: outcome == Outcome::Success,
-            accepted_agent_steps: result.get("accepted_agent_steps").and_then(Value::as_i64),
-            completed_stage_count: eval_count("completed_required_stage_count"),
-            required_stage_count: eval_count("required_stage_count"),
-            wall_time_s: result.get("wall_time_seconds").and_then(Value::as_f64),
+            accepted_agent_steps: count(result.accepted_agent_steps),
+            completed_stage_count: count(eval.and_then(|e| e.completed_required_stage_count)),
+            required_stage_count: count(eval.and_then(|e| e.required_stage_count)),
+            wall_time_s: result.wall_time_s(),
         }
     }
 }
@@ -266,22 +266,23 @@ pub struct NewEpisode {
 impl NewEpisode {
     /// From a run directory's `episode_record.json` (written by `prepare` before anything else).
     pub fn from_record(run: &RunDir) -> Option<Self> {
-        let text = std::fs::read_to_string(run.episode_record()).ok()?;
-        let r: Value = serde_json::from_str(&text).ok()?;
+        let r = read_episode_record(run).ok()??;
+        let int = |n: Option<u64>| n.and_then(|n| i64::try_from(n).ok());
+        let branch = r.branch.as_ref();
         Some(Self {
-            id: r["episode_id"].as_str()?.to_owned(),
-            task_ref: r["task"]["task_ref"].as_str()?.to_owned(),
-            level: r["level"].as_i64()?,
-            seed: r["seed"].as_i64()?,
-            init_index: r["init_state_index"].as_i64()?,
-            created_at: r["created_at"].as_str()?.to_owned(),
+            id: r.episode_id.clone()?,
+            task_ref: r.task_ref()?.to_owned(),
+            level: int(r.level)?,
+            seed: int(r.seed)?,
+            init_index: int(r.init_state_index)?,
+            created_at: r.created_at.clone()?,
             run_dir: run.root.clone(),
-            harness: r["harness"].as_str().map(str::to_owned),
-            model: r["model"].as_str().map(str::to_owned),
-            batch: r["batch"].as_str().map(str::to_owned),
+            harness: r.harness.clone().flatten(),
+            model: r.model.clone().flatten(),
+            batch: r.batch.clone().flatten(),
             server_url: None,
-            branch_parent: r["branch"]["parent_episode_id"].as_str().map(str::to_owned),
-            branch_step: r["branch"]["parent_control_step"].as_i64(),
+            branch_parent: branch.and_then(|b| b.parent_episode_id.clone()),
+            branch_step: int(branch.and_then(|b| b.parent_control_step)),
         })
     }
 }
@@ -411,7 +412,7 @@ impl Store {
             sqlx::query("INSERT INTO rollouts (batch, seq, rollout_id, doc) VALUES ($1, $2, $3, $4) ON CONFLICT DO NOTHING")
                 .bind(name)
                 .bind(seq as i64)
-                .bind(record["rollout_id"].as_str().unwrap_or_default())
+                .bind(RolloutSummary::from_value(record.clone()).ok().and_then(|r| r.rollout_id).unwrap_or_default())
                 .bind(record.to_string())
                 .execute(&mut *tx)
                 .await
@@ -817,8 +818,9 @@ mod tests {
         let result = json!({"status": "finished", "success": false, "accepted_agent_steps": 7,
             "termination_reason": "episode_wall_time_budget_exhausted", "finished_at": "2026-01-01T00:30:00+00:00",
             "private_evaluation": {"completed_required_stage_count": 1, "required_stage_count": 3}});
+        let result = RunResult::from_value(result).unwrap();
         store.record_end("ep-a", &EpisodeEnd::from_result(&result)).await.unwrap();
-        let aborted = json!({"status": "aborted", "reason": "late"});
+        let aborted = RunResult::from_value(json!({"status": "aborted", "reason": "late"})).unwrap();
         store.record_end("ep-a", &EpisodeEnd::from_result(&aborted)).await.unwrap();
         store.record_progress("ep-a", 99, Some((3, 3))).await.unwrap();
         let row = store.get("ep-a").await.unwrap().unwrap();

@@ -11,6 +11,7 @@
 //! INVALID ones again. A worker that finishes a job it no longer holds is told so and its record is dropped, so a
 //! rollout ends exactly once.
 use crate::error::{Context, Result, StoreError};
+use libero_records::batch_doc::RolloutSummary;
 use libero_records::json::utc_now_iso;
 use serde::Serialize;
 use serde_json::Value;
@@ -196,7 +197,8 @@ impl Store {
             "UPDATE queue SET state = 'done', outcome = $3, lease_until_ms = NULL \
              WHERE batch = $1 AND rollout_id = $2 AND state = 'running' AND {guard} RETURNING seq"
         );
-        let mut query = sqlx::query(&sql).bind(batch).bind(rollout_id).bind(record["outcome"].as_str().unwrap_or("INVALID"));
+        let outcome = RolloutSummary::from_value(record.clone()).ok().and_then(|r| r.outcome).unwrap_or_else(|| "INVALID".into());
+        let mut query = sqlx::query(&sql).bind(batch).bind(rollout_id).bind(outcome);
         if let Some(w) = worker {
             query = query.bind(w);
         }

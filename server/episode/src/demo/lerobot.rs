@@ -188,8 +188,7 @@ pub fn export_lerobot(bundles: &[PathBuf], out: &Path) -> Result<ExportSummary, 
         if !violations.is_empty() {
             return Err(DemoError::Invalid { dir: dir.clone(), violations });
         }
-        let manifest = read_json(&dir.join(MANIFEST))?;
-        let instruction = manifest["task"]["instruction"].as_str().unwrap_or_default().to_owned();
+        let instruction = read_manifest(&dir.join(MANIFEST))?.instruction().unwrap_or_default().to_owned();
         let t = match tasks.iter().position(|x| *x == instruction) {
             Some(t) => t,
             None => {

@@ -10,6 +10,7 @@ use serde_json::{Value, json};
 
 use super::*;
 use super::record::bundle_source;
+use crate::demo_manifest::ReplayCheck;
 use crate::json::{utc_now_iso, write_json_file};
 use crate::physics::{WorldPhysics, WorldSpec};
 use crate::task::{EffectiveLayout, TaskSource};
@@ -74,7 +75,7 @@ pub fn verified_bundles(root: &Path, task_ref: &str) -> Vec<PathBuf> {
                 log::warn!("demo library: skipping {} ({} violations, first: {})", p.display(), violations.len(), violations[0]);
                 return false;
             }
-            read_json(&p.join(MANIFEST)).is_ok_and(|m| m["verification"]["verified"] == true && m["task"]["id"] == task_ref)
+            read_manifest(&p.join(MANIFEST)).is_ok_and(|m| m.verified() && m.task_id() == Some(task_ref))
         })
         .collect()
 }
@@ -101,11 +102,8 @@ pub fn replay_in_target(actions: &[[f64; 7]], target: &TargetEpisode, paths: &As
 /// verdict in the manifest).
 pub fn replay_solves(dir: &Path, target: &TargetEpisode, paths: &AssetPaths) -> Result<bool, DemoError> {
     let key = target.key()?;
-    let manifest = read_json(&dir.join(MANIFEST))?;
-    if let Some(found) = manifest["replay_checks"].as_array().and_then(|a| a.iter().find(|c| c["target"] == key)) {
-        if let Some(solves) = found["replay_solves"].as_bool() {
-            return Ok(solves);
-        }
+    if let Some(solves) = read_manifest(&dir.join(MANIFEST))?.replay_check(&key) {
+        return Ok(solves);
     }
     let (_, source) = bundle_source(dir)?;
     let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
@@ -119,7 +117,7 @@ pub fn replay_solves(dir: &Path, target: &TargetEpisode, paths: &AssetPaths) -> 
 pub fn store_replay_check(dir: &Path, target: &TargetEpisode, record: &libero_tasks::EvaluationRecord) -> Result<(), DemoError> {
     let key = target.key()?;
     let manifest_path = dir.join(MANIFEST);
-    let mut manifest = read_json(&manifest_path)?;
+    let mut manifest = read_manifest(&manifest_path)?;
     let check = json!({
         "target": key,
         "replay_solves": record.success,
@@ -128,11 +126,14 @@ pub fn store_replay_check(dir: &Path, target: &TargetEpisode, record: &libero_ta
         "method": "direct_replay_on_world_physics",
         "checked_at": utc_now_iso(),
     });
-    let mut checks: Vec<Value> = manifest["replay_checks"].as_array().cloned().unwrap_or_default();
-    checks.retain(|c| c["target"] != key);
+    let check = ReplayCheck::from_value(check).map_err(|e| DemoError::Source(format!("replay check: {e}")))?;
+    let mut checks = manifest.replay_checks.take().unwrap_or_default();
+    checks.retain(|c| c.target.as_ref() != Some(&key));
     checks.push(check);
-    manifest["replay_checks"] = Value::Array(checks);
-    write_json_file(&manifest_path, &manifest).map_err(io_err(&manifest_path))
+    manifest.replay_checks = Some(checks);
+    // A list the typed view could not read is replaced, as any list was.
+    manifest.rest.remove("replay_checks");
+    write_json_file(&manifest_path, &manifest.to_value()).map_err(io_err(&manifest_path))
 }
 
 /// A bundle of the target's task that may be shown in the target episode: valid, verified, recorded in another

@@ -13,6 +13,7 @@ use serde_json::{Value, json};
 use thiserror::Error;
 
 use crate::EpisodeError;
+pub use crate::demo_manifest::DemoManifest;
 use crate::video::VideoError;
 
 pub mod lerobot;
@@ -238,9 +239,15 @@ pub fn read_json(path: &Path) -> Result<Value, DemoError> {
     serde_json::from_str(&text).map_err(|e| DemoError::Source(format!("{}: not JSON: {e}", path.display())))
 }
 
+/// Reads a bundle's manifest. JSON that is no object has none of its fields, as when it was read as plain JSON (a
+/// valid bundle's manifest is an object).
+pub fn read_manifest(path: &Path) -> Result<DemoManifest, DemoError> {
+    Ok(DemoManifest::from_value(read_json(path)?).unwrap_or_default())
+}
+
 /// The manifest's frame count (actions + 1).
-pub fn manifest_frame_count(manifest: &Value) -> Option<u64> {
-    manifest.get("frame_count")?.as_u64()
+pub fn manifest_frame_count(manifest: &DemoManifest) -> Option<u64> {
+    manifest.frame_count
 }
 
 /// Video frame count of an MP4 file: `stsz` sample count of the first track (no decoder needed).

@@ -108,22 +108,22 @@ pub fn project_bundle(
     if !violations.is_empty() {
         return Err(DemoError::Invalid { dir: source.to_owned(), violations });
     }
-    let manifest = read_json(&source.join(MANIFEST))?;
-    if manifest["verification"]["verified"] != true {
+    let manifest = read_manifest(&source.join(MANIFEST))?;
+    if !manifest.verified() {
         return Err(DemoError::Library(format!("{} is not a verified demonstration (run `libero-agent demo verify`)", source.display())));
     }
     let instruction = normalize_instruction(target_instruction);
-    if manifest["task"]["instruction"] != instruction.as_str() {
+    if manifest.instruction() != Some(instruction.as_str()) {
         return Err(DemoError::Library(format!(
             "{} demonstrates {:?}, not the target task {instruction:?}",
             source.display(),
-            manifest["task"]["instruction"]
+            json!(manifest.instruction())
         )));
     }
     if dest.exists() {
         return Err(DemoError::Library(format!("{} already exists", dest.display())));
     }
-    let frame_count = manifest["frame_count"].as_u64().unwrap_or(0);
+    let frame_count = manifest.frame_count.unwrap_or(0);
     let partial = PathBuf::from(format!("{}.partial", dest.display()));
     if partial.exists() {
         fs::remove_dir_all(&partial).map_err(io_err(&partial))?;
@@ -136,7 +136,7 @@ pub fn project_bundle(
         "rule": SAMPLING_RULE,
         "maximum_frames_per_sheet": MAX_FRAMES_PER_SHEET,
         "source_frame_count": frame_count,
-        "sampled_frame_indices": manifest["overview"]["sampling"]["sampled_frame_indices"],
+        "sampled_frame_indices": manifest.overview.as_ref().and_then(|o| o.sampling.as_ref()).and_then(|s| s.sampled_frame_indices.as_ref()),
     });
     let video = json!({
         "file": artifact(&partial, VIDEO_HEAD_WRIST, "video/mp4")?,
@@ -196,7 +196,7 @@ pub fn project_bundle(
         schema_version: RECEIPT_SCHEMA,
         icl_condition: condition.icl_condition(),
         source_bundle: source.to_owned(),
-        source_episode_id: manifest["source"]["episode_id"].as_str().unwrap_or_default().to_owned(),
+        source_episode_id: manifest.source.as_ref().and_then(|s| s.episode_id.clone()).unwrap_or_default(),
         target_task_instruction: instruction,
         agent_bundle: dest.to_owned(),
         manifest_sha256: sha256_hex(&bytes),

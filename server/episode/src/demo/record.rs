@@ -15,7 +15,7 @@ use crate::actor::World;
 use crate::json::{compact_sorted, write_json_file};
 use crate::observation::{Frame, Level, write_png};
 use crate::physics::{SETTLE_STEPS, WorldPhysics, WorldSpec};
-use crate::records::{RunDir, read_result};
+use crate::records::{ActionEvent, EpisodeRecord, RunDir, read_result};
 use crate::task::resolve_task;
 use crate::video::{Mp4Writer, side_by_side};
 use crate::world::{LiberoWorld, RESOLUTION_PX};
@@ -42,31 +42,30 @@ impl SourceEpisode {
     /// Reads `episode_record.json`, `actions.jsonl` (accepted `osc_sequence` calls only, after a branch's replayed
     /// prefix) and `result.json`.
     pub fn read(run: &RunDir) -> Result<Self, DemoError> {
-        let record = read_json(&run.episode_record())?;
-        let text = |v: &Value, what: &str| {
-            v.as_str().map(str::to_owned).ok_or_else(|| DemoError::Source(format!("episode_record.json has no {what}")))
-        };
-        let episode_id = text(&record["episode_id"], "episode_id")?;
-        let task_ref = text(&record["task"]["task_ref"], "task.task_ref")?;
-        let instruction = text(&record["task"]["instruction"], "task.instruction")?;
-        let number = |k: &str| record[k].as_u64().ok_or_else(|| DemoError::Source(format!("episode_record.json has no {k}")));
-        let level = u8::try_from(number("level")?).map_err(|_| DemoError::Source("level out of range".into()))?;
-        let seed = number("seed")?;
+        let record = EpisodeRecord::from_value(read_json(&run.episode_record())?)
+            .map_err(|e| DemoError::Source(format!("episode_record.json is not a JSON object: {e}")))?;
+        let missing = |what: &str| DemoError::Source(format!("episode_record.json has no {what}"));
+        let task = record.task.clone().unwrap_or_default();
+        let episode_id = record.episode_id.clone().ok_or_else(|| missing("episode_id"))?;
+        let task_ref = task.task_ref.clone().ok_or_else(|| missing("task.task_ref"))?;
+        let instruction = task.instruction.clone().ok_or_else(|| missing("task.instruction"))?;
+        let level = u8::try_from(record.level.ok_or_else(|| missing("level"))?).map_err(|_| DemoError::Source("level out of range".into()))?;
+        let seed = record.seed.ok_or_else(|| missing("seed"))?;
         // A suite task fixes its init row; the record holds the request's index.
-        let init_state_index = record["task"]["suite"]["init_index"].as_u64().map_or_else(|| number("init_state_index"), Ok)? as usize;
+        let init_state_index = record.init_index().ok_or_else(|| missing("init_state_index"))? as usize;
         let path = run.actions_jsonl();
         let log = fs::read_to_string(&path).map_err(io_err(&path))?;
         // A branch's actions begin with the parent's it replayed (at the `branch_from` line's index, 0).
         let mut actions: Vec<(u64, [f64; 7])> =
             crate::branch::read_prefix(run).map_err(DemoError::Source)?.into_iter().map(|a| (0, a)).collect();
         for (n, line) in log.lines().enumerate() {
-            let event: Value = serde_json::from_str(line)
-                .map_err(|e| DemoError::Source(format!("actions.jsonl line {}: not JSON: {e}", n + 1)))?;
-            if event["request"]["tool"] != "osc_sequence" || !crate::tools::actions_executed(&event["response"]) {
+            let event: ActionEvent = serde_json::from_str(line)
+                .map_err(|e| DemoError::Source(format!("actions.jsonl line {}: not a JSON object: {e}", n + 1)))?;
+            if event.tool() != Some("osc_sequence") || !event.actions_executed() {
                 continue;
             }
-            let call_index = event["event_index"].as_u64().unwrap_or(n as u64);
-            let list = event["request"]["arguments"]["actions"].as_array().ok_or_else(|| {
+            let call_index = event.event_index.unwrap_or(n as u64);
+            let list = event.actions().ok_or_else(|| {
                 DemoError::Source(format!("actions.jsonl line {}: accepted osc_sequence without actions", n + 1))
             })?;
             for a in list {
@@ -78,8 +77,8 @@ impl SourceEpisode {
                 actions.push((call_index, v));
             }
         }
-        let success = read_result(run).and_then(|r| r["success"].as_bool());
-        let layout = layout_from_json(&record["task"]["layout"])?;
+        let success = read_result(run).and_then(|r| r.success);
+        let layout = layout_from_json(record.layout())?;
         Ok(Self { episode_id, task_ref, instruction, level, seed, init_state_index, actions, success, layout })
     }
 
@@ -299,14 +298,14 @@ pub fn record_bundle(
         transition_count: source.actions.len(),
         source_success: source.success,
         replay_success,
-        verified: manifest["verification"]["verified"] == true,
+        verified: DemoManifest::from_value(manifest).is_ok_and(|m| m.verified()),
     })
 }
 
 /// The source episode a library bundle describes, read back from its manifest and trajectory.
-pub fn bundle_source(dir: &Path) -> Result<(Value, SourceEpisode), DemoError> {
-    let manifest = read_json(&dir.join(MANIFEST))?;
-    let s = &manifest["source"];
+pub fn bundle_source(dir: &Path) -> Result<(DemoManifest, SourceEpisode), DemoError> {
+    let manifest = read_manifest(&dir.join(MANIFEST))?;
+    let s = manifest.source.clone().unwrap_or_default();
     let path = dir.join(TRAJECTORY);
     let text = fs::read_to_string(&path).map_err(io_err(&path))?;
     let mut actions = Vec::new();
@@ -318,15 +317,15 @@ pub fn bundle_source(dir: &Path) -> Result<(Value, SourceEpisode), DemoError> {
     }
     let missing = |k: &str| DemoError::Source(format!("{MANIFEST}: source.{k} missing"));
     let source = SourceEpisode {
-        episode_id: s["episode_id"].as_str().ok_or_else(|| missing("episode_id"))?.to_owned(),
-        task_ref: manifest["task"]["id"].as_str().ok_or_else(|| missing("task.id"))?.to_owned(),
-        instruction: manifest["task"]["instruction"].as_str().ok_or_else(|| missing("task.instruction"))?.to_owned(),
-        level: s["level"].as_u64().and_then(|l| u8::try_from(l).ok()).ok_or_else(|| missing("level"))?,
-        seed: s["seed"].as_u64().ok_or_else(|| missing("seed"))?,
-        init_state_index: s["init_state_index"].as_u64().ok_or_else(|| missing("init_state_index"))? as usize,
+        episode_id: s.episode_id.clone().ok_or_else(|| missing("episode_id"))?,
+        task_ref: manifest.task_id().ok_or_else(|| missing("task.id"))?.to_owned(),
+        instruction: manifest.instruction().ok_or_else(|| missing("task.instruction"))?.to_owned(),
+        level: s.level.and_then(|l| u8::try_from(l).ok()).ok_or_else(|| missing("level"))?,
+        seed: s.seed.ok_or_else(|| missing("seed"))?,
+        init_state_index: s.init_state_index.ok_or_else(|| missing("init_state_index"))? as usize,
         actions,
-        success: s["episode_success"].as_bool(),
-        layout: layout_from_json(&s["layout"])?,
+        success: s.episode_success,
+        layout: layout_from_json(s.layout.as_ref().unwrap_or(&Value::Null))?,
     };
     Ok((manifest, source))
 }
@@ -342,16 +341,19 @@ pub fn verify_bundle(dir: &Path, paths: &AssetPaths) -> Result<bool, DemoError> 
         physics.step(a)?;
     }
     let success = physics.evaluate().success;
+    let recorded = manifest.source.clone().unwrap_or_default();
     let options = RecordOptions {
-        source_type: manifest["source"]["source_type"].as_str().unwrap_or("unknown").to_owned(),
-        source_desc: manifest["source"]["source_desc"].as_str().unwrap_or("").to_owned(),
+        source_type: recorded.source_type.unwrap_or_else(|| "unknown".into()),
+        source_desc: recorded.source_desc.unwrap_or_default(),
     };
+    // The stored checks go on as they are (a list the typed view could not read, too).
+    let replay_checks = manifest.replay_checks.as_ref().map(|c| json!(c)).or_else(|| manifest.rest.get("replay_checks").cloned());
     let fields = ManifestFields {
         source: &source,
         options: &options,
         replay_success: Some(success),
         effective_layout: Some(spec.task.effective_layout(spec.seed, spec.init_index)?),
-        replay_checks: manifest.get("replay_checks").cloned().unwrap_or_else(|| json!([])),
+        replay_checks: replay_checks.unwrap_or_else(|| json!([])),
     };
     write_manifest(dir, &fields)?;
     Ok(success)
@@ -414,7 +416,7 @@ mod tests {
             assert_eq!(got, want, "{name} differs from the golden file");
         }
         let (back, read) = bundle_source(dir.path()).unwrap();
-        assert_eq!(back, manifest);
+        assert_eq!(back.to_value(), manifest);
         assert_eq!(read.actions.iter().map(|a| a.1).collect::<Vec<_>>(), source.actions.iter().map(|a| a.1).collect::<Vec<_>>());
         assert_eq!(read.task_ref, "T14");
     }

@@ -11,6 +11,7 @@ use crate::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
 use crate::demo::{LayoutVariant, library, record_bundle, verify_bundle};
 use crate::expert_run::run_expert;
 use crate::physics::WorldSpec as PhysicsSpec;
+use crate::records::PrivateEvaluation;
 use crate::task::TaskSource;
 use crate::{Level, RunDir};
 
@@ -88,11 +89,12 @@ impl EpisodeSet {
         let run = run.with_context(|| format!("the {task_ref} expert could not run"))?;
         let source = SourceEpisode::read(&RunDir::new(self.runs_dir().join(&prepared.episode_id)))?;
         if source.success != Some(true) {
-            let record = &run.replica_record;
+            let record = PrivateEvaluation::from_value(run.replica_record.clone()).unwrap_or_default();
+            let count = |n: Option<u64>| n.map_or_else(|| "?".to_owned(), |n| n.to_string());
             bail!(
                 "the {task_ref} expert did not solve this layout ({} of {} stages)",
-                record["completed_required_stage_count"],
-                record["required_stage_count"]
+                count(record.completed_required_stage_count),
+                count(record.required_stage_count)
             );
         }
         let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();

@@ -24,7 +24,7 @@ pub use request::{BranchError, BranchRequest, MAX_WALL_TIME_S, PrepareRequest, P
 
 use self::log::EpisodeLog;
 use crate::live::{LiveEvent, LiveSink, LiveViewers};
-use crate::records::{aborted_result, read_result, write_result};
+use crate::records::{aborted_result, read_episode_record, read_result, write_result};
 use crate::tools::DEFAULT_WALL_TIME_S;
 use crate::video_queue::VideoQueue;
 use crate::{EpisodeHandle, EpisodeStatus, RunDir};
@@ -305,10 +305,10 @@ impl EpisodeSet {
             if !run.episode_record().is_file() || read_result(&run).is_some() {
                 continue;
             }
-            let max_wall = fs::read_to_string(run.episode_record())
+            let max_wall = read_episode_record(&run)
                 .ok()
-                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-                .and_then(|v| v["max_wall_time_seconds"].as_f64())
+                .flatten()
+                .and_then(|r| r.max_wall_time_seconds)
                 .unwrap_or(DEFAULT_WALL_TIME_S);
             let result = aborted_result("server_stopped_before_finish: the server exited while the episode was open", max_wall, None);
             if write_result(&run, &result).is_ok() {

@@ -7,7 +7,6 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use libero_sim::AssetPaths;
-use serde_json::json;
 
 use super::log::EpisodeLog;
 use super::request::{BranchError, BranchRequest, PrepareRequest, Prepared, valid_episode_id};
@@ -15,6 +14,7 @@ use super::{Entry, EpisodeSet, absolute, random_hex};
 use crate::demo::record::SourceEpisode;
 use crate::demo::{DemoCondition, layout_from_json, project_bundle};
 use crate::json::{utc_now_iso, write_json_file};
+use crate::records::{BranchRecord, EPISODE_RECORD_SCHEMA, EpisodeRecord, RecordedTask};
 use crate::task::{TaskSource, resolve_task};
 use crate::workspace::{DemoNotice, WorkspaceContract, WorkspaceLayout, create_workspace};
 use crate::world::{LiberoWorld, WorldSpec};
@@ -108,35 +108,34 @@ impl EpisodeSet {
         let mcp_url = format!("{}/mcp/{episode_id}", self.base_url);
         let mut headers = BTreeMap::new();
         headers.insert("Authorization".to_owned(), format!("Bearer {token}"));
-        let record = json!({
-            "schema_version": "libero.agent_episode_record.v1",
-            "episode_id": episode_id,
-            "created_at": utc_now_iso(),
-            "task": task,
-            "level": req.level,
-            "seed": req.seed,
-            "init_state_index": req.init_index,
-            "max_agent_steps": req.max_agent_steps,
-            "max_wall_time_seconds": req.wall_time_s,
-            "demo": req.demo.as_str(),
-            "workspace": workspace,
-            "mcp_url": mcp_url,
-            "harness": req.harness,
-            "model": req.model,
-            "batch": req.batch,
-        });
-        let mut record = record;
-        if let Some(b) = &branch {
-            record["branch"] = json!({
-                "parent_episode_id": b.request.parent,
-                "parent_control_step": b.request.step,
-                "replayed_actions": b.prefix.len(),
-                "prefix_file": crate::branch::PREFIX_FILE,
-                "counts_toward_max_agent_steps": false,
-            });
-        }
+        let record = EpisodeRecord {
+            schema_version: Some(EPISODE_RECORD_SCHEMA.to_owned()),
+            episode_id: Some(episode_id.clone()),
+            created_at: Some(utc_now_iso()),
+            task: Some(RecordedTask::from_value(serde_json::to_value(&task)?)?),
+            level: Some(u64::from(req.level)),
+            seed: Some(req.seed),
+            init_state_index: Some(u64::try_from(req.init_index)?),
+            max_agent_steps: Some(req.max_agent_steps),
+            max_wall_time_seconds: Some(req.wall_time_s),
+            demo: Some(req.demo.as_str().to_owned()),
+            workspace: Some(workspace.clone()),
+            mcp_url: Some(mcp_url.clone()),
+            harness: Some(req.harness.clone()),
+            model: Some(req.model.clone()),
+            batch: Some(req.batch.clone()),
+            branch: branch.as_ref().map(|b| BranchRecord {
+                parent_episode_id: Some(b.request.parent.clone()),
+                parent_control_step: Some(b.request.step),
+                replayed_actions: Some(b.prefix.len() as u64),
+                prefix_file: Some(crate::branch::PREFIX_FILE.to_owned()),
+                counts_toward_max_agent_steps: Some(false),
+                rest: serde_json::Map::new(),
+            }),
+            rest: serde_json::Map::new(),
+        };
         let run = RunDir::new(&run_dir);
-        write_json_file(&run.episode_record(), &record)?;
+        write_json_file(&run.episode_record(), &serde_json::to_value(&record)?)?;
         if let Some(b) = &branch {
             crate::branch::write_prefix(&run, &b.prefix).context("cannot keep the branch's replayed actions")?;
             crate::branch::log_branch_point(&run, &b.request.parent, b.request.step).context("cannot start the branch's action log")?;
@@ -224,13 +223,14 @@ fn is_within(child: &Path, parent: &Path) -> bool {
 
 /// The world an episode ran on, from its private record (`task.task_ref`, `level`, `seed`, `init_state_index`).
 pub(super) fn spec_from_record(record: &Path, paths: AssetPaths) -> anyhow::Result<WorldSpec> {
-    let v: serde_json::Value = serde_json::from_slice(&fs::read(record).with_context(|| format!("cannot read {}", record.display()))?)?;
-    let task_ref = v["task"]["task_ref"].as_str().context("the episode record names no task")?;
-    let level = v["level"].as_u64().and_then(|l| Level::from_number(u8::try_from(l).ok()?)).context("the episode record has no level")?;
-    let seed = v["seed"].as_u64().context("the episode record has no seed")?;
-    let init_index = v["init_state_index"].as_u64().context("the episode record has no init state index")?;
+    let text = fs::read(record).with_context(|| format!("cannot read {}", record.display()))?;
+    let v: EpisodeRecord = serde_json::from_slice(&text)?;
+    let task_ref = v.task_ref().context("the episode record names no task")?;
+    let level = v.level.and_then(|l| Level::from_number(u8::try_from(l).ok()?)).context("the episode record has no level")?;
+    let seed = v.seed.context("the episode record has no seed")?;
+    let init_index = v.init_state_index.context("the episode record has no init state index")?;
     let mut task = resolve_task(task_ref, &paths)?;
-    task.layout = layout_from_json(&v["task"]["layout"])?;
+    task.layout = layout_from_json(v.layout())?;
     Ok(WorldSpec { task, level, seed, init_index: usize::try_from(init_index)?, paths })
 }
 
