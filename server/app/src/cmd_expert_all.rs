@@ -47,7 +47,7 @@ pub(crate) struct SweepTask {
 /// suite in task order, then the pool's own definitions with an expert, by suite. A pool entry that runs a release
 /// task's definition (its twin, `perception_v2/3` for T04) runs as that release task; a stock entry runs the generic
 /// stock expert even where it is a release task's twin (`libero_90/35`, T16). A task named on its own that has no
-/// expert is refused; the members of a set without one are left out.
+/// expert is refused; the members of a set without one are left out. `all` is every release task and every entry.
 pub(crate) fn selected_tasks(selection: &Selection) -> anyhow::Result<Vec<SweepTask>> {
     let catalog = libero_tasks::Catalog::discover()?;
     let pool = libero_tasks::Pool::discover()?;
@@ -55,6 +55,15 @@ pub(crate) fn selected_tasks(selection: &Selection) -> anyhow::Result<Vec<SweepT
     // (bucket, suite order, place in its list): the sweep's order whatever the selection's
     let mut keyed: Vec<((usize, usize, usize), SweepTask)> = Vec::new();
     let release = |t: &libero_tasks::TaskEntry| ((0, 0, t.number as usize), SweepTask { suite: RELEASE.to_owned(), task: t.id.clone(), entry: None });
+    // `all` takes every release task too: some release tasks' only pool twins are stock entries, which run the
+    // generic stock expert rather than the release task's own
+    let with_release: Selection;
+    let selection = if selection.terms().contains(&Term::All) && !selection.terms().contains(&Term::Release) {
+        with_release = Selection::from_parts(&["release".to_owned(), selection.to_string()])?;
+        &with_release
+    } else {
+        selection
+    };
     for (place, pick) in selection.resolve(catalog.tasks(), &pool)?.into_iter().enumerate() {
         let found = match pick.member {
             Member::Release(t) => has_expert(&t.id).then(|| release(t)),
