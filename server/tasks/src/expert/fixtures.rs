@@ -216,6 +216,18 @@ pub fn push_microwave_door_wider(refs: &SceneRefs, microwave: &str, q_goal: f64)
     ])
 }
 
+/// How far the hand leads a knob turned down (off), by the angle left to the goal (rad): the full lead while far,
+/// less near the stop, so the knob (inertia 1 kg m²) meets its stop slowly instead of rebounding off it to q > 0; never
+/// under 0.1 rad, below which the pinch's play leaves the knob standing.
+fn off_lead_rad(left_rad: f64) -> f64 {
+    const GAIN: f64 = 2.0;
+    const MIN_RAD: f64 = 0.1;
+    (GAIN * left_rad + MIN_RAD).clamp(MIN_RAD, KNOB_LEAD_RAD)
+}
+
+/// How far the hand leads the knob while turning it (rad).
+const KNOB_LEAD_RAD: f64 = 0.3;
+
 /// LIBERO flat stove knob: a point between the fingers on the knob's ridge (which runs along the knob's local y),
 /// in the knob body's frame.
 const KNOB_GRASP_LOCAL_M: [f64; 3] = [0.0014, 0.012, 0.035];
@@ -234,7 +246,8 @@ pub fn stove_knob_phases(refs: &SceneRefs, stove: &str, q_goal: f64) -> Result<V
 }
 
 /// As [`stove_knob_phases`], turning the knob toward `q_goal` from wherever it is when the turn starts: up (on) or
-/// down (off, a knob left on).
+/// down (off, a knob left on; slowing near the stop and letting go without turning the hand back, so the knob stays
+/// on the stop below 0).
 pub fn stove_knob_phases_toward(refs: &SceneRefs, stove: &str, q_goal: f64) -> Result<Vec<Phase>, TasksError> {
     stove_knob_phases_pitched(refs, stove, q_goal, 0.0)
 }
@@ -260,29 +273,48 @@ pub fn stove_knob_phases_pitched(refs: &SceneRefs, stove: &str, q_goal: f64, pit
     // fingers open across the ridge (the knob's local x)
     let hand = HingeHand { body: knob, local_dir: [1.0, 0.0, 0.0], joint, q_adr };
     let rot_at = move |sim: &Simulation, ctx: &PhaseCtx, angle: f64| hand.rot_pitched(sim, ctx, angle, pitch_rad);
-    const LEAD_RAD: f64 = 0.3;
     const OFF_HOLD_PAST_RAD: f64 = 0.15;
     let mut phases = reach_and_grip(["above_knob", "near_knob", "down_to_knob", "pinch_knob"], grasp, move |sim, ctx| {
         rot_at(sim, ctx, q(sim))
     });
-    let (d1, d2, r1) = (dir.clone(), dir, reached);
+    let (d1, d2, d3, r1) = (dir.clone(), dir.clone(), dir, reached);
+    // the hand's orientation when the fingers start to open, kept while they open and rise (see below)
+    let frozen = std::sync::Arc::new(std::sync::Mutex::new(None::<Matrix3<f64>>));
+    let (f1, f2) = (frozen.clone(), frozen);
+    let keep = move |cell: &std::sync::Mutex<Option<Matrix3<f64>>>, sim: &Simulation| {
+        *cell.lock().unwrap_or_else(std::sync::PoisonError::into_inner).get_or_insert_with(|| grip_pose(sim).1)
+    };
     phases.extend([
         Phase::new("turn_knob", move |sim, ctx| {
-            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q(sim) + LEAD_RAD * d1(sim)))
+            let lead = if d1(sim) < 0.0 { off_lead_rad(q(sim) - q_goal) } else { KNOB_LEAD_RAD };
+            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q(sim) + lead * d1(sim)))
         })
         .until(move |sim, _| r1(sim))
         .max_steps(200),
-        // turning down, the knob springs back off its stop: hold the hand past the goal, against the stop
+        // turning down, the knob ends on its stop (−0.005 rad, off needs q < 0) and its large inertia (1 kg m²)
+        // keeps it moving: keep pushing it into the stop until it is still. (Turning the hand back toward the goal
+        // here would drag the pinched knob up off the stop.)
         Phase::new("hold_still", move |sim, ctx| {
-            let past = if d2(sim) < 0.0 { OFF_HOLD_PAST_RAD } else { 0.0 };
-            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, q_goal - past))
+            let angle = if d2(sim) < 0.0 { q(sim) - OFF_HOLD_PAST_RAD } else { q_goal };
+            Goal::at(grasp(sim), GRIPPER_CLOSED).rotated(rot_at(sim, ctx, angle))
         })
             .until(move |sim, ctx| ctx.steps >= 4 && sim.data().qvel()[dof].abs() < 0.02)
             .max_steps(40),
-        Phase::new("release", move |sim, ctx| Goal::at(grasp(sim), GRIPPER_OPEN).rotated(rot_at(sim, ctx, q(sim)))).for_steps(8),
-        Phase::new("lift_away", move |sim, ctx| Goal::at(grasp(sim) + UP * 0.10, GRIPPER_OPEN).rotated(rot_at(sim, ctx, q(sim))))
-            .until_reached(0.02)
-            .max_steps(40),
+        // turning down, let go without turning the hand at all: any turn back while the fingers still touch the
+        // ridge lifts the knob off its stop (the servo holds the orientation the hand has as the fingers open)
+        Phase::new("release", move |sim, ctx| {
+            let rot = if d3(sim) < 0.0 { keep(&f1, sim) } else { rot_at(sim, ctx, q(sim)) };
+            Goal::at(grasp(sim), GRIPPER_OPEN).rotated(rot)
+        })
+        .for_steps(8),
+        Phase::new("lift_away", move |sim, ctx| {
+            // (the orientation kept while letting go of a knob turned down, if any)
+            let kept = *f2.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            let rot = kept.unwrap_or_else(|| rot_at(sim, ctx, q(sim)));
+            Goal::at(grasp(sim) + UP * 0.10, GRIPPER_OPEN).rotated(rot)
+        })
+        .until_reached(0.02)
+        .max_steps(40),
     ]);
     Ok(phases)
 }

@@ -258,6 +258,108 @@ pub fn into_drawer(out: Vector3<f64>, home_rot: &Matrix3<f64>) -> Matrix3<f64> {
     rotate_world(&open_along(home_rot, out), Vector3::z().cross(&out), std::f64::consts::FRAC_PI_2)
 }
 
+/// How far a hand that works the bottom drawer's bar with its fingertips points below horizontal (rad). The bar is
+/// ≈ 4 cm above the table and 7 cm under the middle drawer's bar: a hand that pinches it (fingers opening
+/// vertically, the hand 20 cm long along them) meets the table when level and the middle drawer when pitched, so
+/// the bottom drawer is worked with the closed fingertips, the fingers opening along the bar (the hand's 6 cm thin
+/// side in the way), pitched down by this much.
+pub const BOTTOM_DRAWER_PITCH_RAD: f64 = 0.6;
+
+/// The hand pointing into a drawer pitched down by `pitch_rad`, its fingers opening along the bar (horizontal,
+/// across the pull).
+fn tips_into_drawer(out: Vector3<f64>, home_rot: &Matrix3<f64>, pitch_rad: f64) -> Matrix3<f64> {
+    let across = Vector3::z().cross(&out);
+    rotate_world(&rotate_world(&open_along(home_rot, across), across, std::f64::consts::FRAC_PI_2), across, -pitch_rad)
+}
+
+/// Unit vector from the fingertips back along the axis of a hand pitched down by `pitch_rad` into a drawer: out of
+/// the drawer, and up.
+fn tips_back(out: Vector3<f64>, pitch_rad: f64) -> Vector3<f64> {
+    let flat = Vector3::new(out.x, out.y, 0.0).try_normalize(1e-9).unwrap_or(out);
+    flat * pitch_rad.cos() + Vector3::z() * pitch_rad.sin()
+}
+
+/// The closed fingertips lie this far ahead of the grip site along the hand's axis (m).
+const TIP_AHEAD_M: f64 = 0.012;
+/// Wooden/white cabinet bars: half height and half depth (m) in the drawer's frame.
+const BAR_HALF_HEIGHT_M: f64 = 0.0082;
+const BAR_HALF_DEPTH_M: f64 = 0.0077;
+
+/// Lift the hand clear of the cabinet and turn it back to the orientation its script started with: the next step's
+/// script takes the hand's orientation at its start as its home.
+fn turn_back_clear(phases: &mut Vec<Phase>, back: impl Fn(&Simulation) -> Vector3<f64> + Send + 'static) {
+    phases.push(
+        Phase::new("turn_back", move |sim, ctx| Goal::at(ctx.start_pos_m + back(sim) * 0.06 + Vector3::z() * 0.08, GRIPPER_OPEN).rotated(ctx.home_rot))
+            .until(|sim, ctx| rotation_error(sim, &ctx.home_rot) < 0.08)
+            .max_steps(80),
+    );
+}
+
+/// Drag a drawer open with the closed fingertips on the back edge of its bar's top (1.2 cm behind the bar's centre,
+/// at the slot between bar and drawer front, too narrow for a finger), the goal 6 cm below them so that they bear
+/// down, and 4.5 cm out of the drawer; until the slide reads `q_goal`. The drag that stalls (the fingertips slipped
+/// over the bar: the slide moved under 1.5 mm in 20 steps) lifts off and sets the fingertips on the bar again, at
+/// most 3 times in all. For the bottom drawer (see [`BOTTOM_DRAWER_PITCH_RAD`]).
+pub fn drag_drawer_open(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64; 3], q_adr: usize, q_goal: f64, pitch_rad: f64) {
+    const BEHIND_BAR_M: f64 = 0.012;
+    const PRESS_M: f64 = 0.06;
+    const LEAD_M: f64 = 0.045;
+    const TRIES: usize = 3;
+    let handle = move |sim: &Simulation| body_point(sim, drawer, handle_local_m);
+    let out = move |sim: &Simulation| body_dir(sim, drawer, DRAWER_OUT_LOCAL);
+    let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
+    let rot = move |sim: &Simulation, ctx: &PhaseCtx| tips_into_drawer(out(sim), &ctx.home_rot, pitch_rad);
+    let back = move |sim: &Simulation| tips_back(out(sim), pitch_rad);
+    // the grip site when the fingertips touch the bar
+    let on_bar = move |sim: &Simulation| {
+        handle(sim) + Vector3::z() * BAR_HALF_HEIGHT_M - out(sim) * BEHIND_BAR_M + back(sim) * TIP_AHEAD_M
+    };
+    let above = move |sim: &Simulation| on_bar(sim) + back(sim) * 0.10;
+    let done = move |sim: &Simulation| q(sim) <= q_goal;
+    phases.push(Phase::new("close_fingers", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(8));
+    for _ in 0..TRIES {
+        phases.push(
+            Phase::new("above_bar", move |sim, ctx| Goal::at(above(sim), GRIPPER_CLOSED).rotated(rot(sim, ctx)))
+                .until(move |sim, ctx| done(sim) || ((grip_pose(sim).0 - above(sim)).norm() < 0.01 && rotation_error(sim, &rot(sim, ctx)) < 0.05))
+                .max_steps(150),
+        );
+        phases.push(
+            Phase::new("onto_bar", move |sim, ctx| Goal::at(on_bar(sim), GRIPPER_CLOSED).slow(0.3).rotated(rot(sim, ctx)))
+                .until(move |sim, ctx| done(sim) || (grip_pose(sim).0 - on_bar(sim)).norm() < 0.004 || ctx.steps >= 80),
+        );
+        phases.push(
+            Phase::new("press_bar", move |sim, ctx| Goal::at(on_bar(sim) - Vector3::z() * PRESS_M, GRIPPER_CLOSED).slow(0.3).rotated(rot(sim, ctx)))
+                .until(move |sim, ctx| done(sim) || ctx.steps >= 10),
+        );
+        // (slide position, step) at the last stall check
+        let window = Arc::new(Mutex::new((0.0_f64, 0_u32)));
+        phases.push(
+            Phase::new("drag_drawer", move |sim, ctx| {
+                Goal::at(on_bar(sim) - Vector3::z() * PRESS_M + out(sim) * LEAD_M, GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
+            })
+            .until(move |sim, ctx| {
+                if done(sim) {
+                    return true;
+                }
+                let mut w = window.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                if ctx.steps == 0 || ctx.steps >= w.1 + 20 {
+                    let stalled = ctx.steps > 0 && (q(sim) - w.0).abs() < 0.0015;
+                    *w = (q(sim), ctx.steps);
+                    return stalled;
+                }
+                false
+            })
+            .max_steps(400),
+        );
+        phases.push(
+            Phase::new("off_bar", move |sim, ctx| Goal::at(above(sim), GRIPPER_CLOSED).rotated(rot(sim, ctx)))
+                .until_reached(0.02)
+                .max_steps(60),
+        );
+    }
+    turn_back_clear(phases, back);
+}
+
 /// Phases that push a wooden-cabinet drawer home with the closed fingertips on its handle bar (hand pointing into the
 /// drawer: a hand pointing down catches its palm on the top drawer's handle before the middle drawer is home), until
 /// `q ≥ q_goal`.
@@ -288,6 +390,44 @@ pub fn push_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64;
         .until_reached(0.02)
         .max_steps(40),
     );
+}
+
+/// Push a drawer home with the closed fingertips on the front of its bar, the hand pitched down by `pitch_rad` with
+/// its fingers opening along the bar (for the bottom drawer, see [`BOTTOM_DRAWER_PITCH_RAD`]), until `q ≥ q_goal`.
+pub fn tip_push_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64; 3], q_adr: usize, q_goal: f64, pitch_rad: f64) {
+    let handle = move |sim: &Simulation| body_point(sim, drawer, handle_local_m);
+    let out = move |sim: &Simulation| body_dir(sim, drawer, DRAWER_OUT_LOCAL);
+    let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
+    let rot = move |sim: &Simulation, ctx: &PhaseCtx| tips_into_drawer(out(sim), &ctx.home_rot, pitch_rad);
+    let back = move |sim: &Simulation| tips_back(out(sim), pitch_rad);
+    // the grip site when the fingertips touch the bar's front face (a few millimetres off it)
+    let on_front = move |sim: &Simulation| handle(sim) + out(sim) * (BAR_HALF_DEPTH_M + 0.004) + back(sim) * TIP_AHEAD_M;
+    let before = move |sim: &Simulation| on_front(sim) + back(sim) * 0.08;
+    phases.push(Phase::new("close_fingers", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_CLOSED)).for_steps(8));
+    phases.push(
+        Phase::new("in_front_of_bar", move |sim, ctx| Goal::at(before(sim), GRIPPER_CLOSED).rotated(rot(sim, ctx)))
+            .until(move |sim, ctx| (grip_pose(sim).0 - before(sim)).norm() < 0.015 && rotation_error(sim, &rot(sim, ctx)) < 0.08)
+            .max_steps(150),
+    );
+    phases.push(
+        Phase::new("onto_bar_front", move |sim, ctx| Goal::at(on_front(sim), GRIPPER_CLOSED).slow(0.4).rotated(rot(sim, ctx)))
+            .until_reached(0.006)
+            .max_steps(80),
+    );
+    phases.push(
+        Phase::new("push_drawer", move |sim, ctx| {
+            let target = on_front(sim) - out(sim) * (q_goal - q(sim) + 0.03);
+            Goal::at(target, GRIPPER_CLOSED).slow(0.6).rotated(rot(sim, ctx))
+        })
+        .until(move |sim, _| q(sim) >= q_goal)
+        .max_steps(200),
+    );
+    phases.push(
+        Phase::new("back_off", move |sim, ctx| Goal::at(ctx.start_pos_m + back(sim) * 0.10, GRIPPER_CLOSED).rotated(rot(sim, ctx)))
+            .until_reached(0.02)
+            .max_steps(40),
+    );
+    turn_back_clear(phases, back);
 }
 
 /// Press depth the servo asks for below the cap top (the cap is static: this only sets the pushing force).

@@ -1057,10 +1057,9 @@ impl StagedEvaluator {
         let current = self.tracker.current();
         if let Some((stage, _)) = self.monitor_open
             && current != Some(stage)
+            && let Some((_, m)) = self.monitor_open.take()
         {
-            if let Some((_, m)) = self.monitor_open.take() {
-                self.monitors[m].1.close();
-            }
+            self.monitors[m].1.close();
         }
         if let Some(i) = current
             && self.stages[i].operation.is_some()

@@ -119,14 +119,14 @@ impl Door {
     }
 
     /// Approach direction (into the door), world frame.
-    fn into_door(&self, sim: &Simulation) -> Vector3<f64> {
+    fn inward(&self, sim: &Simulation) -> Vector3<f64> {
         self.rot(sim) * Vector3::y()
     }
 }
 
 /// Line up in front of the lever, move in along the latch axis, close on it.
 fn grasp_handle(door: Door) -> Vec<Phase> {
-    let front = move |sim: &Simulation| door.grasp(sim, 0.0, 0.0) - door.into_door(sim) * STANDOFF_M;
+    let front = move |sim: &Simulation| door.grasp(sim, 0.0, 0.0) - door.inward(sim) * STANDOFF_M;
     vec![
         // turned fully before moving in: a hand still turning sweeps its fingers into the lever
         Phase::new("in_front_of_handle", move |sim, _| Goal::at(front(sim), GRIPPER_OPEN).rotated(door.grip_rot(sim, 0.0, 0.0)))
@@ -182,7 +182,7 @@ fn open_fingers(door: Door, latch_rad: f64) -> Phase {
 /// Back straight out along the latch axis, keeping the hand's orientation.
 fn back_away(door: Door) -> Phase {
     Phase::new("back_away", move |sim, ctx| {
-        Goal::at(ctx.start_pos_m - door.into_door(sim) * STANDOFF_M, GRIPPER_OPEN).rotated(grip_pose(sim).1)
+        Goal::at(ctx.start_pos_m - door.inward(sim) * STANDOFF_M, GRIPPER_OPEN).rotated(grip_pose(sim).1)
     })
     .until_reached(0.02)
     .max_steps(60)

@@ -4,8 +4,9 @@
 //! - `In(obj, region)` / `On(obj, region | object)`: grasp from above and place (a rim pinch for bowls and mugs,
 //!   fingers across the narrow side for everything else), the grasp and the drop height taken from the object's
 //!   collision geometry (world bounding box of its contact geoms at the start of the step);
-//! - `Open` / `Close` of a cabinet drawer region: pull or push its handle; `Open` / `Close` of a microwave: swing the
-//!   door by its handle, push it shut;
+//! - `Open` / `Close` of a cabinet drawer region: pull or push its handle (the bottom drawer's, too low for a hand
+//!   that pinches it, dragged and pushed with the fingertips); `Open` / `Close` of a microwave: swing the door by its
+//!   handle, push it shut;
 //! - `TurnOn` / `TurnOff` of a flat stove: pinch and turn the knob.
 //!
 //! Steps run in an order that works rather than the BDDL's: articulations first, a placement into a closed drawer
@@ -27,7 +28,7 @@ use crate::expert::motion::{
     rotation_error, vec3,
 };
 use crate::expert::skills::{
-    BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, carry, extent, pos, pull_drawer, push_drawer, xy_dist,
+    BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, BOTTOM_DRAWER_PITCH_RAD, carry, drag_drawer_open, extent, pos, pull_drawer, push_drawer, tip_push_drawer, xy_dist,
 };
 use crate::expert::{Expert, SOLVE, SceneRefs, SuiteExpert};
 use crate::judge::goal::GoalChecker;
@@ -329,13 +330,13 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, sh
         Step::Place { object, target } => {
             let body = index.instances[object].body;
             let category = index.instances[object].category.clone();
-            if category == "plate" {
-                if let Target::Region { region, .. } = target {
-                    let zone = index.regions[region].site;
-                    let stop_m = if short { 0.09 } else { 0.012 };
-                    let phases = super::objects::push_plate_phases(body, zone, stop_m);
-                    return Ok(Box::new(move |_, _, _| phases));
-                }
+            if category == "plate"
+                && let Target::Region { region, .. } = target
+            {
+                let zone = index.regions[region].site;
+                let stop_m = if short { 0.09 } else { 0.012 };
+                let phases = super::objects::push_plate_phases(body, zone, stop_m);
+                return Ok(Box::new(move |_, _, _| phases));
             }
             Box::new(move |sim, ctx, home| place_phases(sim, ctx, home, object, &category, target, slot, short))
         }
@@ -356,10 +357,12 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, sh
                 (_, true) => DRAWER_HALF_Q_M,
             };
             let mut phases = Vec::new();
-            if open {
-                pull_drawer(&mut phases, drawer, handle, q_adr, q_goal);
-            } else {
-                push_drawer(&mut phases, drawer, handle, q_adr, q_goal);
+            match (open, handle == BOTTOM_HANDLE_LOCAL_M) {
+                (true, false) => pull_drawer(&mut phases, drawer, handle, q_adr, q_goal),
+                (false, false) => push_drawer(&mut phases, drawer, handle, q_adr, q_goal),
+                // the bottom drawer's bar is out of reach of a hand that pinches it: work it with the fingertips
+                (true, true) => drag_drawer_open(&mut phases, drawer, handle, q_adr, q_goal, BOTTOM_DRAWER_PITCH_RAD),
+                (false, true) => tip_push_drawer(&mut phases, drawer, handle, q_adr, q_goal, BOTTOM_DRAWER_PITCH_RAD),
             }
             let phases = with_rise(phases);
             Box::new(move |_, _, _| phases)
@@ -520,6 +523,7 @@ fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Slot, root_ab
 }
 
 /// Pick `object` and place it on or in `target`.
+#[allow(clippy::too_many_arguments)] // the step's plan (object, target, slot, short) plus the state it starts from
 fn place_phases(
     sim: &Simulation,
     ctx: &Ctx,
@@ -633,3 +637,4 @@ fn close_door_phases(refs: &SceneRefs, microwave: &str, q_goal: f64) -> Result<V
             .max_steps(40),
     ])
 }
+

@@ -283,7 +283,7 @@ impl Evaluator for TubeInsertion {
         let passed: Vec<bool> = judged.iter().map(|(_, checks)| checks.iter().all(|c| c.passed)).collect();
         let success = passed.iter().all(|&p| p);
         let names = self.stage_names();
-        let mut stages = StageTracker::new(names.iter().map(|n| StageSpec::required(n)).collect());
+        let mut stages = StageTracker::new(names.iter().map(StageSpec::required).collect());
         // terminal judging has no order: a tube that passes completes its stage whatever the others do
         stages.complete_where(tick, |i| passed[i]);
         let checks: Vec<TerminalCheck> = judged.iter().flat_map(|(_, c)| c.iter().cloned()).collect();
