@@ -109,7 +109,7 @@ fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyh
     let (episode_id, actions, finish) = match (local, &args.server) {
         (Some(episodes), _) => {
             let prepared = episodes.prepare(request)?;
-            let mut handle = episodes.handle(&prepared.episode_id).context("the episode vanished")?;
+            let mut handle = episodes.lifecycle().handle(&prepared.episode_id).context("the episode vanished")?;
             let actions = workspace_trajectory(&prepared.workspace)?;
             eprintln!("[{task}] replaying {} actions", actions.len());
             let finish = replay(&mut handle, &actions);

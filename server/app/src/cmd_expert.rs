@@ -399,7 +399,7 @@ pub(crate) fn run_local(
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<LocalRun> {
     let prepared = episodes.prepare(request.clone())?;
-    let mut handle = episodes.handle(&prepared.episode_id).context("prepared episode vanished")?;
+    let mut handle = episodes.lifecycle().handle(&prepared.episode_id).context("prepared episode vanished")?;
     let outcome = run_expert(&mut Paced::new(&mut handle, pace), spec, task_id, behaviour, max_actions, progress);
     handle.stop("expert run over");
     let run = RunDir::new(&prepared.run_dir);
@@ -410,7 +410,7 @@ pub(crate) fn run_local(
     if request.video {
         let frames = libero_episode::state_record::StateRecordReader::open(&run.state_record()).map(|r| r.frames()).unwrap_or(0);
         progress(&format!("waiting for the private video ({frames} frames, rendered in the background)"));
-        match episodes.wait_for_video(&run, VIDEO_WAIT) {
+        match episodes.lifecycle().wait_for_video(&run, VIDEO_WAIT) {
             Some(VideoProgress::Ready) => {
                 let ready_s = ended.elapsed().as_secs_f64();
                 video_ready_s = Some(ready_s);

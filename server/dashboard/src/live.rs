@@ -109,7 +109,7 @@ fn runs_elsewhere(app: &App, row: &libero_server::store::EpisodeRow, source: Row
 
 pub(crate) async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
     if let Some(hub) = app.hubs.get(&id) {
-        let transcript = RunDir::new(app.episodes.runs_dir().join(&id)).agent_events_jsonl();
+        let transcript = RunDir::new(app.episodes.lifecycle().runs_dir().join(&id)).agent_events_jsonl();
         return ws.on_upgrade(move |socket| episode_stream(socket, hub, transcript));
     }
     let (row, source) = match row_and_source(&app, &id).await {

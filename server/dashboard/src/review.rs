@@ -175,7 +175,7 @@ pub(crate) async fn review_data(State(app): State<AppState>, Path(id): Path<Stri
     let data = tokio::task::spawn_blocking(move || match q.part.as_deref() {
         Some("calls") => Ok(calls_page(&run, q.from, q.control_step)),
         Some("telemetry") => Ok(telemetry_page(&run, q.from)),
-        Some("video") => Ok(libero_server::video_part(&episodes, &run)),
+        Some("video") => Ok(libero_server::video_part(episodes.lifecycle(), &run)),
         Some(other) => Err(format!("part must be calls, telemetry or video (got {other:?})")),
         None => {
             let result = read_result(&run);
@@ -190,7 +190,7 @@ pub(crate) async fn review_data(State(app): State<AppState>, Path(id): Path<Stri
                 "result": result,
                 "video_fps": 20.0,
             });
-            for part in [libero_server::video_part(&episodes, &run), calls_page(&run, 0, 0), telemetry_page(&run, 0)] {
+            for part in [libero_server::video_part(episodes.lifecycle(), &run), calls_page(&run, 0, 0), telemetry_page(&run, 0)] {
                 if let (Some(obj), Value::Object(p)) = (v.as_object_mut(), part) {
                     obj.extend(p);
                 }
@@ -319,7 +319,7 @@ pub(crate) async fn video(State(app): State<AppState>, Path(id): Path<String>, r
     match run_dir_of(&app, &id).await {
         Some(run) if run.continuous_video().is_file() => serve_file(run.continuous_video(), req).await,
         Some(run) => {
-            let message = match app.episodes.video_progress(&run) {
+            let message = match app.episodes.lifecycle().video_progress(&run) {
                 Some(VideoProgress::Queued) => "the video is queued for rendering (video rendering, 0 %)".to_owned(),
                 Some(VideoProgress::Failed { error }) => format!("the video could not be rendered: {error}"),
                 Some(p) => format!("the video is not ready yet (video rendering, {} %)", p.percent().unwrap_or(0)),

@@ -50,7 +50,7 @@ async fn fetched_if_elsewhere(app: &App, mut row: libero_server::store::EpisodeR
         return row;
     }
     let id = row.episode.id.clone();
-    let cache = app.episodes.data_dir().join("artifact_cache");
+    let cache = app.episodes.lifecycle().data_dir().join("artifact_cache");
     let dest = cache.join(&id);
     if tokio::fs::metadata(dest.join(libero_artifacts::COMPLETE_MARKER)).await.is_ok() {
         row.episode.run_dir = dest;

@@ -283,7 +283,7 @@ async fn gather(app: &App, f: TaskFacts) -> anyhow::Result<TaskPage> {
     app.sync_all().await;
     let rows = app.store.list_filtered(&filter, EPISODE_LIMIT).await?;
     let episodes = rows.iter().map(episode_line).collect();
-    let library = libero_episode::demo::library::task_dir(&app.episodes.demo_library(), &f.task_ref);
+    let library = libero_episode::demo::library::task_dir(&app.episodes.lifecycle().demo_library(), &f.task_ref);
     let demos = tokio::task::spawn_blocking(move || crate::teleop::task_bundles(&library)).await?.iter().map(demo_line).collect();
     let (batch_cells, pool_cells) = match results::selected(app, &Selection::default()).await {
         Ok((_, batches)) => batch_cells(&results::view(&batches, &Selection::default()), &f.id),

@@ -181,7 +181,7 @@ async fn create(State(app): State<AppState>, body: Bytes) -> ApiResult {
     let eps = app.episodes.clone();
     let id = prepared.episode_id.clone();
     let started = tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
-        let handle = eps.handle(&id).ok_or_else(|| anyhow::anyhow!("the episode vanished"))?;
+        let handle = eps.lifecycle().handle(&id).ok_or_else(|| anyhow::anyhow!("the episode vanished"))?;
         let answer = handle.call("start_episode", None);
         if answer["ok"] != true {
             handle.stop("teleop start failed");
@@ -202,7 +202,7 @@ async fn create(State(app): State<AppState>, body: Bytes) -> ApiResult {
 /// The handle and task of an operator episode; agents' episodes are never returned.
 fn teleop_episode(app: &libero_server::App, id: &str) -> Option<(EpisodeHandle, String)> {
     let task = app.teleop.lock().ok()?.get(id).cloned()?;
-    Some((app.episodes.handle(id)?, task))
+    Some((app.episodes.lifecycle().handle(id)?, task))
 }
 
 async fn control_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -271,7 +271,7 @@ async fn save(State(app): State<AppState>, Path(id): Path<String>) -> Response {
             source_type: "human_teleop".into(),
             source_desc: "libero-agent dashboard teleop (keyboard / gamepad)".into(),
         };
-        let s = eps.record_demo(&episode, &options)?;
+        let s = eps.lifecycle().record_demo(&episode, &options)?;
         let violations: Vec<String> = validate_bundle(&s.dir).iter().map(ToString::to_string).collect();
         let reason = if !violations.is_empty() {
             Some(format!("the bundle breaks {} rule(s) of §7.7", violations.len()))
@@ -317,7 +317,7 @@ fn bundle_path(app: &libero_server::App, task: &str, bundle: &str) -> Option<Pat
     if !(plain(task) && plain(bundle)) {
         return None;
     }
-    let dir = app.episodes.demo_library().join(task).join(bundle);
+    let dir = app.episodes.lifecycle().demo_library().join(task).join(bundle);
     dir.join(MANIFEST).is_file().then_some(dir)
 }
 
@@ -364,7 +364,7 @@ fn newest_first(rows: &mut [Value]) {
 }
 
 async fn demos_json(State(app): State<AppState>) -> Response {
-    let root = app.episodes.demo_library();
+    let root = app.episodes.lifecycle().demo_library();
     match tokio::task::spawn_blocking(move || list_bundles(&root)).await {
         Ok(rows) => ok_json(json!({"ok": true, "bundles": rows})),
         Err(e) => ApiError::internal(format!("demos: {e}")).into_response(),
@@ -387,7 +387,7 @@ async fn verify(State(app): State<AppState>, Path((task, bundle)): Path<(String,
         if !violations.is_empty() {
             return Ok(json!({"ok": true, "verified": false, "reason": "invalid bundle, not replayed", "violations": violations}));
         }
-        let verified = eps.verify_demo(&dir)?;
+        let verified = eps.lifecycle().verify_demo(&dir)?;
         let reason = (!verified).then_some("the source episode did not succeed or the replay did not reproduce its success");
         Ok(json!({"ok": true, "verified": verified, "reason": reason, "violations": []}))
     })
@@ -434,7 +434,7 @@ async fn export(State(app): State<AppState>, body: Bytes) -> Response {
         Err(e) => return ApiError::internal(format!("{e}")).into_response(),
     };
     let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
-    let out = app.episodes.data_dir().join("exports").join(format!("lerobot-{stamp}-{suffix}"));
+    let out = app.episodes.lifecycle().data_dir().join("exports").join(format!("lerobot-{stamp}-{suffix}"));
     let result = tokio::task::spawn_blocking(move || {
         std::fs::create_dir_all(out.parent().unwrap_or(&out))?;
         export_lerobot(&dirs, &out).map_err(anyhow::Error::from)

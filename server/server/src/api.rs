@@ -34,7 +34,7 @@ async fn thumbnail_stats(State(app): State<AppState>) -> Response {
 }
 
 pub(crate) async fn health(State(app): State<AppState>) -> Response {
-    axum::Json(json!({"ok": true, "episodes": app.episodes.count(), "version": env!("CARGO_PKG_VERSION")})).into_response()
+    axum::Json(json!({"ok": true, "episodes": app.episodes.lifecycle().count(), "version": env!("CARGO_PKG_VERSION")})).into_response()
 }
 
 async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> ApiResult {
@@ -47,7 +47,7 @@ async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> ApiRes
 /// A stored row for the API: no paths, plus the live state while this process serves the episode.
 pub fn episode_json(app: &App, row: &store::EpisodeRow) -> Value {
     let mut v = row.public();
-    if let (Some(live), Some(obj)) = (app.episodes.status(&row.episode.id), v.as_object_mut()) {
+    if let (Some(live), Some(obj)) = (app.episodes.lifecycle().status(&row.episode.id), v.as_object_mut()) {
         obj.insert("state".into(), json!(live.state));
         obj.insert("accepted_agent_steps".into(), json!(live.accepted_agent_steps));
         obj.insert("latest_observation_id".into(), json!(live.latest_observation_id));
@@ -93,7 +93,7 @@ async fn episode_video(State(app): State<AppState>, Path(id): Path<String>) -> A
     let row = app.store.get(&id).await?.ok_or_else(|| ApiError::not_found(format!("no episode {id}")))?;
     let run = RunDir::new(row.episode.run_dir);
     let episodes = app.episodes.clone();
-    let v = tokio::task::spawn_blocking(move || video_part(&episodes, &run))
+    let v = tokio::task::spawn_blocking(move || video_part(episodes.lifecycle(), &run))
         .await
         .map_err(|e| ApiError::internal(format!("video: {e}")))?;
     Ok(axum::Json(v).into_response())
@@ -127,7 +127,7 @@ async fn end_episode(app: AppState, id: String, body: axum::body::Bytes, forfeit
     };
     let eps = app.episodes.clone();
     let id2 = id.clone();
-    let ended = tokio::task::spawn_blocking(move || if forfeit { eps.forfeit(&id2, &reason) } else { eps.stop(&id2, &reason) })
+    let ended = tokio::task::spawn_blocking(move || if forfeit { eps.lifecycle().forfeit(&id2, &reason) } else { eps.lifecycle().stop(&id2, &reason) })
         .await
         .map_err(|e| ApiError::internal(format!("ending the episode failed: {e}")))?;
     if !ended {

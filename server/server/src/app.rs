@@ -104,7 +104,7 @@ impl App {
         if let Err(e) = self.insert_prepared(&prepared).await {
             let eps = self.episodes.clone();
             let id = prepared.episode_id.clone();
-            let _ = tokio::task::spawn_blocking(move || eps.stop(&id, "the episode store refused its row")).await;
+            let _ = tokio::task::spawn_blocking(move || eps.lifecycle().stop(&id, "the episode store refused its row")).await;
             return Err(ApiError::internal(format!("cannot store the episode: {e:#}")));
         }
         Ok(prepared)

@@ -1,8 +1,8 @@
 //! The MCP half of the server's episodes: each prepared episode's rmcp service and its session manager, and the
 //! token check of `/mcp/<id>`. Everything else an episode goes through (preparation, the end, release, videos,
-//! demonstrations) is the lifecycle of `libero_episode::lifecycle`, which [`Episodes`] wraps and derefs to.
+//! demonstrations) is the lifecycle of `libero_episode::lifecycle`, which [`Episodes`] wraps and hands out as
+//! [`Episodes::lifecycle`].
 use std::collections::HashMap;
-use std::ops::Deref;
 use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 
@@ -83,17 +83,16 @@ struct Endpoint {
     mcp: Option<LiveMcp>,
 }
 
-/// The server's episodes: the lifecycle (every method of [`EpisodeSet`] through `Deref`), and an MCP endpoint for
+/// The server's episodes: the lifecycle ([`EpisodeSet`], through [`Episodes::lifecycle`]), and an MCP endpoint for
 /// each episode prepared through [`Episodes::prepare`].
 pub struct Episodes {
     set: EpisodeSet,
     endpoints: RwLock<HashMap<String, Endpoint>>,
 }
 
-impl Deref for Episodes {
-    type Target = EpisodeSet;
-
-    fn deref(&self) -> &EpisodeSet {
+impl Episodes {
+    /// The lifecycle of every episode (prepare, stop, recover, release, videos, demos): `libero_episode`'s API.
+    pub fn lifecycle(&self) -> &EpisodeSet {
         &self.set
     }
 }

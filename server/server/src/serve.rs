@@ -138,19 +138,19 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
     let hubs = Arc::new(live::LiveHubs::default());
     let set = EpisodeSet::new(data.clone(), base_url.clone())?.with_live(hubs.clone()).with_events(writer.events());
     let episodes = Arc::new(Episodes::from(set));
-    let recovered = episodes.recover_interrupted();
-    let rebuilding = episodes.rebuild_missing_videos();
+    let recovered = episodes.lifecycle().recover_interrupted();
+    let rebuilding = episodes.lifecycle().rebuild_missing_videos();
     if rebuilding > 0 {
         eprintln!("libero-agent serve: rebuilding {rebuilding} private video(s) from their state records in the background");
     }
     let store = match &stores.store {
         Some(url) => Store::connect(url).await?,
-        None => Store::open(&episodes.data_dir().join(STORE_FILE)).await?,
+        None => Store::open(&episodes.lifecycle().data_dir().join(STORE_FILE)).await?,
     };
     if store.backend() == store::Backend::Postgres {
         eprintln!("libero-agent serve: episode store {}", store::redact(stores.store.as_deref().unwrap_or_default()));
     }
-    let reconciled = store.reconcile(&episodes.runs_dir()).await?;
+    let reconciled = store.reconcile(&episodes.lifecycle().runs_dir()).await?;
     let artifacts = stores.artifacts.as_deref().map(libero_artifacts::Artifacts::open).transpose()?;
     if let Some(url) = stores.store.as_deref().filter(|_| store.backend() == store::Backend::Postgres) {
         follow_store_changes(url, hubs.clone()).await?;
@@ -222,7 +222,7 @@ impl Bound {
             tracing::info!(thumbnails = ahead_ids.len(), threads = ahead_threads, "rendering task thumbnails ahead in the background (low priority; cached ones are reused)");
             app.thumbnails.render_ahead(ahead_ids, ahead_threads);
         }
-        let data = app.episodes.data_dir().to_path_buf();
+        let data = app.episodes.lifecycle().data_dir().to_path_buf();
         listening(json!({
             "event": "listening", "url": base_url, "data": data,
             "recovered_invalid_episodes": recovered, "store_rows_closed_at_start": reconciled,
@@ -248,10 +248,10 @@ impl Bound {
                 let (reason, grace) = shutdown.await;
                 let episodes = app.episodes.clone();
                 let stuck = tokio::task::spawn_blocking(move || {
-                    let stuck = episodes.stop_all(&reason, grace);
+                    let stuck = episodes.lifecycle().stop_all(&reason, grace);
                     // The ended episodes' videos get the same grace; what is left is rebuilt at the next start.
                     let mut said: Option<(usize, std::time::Instant)> = None;
-                    let done = episodes.wait_for_videos(grace, |pending, rate| {
+                    let done = episodes.lifecycle().wait_for_videos(grace, |pending, rate| {
                         if said.is_some_and(|(n, at)| n == pending && at.elapsed() < Duration::from_secs(10)) {
                             return;
                         }
@@ -262,7 +262,7 @@ impl Bound {
                     if !done {
                         eprintln!("libero-agent serve: unfinished private videos will be rebuilt from their state records at the next start");
                     }
-                    episodes.stop_videos();
+                    episodes.lifecycle().stop_videos();
                     stuck
                 })
                 .await

@@ -113,7 +113,7 @@ impl Writer {
     /// Writes `id`'s transition (started, ended) if its state changed since the last write, and an open
     /// episode's progress.
     async fn sync(&mut self, id: &str) {
-        let Some(status) = self.episodes.status(id) else { return };
+        let Some(status) = self.episodes.lifecycle().status(id) else { return };
         let previous = self.synced.get(id).copied();
         if previous != Some(status.state) {
             match self.write_transition(id, previous, &status).await {
@@ -137,7 +137,7 @@ impl Writer {
     async fn sync_all(&mut self) {
         let open: Vec<String> = self
             .episodes
-            .ids()
+            .lifecycle().ids()
             .into_iter()
             .filter(|id| !matches!(self.synced.get(id), Some(EpisodeState::Finished | EpisodeState::Aborted)))
             .collect();
@@ -167,7 +167,7 @@ impl Writer {
             self.store.mark_started(id, &utc_now_iso()).await?;
         }
         if matches!(status.state, EpisodeState::Finished | EpisodeState::Aborted) {
-            let run = RunDir::new(self.episodes.runs_dir().join(id));
+            let run = RunDir::new(self.episodes.lifecycle().runs_dir().join(id));
             if let Some(end) = EpisodeEnd::from_run(&run) {
                 self.store.record_end(id, &end).await?;
             }

@@ -113,7 +113,7 @@ pub struct Thumbnails {
 
 impl Thumbnails {
     pub fn new(episodes: Arc<Episodes>) -> Self {
-        let dir = episodes.data_dir().join("thumbnails");
+        let dir = episodes.lifecycle().data_dir().join("thumbnails");
         Self {
             episodes,
             dir,
@@ -152,7 +152,7 @@ impl Thumbnails {
     /// The scene hash of `id` and its resolved task.
     fn scene(&self, id: &str) -> Result<(String, libero_episode::task::TaskSource), ThumbnailError> {
         let id = checked_id(id)?;
-        let paths = self.episodes.asset_paths().ok_or(ThumbnailError::NoAssets)?;
+        let paths = self.episodes.lifecycle().asset_paths().ok_or(ThumbnailError::NoAssets)?;
         let task = resolve_task(id, paths).map_err(|e| ThumbnailError::NoSuchTask(e.to_string()))?;
         Ok((scene_hash(&task, paths)?, task))
     }
@@ -187,9 +187,9 @@ impl Thumbnails {
 
     fn render(&self, id: &str, task: libero_episode::task::TaskSource, head: &Path, wrist: &Path) -> Result<(), ThumbnailError> {
         let failed = |cause: String| ThumbnailError::Render { task: id.to_owned(), cause };
-        let paths = self.episodes.asset_paths().ok_or(ThumbnailError::NoAssets)?.clone();
+        let paths = self.episodes.lifecycle().asset_paths().ok_or(ThumbnailError::NoAssets)?.clone();
         let spec = WorldSpec { task, level: Level::L1, seed: SEED, init_index: 0, paths };
-        let renderer = self.episodes.renderer().map_err(|e| failed(format!("{e:#}")))?;
+        let renderer = self.episodes.lifecycle().renderer().map_err(|e| failed(format!("{e:#}")))?;
         let mut world = LiberoWorld::new(&spec, renderer).map_err(|e| failed(e.to_string()))?;
         libero_episode::World::start(&mut world).map_err(|e| failed(e.to_string()))?;
         let frame = libero_episode::World::frame(&mut world, 0).map_err(|e| failed(e.to_string()))?;
@@ -228,7 +228,7 @@ impl Thumbnails {
     fn ahead_worker(&self, queue: &Mutex<std::vec::IntoIter<String>>) {
         // The shared renderer is opened at normal priority first: a software renderer's worker threads inherit
         // the priority of the thread that starts them, and episodes use the same renderer afterwards.
-        if let Err(e) = self.episodes.renderer() {
+        if let Err(e) = self.episodes.lifecycle().renderer() {
             tracing::warn!("thumbnails are not rendered ahead: {e:#}");
             self.ahead_pending.store(0, Ordering::Relaxed);
             self.ahead_running.fetch_sub(1, Ordering::Relaxed);
@@ -238,7 +238,7 @@ impl Thumbnails {
         loop {
             let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
             let Some(id) = next else { break };
-            while self.episodes.count() > 0 {
+            while self.episodes.lifecycle().count() > 0 {
                 std::thread::sleep(EPISODE_POLL);
             }
             let done = self.scene(&id).and_then(|(hash, task)| self.ensure(&hash, &id, task));
