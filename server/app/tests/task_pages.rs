@@ -188,3 +188,59 @@ fn the_expert_sweep_shows_on_the_task_pages_of_the_entries_it_covers_only() {
     assert_eq!(status, 200, "{page}");
     assert!(!page.contains("expert-sweep"), "T01 is not in the sweep: {page}");
 }
+
+/// Page renders are served one at a time, and a thumbnail request whose page went away (the browser closed its
+/// connection when the person navigated on) leaves the queue unrendered: with T14 rendering, three more requests
+/// wait; closing them counts three cancelled and renders nothing more, T14's request still gets its PNG, and a
+/// cancelled one asked again later renders normally.
+#[test]
+fn thumbnail_requests_whose_page_went_away_are_never_rendered() {
+    use std::io::{Read, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(&dir.path().join("data"));
+    let host = server.url.strip_prefix("http://").unwrap().to_owned();
+    let ask = |id: &str| {
+        let mut stream = std::net::TcpStream::connect(&host).unwrap();
+        stream.set_read_timeout(Some(Duration::from_secs(600))).unwrap();
+        let head = format!(
+            "GET /tasks/{id}/thumbnail.png HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\nAuthorization: Bearer {}\r\n\r\n",
+            server.token
+        );
+        stream.write_all(head.as_bytes()).unwrap();
+        stream
+    };
+    let stats = || http_get_json(&format!("{}/api/thumbnails", server.url)).1["thumbnails"].clone();
+    let wait_for = |what: &str, done: &dyn Fn(&Value) -> bool| {
+        let start = Instant::now();
+        loop {
+            let s = stats();
+            if done(&s) {
+                return s;
+            }
+            assert!(start.elapsed() < Duration::from_secs(300), "{what} within 300 s: {s}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+
+    let mut first = ask("T14");
+    wait_for("T14 rendering", &|s| s["on_demand_rendering"] == 1);
+    let left: Vec<_> = ["T15", "T17", "T21"].into_iter().map(ask).collect();
+    wait_for("three requests waiting behind T14", &|s| s["on_demand_waiting"] == 3);
+    drop(left);
+    let s = wait_for("the three closed requests cancelled", &|s| s["on_demand_cancelled"] == 3 && s["on_demand_waiting"] == 0);
+    assert_eq!(s["on_demand_rendering"], 1, "T14 still rendering while the others leave: {s}");
+
+    let mut reply = Vec::new();
+    first.read_to_end(&mut reply).unwrap();
+    assert!(reply.starts_with(b"HTTP/1.1 200"), "{}", String::from_utf8_lossy(&reply[..reply.len().min(200)]));
+    assert!(reply.windows(4).any(|w| w == b"\x89PNG"), "T14's reply is a PNG");
+    let s = wait_for("T14's render finished", &|s| s["on_demand_rendering"] == 0);
+    assert_eq!(s["rendered"], 1, "only T14 was rendered: {s}");
+
+    let bearer = format!("Bearer {}", server.token);
+    let (status, _, png) = common::http("GET", &format!("{}/tasks/T15/thumbnail.png", server.url), &[("Authorization", &bearer)], &[]);
+    assert_eq!(status, 200);
+    assert!(png.starts_with(b"\x89PNG"));
+    let s = stats();
+    assert_eq!((s["rendered"].as_u64(), s["on_demand_cancelled"].as_u64()), (Some(2), Some(3)), "{s}");
+}

@@ -253,11 +253,10 @@ async fn thumbnail_of(app: AppState, id: String, q: ThumbnailQuery, req: Request
     let Some(camera) = Camera::parse(q.camera.as_deref()) else {
         return ApiError::bad_request("camera must be head or wrist").into_response();
     };
-    let thumbnails = app.thumbnails.clone();
-    match tokio::task::spawn_blocking(move || thumbnails.get(&id, camera)).await {
-        Ok(Ok(path)) => serve_file(path, req).await,
-        Ok(Err(e @ ThumbnailError::NoSuchTask(_))) => ApiError::not_found(e.to_string()).into_response(),
-        Ok(Err(e)) => ApiError::internal(e.to_string()).into_response(),
-        Err(e) => ApiError::internal(format!("thumbnail: {e}")).into_response(),
+    // a page left before its turn drops this future, which takes its render out of the queue
+    match app.thumbnails.get(id, camera).await {
+        Ok(path) => serve_file(path, req).await,
+        Err(e @ ThumbnailError::NoSuchTask(_)) => ApiError::not_found(e.to_string()).into_response(),
+        Err(e) => ApiError::internal(e.to_string()).into_response(),
     }
 }

@@ -9,7 +9,10 @@
 //!
 //! A server with a console renders them ahead at start ([`Thumbnails::render_ahead`]), in background threads
 //! at the lowest CPU priority that also wait while any episode is open, so benchmark episodes and the
-//! server's answers never queue behind them. A page asking for one not rendered yet renders it on demand.
+//! server's answers never queue behind them. A page asking for one not rendered yet renders it on demand
+//! ([`Thumbnails::get`]): one at a time, in the order asked (a page's cards top to bottom), and a request whose
+//! page has gone (the browser closed its connection, so its handler was dropped) leaves the queue before its
+//! render starts, so the next page never waits behind the thumbnails of pages nobody is looking at.
 use std::collections::HashMap;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -93,6 +96,12 @@ pub struct ThumbnailStats {
     pub ahead_pending: u64,
     /// Whether the background pass has run through its list.
     pub ahead_done: bool,
+    /// Page requests waiting for their turn to render now.
+    pub on_demand_waiting: u64,
+    /// Page renders running now (0 or 1).
+    pub on_demand_rendering: u64,
+    /// Page requests that went away while they waited, whose render therefore never started.
+    pub on_demand_cancelled: u64,
 }
 
 /// The thumbnail cache of one data directory.
@@ -102,8 +111,12 @@ pub struct Thumbnails {
     /// One lock per scene hash: a page asking for a scene the background pass is rendering waits for that
     /// render instead of starting a second one.
     scenes: Mutex<HashMap<String, Arc<Mutex<()>>>>,
-    /// Renders asked for by pages run one at a time, so a page of thumbnails does not build thirty worlds at once.
-    on_demand: Mutex<()>,
+    /// Renders asked for by pages run one at a time, so a page of thumbnails does not build thirty worlds at once;
+    /// the semaphore is fair, so they run in the order asked, and a request dropped while it waits leaves the queue.
+    on_demand: Arc<tokio::sync::Semaphore>,
+    on_demand_waiting: AtomicU64,
+    on_demand_rendering: AtomicU64,
+    on_demand_cancelled: AtomicU64,
     rendered: AtomicU64,
     reused: AtomicU64,
     failed: AtomicU64,
@@ -118,7 +131,10 @@ impl Thumbnails {
             episodes,
             dir,
             scenes: Mutex::new(HashMap::new()),
-            on_demand: Mutex::new(()),
+            on_demand: Arc::new(tokio::sync::Semaphore::new(1)),
+            on_demand_waiting: AtomicU64::new(0),
+            on_demand_rendering: AtomicU64::new(0),
+            on_demand_cancelled: AtomicU64::new(0),
             rendered: AtomicU64::new(0),
             reused: AtomicU64::new(0),
             failed: AtomicU64::new(0),
@@ -134,19 +150,41 @@ impl Thumbnails {
             failed: self.failed.load(Ordering::Relaxed),
             ahead_pending: self.ahead_pending.load(Ordering::Relaxed),
             ahead_done: self.ahead_running.load(Ordering::Relaxed) == 0,
+            on_demand_waiting: self.on_demand_waiting.load(Ordering::Relaxed),
+            on_demand_rendering: self.on_demand_rendering.load(Ordering::Relaxed),
+            on_demand_cancelled: self.on_demand_cancelled.load(Ordering::Relaxed),
         }
     }
 
-    /// The cached PNG of `camera` for task `id`, rendered now (seconds; blocking) if it is not on disk yet.
-    pub fn get(&self, id: &str, camera: Camera) -> Result<PathBuf, ThumbnailError> {
-        let (hash, task) = self.scene(id)?;
-        let path = self.file(&hash, camera);
+    /// The cached PNG of `camera` for task `id`, rendered now (seconds) if it is not on disk yet: after the renders
+    /// other pages asked for first. Dropping the future while it waits for its turn cancels the render; once started,
+    /// a render completes (its files serve the next page that asks).
+    pub async fn get(self: &Arc<Self>, id: String, camera: Camera) -> Result<PathBuf, ThumbnailError> {
+        let me = self.clone();
+        let (id, hash, task, path) = blocking(move || {
+            let (hash, task) = me.scene(&id)?;
+            let path = me.file(&hash, camera);
+            Ok((id, hash, task, path))
+        })
+        .await?;
         if path.is_file() {
             return Ok(path);
         }
-        let _one_page_render = self.on_demand.lock().unwrap_or_else(|p| p.into_inner());
-        self.ensure(&hash, id, task)?;
-        Ok(path)
+        let permit = {
+            let waiting = Waiting::new(self);
+            let permit = self.on_demand.clone().acquire_owned().await;
+            waiting.served();
+            permit.map_err(|e| ThumbnailError::Render { task: id.clone(), cause: e.to_string() })?
+        };
+        let me = self.clone();
+        blocking(move || {
+            let _one_page_render = permit;
+            me.on_demand_rendering.fetch_add(1, Ordering::Relaxed);
+            let done = me.ensure(&hash, &id, task);
+            me.on_demand_rendering.fetch_sub(1, Ordering::Relaxed);
+            done.map(|()| path)
+        })
+        .await
     }
 
     /// The scene hash of `id` and its resolved task.
@@ -249,6 +287,41 @@ impl Thumbnails {
         }
         self.ahead_running.fetch_sub(1, Ordering::Relaxed);
     }
+}
+
+/// A page request in the on-demand queue: counted while it waits, and counted as cancelled if it is dropped there.
+struct Waiting<'a> {
+    thumbnails: &'a Thumbnails,
+    served: bool,
+}
+
+impl<'a> Waiting<'a> {
+    fn new(thumbnails: &'a Thumbnails) -> Self {
+        thumbnails.on_demand_waiting.fetch_add(1, Ordering::Relaxed);
+        Self { thumbnails, served: false }
+    }
+
+    fn served(mut self) {
+        self.served = true;
+    }
+}
+
+impl Drop for Waiting<'_> {
+    fn drop(&mut self) {
+        self.thumbnails.on_demand_waiting.fetch_sub(1, Ordering::Relaxed);
+        if !self.served {
+            self.thumbnails.on_demand_cancelled.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// `f` on tokio's blocking pool (file reads, hashing, world set-up and rendering).
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, ThumbnailError> + Send + 'static,
+) -> Result<T, ThumbnailError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .unwrap_or_else(|e| Err(ThumbnailError::Render { task: String::new(), cause: format!("render thread: {e}") }))
 }
 
 /// The tasks `--thumbnails-ahead` names: `off`, or a task selection (`libero_tasks::selector`: `release,all` for
