@@ -430,7 +430,28 @@ def main() -> None:
         setup_node(lock["node_test"])
         setup_s3_server(lock["s3_test_server"])
         setup_toolbox(lock)
+    if "--test" in args:
+        check_free_disk()
     say(f"ready (cache {cache_dir()})")
+
+
+# What a debug build of the whole workspace and its tests takes under target/ (measured: 6.0 GiB), with room
+# for the tests' own temporary data directories, videos and browser profiles.
+TEST_BUILD_DISK_GIB = 10
+
+
+def check_free_disk() -> None:
+    """Says before the build, not in a compiler's 'No space left on device' halfway through it, when the disk
+    holding target/ and the temporary directory is too full for the test build."""
+    root = Path(__file__).resolve().parent.parent
+    target = Path(os.environ.get("CARGO_TARGET_DIR", root / "target"))
+    built = tree_size(target) / 2**30 if target.is_dir() else 0.0
+    for where in {target if target.is_dir() else root, Path(os.environ.get("TMPDIR", "/tmp"))}:
+        free = shutil.disk_usage(where).free / 2**30
+        if free + built < TEST_BUILD_DISK_GIB:
+            say(f"WARNING: {free:.1f} GiB free at {where} ({built:.1f} GiB already built under {target}); "
+                f"the test build and run need about {TEST_BUILD_DISK_GIB} GiB in all: the build may fail with "
+                "'No space left on device'")
 
 
 if __name__ == "__main__":
