@@ -387,8 +387,8 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                 .iter()
                 .flatten()
                 .map(|r| {
-                    let live = r.live_url.clone().filter(|u| u.starts_with("http://") || u.starts_with("https://"));
-                    let on = r.host.clone().or_else(|| r.worker.clone()).unwrap_or_default();
+                    let live = r.live_url.clone().flatten().filter(|u| u.starts_with("http://") || u.starts_with("https://"));
+                    let on = r.host.clone().flatten().or_else(|| r.worker.clone().flatten()).unwrap_or_default();
                     (r.rollout_id.clone().unwrap_or_default(), on, live)
                 })
                 .collect(),
@@ -495,7 +495,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
 
 /// The toolbox line of a batch (`batch.json`'s `toolbox`, as `Toolbox::describe` wrote it).
 fn toolbox_row(b: &LoadedBatch) -> ToolboxRow {
-    let t = b.batch.toolbox.as_ref();
+    let t = b.batch.toolbox();
     let described = toolbox_text(t);
     let (name, packages) = match described.split_once(" (") {
         Some((name, rest)) => (name.to_owned(), rest.trim_end_matches(')').to_owned()),

@@ -21,10 +21,18 @@ record! {
         pub settings_sha256: Option<String>,
         pub harness: Option<HarnessDoc>,
         /// Null for a batch run without the sandbox (or queued, before a worker reports one).
-        pub sandbox: Option<SandboxDoc>,
+        pub sandbox: Option<Option<SandboxDoc>>,
         /// The agent's Python in the sandbox; null without one.
-        pub toolbox: Option<ToolboxDoc>,
+        pub toolbox: Option<Option<ToolboxDoc>>,
+        /// The episode server the rollouts ran on (null for a queued batch: each worker has its own).
+        pub server_url: Option<Option<String>>,
+        /// Where the rollouts' workspaces are (null for a queued batch).
+        pub workspace_root: Option<Option<String>>,
+        /// Outer retries of an INVALID rollout within the batch (always 0: `--resume` re-runs them).
+        pub max_outer_retries: Option<u64>,
         pub rollout_count: Option<u64>,
+        /// Tasks the selection named that have no implementation (left out of the schedule).
+        pub skipped_unimplemented_tasks: Option<Vec<String>>,
         pub counts: Option<BatchCounts>,
         /// Rollout ids running now.
         pub running: Option<Vec<String>>,
@@ -32,6 +40,15 @@ record! {
         pub running_on: Option<Vec<RunningRollout>>,
         /// Ended rollouts per outcome class.
         pub outcomes: Option<BTreeMap<String, u64>>,
+        /// A queued batch's store (its URL without credentials).
+        pub queue: Option<QueueRef>,
+    }
+}
+
+record! {
+    /// Where a queued batch's rollouts wait.
+    pub struct QueueRef {
+        pub store: Option<String>,
     }
 }
 
@@ -52,7 +69,8 @@ record! {
     /// The agent harness and the version it reported.
     pub struct HarnessDoc {
         pub name: Option<String>,
-        pub version: Option<HarnessVersion>,
+        /// Null until a version probe ran (a queued batch's, before its workers report).
+        pub version: Option<Option<HarnessVersion>>,
     }
 }
 
@@ -106,11 +124,11 @@ record! {
     /// A running rollout of a queued batch.
     pub struct RunningRollout {
         pub rollout_id: Option<String>,
-        pub worker: Option<String>,
+        pub worker: Option<Option<String>>,
         /// The machine its worker runs on.
-        pub host: Option<String>,
+        pub host: Option<Option<String>>,
         /// Its episode's live view.
-        pub live_url: Option<String>,
+        pub live_url: Option<Option<String>>,
     }
 }
 
@@ -134,6 +152,38 @@ record! {
 }
 
 impl BatchDoc {
+    /// The sandbox the batch ran in; `None` without one (null or absent).
+    pub fn sandbox(&self) -> Option<&SandboxDoc> {
+        self.sandbox.as_ref()?.as_ref()
+    }
+
+    /// The toolbox the sandbox showed the agent; `None` without one.
+    pub fn toolbox(&self) -> Option<&ToolboxDoc> {
+        self.toolbox.as_ref()?.as_ref()
+    }
+
+    /// The counts and outcomes of `ended` rollouts (by outcome class), `running` ones and `left` ones, and the
+    /// status they make (`queued` before any started, `finished` when none is running or left).
+    pub fn set_progress<'a>(&mut self, ended: impl IntoIterator<Item = &'a str>, running: Vec<RunningRollout>, left: u64) {
+        let mut outcomes = BTreeMap::new();
+        for outcome in ended {
+            *outcomes.entry(outcome.to_owned()).or_insert(0) += 1;
+        }
+        let done = outcomes.values().sum::<u64>();
+        self.status = Some(
+            match (done, running.len(), left) {
+                (_, 0, 0) => "finished",
+                (0, 0, _) => "queued",
+                _ => "running",
+            }
+            .to_owned(),
+        );
+        self.counts = Some(BatchCounts { done: Some(done), running: Some(running.len() as u64), left: Some(left), ..Default::default() });
+        self.running = Some(running.iter().filter_map(|r| r.rollout_id.clone()).collect());
+        self.running_on = Some(running);
+        self.outcomes = Some(outcomes);
+    }
+
     pub fn experiment(&self) -> Option<&str> {
         self.settings.as_ref()?.experiment.as_deref()
     }
@@ -186,11 +236,31 @@ mod tests {
         assert_eq!((b.experiment(), b.harness_setting(), b.model()), (Some("main_table"), Some("codex"), Some("m")));
         assert_eq!((b.outcome_count("SUCCESS"), b.outcome_count("FAIL")), (5, 0));
         assert_eq!(b.counts.as_ref().and_then(|c| c.done), Some(6));
-        assert_eq!(b.toolbox, None);
+        assert_eq!((b.toolbox.clone(), b.toolbox()), (Some(None), None), "a null toolbox is no toolbox");
         assert_eq!(json!(b.toolbox), Value::Null, "passed on as the null it was");
+        assert_eq!(b.sandbox().and_then(|s| s.version.as_deref()), Some("0.9"));
         let running = &b.running_on.as_ref().unwrap()[0];
-        assert_eq!((running.worker.as_deref(), running.host.as_deref()), (Some("w"), None));
-        assert_eq!(b.harness.as_ref().and_then(|h| h.version.as_ref()).and_then(|v| v.observed.as_deref()), None);
+        assert_eq!((running.worker.clone(), running.host.clone()), (Some(Some("w".into())), Some(None)));
+        assert_eq!(b.harness.as_ref().and_then(|h| h.version.clone().flatten()).and_then(|v| v.observed), None);
+    }
+
+    #[test]
+    fn progress_counts_outcomes_and_says_the_status_they_make() {
+        let mut d = BatchDoc::default();
+        d.set_progress([], Vec::new(), 3);
+        assert_eq!((d.status.as_deref(), d.outcome_count("SUCCESS")), (Some("queued"), 0));
+        let r1 = RunningRollout { rollout_id: Some("r1".into()), worker: Some(Some("w".into())), host: Some(None), ..Default::default() };
+        d.set_progress(["SUCCESS", "INVALID", "SUCCESS"], vec![r1], 2);
+        assert_eq!(d.status.as_deref(), Some("running"));
+        let c = d.counts.clone().unwrap();
+        assert_eq!((c.done, c.running, c.left), (Some(3), Some(1), Some(2)));
+        assert_eq!((d.outcome_count("SUCCESS"), d.outcome_count("INVALID")), (2, 1));
+        assert_eq!(d.to_value()["running"], json!(["r1"]));
+        assert_eq!(d.to_value()["running_on"], json!([{"rollout_id": "r1", "worker": "w", "host": null}]), "null kept, absent left out");
+        d.set_progress(["FAIL"], Vec::new(), 0);
+        assert_eq!(d.status.as_deref(), Some("finished"));
+        d.set_progress([], Vec::new(), 0);
+        assert_eq!(d.status.as_deref(), Some("finished"), "an empty batch has nothing left to run");
     }
 
     #[test]

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use libero_episode::json::write_json_file;
-use libero_episode::batch_doc::BatchDoc;
+use libero_episode::batch_doc::{BatchDoc, BatchSettingsDoc};
 use libero_episode::records::RunResult;
 use libero_metrics::{Outcome, PoolRollout, Rollout, Split};
 use serde::{Deserialize, Serialize};
@@ -43,6 +43,11 @@ pub struct BatchSettings {
 }
 
 impl BatchSettings {
+    /// The settings as `batch.json` holds them (every field; the typed ones its readers name).
+    pub fn doc(&self) -> BatchSettingsDoc {
+        serde_json::to_value(self).ok().and_then(|v| BatchSettingsDoc::from_value(v).ok()).unwrap_or_default()
+    }
+
     /// SHA-256 of the canonical JSON (sorted keys, compact).
     pub fn sha256(&self) -> String {
         let v = serde_json::to_value(self).unwrap_or(Value::Null);

@@ -30,7 +30,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use libero_episode::batch_doc::BatchDoc;
+use libero_episode::batch_doc::{BatchCounts, BatchDoc, HarnessDoc, HarnessVersion, SandboxDoc, ToolboxDoc};
 use libero_episode::json::utc_now_iso;
 use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
 use libero_metrics::Outcome;
@@ -390,26 +390,39 @@ impl Progress {
     }
 }
 
+/// `batch.json` of the batch now.
 fn batch_value(ctx: &RunContext, status: &str, created_at: &str, p: &Progress, skipped: &[String]) -> Value {
-    json!({
-        "schema_version": BATCH_SCHEMA,
-        "created_at": created_at,
-        "updated_at": utc_now_iso(),
-        "status": status,
-        "settings": ctx.settings,
-        "settings_sha256": ctx.settings.sha256(),
-        "harness": {"name": ctx.harness.as_str(), "version": ctx.harness_version},
-        "sandbox": ctx.sandbox.as_ref().map(|s| json!({"kind": "bubblewrap", "version": s.version})),
-        "toolbox": ctx.sandbox.as_ref().and_then(|s| s.toolbox.as_ref()).map(Toolbox::describe),
-        "server_url": ctx.server_url,
-        "workspace_root": ctx.workspace_root,
-        "max_outer_retries": 0,
-        "rollout_count": p.total,
-        "skipped_unimplemented_tasks": skipped,
-        "counts": {"done": p.done, "running": p.running.len(), "left": p.total - p.done - p.running.len()},
-        "running": p.running,
-        "outcomes": p.outcomes.iter().map(|(k, v)| (k.as_str().to_owned(), json!(v))).collect::<serde_json::Map<_, _>>(),
-    })
+    let toolbox = ctx.sandbox.as_ref().and_then(|s| s.toolbox.as_ref()).map(|t| ToolboxDoc::from_value(t.describe()).unwrap_or_default());
+    BatchDoc {
+        schema_version: Some(BATCH_SCHEMA.into()),
+        created_at: Some(created_at.into()),
+        updated_at: Some(utc_now_iso()),
+        status: Some(status.into()),
+        settings: Some(ctx.settings.doc()),
+        settings_sha256: Some(ctx.settings.sha256()),
+        harness: Some(HarnessDoc {
+            name: Some(ctx.harness.as_str().into()),
+            version: Some(HarnessVersion::from_value(ctx.harness_version.clone()).ok()),
+            ..Default::default()
+        }),
+        sandbox: Some(ctx.sandbox.as_ref().map(|s| SandboxDoc { kind: Some("bubblewrap".into()), version: Some(s.version.clone()), ..Default::default() })),
+        toolbox: Some(toolbox),
+        server_url: Some(Some(ctx.server_url.clone())),
+        workspace_root: Some(Some(ctx.workspace_root.to_string_lossy().into_owned())),
+        max_outer_retries: Some(0),
+        rollout_count: Some(p.total as u64),
+        skipped_unimplemented_tasks: Some(skipped.to_vec()),
+        counts: Some(BatchCounts {
+            done: Some(p.done as u64),
+            running: Some(p.running.len() as u64),
+            left: Some((p.total - p.done - p.running.len()) as u64),
+            ..Default::default()
+        }),
+        running: Some(p.running.iter().cloned().collect()),
+        outcomes: Some(p.outcomes.iter().map(|(k, v)| (k.as_str().to_owned(), *v as u64)).collect()),
+        ..Default::default()
+    }
+    .to_value()
 }
 
 /// The `libero-agent` binary a rollout's `{libero_agent}` and the `mcp-stdio` relay run (and the sandbox shows):

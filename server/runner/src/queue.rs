@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use libero_episode::batch_doc::{BatchDoc, RolloutSummary};
+use libero_episode::batch_doc::{BatchCounts, BatchDoc, HarnessDoc, QueueRef, RolloutSummary};
 use libero_episode::json::utc_now_iso;
 use libero_metrics::Outcome;
 use libero_store::{QueueListener, Store, StoredBatch};
@@ -42,26 +42,29 @@ pub fn batch_name(args: &RunArgs) -> anyhow::Result<String> {
 
 /// The queued batch's document: `batch.json`'s shape; the store keeps its progress current.
 fn batch_doc(name: &str, settings: &BatchSettings, schedule: &[PlannedRollout], skipped: &[String], store_url: &str) -> Value {
-    json!({
-        "schema_version": BATCH_SCHEMA,
-        "name": name,
-        "created_at": utc_now_iso(),
-        "updated_at": utc_now_iso(),
-        "status": "queued",
-        "settings": settings,
-        "settings_sha256": settings.sha256(),
-        "harness": {"name": settings.harness, "version": null},
-        "sandbox": null,
-        "server_url": null,
-        "workspace_root": null,
-        "max_outer_retries": 0,
-        "rollout_count": schedule.len(),
-        "skipped_unimplemented_tasks": skipped,
-        "counts": {"done": 0, "running": 0, "left": schedule.len()},
-        "running": [],
-        "outcomes": {},
-        "queue": {"store": libero_store::redact(store_url)},
-    })
+    BatchDoc {
+        schema_version: Some(BATCH_SCHEMA.into()),
+        name: Some(name.into()),
+        created_at: Some(utc_now_iso()),
+        updated_at: Some(utc_now_iso()),
+        status: Some("queued".into()),
+        settings: Some(settings.doc()),
+        settings_sha256: Some(settings.sha256()),
+        // each worker probes its own harness and runs its own sandbox and server
+        harness: Some(HarnessDoc { name: Some(settings.harness.clone()), version: Some(None), ..Default::default() }),
+        sandbox: Some(None),
+        server_url: Some(None),
+        workspace_root: Some(None),
+        max_outer_retries: Some(0),
+        rollout_count: Some(schedule.len() as u64),
+        skipped_unimplemented_tasks: Some(skipped.to_vec()),
+        counts: Some(BatchCounts { done: Some(0), running: Some(0), left: Some(schedule.len() as u64), ..Default::default() }),
+        running: Some(Vec::new()),
+        outcomes: Some(Default::default()),
+        queue: Some(QueueRef { store: Some(libero_store::redact(store_url)), ..Default::default() }),
+        ..Default::default()
+    }
+    .to_value()
 }
 
 /// Writes a new batch `name` and queues its rollouts.
@@ -193,6 +196,29 @@ mod tests {
         let doc = BatchDoc::from_value(doc).unwrap();
         assert_eq!(progress_line(&doc), format!("[{}{}] 6/12 ended · 3 running · 3 queued · INVALID 1, SUCCESS 5", "#".repeat(12), "-".repeat(12)));
         assert!(progress_line(&BatchDoc::default()).starts_with("[------------------------] 0/0 ended"));
+    }
+
+    #[test]
+    fn a_queued_batch_document_has_every_key_its_readers_and_workers_expect() {
+        let settings = BatchSettings {
+            experiment: "main_table".into(), harness: "codex".into(), model: "m".into(), effort: "high".into(), reps: 3,
+            tasks: vec![14], pool_tasks: vec![], seed: 100, wall_time_s: 1800.0, max_agent_steps: 400, agent_cmd: None, sandbox: true,
+        };
+        let plan: PlannedRollout = serde_json::from_value(json!({"rollout_id": "w1_t14_level3", "task": "T14", "task_number": 14,
+            "task_name": "close", "split": "short_horizon_easy", "stage_count": 1, "repetition": 1, "level": 3, "demo": "none"})).unwrap();
+        let mut doc = batch_doc("b1", &settings, &[plan.clone(), plan], &["T99".into()], "postgres://u:secret@db/q");
+        for stamp in ["created_at", "updated_at"] {
+            assert!(doc[stamp].as_str().is_some_and(|t| t.ends_with('Z') || t.contains('+')), "{stamp}: {doc}");
+            doc.as_object_mut().unwrap().remove(stamp);
+        }
+        assert_eq!(doc, json!({
+            "schema_version": BATCH_SCHEMA, "name": "b1", "status": "queued", "settings": settings,
+            "settings_sha256": settings.sha256(), "harness": {"name": "codex", "version": null}, "sandbox": null,
+            "server_url": null, "workspace_root": null, "max_outer_retries": 0, "rollout_count": 2,
+            "skipped_unimplemented_tasks": ["T99"], "counts": {"done": 0, "running": 0, "left": 2}, "running": [],
+            "outcomes": {}, "queue": {"store": libero_store::redact("postgres://u:secret@db/q")},
+        }));
+        assert!(!doc.to_string().contains("secret"), "the store's password stays out of the document");
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! INVALID ones again. A worker that finishes a job it no longer holds is told so and its record is dropped, so a
 //! rollout ends exactly once.
 use crate::error::{Context, Result, StoreError};
-use libero_records::batch_doc::RolloutSummary;
+use libero_records::batch_doc::{BatchDoc, RolloutSummary, RunningRollout};
 use libero_records::json::utc_now_iso;
 use serde::Serialize;
 use serde_json::Value;
@@ -344,7 +344,8 @@ impl Store {
         else {
             return Ok(());
         };
-        let mut doc: Value = serde_json::from_str(&row.try_get::<String, _>("doc")?).unwrap_or(Value::Null);
+        // a document that is not an object is left as it is
+        let Ok(mut doc) = serde_json::from_str::<BatchDoc>(&row.try_get::<String, _>("doc")?) else { return Ok(()) };
         let jobs = sqlx::query(
             "SELECT q.rollout_id, q.state, q.outcome, q.worker, w.host, w.live_url FROM queue q \
              LEFT JOIN workers w ON w.id = q.worker WHERE q.batch = $1 ORDER BY q.seq",
@@ -353,39 +354,24 @@ impl Store {
             .fetch_all(&mut **tx)
             .await
             .with_context(|| format!("store: cannot read the queue of batch {batch}"))?;
-        let (mut done, mut left) = (0u64, 0u64);
-        let (mut running, mut running_on) = (Vec::new(), Vec::new());
-        let mut outcomes = serde_json::Map::new();
+        let (mut ended, mut running, mut left) = (Vec::new(), Vec::new(), 0u64);
         for j in &jobs {
             match j.try_get::<String, _>("state")?.as_str() {
                 "queued" => left += 1,
-                "running" => {
-                    let id: String = j.try_get("rollout_id")?;
-                    running_on.push(serde_json::json!({
-                        "rollout_id": id,
-                        "worker": j.try_get::<Option<String>, _>("worker")?,
-                        "host": j.try_get::<Option<String>, _>("host")?,
-                        "live_url": j.try_get::<Option<String>, _>("live_url")?,
-                    }));
-                    running.push(Value::String(id));
-                }
-                _ => {
-                    done += 1;
-                    let outcome = j.try_get::<Option<String>, _>("outcome")?.unwrap_or_else(|| "INVALID".into());
-                    let n = outcomes.get(&outcome).and_then(Value::as_u64).unwrap_or(0);
-                    outcomes.insert(outcome, Value::from(n + 1));
-                }
+                // which worker runs what, and where its own live views are (`worker --public-url`)
+                "running" => running.push(RunningRollout {
+                    rollout_id: Some(j.try_get("rollout_id")?),
+                    worker: Some(j.try_get("worker")?),
+                    host: Some(j.try_get("host")?),
+                    live_url: Some(j.try_get("live_url")?),
+                    ..Default::default()
+                }),
+                _ => ended.push(j.try_get::<Option<String>, _>("outcome")?.unwrap_or_else(|| "INVALID".into())),
             }
         }
-        let Some(fields) = doc.as_object_mut() else { return Ok(()) };
-        let status = if done == jobs.len() as u64 { "finished" } else if running.is_empty() && done == 0 { "queued" } else { "running" };
-        fields.insert("status".into(), Value::from(status));
-        fields.insert("counts".into(), serde_json::json!({"done": done, "running": running.len(), "left": left}));
-        fields.insert("running".into(), Value::Array(running));
-        // Which worker runs what, and where its own live views are (`worker --public-url`).
-        fields.insert("running_on".into(), Value::Array(running_on));
-        fields.insert("outcomes".into(), Value::Object(outcomes));
-        fields.insert("updated_at".into(), Value::from(utc_now_iso()));
+        doc.set_progress(ended.iter().map(String::as_str), running, left);
+        doc.updated_at = Some(utc_now_iso());
+        let doc = doc.to_value();
         sqlx::query("UPDATE batches SET doc = $2, updated_at = $3 WHERE name = $1")
             .bind(batch)
             .bind(doc.to_string())
