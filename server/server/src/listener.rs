@@ -55,6 +55,11 @@ pub const DEFAULT_BODY_READ_TIMEOUT_S: f64 = 30.0;
 pub const MIN_FD_RESERVE: u64 = 1024;
 /// How long the accept loop sleeps when the process (or the system) is out of file descriptors.
 const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
+/// Displaced connections whose tasks have not closed them yet, at most (plus one per listener): their descriptors
+/// stay open until their tasks run, so on a busy machine a flood could hold any number over the cap. At this
+/// many the accept loops wait for those tasks before they accept more (new connections wait in the kernel's
+/// backlog, holding no descriptor of the server's; none is refused for it).
+const MAX_PENDING_EVICTIONS: usize = 32;
 /// At most one warning about refused or displaced connections per this period.
 const WARN_PERIOD: Duration = Duration::from_secs(10);
 
@@ -296,6 +301,8 @@ struct Table {
     next: u64,
     all: BTreeMap<u64, (IpAddr, Arc<ConnState>)>,
     per_ip: HashMap<IpAddr, BTreeMap<u64, Arc<ConnState>>>,
+    /// Connections displaced (out of `all`) whose slots have not been dropped yet: their descriptors are open.
+    evicting: usize,
 }
 
 impl Table {
@@ -353,6 +360,8 @@ struct Stats {
 struct Registry {
     limits: Limits,
     table: Mutex<Table>,
+    /// Told whenever a displaced connection's slot is dropped.
+    evicted: Notify,
     stats: Stats,
     /// When the last warning was printed, and the counters it reported.
     warned: Mutex<Option<(Instant, u64, u64)>>,
@@ -373,15 +382,35 @@ struct Slot {
 
 impl Drop for Slot {
     fn drop(&mut self) {
-        if let Ok(mut t) = self.registry.table.lock() {
-            t.remove(self.seq);
+        if let Ok(mut t) = self.registry.table.lock()
+            && t.remove(self.seq).is_none()
+        {
+            // displaced earlier: its descriptor closes now
+            t.evicting = t.evicting.saturating_sub(1);
+            self.registry.evicted.notify_waiters();
         }
     }
 }
 
 impl Registry {
     fn new(limits: Limits) -> Self {
-        Self { limits, table: Mutex::new(Table::default()), stats: Stats::default(), warned: Mutex::new(None) }
+        Self { limits, table: Mutex::new(Table::default()), evicted: Notify::new(), stats: Stats::default(), warned: Mutex::new(None) }
+    }
+
+    fn pending_evictions(&self) -> usize {
+        self.table.lock().map_or(0, |t| t.evicting)
+    }
+
+    /// Returns once fewer than [`MAX_PENDING_EVICTIONS`] displaced connections are still open.
+    async fn until_evictions_caught_up(&self) {
+        loop {
+            // created before the check: a slot dropped in between still wakes it
+            let dropped = self.evicted.notified();
+            if self.pending_evictions() < MAX_PENDING_EVICTIONS {
+                return;
+            }
+            dropped.await;
+        }
     }
 
     /// A place for a new connection from `ip`, displacing an older one over a cap if one may give way.
@@ -392,10 +421,12 @@ impl Registry {
         if t.per_ip.get(&ip).map_or(0, BTreeMap::len) >= limits.max_per_ip {
             let seq = t.victim(Some(ip), limits).ok_or(Refusal::PerIp)?;
             displaced.extend(t.remove(seq));
+            t.evicting += 1;
         }
         if t.all.len() >= limits.max_total {
             let seq = t.victim(None, limits).ok_or(Refusal::Total)?;
             displaced.extend(t.remove(seq));
+            t.evicting += 1;
         }
         let seq = t.next;
         t.next += 1;
@@ -673,7 +704,10 @@ async fn accept_loop(
         let accepted = tokio::select! {
             biased;
             _ = stop.wait_for(|s| *s) => return,
-            a = listener.accept() => a,
+            a = async {
+                registry.until_evictions_caught_up().await;
+                listener.accept().await
+            } => a,
         };
         let (stream, peer) = match accepted {
             Ok(a) => a,
@@ -812,6 +846,31 @@ mod tests {
         c.request_ended();
         drop(slot_c);
         assert!(registry.admit("127.0.0.4".parse().unwrap()).is_ok());
+    }
+
+    #[tokio::test]
+    async fn displaced_connections_not_closed_yet_hold_the_accept_loops_back_until_one_closes() {
+        let registry = Arc::new(Registry::new(limits(4, 1000)));
+        let ip = |n: usize| format!("10.0.{}.{}", n / 250, n % 250).parse::<IpAddr>().unwrap();
+        // Each new connection displaces one that never sent a request; the displaced slots are kept (their
+        // connection tasks have not run yet), so their descriptors are still open.
+        let mut slots: Vec<Slot> = (0..4 + MAX_PENDING_EVICTIONS).map(|n| registry.admit(ip(n)).unwrap().0).collect();
+        assert_eq!(registry.pending_evictions(), MAX_PENDING_EVICTIONS);
+        let caught_up = tokio::time::timeout(Duration::from_millis(200), registry.until_evictions_caught_up());
+        assert!(caught_up.await.is_err(), "the accept loops wait while that many are pending");
+        let waiting = tokio::spawn({
+            let registry = registry.clone();
+            async move { registry.until_evictions_caught_up().await }
+        });
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        drop(slots.remove(0)); // a displaced connection's task closes it
+        tokio::time::timeout(Duration::from_secs(5), waiting).await.expect("woken by the closed one").unwrap();
+        assert_eq!(registry.pending_evictions(), MAX_PENDING_EVICTIONS - 1);
+        drop(slots.remove(0));
+        registry.until_evictions_caught_up().await;
+        // the live connections' slots leave no pending eviction behind
+        drop(slots);
+        assert_eq!(registry.pending_evictions(), 0);
     }
 
     #[tokio::test]
