@@ -49,8 +49,8 @@ print(json.dumps({
 }))
 "#;
 
-/// A started `--demo video` episode of T14 at level 3 (its first observation and the demonstration's MP4s
-/// published), shared by the tests; its server lives as long as the test process.
+/// A started episode of T14 at level 3 (its first observation published, and with `--demo video` the
+/// demonstration's MP4s), shared by the tests of one process; its server lives as long as the test process.
 struct Published {
     _server: InProcessServer,
     dir: PathBuf,
@@ -58,26 +58,35 @@ struct Published {
     mcp_url: String,
 }
 
+/// With the demonstration's MP4s (rendering them takes most of a minute in a debug build): for the tests that read them.
 fn published() -> &'static Published {
     static P: OnceLock<Published> = OnceLock::new();
-    P.get_or_init(|| {
-        // A directory of this process's own: test runners that run each test in a process of its own (nextest)
-        // run several of these at once. Kept after the process: the static is never dropped.
-        let dir = tempfile::Builder::new().prefix("toolbox-tests-").tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap().keep();
-        let server = InProcessServer::start(dir.join("data"), "test_finished").unwrap();
-        let req = PrepareRequest {
-            level: 3,
-            workspace: Some(dir.join("ws")),
-            wall_time_s: 1800.0,
-            demo: DemoCondition::Video,
-            ..PrepareRequest::new("T14")
-        };
-        let prepared = prepare_episode(&server.url, &req).unwrap();
-        // The first observation is published when the agent starts the episode.
-        let token = prepared.mcp_headers["Authorization"].trim_start_matches("Bearer ");
-        McpClient::connect_with_token(&prepared.mcp_url, token, "toolbox-test").unwrap().call_tool("start_episode", json!({})).unwrap();
-        Published { _server: server, dir, workspace: prepared.workspace, mcp_url: prepared.mcp_url }
-    })
+    P.get_or_init(|| publish(DemoCondition::Video))
+}
+
+/// Without a demonstration: for the tests that need only a workspace and an MCP endpoint.
+fn published_plain() -> &'static Published {
+    static P: OnceLock<Published> = OnceLock::new();
+    P.get_or_init(|| publish(DemoCondition::None))
+}
+
+fn publish(demo: DemoCondition) -> Published {
+    // A directory of this process's own: test runners that run each test in a process of its own (nextest)
+    // run several of these at once. Kept after the process: the static is never dropped.
+    let dir = tempfile::Builder::new().prefix("toolbox-tests-").tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap().keep();
+    let server = InProcessServer::start(dir.join("data"), "test_finished").unwrap();
+    let req = PrepareRequest {
+        level: 3,
+        workspace: Some(dir.join("ws")),
+        wall_time_s: 1800.0,
+        demo,
+        ..PrepareRequest::new("T14")
+    };
+    let prepared = prepare_episode(&server.url, &req).unwrap();
+    // The first observation is published when the agent starts the episode.
+    let token = prepared.mcp_headers["Authorization"].trim_start_matches("Bearer ");
+    McpClient::connect_with_token(&prepared.mcp_url, token, "toolbox-test").unwrap().call_tool("start_episode", json!({})).unwrap();
+    Published { _server: server, dir, workspace: prepared.workspace, mcp_url: prepared.mcp_url }
 }
 
 fn project_toolbox() -> Toolbox {
@@ -119,8 +128,7 @@ fn text(o: &Output) -> String {
 
 /// `script` run by the `python3` a shell finds on the agent's PATH, as `run` runs an agent: in the sandbox behind
 /// `sandbox-net`, in the workspace, with a fresh session home of its own.
-fn in_sandbox(sandbox: &Sandbox, name: &str, script: &str) -> Output {
-    let p = published();
+fn in_sandbox(p: &Published, sandbox: &Sandbox, name: &str, script: &str) -> Output {
     let home = p.dir.join(format!("home-{name}"));
     std::fs::create_dir(&home).unwrap();
     let env = [("PATH", "/usr/local/bin:/usr/bin:/bin"), ("LANG", "C.UTF-8"), ("TMPDIR", "/tmp")]
@@ -175,7 +183,7 @@ fn check_reads(v: &Value, o: &Output) {
 #[test]
 fn the_project_toolbox_reads_the_published_depth_png_and_demo_mp4_in_the_sandbox() {
     let sandbox = Sandbox::detect().unwrap().with_toolbox(Some(project_toolbox()));
-    let o = in_sandbox(&sandbox, "reads", READ_PUBLISHED);
+    let o = in_sandbox(published(), &sandbox, "reads", READ_PUBLISHED);
     assert!(o.status.success(), "{}", text(&o));
     let v = last_json(&o);
     check_reads(&v, &o);
@@ -211,7 +219,7 @@ mounts = [l.split() for l in open("/proc/self/mountinfo")]
 print(json.dumps({"attempts": out, "options": [m[5] for m in mounts if m[4] == "/opt/libero-toolbox"]}))
 "#;
     let sandbox = Sandbox::detect().unwrap().with_toolbox(Some(project_toolbox()));
-    let o = in_sandbox(&sandbox, "write", script);
+    let o = in_sandbox(published_plain(), &sandbox, "write", script);
     assert!(o.status.success(), "{}", text(&o));
     let v = last_json(&o);
     for (attempt, result) in v["attempts"].as_object().unwrap() {
@@ -244,7 +252,7 @@ print(json.dumps({"pip": pip.returncode, "pip_out": pip.stdout + pip.stderr, "im
                   "import_err": imported.stderr, "userbase": os.environ.get("PYTHONUSERBASE"), "home": home}))
 "#;
     let sandbox = Sandbox::detect().unwrap().with_toolbox(Some(project_toolbox()));
-    let o = in_sandbox(&sandbox, "pip", script);
+    let o = in_sandbox(published_plain(), &sandbox, "pip", script);
     assert!(o.status.success(), "{}", text(&o));
     let v = last_json(&o);
     assert_eq!(v["pip"], 0, "{}", v["pip_out"]);
@@ -265,7 +273,7 @@ import importlib.util, json, os, shutil, sys
 print(json.dumps({"executable": sys.executable, "prefix": sys.prefix, "opt": os.path.exists("/opt/libero-toolbox"),
                   "which": shutil.which("python3"), "numpy": importlib.util.find_spec("numpy") is not None}))
 "#;
-    let o = in_sandbox(&Sandbox::detect().unwrap().with_toolbox(None), "none", script);
+    let o = in_sandbox(published_plain(), &Sandbox::detect().unwrap().with_toolbox(None), "none", script);
     assert!(o.status.success(), "{}", text(&o));
     let v = last_json(&o);
     assert_eq!((v["executable"].as_str(), v["prefix"].as_str(), v["opt"].as_bool()), (Some("/usr/bin/python3"), Some("/usr"), Some(false)), "{v}");
