@@ -166,6 +166,11 @@ impl Script {
         Self { phases, current: 0, ctx: None, home_rot: None, log: Vec::new() }
     }
 
+    /// A script whose home orientation is `home_rot` rather than the hand's orientation when it starts.
+    pub fn with_home(phases: Vec<Phase>, home_rot: Matrix3<f64>) -> Self {
+        Self { home_rot: Some(home_rot), ..Self::new(phases) }
+    }
+
     /// The next action, or `None` when every phase has ended.
     pub fn act(&mut self, sim: &Simulation) -> Option<[f64; 7]> {
         loop {

@@ -217,36 +217,90 @@ pub const MIDDLE_HANDLE_LOCAL_M: [f64; 3] = [-0.00278, -0.10161, 0.11041];
 pub const BOTTOM_HANDLE_LOCAL_M: [f64; 3] = [-0.00278, -0.10161, 0.04114];
 const DRAWER_OUT_LOCAL: [f64; 3] = [0.0, -1.0, 0.0];
 
+/// How far a hand whose pull of a drawer stalled turns down about the bar it holds (rad): its wrist rises over
+/// what stands beside the cabinet at wrist height (the wine rack's post beside the white cabinet).
+pub const PULL_AGAIN_PITCH_RAD: f64 = 0.5;
+
 /// Phases that pull a wooden-cabinet drawer open (the hand points into the drawer with its fingers opening
-/// vertically and closes on the bar from above and below), until the slide reads `q_goal`.
+/// vertically and closes on the bar from above and below), until the slide reads `q_goal`. A pull that stalls
+/// short of the goal (the slide moved under 1.5 mm in 20 steps: the arm behind the hand leans on something beside
+/// the cabinet) turns the hand down about the bar it holds by [`PULL_AGAIN_PITCH_RAD`], the wrist rising off what
+/// it leans on, and pulls on.
 pub fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64; 3], q_adr: usize, q_goal: f64) {
     let handle = move |sim: &Simulation| body_point(sim, drawer, handle_local_m);
     let out = move |sim: &Simulation| body_dir(sim, drawer, DRAWER_OUT_LOCAL);
     let q = move |sim: &Simulation| sim.data().qpos()[q_adr];
-    let rot = move |sim: &Simulation, ctx: &PhaseCtx| into_drawer(out(sim), &ctx.home_rot);
+    let done = move |sim: &Simulation| q(sim) <= q_goal;
+    let level = move |sim: &Simulation, ctx: &PhaseCtx| into_drawer(out(sim), &ctx.home_rot);
+    let pitched = move |sim: &Simulation, ctx: &PhaseCtx| {
+        let o = out(sim);
+        rotate_world(&into_drawer(o, &ctx.home_rot), Vector3::z().cross(&o), -PULL_AGAIN_PITCH_RAD)
+    };
+    // whether the first pull stalled and the hand turned down (read as the turn would start)
+    let turned = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let is_turned = {
+        let t = turned.clone();
+        Arc::new(move || t.load(std::sync::atomic::Ordering::Relaxed))
+    };
+    let rot: RotFn = {
+        let t = is_turned.clone();
+        Arc::new(move |sim: &Simulation, ctx: &PhaseCtx| if t() { pitched(sim, ctx) } else { level(sim, ctx) })
+    };
     let at = move |sim: &Simulation, out_m: f64| handle(sim) + out(sim) * out_m;
     phases.push(
-        Phase::new("in_front_of_handle", move |sim, ctx| Goal::at(at(sim, 0.12), GRIPPER_OPEN).rotated(rot(sim, ctx)))
-            .until(move |sim, ctx| (grip_pose(sim).0 - at(sim, 0.12)).norm() < 0.01 && rotation_error(sim, &rot(sim, ctx)) < 0.05)
+        Phase::new("in_front_of_handle", move |sim, ctx| Goal::at(at(sim, 0.12), GRIPPER_OPEN).rotated(level(sim, ctx)))
+            .until(move |sim, ctx| (grip_pose(sim).0 - at(sim, 0.12)).norm() < 0.01 && rotation_error(sim, &level(sim, ctx)) < 0.05)
             .max_steps(150),
     );
     phases.push(
-        Phase::new("onto_handle", move |sim, ctx| Goal::at(at(sim, -0.003), GRIPPER_OPEN).slow(0.3).rotated(rot(sim, ctx)))
+        Phase::new("onto_handle", move |sim, ctx| Goal::at(at(sim, -0.003), GRIPPER_OPEN).slow(0.3).rotated(level(sim, ctx)))
             .until_reached(0.004)
             .max_steps(80),
     );
-    phases.push(Phase::new("grip_handle", move |sim, ctx| Goal::at(at(sim, -0.003), GRIPPER_CLOSED).rotated(rot(sim, ctx))).for_steps(14));
+    phases.push(Phase::new("grip_handle", move |sim, ctx| Goal::at(at(sim, -0.003), GRIPPER_CLOSED).rotated(level(sim, ctx))).for_steps(14));
+    for again in [false, true] {
+        if again {
+            let (t, s) = (turned.clone(), is_turned.clone());
+            phases.push(
+                Phase::new("turn_down_on_handle", move |sim, ctx| Goal::at(at(sim, 0.0), GRIPPER_CLOSED).slow(0.3).rotated(pitched(sim, ctx)))
+                    .until(move |sim, ctx| {
+                        if ctx.steps == 0 {
+                            t.store(!done(sim), std::sync::atomic::Ordering::Relaxed);
+                        }
+                        !s() || rotation_error(sim, &pitched(sim, ctx)) < 0.06
+                    })
+                    .max_steps(60),
+            );
+        }
+        let (s, rot) = (is_turned.clone(), rot.clone());
+        // (slide position, step) at the last stall check
+        let window = Arc::new(Mutex::new((0.0_f64, 0_u32)));
+        phases.push(
+            Phase::new("pull_drawer", move |sim, ctx| {
+                let lead = (q(sim) - q_goal).clamp(0.0, 0.05) + 0.01;
+                Goal::at(at(sim, lead), GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
+            })
+            .until(move |sim, ctx| {
+                if done(sim) || (again && !s()) {
+                    return true;
+                }
+                let mut w = window.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                if ctx.steps == 0 || ctx.steps >= w.1 + 20 {
+                    let stalled = ctx.steps > 0 && (q(sim) - w.0).abs() < 0.0015;
+                    *w = (q(sim), ctx.steps);
+                    return stalled;
+                }
+                false
+            })
+            .max_steps(200),
+        );
+    }
+    let r = rot.clone();
+    phases.push(Phase::new("release_handle", move |sim, ctx| Goal::at(at(sim, 0.0), GRIPPER_OPEN).rotated(r(sim, ctx))).for_steps(8));
+    // back along the hand's axis (and up)
+    let back = move |sim: &Simulation| tips_back(out(sim), if is_turned() { PULL_AGAIN_PITCH_RAD } else { 0.0 });
     phases.push(
-        Phase::new("pull_drawer", move |sim, ctx| {
-            let lead = (q(sim) - q_goal).clamp(0.0, 0.05) + 0.01;
-            Goal::at(at(sim, lead), GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
-        })
-        .until(move |sim, _| q(sim) <= q_goal)
-        .max_steps(200),
-    );
-    phases.push(Phase::new("release_handle", move |sim, ctx| Goal::at(at(sim, 0.0), GRIPPER_OPEN).rotated(rot(sim, ctx))).for_steps(8));
-    phases.push(
-        Phase::new("back_away", move |sim, ctx| Goal::at(at(sim, 0.10) + Vector3::z() * 0.05, GRIPPER_OPEN).rotated(rot(sim, ctx)))
+        Phase::new("back_away", move |sim, ctx| Goal::at(handle(sim) + back(sim) * 0.10 + Vector3::z() * 0.05, GRIPPER_OPEN).rotated(rot(sim, ctx)))
             .until_reached(0.02)
             .max_steps(60),
     );

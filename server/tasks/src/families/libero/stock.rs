@@ -62,6 +62,10 @@ const SLOT_SPREAD: f64 = 0.6;
 const ROUND_RATIO: f64 = 0.8;
 /// How far toward an open drawer's front an object is put in (the region is ±7.6 cm deep).
 const DRAWER_FRONT_SHIFT_M: f64 = 0.055;
+/// A region whose surface normal leans this much from the vertical (its horizontal part; sin ≈ 17°) is tilted; a
+/// placement on it aims this far downhill of its centre (m).
+const TILTED_REGION_MIN_SIN: f64 = 0.3;
+const TILTED_REGION_DOWNHILL_M: f64 = 0.012;
 /// A tall object (over 8 cm) is grasped this far below its top: deep enough that a heavy book does not slip out.
 const TALL_GRASP_BELOW_TOP_M: f64 = 0.05;
 /// Control steps the hand waits at the end (1 s).
@@ -204,6 +208,10 @@ struct ReadyStep {
     /// The step is skipped when this holds as it would start.
     done: Option<Done>,
     build: Build,
+    /// The step's script turns the hand relative to the expert's start orientation, not to the hand's orientation
+    /// as the step starts (the bottom drawer's fingertip skills: turned from a placement's grasp orientation, the
+    /// hand would come at the bar with its last wrist joint on its limit).
+    from_home: bool,
 }
 
 /// The generic expert: plays its steps one script at a time.
@@ -229,7 +237,8 @@ impl Expert for StockExpert {
             if step.done.as_ref().is_some_and(|done| done(sim)) {
                 continue;
             }
-            self.script = Some(Script::new((step.build)(sim, &self.ctx, &home)));
+            let phases = (step.build)(sim, &self.ctx, &home);
+            self.script = Some(if step.from_home { Script::with_home(phases, home) } else { Script::new(phases) });
         }
     }
 
@@ -278,11 +287,12 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
             (false, None) => implicit_done(&index, &p.step),
         };
         let slot = slot_of(&targets, k);
-        steps.push(ReadyStep { done, build: step_builder(refs, &index, p.step, slot, short)? });
+        let from_home = matches!(p.step, Step::Drawer { region, .. } if drawer_handle(&index, region) == Some(BOTTOM_HANDLE_LOCAL_M));
+        steps.push(ReadyStep { done, build: step_builder(refs, &index, p.step, slot, short)?, from_home });
     }
     // the hand waits, open and still, until what it let go comes to rest: the goal is judged on the final state
     let settle: Build = Box::new(|_, _, _| vec![Phase::new("settle", |sim, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(grip_pose(sim).1)).for_steps(SETTLE_STEPS)]);
-    steps.push(ReadyStep { done: None, build: settle });
+    steps.push(ReadyStep { done: None, build: settle, from_home: false });
     let base = refs.scene.robot_base_pos;
     Ok(Box::new(StockExpert {
         ctx: Ctx { index, base_m: Vector3::new(base[0], base[1], base[2]) },
@@ -324,6 +334,18 @@ fn slot_of(targets: &[Option<Target>], step: usize) -> Slot {
     Slot { k: targets[..step].iter().filter(|t| same(t)).count(), n: targets.iter().filter(|t| same(t)).count() }
 }
 
+/// The handle bar (in the drawer body's frame) of a drawer region's slide, by the slide's name.
+fn drawer_handle(index: &SceneIndex, region: usize) -> Option<[f64; 3]> {
+    let joint = index.regions[region].joints.first()?;
+    Some(if joint.name.ends_with("top_level") {
+        TOP_HANDLE_LOCAL_M
+    } else if joint.name.ends_with("middle_level") {
+        MIDDLE_HANDLE_LOCAL_M
+    } else {
+        BOTTOM_HANDLE_LOCAL_M
+    })
+}
+
 /// The script builder of one step (fixture ids resolved now, geometry read when it starts).
 fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, short: bool) -> Result<Build, TasksError> {
     Ok(match step {
@@ -344,13 +366,7 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, sh
             let joint = index.regions[region].joints.first().ok_or_else(|| TasksError::Scene("drawer region without a joint".into()))?;
             let (q_adr, j) = refs.joint(&joint.name)?;
             let drawer = refs.model.jnt_bodyid()[j] as usize;
-            let handle = if joint.name.ends_with("top_level") {
-                TOP_HANDLE_LOCAL_M
-            } else if joint.name.ends_with("middle_level") {
-                MIDDLE_HANDLE_LOCAL_M
-            } else {
-                BOTTOM_HANDLE_LOCAL_M
-            };
+            let handle = drawer_handle(index, region).unwrap_or(BOTTOM_HANDLE_LOCAL_M);
             let q_goal = match (open, short) {
                 (true, false) => DRAWER_OPEN_Q_M,
                 (false, false) => DRAWER_CLOSED_Q_M,
@@ -511,7 +527,14 @@ fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Slot, root_ab
             } else {
                 Vector3::zeros()
             };
-            let front = front + side;
+            // a tilted surface (the wine rack's cradle, inclined 62°): a little downhill of its centre, where what stands
+            // on it leans into the cradle instead of tipping out of it (the surface's normal: the region box's thin
+            // axis, turned up)
+            let thin = (0..3).min_by(|&a, &b| reg.half_size_m[a].abs().total_cmp(&reg.half_size_m[b].abs())).unwrap_or(2);
+            let normal = r.column(thin) * r[(2, thin)].signum();
+            let downhill = Vector3::new(normal.x, normal.y, 0.0);
+            let downhill = if !inside && downhill.norm() > TILTED_REGION_MIN_SIN { downhill.normalize() * TILTED_REGION_DOWNHILL_M } else { Vector3::zeros() };
+            let front = front + side + downhill;
             (Vector3::new(c.x + front.x, c.y + front.y, surface + root_above_bottom_m + 0.012), top + root_above_bottom_m + 0.05)
         }
         Target::Object(b) => {
