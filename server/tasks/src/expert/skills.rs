@@ -221,6 +221,22 @@ const DRAWER_OUT_LOCAL: [f64; 3] = [0.0, -1.0, 0.0];
 /// what stands beside the cabinet at wrist height (the wine rack's post beside the white cabinet).
 pub const PULL_AGAIN_PITCH_RAD: f64 = 0.5;
 
+/// A phase's check that the slide `q` reads has stalled: it moved under 1.5 mm in the last 20 steps of the phase
+/// (looked at every 20 steps).
+fn slide_stalled(q: impl Fn(&Simulation) -> f64 + Send + 'static) -> impl Fn(&Simulation, &PhaseCtx) -> bool + Send + 'static {
+    // (slide position, step) at the last look
+    let window = Mutex::new((0.0_f64, 0_u32));
+    move |sim, ctx| {
+        let mut w = window.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if ctx.steps == 0 || ctx.steps >= w.1 + 20 {
+            let stalled = ctx.steps > 0 && (q(sim) - w.0).abs() < 0.0015;
+            *w = (q(sim), ctx.steps);
+            return stalled;
+        }
+        false
+    }
+}
+
 /// Phases that pull a wooden-cabinet drawer open (the hand points into the drawer with its fingers opening
 /// vertically and closes on the bar from above and below), until the slide reads `q_goal`. A pull that stalls
 /// short of the goal (the slide moved under 1.5 mm in 20 steps: the arm behind the hand leans on something beside
@@ -273,8 +289,7 @@ pub fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64;
             );
         }
         let (s, rot) = (is_turned.clone(), rot.clone());
-        // (slide position, step) at the last stall check
-        let window = Arc::new(Mutex::new((0.0_f64, 0_u32)));
+        let stalled = slide_stalled(q);
         phases.push(
             Phase::new("pull_drawer", move |sim, ctx| {
                 let lead = (q(sim) - q_goal).clamp(0.0, 0.05) + 0.01;
@@ -284,13 +299,7 @@ pub fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64;
                 if done(sim) || (again && !s()) {
                     return true;
                 }
-                let mut w = window.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                if ctx.steps == 0 || ctx.steps >= w.1 + 20 {
-                    let stalled = ctx.steps > 0 && (q(sim) - w.0).abs() < 0.0015;
-                    *w = (q(sim), ctx.steps);
-                    return stalled;
-                }
-                false
+                stalled(sim, ctx)
             })
             .max_steps(200),
         );
@@ -385,8 +394,7 @@ pub fn drag_drawer_open(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: 
             Phase::new("press_bar", move |sim, ctx| Goal::at(on_bar(sim) - Vector3::z() * PRESS_M, GRIPPER_CLOSED).slow(0.3).rotated(rot(sim, ctx)))
                 .until(move |sim, ctx| done(sim) || ctx.steps >= 10),
         );
-        // (slide position, step) at the last stall check
-        let window = Arc::new(Mutex::new((0.0_f64, 0_u32)));
+        let stalled = slide_stalled(q);
         phases.push(
             Phase::new("drag_drawer", move |sim, ctx| {
                 Goal::at(on_bar(sim) - Vector3::z() * PRESS_M + out(sim) * LEAD_M, GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
@@ -395,13 +403,7 @@ pub fn drag_drawer_open(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: 
                 if done(sim) {
                     return true;
                 }
-                let mut w = window.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                if ctx.steps == 0 || ctx.steps >= w.1 + 20 {
-                    let stalled = ctx.steps > 0 && (q(sim) - w.0).abs() < 0.0015;
-                    *w = (q(sim), ctx.steps);
-                    return stalled;
-                }
-                false
+                stalled(sim, ctx)
             })
             .max_steps(400),
         );
