@@ -17,6 +17,7 @@
 //! `libero-agent expert --tasks release --runs 3 --no-video --jobs N`.
 use std::process::Command;
 
+use libero_tasks::sample::{day_seed, seeded_pick};
 use serde_json::Value;
 
 mod common;
@@ -152,28 +153,9 @@ const FULL_SAMPLE: (usize, usize) = (2, 1);
 /// 27 others, each is picked every three days on average).
 const SOLVE_SAMPLE: usize = 9;
 
-/// The day's sample seed (days since 1970, UTC), or `LIBERO_AGENT_EXPERT_SEED` to repeat another day's.
-fn sample_seed() -> u64 {
-    std::env::var("LIBERO_AGENT_EXPERT_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or_else(|| {
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs() / 86_400)
-    })
-}
-
-/// `n` of `tasks` by a seeded shuffle (a 64-bit LCG): the same seed picks the same tasks on every machine.
-fn pick(tasks: Vec<&String>, n: usize, seed: u64) -> Vec<&String> {
-    let mut order = tasks;
-    let mut state = seed;
-    for i in (1..order.len()).rev() {
-        state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-        order.swap(i, (state >> 33) as usize % (i + 1));
-    }
-    order.truncate(n);
-    order
-}
-
 /// What each release task is checked for. `LIBERO_AGENT_EXPERT_TASKS=all`: every task in full; a comma-separated
 /// list: those tasks in full, no other; else [`FULL_SAMPLE`] tasks in full and [`SOLVE_SAMPLE`] others solving
-/// once, chosen by [`sample_seed`] (printed). Full checks come first (they are the long ones).
+/// once, chosen by the day's seed (printed; `LIBERO_AGENT_EXPERT_SEED` repeats another day's). Full checks come first (they are the long ones).
 fn sample<'a>(release: &[&'a (String, Vec<String>)]) -> Vec<(&'a (String, Vec<String>), Depth)> {
     let only = std::env::var("LIBERO_AGENT_EXPERT_TASKS").ok().filter(|o| !o.trim().is_empty());
     let full: Vec<&String> = match only.as_deref() {
@@ -185,14 +167,14 @@ fn sample<'a>(release: &[&'a (String, Vec<String>)]) -> Vec<(&'a (String, Vec<St
             return release.iter().filter(|(t, _)| chosen.contains(&t)).map(|e| (*e, Depth::Full)).collect();
         }
         None => {
-            let seed = sample_seed();
+            let seed = day_seed("LIBERO_AGENT_EXPERT_SEED");
             let staged = |b: &[String]| b.iter().any(|b| b.starts_with("partial_"));
             let short = release.iter().filter(|(_, b)| !staged(b)).map(|(t, _)| t).collect();
             let long = release.iter().filter(|(_, b)| staged(b)).map(|(t, _)| t).collect();
-            let mut chosen = pick(short, FULL_SAMPLE.0, seed);
-            chosen.extend(pick(long, FULL_SAMPLE.1, seed));
+            let mut chosen = seeded_pick(short, FULL_SAMPLE.0, seed);
+            chosen.extend(seeded_pick(long, FULL_SAMPLE.1, seed));
             let others = release.iter().map(|(t, _)| t).filter(|t| !chosen.contains(t)).collect();
-            let once = pick(others, SOLVE_SAMPLE, seed.wrapping_add(1));
+            let once = seeded_pick(others, SOLVE_SAMPLE, seed.wrapping_add(1));
             eprintln!(
                 "experts: the full proof for {chosen:?}, one solve for {once:?} (LIBERO_AGENT_EXPERT_SEED={seed}); \
                  LIBERO_AGENT_EXPERT_TASKS=all for the full proof of every task"

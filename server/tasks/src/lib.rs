@@ -13,6 +13,7 @@ pub mod families;
 pub mod judge;
 pub mod pool;
 pub mod registry;
+pub mod sample;
 pub mod selector;
 
 pub use catalog::{Catalog, TaskEntry};

@@ -11,29 +11,11 @@ use libero_sim::AssetPaths;
 use libero_sim::compose::compose_file;
 use libero_sim::simulation::SimData;
 use libero_tasks::GoalChecker;
+use libero_tasks::sample::{day_seed, seeded_pick};
 
 const SUITES: [&str; 5] = ["libero_10", "libero_90", "libero_goal", "libero_object", "libero_spatial"];
 /// Goals an ordinary run binds.
 const DAILY_SAMPLE: usize = 44;
-
-/// The day's sample seed (days since 1970, UTC), or `LIBERO_AGENT_STOCK_GOALS_SEED`.
-fn sample_seed() -> u64 {
-    std::env::var("LIBERO_AGENT_STOCK_GOALS_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or_else(|| {
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs() / 86_400)
-    })
-}
-
-/// `n` of `files` by a seeded shuffle (a 64-bit LCG): the same seed picks the same files on every machine.
-fn pick(mut files: Vec<std::path::PathBuf>, n: usize, seed: u64) -> Vec<std::path::PathBuf> {
-    let mut state = seed;
-    for i in (1..files.len()).rev() {
-        state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-        files.swap(i, (state >> 33) as usize % (i + 1));
-    }
-    files.truncate(n);
-    files.sort();
-    files
-}
 
 /// Binds the goal of one stock BDDL file and evaluates it once on the model's default state.
 fn bind(file: &Path, paths: &AssetPaths) -> Result<Vec<String>, String> {
@@ -63,8 +45,9 @@ fn the_days_sample_of_the_130_stock_goals_compiles_against_their_composed_scenes
     files.sort();
     assert_eq!(files.len(), 130, "expected the 130 stock LIBERO tasks");
     if std::env::var("LIBERO_AGENT_STOCK_GOALS").as_deref() != Ok("all") {
-        let seed = sample_seed();
-        files = pick(files, DAILY_SAMPLE, seed);
+        let seed = day_seed("LIBERO_AGENT_STOCK_GOALS_SEED");
+        files = seeded_pick(files, DAILY_SAMPLE, seed);
+        files.sort();
         eprintln!("binding {DAILY_SAMPLE} of the 130 goals (LIBERO_AGENT_STOCK_GOALS_SEED={seed}); LIBERO_AGENT_STOCK_GOALS=all for every one");
     }
     let expected = files.len();
