@@ -58,8 +58,8 @@ pub(crate) fn selected_tasks(selection: &Selection) -> anyhow::Result<Vec<SweepT
     // `all` takes every release task too: some release tasks' only pool twins are stock entries, which run the
     // generic stock expert rather than the release task's own
     let with_release: Selection;
-    let selection = if selection.terms().contains(&Term::All) && !selection.terms().contains(&Term::Release) {
-        with_release = Selection::from_parts(&["release".to_owned(), selection.to_string()])?;
+    let selection = if selection.terms().contains(&Term::All) {
+        with_release = selection.with_first(Term::Release);
         &with_release
     } else {
         selection

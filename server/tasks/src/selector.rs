@@ -162,6 +162,14 @@ impl Selection {
         &self.terms
     }
 
+    /// The selection with `term` first, unless it names it already (then unchanged).
+    pub fn with_first(&self, term: Term) -> Self {
+        if self.terms.contains(&term) {
+            return self.clone();
+        }
+        Self { terms: std::iter::once(term).chain(self.terms.iter().cloned()).collect() }
+    }
+
     /// The tasks selected, in the order the terms name them, each once (a task named on its own and inside a set
     /// keeps the place it is first named at, and counts as named).
     pub fn resolve<'a>(&self, release: &'a [TaskEntry], pool: &'a Pool) -> Result<Vec<Pick<'a>>, SelectionError> {
@@ -371,5 +379,15 @@ mod tests {
         let s: Selection = "suite:libero_10, t07,group:perception,match:Stove".parse().unwrap();
         assert_eq!(s.to_string(), "libero_10,T07,group:perception,match:stove");
         assert_eq!(s.to_string().parse::<Selection>().unwrap(), s);
+    }
+
+    #[test]
+    fn a_term_put_first_is_added_once_even_to_the_longest_selection() {
+        let s: Selection = "all,T14".parse().unwrap();
+        assert_eq!(s.with_first(Term::Release).to_string(), "release,all,T14");
+        let r: Selection = "T14,release".parse().unwrap();
+        assert_eq!(r.with_first(Term::Release), r, "named already: unchanged");
+        let longest: Selection = (1..=MAX_TERMS).map(|n| format!("libero_90/{n}")).collect::<Vec<_>>().join(",").parse().unwrap();
+        assert_eq!(longest.with_first(Term::Release).terms().len(), MAX_TERMS + 1, "not parsed again, so not refused as too long");
     }
 }
