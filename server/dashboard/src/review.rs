@@ -116,9 +116,9 @@ impl TimelineCall {
 
 /// The calls of `actions.jsonl`, each with the control steps it covered (start = step 0; an accepted
 /// `osc_sequence` of n actions advances n steps), counting on from `control_step` (where the previous page ended).
-fn timeline_calls(actions: &[ActionEvent], mut control_step: u64) -> (Vec<TimelineCall>, u64) {
+fn timeline_calls<'a>(actions: impl IntoIterator<Item = &'a ActionEvent>, mut control_step: u64) -> (Vec<TimelineCall>, u64) {
     let calls = actions
-        .iter()
+        .into_iter()
         .map(|e| {
             let steps = if e.actions_executed() { e.control_steps() } else { 0 };
             let begin = control_step;
@@ -245,8 +245,7 @@ fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
     // The transcript is the agent's CLI output, normalised: its events are passed on as they are.
     let (events, events_next) = read_jsonl_indexed::<Value>(&transcript, q.from, AGENT_PAGE_ITEMS);
     let (lines, calls_next) = read_jsonl_indexed::<ActionEvent>(&run.actions_jsonl(), q.calls_from, AGENT_PAGE_ITEMS);
-    let call_lines: Vec<ActionEvent> = lines.iter().map(|(_, v)| v.clone()).collect();
-    let (calls, _) = timeline_calls(&call_lines, q.control_step);
+    let (calls, _) = timeline_calls(lines.iter().map(|(_, v)| v), q.control_step);
     let mut cursor = q.clone();
     let (mut i, mut j) = (0, 0);
     let mut out = Vec::new();

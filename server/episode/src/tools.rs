@@ -127,9 +127,7 @@ pub fn tools_list() -> Value {
 /// Whether the actions of a recorded `osc_sequence` response were executed: an accepted call, or one whose
 /// actions ran but whose observation the agent's own workspace could not take (`ok: false` with
 /// `execution.command_completed`). Replays and timelines count both.
-pub fn actions_executed(response: &Value) -> bool {
-    crate::records::actions_executed(response)
-}
+pub use crate::records::actions_executed;
 
 #[cfg(test)]
 mod executed_tests {

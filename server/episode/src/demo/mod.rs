@@ -245,11 +245,6 @@ pub fn read_manifest(path: &Path) -> Result<DemoManifest, DemoError> {
     Ok(DemoManifest::from_value(read_json(path)?).unwrap_or_default())
 }
 
-/// The manifest's frame count (actions + 1).
-pub fn manifest_frame_count(manifest: &DemoManifest) -> Option<u64> {
-    manifest.frame_count
-}
-
 /// Video frame count of an MP4 file: `stsz` sample count of the first track (no decoder needed).
 pub fn mp4_sample_count(bytes: &[u8]) -> Option<u64> {
     fn find<'a>(mut data: &'a [u8], path: &[&[u8; 4]]) -> Option<&'a [u8]> {

@@ -256,7 +256,7 @@ pub fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64;
     let turned = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let is_turned = {
         let t = turned.clone();
-        Arc::new(move || t.load(std::sync::atomic::Ordering::Relaxed))
+        move || t.load(std::sync::atomic::Ordering::Relaxed)
     };
     let rot: RotFn = {
         let t = is_turned.clone();
@@ -295,12 +295,7 @@ pub fn pull_drawer(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: [f64;
                 let lead = (q(sim) - q_goal).clamp(0.0, 0.05) + 0.01;
                 Goal::at(at(sim, lead), GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
             })
-            .until(move |sim, ctx| {
-                if done(sim) || (again && !s()) {
-                    return true;
-                }
-                stalled(sim, ctx)
-            })
+            .until(move |sim, ctx| done(sim) || (again && !s()) || stalled(sim, ctx))
             .max_steps(200),
         );
     }
@@ -399,12 +394,7 @@ pub fn drag_drawer_open(phases: &mut Vec<Phase>, drawer: usize, handle_local_m: 
             Phase::new("drag_drawer", move |sim, ctx| {
                 Goal::at(on_bar(sim) - Vector3::z() * PRESS_M + out(sim) * LEAD_M, GRIPPER_CLOSED).slow(0.5).rotated(rot(sim, ctx))
             })
-            .until(move |sim, ctx| {
-                if done(sim) {
-                    return true;
-                }
-                stalled(sim, ctx)
-            })
+            .until(move |sim, ctx| done(sim) || stalled(sim, ctx))
             .max_steps(400),
         );
         phases.push(
