@@ -61,6 +61,11 @@ pub struct ExpertArgs {
     /// With `--all` or `--tasks`: run nothing; print the sweep file (`--out`, or the default) as a Markdown table per suite.
     #[arg(long, requires = "sweep")]
     pub markdown: bool,
+    /// With `--tasks`: re-run just this selection and replace its rows in the sweep file (`--out`, or the
+    /// default), each replaced row stamped with its own date and commit and the update listed in the metadata;
+    /// the rest of the table stays as its run left it. `--runs` must be the table's.
+    #[arg(long, requires = "sweep", conflicts_with = "markdown")]
+    pub update: bool,
     /// How many episodes to run (of each behaviour; with `--behaviour all`, of `solve`).
     #[arg(long, default_value_t = 1)]
     pub runs: u32,

@@ -8,7 +8,9 @@
 //!
 //! The table is written to `--out` (default `tasks/results/expert_sweep.jsonl` for `--all`, that is `--tasks all`)
 //! with `<name>.meta.json` beside it (date, commit, command line, cores): the dashboard's task pages show it.
-//! `--markdown` prints that file as the README's table per suite instead of running anything.
+//! `--markdown` prints that file as the README's table per suite instead of running anything. `--tasks SEL --update`
+//! re-runs a selection (after an expert changed) and replaces just its rows, each stamped with its own date and
+//! commit, the update listed in the metadata.
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -147,7 +149,12 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     }
     // a partial sweep never replaces the whole pool's table unless asked to
     let whole = selection.terms() == [Term::All];
-    let out = args.out.clone().or_else(|| whole.then(default_sweep_path));
+    let out = args.out.clone().or_else(|| (whole || args.update).then(default_sweep_path));
+    // an update checks the table it will change before it runs anything
+    let base = match (&out, args.update) {
+        (Some(out), true) => Some(SweepTable::read_for_update(out, args.runs)?),
+        _ => None,
+    };
     let episodes = Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?;
     let (total, jobs) = (tasks.len(), args.jobs.min(tasks.len()));
     let started = Instant::now();
@@ -197,9 +204,16 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     }
     let solved_count = rows.iter().filter(|r| solved(r, args.runs)).count();
     let summary = format!("{solved_count} of {} solved {}/{}", rows.len(), args.runs, args.runs);
-    if let Some(out) = &out {
-        write_sweep(out, &rows, args, jobs, started.elapsed().as_secs_f64(), &summary)?;
-        eprintln!("wrote {} and {}", out.display(), meta_path(out).display());
+    match (&out, base) {
+        (Some(out), Some(base)) => {
+            let whole_summary = base.update(out, &rows, args.runs, jobs, started.elapsed().as_secs_f64(), &summary)?;
+            eprintln!("updated {} rows of {} and {}: {whole_summary}", rows.len(), out.display(), meta_path(out).display());
+        }
+        (Some(out), None) => {
+            write_sweep(out, &rows, args, jobs, started.elapsed().as_secs_f64(), &summary)?;
+            eprintln!("wrote {} and {}", out.display(), meta_path(out).display());
+        }
+        (None, _) => {}
     }
     if args.json {
         println!("{}", json!({"summary": summary, "solved": solved_count, "tasks": rows.len(), "runs": args.runs}));
@@ -300,16 +314,93 @@ fn git_commit() -> String {
         .unwrap_or_else(|| "unknown".into())
 }
 
+/// Now, as the sweep files say it: `2026-11-28T04:09:45Z`.
+fn now_utc() -> String {
+    format!("{}Z", libero_episode::json::utc_now_iso().chars().take(19).collect::<String>())
+}
+
+/// Writes `text` to a file beside `path` and renames it over `path`, so a reader (the dashboard) never sees half a
+/// table and a failed write leaves the old one.
+fn replace_file(path: &Path, text: &str) -> anyhow::Result<()> {
+    let tmp = path.with_extension("partial");
+    std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot replace {}", path.display()))
+}
+
+/// The solved summary of a whole table: "N of M solved k/k".
+fn table_summary(rows: &[Value], runs: u32) -> String {
+    let entries: Vec<&Value> = rows.iter().filter(|r| r["task"].is_string()).collect();
+    let solved_count = entries.iter().filter(|r| solved(r, runs)).count();
+    format!("{solved_count} of {} solved {runs}/{runs}", entries.len())
+}
+
+/// A sweep file and its metadata, read to be updated (`expert --tasks … --update`).
+struct SweepTable {
+    rows: Vec<Value>,
+    meta: Value,
+}
+
+impl SweepTable {
+    /// The table at `out`; refused when it is missing, unreadable, or was run with another `--runs` (its rows would
+    /// not be comparable).
+    fn read_for_update(out: &Path, runs: u32) -> anyhow::Result<Self> {
+        let rows = read_rows(out).context("--update changes an existing sweep table; run the whole sweep first")?;
+        let meta_file = meta_path(out);
+        let text = std::fs::read_to_string(&meta_file).with_context(|| format!("cannot read {} to update it", meta_file.display()))?;
+        let meta: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", meta_file.display()))?;
+        match meta["runs"].as_u64() {
+            Some(n) if n == u64::from(runs) => Ok(Self { rows, meta }),
+            Some(n) => bail!("{} was run with --runs {n}; an update must use the same (got --runs {runs})", out.display()),
+            None => bail!("{} says no `runs`; cannot tell whether an update's rows compare", meta_file.display()),
+        }
+    }
+
+    /// Replaces the rows of the tasks in `fresh` (appending any the table lacked), stamps each with `date_utc` and
+    /// `commit`, lists the update in the metadata with the whole table's new summary, and writes both files.
+    fn update(mut self, out: &Path, fresh: &[Value], runs: u32, jobs: usize, seconds: f64, summary: &str) -> anyhow::Result<String> {
+        let (date, commit) = (now_utc(), git_commit());
+        for row in fresh {
+            let mut row = row.clone();
+            row["date_utc"] = json!(date);
+            row["commit"] = json!(commit);
+            match self.rows.iter_mut().find(|r| r["task"] == row["task"]) {
+                Some(old) => *old = row,
+                None => self.rows.push(row),
+            }
+        }
+        let whole = table_summary(&self.rows, runs);
+        let update = json!({
+            "date_utc": date,
+            "commit": commit,
+            "command": std::env::args().collect::<Vec<_>>().join(" "),
+            "jobs": jobs,
+            "tasks": fresh.len(),
+            "summary": summary,
+            "seconds": (seconds * 10.0).round() / 10.0,
+        });
+        match self.meta["updates"].as_array_mut() {
+            Some(list) => list.push(update),
+            None => self.meta["updates"] = json!([update]),
+        }
+        self.meta["tasks"] = json!(self.rows.len());
+        self.meta["summary"] = json!(whole);
+        let text: String = self.rows.iter().map(|r| format!("{r}\n")).collect();
+        replace_file(out, &text)?;
+        replace_file(&meta_path(out), &format!("{:#}\n", self.meta))?;
+        Ok(whole)
+    }
+}
+
 /// Writes the rows (one JSON line each, in task order) and the metadata beside them.
 fn write_sweep(out: &Path, rows: &[Value], args: &ExpertArgs, jobs: usize, seconds: f64, summary: &str) -> anyhow::Result<()> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let text: String = rows.iter().map(|r| format!("{r}\n")).collect();
-    std::fs::write(out, text).with_context(|| format!("cannot write {}", out.display()))?;
+    replace_file(out, &text)?;
     let meta = json!({
         "schema_version": "libero.expert_sweep_meta.v1",
-        "date_utc": format!("{}Z", libero_episode::json::utc_now_iso().chars().take(19).collect::<String>()),
+        "date_utc": now_utc(),
         "commit": git_commit(),
         "command": std::env::args().collect::<Vec<_>>().join(" "),
         "cores": std::thread::available_parallelism().map_or(1, |n| n.get()),
@@ -319,9 +410,7 @@ fn write_sweep(out: &Path, rows: &[Value], args: &ExpertArgs, jobs: usize, secon
         "summary": summary,
         "seconds": (seconds * 10.0).round() / 10.0,
     });
-    let meta_file = meta_path(out);
-    std::fs::write(&meta_file, format!("{meta:#}\n")).with_context(|| format!("cannot write {}", meta_file.display()))?;
-    Ok(())
+    replace_file(&meta_path(out), &format!("{meta:#}\n"))
 }
 
 /// The rows of a sweep file.

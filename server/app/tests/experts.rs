@@ -276,7 +276,8 @@ fn an_expert_run_with_the_video_waits_for_it_and_reports_both_times() {
 
 /// `expert --all --jobs 2 --out FILE`: one row per task in task order (whatever finishes first) with the runs, the
 /// successes and the seconds; the metadata beside it (date, commit, command line, cores); progress on stderr with
-/// done/total, failures so far and the time left; `--markdown` renders the file as the README's table per suite.
+/// done/total, failures so far and the time left; `--markdown` renders the file as the README's table per suite;
+/// `--update` replaces just the re-run rows (and refuses a table run with other `--runs`, changing nothing).
 #[test]
 fn the_expert_sweep_writes_its_rows_and_metadata_and_reports_progress_with_an_eta() {
     let (data, out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
@@ -314,6 +315,30 @@ fn the_expert_sweep_writes_its_rows_and_metadata_and_reports_progress_with_an_et
     let md = bin().args(["expert", "--all", "--markdown", "--out"]).arg(&sweep).output().unwrap();
     let md = String::from_utf8_lossy(&md.stdout);
     assert!(md.contains("| suite | entries | with expert | solved 1/1 |") && md.contains("| release | 2 | 2 | 2 |"), "{md}");
+
+    // `--update` re-runs a selection and replaces only its rows, stamped with their own date and commit
+    let before = std::fs::read_to_string(&sweep).unwrap();
+    let refused = bin().args(["expert", "--tasks", "T10", "--runs", "2", "--no-video", "--update", "--out"]).arg(&sweep).output().unwrap();
+    let why = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && why.contains("--runs 1"), "{why}");
+    assert_eq!(std::fs::read_to_string(&sweep).unwrap(), before, "a refused update changed the table");
+    let update = bin()
+        .args(["expert", "--tasks", "T10", "--runs", "1", "--no-video", "--json", "--update", "--out"])
+        .arg(&sweep)
+        .arg("--data")
+        .arg(data.path())
+        .output()
+        .unwrap();
+    assert!(update.status.success(), "{}", String::from_utf8_lossy(&update.stderr));
+    let after: Vec<Value> = std::fs::read_to_string(&sweep).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(after.iter().filter_map(|r| r["task"].as_str()).collect::<Vec<_>>(), ["T06", "T10"], "{after:?}");
+    assert_eq!(after[0], rows[0], "the row not re-run changed");
+    assert!(after[1]["date_utc"].as_str().is_some_and(|d| d.ends_with('Z')) && after[1]["commit"].is_string(), "{}", after[1]);
+    assert_eq!(after[1]["successes"], 1, "{}", after[1]);
+    let meta: Value = serde_json::from_str(&std::fs::read_to_string(out.path().join("sweep.meta.json")).unwrap()).unwrap();
+    assert_eq!(meta["summary"], "2 of 2 solved 1/1", "{meta}");
+    let updates = meta["updates"].as_array().expect("the update is listed");
+    assert!(updates.len() == 1 && updates[0]["tasks"] == 1 && updates[0]["command"].as_str().is_some_and(|c| c.contains("--update")), "{meta}");
 }
 
 /// `expert --list` names every entry with an expert (the release tasks first, then the stock LIBERO tasks and the

@@ -60,7 +60,9 @@ fn read(sweep: &Path) -> Option<HashMap<String, String>> {
     let commit = meta["commit"].as_str().unwrap_or("");
     let mut lines = HashMap::new();
     for row in text.lines().filter_map(|l| serde_json::from_str::<Value>(l).ok()) {
-        let line = line_of(&row, &date, commit);
+        // a row re-run by `expert --tasks … --update` carries its own date and commit
+        let row_date: String = row["date_utc"].as_str().map_or_else(|| date.clone(), |d| d.chars().take(10).collect());
+        let line = line_of(&row, &row_date, row["commit"].as_str().unwrap_or(commit));
         for key in ["task", "entry"] {
             if let Some(k) = row[key].as_str() {
                 lines.insert(k.to_owned(), line.clone());
@@ -99,5 +101,21 @@ mod tests {
         assert_eq!(line_of(&json!({"runs": 3, "successes": 2, "expert": true}), "2026-11-27", "b63b099"), "solved 2/3 on 2026-11-27 at b63b099");
         assert_eq!(line_of(&json!({"runs": 0, "expert": false}), "", ""), "no plan for its goal");
         assert_eq!(line_of(&json!({"runs": 3, "expert": true, "error": "boom"}), "2026-11-27", ""), "the run failed with an error on 2026-11-27");
+    }
+
+    #[test]
+    fn a_row_re_run_by_an_update_shows_its_own_date_and_commit() {
+        let dir = tempfile::tempdir().unwrap();
+        let sweep = dir.path().join("expert_sweep.jsonl");
+        let rows = [
+            json!({"task": "T06", "entry": "vlabench_button/1", "runs": 3, "successes": 3, "expert": true}),
+            json!({"task": "T10", "runs": 3, "successes": 3, "expert": true, "date_utc": "2026-11-29T01:02:03Z", "commit": "abc1234"}),
+        ];
+        std::fs::write(&sweep, rows.iter().map(|r| format!("{r}\n")).collect::<String>()).unwrap();
+        std::fs::write(meta_path(&sweep), r#"{"date_utc": "2026-11-28T04:09:45Z", "commit": "95cdfa6", "runs": 3}"#).unwrap();
+        let lines = read(&sweep).unwrap();
+        assert_eq!(lines["T06"], "solved 3/3 on 2026-11-28 at 95cdfa6");
+        assert_eq!(lines["vlabench_button/1"], lines["T06"]);
+        assert_eq!(lines["T10"], "solved 3/3 on 2026-11-29 at abc1234");
     }
 }
