@@ -66,6 +66,11 @@ pub struct ExpertArgs {
     /// the rest of the table stays as its run left it. `--runs` must be the table's.
     #[arg(long, requires = "sweep", conflicts_with = "markdown")]
     pub update: bool,
+    /// With `--all` or `--tasks` and a sweep file: keep the rows a stopped run of the same command already finished
+    /// (its journal, `<name>.journal.jsonl` beside the sweep file, each row with its date and commit) and run only
+    /// the rest. Without it a sweep starts its journal afresh.
+    #[arg(long, requires = "sweep", conflicts_with = "markdown")]
+    pub resume: bool,
     /// How many episodes to run (of each behaviour; with `--behaviour all`, of `solve`).
     #[arg(long, default_value_t = 1)]
     pub runs: u32,

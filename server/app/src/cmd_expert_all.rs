@@ -120,6 +120,65 @@ fn meta_path(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}.meta.json"))
 }
 
+/// `expert_sweep.jsonl` → `expert_sweep.journal.jsonl`: the rows of a sweep in progress, one line as each task ends.
+fn journal_path(out: &Path) -> PathBuf {
+    let stem = out.file_stem().map_or_else(|| "expert_sweep".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.journal.jsonl"))
+}
+
+/// The rows of a sweep as they finish, so that a stopped sweep (a killed process, a lost machine) loses only the
+/// tasks it was running: its first line says what was swept, and `--resume` takes the rest only from a journal of
+/// the same selection, runs, level and seed.
+struct Journal {
+    file: std::fs::File,
+}
+
+impl Journal {
+    /// Opens the journal at `path` for `header`'s sweep: with `resume`, its finished rows (refused when it swept
+    /// something else); without, a fresh journal replacing any old one.
+    fn open(path: &Path, header: &Value, resume: bool) -> anyhow::Result<(Self, Vec<Value>)> {
+        use std::io::Write as _;
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        }
+        let kept = if resume {
+            let lines = match read_rows(path) {
+                Ok(lines) => lines,
+                Err(_) if !path.exists() => bail!("--resume: no journal at {} (nothing to resume)", path.display()),
+                Err(e) => return Err(e),
+            };
+            match lines.split_first() {
+                Some((first, rows)) if first == header => rows.to_vec(),
+                Some((first, _)) => bail!(
+                    "--resume: the journal {} is of another sweep ({}), not this one ({}); run without --resume to start afresh",
+                    path.display(),
+                    first["journal"],
+                    header["journal"]
+                ),
+                None => Vec::new(),
+            }
+        } else {
+            Vec::new()
+        };
+        let mut file = if resume && path.exists() {
+            std::fs::OpenOptions::new().append(true).open(path)
+        } else {
+            std::fs::File::create(path)
+        }
+        .with_context(|| format!("cannot write the journal {}", path.display()))?;
+        if !resume || kept.is_empty() && std::fs::metadata(path).map_or(0, |m| m.len()) == 0 {
+            writeln!(file, "{header}").with_context(|| format!("cannot write the journal {}", path.display()))?;
+        }
+        Ok((Self { file }, kept))
+    }
+
+    fn append(&mut self, row: &Value) -> anyhow::Result<()> {
+        use std::io::Write as _;
+        writeln!(self.file, "{row}").context("cannot append to the sweep journal")?;
+        self.file.sync_data().context("cannot sync the sweep journal")
+    }
+}
+
 /// What the progress line needs from the tasks done so far.
 #[derive(Default)]
 struct Tally {
@@ -155,18 +214,36 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
         (Some(out), true) => Some(SweepTable::read_for_update(out, args.runs)?),
         _ => None,
     };
+    let header = json!({"journal": {"selection": selection.to_string(), "runs": args.runs, "level": args.level, "seed": args.seed}});
+    let (journal, kept) = match &out {
+        Some(out) => {
+            let (journal, kept) = Journal::open(&journal_path(out), &header, args.resume)?;
+            (Some(journal), kept)
+        }
+        None if args.resume => bail!("--resume needs a sweep file: --out, or --all / --update"),
+        None => (None, Vec::new()),
+    };
     let episodes = Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?;
-    let (total, jobs) = (tasks.len(), args.jobs.min(tasks.len()));
+    let total = tasks.len();
+    let mut done: Vec<Option<Value>> = tasks.iter().map(|t| kept.iter().rev().find(|r| r["task"] == t.task.as_str()).cloned()).collect();
+    let resumed = done.iter().flatten().count();
+    if resumed > 0 {
+        eprintln!("resuming: {resumed} of {total} tasks done in the journal, {} to run", total - resumed);
+    }
+    let todo: Vec<usize> = (0..total).filter(|&k| done[k].is_none()).collect();
+    let jobs = args.jobs.min(todo.len()).max(1);
     let started = Instant::now();
     let next = AtomicUsize::new(0);
-    let rows: Mutex<Vec<Option<Value>>> = Mutex::new(vec![None; total]);
-    let tally = Mutex::new(Tally::default());
+    let journal = journal.map(Mutex::new);
+    let tally = Mutex::new(Tally { done: resumed, failed: done.iter().flatten().filter(|r| !solved(r, args.runs)).count(), ..Tally::default() });
+    let rows: Mutex<&mut Vec<Option<Value>>> = Mutex::new(&mut done);
+    let ran = AtomicUsize::new(0);
     std::thread::scope(|s| {
         for _ in 0..jobs {
             s.spawn(|| {
                 loop {
-                    let k = next.fetch_add(1, Ordering::SeqCst);
-                    let Some(task) = tasks.get(k) else { break };
+                    let Some(&k) = todo.get(next.fetch_add(1, Ordering::SeqCst)) else { break };
+                    let task = &tasks[k];
                     let t0 = Instant::now();
                     let run = std::panic::AssertUnwindSafe(|| sweep_task(args, &episodes, &paths, level, task));
                     let mut row = match std::panic::catch_unwind(run) {
@@ -176,12 +253,21 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
                     };
                     let seconds = t0.elapsed().as_secs_f64();
                     row["seconds"] = json!((seconds * 10.0).round() / 10.0);
+                    if let Some(journal) = &journal {
+                        row["date_utc"] = json!(now_utc());
+                        row["commit"] = json!(git_commit());
+                        let mut journal = journal.lock().unwrap_or_else(|e| e.into_inner());
+                        if let Err(e) = journal.append(&row) {
+                            eprintln!("warning: {e:#} (a --resume would run this task again)");
+                        }
+                    }
                     let line = {
                         let mut t = tally.lock().unwrap_or_else(|e| e.into_inner());
                         t.done += 1;
                         t.failed += usize::from(!solved(&row, args.runs));
                         t.task_seconds += seconds;
-                        let left = t.task_seconds / t.done as f64 * (total - t.done) as f64 / jobs as f64;
+                        let n = ran.fetch_add(1, Ordering::SeqCst) + 1;
+                        let left = t.task_seconds / n as f64 * (total - t.done) as f64 / jobs as f64;
                         format!(
                             "[{}/{total}] {}: {} in {seconds:.1} s; {} failed so far, {} elapsed, about {} left",
                             t.done,
@@ -198,7 +284,8 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
             });
         }
     });
-    let rows: Vec<Value> = rows.into_inner().unwrap_or_else(|e| e.into_inner()).into_iter().flatten().collect();
+    drop(rows);
+    let rows: Vec<Value> = done.into_iter().flatten().collect();
     for row in &rows {
         println!("{row}");
     }
@@ -214,6 +301,10 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
             eprintln!("wrote {} and {}", out.display(), meta_path(out).display());
         }
         (None, _) => {}
+    }
+    if let Some(out) = &out {
+        // the table holds every row now; a later --resume must not take this run's rows
+        let _ = std::fs::remove_file(journal_path(out));
     }
     if args.json {
         println!("{}", json!({"summary": summary, "solved": solved_count, "tasks": rows.len(), "runs": args.runs}));

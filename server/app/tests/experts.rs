@@ -341,6 +341,52 @@ fn the_expert_sweep_writes_its_rows_and_metadata_and_reports_progress_with_an_et
     assert!(updates.len() == 1 && updates[0]["tasks"] == 1 && updates[0]["command"].as_str().is_some_and(|c| c.contains("--update")), "{meta}");
 }
 
+/// A sweep journals each row as its task ends; a sweep stopped midway (killed here) and run again with `--resume`
+/// keeps the journal's rows and runs only the rest (a journal of another sweep is refused), and the finished table
+/// leaves no journal behind.
+#[test]
+fn a_stopped_sweep_resumes_from_its_journal_running_only_the_tasks_left() {
+    let (data, out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let sweep = out.path().join("sweep.jsonl");
+    let journal = out.path().join("sweep.journal.jsonl");
+    let args = ["expert", "--tasks", "T10,T06", "--runs", "1", "--no-video", "--json"];
+    let mut first = bin()
+        .args(args)
+        .arg("--out")
+        .arg(&sweep)
+        .arg("--data")
+        .arg(data.path())
+        .stderr(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let lines = |p: &std::path::Path| std::fs::read_to_string(p).map_or(0, |t| t.lines().count());
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(600);
+    while lines(&journal) < 2 {
+        assert!(first.try_wait().unwrap().is_none(), "the sweep ended before its first task was journaled");
+        assert!(std::time::Instant::now() < deadline, "no row journaled in 10 min");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    first.kill().unwrap();
+    first.wait().unwrap();
+    assert!(!sweep.exists(), "a stopped sweep wrote its table");
+    let journaled: Value = serde_json::from_str(std::fs::read_to_string(&journal).unwrap().lines().nth(1).unwrap()).unwrap();
+    assert!(journaled["date_utc"].is_string() && journaled["commit"].is_string(), "{journaled}");
+
+    let other = bin().args(["expert", "--tasks", "T10,T06", "--runs", "2", "--no-video", "--resume", "--out"]).arg(&sweep).output().unwrap();
+    let why = String::from_utf8_lossy(&other.stderr);
+    assert!(!other.status.success() && why.contains("another sweep"), "{why}");
+
+    let resumed = bin().args(args).arg("--resume").arg("--out").arg(&sweep).arg("--data").arg(data.path()).output().unwrap();
+    let stderr = String::from_utf8_lossy(&resumed.stderr);
+    assert!(resumed.status.success(), "{stderr}");
+    assert!(stderr.contains("resuming: 1 of 2 tasks done") && stderr.contains("[2/2] ") && !stderr.contains("[1/2] "), "{stderr}");
+    let rows: Vec<Value> = std::fs::read_to_string(&sweep).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(rows.iter().filter_map(|r| r["task"].as_str()).collect::<Vec<_>>(), ["T06", "T10"], "{rows:?}");
+    assert!(rows.contains(&journaled), "the journaled row was not kept as it was: {rows:?}");
+    assert!(!journal.exists(), "the finished sweep left its journal");
+}
+
 /// `expert --list` names every entry with an expert (the release tasks first, then the stock LIBERO tasks and the
 /// pool's own definitions), each with its suite and behaviours, `solve` and `idle` first.
 #[test]

@@ -521,7 +521,14 @@ mod live_renderer {
     impl Job {
         fn run(mut self) {
             let mut not_before: Option<Instant> = None;
+            let mut shown: Option<(u64, u64)> = None;
             while let Some(state) = self.next(not_before) {
+                // A step rendered live while its call's observation was late, then that observation: one frame.
+                let label = state.control_step.zip(state.video_frame);
+                if label.is_some() && label == shown {
+                    continue;
+                }
+                shown = label.or(shown);
                 let started = Instant::now();
                 self.render(state);
                 not_before = Some(next_render_at(started, Instant::now()));
