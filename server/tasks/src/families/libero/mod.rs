@@ -5,6 +5,8 @@ pub mod bddl_terminal;
 mod expert;
 mod objects;
 pub mod stock;
+mod stock_grasp;
+mod stock_pan;
 
 use crate::expert::ExpertEntry;
 use crate::judge::kind::EvaluatorKind;

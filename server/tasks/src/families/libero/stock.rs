@@ -31,6 +31,7 @@ use crate::expert::skills::{
     BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, BOTTOM_DRAWER_PITCH_RAD, carry, drag_drawer_open, extent, pos, pull_drawer, push_drawer, tip_push_drawer, xy_dist,
 };
 use crate::expert::{Expert, SOLVE, SceneRefs, SuiteExpert};
+use super::stock_pan;
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::{CompiledAtom, EntityRef, PredicateKind, SceneIndex};
 
@@ -71,11 +72,11 @@ const TALL_GRASP_BELOW_TOP_M: f64 = 0.05;
 /// Control steps the hand waits at the end (1 s).
 const SETTLE_STEPS: u32 = 20;
 /// How far beyond its target `stop_short` lets the last object go (plus the region's half extent).
-const SHORT_OFFSET_M: f64 = 0.10;
+pub(super) const SHORT_OFFSET_M: f64 = 0.10;
 
 /// What a placement aims at.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Target {
+pub(super) enum Target {
     /// `In` (inside the box) or `On` (on top of the box) a region site.
     Region { region: usize, inside: bool },
     /// On another object (its root within 3 cm horizontally, in contact).
@@ -195,14 +196,14 @@ fn order(index: &SceneIndex, steps: Vec<Planned>) -> Vec<Planned> {
 }
 
 /// What every step's script needs about the scene, owned (the expert outlives the scene references).
-struct Ctx {
-    index: Arc<SceneIndex>,
+pub(super) struct Ctx {
+    pub(super) index: Arc<SceneIndex>,
     /// Robot base (world, m): `stop_short` drops toward it.
-    base_m: Vector3<f64>,
+    pub(super) base_m: Vector3<f64>,
 }
 
 /// A step ready to run: its phases, built when it starts.
-type Build = Box<dyn FnOnce(&Simulation, &Ctx, &Matrix3<f64>) -> Vec<Phase> + Send>;
+pub(super) type Build = Box<dyn FnOnce(&Simulation, &Ctx, &Matrix3<f64>) -> Vec<Phase> + Send>;
 
 struct ReadyStep {
     /// The step is skipped when this holds as it would start.
@@ -280,6 +281,15 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
     let targets: Vec<Option<Target>> = planned.iter().map(|p| if let Step::Place { target, .. } = p.step { Some(target) } else { None }).collect();
     for (k, p) in planned.into_iter().enumerate() {
         let short = short && k == last;
+        // a bowl or mug: grasp tries checked and repeated as steps of their own, then the carry
+        if let Step::Place { object, target } = p.step
+            && super::stock_grasp::rim_grasped(&index.instances[object].category)
+        {
+            let atom_test = |a: &CompiledAtom| atom_done(&index, a.clone());
+            let split = super::stock_grasp::place_steps(object, &index.instances[object].category, target, slot_of(&targets, k), short, || p.atom.as_ref().filter(|_| !short).map(atom_test));
+            steps.extend(split.into_iter().map(|(done, build)| ReadyStep { done, build, from_home: false }));
+            continue;
+        }
         // the near miss's last step always runs (it must act even where its atom holds already)
         let done = match (short, p.atom) {
             (true, _) => None,
@@ -303,7 +313,7 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
 }
 
 /// Whether a step's work is done already (then it is skipped).
-type Done = Box<dyn Fn(&Simulation) -> bool + Send>;
+pub(super) type Done = Box<dyn Fn(&Simulation) -> bool + Send>;
 
 /// A step's goal atom holds.
 fn atom_done(index: &Arc<SceneIndex>, atom: CompiledAtom) -> Done {
@@ -324,7 +334,7 @@ fn implicit_done(index: &SceneIndex, step: &Step) -> Option<Done> {
 
 /// The `k`-th of `n` placements onto the same target.
 #[derive(Debug, Clone, Copy)]
-struct Slot {
+pub(super) struct Slot {
     k: usize,
     n: usize,
 }
@@ -418,7 +428,7 @@ fn with_rise(phases: Vec<Phase>) -> Vec<Phase> {
     out
 }
 
-fn rise() -> Phase {
+pub(super) fn rise() -> Phase {
     let up = |ctx: &PhaseCtx| Vector3::new(ctx.start_pos_m.x, ctx.start_pos_m.y, ctx.start_pos_m.z + RISE_M);
     Phase::new("rise", move |sim, ctx| Goal::at(up(ctx), GRIPPER_OPEN).rotated(grip_pose(sim).1))
         .until(move |sim, ctx| (grip_pose(sim).0 - up(ctx)).norm() < 0.03)
@@ -462,19 +472,14 @@ struct Handle {
     fingers_local: [f64; 3],
     /// The hand pitched forward of straight down (about world y) by this much: the wrist comes back toward the base.
     pitch_rad: f64,
-    /// Added to the place target (world): keeps the fingers on a long handle clear of what stands near the target.
-    target_offset_m: [f64; 3],
 }
 
-/// Per-family tuning (as the cooking task's expert grasps them): the moka pot across its lid's knob, straight down;
-/// the frying pan across its handle 15 cm from its centre, the pan set down 4.5 cm beyond the target away from the
-/// robot so the fingers stay clear of the stove's knob.
+/// Per-family tuning: the moka pot across its lid's knob, straight down (as the cooking task's expert grasps it);
+/// the frying pan across its handle 15 cm from its centre, level (placed by [`stock_pan`]).
 fn handle_of(category: &str) -> Option<Handle> {
     match category {
-        "moka_pot" => Some(Handle { local_m: [0.0, 0.0, 0.075], fingers_local: [1.0, 0.0, 0.0], pitch_rad: 0.0, target_offset_m: [0.0; 3] }),
-        c if c.contains("frypan") => {
-            Some(Handle { local_m: [0.15, 0.0, 0.039], fingers_local: [0.0, 1.0, 0.0], pitch_rad: 0.35, target_offset_m: [0.045, 0.0, 0.0] })
-        }
+        "moka_pot" => Some(Handle { local_m: [0.0, 0.0, 0.075], fingers_local: [1.0, 0.0, 0.0], pitch_rad: 0.0 }),
+        c if stock_pan::is_pan(c) => Some(Handle { local_m: [0.15, 0.0, 0.039], fingers_local: [0.0, 1.0, 0.0], pitch_rad: 0.0 }),
         _ => None,
     }
 }
@@ -503,7 +508,7 @@ fn choose_grasp(sim: &Simulation, body: usize, category: &str, lo: Vector3<f64>,
 
 /// Where the object's root should be let go: above the region's floor (`In`) or top (`On`) or the support object's
 /// top, by the root's height above the object's bottom; and the height the root is carried at.
-fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Slot, root_above_bottom_m: f64, half_width_m: f64) -> (Vector3<f64>, f64) {
+pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Slot, root_above_bottom_m: f64, half_width_m: f64) -> (Vector3<f64>, f64) {
     let index = &ctx.index;
     match target {
         Target::Region { region, inside } => {
@@ -563,7 +568,6 @@ fn place_phases(
     let grasp = choose_grasp(sim, body, category, lo, hi, narrow_dir(sim, &ctx.index, object), home);
     let half_width_m = (hi.x - lo.x).max(hi.y - lo.y) / 2.0;
     let (mut to, carry_top) = place_target(sim, ctx, target, slot, root.z - lo.z, half_width_m);
-    to += Vector3::from(handle_of(category).map_or([0.0; 3], |h| h.target_offset_m));
     if short {
         let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
         let extra = match target {
@@ -574,6 +578,10 @@ fn place_phases(
     }
     let carry_z = carry_top.max(root.z + 0.10).max(to.z + 0.08).min(1.30);
     let (rot, off) = (grasp.rot, grasp.offset_m);
+    if stock_pan::is_pan(category) {
+        let region = if let Target::Region { region, inside: true } = target { Some(region) } else { None };
+        return with_rise(stock_pan::place_phases(sim, &ctx.index, object, region, (off, rot), to, carry_z));
+    }
     let at_grasp = move |sim: &Simulation| pos(sim, body) + off;
     let target_now = move |_: &Simulation| to;
     vec![
@@ -612,7 +620,7 @@ fn place_phases(
 
 /// Lowering has stalled: the object rests on something (its support is higher than the target guessed). Read from
 /// the object's vertical speed after the first steps of the phase.
-fn stalled(sim: &Simulation, ctx: &PhaseCtx) -> bool {
+pub(super) fn stalled(sim: &Simulation, ctx: &PhaseCtx) -> bool {
     const STILL_M_PER_S: f64 = 0.004;
     ctx.steps > 15 && grip_speed_z(sim).abs() < STILL_M_PER_S
 }
