@@ -31,9 +31,10 @@ use crate::expert::skills::{
     BOTTOM_HANDLE_LOCAL_M, MIDDLE_HANDLE_LOCAL_M, TOP_HANDLE_LOCAL_M, BOTTOM_DRAWER_PITCH_RAD, carry, drag_drawer_open, extent, pos, pull_drawer, push_drawer, tip_push_drawer, xy_dist,
 };
 use crate::expert::{Expert, SOLVE, SceneRefs, SuiteExpert};
-use super::stock_pan;
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::{CompiledAtom, EntityRef, PredicateKind, SceneIndex};
+
+use super::{stock_fit, stock_pan};
 
 /// Near miss: the last step stops short.
 pub const STOP_SHORT: &str = "stop_short";
@@ -568,6 +569,14 @@ fn place_phases(
     let grasp = choose_grasp(sim, body, category, lo, hi, narrow_dir(sim, &ctx.index, object), home);
     let half_width_m = (hi.x - lo.x).max(hi.y - lo.y) / 2.0;
     let (mut to, carry_top) = place_target(sim, ctx, target, slot, root.z - lo.z, half_width_m);
+    let generic = stock_fit::Tuning::generic(to, grasp.rot, carry_top.max(root.z + 0.10).max(to.z + 0.08).min(1.30));
+    let fit = match target {
+        // the near miss keeps the generic plan: the tuned carry cannot reach a target short of the caddy toward the
+        // robot, and would stand the book in the compartment anyway
+        Target::Region { region, inside: true } if !short => stock_fit::tune(sim, &ctx.index, object, region, home, generic),
+        _ => generic,
+    };
+    to = fit.to_m;
     if short {
         let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
         let extra = match target {
@@ -576,7 +585,7 @@ fn place_phases(
         };
         to += away.try_normalize(1e-9).unwrap_or(-Vector3::x()) * (SHORT_OFFSET_M + extra);
     }
-    let carry_z = carry_top.max(root.z + 0.10).max(to.z + 0.08).min(1.30);
+    let (carry_z, place_rot) = (fit.carry_z_m, fit.rot);
     let (rot, off) = (grasp.rot, grasp.offset_m);
     if stock_pan::is_pan(category) {
         let region = if let Target::Region { region, inside: true } = target { Some(region) } else { None };
@@ -604,15 +613,15 @@ fn place_phases(
         .max_steps(80),
         Phase::new("carry_over_target", move |sim, _| {
             let t = target_now(sim);
-            Goal::at(carry(sim, body, Vector3::new(t.x, t.y, carry_z)), GRIPPER_CLOSED).slow(0.7).rotated(rot)
+            Goal::at(carry(sim, body, Vector3::new(t.x, t.y, carry_z)), GRIPPER_CLOSED).slow(fit.carry_speed).rotated(place_rot)
         })
-        .until(move |sim, _| xy_dist(pos(sim, body), target_now(sim)) < 0.008)
+        .until(move |sim, _| xy_dist(pos(sim, body), target_now(sim)) < 0.008 && rotation_error(sim, &place_rot) < fit.turn_tol_rad)
         .max_steps(200),
-        Phase::new("lower", move |sim, _| Goal::at(carry(sim, body, target_now(sim) - Vector3::z() * 0.01), GRIPPER_CLOSED).slow(0.35).rotated(rot))
+        Phase::new("lower", move |sim, _| Goal::at(carry(sim, body, target_now(sim) - Vector3::z() * 0.01), GRIPPER_CLOSED).slow(0.35).rotated(place_rot))
             .until(move |sim, ctx| pos(sim, body).z < target_now(sim).z + 0.004 || stalled(sim, ctx))
             .max_steps(70),
-        Phase::new("open", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(rot)).for_steps(10),
-        Phase::new("retreat", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * 0.12, GRIPPER_OPEN).rotated(rot))
+        Phase::new("open", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(place_rot)).for_steps(10),
+        Phase::new("retreat", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * 0.12, GRIPPER_OPEN).rotated(place_rot))
             .until_reached(0.02)
             .max_steps(40),
     ]
