@@ -18,6 +18,7 @@ fn stock_goals_plan_in_an_order_that_works() {
     assert_eq!(
         plan("libero_90/KITCHEN_SCENE10_put_the_butter_at_the_back_in_the_top_drawer_of_the_cabinet_and_close_it"),
         [
+            "place butter_2 clear of wooden_cabinet_1_top_region (implicit)",
             "open wooden_cabinet_1_top_region (implicit)",
             "place butter_2 in wooden_cabinet_1_top_region",
             "close wooden_cabinet_1_top_region"

@@ -82,11 +82,13 @@ pub(super) enum Target {
     Region { region: usize, inside: bool },
     /// On another object (its root within 3 cm horizontally, in contact).
     Object(usize),
+    /// On the table clear of a drawer region's open drawer (`stock_clear`: the object stands under it).
+    Aside { region: usize },
 }
 
 /// One planned step.
 #[derive(Debug, Clone, PartialEq)]
-enum Step {
+pub(super) enum Step {
     Place { object: usize, target: Target },
     Drawer { region: usize, open: bool },
     Door { instance: usize, open: bool },
@@ -94,9 +96,9 @@ enum Step {
 }
 
 /// A step and the goal atom it makes true (`None` for an implicit step: its own test is used).
-struct Planned {
-    step: Step,
-    atom: Option<CompiledAtom>,
+pub(super) struct Planned {
+    pub(super) step: Step,
+    pub(super) atom: Option<CompiledAtom>,
 }
 
 /// The scene's goal as steps, or why one atom cannot be planned.
@@ -139,7 +141,7 @@ fn plan(index: &SceneIndex, goal: &GoalChecker) -> Result<Vec<Planned>, TasksErr
 }
 
 /// The container a placement target lies in, if it must be open: a drawer region (its slide) or a microwave.
-fn container_of(index: &SceneIndex, target: Target) -> Option<Step> {
+pub(super) fn container_of(index: &SceneIndex, target: Target) -> Option<Step> {
     let Target::Region { region, inside: true } = target else { return None };
     let reg = &index.regions[region];
     let parent = reg.parent?;
@@ -150,7 +152,7 @@ fn container_of(index: &SceneIndex, target: Target) -> Option<Step> {
 }
 
 /// Whether `a` and `b` work the same articulation (a drawer's slide, a door, a knob).
-fn same_articulation(index: &SceneIndex, a: &Step, b: &Step) -> bool {
+pub(super) fn same_articulation(index: &SceneIndex, a: &Step, b: &Step) -> bool {
     match (a, b) {
         (Step::Drawer { region: r1, .. }, Step::Drawer { region: r2, .. }) => {
             index.regions[*r1].joints.first().map(|j| j.qpos_adr) == index.regions[*r2].joints.first().map(|j| j.qpos_adr)
@@ -193,6 +195,7 @@ fn order(index: &SceneIndex, steps: Vec<Planned>) -> Vec<Planned> {
         out.push(p);
     }
     out.extend(late);
+    super::stock_clear::insert_clears(index, &mut out);
     out
 }
 
@@ -260,6 +263,7 @@ pub fn plan_check(refs: &SceneRefs) -> Result<Vec<String>, TasksError> {
                 let to = match target {
                     Target::Region { region, inside } => format!("{} {}", if inside { "in" } else { "on" }, index.regions[region].key),
                     Target::Object(b) => format!("on {}", index.instances[b].name),
+                    Target::Aside { region } => format!("clear of {}", index.regions[region].key),
                 };
                 format!("place {} {to}", index.instances[object].name)
             }
@@ -280,6 +284,7 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
     let last = planned.len().saturating_sub(1);
     let mut steps = Vec::with_capacity(planned.len());
     let targets: Vec<Option<Target>> = planned.iter().map(|p| if let Step::Place { target, .. } = p.step { Some(target) } else { None }).collect();
+    let mut after_clear = false;
     for (k, p) in planned.into_iter().enumerate() {
         let short = short && k == last;
         // a bowl or mug: grasp tries checked and repeated as steps of their own, then the carry
@@ -295,10 +300,12 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
         let done = match (short, p.atom) {
             (true, _) => None,
             (false, Some(atom)) => Some(atom_done(&index, atom)),
-            (false, None) => implicit_done(&index, &p.step),
+            (false, None) => super::stock_clear::clear_done(&index, &p.step).or_else(|| implicit_done(&index, &p.step)),
         };
         let slot = slot_of(&targets, k);
-        let from_home = matches!(p.step, Step::Drawer { region, .. } if drawer_handle(&index, region) == Some(BOTTOM_HANDLE_LOCAL_M));
+        // (a drawer opened after a clearing step: turned from the start, not from the clearing's rim grasp)
+        let from_home = matches!(p.step, Step::Drawer { region, .. } if drawer_handle(&index, region) == Some(BOTTOM_HANDLE_LOCAL_M) || after_clear);
+        after_clear = matches!(p.step, Step::Place { target: Target::Aside { .. }, .. });
         steps.push(ReadyStep { done, build: step_builder(refs, &index, p.step, slot, short)?, from_home });
     }
     // the hand waits, open and still, until what it let go comes to rest: the goal is judged on the final state
@@ -336,8 +343,8 @@ fn implicit_done(index: &SceneIndex, step: &Step) -> Option<Done> {
 /// The `k`-th of `n` placements onto the same target.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Slot {
-    k: usize,
-    n: usize,
+    pub(super) k: usize,
+    pub(super) n: usize,
 }
 
 fn slot_of(targets: &[Option<Target>], step: usize) -> Slot {
@@ -346,7 +353,7 @@ fn slot_of(targets: &[Option<Target>], step: usize) -> Slot {
 }
 
 /// The handle bar (in the drawer body's frame) of a drawer region's slide, by the slide's name.
-fn drawer_handle(index: &SceneIndex, region: usize) -> Option<[f64; 3]> {
+pub(super) fn drawer_handle(index: &SceneIndex, region: usize) -> Option<[f64; 3]> {
     let joint = index.regions[region].joints.first()?;
     Some(if joint.name.ends_with("top_level") {
         TOP_HANDLE_LOCAL_M
@@ -370,6 +377,9 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, sh
                 let stop_m = if short { 0.09 } else { 0.012 };
                 let phases = super::objects::push_plate_phases(body, zone, stop_m);
                 return Ok(Box::new(move |_, _, _| phases));
+            }
+            if let Target::Aside { region } = target {
+                return super::stock_clear::aside_builder(refs, index, object, region);
             }
             Box::new(move |sim, ctx, home| place_phases(sim, ctx, home, object, &category, target, slot, short))
         }
@@ -423,7 +433,7 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, sh
 const RISE_M: f64 = 0.08;
 
 /// `phases` after a straight rise of the hand (it may end a step low in a drawer or at a knob).
-fn with_rise(phases: Vec<Phase>) -> Vec<Phase> {
+pub(super) fn with_rise(phases: Vec<Phase>) -> Vec<Phase> {
     let mut out = vec![rise()];
     out.extend(phases);
     out
@@ -460,9 +470,9 @@ fn narrow_dir(sim: &Simulation, index: &SceneIndex, instance: usize) -> Vector3<
 }
 
 /// How a placement holds its object: the grasp point's offset from the root (world) and the hand's orientation.
-struct Grasp {
-    offset_m: Vector3<f64>,
-    rot: Matrix3<f64>,
+pub(super) struct Grasp {
+    pub(super) offset_m: Vector3<f64>,
+    pub(super) rot: Matrix3<f64>,
 }
 
 /// Objects whose shape the bounding box does not tell well enough, grasped at a point of their own frame.
@@ -507,9 +517,19 @@ fn choose_grasp(sim: &Simulation, body: usize, category: &str, lo: Vector3<f64>,
     Grasp { offset_m: Vector3::new(centre.x, centre.y, z) - root, rot: open_along(home, narrow) }
 }
 
+/// The near miss's let-go point: `SHORT_OFFSET_M` plus the region's half extent short of `to`, toward the robot.
+pub(super) fn short_of(ctx: &Ctx, to: Vector3<f64>, target: Target) -> Vector3<f64> {
+    let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
+    let extra = match target {
+        Target::Region { region, .. } => ctx.index.regions[region].half_size_m[0].abs().max(ctx.index.regions[region].half_size_m[1].abs()),
+        Target::Object(_) | Target::Aside { .. } => 0.0,
+    };
+    to + away.try_normalize(1e-9).unwrap_or(-Vector3::x()) * (SHORT_OFFSET_M + extra)
+}
+
 /// Where the object's root should be let go: above the region's floor (`In`) or top (`On`) or the support object's
 /// top, by the root's height above the object's bottom; and the height the root is carried at.
-pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Slot, root_above_bottom_m: f64, half_width_m: f64) -> (Vector3<f64>, f64) {
+pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, object: usize, target: Target, slot: Slot, root_above_bottom_m: f64, half_width_m: f64) -> (Vector3<f64>, f64) {
     let index = &ctx.index;
     match target {
         Target::Region { region, inside } => {
@@ -543,6 +563,7 @@ pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Sl
             let front = front + side + downhill;
             (Vector3::new(c.x + front.x, c.y + front.y, surface + root_above_bottom_m + 0.012), top + root_above_bottom_m + 0.05)
         }
+        Target::Aside { region } => super::stock_clear::aside_target(sim, ctx, object, region),
         Target::Object(b) => {
             let (_, hi) = extent(sim, index, b);
             let p = pos(sim, index.instances[b].body);
@@ -553,7 +574,7 @@ pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, target: Target, slot: Sl
 
 /// Pick `object` and place it on or in `target`.
 #[allow(clippy::too_many_arguments)] // the step's plan (object, target, slot, short) plus the state it starts from
-fn place_phases(
+pub(super) fn place_phases(
     sim: &Simulation,
     ctx: &Ctx,
     home: &Matrix3<f64>,
@@ -566,9 +587,10 @@ fn place_phases(
     let body = ctx.index.instances[object].body;
     let root = pos(sim, body);
     let (lo, hi) = extent(sim, &ctx.index, object);
-    let grasp = choose_grasp(sim, body, category, lo, hi, narrow_dir(sim, &ctx.index, object), home);
+    let grasp = super::stock_clear::drawer_pinch(sim, ctx, target, category, root, lo, hi, home)
+        .unwrap_or_else(|| choose_grasp(sim, body, category, lo, hi, narrow_dir(sim, &ctx.index, object), home));
     let half_width_m = (hi.x - lo.x).max(hi.y - lo.y) / 2.0;
-    let (mut to, carry_top) = place_target(sim, ctx, target, slot, root.z - lo.z, half_width_m);
+    let (mut to, carry_top) = place_target(sim, ctx, object, target, slot, root.z - lo.z, half_width_m);
     let generic = stock_fit::Tuning::generic(to, grasp.rot, carry_top.max(root.z + 0.10).max(to.z + 0.08).min(1.30));
     let fit = match target {
         // the near miss keeps the generic plan: the tuned carry cannot reach a target short of the caddy toward the
@@ -578,12 +600,7 @@ fn place_phases(
     };
     to = fit.to_m;
     if short {
-        let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
-        let extra = match target {
-            Target::Region { region, .. } => ctx.index.regions[region].half_size_m[0].abs().max(ctx.index.regions[region].half_size_m[1].abs()),
-            Target::Object(_) => 0.0,
-        };
-        to += away.try_normalize(1e-9).unwrap_or(-Vector3::x()) * (SHORT_OFFSET_M + extra);
+        to = short_of(ctx, to, target);
     }
     let (carry_z, place_rot) = (fit.carry_z_m, fit.rot);
     let (rot, off) = (grasp.rot, grasp.offset_m);
@@ -593,7 +610,7 @@ fn place_phases(
     }
     let at_grasp = move |sim: &Simulation| pos(sim, body) + off;
     let target_now = move |_: &Simulation| to;
-    vec![
+    let mut phases = vec![
         rise(),
         Phase::new("above_object", move |sim, _| Goal::at(at_grasp(sim) + Vector3::z() * 0.10, GRIPPER_OPEN).rotated(rot))
             .until(move |sim, _| (grip_pose(sim).0 - at_grasp(sim) - Vector3::z() * 0.10).norm() < 0.012 && rotation_error(sim, &rot) < 0.06)
@@ -624,7 +641,9 @@ fn place_phases(
         Phase::new("retreat", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * 0.12, GRIPPER_OPEN).rotated(place_rot))
             .until_reached(0.02)
             .max_steps(40),
-    ]
+    ];
+    super::stock_clear::rise_before_carry(&ctx.index, target, body, carry_z, &mut phases);
+    phases
 }
 
 /// Lowering has stalled: the object rests on something (its support is higher than the target guessed). Read from

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use libero_sim::Simulation;
 use nalgebra::{Matrix3, Vector3};
 
-use super::stock::{Build, Ctx, Done, SHORT_OFFSET_M, Slot, Target, place_target, rise, stalled};
+use super::stock::{Build, Ctx, Done, Slot, Target, place_target, rise, short_of, stalled};
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose, mat3, open_along, rotation_error};
 use crate::expert::skills::{carry, extent, pos, xy_dist};
 
@@ -95,14 +95,9 @@ fn aim(sim: &Simulation, ctx: &Ctx, object: usize, target: Target, slot: Slot, s
     let root = pos(sim, ctx.index.instances[object].body);
     let (lo, hi) = extent(sim, &ctx.index, object);
     let half_width_m = (hi.x - lo.x).max(hi.y - lo.y) / 2.0;
-    let (mut to, carry_top) = place_target(sim, ctx, target, slot, root.z - lo.z, half_width_m);
+    let (mut to, carry_top) = place_target(sim, ctx, object, target, slot, root.z - lo.z, half_width_m);
     if short {
-        let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
-        let extra = match target {
-            Target::Region { region, .. } => ctx.index.regions[region].half_size_m[0].abs().max(ctx.index.regions[region].half_size_m[1].abs()),
-            Target::Object(_) => 0.0,
-        };
-        to += away.try_normalize(1e-9).unwrap_or(-Vector3::x()) * (SHORT_OFFSET_M + extra);
+        to = short_of(ctx, to, target);
     }
     let carry_z = carry_top.max(to.z + 0.08);
     // a mug (tall, its bottom low under the pinch) is carried clear of the movable objects along its way
