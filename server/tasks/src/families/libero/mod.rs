@@ -5,10 +5,6 @@ pub mod bddl_terminal;
 mod expert;
 mod objects;
 pub mod stock;
-mod stock_clear;
-mod stock_fit;
-mod stock_grasp;
-mod stock_pan;
 
 use crate::expert::ExpertEntry;
 use crate::judge::kind::EvaluatorKind;

@@ -34,7 +34,10 @@ use crate::expert::{Expert, SOLVE, SceneRefs, SuiteExpert};
 use crate::judge::goal::GoalChecker;
 use crate::judge::predicates::{CompiledAtom, EntityRef, PredicateKind, SceneIndex};
 
-use super::{stock_fit, stock_pan};
+mod clear;
+mod fit;
+mod grasp;
+mod pan;
 
 /// Near miss: the last step stops short.
 pub const STOP_SHORT: &str = "stop_short";
@@ -82,7 +85,7 @@ pub(super) enum Target {
     Region { region: usize, inside: bool },
     /// On another object (its root within 3 cm horizontally, in contact).
     Object(usize),
-    /// On the table clear of a drawer region's open drawer (`stock_clear`: the object stands under it).
+    /// On the table clear of a drawer region's open drawer (`clear`: the object stands under it).
     Aside { region: usize },
 }
 
@@ -195,7 +198,7 @@ fn order(index: &SceneIndex, steps: Vec<Planned>) -> Vec<Planned> {
         out.push(p);
     }
     out.extend(late);
-    super::stock_clear::insert_clears(index, &mut out);
+    clear::insert_clears(index, &mut out);
     out
 }
 
@@ -287,12 +290,15 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
     let mut after_clear = false;
     for (k, p) in planned.into_iter().enumerate() {
         let short = short && k == last;
-        // a bowl or mug: grasp tries checked and repeated as steps of their own, then the carry
+        // a bowl or mug: grasp tries checked and repeated as steps of their own, then the carry (into a drawer, or
+        // set aside from under one, the drawer's own pinch and straight rise instead)
         if let Step::Place { object, target } = p.step
-            && super::stock_grasp::rim_grasped(&index.instances[object].category)
+            && grasp::rim_grasped(&index.instances[object].category)
+            && clear::drawer_target(&index, target).is_none()
+            && !matches!(target, Target::Aside { .. })
         {
             let atom_test = |a: &CompiledAtom| atom_done(&index, a.clone());
-            let split = super::stock_grasp::place_steps(object, &index.instances[object].category, target, slot_of(&targets, k), short, || p.atom.as_ref().filter(|_| !short).map(atom_test));
+            let split = grasp::place_steps(object, &index.instances[object].category, target, slot_of(&targets, k), short, || p.atom.as_ref().filter(|_| !short).map(atom_test));
             steps.extend(split.into_iter().map(|(done, build)| ReadyStep { done, build, from_home: false }));
             continue;
         }
@@ -300,7 +306,7 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
         let done = match (short, p.atom) {
             (true, _) => None,
             (false, Some(atom)) => Some(atom_done(&index, atom)),
-            (false, None) => super::stock_clear::clear_done(&index, &p.step).or_else(|| implicit_done(&index, &p.step)),
+            (false, None) => clear::clear_done(&index, &p.step).or_else(|| implicit_done(&index, &p.step)),
         };
         let slot = slot_of(&targets, k);
         // (a drawer opened after a clearing step: turned from the start, not from the clearing's rim grasp)
@@ -379,7 +385,7 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, sh
                 return Ok(Box::new(move |_, _, _| phases));
             }
             if let Target::Aside { region } = target {
-                return super::stock_clear::aside_builder(refs, index, object, region);
+                return clear::aside_builder(refs, index, object, region);
             }
             Box::new(move |sim, ctx, home| place_phases(sim, ctx, home, object, &category, target, slot, short))
         }
@@ -486,11 +492,11 @@ struct Handle {
 }
 
 /// Per-family tuning: the moka pot across its lid's knob, straight down (as the cooking task's expert grasps it);
-/// the frying pan across its handle 15 cm from its centre, level (placed by [`stock_pan`]).
+/// the frying pan across its handle 15 cm from its centre, level (placed by [`pan`]).
 fn handle_of(category: &str) -> Option<Handle> {
     match category {
         "moka_pot" => Some(Handle { local_m: [0.0, 0.0, 0.075], fingers_local: [1.0, 0.0, 0.0], pitch_rad: 0.0 }),
-        c if stock_pan::is_pan(c) => Some(Handle { local_m: [0.15, 0.0, 0.039], fingers_local: [0.0, 1.0, 0.0], pitch_rad: 0.0 }),
+        c if pan::is_pan(c) => Some(Handle { local_m: [0.15, 0.0, 0.039], fingers_local: [0.0, 1.0, 0.0], pitch_rad: 0.0 }),
         _ => None,
     }
 }
@@ -563,7 +569,7 @@ pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, object: usize, target: T
             let front = front + side + downhill;
             (Vector3::new(c.x + front.x, c.y + front.y, surface + root_above_bottom_m + 0.012), top + root_above_bottom_m + 0.05)
         }
-        Target::Aside { region } => super::stock_clear::aside_target(sim, ctx, object, region),
+        Target::Aside { region } => clear::aside_target(sim, ctx, object, region),
         Target::Object(b) => {
             let (_, hi) = extent(sim, index, b);
             let p = pos(sim, index.instances[b].body);
@@ -587,15 +593,15 @@ pub(super) fn place_phases(
     let body = ctx.index.instances[object].body;
     let root = pos(sim, body);
     let (lo, hi) = extent(sim, &ctx.index, object);
-    let grasp = super::stock_clear::drawer_pinch(sim, ctx, target, category, root, lo, hi, home)
+    let grasp = clear::drawer_pinch(sim, ctx, target, category, root, lo, hi, home)
         .unwrap_or_else(|| choose_grasp(sim, body, category, lo, hi, narrow_dir(sim, &ctx.index, object), home));
     let half_width_m = (hi.x - lo.x).max(hi.y - lo.y) / 2.0;
     let (mut to, carry_top) = place_target(sim, ctx, object, target, slot, root.z - lo.z, half_width_m);
-    let generic = stock_fit::Tuning::generic(to, grasp.rot, carry_top.max(root.z + 0.10).max(to.z + 0.08).min(1.30));
+    let generic = fit::Tuning::generic(to, grasp.rot, carry_top.max(root.z + 0.10).max(to.z + 0.08).min(1.30));
     let fit = match target {
         // the near miss keeps the generic plan: the tuned carry cannot reach a target short of the caddy toward the
         // robot, and would stand the book in the compartment anyway
-        Target::Region { region, inside: true } if !short => stock_fit::tune(sim, &ctx.index, object, region, home, generic),
+        Target::Region { region, inside: true } if !short => fit::tune(sim, &ctx.index, object, region, home, generic),
         _ => generic,
     };
     to = fit.to_m;
@@ -604,9 +610,9 @@ pub(super) fn place_phases(
     }
     let (carry_z, place_rot) = (fit.carry_z_m, fit.rot);
     let (rot, off) = (grasp.rot, grasp.offset_m);
-    if stock_pan::is_pan(category) {
+    if pan::is_pan(category) {
         let region = if let Target::Region { region, inside: true } = target { Some(region) } else { None };
-        return with_rise(stock_pan::place_phases(sim, &ctx.index, object, region, (off, rot), to, carry_z));
+        return with_rise(pan::place_phases(sim, &ctx.index, object, region, (off, rot), to, carry_z));
     }
     let at_grasp = move |sim: &Simulation| pos(sim, body) + off;
     let target_now = move |_: &Simulation| to;
@@ -642,7 +648,7 @@ pub(super) fn place_phases(
             .until_reached(0.02)
             .max_steps(40),
     ];
-    super::stock_clear::rise_before_carry(&ctx.index, target, body, carry_z, &mut phases);
+    clear::rise_before_carry(&ctx.index, target, body, carry_z, &mut phases);
     phases
 }
 

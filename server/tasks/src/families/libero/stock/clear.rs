@@ -7,7 +7,7 @@ use libero_sim::Simulation;
 use libero_sim::mujoco_rs::prelude::MjtObjBase;
 use nalgebra::{Matrix3, Vector3};
 
-use super::stock::{Build, Ctx, Done, Grasp, Planned, Slot, Step, Target, place_phases, same_articulation, with_rise};
+use super::{Build, Ctx, Done, Grasp, Planned, Slot, Step, Target, place_phases, same_articulation, with_rise};
 use crate::TasksError;
 use crate::expert::SceneRefs;
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, body_dir, body_point, grip_pose, mat3, open_along, rotation_error, vec3};
@@ -127,7 +127,7 @@ pub(super) fn insert_clears(index: &SceneIndex, steps: &mut Vec<Planned>) {
     let into_drawers: Vec<(usize, usize)> = steps
         .iter()
         .filter_map(|p| match p.step {
-            Step::Place { object, target: Target::Region { region, inside: true } } if super::stock::container_of(index, Target::Region { region, inside: true }).is_some_and(|c| matches!(c, Step::Drawer { .. })) => {
+            Step::Place { object, target: Target::Region { region, inside: true } } if super::container_of(index, Target::Region { region, inside: true }).is_some_and(|c| matches!(c, Step::Drawer { .. })) => {
                 Some((object, region))
             }
             _ => None,
@@ -204,7 +204,7 @@ pub(super) fn aside_builder(refs: &SceneRefs, index: &SceneIndex, object: usize,
     let joint = index.regions[region].joints.first().ok_or_else(|| TasksError::Scene("drawer region without a joint".into()))?;
     let (q_adr, j) = refs.joint(&joint.name)?;
     let drawer = refs.model.jnt_bodyid()[j] as usize;
-    let handle = super::stock::drawer_handle(index, region).unwrap_or(crate::expert::skills::TOP_HANDLE_LOCAL_M);
+    let handle = super::drawer_handle(index, region).unwrap_or(crate::expert::skills::TOP_HANDLE_LOCAL_M);
     let category = index.instances[object].category.clone();
     Ok(Box::new(move |sim, ctx, home| {
         let mut phases = Vec::new();
@@ -234,7 +234,7 @@ pub(super) fn aside_builder(refs: &SceneRefs, index: &SceneIndex, object: usize,
 }
 
 /// The drawer region a placement goes into, if it does.
-fn drawer_target(index: &SceneIndex, target: Target) -> Option<usize> {
+pub(super) fn drawer_target(index: &SceneIndex, target: Target) -> Option<usize> {
     match target {
         Target::Region { region, inside: true } if index.regions[region].joints.len() == 1 && index.regions[region].parent.is_some() => Some(region),
         _ => None,

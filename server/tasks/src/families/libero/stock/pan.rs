@@ -15,7 +15,7 @@ use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose
 use crate::expert::skills::{extent, pos, xy_dist};
 use crate::judge::predicates::SceneIndex;
 
-use super::stock::stalled;
+use super::stalled;
 
 /// Whether a placement's object is a frying pan (its category).
 pub(super) fn is_pan(category: &str) -> bool {

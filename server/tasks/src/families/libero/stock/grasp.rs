@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use libero_sim::Simulation;
 use nalgebra::{Matrix3, Vector3};
 
-use super::stock::{Build, Ctx, Done, Slot, Target, place_target, rise, short_of, stalled};
+use super::{Build, Ctx, Done, Slot, Target, place_target, rise, short_of, stalled};
 use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose, mat3, open_along, rotation_error};
 use crate::expert::skills::{carry, extent, pos, xy_dist};
 
