@@ -1,6 +1,6 @@
 //! The generic stock expert's planner on real stock scenes: every one of the 130 stock goals plans, and the order is
 //! one that works (implicit openings before a placement into a closed drawer, closings after it, articulations
-//! before placements, a support object before what is stacked on it).
+//! before placements, a support object before what is stacked on it, what stands in a pushed plate's way moved first).
 use libero_sim::AssetPaths;
 use libero_sim::compose::compose_file;
 use libero_tasks::{STOCK_SUITES, expert_plan};
@@ -37,6 +37,16 @@ fn stock_goals_plan_in_an_order_that_works() {
         ["open microwave_1 (implicit)", "place white_yellow_mug_1 in microwave_1_heating_region", "close microwave_1"]
     );
     assert_eq!(plan("libero_90/KITCHEN_SCENE8_turn_off_the_stove"), ["turn off flat_stove_1"]);
+    // every other movable object may stand in the pushed plate's way: a clearing step each (skipped when clear)
+    assert_eq!(
+        plan("libero_goal/push_the_plate_to_the_front_of_the_stove"),
+        [
+            "place akita_black_bowl_1 clear of plate_1's way to main_table_stove_front_region (implicit)",
+            "place cream_cheese_1 clear of plate_1's way to main_table_stove_front_region (implicit)",
+            "place wine_bottle_1 clear of plate_1's way to main_table_stove_front_region (implicit)",
+            "place plate_1 on main_table_stove_front_region"
+        ]
+    );
 }
 
 /// Composes and compiles all 130 scenes (about a minute in a debug build): `cargo test -- --ignored`; `expert --all`

@@ -141,21 +141,81 @@ pub(super) fn insert_clears(index: &SceneIndex, steps: &mut Vec<Planned>) {
     }
 }
 
-/// A clearing step is done when its object is clear of the open drawer.
+/// Before a plate is pushed to its region, a step for each other movable object that sets it down clear of the
+/// plate's way (skipped when it is clear already): the stock scene's cream cheese stands where the plate must come to
+/// rest.
+pub(super) fn insert_path_clears(index: &SceneIndex, steps: &mut Vec<Planned>) {
+    let pushes: Vec<(usize, usize)> = steps
+        .iter()
+        .filter_map(|p| match p.step {
+            Step::Place { object, target: Target::Region { region, .. } } if index.instances[object].category == "plate" => Some((object, region)),
+            _ => None,
+        })
+        .collect();
+    for (mover, region) in pushes {
+        let Some(k) = steps.iter().position(|p| matches!(p.step, Step::Place { object, .. } if object == mover)) else { continue };
+        let movable = (0..index.instances.len()).filter(|&i| i != mover && !index.instances[i].is_fixture && !is_ground(&index.instances[i].category));
+        let clears: Vec<Planned> = movable.map(|object| Planned { step: Step::Place { object, target: Target::OffPath { mover, region } }, atom: None }).collect();
+        steps.splice(k..k, clears);
+    }
+}
+
+/// Room kept between a pushed plate's rim and what stands beside its way (m), and the more a set-down keeps (its
+/// error): small, because the stock goal scene is crowded (the bowl has 3 cm between the plate's way and the bottle).
+const PATH_CLEARANCE_M: f64 = 0.01;
+const PATH_SET_DOWN_SLACK_M: f64 = 0.01;
+
+/// Whether the box `lo`–`hi` comes within `margin_m` of the way `mover` sweeps from where it stands to `region`'s
+/// centre (its footprint taken as the circle round its widest side).
+fn box_in_path(sim: &Simulation, index: &SceneIndex, mover: usize, region: usize, lo: Vector3<f64>, hi: Vector3<f64>, margin_m: f64) -> bool {
+    let (ml, mh) = extent(sim, index, mover);
+    let radius_m = (mh.x - ml.x).max(mh.y - ml.y) / 2.0;
+    let from = pos(sim, index.instances[mover].body);
+    let to = vec3(&sim.data().site_xpos()[index.regions[region].site]);
+    let (a, d) = (Vector3::new(from.x, from.y, 0.0), Vector3::new(to.x - from.x, to.y - from.y, 0.0));
+    let c = Vector3::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0, 0.0);
+    let t = if d.norm_squared() < 1e-12 { 0.0 } else { ((c - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0) };
+    // the object's footprint as a circle round its widest side (a bowl's own; the margin covers a box's corners)
+    let half_m = (hi.x - lo.x).max(hi.y - lo.y) / 2.0;
+    (c - (a + d * t)).norm() < radius_m + half_m + margin_m
+}
+
+/// A clearing step is done when its object is clear of the open drawer, or of the pushed plate's way.
 pub(super) fn clear_done(index: &Arc<SceneIndex>, step: &Step) -> Option<Done> {
-    let Step::Place { object, target: Target::Aside { region } } = *step else { return None };
     let index = index.clone();
-    Some(Box::new(move |sim| !under_open_drawer(sim, &index, object, region)))
+    match *step {
+        Step::Place { object, target: Target::Aside { region } } => Some(Box::new(move |sim| !under_open_drawer(sim, &index, object, region))),
+        Step::Place { object, target: Target::OffPath { mover, region } } => Some(Box::new(move |sim| {
+            let (lo, hi) = extent(sim, &index, object);
+            !box_in_path(sim, &index, mover, region, lo, hi, PATH_CLEARANCE_M)
+        })),
+        _ => None,
+    }
 }
 
 /// Where to set `object` down clear of `region`'s open drawer: its root's target (world) and the root's carry
 /// height. The nearest spot clear of the drawer, of everything else on the table and of the table's edge, within
 /// reach; the object stays where it is when none is found.
 pub(super) fn aside_target(sim: &Simulation, ctx: &Ctx, object: usize, region: usize) -> (Vector3<f64>, f64) {
+    let root = pos(sim, ctx.index.instances[object].body);
+    match footprint(sim, &ctx.index, region) {
+        Some(f) => set_down_spot(sim, ctx, object, |a, b| box_under(&f, a, b, HAND_CLEARANCE_M + SET_DOWN_SLACK_M)),
+        None => (root + Vector3::z() * 0.012, root.z + 0.06),
+    }
+}
+
+/// Where to set `object` down clear of the way `mover` is pushed to `region` (as [`aside_target`]).
+pub(super) fn off_path_target(sim: &Simulation, ctx: &Ctx, object: usize, mover: usize, region: usize) -> (Vector3<f64>, f64) {
+    let index = ctx.index.clone();
+    set_down_spot(sim, ctx, object, move |a, b| box_in_path(sim, &index, mover, region, a, b, PATH_CLEARANCE_M + PATH_SET_DOWN_SLACK_M))
+}
+
+/// The nearest spot for `object` where `blocked` (its box there) is false, clear of everything else on the table
+/// and of the table's edge, within reach: its root's target and carry height (where it stands when none is found).
+fn set_down_spot(sim: &Simulation, ctx: &Ctx, object: usize, blocked: impl Fn(Vector3<f64>, Vector3<f64>) -> bool) -> (Vector3<f64>, f64) {
     let index = &ctx.index;
     let root = pos(sim, index.instances[object].body);
     let stay = (root + Vector3::z() * 0.012, root.z + 0.06);
-    let Some(f) = footprint(sim, index, region) else { return stay };
     let (lo, hi) = extent(sim, index, object);
     let others: Vec<(Vector3<f64>, Vector3<f64>)> = (0..index.instances.len())
         .filter(|&i| i != object && !is_ground(&index.instances[i].category))
@@ -167,7 +227,7 @@ pub(super) fn aside_target(sim: &Simulation, ctx: &Ctx, object: usize, region: u
     let fits = |d: Vector3<f64>| {
         let (a, b) = (lo + d, hi + d);
         let c = (a + b) / 2.0;
-        !box_under(&f, a, b, HAND_CLEARANCE_M + SET_DOWN_SLACK_M)
+        !blocked(a, b)
             && (REACH_M.0..=REACH_M.1).contains(&reach(c))
             && table.is_none_or(|(tl, th)| a.x > tl.x + TABLE_EDGE_M && a.y > tl.y + TABLE_EDGE_M && b.x < th.x - TABLE_EDGE_M && b.y < th.y - TABLE_EDGE_M)
             && others.iter().all(|(ol, oh)| {

@@ -87,6 +87,8 @@ pub(super) enum Target {
     Object(usize),
     /// On the table clear of a drawer region's open drawer (`clear`: the object stands under it).
     Aside { region: usize },
+    /// On the table clear of the way `mover` (the plate) is pushed to `region` (`clear`: the object stands in it).
+    OffPath { mover: usize, region: usize },
 }
 
 /// One planned step.
@@ -199,6 +201,7 @@ fn order(index: &SceneIndex, steps: Vec<Planned>) -> Vec<Planned> {
     }
     out.extend(late);
     clear::insert_clears(index, &mut out);
+    clear::insert_path_clears(index, &mut out);
     out
 }
 
@@ -267,6 +270,7 @@ pub fn plan_check(refs: &SceneRefs) -> Result<Vec<String>, TasksError> {
                     Target::Region { region, inside } => format!("{} {}", if inside { "in" } else { "on" }, index.regions[region].key),
                     Target::Object(b) => format!("on {}", index.instances[b].name),
                     Target::Aside { region } => format!("clear of {}", index.regions[region].key),
+                    Target::OffPath { mover, region } => format!("clear of {}'s way to {}", index.instances[mover].name, index.regions[region].key),
                 };
                 format!("place {} {to}", index.instances[object].name)
             }
@@ -295,7 +299,7 @@ pub fn build(behaviour: &str, refs: &SceneRefs) -> Result<Box<dyn Expert>, Tasks
         if let Step::Place { object, target } = p.step
             && grasp::rim_grasped(&index.instances[object].category)
             && clear::drawer_target(&index, target).is_none()
-            && !matches!(target, Target::Aside { .. })
+            && !matches!(target, Target::Aside { .. } | Target::OffPath { .. })
         {
             let atom_test = |a: &CompiledAtom| atom_done(&index, a.clone());
             let split = grasp::place_steps(object, &index.instances[object].category, target, slot_of(&targets, k), short, || p.atom.as_ref().filter(|_| !short).map(atom_test));
@@ -380,7 +384,10 @@ fn step_builder(refs: &SceneRefs, index: &SceneIndex, step: Step, slot: Slot, sh
                 && let Target::Region { region, .. } = target
             {
                 let zone = index.regions[region].site;
-                let stop_m = if short { 0.09 } else { 0.012 };
+                // done once the dish is well inside its region (half way from the centre to the nearest side): nudged
+                // on toward the exact centre, a plate stalled 1.5 cm off it is dragged back and forth past it
+                let half = &index.regions[region].half_size_m;
+                let stop_m = if short { 0.09 } else { (0.5 * half[0].abs().min(half[1].abs())).max(0.012) };
                 let phases = super::objects::push_plate_phases(body, zone, stop_m);
                 return Ok(Box::new(move |_, _, _| phases));
             }
@@ -528,7 +535,7 @@ pub(super) fn short_of(ctx: &Ctx, to: Vector3<f64>, target: Target) -> Vector3<f
     let away = Vector3::new(ctx.base_m.x - to.x, ctx.base_m.y - to.y, 0.0);
     let extra = match target {
         Target::Region { region, .. } => ctx.index.regions[region].half_size_m[0].abs().max(ctx.index.regions[region].half_size_m[1].abs()),
-        Target::Object(_) | Target::Aside { .. } => 0.0,
+        Target::Object(_) | Target::Aside { .. } | Target::OffPath { .. } => 0.0,
     };
     to + away.try_normalize(1e-9).unwrap_or(-Vector3::x()) * (SHORT_OFFSET_M + extra)
 }
@@ -570,6 +577,7 @@ pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, object: usize, target: T
             (Vector3::new(c.x + front.x, c.y + front.y, surface + root_above_bottom_m + 0.012), top + root_above_bottom_m + 0.05)
         }
         Target::Aside { region } => clear::aside_target(sim, ctx, object, region),
+        Target::OffPath { mover, region } => clear::off_path_target(sim, ctx, object, mover, region),
         Target::Object(b) => {
             let (_, hi) = extent(sim, index, b);
             let p = pos(sim, index.instances[b].body);
