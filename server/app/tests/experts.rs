@@ -387,6 +387,17 @@ fn a_stopped_sweep_resumes_from_its_journal_running_only_the_tasks_left() {
     assert!(!journal.exists(), "the finished sweep left its journal");
 }
 
+/// The README's pool table is the committed sweep's own (`expert --all --markdown` over
+/// `tasks/results/expert_sweep.jsonl`): a re-run sweep or an update without the README refreshed fails here.
+#[test]
+fn the_readme_pool_table_is_the_committed_sweeps() {
+    let out = bin().args(["expert", "--all", "--markdown"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let table = String::from_utf8(out.stdout).unwrap();
+    let readme = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../README.md")).unwrap();
+    assert!(table.lines().count() > 3 && readme.contains(table.trim()), "README.md lacks the sweep's table (paste `libero-agent expert --all --markdown`):\n{table}");
+}
+
 /// `expert --list` names every entry with an expert (the release tasks first, then the stock LIBERO tasks and the
 /// pool's own definitions), each with its suite and behaviours, `solve` and `idle` first.
 #[test]
