@@ -17,7 +17,11 @@ use std::sync::Arc;
 
 /// Room the hand needs between an object and the open drawer's footprint (m): less counts as under it.
 const HAND_CLEARANCE_M: f64 = 0.04;
-/// The spot an object is set down at keeps this much more than [`HAND_CLEARANCE_M`] (the set-down's error).
+/// Half the hand's span along its fingers' axis (m): the Panda hand is about 20 cm across there, so a hand whose
+/// fingers open toward the drawer needs this much room, not [`HAND_CLEARANCE_M`] (KITCHEN_SCENE10: the pudding,
+/// pinched across its 4.6 cm side, 6 cm in front of the open drawer; the hand came down onto the drawer's front).
+const HAND_HALF_SPAN_M: f64 = 0.105;
+/// The spot an object is set down at keeps this much more than [`hand_margin`] (the set-down's error).
 const SET_DOWN_SLACK_M: f64 = 0.02;
 /// Room kept between the set-down object and anything else standing on the table (m).
 const NEIGHBOUR_CLEARANCE_M: f64 = 0.03;
@@ -118,7 +122,15 @@ fn box_under(f: &Footprint, lo: Vector3<f64>, hi: Vector3<f64>, margin_m: f64) -
 /// Whether `object` stands where `region`'s drawer, opened, would be over it (or too close for the hand).
 fn under_open_drawer(sim: &Simulation, index: &SceneIndex, object: usize, region: usize) -> bool {
     let (lo, hi) = extent(sim, index, object);
-    footprint(sim, index, region).is_some_and(|f| box_under(&f, lo, hi, HAND_CLEARANCE_M))
+    footprint(sim, index, region).is_some_and(|f| box_under(&f, lo, hi, hand_margin(sim, index, object, &f)))
+}
+
+/// The room the hand needs round `object` beside the drawer `f`: its fingers open across the drawer for a bowl or
+/// mug (pinched there: [`drawer_pinch`]), else across the object's narrow side.
+fn hand_margin(sim: &Simulation, index: &SceneIndex, object: usize, f: &Footprint) -> f64 {
+    let category = &index.instances[object].category;
+    let fingers = if super::grasp::rim_grasped(category) { f.across } else { super::narrow_dir(sim, index, object) };
+    HAND_CLEARANCE_M.max(fingers.dot(&f.out).abs() * HAND_HALF_SPAN_M)
 }
 
 /// Before the opening of each drawer something is placed into, a step that sets that object down clear of the
@@ -199,7 +211,10 @@ pub(super) fn clear_done(index: &Arc<SceneIndex>, step: &Step) -> Option<Done> {
 pub(super) fn aside_target(sim: &Simulation, ctx: &Ctx, object: usize, region: usize) -> (Vector3<f64>, f64) {
     let root = pos(sim, ctx.index.instances[object].body);
     match footprint(sim, &ctx.index, region) {
-        Some(f) => set_down_spot(sim, ctx, object, |a, b| box_under(&f, a, b, HAND_CLEARANCE_M + SET_DOWN_SLACK_M)),
+        Some(f) => {
+            let margin_m = hand_margin(sim, &ctx.index, object, &f) + SET_DOWN_SLACK_M;
+            set_down_spot(sim, ctx, object, |a, b| box_under(&f, a, b, margin_m))
+        }
         None => (root + Vector3::z() * 0.012, root.z + 0.06),
     }
 }
@@ -285,12 +300,18 @@ pub(super) fn aside_builder(refs: &SceneRefs, index: &SceneIndex, object: usize,
             phases = with_rise(phases);
             // back to where the hand starts, as it starts: from the push's pose, the reach for the object stretches
             // the arm onto its elbow limit (KITCHEN_SCENE5: the hand stuck 4 cm short of the bowl's rim)
-            let (start, rot) = (ctx.base_m + Vector3::from(START_FROM_BASE_M), *home);
-            phases.push(Phase::new("back_to_start", move |_, _| Goal::at(start, GRIPPER_OPEN).rotated(rot)).until_reached(0.02).max_steps(120));
+            phases.push(back_to_start(ctx, home));
         }
         phases.extend(place_phases(sim, ctx, home, object, &category, Target::Aside { region }, Slot { k: 0, n: 1 }, false));
         phases
     }))
+}
+
+/// The hand back where it starts every episode, turned as it starts: after working a drawer's handle, the reach
+/// for an object beyond it otherwise stretches the arm onto its elbow limit.
+pub(super) fn back_to_start(ctx: &Ctx, home: &Matrix3<f64>) -> Phase {
+    let (start, rot) = (ctx.base_m + Vector3::from(START_FROM_BASE_M), *home);
+    Phase::new("back_to_start", move |_, _| Goal::at(start, GRIPPER_OPEN).rotated(rot)).until_reached(0.02).max_steps(120)
 }
 
 /// The drawer region a placement goes into, if it does.

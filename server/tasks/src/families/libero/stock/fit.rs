@@ -44,11 +44,13 @@ pub struct Tuning {
     pub carry_speed: f64,
     /// The carry ends only once the hand is within this of `rot` (rad; infinite: not checked).
     pub turn_tol_rad: f64,
+    /// Let down off-centre onto a raised floor's ledge (the caddy's back compartment).
+    pub perched: bool,
 }
 
 impl Tuning {
     pub fn generic(to_m: Vector3<f64>, rot: Matrix3<f64>, carry_z_m: f64) -> Self {
-        Self { to_m, rot, carry_z_m, carry_speed: 0.7, turn_tol_rad: f64::INFINITY }
+        Self { to_m, rot, carry_z_m, carry_speed: 0.7, turn_tol_rad: f64::INFINITY, perched: false }
     }
 }
 
@@ -83,10 +85,10 @@ fn raised_floor(region_bottom_m: f64, owner_bottom_m: f64) -> bool {
 }
 
 /// A horizontal footprint: half extents along its narrow and wide horizontal axes and the narrow axis (world, unit).
-struct Footprint {
-    narrow_half_m: f64,
-    wide_half_m: f64,
-    narrow_dir: Vector3<f64>,
+pub(super) struct Footprint {
+    pub(super) narrow_half_m: f64,
+    pub(super) wide_half_m: f64,
+    pub(super) narrow_dir: Vector3<f64>,
 }
 
 /// The footprint of a box with world orientation `r` and half sizes `half_m` whose horizontal axes are two of its
@@ -101,7 +103,7 @@ fn footprint(r: &Matrix3<f64>, half_m: [f64; 3]) -> Option<Footprint> {
 
 /// The largest contact geom of `object` as a footprint (the book's one collision box), if it is a box-like geom
 /// standing on one of its faces.
-fn object_footprint(sim: &Simulation, index: &SceneIndex, object: usize) -> Option<Footprint> {
+pub(super) fn object_footprint(sim: &Simulation, index: &SceneIndex, object: usize) -> Option<Footprint> {
     let (model, data) = (sim.model(), sim.data());
     let aabb = model.geom_aabb();
     let g = index.contact_geoms(object).max_by(|&a, &b| {
@@ -174,6 +176,7 @@ pub fn tune(sim: &Simulation, index: &SceneIndex, object: usize, region: usize, 
         carry_z_m,
         carry_speed: TIGHT_CARRY_SPEED,
         turn_tol_rad: TIGHT_TURN_TOL_RAD,
+        perched: perch != Vector3::zeros(),
     }
 }
 

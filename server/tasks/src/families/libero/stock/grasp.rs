@@ -26,6 +26,8 @@ const INSIDE_RIM_M: f64 = 0.008;
 /// rising about half as much as the hand).
 const HELD_RISE_FRACTION: f64 = 0.3;
 const MIN_HAND_RISE_M: f64 = 0.03;
+/// A pinch point farther than this from the robot base (horizontally, m) is at the edge of the arm's reach.
+const FAR_REACH_M: f64 = 0.78;
 /// Carry speed (largest action norm): a mug swings out of a fast-moving pinch.
 const BOWL_CARRY_SPEED: f64 = 0.7;
 const MUG_CARRY_SPEED: f64 = 0.3;
@@ -68,9 +70,9 @@ pub(super) fn place_steps(object: usize, category: &str, target: Target, slot: S
 /// The rim's height on that side from the object's up axis, so a bowl resting tilted is pinched at its wall there,
 /// not in the air above the lower side of its rim.
 fn pinch_point(sim: &Simulation, body: usize, category: &str, (lo, hi): (Vector3<f64>, Vector3<f64>), base_m: Vector3<f64>, attempt: usize) -> (Vector3<f64>, Vector3<f64>) {
-    let centre = (lo + hi) / 2.0;
     let half = (hi - lo) / 2.0;
     let narrow_y = half.y <= half.x;
+    let centre = if is_mug(category) { cup_centre(sim, body, lo, hi) } else { (lo + hi) / 2.0 };
     // the last try turns to the other axis, on the object's side away from the robot's centre line there
     let (axis, r, side) = match (attempt, narrow_y) {
         (0 | 1, true) => (Vector3::y(), half.y, if attempt == 0 { 1.0 } else { -1.0 }),
@@ -78,6 +80,13 @@ fn pinch_point(sim: &Simulation, body: usize, category: &str, (lo, hi): (Vector3
         (_, true) => (Vector3::x(), half.x, (centre.x - base_m.x).signum()),
         (_, false) => (Vector3::y(), half.y, (centre.y - base_m.y).signum()),
     };
+    // at the edge of the arm's reach the far side's pinch stretches the elbow straight (joint 4 on its limit), and
+    // the carry back toward the robot then stalls in the singularity: the near side first there
+    let reach = |s: f64| {
+        let p = centre + axis * s * (r - INSIDE_RIM_M);
+        (p.x - base_m.x).hypot(p.y - base_m.y)
+    };
+    let side = if attempt < 2 && reach(1.0) > FAR_REACH_M && reach(-1.0) < reach(1.0) { -side } else { side };
     let out = axis * side * (r - INSIDE_RIM_M);
     // the rim's plane: normal the object's up axis, its highest point at the box's top
     let up = mat3(&sim.data().xmat()[body]).column(2).into_owned();
@@ -87,6 +96,20 @@ fn pinch_point(sim: &Simulation, body: usize, category: &str, (lo, hi): (Vector3
     let rim_z = rim_centre_z - (up.x * out.x + up.y * out.y) / up.z;
     let below = if is_mug(category) { MUG_BELOW_RIM_M } else { BOWL_BELOW_RIM_M };
     (Vector3::new(centre.x + out.x, centre.y + out.y, rim_z.min(hi.z) - below), axis)
+}
+
+/// The centre of a mug's cup, not of its box (which takes in the handle): along the wide horizontal axis the cup's
+/// axis lies its radius (half the narrow side) in from the end nearer the mug's centre of mass, the handle being
+/// light. Pinched at the box's centre instead, the fingers meet the porcelain mug's faceted wall 2 cm off its axis
+/// and it turns out of the pinch in the carry.
+fn cup_centre(sim: &Simulation, body: usize, lo: Vector3<f64>, hi: Vector3<f64>) -> Vector3<f64> {
+    let (half, mut centre) = ((hi - lo) / 2.0, (lo + hi) / 2.0);
+    let com = sim.data().subtree_com()[body];
+    let k = if half.y <= half.x { 0 } else { 1 };
+    let r = half.x.min(half.y);
+    let (near_lo, near_hi) = (lo[k] + r, hi[k] - r);
+    centre[k] = if (com[k] - near_lo).abs() < (com[k] - near_hi).abs() { near_lo } else { near_hi };
+    centre
 }
 
 /// Where the root is let go and the height it is carried at (as the stock placement computes them), the near miss's

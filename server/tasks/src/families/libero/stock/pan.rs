@@ -33,9 +33,9 @@ fn held_offset(latch: &Latch, sim: &Simulation, body: usize) -> Vector3<f64> {
 
 /// A compartment the pan goes into from the side (a shelf under a board): the horizontal direction out of its open
 /// face (world, unit) and the compartment's half depth along it (m).
-struct SideEntry {
-    out: Vector3<f64>,
-    half_depth_m: f64,
+pub(super) struct SideEntry {
+    pub(super) out: Vector3<f64>,
+    pub(super) half_depth_m: f64,
 }
 
 /// Whether the segment from `a` to `b` (world) crosses one of `instance`'s contact geoms (their local bounding
@@ -67,7 +67,7 @@ fn blocked(sim: &Simulation, index: &SceneIndex, instance: usize, a: Vector3<f64
 /// How the pan goes into `region`, if its fixture covers it from above (a shelf's compartment): out of the open face
 /// among the region box's horizontal sides (nothing of the fixture within 5 cm beyond it), the one nearest the handle's
 /// direction `handle_m` (the hand, outside, holds the pan in).
-fn side_entry(sim: &Simulation, index: &SceneIndex, region: usize, handle_m: Vector3<f64>) -> Option<SideEntry> {
+pub(super) fn side_entry(sim: &Simulation, index: &SceneIndex, region: usize, handle_m: Vector3<f64>) -> Option<SideEntry> {
     const BEYOND_M: f64 = 0.05;
     let reg = &index.regions[region];
     let parent = reg.parent?;
