@@ -60,7 +60,7 @@ pub(super) fn place_steps(object: usize, category: &str, target: Target, slot: S
         steps.push((skip, build));
     }
     let category = category.to_owned();
-    steps.push((done(), Box::new(move |sim, ctx, _| carry_phases(sim, ctx, object, &category, target, slot, short))));
+    steps.push((done(), Box::new(move |sim, ctx, home| carry_phases(sim, ctx, home, object, &category, target, slot, short))));
     steps
 }
 
@@ -219,8 +219,16 @@ fn grasp_phases(
 
 /// Carry the held object over its target, lower it until it is there or rests on something, let go and back off.
 /// The hand keeps the orientation it holds the object with.
-fn carry_phases(sim: &Simulation, ctx: &Ctx, object: usize, category: &str, target: Target, slot: Slot, short: bool) -> Vec<Phase> {
+/// Into a compartment covered from above (the microwave) a mug is laid on its side and slid in (`tilt`).
+#[allow(clippy::too_many_arguments)] // the placement's plan (object, target, slot, short) plus the state it starts from
+fn carry_phases(sim: &Simulation, ctx: &Ctx, home: &Matrix3<f64>, object: usize, category: &str, target: Target, slot: Slot, short: bool) -> Vec<Phase> {
     let body = ctx.index.instances[object].body;
+    if !short
+        && let Target::Region { region, inside: true } = target
+        && let Some(phases) = super::tilt::lay_in_held(sim, &ctx.index, object, region, ctx.base_m, home)
+    {
+        return phases;
+    }
     let (to, carry_z) = aim(sim, ctx, object, target, slot, short);
     // no lower than it was lifted to (from a high start, over what it started on), until over the target
     let carry_z = carry_z.max(pos(sim, body).z);

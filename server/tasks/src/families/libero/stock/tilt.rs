@@ -34,18 +34,26 @@ const BACK_GAP_M: f64 = 0.015;
 const FLOOR_GAP_M: f64 = 0.012;
 
 /// The compartment `region` of `object`'s placement, if it is covered from above and open on a side: how the book
-/// enters it (its open face toward the robot base `base_m`).
-/// Only where the book, laid over, stands in the compartment with [`FLOOR_GAP_M`] under and over it (the study
+/// enters it (its open face toward the robot base `base_m`). Only where the book, laid over, stands in the compartment with [`FLOOR_GAP_M`] under and over it (the study
 /// shelf's lower compartment, 7 cm high, takes no book on its edge).
 pub(super) fn entry(sim: &Simulation, index: &SceneIndex, object: usize, region: usize, base_m: Vector3<f64>) -> Option<SideEntry> {
     let reg = &index.regions[region];
-    let c = vec3(&sim.data().site_xpos()[reg.site]);
     let r = mat3(&sim.data().site_xmat()[reg.site]);
     let height_m = 2.0 * r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
     let width_m = 2.0 * super::fit::object_footprint(sim, index, object)?.wide_half_m;
     if width_m + 2.0 * FLOOR_GAP_M > height_m {
         return None;
     }
+    entry_towards(sim, index, region, base_m)
+}
+
+/// The open face of a covered `region` nearest the robot base (not a drawer's: it is entered from above once open,
+/// though its back part stays under the cabinet).
+fn entry_towards(sim: &Simulation, index: &SceneIndex, region: usize, base_m: Vector3<f64>) -> Option<SideEntry> {
+    if !index.regions[region].joints.is_empty() {
+        return None;
+    }
+    let c = vec3(&sim.data().site_xpos()[index.regions[region].site]);
     side_entry(sim, index, region, base_m - c)
 }
 
@@ -90,19 +98,7 @@ pub(super) fn place_phases(
     let turn_z = (floor_z + height_m + 0.05).max(slide_z + 0.10).max(hi.z + 0.05);
     let turn_at = Vector3::new(turn_at.x, turn_at.y, turn_z);
     let mut phases = pick_and_lay_over(body, (grasp_offset_m, rot), &t, turn_at);
-    phases.extend([
-        Phase::new("down_to_opening", move |sim, _| Goal::at(carry(sim, body, root_front), GRIPPER_CLOSED).slow(0.4).rotated(laid))
-            .until(move |sim, _| (pos(sim, body) - root_front).norm() < 0.012)
-            .max_steps(200),
-        Phase::new("slide_in", move |sim, _| Goal::at(carry(sim, body, root_in), GRIPPER_CLOSED).slow(0.3).rotated(laid))
-            .until(move |sim, ctx| xy_dist(pos(sim, body), root_in) < 0.01 || (ctx.steps > 60 && stalled(sim, ctx)))
-            .max_steps(200),
-        Phase::new("lower", move |sim, _| Goal::at(carry(sim, body, root_in - Vector3::z() * 0.01), GRIPPER_CLOSED).slow(0.3).rotated(laid))
-            .until(move |sim, ctx| pos(sim, body).z < slide_z - FLOOR_GAP_M + 0.004 || stalled(sim, ctx))
-            .max_steps(40),
-        Phase::new("open", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(laid)).for_steps(10),
-        Phase::new("back_out", move |_, ctx| Goal::at(ctx.start_pos_m - into * 0.14, GRIPPER_OPEN).rotated(laid)).until_reached(0.02).max_steps(60),
-    ]);
+    phases.extend(slide_in_phases(body, laid, into, (root_front, root_in), slide_z - FLOOR_GAP_M));
     phases
 }
 
@@ -166,6 +162,66 @@ pub(super) fn drawer_drop(
     Some(phases)
 }
 
+/// A held object (a mug pinched at its rim) into a compartment covered from above (the microwave, 14.4 cm high
+/// inside: a mug with the hand over it does not pass under its roof): laid over on its side in front of the opening,
+/// its bottom ahead, and slid in until its far end is 1.5 cm from the back, its lowest point 1 cm over the floor.
+/// `None` where `region` is not covered, or the object does not fit in it lying so.
+pub(super) fn lay_in_held(sim: &Simulation, index: &SceneIndex, object: usize, region: usize, base_m: Vector3<f64>, home: &Matrix3<f64>) -> Option<Vec<Phase>> {
+    let e = entry_towards(sim, index, region, base_m)?;
+    let into = -e.out;
+    let body = index.instances[object].body;
+    let root = pos(sim, body);
+    let (grip, rot) = grip_pose(sim);
+    let (lo, hi) = extent(sim, index, object);
+    let reg = &index.regions[region];
+    let data = sim.data();
+    let c = vec3(&data.site_xpos()[reg.site]);
+    let r = mat3(&data.site_xmat()[reg.site]);
+    let h_z = r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
+    let floor_z = c.z - h_z;
+    let t = turns(&rot, home, into);
+    let laid = t.laid;
+    // the object's box corners from its root, turned with the hand about the grip
+    let spin = t.laid * rot.transpose();
+    let corners: Vec<Vector3<f64>> = (0..8)
+        .map(|i| spin * (Vector3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z }) - root))
+        .collect();
+    let lowest = corners.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+    let highest = corners.iter().map(|p| p.z).fold(f64::NEG_INFINITY, f64::max);
+    let ahead = corners.iter().map(|p| p.dot(&into)).fold(f64::NEG_INFINITY, f64::max);
+    if highest - lowest + FLOOR_GAP_M > 2.0 * h_z {
+        return None;
+    }
+    let root_from_grip = spin * (root - grip);
+    let root_z = floor_z + FLOOR_GAP_M - lowest;
+    let root_in = Vector3::new(c.x, c.y, root_z) + into * (e.half_depth_m - BACK_GAP_M - ahead);
+    let root_front = Vector3::new(c.x, c.y, root_z) - into * (e.half_depth_m + TURN_CLEAR_M + ahead);
+    let turn_at = root_front - root_from_grip;
+    let turn_at = Vector3::new(turn_at.x, turn_at.y, turn_at.z.max(grip.z));
+    let mut phases = vec![];
+    phases.extend(lay_over_phases(&t, turn_at));
+    phases.extend(slide_in_phases(body, laid, into, (root_front, root_in), root_z - FLOOR_GAP_M));
+    Some(phases)
+}
+
+/// Down in front of the opening (root at `root_front`), in (root at `root_in`), down until the root is at
+/// `rest_z` or stalls, let go, back out along `into`.
+fn slide_in_phases(body: usize, laid: Matrix3<f64>, into: Vector3<f64>, (root_front, root_in): (Vector3<f64>, Vector3<f64>), rest_z: f64) -> [Phase; 5] {
+    [
+        Phase::new("down_to_opening", move |sim, _| Goal::at(carry(sim, body, root_front), GRIPPER_CLOSED).slow(0.4).rotated(laid))
+            .until(move |sim, _| (pos(sim, body) - root_front).norm() < 0.012)
+            .max_steps(200),
+        Phase::new("slide_in", move |sim, _| Goal::at(carry(sim, body, root_in), GRIPPER_CLOSED).slow(0.3).rotated(laid))
+            .until(move |sim, ctx| xy_dist(pos(sim, body), root_in) < 0.01 || (ctx.steps > 60 && stalled(sim, ctx)))
+            .max_steps(200),
+        Phase::new("lower", move |sim, _| Goal::at(carry(sim, body, root_in - Vector3::z() * 0.01), GRIPPER_CLOSED).slow(0.3).rotated(laid))
+            .until(move |sim, ctx| pos(sim, body).z < rest_z + 0.004 || stalled(sim, ctx))
+            .max_steps(40),
+        Phase::new("open", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(laid)).for_steps(10),
+        Phase::new("back_out", move |_, ctx| Goal::at(ctx.start_pos_m - into * 0.14, GRIPPER_OPEN).rotated(laid)).until_reached(0.02).max_steps(60),
+    ]
+}
+
 /// The hand's orientations of a laying over: turned about z so the fingers close across `into` (the shorter way),
 /// then a quarter turn about `axis` that brings the hand's pointing direction (down) onto `into`.
 #[derive(Clone, Copy)]
@@ -206,11 +262,10 @@ fn angle_between(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
 /// Pick the object by its pinch (`grasp_offset_m` from its root, the hand at `rot`), lift it until the grip is at
 /// `turn_at`'s height, carry it there turning it about z, and lay it over there.
 fn pick_and_lay_over(body: usize, (grasp_offset_m, rot): (Vector3<f64>, Matrix3<f64>), t: &Turns, turn_at: Vector3<f64>) -> Vec<Phase> {
-    let Turns { yawed, axis, laid } = *t;
     let turn_z = turn_at.z;
     let mut lift_rise: Option<f64> = None;
     let [above, down, close] = super::pick_phases(body, grasp_offset_m, rot);
-    vec![
+    let mut phases = vec![
         above,
         down,
         close,
@@ -220,6 +275,15 @@ fn pick_and_lay_over(body: usize, (grasp_offset_m, rot): (Vector3<f64>, Matrix3<
         })
         .until(move |sim, _| grip_pose(sim).0.z > turn_z - 0.015)
         .max_steps(120),
+    ];
+    phases.extend(lay_over_phases(t, turn_at));
+    phases
+}
+
+/// Carry the held object to `turn_at` (the hand's position) turning it about z, then lay it over there.
+fn lay_over_phases(t: &Turns, turn_at: Vector3<f64>) -> [Phase; 2] {
+    let Turns { yawed, axis, laid } = *t;
+    [
         Phase::new("to_turn_point", move |_, _| Goal::at(turn_at, GRIPPER_CLOSED).slow(0.5).rotated(yawed))
             .until(move |sim, _| (grip_pose(sim).0 - turn_at).norm() < 0.015 && rotation_error(sim, &yawed) < 0.08)
             .max_steps(250),
