@@ -578,6 +578,14 @@ pub(super) fn short_of(ctx: &Ctx, to: Vector3<f64>, target: Target) -> Vector3<f
     to + away.try_normalize(1e-9).unwrap_or(-Vector3::x()) * (SHORT_OFFSET_M + extra)
 }
 
+/// A region's box now: its centre (world), its orientation, and its half height along world z (m).
+pub(super) fn region_box(sim: &Simulation, index: &SceneIndex, region: usize) -> (Vector3<f64>, Matrix3<f64>, f64) {
+    let reg = &index.regions[region];
+    let r = mat3(&sim.data().site_xmat()[reg.site]);
+    let h_z = r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
+    (vec3(&sim.data().site_xpos()[reg.site]), r, h_z)
+}
+
 /// Where the object's root should be let go: above the region's floor (`In`) or top (`On`) or the support object's
 /// top, by the root's height above the object's bottom; and the height the root is carried at.
 pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, object: usize, target: Target, slot: Slot, root_above_bottom_m: f64, half_width_m: f64) -> (Vector3<f64>, f64) {
@@ -585,10 +593,7 @@ pub(super) fn place_target(sim: &Simulation, ctx: &Ctx, object: usize, target: T
     match target {
         Target::Region { region, inside } => {
             let reg = &index.regions[region];
-            let c = vec3(&sim.data().site_xpos()[reg.site]);
-            let r = mat3(&sim.data().site_xmat()[reg.site]);
-            // the box's half height in world z
-            let h_z = r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
+            let (c, r, h_z) = region_box(sim, index, region);
             let surface = if inside { c.z - h_z } else { c.z + h_z };
             let top = c.z + h_z;
             // an open drawer's back part stays under the cabinet: aim at its front part (the site turns with the

@@ -8,7 +8,7 @@
 use libero_sim::Simulation;
 use nalgebra::{Matrix3, Vector3};
 
-use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose, mat3, rotate_world, rotation_error, vec3};
+use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose, rotate_world, rotation_error};
 use crate::expert::skills::{carry, extent, pos, xy_dist};
 use crate::judge::predicates::SceneIndex;
 
@@ -37,9 +37,7 @@ const FLOOR_GAP_M: f64 = 0.012;
 /// enters it (its open face toward the robot base `base_m`). Only where the book, laid over, stands in the compartment with [`FLOOR_GAP_M`] under and over it (the study
 /// shelf's lower compartment, 7 cm high, takes no book on its edge).
 pub(super) fn entry(sim: &Simulation, index: &SceneIndex, object: usize, region: usize, base_m: Vector3<f64>) -> Option<SideEntry> {
-    let reg = &index.regions[region];
-    let r = mat3(&sim.data().site_xmat()[reg.site]);
-    let height_m = 2.0 * r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
+    let height_m = 2.0 * super::region_box(sim, index, region).2;
     let width_m = 2.0 * super::fit::object_footprint(sim, index, object)?.wide_half_m;
     if width_m + 2.0 * FLOOR_GAP_M > height_m {
         return None;
@@ -53,8 +51,7 @@ fn entry_towards(sim: &Simulation, index: &SceneIndex, region: usize, base_m: Ve
     if !index.regions[region].joints.is_empty() {
         return None;
     }
-    let c = vec3(&sim.data().site_xpos()[index.regions[region].site]);
-    side_entry(sim, index, region, base_m - c)
+    side_entry(sim, index, region, base_m - super::region_box(sim, index, region).0)
 }
 
 /// Pick the book (`object`; grip point `grasp_offset_m` from its root, the hand at `rot`), lay it over and slide it
@@ -76,11 +73,7 @@ pub(super) fn place_phases(
     // the book's width (its collision box's wide horizontal side, not its world box's, which grows with its yaw),
     // upright once it is laid over
     let width_m = super::fit::object_footprint(sim, index, object).map_or((hi.x - lo.x).max(hi.y - lo.y), |f| 2.0 * f.wide_half_m);
-    let reg = &index.regions[region];
-    let data = sim.data();
-    let c = vec3(&data.site_xpos()[reg.site]);
-    let r = mat3(&data.site_xmat()[reg.site]);
-    let h_z = r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
+    let (c, _, h_z) = super::region_box(sim, index, region);
     let floor_z = c.z - h_z;
     // into the compartment: against its open face's outward direction
     let into = -e.out;
@@ -119,10 +112,7 @@ pub(super) fn drawer_drop(
     let root = pos(sim, body);
     let (lo, hi) = extent(sim, index, object);
     let reg = &index.regions[region];
-    let data = sim.data();
-    let c = vec3(&data.site_xpos()[reg.site]);
-    let r = mat3(&data.site_xmat()[reg.site]);
-    let h_z = r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
+    let (c, r, h_z) = super::region_box(sim, index, region);
     if root.z - lo.z < 2.0 * h_z - IN_MARGIN_M {
         return None;
     }
@@ -173,11 +163,7 @@ pub(super) fn lay_in_held(sim: &Simulation, index: &SceneIndex, object: usize, r
     let root = pos(sim, body);
     let (grip, rot) = grip_pose(sim);
     let (lo, hi) = extent(sim, index, object);
-    let reg = &index.regions[region];
-    let data = sim.data();
-    let c = vec3(&data.site_xpos()[reg.site]);
-    let r = mat3(&data.site_xmat()[reg.site]);
-    let h_z = r.row(2).transpose().component_mul(&Vector3::from(reg.half_size_m)).abs().sum();
+    let (c, _, h_z) = super::region_box(sim, index, region);
     let floor_z = c.z - h_z;
     let t = turns(&rot, home, into);
     let laid = t.laid;
