@@ -120,3 +120,16 @@ fn the_laid_over_book_ketchup_and_mug_the_cup_pinched_mug_and_the_falling_ketchu
     let short = run(tasks[1], "stop_short");
     assert_eq!(short["success"], false, "stop_short must fail: {short}");
 }
+
+/// The yellow book under the study shelf's board (a compartment 7 cm high: it goes in only lying flat): turned a
+/// quarter where it stands (it cannot fall toward the black book), tipped over on its face and pushed along the table
+/// into the compartment by the open fingers (`stock/topple.rs`); its near miss, the push stopped with the book
+/// outside, fails.
+#[test]
+fn the_book_under_the_low_board_is_tipped_over_and_pushed_in_and_its_near_miss_fails() {
+    let task = "libero_90/STUDY_SCENE4_pick_up_the_book_on_the_right_and_place_it_under_the_cabinet_shelf";
+    let r = run(task, "solve");
+    assert_eq!(r["success"], true, "{task}: {r}");
+    let short = run(task, "stop_short");
+    assert_eq!(short["success"], false, "stop_short must fail: {short}");
+}

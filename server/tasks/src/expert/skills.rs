@@ -41,20 +41,29 @@ pub fn carry(sim: &Simulation, body: usize, target: Vector3<f64>) -> Vector3<f64
 
 /// World bounding box (min, max) of an instance's contact geoms now.
 pub fn extent(sim: &Simulation, index: &SceneIndex, instance: usize) -> (Vector3<f64>, Vector3<f64>) {
-    let (model, data) = (sim.model(), sim.data());
-    let aabb = model.geom_aabb();
     let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
-    for g in index.contact_geoms(instance) {
-        let (c, h) = (Vector3::new(aabb[g][0], aabb[g][1], aabb[g][2]), Vector3::new(aabb[g][3], aabb[g][4], aabb[g][5]));
-        let (p, r) = (vec3(&data.geom_xpos()[g]), mat3(&data.geom_xmat()[g]));
-        for k in 0..8 {
-            let s = Vector3::new(if k & 1 == 0 { -1.0 } else { 1.0 }, if k & 2 == 0 { -1.0 } else { 1.0 }, if k & 4 == 0 { -1.0 } else { 1.0 });
-            let corner = p + r * (c + h.component_mul(&s));
-            lo = lo.inf(&corner);
-            hi = hi.sup(&corner);
-        }
+    for corner in contact_corners(sim, index, instance) {
+        lo = lo.inf(&corner);
+        hi = hi.sup(&corner);
     }
     if lo.x.is_finite() { (lo, hi) } else { (pos(sim, index.instances[instance].body), pos(sim, index.instances[instance].body)) }
+}
+
+/// The world corners of an instance's contact geoms' bounding boxes (in each geom's frame) now.
+pub fn contact_corners(sim: &Simulation, index: &SceneIndex, instance: usize) -> Vec<Vector3<f64>> {
+    let (model, data) = (sim.model(), sim.data());
+    let aabb = model.geom_aabb();
+    index
+        .contact_geoms(instance)
+        .flat_map(|g| {
+            let (c, h) = (Vector3::new(aabb[g][0], aabb[g][1], aabb[g][2]), Vector3::new(aabb[g][3], aabb[g][4], aabb[g][5]));
+            let (p, r) = (vec3(&data.geom_xpos()[g]), mat3(&data.geom_xmat()[g]));
+            (0..8).map(move |k| {
+                let s = Vector3::new(if k & 1 == 0 { -1.0 } else { 1.0 }, if k & 2 == 0 { -1.0 } else { 1.0 }, if k & 4 == 0 { -1.0 } else { 1.0 });
+                p + r * (c + h.component_mul(&s))
+            })
+        })
+        .collect()
 }
 
 /// A target for an object's root, computed from the state (and whatever the closure captured).

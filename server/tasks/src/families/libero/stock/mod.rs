@@ -39,6 +39,7 @@ mod fit;
 mod grasp;
 mod pan;
 mod tilt;
+mod topple;
 
 /// Near miss: the last step stops short.
 pub const STOP_SHORT: &str = "stop_short";
@@ -667,6 +668,12 @@ pub(super) fn place_phases(
         && let Some(e) = tilt::entry(sim, &ctx.index, object, region, ctx.base_m)
     {
         return with_rise(tilt::place_phases(sim, &ctx.index, object, region, &e, (off, rot), home));
+    }
+    if tilt::is_book(category)
+        && let Target::Region { region, inside: true } = target
+        && let Some(p) = topple::phases(sim, &ctx.index, object, region, (off, rot), ctx.base_m, home, short)
+    {
+        return with_rise(p);
     }
     if !short
         && !grasp::rim_grasped(category)

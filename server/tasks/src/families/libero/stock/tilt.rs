@@ -47,7 +47,7 @@ pub(super) fn entry(sim: &Simulation, index: &SceneIndex, object: usize, region:
 
 /// The open face of a covered `region` nearest the robot base (not a drawer's: it is entered from above once open,
 /// though its back part stays under the cabinet).
-fn entry_towards(sim: &Simulation, index: &SceneIndex, region: usize, base_m: Vector3<f64>) -> Option<SideEntry> {
+pub(super) fn entry_towards(sim: &Simulation, index: &SceneIndex, region: usize, base_m: Vector3<f64>) -> Option<SideEntry> {
     if !index.regions[region].joints.is_empty() {
         return None;
     }
