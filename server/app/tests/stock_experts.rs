@@ -121,15 +121,23 @@ fn the_laid_over_book_ketchup_and_mug_the_cup_pinched_mug_and_the_falling_ketchu
     assert_eq!(short["success"], false, "stop_short must fail: {short}");
 }
 
-/// The yellow book under the study shelf's board (a compartment 7 cm high: it goes in only lying flat): turned a
-/// quarter where it stands (it cannot fall toward the black book), tipped over on its face and pushed along the table
-/// into the compartment by the open fingers (`stock/topple.rs`); its near miss, the push stopped with the book
-/// outside, fails.
+/// The study shelf's two books that no upright or edgewise placement puts in: the yellow book under its board (a
+/// compartment 7 cm high: it goes in only lying flat), turned a quarter where it stands (it cannot fall toward the
+/// black book), tipped over on its face and pushed along the table into the compartment by the open fingers
+/// (`stock/topple.rs`); the black book into the upper compartment (13.4 cm tall under 13.5 cm, and turning in a
+/// pinch 2.6 cm deep when laid on its edge), laid flat in the hand and let go onto the board beside the yellow book
+/// that stands in front of the shelf (`stock/tilt.rs`). The near misses (the push stopped with the book outside, the
+/// black book let go short of the shelf) fail.
 #[test]
-fn the_book_under_the_low_board_is_tipped_over_and_pushed_in_and_its_near_miss_fails() {
-    let task = "libero_90/STUDY_SCENE4_pick_up_the_book_on_the_right_and_place_it_under_the_cabinet_shelf";
-    let r = run(task, "solve");
-    assert_eq!(r["success"], true, "{task}: {r}");
-    let short = run(task, "stop_short");
-    assert_eq!(short["success"], false, "stop_short must fail: {short}");
+fn the_books_under_the_low_board_and_into_the_tight_compartment_are_tipped_or_laid_flat_and_their_near_misses_fail() {
+    let tasks = [
+        "libero_90/STUDY_SCENE4_pick_up_the_book_on_the_right_and_place_it_under_the_cabinet_shelf",
+        "libero_90/STUDY_SCENE4_pick_up_the_book_in_the_middle_and_place_it_on_the_cabinet_shelf",
+    ];
+    for task in tasks {
+        let r = run(task, "solve");
+        assert_eq!(r["success"], true, "{task}: {r}");
+        let short = run(task, "stop_short");
+        assert_eq!(short["success"], false, "{task}: stop_short must fail: {short}");
+    }
 }

@@ -1,14 +1,16 @@
 //! An upright book into a compartment covered from above (the study shelf's upper compartment, 13.5 cm between its
 //! boards): held by a pinch from above, the hand cannot follow the book under the board, and the generic placement
 //! lowers it onto the board instead. So the book is laid over in the hand and slid in: picked as usual (a pinch across
-//! its thickness a little below its top), lifted, turned about world z until its thickness lies across the opening,
-//! then turned a quarter about the fingers' axis in front of the opening, so that it points into the compartment,
-//! standing on its long edge (its width, 10–11 cm, upright), and pushed in at the compartment's floor height, the hand
-//! at the open face.
+//! its thickness a little below its top), lifted, turned about world z, then a quarter about the horizontal across the
+//! opening in front of it, so that it points into the compartment, and slid in, the hand at the open face. Laid flat
+//! where it fits so (its thickness along the opening first, the fingers then closing vertically: the book's weight
+//! pulls across the pinch, not about it), let go from a hand as low as the table lets it onto the compartment's floor;
+//! otherwise on its long edge (its thickness across the opening first: its width, 10–11 cm, upright), pushed in at
+//! the floor's height.
 use libero_sim::Simulation;
 use nalgebra::{Matrix3, Vector3};
 
-use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose, rotate_world, rotation_error};
+use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose, gripper_width_m, rotate_world, rotation_error};
 use crate::expert::skills::{carry, extent, pos, xy_dist};
 use crate::judge::predicates::SceneIndex;
 
@@ -30,6 +32,22 @@ const DROP_GAP_M: f64 = 0.015;
 const LAY_OVER_STEPS: f64 = 60.0;
 /// The book's far end stops this far (m) short of the compartment's back.
 const BACK_GAP_M: f64 = 0.015;
+/// Laid flat, the book's grip stops this far (m) short of the region's open side (the hand's front, about level with
+/// the grip, stays out of the shelf's face).
+const FLAT_GRIP_OUT_M: f64 = 0.02;
+/// The hand laid over with its fingers vertical reaches this far (m) below its grip site (its body, 20 cm along the
+/// fingers' axis; measured on the study table), and is carried this far above what the book stood on: as low as it
+/// goes, so that the lower finger, opened, drops below the floor's edge instead of propping the let-go book, which it
+/// then drags back out.
+const FLAT_HAND_BELOW_GRIP_M: f64 = 0.1005;
+const FLAT_HAND_GAP_M: f64 = 0.003;
+/// The laid-over hand's half thickness across the opening (m) and how far its body reaches behind the grip (m).
+const FLAT_HAND_HALF_M: f64 = 0.045;
+const FLAT_HAND_BEHIND_M: f64 = 0.12;
+/// … and opens its fingers at least this wide (m) to let it go.
+const FLAT_OPEN_WIDTH_M: f64 = 0.07;
+/// A book laid flat is let go from at most this high (m) over the floor.
+const FLAT_MAX_DROP_M: f64 = 0.05;
 /// The book's lower edge is carried this far (m) above the compartment's floor while it slides in.
 const FLOOR_GAP_M: f64 = 0.012;
 
@@ -77,6 +95,9 @@ pub(super) fn place_phases(
     let floor_z = c.z - h_z;
     // into the compartment: against its open face's outward direction
     let into = -e.out;
+    if let Some(phases) = flat_phases(sim, index, object, region, e, (grasp_offset_m, rot), home) {
+        return phases;
+    }
     let t = turns(&rot, home, into);
     let laid = t.laid;
     // laid over, the root (the book's bottom face's centre) is its far end, at the grip's height, ahead by
@@ -93,6 +114,91 @@ pub(super) fn place_phases(
     let mut phases = pick_and_lay_over(body, (grasp_offset_m, rot), &t, turn_at);
     phases.extend(slide_in_phases(body, laid, into, (root_front, root_in), slide_z - FLOOR_GAP_M));
     phases
+}
+
+/// The book laid flat instead, where it fits so (`None` where not): turned about z until its thickness lies along
+/// the opening's depth, a quarter about the horizontal across it (the fingers then close vertically, the book ahead
+/// of the hand with its bottom foremost), slid in at a height where the hand, 21 cm tall along its fingers, clears
+/// what the book stood on, its grip [`FLAT_GRIP_OUT_M`] short of the region's open side, and let go to drop onto the
+/// floor. Lying flat, the book's weight pulls across the pinch, not about it: laid on its edge, a heavy book pinched
+/// near its top (the black book, 43 g, 2.6 cm) turns in the fingers and meets the floor's edge.
+fn flat_phases(sim: &Simulation, index: &SceneIndex, object: usize, region: usize, e: &SideEntry, (grasp_offset_m, rot): (Vector3<f64>, Matrix3<f64>), home: &Matrix3<f64>) -> Option<Vec<Phase>> {
+    let body = index.instances[object].body;
+    let root = pos(sim, body);
+    let (lo, hi) = extent(sim, index, object);
+    let fp = super::fit::object_footprint(sim, index, object)?;
+    let thick_m = 2.0 * fp.narrow_half_m;
+    let below_top_m = hi.z - (root.z + grasp_offset_m.z);
+    // laid flat, the root (the bottom face's centre) is ahead of the grip by (height − depth of the grip below the
+    // top), at the grip's height
+    let ahead_m = hi.z - lo.z - below_top_m;
+    let (c, r, h_z) = super::region_box(sim, index, region);
+    let (floor_z, top_z) = (c.z - h_z, c.z + h_z);
+    let into = -e.out;
+    // as low as the hand, standing on its fingers' axis, clears what the book stood on
+    let grip_z = (lo.z + FLAT_HAND_BELOW_GRIP_M + FLAT_HAND_GAP_M).max(floor_z + thick_m / 2.0 + FLOOR_GAP_M);
+    let drop_m = grip_z - thick_m / 2.0 - floor_z;
+    let fits = grip_z + thick_m / 2.0 + FLOOR_GAP_M < top_z && drop_m < FLAT_MAX_DROP_M && ahead_m - FLAT_GRIP_OUT_M < 2.0 * e.half_depth_m - BACK_GAP_M;
+    if !fits {
+        return None;
+    }
+    // across the opening, the place nearest its middle where the hand, low behind the book, stands over nothing
+    // (the yellow book stands in front of the study shelf's middle)
+    let across = Vector3::z().cross(&into);
+    let reg = &index.regions[region];
+    let half_across_m: f64 = (0..3).map(|k| across.dot(&r.column(k)).abs() * reg.half_size_m[k].abs()).sum();
+    let room_m = (half_across_m - fp.wide_half_m - 0.01).max(0.0);
+    let middle = c - into * e.half_depth_m;
+    let skip = [Some(object), reg.parent];
+    let side = (0..=2 * (room_m / 0.01) as usize)
+        .map(|i| middle + across * (if i % 2 == 0 { 0.01 } else { -0.01 } * i.div_ceil(2) as f64))
+        .find(|&p| top_along(sim, index, &skip, (p - into * (ahead_m + TURN_CLEAR_M + FLAT_HAND_BEHIND_M), p), FLAT_HAND_HALF_M) < grip_z - FLAT_HAND_BELOW_GRIP_M)?;
+    let root_in = Vector3::new(side.x, side.y, grip_z) + into * (ahead_m - FLAT_GRIP_OUT_M);
+    let root_front = Vector3::new(side.x, side.y, grip_z) - into * TURN_CLEAR_M;
+    // turned over above: the book, hanging below the grip, clears what it stood on (by 10 cm: the hand dips as it
+    // turns about z), the compartment's floor, and what stands along its way there
+    let turn_at = root_front - into * ahead_m;
+    let half_m = 0.5 * (hi.x - lo.x).max(hi.y - lo.y);
+    let turn_z = (lo.z + ahead_m + 0.10)
+        .max(floor_z + ahead_m + 0.05)
+        .max(grip_z + 0.05)
+        .max(top_along(sim, index, &[Some(object)], (root, turn_at), half_m + 0.03) + ahead_m + 0.03);
+    // (the shorter turn about z: the longer one, half a turn, throws the hand down onto the table)
+    let [t, _] = turns_to(&rot, home, into, into);
+    let mut phases = pick_and_lay_over(body, (grasp_offset_m, rot), &t, Vector3::new(turn_at.x, turn_at.y, turn_z));
+    let [down, _, _, _, back_out] = slide_in_phases(body, t.laid, into, (root_front, root_in), root_in.z);
+    // in by the hand itself, to its stop at the open side and its height (the grip's offset from the root is not the
+    // planned one: the hand stops on the book's top edge, and the book sags in the pinch)
+    let (laid, grip_in) = (t.laid, Vector3::new(side.x, side.y, grip_z) - into * FLAT_GRIP_OUT_M);
+    let slide = Phase::new("slide_in", move |_, _| Goal::at(grip_in, GRIPPER_CLOSED).slow(0.3).rotated(laid))
+        .until_reached(0.006)
+        .max_steps(150);
+    // opened all the way: the lower finger, part open, props the book's near end 1.6 cm over the floor and drags
+    // it back out with the hand
+    let open = Phase::new("open_wide", move |_, ctx| Goal::at(ctx.start_pos_m, GRIPPER_OPEN).rotated(laid))
+        .until(|sim, ctx| ctx.steps >= 10 && gripper_width_m(sim) > FLAT_OPEN_WIDTH_M)
+        .max_steps(40);
+    phases.extend([down, slide, open, back_out]);
+    Some(phases)
+}
+
+/// The highest top (world z, m) of the objects (but those in `skip`) within `reach_m` of the horizontal way from `a` to `b`
+/// (their bounding boxes; −∞ where none is).
+fn top_along(sim: &Simulation, index: &SceneIndex, skip: &[Option<usize>], (a, b): (Vector3<f64>, Vector3<f64>), reach_m: f64) -> f64 {
+    const SAMPLES: usize = 24;
+    (0..index.instances.len())
+        .filter(|&i| !skip.contains(&Some(i)) && index.contact_geoms(i).next().is_some())
+        .map(|i| extent(sim, index, i))
+        .filter(|(lo, hi)| {
+            (0..=SAMPLES).any(|k| {
+                let p = a + (b - a) * (k as f64 / SAMPLES as f64);
+                let dx = (lo.x - p.x).max(p.x - hi.x).max(0.0);
+                let dy = (lo.y - p.y).max(p.y - hi.y).max(0.0);
+                dx.hypot(dy) <= reach_m
+            })
+        })
+        .map(|(_, hi)| hi.z)
+        .fold(f64::NEG_INFINITY, f64::max)
 }
 
 /// A tall object into an open drawer it cannot stand in (the ketchup, 14.5 cm tall, its root 7.2 cm above its bottom,
@@ -218,26 +324,29 @@ struct Turns {
 }
 
 fn turns(rot: &Matrix3<f64>, home: &Matrix3<f64>, into: Vector3<f64>) -> Turns {
-    let across = Vector3::z().cross(&into);
+    let [a, b] = turns_to(rot, home, into, Vector3::z().cross(&into));
+    // of the two, the one whose laid-over hand is farther from home: laid over the other way the last wrist joint
+    // winds onto its limit (KITCHEN_SCENE5's ketchup: joint 7 at 2.9 rad, the hand thrown 21 cm up); the study
+    // shelf's book goes in either way
+    if angle_between(&a.laid, home) > angle_between(&b.laid, home) { a } else { b }
+}
+
+/// The two ways (π apart about z, the shorter first) of a laying over whose fingers close along `fingers_to`
+/// (horizontal) before the quarter turn: across `into` lays a pinched book on its long edge, along `into` lays it
+/// flat (the fingers then close vertically).
+fn turns_to(rot: &Matrix3<f64>, home: &Matrix3<f64>, into: Vector3<f64>, fingers_to: Vector3<f64>) -> [Turns; 2] {
     // (the hand at home opens its fingers along world y)
     let fingers = rot * home.transpose() * Vector3::y();
     let fingers_h = Vector3::new(fingers.x, fingers.y, 0.0).try_normalize(1e-9).unwrap_or(Vector3::x());
     let turn = {
-        let d = across.y.atan2(across.x) - fingers_h.y.atan2(fingers_h.x);
+        let d = fingers_to.y.atan2(fingers_to.x) - fingers_h.y.atan2(fingers_h.x);
         d - std::f64::consts::PI * (d / std::f64::consts::PI).round()
     };
     let axis = (-Vector3::z()).cross(&into);
-    // of the two turns that fit (π apart), the one whose laid-over hand is farther from home: laid over the other
-    // way the last wrist joint winds onto its limit (KITCHEN_SCENE5's ketchup: joint 7 at 2.9 rad, the hand
-    // thrown 21 cm up); the study shelf's book goes in either way
-    [turn, turn - std::f64::consts::PI * turn.signum()]
-        .map(|turn| {
-            let yawed = rotate_world(rot, Vector3::z(), turn);
-            Turns { yawed, axis, laid: rotate_world(&yawed, axis, std::f64::consts::FRAC_PI_2) }
-        })
-        .into_iter()
-        .max_by(|a, b| angle_between(&a.laid, home).total_cmp(&angle_between(&b.laid, home)))
-        .expect("two candidates")
+    [turn, turn - std::f64::consts::PI * turn.signum()].map(|turn| {
+        let yawed = rotate_world(rot, Vector3::z(), turn);
+        Turns { yawed, axis, laid: rotate_world(&yawed, axis, std::f64::consts::FRAC_PI_2) }
+    })
 }
 
 /// The angle (rad) of the rotation from `b` to `a`.
@@ -290,6 +399,24 @@ mod tests {
 
     /// Laid over, the hand points `into` (its pointing direction: world down under its grasp orientation) with its
     /// fingers level and across `into`, whatever the grasp's yaw.
+    /// Laid flat (the fingers first turned along `into`), the hand points `into` with its fingers vertical, whatever
+    /// the grasp's yaw; the first of the two ways is the shorter turn about z.
+    #[test]
+    fn laid_flat_the_hand_points_into_the_opening_with_its_fingers_vertical() {
+        let home = Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
+        for grasp_yaw in [0.0, 0.4, -1.2, 2.0] {
+            let rot = rotate_world(&home, Vector3::z(), grasp_yaw);
+            for into in [Vector3::x(), Vector3::y(), Vector3::new(-0.6, 0.8, 0.0)] {
+                let [t, other] = turns_to(&rot, &home, into, into);
+                let pointing = t.laid * rot.transpose() * -Vector3::z();
+                assert!((pointing - into).norm() < 1e-9, "yaw {grasp_yaw}, into {into:?}: points {pointing:?}");
+                let fingers = t.laid * home.transpose() * Vector3::y();
+                assert!((fingers.z.abs() - 1.0).abs() < 1e-9, "fingers {fingers:?}");
+                assert!(angle_between(&t.yawed, &rot) <= angle_between(&other.yawed, &rot) + 1e-9);
+            }
+        }
+    }
+
     #[test]
     fn laid_over_the_hand_points_into_the_opening_with_its_fingers_level_and_across() {
         // a hand pointing down, fingers along world y (the stock expert's start)
