@@ -159,24 +159,26 @@ fn hand_speed(sim: &Simulation) -> f64 {
     speed(sim, sim.model().site_bodyid()[sim.ids().grip_site] as usize)
 }
 
-/// Down behind the standing book (on the side away from `d`) with the fingers open along its width, push its upper
-/// part along `d` until it has fallen, rise, wait for it to lie still.
+/// Down behind the standing book (on the side away from `d`) with the fingers closed, push its upper part along `d`
+/// with them until it has fallen, rise, wait for it to lie still.
 fn tip_over(index: &SceneIndex, object: usize, d: Vector3<f64>, (thick_m, tall_m): (f64, f64), home: &Matrix3<f64>) -> Vec<Phase> {
     let body = index.instances[object].body;
-    let rot = open_along(home, Vector3::z().cross(&d));
+    // the fingers closed along `d`: the hand, 20 cm along its fingers' axis, reaches no further aside than its
+    // thickness (opened across `d`, it knocked the black book beside the study shelf's yellow book)
+    let rot = open_along(home, d);
     let behind = move |sim: &Simulation, below_top_m: f64| {
         let r = pos(sim, body);
         r - d * (thick_m / 2.0 + TIP_BEHIND_M) + Vector3::z() * (tall_m - below_top_m)
     };
     vec![
-        Phase::new("above_tip", move |sim, _| Goal::at(behind(sim, -0.06), GRIPPER_OPEN).rotated(rot)).until_reached(0.012).max_steps(160),
-        Phase::new("down_behind", move |sim, _| Goal::at(behind(sim, TIP_BELOW_TOP_M), GRIPPER_OPEN).slow(0.5).rotated(rot))
+        Phase::new("above_tip", move |sim, _| Goal::at(behind(sim, -0.06), GRIPPER_CLOSED).rotated(rot)).until_reached(0.012).max_steps(160),
+        Phase::new("down_behind", move |sim, _| Goal::at(behind(sim, TIP_BELOW_TOP_M), GRIPPER_CLOSED).slow(0.5).rotated(rot))
             .until_reached(0.008)
             .max_steps(80),
-        Phase::new("tip_over", move |_, ctx| Goal::at(ctx.start_pos_m + d * (thick_m + TIP_BEHIND_M + 0.05), GRIPPER_OPEN).slow(0.3).rotated(rot))
+        Phase::new("tip_over", move |_, ctx| Goal::at(ctx.start_pos_m + d * (thick_m + TIP_BEHIND_M + 0.05), GRIPPER_CLOSED).slow(0.3).rotated(rot))
             .until(move |sim, _| lean(sim, body) > FALLEN_RAD)
             .max_steps(150),
-        Phase::new("rise_off", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * 0.08, GRIPPER_OPEN).rotated(rot))
+        Phase::new("rise_off", move |_, ctx| Goal::at(ctx.start_pos_m + Vector3::z() * 0.08, GRIPPER_CLOSED).rotated(rot))
             .until(move |sim, ctx| ctx.steps > 10 && lean(sim, body) > 1.4 && speed(sim, body) < STILL_M_PER_S)
             .max_steps(60),
     ]
