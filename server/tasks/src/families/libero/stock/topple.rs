@@ -1,8 +1,9 @@
 //! A book into a compartment too low for it standing or on its edge (the study shelf's lower compartment, 7 cm under
 //! its middle board; the yellow book is 12.2 × 9.8 × 2.35 cm): it goes in only lying flat, and a hand that holds a
 //! flat book by its edge stands taller along its fingers than the board leaves above the table. So the book is tipped
-//! over where it stands (pushed near its top across its thickness, it falls on its face) and then pushed along the
-//! table into the compartment by the open fingers spread along its length, the hand staying outside the open face.
+//! over where it stands (pushed near its top across its thickness by the closed fingers, it falls on its face) and
+//! then pushed along the table into the compartment by the open fingers spread along its length, the hand staying
+//! outside the open face.
 //! Where it cannot fall to a place from which it goes in (the black book stands where it would fall; lying along the
 //! push its root, the point `In` reads, trails where the hand cannot follow), it is first turned a quarter where it
 //! stands.
