@@ -20,7 +20,7 @@ const HAND_CLEARANCE_M: f64 = 0.04;
 /// Half the hand's span along its fingers' axis (m): the Panda hand is about 20 cm across there, so a hand whose
 /// fingers open toward the drawer needs this much room, not [`HAND_CLEARANCE_M`] (KITCHEN_SCENE10: the pudding,
 /// pinched across its 4.6 cm side, 6 cm in front of the open drawer; the hand came down onto the drawer's front).
-pub(super) const HAND_HALF_SPAN_M: f64 = 0.105;
+const HAND_HALF_SPAN_M: f64 = 0.105;
 /// The spot an object is set down at keeps this much more than [`hand_margin`] (the set-down's error).
 const SET_DOWN_SLACK_M: f64 = 0.02;
 /// Room kept between the set-down object and anything else standing on the table (m).

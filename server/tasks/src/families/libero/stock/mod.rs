@@ -579,6 +579,17 @@ pub(super) fn short_of(ctx: &Ctx, to: Vector3<f64>, target: Target) -> Vector3<f
     to + away.try_normalize(1e-9).unwrap_or(-Vector3::x()) * (SHORT_OFFSET_M + extra)
 }
 
+/// The world bounding boxes (instance, min, max) of every instance with contact geoms but `object`, now.
+pub(super) fn other_boxes(sim: &Simulation, index: &SceneIndex, object: usize) -> Vec<(usize, Vector3<f64>, Vector3<f64>)> {
+    (0..index.instances.len())
+        .filter(|&i| i != object && index.contact_geoms(i).next().is_some())
+        .map(|i| {
+            let (lo, hi) = extent(sim, index, i);
+            (i, lo, hi)
+        })
+        .collect()
+}
+
 /// A region's box now: its centre (world), its orientation, and its half height along world z (m).
 pub(super) fn region_box(sim: &Simulation, index: &SceneIndex, region: usize) -> (Vector3<f64>, Matrix3<f64>, f64) {
     let reg = &index.regions[region];

@@ -149,10 +149,10 @@ fn flat_phases(sim: &Simulation, index: &SceneIndex, object: usize, region: usiz
     let half_across_m: f64 = (0..3).map(|k| across.dot(&r.column(k)).abs() * reg.half_size_m[k].abs()).sum();
     let room_m = (half_across_m - fp.wide_half_m - 0.01).max(0.0);
     let middle = c - into * e.half_depth_m;
-    let skip = [Some(object), reg.parent];
+    let others = super::other_boxes(sim, index, object);
     let side = (0..=2 * (room_m / 0.01) as usize)
         .map(|i| middle + across * (if i % 2 == 0 { 0.01 } else { -0.01 } * i.div_ceil(2) as f64))
-        .find(|&p| top_along(sim, index, &skip, (p - into * (ahead_m + TURN_CLEAR_M + FLAT_HAND_BEHIND_M), p), FLAT_HAND_HALF_M) < grip_z - FLAT_HAND_BELOW_GRIP_M)?;
+        .find(|&p| top_along(&others, reg.parent, (p - into * (ahead_m + TURN_CLEAR_M + FLAT_HAND_BEHIND_M), p), FLAT_HAND_HALF_M) < grip_z - FLAT_HAND_BELOW_GRIP_M)?;
     let root_in = Vector3::new(side.x, side.y, grip_z) + into * (ahead_m - FLAT_GRIP_OUT_M);
     let root_front = Vector3::new(side.x, side.y, grip_z) - into * TURN_CLEAR_M;
     // turned over above: the book, hanging below the grip, clears what it stood on (by 10 cm: the hand dips as it
@@ -162,7 +162,7 @@ fn flat_phases(sim: &Simulation, index: &SceneIndex, object: usize, region: usiz
     let turn_z = (lo.z + ahead_m + 0.10)
         .max(floor_z + ahead_m + 0.05)
         .max(grip_z + 0.05)
-        .max(top_along(sim, index, &[Some(object)], (root, turn_at), half_m + 0.03) + ahead_m + 0.03);
+        .max(top_along(&others, None, (root, turn_at), half_m + 0.03) + ahead_m + 0.03);
     // (the shorter turn about z: the longer one, half a turn, throws the hand down onto the table)
     let [t, _] = turns_to(&rot, home, into, into);
     let mut phases = pick_and_lay_over(body, (grasp_offset_m, rot), &t, Vector3::new(turn_at.x, turn_at.y, turn_z));
@@ -182,22 +182,22 @@ fn flat_phases(sim: &Simulation, index: &SceneIndex, object: usize, region: usiz
     Some(phases)
 }
 
-/// The highest top (world z, m) of the objects (but those in `skip`) within `reach_m` of the horizontal way from `a` to `b`
-/// (their bounding boxes; −∞ where none is).
-fn top_along(sim: &Simulation, index: &SceneIndex, skip: &[Option<usize>], (a, b): (Vector3<f64>, Vector3<f64>), reach_m: f64) -> f64 {
+/// The highest top (world z, m) of the boxes (instance, min, max; but `skip`'s) within `reach_m` of the horizontal
+/// way from `a` to `b` (−∞ where none is).
+fn top_along(boxes: &[(usize, Vector3<f64>, Vector3<f64>)], skip: Option<usize>, (a, b): (Vector3<f64>, Vector3<f64>), reach_m: f64) -> f64 {
     const SAMPLES: usize = 24;
-    (0..index.instances.len())
-        .filter(|&i| !skip.contains(&Some(i)) && index.contact_geoms(i).next().is_some())
-        .map(|i| extent(sim, index, i))
-        .filter(|(lo, hi)| {
-            (0..=SAMPLES).any(|k| {
-                let p = a + (b - a) * (k as f64 / SAMPLES as f64);
-                let dx = (lo.x - p.x).max(p.x - hi.x).max(0.0);
-                let dy = (lo.y - p.y).max(p.y - hi.y).max(0.0);
-                dx.hypot(dy) <= reach_m
-            })
+    boxes
+        .iter()
+        .filter(|(i, lo, hi)| {
+            Some(*i) != skip
+                && (0..=SAMPLES).any(|k| {
+                    let p = a + (b - a) * (k as f64 / SAMPLES as f64);
+                    let dx = (lo.x - p.x).max(p.x - hi.x).max(0.0);
+                    let dy = (lo.y - p.y).max(p.y - hi.y).max(0.0);
+                    dx.hypot(dy) <= reach_m
+                })
         })
-        .map(|(_, hi)| hi.z)
+        .map(|(_, _, hi)| hi.z)
         .fold(f64::NEG_INFINITY, f64::max)
 }
 
@@ -397,8 +397,6 @@ fn lay_over_phases(t: &Turns, turn_at: Vector3<f64>) -> [Phase; 2] {
 mod tests {
     use super::*;
 
-    /// Laid over, the hand points `into` (its pointing direction: world down under its grasp orientation) with its
-    /// fingers level and across `into`, whatever the grasp's yaw.
     /// Laid flat (the fingers first turned along `into`), the hand points `into` with its fingers vertical, whatever
     /// the grasp's yaw; the first of the two ways is the shorter turn about z.
     #[test]
@@ -417,6 +415,8 @@ mod tests {
         }
     }
 
+    /// Laid over, the hand points `into` (its pointing direction: world down under its grasp orientation) with its
+    /// fingers level and across `into`, whatever the grasp's yaw.
     #[test]
     fn laid_over_the_hand_points_into_the_opening_with_its_fingers_level_and_across() {
         // a hand pointing down, fingers along world y (the stock expert's start)

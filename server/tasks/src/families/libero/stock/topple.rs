@@ -16,7 +16,7 @@ use crate::expert::motion::{GRIPPER_CLOSED, GRIPPER_OPEN, Goal, Phase, grip_pose
 use crate::expert::skills::{contact_corners, extent, pos};
 use crate::judge::predicates::SceneIndex;
 
-/// The open fingers come down this far (m) behind the standing book's face they tip it by.
+/// The closed fingers come down this far (m) behind the standing book's face they tip it by.
 const TIP_BEHIND_M: f64 = 0.035;
 /// … and this far (m) under its top.
 const TIP_BELOW_TOP_M: f64 = 0.03;
@@ -90,8 +90,7 @@ pub(super) fn phases(
     let side_m = c.dot(&into) - e.half_depth_m;
     let back_m = c.dot(&into) + e.half_depth_m;
     let hand_limit_m = side_m - FACE_CLEAR_M - HAND_FRONT_M;
-    let others: Vec<(Vector3<f64>, Vector3<f64>)> =
-        (0..index.instances.len()).filter(|&i| i != object && index.contact_geoms(i).next().is_some()).map(|i| extent(sim, index, i)).collect();
+    let others = super::other_boxes(sim, index, object);
     // where the root ends when the book falls along `d` and is pushed in: `None` where it lands on something or
     // does not go in far enough
     let pushed_in = |d: Vector3<f64>| {
@@ -100,7 +99,7 @@ pub(super) fn phases(
         let root_l = root + d * (thick_m / 2.0);
         let corners = [0.0, tall_m].map(|a| [-0.5, 0.5].map(|b| root_l + d * a + across * (b * wide_m))).concat();
         let (lo_l, hi_l) = corners.iter().fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(l, h), p| (l.inf(p), h.sup(p)));
-        let free = others.iter().all(|(l, h)| h.z < lo.z + 0.005 || l.z > lo.z + thick_m + 0.01 || h.x < lo_l.x || l.x > hi_l.x || h.y < lo_l.y || l.y > hi_l.y);
+        let free = others.iter().all(|(_, l, h)| h.z < lo.z + 0.005 || l.z > lo.z + thick_m + 0.01 || h.x < lo_l.x || l.x > hi_l.x || h.y < lo_l.y || l.y > hi_l.y);
         let (trail, lead) = corners.iter().map(|p| p.dot(&into)).fold((f64::INFINITY, f64::NEG_INFINITY), |(t, l), a| (t.min(a), l.max(a)));
         // the push moves the book until the hand meets its limit or the leading edge the back
         let shift = (hand_limit_m - (trail - FINGER_HALF_M)).min(back_m - BACK_GAP_M - lead);
@@ -185,14 +184,17 @@ fn tip_over(index: &SceneIndex, object: usize, d: Vector3<f64>, (thick_m, tall_m
     ]
 }
 
-/// The fallen book's extent along `dir` (min, max over its contact boxes' corners) and its centre.
-fn span(sim: &Simulation, index: &SceneIndex, object: usize, dir: Vector3<f64>) -> (f64, f64, Vector3<f64>) {
+/// The fallen book's trailing extent along `dir` (the least over its contact boxes' corners), its centre, and its
+/// lowest point's height (m), from one walk over the corners.
+fn lying(sim: &Simulation, index: &SceneIndex, object: usize, dir: Vector3<f64>) -> (f64, Vector3<f64>, f64) {
     let corners = contact_corners(sim, index, object);
     if corners.is_empty() {
-        return (0.0, 0.0, pos(sim, index.instances[object].body));
+        let p = pos(sim, index.instances[object].body);
+        return (p.dot(&dir), p, p.z);
     }
-    let (min, max) = corners.iter().map(|p| p.dot(&dir)).fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), a| (l.min(a), h.max(a)));
-    (min, max, corners.iter().sum::<Vector3<f64>>() / corners.len() as f64)
+    let trail = corners.iter().map(|p| p.dot(&dir)).fold(f64::INFINITY, f64::min);
+    let lo_z = corners.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+    (trail, corners.iter().sum::<Vector3<f64>>() / corners.len() as f64, lo_z)
 }
 
 /// Behind the lying book, the open fingers spread across the push, down to the table, push it along `into` until
@@ -210,8 +212,7 @@ fn push_in(index: Arc<SceneIndex>, object: usize, p: Push, home: &Matrix3<f64>) 
     // the grip site behind the book's trailing face by `behind_m` (but never past the hand's limit), level with its
     // centre across the push, `up_m` above its bottom
     let at = move |sim: &Simulation, behind_m: f64, up_m: f64| {
-        let (trail, _, centre) = span(sim, &index, object, into);
-        let lo_z = extent(sim, &index, object).0.z;
+        let (trail, centre, lo_z) = lying(sim, &index, object, into);
         let along = (trail - behind_m).min(hand_limit_m);
         centre - into * (centre.dot(&into) - along) + Vector3::z() * (lo_z + up_m - centre.z)
     };
