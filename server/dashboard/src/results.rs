@@ -232,6 +232,8 @@ pub struct ToolboxRow {
     pub packages: String,
     pub python: String,
     pub source: String,
+    /// The per-rollout caps (`1024 processes, 4.0 GiB memory, 2.0 GiB disk, all CPUs`), or why there were none.
+    pub limits: String,
 }
 
 /// A batch's progress line (done/running/left, outcomes so far).
@@ -509,7 +511,16 @@ fn toolbox_row(b: &LoadedBatch) -> ToolboxRow {
         "none".into()
     };
     let text = |f: fn(&ToolboxDoc) -> Option<&String>| t.and_then(f).cloned().unwrap_or_default();
-    ToolboxRow { batch: b.name(), name, packages, python: text(|t| t.python.as_ref()), source: text(|t| t.source.as_ref()) }
+    let limits = match b.batch.sandbox() {
+        Some(sb) => match sb.resources.as_ref() {
+            Some(Some(r)) => r.summary(),
+            Some(None) => "unconfined (--unconfined-resources)".into(),
+            None => "not recorded".into(),
+        },
+        None if b.batch.settings.as_ref().and_then(|s| s.sandbox) == Some(false) => "none (run without the sandbox)".into(),
+        None => "not recorded".into(),
+    };
+    ToolboxRow { batch: b.name(), name, packages, python: text(|t| t.python.as_ref()), source: text(|t| t.source.as_ref()), limits }
 }
 
 /// A rollout as `c/K`, linked to its review.

@@ -88,6 +88,38 @@ record! {
     pub struct SandboxDoc {
         pub kind: Option<String>,
         pub version: Option<String>,
+        /// The per-rollout caps in force; null when the batch ran with `--unconfined-resources`.
+        pub resources: Option<Option<ResourceLimitsDoc>>,
+    }
+}
+
+record! {
+    /// What one rollout's agent could take of the machine (`Resources::describe`).
+    pub struct ResourceLimitsDoc {
+        pub max_processes: Option<u64>,
+        pub memory_bytes: Option<u64>,
+        /// A CPU quota; null: every CPU of the machine (at half the server's weight).
+        pub cpus: Option<Option<f64>>,
+        pub disk_bytes: Option<u64>,
+        pub enforced_by: Option<String>,
+        pub agent_uids: Option<Option<String>>,
+    }
+}
+
+impl ResourceLimitsDoc {
+    /// `1,024 processes, 4.0 GiB memory, 2.0 GiB disk, all CPUs`.
+    pub fn summary(&self) -> String {
+        let gib = |b: Option<u64>| b.map(|b| format!("{:.1} GiB", b as f64 / (1u64 << 30) as f64)).unwrap_or_else(|| "?".into());
+        let cpus = match self.cpus.flatten() {
+            Some(c) => format!("{c} CPUs"),
+            None => "all CPUs".into(),
+        };
+        format!(
+            "{} processes, {} memory, {} disk, {cpus}",
+            self.max_processes.map(|n| n.to_string()).unwrap_or_else(|| "?".into()),
+            gib(self.memory_bytes),
+            gib(self.disk_bytes)
+        )
     }
 }
 

@@ -16,8 +16,10 @@ pub mod queue;
 pub mod report;
 pub mod rollout;
 pub mod sandbox;
+pub mod resources;
 pub mod sandbox_net;
 pub mod schedule;
+pub mod seccomp;
 pub mod toolbox;
 pub mod transcript;
 pub mod usage;
@@ -109,9 +111,12 @@ pub struct RunArgs {
     pub wall_time_s: f64,
     #[arg(long, default_value_t = MAX_AGENT_STEPS_CAP)]
     pub max_agent_steps: u64,
-    /// Run agents without the bubblewrap sandbox (they can then read everything this user can).
+    /// Run agents without the bubblewrap sandbox (they can then read everything this user can), and without
+    /// per-rollout resource caps.
     #[arg(long)]
     pub no_sandbox: bool,
+    #[command(flatten)]
+    pub resources: resources::ResourceArgs,
     /// The agent's Python, shown read-only in the sandbox at /opt/libero-toolbox and first on its PATH as
     /// python3/python/pip: a directory laid out as a venv over a python3 the sandbox shows (`bin/python3`,
     /// `lib/python3.X/site-packages`), or `none` for the system's python3 alone. Default: the project's (numpy,
@@ -405,7 +410,12 @@ fn batch_value(ctx: &RunContext, status: &str, created_at: &str, p: &Progress, s
             version: Some(HarnessVersion::from_value(ctx.harness_version.clone()).ok()),
             ..Default::default()
         }),
-        sandbox: Some(ctx.sandbox.as_ref().map(|s| SandboxDoc { kind: Some("bubblewrap".into()), version: Some(s.version.clone()), ..Default::default() })),
+        sandbox: Some(ctx.sandbox.as_ref().map(|s| SandboxDoc {
+            kind: Some("bubblewrap".into()),
+            version: Some(s.version.clone()),
+            resources: Some(s.resources.as_ref().and_then(|r| serde_json::from_value(r.describe()).ok())),
+            ..Default::default()
+        })),
         toolbox: Some(toolbox),
         server_url: Some(Some(ctx.server_url.clone())),
         workspace_root: Some(Some(ctx.workspace_root.to_string_lossy().into_owned())),
@@ -525,7 +535,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         None
     } else {
-        let sandbox = Sandbox::detect()?;
+        let sandbox = Sandbox::detect()?.with_resources(resources::Resources::detect(&args.resources)?);
         let toolbox = toolbox::resolve(args.toolbox.as_ref())?;
         match &toolbox {
             Some(t) => eprintln!("the agents' toolbox: {} at {} ({})", t.name, toolbox::INSIDE, package_list(t)),

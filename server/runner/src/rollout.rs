@@ -172,6 +172,17 @@ pub fn replace_file_under(root: &Path, path: &Path, bytes: &[u8], mode: u32) -> 
     dirfd::write_new_file_mode_at(dir.as_fd(), name, bytes, mode)
 }
 
+/// Copies a file the runner created (the CLI's log, opened without following a link), at most its scrubbed size.
+fn copy_own_file(from: &Path, to: &Path) -> std::io::Result<u64> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut src = fs::OpenOptions::new().read(true).custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK).open(from)?;
+    if !src.metadata()?.is_file() {
+        return Err(std::io::Error::other("not a plain file"));
+    }
+    let mut dst = fs::OpenOptions::new().write(true).create_new(true).custom_flags(libc::O_NOFOLLOW).open(to)?;
+    std::io::copy(&mut std::io::Read::take(&mut src, 64 << 20), &mut dst)
+}
+
 /// Runs one rollout to its record.
 pub fn run_rollout(ctx: &RunContext, plan: &PlannedRollout) -> RolloutRecord {
     let mut rec = RolloutRecord::planned(plan);
@@ -187,10 +198,23 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     let dir = ctx.batch_dir.join("rollouts").join(&plan.rollout_id);
     fs::create_dir_all(ctx.batch_dir.join("rollouts"))?;
     fs::create_dir(&dir).with_context(|| format!("{} already exists (an earlier attempt)", dir.display()))?;
-    let home = dir.join("home");
-    fs::create_dir(&home)?;
-    fs::set_permissions(&home, fs::Permissions::from_mode(0o700))?;
-    let workspace = ctx.workspace_root.join(&plan.rollout_id);
+    // The rollout's cage: its cgroups, its own uid, and its capped disk holding the workspace, the session home,
+    // the sandbox's /tmp and the CLI's logs (`resources`); without caps, the home and logs lie in the rollout
+    // directory and the workspace in the workspace root.
+    let resources = ctx.sandbox.as_ref().and_then(|s| s.resources.as_ref());
+    let cage = resources.map(|r| r.for_rollout(&plan.rollout_id, &ctx.workspace_root)).transpose().context("cannot make the rollout's cage")?;
+    let sandbox = ctx.sandbox.as_ref().map(|s| s.for_cage(cage.as_ref()));
+    let home = match cage.as_ref().and_then(|c| c.home()) {
+        Some(h) => h,
+        None => {
+            let h = dir.join("home");
+            fs::create_dir(&h)?;
+            fs::set_permissions(&h, fs::Permissions::from_mode(0o700))?;
+            h
+        }
+    };
+    let workspace = cage.as_ref().and_then(|c| c.workspace()).unwrap_or_else(|| ctx.workspace_root.join(&plan.rollout_id));
+    let log_dir = cage.as_ref().and_then(|c| c.logs()).unwrap_or_else(|| dir.clone());
     let req = PrepareRequest {
         level: plan.level,
         seed: ctx.settings.seed,
@@ -242,9 +266,11 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     };
     let launch = build_launch(&lctx)?;
     write_launch_files(&launch)?;
-    let mut contained = contain(ctx.sandbox.as_ref(), net.as_ref(), &launch, &prepared.workspace, &home, &ctx.self_exe, &dir.join("sandbox"))?;
-    let stdout_path = dir.join(ctx.harness.stdout_file());
-    let stderr_path = dir.join(format!("{}_stderr.log", ctx.harness.as_str()));
+    let mut contained = contain(sandbox.as_ref(), net.as_ref(), &launch, &prepared.workspace, &home, &ctx.self_exe, &dir.join("sandbox"))?;
+    let stdout_name = ctx.harness.stdout_file();
+    let stderr_name = format!("{}_stderr.log", ctx.harness.as_str());
+    let stdout_path = log_dir.join(&stdout_name);
+    let stderr_path = log_dir.join(&stderr_name);
     let mut manifest = json!({
         "schema_version": "libero.multi_agent_harness_run.v1",
         "rollout_id": plan.rollout_id,
@@ -256,7 +282,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         "api_protocol": ctx.harness.api_protocol(),
         "credential_source": ctx.credentials.as_ref().map(|c| c.source.clone()),
         "credential_material": "never_recorded",
-        "sandbox": ctx.sandbox.as_ref().map(|s| s.describe()),
+        "sandbox": sandbox.as_ref().map(|s| s.describe()),
         // A result is only comparable with the same toolbox: null is the system's python3 alone.
         "toolbox": ctx.sandbox.as_ref().and_then(|s| s.toolbox.as_ref()).map(Toolbox::describe),
         "network": net.as_ref().map(NetPlan::describe),
@@ -275,6 +301,10 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         .stdout(fs::File::create(&stdout_path)?)
         .stderr(fs::File::create(&stderr_path)?)
         .process_group(0);
+    if let Some(c) = &cage {
+        // SAFETY: the hook makes only async-signal-safe calls (open, write, close) on paths made beforehand.
+        unsafe { cmd.pre_exec(c.attach_hook()) };
+    }
     let t0 = Instant::now();
     let mut child = cmd.spawn().with_context(|| format!("cannot start {}", contained.argv[0]))?;
     contained.spawned();
@@ -302,6 +332,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     let mut exited_at: Option<Instant> = None;
     let mut exit_code = None;
     let mut quit_before_finish = false;
+    let mut watchdog = false;
     loop {
         if exit_code.is_none()
             && let Ok(Some(st)) = child.try_wait()
@@ -326,7 +357,9 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
             _ => {}
         }
         if t0.elapsed() >= deadline {
-            infra = Some(WATCHDOG_ERROR.into());
+            // An agent that never started its episode, or sat on it past the budget without the server ending
+            // it, has left it: its forfeit (below), unless the model API failed it.
+            watchdog = true;
             break;
         }
         std::thread::sleep(POLL);
@@ -335,12 +368,33 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         kill_group(&mut child);
         exit_code = child.try_wait().ok().flatten().map(|s| s.code().unwrap_or(-1));
     }
+    // Whatever left the process group (setsid, daemons) is still in the cage's cgroups.
+    if let Some(c) = &cage {
+        c.kill_all();
+    }
     let elapsed_s = t0.elapsed().as_secs_f64();
     // The agent is gone: its relays and gateway stop, their sockets go; the gateway's records stay.
     let model_api_records = contained.model_api_records.clone();
     drop(contained);
     // Before the logs are scrubbed in place: the last lines, and the gateway's last records.
     let transcript = transcript.finish();
+    if watchdog {
+        // Still open past budget + grace: an episode never started (prepared) is the agent's forfeit like any
+        // other it leaves; one the server still runs past its budget stays the watchdog's (§8.4).
+        let never_started = matches!(get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)), Ok((200, v)) if v["state"] == "prepared");
+        let cause = quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), model_api_records.as_deref());
+        match (never_started, cause) {
+            (_, Some(cause)) => infra = Some(format!("{WATCHDOG_ERROR}: {cause}")),
+            (true, None) => {
+                let reason = format!("the agent did not start its episode within the budget and {WATCHDOG_GRACE_S} s");
+                let url = format!("/api/episodes/{}/forfeit", prepared.episode_id);
+                if let Err(e) = post_json(&ctx.server_url, &url, &json!({"reason": reason})) {
+                    infra = Some(format!("{WATCHDOG_ERROR}, and the server could not record it as the agent's failure: {e}"));
+                }
+            }
+            (false, None) => infra = Some(WATCHDOG_ERROR.into()),
+        }
+    }
     if quit_before_finish {
         let exited = format!("harness exited before finish_episode (exit code {})", exit_code.unwrap_or(-1));
         match quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), model_api_records.as_deref()) {
@@ -397,13 +451,24 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     // the MCP configs the token.
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
     let (usage, logs) = scrub_logs(ctx.harness, &stdout_path, &stderr_path, &secrets);
+    // The scrubbed, bounded logs leave the cage's disk for the rollout directory (files the runner made and
+    // the agent only wrote to); the rest of the disk goes with the cage.
+    if log_dir != dir {
+        for name in [&stdout_name, &stderr_name] {
+            if let Err(e) = copy_own_file(&log_dir.join(name), &dir.join(name)) {
+                eprintln!("libero-agent: cannot keep {name}: {e}");
+            }
+        }
+    }
     // What the runner's gateway saw of the agent's model traffic (never a file the agent can write): its token
     // figures count whenever it has any, stdout's only without them (the agent can print into its CLI's stdout).
     let model_api = model_api_records.as_deref().and_then(|p| super::netgate::summarize(p).ok());
     let usage = super::usage::choose(usage, model_api.as_ref());
     let usage_source = usage.source.clone();
     rec.usage = Some(usage);
-    scrub_launch_files(&home, &launch, &secrets);
+    if cage.is_none() {
+        scrub_launch_files(&home, &launch, &secrets);
+    }
     if let Some(m) = manifest.as_object_mut() {
         m.insert("finished_at".into(), json!(utc_now_iso()));
         m.insert("elapsed_seconds".into(), json!(elapsed_s));
@@ -416,7 +481,10 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         m.insert("usage_source".into(), json!(usage_source));
         m.insert("agent_events".into(), json!(transcript));
         m.insert("model_api".into(), json!(model_api.as_ref().map(|m| serde_json::to_value(m).unwrap_or_default())));
+        m.insert("resources_used".into(), json!(cage.as_ref().map(|c| c.usage())));
     }
+    // The cage goes: its cgroups removed, its disk (workspace, home, /tmp) unmounted.
+    drop(cage);
     write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
     write_json_file(&dir.join("harness_usage.json"), &serde_json::to_value(&rec.usage)?)?;
     Ok(())

@@ -22,6 +22,7 @@ use anyhow::{Context, bail};
 
 use super::host_paths::SYSTEM_DIRS;
 pub use super::host_paths::{which, which_in};
+use super::resources::{Resources, RolloutCage};
 use super::toolbox::{self, Toolbox};
 
 
@@ -45,6 +46,12 @@ pub struct Sandbox {
     pub agent_ids: Option<(u32, u32)>,
     /// The agent's Python toolbox, bound read-only at [`toolbox::INSIDE`] (`None`: the system's python3 alone).
     pub toolbox: Option<Toolbox>,
+    /// Per-rollout caps on processes, memory, CPU and disk, and the agents' uid range ([`crate::resources`]);
+    /// `None`: unconfined (`--unconfined-resources` where they cannot be enforced).
+    pub resources: Option<Resources>,
+    /// A host directory shown as the sandbox's `/tmp` (and `/dev/shm`): the rollout's capped disk. `None`: an
+    /// in-memory tmpfs of [`TMP_BYTES`].
+    pub tmp: Option<PathBuf>,
 }
 
 /// What one agent may see.
@@ -77,7 +84,7 @@ impl Sandbox {
             .unwrap_or_default();
         // SAFETY: geteuid(2) has no preconditions.
         let agent_ids = (unsafe { libc::geteuid() } == 0).then_some((AGENT_UID, AGENT_GID));
-        let s = Self { bwrap, version, agent_ids, toolbox: None };
+        let s = Self { bwrap, version, agent_ids, toolbox: None, resources: None, tmp: None };
         let probe = s.command(&["/bin/true".to_owned()], &SandboxSpec { cwd: "/".into(), ..Default::default() });
         let out = Command::new(&probe[0]).args(&probe[1..]).output().context("cannot run bwrap")?;
         if !out.status.success() {
@@ -97,6 +104,21 @@ impl Sandbox {
         Self { toolbox, ..self }
     }
 
+    /// The same sandbox with per-rollout caps (`None`: unconfined).
+    pub fn with_resources(self, resources: Option<Resources>) -> Self {
+        Self { resources, ..self }
+    }
+
+    /// This sandbox for one rollout: the agent runs as the cage's own uid, with the cage's disk as `/tmp`.
+    pub fn for_cage(&self, cage: Option<&RolloutCage>) -> Self {
+        let mut s = self.clone();
+        if let Some(c) = cage {
+            s.agent_ids = c.ids.or(s.agent_ids);
+            s.tmp = c.tmp();
+        }
+        s
+    }
+
     /// How the sandbox isolates, for the harness manifest (what the agent itself reports comes beside it).
     pub fn describe(&self) -> serde_json::Value {
         serde_json::json!({
@@ -104,9 +126,12 @@ impl Sandbox {
             "namespaces": ["mount", "pid", "ipc", "uts", "net", "cgroup"],
             "identity": match self.agent_ids {
                 Some((u, g)) => serde_json::json!({"runner": "root", "agent_uid": u, "agent_gid": g,
-                    "how": "bubblewrap as root keeps CAP_SETUID/SETGID/SETPCAP for sandbox-net, which drops the bounding set, switches to the agent's ids, clears every capability set, sets no_new_privs and a seccomp filter refusing new namespaces"}),
-                None => serde_json::json!({"runner": "unprivileged", "how": "a user namespace of the runner's user, every capability dropped, further user namespaces disabled, no_new_privs and a seccomp filter refusing new namespaces"}),
+                    "uid_per_rollout": self.resources.as_ref().is_some_and(|r| r.agent_uids.is_some()),
+                    "how": "bubblewrap as root keeps CAP_SETUID/SETGID/SETPCAP for sandbox-net, which drops the bounding set, switches to the rollout's own ids, clears every capability set, joins a fresh session keyring, sets no_new_privs and the seccomp allow-list"}),
+                None => serde_json::json!({"runner": "unprivileged", "how": "a user namespace of the runner's user, every capability dropped, further user namespaces disabled, a fresh session keyring, no_new_privs and the seccomp allow-list"}),
             },
+            "seccomp": super::seccomp::describe(),
+            "resources": self.resources.as_ref().map(Resources::describe),
             "network": "own namespace with only lo; sandbox-net relays the MCP endpoint and the model API to the runner's Unix sockets",
         })
     }
@@ -135,8 +160,17 @@ impl Sandbox {
                 Err(_) => {}
             }
         }
-        // The sandbox's /tmp lives in memory: bounded, so an agent filling it cannot take the host's memory.
-        push(&["--dev", "/dev", "--proc", "/proc", "--perms", "1777", "--size", TMP_BYTES, "--tmpfs", "/tmp", "--tmpfs", "/run"]);
+        push(&["--dev", "/dev", "--proc", "/proc"]);
+        match &self.tmp {
+            // The rollout's capped disk: what the agent writes to /tmp and /dev/shm counts against the same cap.
+            Some(tmp) => {
+                let t = tmp.to_string_lossy();
+                push(&["--bind", &t, "/tmp", "--bind", &t, "/dev/shm"]);
+            }
+            // The sandbox's /tmp lives in memory: bounded, so an agent filling it cannot take the host's memory.
+            None => push(&["--perms", "1777", "--size", TMP_BYTES, "--tmpfs", "/tmp"]),
+        }
+        push(&["--tmpfs", "/run"]);
         // bubblewrap makes missing parents of a mount point private (0700) when it runs as root: the agent's user
         // could not reach its own workspace or CLI below them. Every parent is made first, world-searchable.
         let relay = spec.relay_dir.as_ref().map(|_| PathBuf::from(RELAY_DIR));
@@ -287,7 +321,7 @@ mod tests {
 
     #[test]
     fn the_command_binds_only_what_the_spec_names() {
-        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None, toolbox: None };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None, toolbox: None, resources: None, tmp: None };
         let spec = SandboxSpec {
             writable: vec!["/tmp/ws/w1".into()],
             readable: vec!["/usr/bin/codex".into(), "/opt/tool".into()],
@@ -313,7 +347,7 @@ mod tests {
     #[test]
     fn a_root_runner_s_sandbox_keeps_only_the_capabilities_to_drop_to_the_agent_s_user() {
         let spec = SandboxSpec { writable: vec!["/root/b/home".into()], cwd: "/".into(), relay_dir: Some("/root/b/net".into()), ..Default::default() };
-        let root = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)), toolbox: None };
+        let root = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)), toolbox: None, resources: None, tmp: None };
         let joined = root.command(&["x".into()], &spec).join(" ");
         assert!(joined.contains("--cap-drop ALL --cap-add CAP_SETUID --cap-add CAP_SETGID --cap-add CAP_SETPCAP"), "{joined}");
         assert!(!joined.contains("--unshare-user") && joined.contains("--unshare-net"), "{joined}");
@@ -337,7 +371,7 @@ mod tests {
             size_bytes: None,
             project: true,
         };
-        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)), toolbox: None };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: Some((AGENT_UID, AGENT_GID)), toolbox: None, resources: None, tmp: None };
         let spec = SandboxSpec { cwd: "/".into(), ..Default::default() };
         assert!(!s.command(&["x".into()], &spec).join(" ").contains(toolbox::INSIDE));
         let joined = s.with_toolbox(Some(tb)).command(&["x".into()], &spec).join(" ");
@@ -370,7 +404,7 @@ mod tests {
         std::fs::write(dir.path().join("native"), b"\x7fELF\x02\x01").unwrap();
         assert_eq!(script_interpreter(&dir.path().join("native")), None);
         // Inside the sandbox the link is recreated as a link, so the script resolves its modules where it lives.
-        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None, toolbox: None };
+        let s = Sandbox { bwrap: "/usr/bin/bwrap".into(), version: String::new(), agent_ids: None, toolbox: None, resources: None, tmp: None };
         let spec = SandboxSpec { readable: paths, cwd: "/".into(), ..Default::default() };
         let joined = s.command(&["tool".into()], &spec).join(" ");
         assert!(joined.contains(&format!("--symlink ../@scope/tool/bin/cli.js {}", nm.join(".bin/tool").display())), "{joined}");

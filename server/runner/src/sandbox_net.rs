@@ -87,7 +87,7 @@ pub fn run(args: &SandboxNetArgs) -> anyhow::Result<i32> {
         None if root => bail!("sandbox-net: refusing to start an agent as root (pass --drop-to UID:GID)"),
         None => {}
     }
-    confine().context("sandbox-net: cannot set no_new_privs and the seccomp filter")?;
+    confine().context("sandbox-net: cannot confine the agent (session keyring, no_new_privs, seccomp)")?;
     if let Some(fd) = args.report_fd {
         // SAFETY: the runner passed this descriptor (the write end of its pipe) for us alone; it is closed here.
         let mut f = unsafe { <std::fs::File as std::os::fd::FromRawFd>::from_raw_fd(fd) };
@@ -152,57 +152,25 @@ fn become_unprivileged(uid: u32, gid: u32) -> std::io::Result<()> {
     Ok(())
 }
 
-/// no_new_privs (setuid binaries and file capabilities grant nothing) and a seccomp filter under which no new
-/// namespace can be made or joined: `unshare` and `setns` fail with EPERM, `clone` with any CLONE_NEW* flag too,
-/// and `clone3` (whose flags a filter cannot read) with ENOSYS, so the C library falls back to `clone`.
-/// Syscalls of another ABI (i386 through `int 0x80`, x32) fail with EPERM.
-fn confine() -> std::io::Result<()> {
-    let filter = seccomp_program();
-    let prog = libc::sock_fprog { len: filter.len() as u16, filter: filter.as_ptr() as *mut libc::sock_filter };
-    // SAFETY: prctl(2) with a pointer to a filter program that outlives the call (the kernel copies it).
-    unsafe {
-        check(libc::prctl(libc::PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0))?;
-        check(libc::prctl(libc::PR_SET_SECCOMP, libc::SECCOMP_MODE_FILTER, &prog as *const libc::sock_fprog))?;
+/// A fresh anonymous session keyring (whatever session keyring the runner had — a systemd service's, a PAM
+/// login's — is left behind), then no_new_privs and the seccomp allow-list ([`crate::seccomp`]), under which no
+/// keyring call is possible at all: no key of this rollout reaches another, and none of the runner's reaches it.
+fn confine() -> anyhow::Result<()> {
+    // SAFETY: keyctl(2) KEYCTL_JOIN_SESSION_KEYRING with a null name makes and joins a new anonymous keyring.
+    let rc = unsafe { libc::syscall(libc::SYS_keyctl, KEYCTL_JOIN_SESSION_KEYRING, std::ptr::null::<libc::c_char>()) };
+    if rc < 0 {
+        let e = std::io::Error::last_os_error();
+        // A kernel built without keys (ENOSYS), or a container policy that already refuses keyctl: no keyring
+        // can be reached from here either way.
+        if !matches!(e.raw_os_error(), Some(libc::ENOSYS) | Some(libc::EPERM)) {
+            return Err(anyhow::anyhow!("cannot join a fresh session keyring: {e}"));
+        }
     }
+    crate::seccomp::install()?;
     Ok(())
 }
 
-#[cfg(target_arch = "x86_64")]
-const SECCOMP_ARCH: u32 = 0xc000_003e; // AUDIT_ARCH_X86_64
-#[cfg(target_arch = "aarch64")]
-const SECCOMP_ARCH: u32 = 0xc000_00b7; // AUDIT_ARCH_AARCH64
-/// Every CLONE_NEW* flag (NEWTIME, NEWNS, NEWCGROUP, NEWUTS, NEWIPC, NEWUSER, NEWPID, NEWNET).
-const CLONE_NEW_ANY: u32 = 0x7e02_0080;
-
-/// The classic-BPF program of [`confine`].
-fn seccomp_program() -> Vec<libc::sock_filter> {
-    const LD_W_ABS: u16 = 0x20;
-    const JEQ_K: u16 = 0x15;
-    const JGE_K: u16 = 0x35;
-    const JSET_K: u16 = 0x45;
-    const RET_K: u16 = 0x06;
-    const ALLOW: u32 = 0x7fff_0000;
-    const EPERM: u32 = 0x0005_0000 | libc::EPERM as u32;
-    const ENOSYS: u32 = 0x0005_0000 | libc::ENOSYS as u32;
-    let op = |code: u16, jt: u8, jf: u8, k: u32| libc::sock_filter { code, jt, jf, k };
-    vec![
-        op(LD_W_ABS, 0, 0, 4),                             // 0: arch
-        op(JEQ_K, 1, 0, SECCOMP_ARCH),                     // 1: native → 3
-        op(RET_K, 0, 0, EPERM),                            // 2
-        op(LD_W_ABS, 0, 0, 0),                             // 3: syscall number
-        op(JGE_K, 9, 0, 0x4000_0000),                      // 4: x32 → 14
-        op(JEQ_K, 8, 0, libc::SYS_unshare as u32),         // 5: → 14
-        op(JEQ_K, 7, 0, libc::SYS_setns as u32),           // 6: → 14
-        op(JEQ_K, 4, 0, libc::SYS_clone3 as u32),          // 7: → 12
-        op(JEQ_K, 1, 0, libc::SYS_clone as u32),           // 8: → 10
-        op(RET_K, 0, 0, ALLOW),                            // 9
-        op(LD_W_ABS, 0, 0, 16),                            // 10: clone's flags (low word of args[0])
-        op(JSET_K, 2, 1, CLONE_NEW_ANY),                   // 11: any CLONE_NEW* → 14, else → 13
-        op(RET_K, 0, 0, ENOSYS),                           // 12: clone3
-        op(RET_K, 0, 0, ALLOW),                            // 13
-        op(RET_K, 0, 0, EPERM),                            // 14
-    ]
-}
+const KEYCTL_JOIN_SESSION_KEYRING: libc::c_long = 1;
 
 fn accept_loop(listener: TcpListener, socket: PathBuf) {
     let live = Arc::new(AtomicUsize::new(0));
@@ -212,15 +180,19 @@ fn accept_loop(listener: TcpListener, socket: PathBuf) {
             drop(tcp);
             continue;
         }
-        let Ok(unix) = UnixStream::connect(&socket) else { continue };
         live.fetch_add(1, Ordering::SeqCst);
-        let live = live.clone();
+        let (held, socket) = (live.clone(), socket.clone());
+        // Each connection on a thread of its own from its first step: connecting to the runner's socket can wait
+        // (its backlog full of this agent's slow connections) without holding up the connections after it.
         let spawned = std::thread::Builder::new().name("sandbox-net-conn".into()).spawn(move || {
-            relay(tcp, unix);
-            live.fetch_sub(1, Ordering::SeqCst);
+            if let Ok(unix) = UnixStream::connect(&socket) {
+                relay(tcp, unix);
+            }
+            held.fetch_sub(1, Ordering::SeqCst);
         });
         if spawned.is_err() {
-            // No thread for it: the connection is dropped with the closure.
+            // No thread for it (the agent's process cap): the connection is dropped with the closure.
+            live.fetch_sub(1, Ordering::SeqCst);
         }
     }
 }
@@ -342,27 +314,24 @@ mod tests {
         echo.join().unwrap();
     }
 
-    /// The filter, installed on one thread of this test process (seccomp and no_new_privs are per thread): new
-    /// namespaces are refused, while threads and child processes — what agents do all day — still start.
+    /// Installed on one thread of this test process (seccomp and the session keyring are per thread here): the
+    /// thread's session keyring is a new one, and no keyring call gets through afterwards.
     #[test]
-    fn the_seccomp_filter_refuses_new_namespaces_and_keeps_threads_and_processes() {
+    fn confining_leaves_the_runner_s_session_keyring_and_closes_every_keyring_call() {
         std::thread::spawn(|| {
+            // SAFETY: KEYCTL_GET_KEYRING_ID (0) of the session keyring (-3), not creating one.
+            let before = unsafe { libc::syscall(libc::SYS_keyctl, 0, -3, 0) };
             confine().unwrap();
             let status = std::fs::read_to_string("/proc/thread-self/status").unwrap();
             assert!(status.lines().any(|l| l.starts_with("Seccomp:") && l.ends_with('2')), "{status}");
             assert!(status.lines().any(|l| l.starts_with("NoNewPrivs:") && l.ends_with('1')), "{status}");
-            for flags in [libc::CLONE_NEWUSER, libc::CLONE_NEWNS, libc::CLONE_NEWNET, libc::CLONE_NEWPID] {
-                // SAFETY: unshare(2) either fails (as the filter makes it) or changes this thread alone.
-                let rc = unsafe { libc::unshare(flags) };
-                assert_eq!((rc, std::io::Error::last_os_error().raw_os_error()), (-1, Some(libc::EPERM)), "unshare({flags:#x})");
-            }
+            // SAFETY: as above; the filter answers before the kernel looks.
+            let after = unsafe { libc::syscall(libc::SYS_keyctl, 0, -3, 0) };
+            assert_eq!((after, std::io::Error::last_os_error().raw_os_error()), (-1, Some(libc::EPERM)), "before: {before}");
             // SAFETY: setns(2) on an invalid descriptor; the filter answers before the kernel looks at it.
             let rc = unsafe { libc::setns(-1, 0) };
             assert_eq!((rc, std::io::Error::last_os_error().raw_os_error()), (-1, Some(libc::EPERM)));
-            assert_eq!(std::thread::spawn(|| 7).join().unwrap(), 7, "threads start (clone3 falls back to clone)");
-            assert!(Command::new("true").status().unwrap().success(), "processes start");
-            let out = Command::new("unshare").args(["-Ur", "true"]).output().unwrap();
-            assert!(!out.status.success(), "unshare(1) -Ur must fail: {out:?}");
+            assert_eq!(std::thread::spawn(|| 7).join().unwrap(), 7, "threads start");
         })
         .join()
         .unwrap();

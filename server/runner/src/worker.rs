@@ -44,6 +44,8 @@ pub struct WorkerArgs {
     pub server: ServerFlags,
     #[command(flatten)]
     pub paths: super::LocalPaths,
+    #[command(flatten)]
+    pub resources: super::resources::ResourceArgs,
     /// The lease on a claimed rollout, renewed every third of it: a worker silent for this long is lost.
     #[arg(long, default_value_t = 60.0)]
     pub lease_s: f64,
@@ -65,6 +67,8 @@ struct Worker {
     data: PathBuf,
     workspace_root: PathBuf,
     credentials_file: PathBuf,
+    /// Per-rollout caps, detected once (`None`: `--unconfined-resources` where they cannot be enforced).
+    resources: Option<super::resources::Resources>,
     lease_ms: i64,
     /// The run context of each (batch, attempt): settings, harness, sandbox, credentials.
     contexts: Mutex<HashMap<(String, i64), Arc<RunContext>>>,
@@ -83,6 +87,8 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     // Both are required on the command line; a caller building the arguments itself is told the same.
     let store_url = args.stores.store.clone().context("a worker needs --store (or $LIBERO_AGENT_STORE)")?;
     let artifacts_url = args.stores.artifacts.as_deref().context("a worker needs --artifacts (or $LIBERO_AGENT_ARTIFACTS)")?;
+    // Before anything is registered: a worker that cannot cap its agents says so and starts nothing.
+    let resources = super::resources::Resources::detect(&args.resources)?;
     let data = match &args.server.data {
         Some(d) => super::absolute(d)?,
         None => default_worker_dir(&id)?,
@@ -136,6 +142,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         workspace_root: workspace_base,
         data,
         credentials_file: args.paths.credentials_file(),
+        resources,
         lease_ms: (args.lease_s * 1000.0) as i64,
         contexts: Mutex::new(HashMap::new()),
         busy: AtomicUsize::new(0),
@@ -290,7 +297,7 @@ impl Worker {
         let credentials = if harness.needs_credentials() { Some(Credentials::load(&self.credentials_file)?) } else { None };
         // the project's toolbox, as `run` gives its agents by default (installed on first use)
         let sandbox = match settings.sandbox {
-            true => Some(Sandbox::detect()?.with_toolbox(Some(crate::toolbox::ensure_project()?))),
+            true => Some(Sandbox::detect()?.with_toolbox(Some(crate::toolbox::ensure_project()?)).with_resources(self.resources.clone())),
             false => None,
         };
         let npm_cli_installed = pinned_npm_cli_installed(harness);
@@ -357,7 +364,8 @@ impl Worker {
         let home = ctx.batch_dir.join("rollouts").join(&job.rollout_id).join("home");
         let workspace = rec.workspace.clone().filter(|w| w.starts_with(&ctx.workspace_root) && w != &ctx.workspace_root);
         for path in [Some(home), workspace].into_iter().flatten() {
-            if let Err(e) = remove_path(&path) {
+            // A capped rollout's home and workspace went with its disk.
+            if let Err(e) = remove_path(&path).or_else(|e| if e.kind() == std::io::ErrorKind::NotFound { Ok(()) } else { Err(e) }) {
                 tracing::warn!(batch = job.batch, rollout_id = job.rollout_id, path = %path.display(), error = %e, "cannot remove the rollout's files");
             }
         }
