@@ -311,6 +311,8 @@ struct Actor<W: World> {
     /// The initial observation, reset done and archived, that a `start_episode` could not publish into the
     /// workspace (the agent wrecked it): the next `start_episode` publishes it without resetting again.
     unpublished_start: Option<EncodedObservation>,
+    /// The call being served spent the agent-step budget: the episode ends once that call is logged.
+    step_budget_spent: bool,
     status: Arc<Mutex<EpisodeStatus>>,
     /// The operator's live view (calls, the end); never the agent's.
     live: Option<LiveSink>,
@@ -378,6 +380,7 @@ where
             let mut actor = Actor {
                 publisher,
                 unpublished_start: None,
+                step_budget_spent: false,
                 config: actor_config,
                 world: Some(world),
                 phase: Phase::Prepared,
@@ -486,7 +489,7 @@ impl<W: World> Actor<W> {
             }
             Err(RecvTimeoutError::Timeout) => {
                 if self.deadline_passed() {
-                    self.expire();
+                    self.expire(EXPIRY_REASON, "wall_time_budget_expired");
                 }
             }
             Err(RecvTimeoutError::Disconnected) => {
@@ -560,12 +563,15 @@ impl<W: World> Actor<W> {
             self.abort(&format!("action log write failed: {e}"));
             return ToolError::environment().payload();
         }
+        if std::mem::take(&mut self.step_budget_spent) && matches!(self.phase, Phase::Active { .. }) {
+            self.expire(crate::records::STEP_BUDGET_EXHAUSTED, "agent_step_budget_exhausted");
+        }
         payload
     }
 
     fn dispatch(&mut self, call: ToolCall) -> Result<Value, ToolError> {
         if self.deadline_passed() {
-            self.expire();
+            self.expire(EXPIRY_REASON, "wall_time_budget_expired");
         }
         if let Some(ended) = self.ended_phase() {
             return Ok(ended.answer(&call));
@@ -584,7 +590,17 @@ impl<W: World> Actor<W> {
                     return Err(ToolError::runtime_error(format!("agent step limit reached ({limit})")));
                 }
                 let actions = validate_actions(&actions)?;
-                self.execute(&actions)
+                let mut payload = self.execute(&actions)?;
+                // The call that spends the step budget ends the episode (§3.1), judged as the wall time's end is;
+                // the agent gets its observation and the word that the episode is over.
+                if self.accepted >= limit && matches!(self.phase, Phase::Active { .. }) {
+                    self.step_budget_spent = true;
+                    if let Some(p) = payload.as_object_mut() {
+                        p.insert("episode_ended".into(), json!(true));
+                        p.insert("termination_reason".into(), json!(crate::records::STEP_BUDGET_EXHAUSTED));
+                    }
+                }
+                Ok(payload)
             }
             ToolCall::Finish => self.finish(),
         }
@@ -745,17 +761,18 @@ impl<W: World> Actor<W> {
         Ok(payload)
     }
 
-    /// Wall-clock expiry (§4.6): finished, not successful, recorded even if no call arrives.
-    fn expire(&mut self) {
+    /// A budget's end — the wall clock (§4.6, recorded even if no call arrives) or the agent-step budget:
+    /// finished, not successful, with `reason` as the termination reason and `command` in the action log.
+    fn expire(&mut self, reason: &str, command: &str) {
         let wall = self.wall_time_s().unwrap_or(self.config.max_wall_time_s);
         let verdict = self.world.as_mut().and_then(|w| w.verdict().ok());
         let mut payload = self.finished_payload(false, wall);
-        payload["termination_reason"] = json!(EXPIRY_REASON);
+        payload["termination_reason"] = json!(reason);
         if let Err(e) = self.write_final(&payload, verdict.as_ref()) {
             self.abort(&format!("result.json write failed: {e}"));
             return;
         }
-        if let Err(e) = self.log.append(&json!({"command": "wall_time_budget_expired"}), &payload, 1) {
+        if let Err(e) = self.log.append(&json!({"command": command}), &payload, 1) {
             log::error!("episode {}: cannot log expiry: {e}", self.config.episode_id);
         }
         self.phase = Phase::Expired { payload };

@@ -11,7 +11,7 @@ pub use crate::episode_record::{BranchRecord, EPISODE_RECORD_SCHEMA, EpisodeReco
 use crate::json::{compact_sorted, open_jsonl_for_append, sha256_hex, utc_now_iso, write_json_file};
 pub use crate::result::{
     EvaluationDetails, MechanismOperation, PrivateEvaluation, PrivateEvent, RESULT_SCHEMA, RunResult, STATUS_ABORTED,
-    STATUS_FINISHED, StageDiagnostic, StageRegressions, TerminalCheck, WALL_TIME_BUDGET_SCOPE, WALL_TIME_EXHAUSTED,
+    STATUS_FINISHED, StageDiagnostic, StageRegressions, TerminalCheck, WALL_TIME_BUDGET_SCOPE, WALL_TIME_EXHAUSTED, STEP_BUDGET_EXHAUSTED,
 };
 pub use crate::typed::RecordError;
 use crate::typed::read_record;
@@ -202,7 +202,7 @@ impl std::str::FromStr for Outcome {
 }
 
 /// An episode's outcome from its `result.json` (§4.8): a missing, unfinished or infrastructure-failed result is
-/// INVALID; a success SUCCESS; an exhausted wall-time budget SIM_TIMEOUT; anything else FAIL.
+/// INVALID; a success SUCCESS; an exhausted wall-time or agent-step budget SIM_TIMEOUT; anything else FAIL.
 pub fn classify(result: Option<&RunResult>) -> Outcome {
     let Some(r) = result else { return Outcome::Invalid };
     if !r.is_finished() || r.has_infrastructure_error() {
@@ -210,7 +210,7 @@ pub fn classify(result: Option<&RunResult>) -> Outcome {
     }
     if r.success == Some(true) {
         Outcome::Success
-    } else if r.termination_reason.as_deref() == Some(WALL_TIME_EXHAUSTED) {
+    } else if matches!(r.termination_reason.as_deref(), Some(WALL_TIME_EXHAUSTED | STEP_BUDGET_EXHAUSTED)) {
         Outcome::SimTimeout
     } else {
         Outcome::Fail

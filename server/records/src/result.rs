@@ -11,6 +11,10 @@ pub const STATUS_FINISHED: &str = "finished";
 pub const STATUS_ABORTED: &str = "aborted";
 /// `termination_reason` of the wall-time expiry (§4.6), which §4.8 classifies SIM_TIMEOUT.
 pub const WALL_TIME_EXHAUSTED: &str = "episode_wall_time_budget_exhausted";
+/// `termination_reason` of an episode whose last allowed `osc_sequence` spent the agent-step budget (the paper's
+/// §3.1: an episode ends when the agent finishes or exhausts the interaction or time budget); judged as the wall
+/// time's end is: SIM_TIMEOUT.
+pub const STEP_BUDGET_EXHAUSTED: &str = "agent_step_budget_exhausted";
 /// `wall_time_budget_scope` of every result: one budget for the episode, whatever its resets.
 pub const WALL_TIME_BUDGET_SCOPE: &str = "per_episode_across_resets";
 
