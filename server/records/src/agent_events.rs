@@ -130,6 +130,10 @@ pub struct AgentEvent {
     /// A field was cut to its bound.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub truncated: bool,
+    /// One of the last events of a stream that went over its share of the transcript, written when the agent
+    /// had finished: `t` and `seq` are still when it was captured, so it stands after events captured later.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub tail: bool,
 }
 
 /// `s` cut to at most `max` bytes on a character boundary, and whether it was cut.

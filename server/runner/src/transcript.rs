@@ -12,6 +12,17 @@
 //! gateway's `model_api.jsonl`, every [`POLL`], and writes the events to the episode's run directory when this
 //! machine has it (`run`, a local `run --server`, workers), otherwise posts them to the server's operator API
 //! (`POST /api/episodes/{id}/agent/events`) and keeps a copy in the rollout directory.
+//!
+//! A flood from one stream never hides the others (`QUOTAS`): each stream has a byte quota of its own in the
+//! transcript (stdout 10 MiB, stderr 1 MiB, the gateway's records 2 MiB) and the runner's notes another (1 MiB,
+//! 64 KiB of it kept for the end). Once a stream's quota is spent its events are no longer written as they come:
+//! they are counted by label (the gateway's by HTTP status, the others by kind) and summarised in a note at most
+//! every 5 s (`model-API gateway: 12,345 more requests not shown (403: 12,000, 200: 345); …`), while the last 200
+//! of them (at most 1 MiB for stdout, 256 KiB for the others) are kept and written when the follower finishes,
+//! after a closing note and marked `tail`. Altogether at most 15.5 MiB, under the writer's own hard limit
+//! ([`MAX_TRANSCRIPT_BYTES`]), which stays as a backstop. The gateway's counters line (`{"kind": "overflow",
+//! …}`: what it only counted past its record cap, appended when it stops) becomes one note, as do skips, from the
+//! notes' quota.
 use std::collections::{HashMap, VecDeque};
 use std::fs::File;
 use std::os::unix::fs::{FileExt, OpenOptionsExt};
@@ -19,9 +30,9 @@ use std::path::{Component, Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use libero_episode::agent_events::{AgentEvent, Kind, MAX_FIELD_BYTES, Source, Tokens, TranscriptFile, Written, bound_str};
+use libero_episode::agent_events::{AgentEvent, Kind, MAX_FIELD_BYTES, MAX_TRANSCRIPT_BYTES, Source, Tokens, TranscriptFile, Written, bound_str};
 use libero_episode::json::utc_now_iso;
 use libero_episode::tools::ToolName;
 use serde::Serialize;
@@ -60,12 +71,270 @@ pub enum Stream {
 }
 
 impl Stream {
+    const ALL: [Stream; 3] = [Stream::Stdout, Stream::Stderr, Stream::Gateway];
+
     fn name(self) -> &'static str {
         match self {
             Stream::Stdout => "stdout",
             Stream::Stderr => "stderr",
             Stream::Gateway => "model-API gateway records",
         }
+    }
+
+    /// The stream in the notes about its quota, and what its events are called there.
+    fn title(self) -> (&'static str, &'static str) {
+        match self {
+            Stream::Stdout => ("the agent's stdout", "events"),
+            Stream::Stderr => ("the agent's stderr", "lines"),
+            Stream::Gateway => ("model-API gateway", "requests"),
+        }
+    }
+
+    /// The key in [`Summary::over_quota`].
+    fn key(self) -> &'static str {
+        match self {
+            Stream::Stdout => "stdout",
+            Stream::Stderr => "stderr",
+            Stream::Gateway => "gateway",
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------- quotas
+
+/// What one stream may take of the transcript.
+#[derive(Debug, Clone, Copy)]
+struct Quota {
+    /// Bytes of its events written as they come.
+    bytes: u64,
+    /// Once those are spent, its last events are kept and written at the end (`tail: true`): at most this many
+    tail_events: usize,
+    /// and at most this many bytes of them.
+    tail_bytes: u64,
+}
+
+/// How the transcript's bytes are shared among the streams and the runner's notes, so that a flood from one
+/// stream (the agent's stdout, its stderr, its requests through the gateway) never hides the others.
+#[derive(Debug, Clone, Copy)]
+struct Quotas {
+    stdout: Quota,
+    stderr: Quota,
+    gateway: Quota,
+    /// The runner's notes: skips, the gateway's counters, what went over a quota.
+    notes: u64,
+    /// Of `notes`, kept for the notes written at the end.
+    closing: u64,
+    /// An over-quota stream's left-out events are summarised at most this often.
+    summary_every: Duration,
+}
+
+impl Quotas {
+    fn of(&self, stream: Stream) -> Quota {
+        match stream {
+            Stream::Stdout => self.stdout,
+            Stream::Stderr => self.stderr,
+            Stream::Gateway => self.gateway,
+        }
+    }
+
+    /// The most bytes the follower writes.
+    const fn total(&self) -> u64 {
+        let q = [self.stdout, self.stderr, self.gateway];
+        q[0].bytes + q[0].tail_bytes + q[1].bytes + q[1].tail_bytes + q[2].bytes + q[2].tail_bytes + self.notes
+    }
+}
+
+/// The quotas of a rollout's transcript: most of it for stdout (what the CLI says the agent read, thought and
+/// ran), a little for stderr and for the gateway's records (one event per model request), 200 events of each
+/// stream's tail, the notes; together 15.5 MiB, under [`MAX_TRANSCRIPT_BYTES`] with room to spare.
+const QUOTAS: Quotas = Quotas {
+    stdout: Quota { bytes: 10 << 20, tail_events: 200, tail_bytes: 1 << 20 },
+    stderr: Quota { bytes: 1 << 20, tail_events: 200, tail_bytes: 256 << 10 },
+    gateway: Quota { bytes: 2 << 20, tail_events: 200, tail_bytes: 256 << 10 },
+    notes: 1 << 20,
+    closing: 64 << 10,
+    summary_every: Duration::from_secs(5),
+};
+const _: () = assert!(QUOTAS.total() + (64 << 10) <= MAX_TRANSCRIPT_BYTES, "the quotas stay under the transcript's hard limit");
+
+/// What an event counts as in the note about its stream's left-out events: an HTTP status (gateway records) or
+/// the event's kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Label {
+    Status(u16),
+    Name(&'static str),
+}
+
+impl std::fmt::Display for Label {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Label::Status(s) => write!(f, "{s}"),
+            Label::Name(n) => f.write_str(n),
+        }
+    }
+}
+
+fn kind_name(kind: Kind) -> &'static str {
+    match kind {
+        Kind::Message => "message",
+        Kind::Reasoning => "reasoning",
+        Kind::Shell => "shell",
+        Kind::FileRead => "file_read",
+        Kind::ImageView => "image_view",
+        Kind::ToolCall => "tool_call",
+        Kind::ToolResult => "tool_result",
+        Kind::Usage => "usage",
+        Kind::Stderr => "stderr",
+        Kind::Other => "other",
+    }
+}
+
+/// An event on its way to the transcript.
+#[derive(Debug)]
+struct Captured {
+    ev: AgentEvent,
+    /// What it counts as when its stream is over its quota.
+    label: Label,
+    /// The runner's notice about the stream (bytes skipped, the gateway's counters): written from the notes'
+    /// quota while that lasts, whatever the stream's.
+    notice: bool,
+}
+
+impl Captured {
+    fn new(ev: AgentEvent, label: Label) -> Self {
+        Self { ev, label, notice: false }
+    }
+
+    fn of_kind(ev: AgentEvent) -> Self {
+        let label = Label::Name(kind_name(ev.kind));
+        Self::new(ev, label)
+    }
+
+    fn skip(ev: AgentEvent) -> Self {
+        Self { notice: true, ..Self::new(ev, Label::Name("skipped")) }
+    }
+}
+
+/// Distinct labels counted per stream; later ones count as `other labels`.
+const MAX_LABELS: usize = 32;
+
+/// One stream's share of the transcript.
+struct Lane {
+    stream: Stream,
+    quota: Quota,
+    summary_every: Duration,
+    /// Bytes of its events written as they came.
+    used: u64,
+    /// The quota is spent: events are counted and the last ones kept.
+    over: bool,
+    /// Counted since the last note about them, and in all.
+    since: Counts,
+    all: Counts,
+    /// The last counted events (already bounded and marked `tail`) with their line's bytes.
+    tail: VecDeque<(AgentEvent, u64)>,
+    tail_bytes: u64,
+}
+
+#[derive(Default)]
+struct Counts {
+    events: u64,
+    by_label: std::collections::BTreeMap<Label, u64>,
+}
+
+impl Counts {
+    fn add(&mut self, label: Label) {
+        self.events += 1;
+        let label = if self.by_label.len() < MAX_LABELS || self.by_label.contains_key(&label) { label } else { Label::Name("other labels") };
+        *self.by_label.entry(label).or_default() += 1;
+    }
+
+    /// `403: 12,000, 200: 345`, the most frequent first (at most 12).
+    fn labels(&self) -> String {
+        let mut v: Vec<(&Label, &u64)> = self.by_label.iter().collect();
+        v.sort_by(|a, b| b.1.cmp(a.1).then(a.0.cmp(b.0)));
+        let mut parts: Vec<String> = v.iter().take(12).map(|(l, n)| format!("{l}: {}", thousands(**n))).collect();
+        if v.len() > 12 {
+            parts.push("…".into());
+        }
+        parts.join(", ")
+    }
+}
+
+fn mib(bytes: u64) -> String {
+    if bytes.is_multiple_of(1 << 20) { format!("{} MiB", bytes >> 20) } else { format!("{} KiB", bytes >> 10) }
+}
+
+impl Lane {
+    fn new(stream: Stream, quota: Quota, summary_every: Duration) -> Self {
+        Self { stream, quota, summary_every, used: 0, over: false, since: Counts::default(), all: Counts::default(), tail: VecDeque::new(), tail_bytes: 0 }
+    }
+
+    /// Takes `ev` (of `bytes` as a line) for writing now, or counts and keeps it in the tail; the note to write
+    /// when the quota is spent by it.
+    fn take(&mut self, mut ev: AgentEvent, bytes: u64, label: Label) -> (Option<AgentEvent>, Option<String>) {
+        if !self.over && self.used + bytes <= self.quota.bytes {
+            self.used += bytes;
+            return (Some(ev), None);
+        }
+        let mut note = None;
+        if !self.over {
+            self.over = true;
+            let (title, noun) = self.stream.title();
+            note = Some(format!(
+                "{title} reached its quota of {} of this transcript: its later {noun} are counted and summarised at most every {} s, \
+                 and the last {} of them are written when the agent has finished (marked tail)",
+                mib(self.quota.bytes),
+                self.summary_every.as_secs_f64(),
+                self.quota.tail_events
+            ));
+        }
+        self.since.add(label);
+        self.all.add(label);
+        ev.tail = true;
+        let bytes = bytes + ",\"tail\":true".len() as u64;
+        self.tail.push_back((ev, bytes));
+        self.tail_bytes += bytes;
+        while self.tail.len() > self.quota.tail_events || self.tail_bytes > self.quota.tail_bytes {
+            let Some((_, b)) = self.tail.pop_front() else { break };
+            self.tail_bytes -= b;
+        }
+        (None, note)
+    }
+
+    /// The periodic note about what was counted since the last one.
+    fn since_note(&mut self) -> Option<String> {
+        if self.since.events == 0 {
+            return None;
+        }
+        let since = std::mem::take(&mut self.since);
+        let (title, noun) = self.stream.title();
+        Some(format!(
+            "{title}: {} more {noun} not shown ({}); {} in all since it reached its quota, the last of them are written at the end",
+            thousands(since.events),
+            since.labels(),
+            thousands(self.all.events)
+        ))
+    }
+
+    /// At the end: the note about all that was counted, and the kept tail to write after it.
+    fn closing(&mut self) -> Option<(String, Vec<AgentEvent>)> {
+        if !self.over || self.all.events == 0 {
+            return None;
+        }
+        let (title, noun) = self.stream.title();
+        let tail: Vec<AgentEvent> = std::mem::take(&mut self.tail).into_iter().map(|(ev, _)| ev).collect();
+        self.tail_bytes = 0;
+        let left_out = self.all.events - tail.len() as u64;
+        let note = format!(
+            "{title}: {} {noun} in all over its quota of {} ({}); the last {} follow (marked tail, with the time and seq they were \
+             captured at), {} are left out",
+            thousands(self.all.events),
+            mib(self.quota.bytes),
+            self.all.labels(),
+            thousands(tail.len() as u64),
+            thousands(left_out)
+        );
+        Some((note, tail))
     }
 }
 
@@ -249,23 +518,34 @@ impl Normalizer {
 
     /// Events for one line of `stream`, stamped with the capture time `t`.
     pub fn line(&mut self, stream: Stream, line: Line<'_>, t: &str) -> Vec<AgentEvent> {
+        self.capture(stream, line, t).into_iter().map(|c| c.ev).collect()
+    }
+
+    /// [`Normalizer::line`] with what each event counts as when its stream is over its quota.
+    fn capture(&mut self, stream: Stream, line: Line<'_>, t: &str) -> Vec<Captured> {
         let raw = match (stream, line) {
             (_, Line::Overlong(n)) => {
                 let kind = if stream == Stream::Stderr { Kind::Stderr } else { Kind::Other };
-                vec![say(kind, Source::Runner, format!("a {} line of {n} bytes (more than {MAX_LINE_BYTES}) was not parsed", stream.name()))]
+                let ev = say(kind, Source::Runner, format!("a {} line of {n} bytes (more than {MAX_LINE_BYTES}) was not parsed", stream.name()));
+                vec![Captured::new(ev, Label::Name("overlong line"))]
             }
             (_, Line::Complete(b)) if b.iter().all(u8::is_ascii_whitespace) => Vec::new(),
-            (Stream::Stderr, Line::Complete(b)) => vec![say(Kind::Stderr, Source::Stderr, text_of(b))],
+            (Stream::Stderr, Line::Complete(b)) => vec![Captured::of_kind(say(Kind::Stderr, Source::Stderr, text_of(b)))],
             (Stream::Gateway, Line::Complete(b)) => self.gateway(b).into_iter().collect(),
-            (Stream::Stdout, Line::Complete(b)) => self.stdout(b),
+            (Stream::Stdout, Line::Complete(b)) => self.stdout(b).into_iter().map(Captured::of_kind).collect(),
         };
-        raw.into_iter().map(|ev| self.finish_event(ev, t)).collect()
+        raw.into_iter().map(|c| Captured { ev: self.finish_event(c.ev, t), ..c }).collect()
     }
 
     /// `bytes` of `stream` were not read (a flood, or a sparse file).
     pub fn skipped(&mut self, stream: Stream, bytes: u64, t: &str) -> AgentEvent {
         let ev = say(Kind::Other, Source::Runner, format!("{bytes} bytes of the agent's {} were skipped (written faster than they are read)", stream.name()));
         self.finish_event(ev, t)
+    }
+
+    /// The runner's own note (what went over a quota and was left out).
+    fn note(&mut self, text: String, t: &str) -> AgentEvent {
+        self.finish_event(say(Kind::Other, Source::Runner, text), t)
     }
 
     /// At the end: shell commands whose result never came.
@@ -597,21 +877,74 @@ impl Normalizer {
     }
 
     /// One record of the gateway: a `usage` event when the response carried token counts, an `other` event
-    /// when the request was refused or failed.
-    fn gateway(&mut self, b: &[u8]) -> Option<AgentEvent> {
+    /// when the request was refused or failed; its counters line (`{"kind": "overflow", …}`: the requests past its
+    /// record cap, appended when it stops) is one note of the runner's.
+    fn gateway(&mut self, b: &[u8]) -> Option<Captured> {
         let Ok(r) = serde_json::from_slice::<crate::netgate::Record>(b) else {
-            return Some(say(Kind::Other, Source::ModelApiGateway, "a gateway record that does not parse"));
+            return Some(match serde_json::from_slice::<Value>(b) {
+                Ok(Value::Object(m)) if m.get("kind").and_then(Value::as_str) == Some("overflow") => {
+                    Captured { notice: true, ..Captured::new(say(Kind::Other, Source::Runner, overflow_text(&m)), Label::Name("overflow")) }
+                }
+                _ => Captured::new(say(Kind::Other, Source::ModelApiGateway, "a gateway record that does not parse"), Label::Name("unparsed")),
+            });
         };
         let what = format!("{} {}{} → {} in {} ms", r.method, r.host, r.path, r.status, r.duration_ms);
+        let label = Label::Status(r.status);
         if let Some(u) = &r.usage {
-            return Some(usage_event(Source::ModelApiGateway, u.counts, &format!("model request {what}")));
+            return Some(Captured::new(usage_event(Source::ModelApiGateway, u.counts, &format!("model request {what}")), label));
         }
         let refused = r.mode == crate::netgate::Mode::Refused;
         (refused || r.error.is_some() || r.status >= 400).then(|| {
             let why = r.error.as_deref().map(|e| format!(": {e}")).unwrap_or_default();
-            say(Kind::Other, Source::ModelApiGateway, format!("{} {what}{why}", if refused { "refused" } else { "failed" }))
+            Captured::new(say(Kind::Other, Source::ModelApiGateway, format!("{} {what}{why}", if refused { "refused" } else { "failed" })), label)
         })
     }
+}
+
+/// The gateway's counters line (`netgate::Overflow`) as text, whatever its exact shape: `requests` and
+/// `by_status` first, then its other fields but `kind` that are not zero, empty or false; numbers with thousands
+/// separators, objects one level deep (`requests: 177,188; by_status: (200: 188, 403: 177,000); refused: …`), at
+/// most 32 fields of each.
+fn overflow_text(m: &Map<String, Value>) -> String {
+    fn value(v: &Value, depth: usize) -> String {
+        match v {
+            Value::Number(n) => n.as_u64().map(thousands).unwrap_or_else(|| n.to_string()),
+            Value::Object(o) if depth < 2 => {
+                let parts: Vec<String> = o.iter().take(32).map(|(k, v)| format!("{}: {}", bound_str(k, 64).0, value(v, depth + 1))).collect();
+                format!("({})", parts.join(", "))
+            }
+            other => bound_str(&compact(other), 256).0,
+        }
+    }
+    let nothing = |v: &Value| match v {
+        Value::Null | Value::Bool(false) => true,
+        Value::Number(n) => n.as_u64() == Some(0),
+        Value::String(s) => s.is_empty(),
+        Value::Array(a) => a.is_empty(),
+        Value::Object(o) => o.is_empty(),
+        Value::Bool(true) => false,
+    };
+    const FIRST: [&str; 2] = ["requests", "by_status"];
+    let first = FIRST.iter().filter_map(|k| m.get_key_value(*k));
+    let rest = m.iter().filter(|(k, v)| k.as_str() != "kind" && !FIRST.contains(&k.as_str()) && !nothing(v));
+    let fields: Vec<String> = first.chain(rest).take(32).map(|(k, v)| format!("{}: {}", bound_str(k, 64).0, value(v, 1))).collect();
+    format!(
+        "model-API gateway: past its record cap it only counts requests; its counters: {}",
+        if fields.is_empty() { "none".to_owned() } else { fields.join("; ") }
+    )
+}
+
+/// `n` with a comma every three digits.
+fn thousands(n: u64) -> String {
+    let digits = n.to_string();
+    let mut out = String::with_capacity(digits.len() + digits.len() / 3);
+    for (i, c) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
 }
 
 /// `Exit code N` at the start of a shell tool's result (Claude Code's way of saying a command failed).
@@ -659,7 +992,7 @@ impl Tail {
     }
 
     /// Reads what is new, at most `budget` bytes, into events.
-    fn poll(&mut self, n: &mut Normalizer, budget: usize, buf: &mut [u8], out: &mut Vec<AgentEvent>) -> std::io::Result<usize> {
+    fn poll(&mut self, n: &mut Normalizer, budget: usize, buf: &mut [u8], out: &mut Vec<Captured>) -> std::io::Result<usize> {
         if self.file.is_none() {
             match std::fs::OpenOptions::new().read(true).custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK | libc::O_CLOEXEC).open(&self.path) {
                 Ok(f) if f.metadata()?.is_file() => self.file = Some(f),
@@ -674,14 +1007,14 @@ impl Tail {
         if size < self.offset {
             // Truncated under us (the agent can reopen its CLI's stdout): go on from its new end.
             self.offset = size;
-            self.lines.end(|l| out.extend(n.line(self.stream, l, &t)));
-            out.push(n.skipped(self.stream, 0, &t));
+            self.lines.end(|l| out.extend(n.capture(self.stream, l, &t)));
+            out.push(Captured::skip(n.skipped(self.stream, 0, &t)));
             return Ok(0);
         }
         if size - self.offset > SKIP_BEYOND {
             let to = size - budget as u64;
-            self.lines.end(|l| out.extend(n.line(self.stream, l, &t)));
-            out.push(n.skipped(self.stream, to - self.offset, &t));
+            self.lines.end(|l| out.extend(n.capture(self.stream, l, &t)));
+            out.push(Captured::skip(n.skipped(self.stream, to - self.offset, &t)));
             self.offset = to;
         }
         let mut read = 0;
@@ -694,16 +1027,16 @@ impl Tail {
             self.offset += k as u64;
             read += k;
             let stream = self.stream;
-            self.lines.push(&buf[..k], |l| out.extend(n.line(stream, l, &t)));
+            self.lines.push(&buf[..k], |l| out.extend(n.capture(stream, l, &t)));
         }
         Ok(read)
     }
 
     /// The stream ended: its last line without a newline counts.
-    fn end(&mut self, n: &mut Normalizer, out: &mut Vec<AgentEvent>) {
+    fn end(&mut self, n: &mut Normalizer, out: &mut Vec<Captured>) {
         let t = utc_now_iso();
         let stream = self.stream;
-        self.lines.end(|l| out.extend(n.line(stream, l, &t)));
+        self.lines.end(|l| out.extend(n.capture(stream, l, &t)));
     }
 }
 
@@ -721,6 +1054,10 @@ pub struct Summary {
     pub path: Option<PathBuf>,
     #[serde(flatten)]
     pub written: Written,
+    /// Events of each stream (`stdout`, `stderr`, `gateway`) that went over its quota and were left out (counted
+    /// in the notes; the tail that was written is not among them).
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub over_quota: std::collections::BTreeMap<String, u64>,
     /// Events the remote server accepted, when posting.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub posted: Option<u64>,
@@ -732,16 +1069,106 @@ struct Sink {
     file: TranscriptFile,
     remote: Option<(String, String)>,
     summary: Summary,
+    quotas: Quotas,
+    /// One per [`Stream::ALL`].
+    lanes: Vec<Lane>,
+    /// Bytes of the runner's notes written.
+    notes_used: u64,
+    /// When the over-quota streams were last summarised.
+    last_summary: Instant,
+    /// Events to write at the next [`Sink::flush`], in capture order, and notes to write after them.
+    batch: Vec<AgentEvent>,
+    notes: Vec<String>,
 }
 
 impl Sink {
-    fn open(target: Target) -> anyhow::Result<Self> {
+    fn open_with(target: Target, quotas: Quotas) -> anyhow::Result<Self> {
         let (path, remote) = match target {
             Target::RunDir(dir) => (dir.join(libero_episode::agent_events::AGENT_EVENTS_FILE), None),
             Target::Remote { server_url, episode_id, local } => (local, Some((server_url, episode_id))),
         };
         let file = TranscriptFile::open(&path).map_err(|e| anyhow::anyhow!("cannot write the transcript {}: {e}", path.display()))?;
-        Ok(Self { file, remote, summary: Summary { path: Some(path), posted: None, ..Summary::default() } })
+        Ok(Self {
+            file,
+            remote,
+            summary: Summary { path: Some(path), posted: None, ..Summary::default() },
+            quotas,
+            lanes: Stream::ALL.iter().map(|&s| Lane::new(s, quotas.of(s), quotas.summary_every)).collect(),
+            notes_used: 0,
+            last_summary: Instant::now(),
+            batch: Vec::new(),
+            notes: Vec::new(),
+        })
+    }
+
+    /// Whether a note of `bytes` fits the notes' quota (`closing`: the part kept for the end included).
+    fn note_fits(&self, bytes: u64, closing: bool) -> bool {
+        let limit = if closing { self.quotas.notes } else { self.quotas.notes.saturating_sub(self.quotas.closing) };
+        self.notes_used + bytes <= limit
+    }
+
+    /// Takes what `stream` gave: written at the next flush while the stream's quota lasts, else counted and the
+    /// last kept.
+    fn admit(&mut self, stream: Stream, got: Vec<Captured>) {
+        let lane = Stream::ALL.iter().position(|&s| s == stream).unwrap_or(0);
+        for Captured { ev, label, notice } in got {
+            let bytes = ev.to_line().len() as u64 + 1;
+            if notice && self.note_fits(bytes, false) {
+                self.notes_used += bytes;
+                self.batch.push(ev);
+                continue;
+            }
+            let (now, note) = self.lanes[lane].take(ev, bytes, label);
+            self.batch.extend(now);
+            self.notes.extend(note);
+        }
+    }
+
+    /// Writes what was admitted, then the notes (with a summary of each over-quota stream when one is due).
+    fn flush(&mut self, n: &mut Normalizer) {
+        if self.last_summary.elapsed() >= self.quotas.summary_every {
+            self.last_summary = Instant::now();
+            let due: Vec<String> = self.lanes.iter_mut().filter_map(Lane::since_note).collect();
+            self.notes.extend(due);
+        }
+        let t = utc_now_iso();
+        for text in std::mem::take(&mut self.notes) {
+            self.push_note(n, text, &t, false);
+        }
+        let batch = std::mem::take(&mut self.batch);
+        self.write(batch);
+    }
+
+    /// Stamps a note and queues it if it fits the notes' quota (a note that does not is dropped; its stream's
+    /// counts go on to the closing note).
+    fn push_note(&mut self, n: &mut Normalizer, text: String, t: &str, closing: bool) {
+        // The stamped line is the text, escaped, and some 120 bytes: checked before a seq is spent on it.
+        let estimate = 2 * text.len() as u64 + 256;
+        if !self.note_fits(estimate, closing) {
+            return;
+        }
+        let ev = n.note(text, t);
+        self.notes_used += ev.to_line().len() as u64 + 1;
+        self.batch.push(ev);
+    }
+
+    /// At the end: what is left, then for each stream over its quota the note about all it left out and its
+    /// kept tail.
+    fn finish(&mut self, n: &mut Normalizer) {
+        let t = utc_now_iso();
+        for text in std::mem::take(&mut self.notes) {
+            self.push_note(n, text, &t, false);
+        }
+        for i in 0..self.lanes.len() {
+            let Some((note, tail)) = self.lanes[i].closing() else { continue };
+            let stream = self.lanes[i].stream;
+            let left_out = self.lanes[i].all.events - tail.len() as u64;
+            self.summary.over_quota.insert(stream.key().to_owned(), left_out);
+            self.push_note(n, note, &t, true);
+            self.batch.extend(tail);
+        }
+        let batch = std::mem::take(&mut self.batch);
+        self.write(batch);
     }
 
     fn write(&mut self, events: Vec<AgentEvent>) {
@@ -834,9 +1261,13 @@ impl Follower {
     /// Starts following. A transcript that cannot be written (its file, the thread) is reported by
     /// [`Follower::finish`]; it never fails the rollout.
     pub fn start(normalizer: Normalizer, streams: Streams, target: Target) -> Self {
+        Self::start_with(normalizer, streams, target, QUOTAS)
+    }
+
+    fn start_with(normalizer: Normalizer, streams: Streams, target: Target, quotas: Quotas) -> Self {
         let stop = Arc::new(AtomicBool::new(false));
         let stopping = stop.clone();
-        let thread = Sink::open(target).map_err(|e| format!("{e:#}")).and_then(|sink| {
+        let thread = Sink::open_with(target, quotas).map_err(|e| format!("{e:#}")).and_then(|sink| {
             std::thread::Builder::new()
                 .name("transcript".into())
                 .spawn(move || follow(normalizer, streams, sink, &stopping))
@@ -906,27 +1337,29 @@ fn follow(mut n: Normalizer, streams: Streams, mut sink: Sink, stop: &AtomicBool
     let mut failed = vec![false; tails.len()];
     loop {
         let last = stop.load(Ordering::SeqCst);
-        let mut events = Vec::new();
         // After the agent is gone, each stream is read to its end (a flood beyond the skip bound is skipped).
         let budget = if last { SKIP_BEYOND as usize } else { READ_PER_POLL };
         for (i, tail) in tails.iter_mut().enumerate() {
-            if failed[i] || sink.file.is_full() {
-                continue;
-            }
-            if let Err(e) = tail.poll(&mut n, budget, &mut buf, &mut events) {
+            let mut got = Vec::new();
+            if !failed[i]
+                && !sink.file.is_full()
+                && let Err(e) = tail.poll(&mut n, budget, &mut buf, &mut got)
+            {
                 failed[i] = true;
                 sink.error(format!("reading the agent's {}: {e}", tail.stream.name()));
             }
+            if last {
+                tail.end(&mut n, &mut got);
+            }
+            sink.admit(tail.stream, got);
         }
         if last {
-            for tail in &mut tails {
-                tail.end(&mut n, &mut events);
-            }
-            events.extend(n.finish(&utc_now_iso()));
-            sink.write(events);
+            let left = n.finish(&utc_now_iso()).into_iter().map(Captured::of_kind).collect();
+            sink.admit(Stream::Stdout, left);
+            sink.finish(&mut n);
             return sink.close();
         }
-        sink.write(events);
+        sink.flush(&mut n);
         std::thread::sleep(POLL);
     }
 }
@@ -961,6 +1394,310 @@ mod tests {
         assert_eq!(n.place("/ws/w1/../w2/secret.png"), (None, None));
         assert_eq!(n.place("/etc/passwd"), (None, None));
         assert_eq!(n.place("scratch/plot.png"), (Some("scratch/plot.png".into()), None));
+    }
+
+    /// A refused request as the gateway records it; `i` is in its path and its duration.
+    fn refused_record(i: usize) -> String {
+        format!(
+            r#"{{"time":"2026-01-01T00:00:00Z","unix_ms":0,"mode":"refused","method":"POST","host":"api.example:443","path":"/v1/{i:06}","status":403,"request_bytes":0,"response_bytes":0,"duration_ms":{i}}}"#
+        )
+    }
+
+    /// A request that went through and carried token counts.
+    fn usage_record(i: usize) -> String {
+        format!(
+            r#"{{"time":"2026-01-01T00:00:00Z","unix_ms":0,"mode":"reverse","method":"POST","host":"127.0.0.1:1","path":"/v1/messages","status":200,"request_bytes":10,"response_bytes":20,"duration_ms":{i},"usage":{{"api":"anthropic_messages","input_tokens":800,"output_tokens":30,"total_tokens":830}}}}"#
+        )
+    }
+
+    fn claude_lines(lines: &[serde_json::Value]) -> String {
+        lines.iter().map(|l| format!("{l}\n")).collect()
+    }
+
+    /// What the agent does after the flood, as Claude Code prints it: a robot call and its result, a shell
+    /// command and its result, its last words.
+    fn after_the_flood() -> String {
+        claude_lines(&[
+            json!({"type": "assistant", "message": {"content": [{"type": "tool_use", "id": "toolu_9", "name": "mcp__libero__osc_sequence", "input": {"steps": [[0.1, 0, 0]]}}]}}),
+            json!({"type": "user", "message": {"content": [{"type": "tool_result", "tool_use_id": "toolu_9", "content": "{\"ok\":true,\"observation_id\":\"obs_000042\"}"}]}}),
+            json!({"type": "assistant", "message": {"content": [{"type": "tool_use", "id": "toolu_10", "name": "Bash", "input": {"command": "echo after-the-flood"}}]}}),
+            json!({"type": "user", "message": {"content": [{"type": "tool_result", "tool_use_id": "toolu_10", "content": "after-the-flood"}]}}),
+            json!({"type": "assistant", "message": {"content": [{"type": "text", "text": "final words after the flood"}]}}),
+        ])
+    }
+
+    fn read_events(path: &Path) -> (String, Vec<AgentEvent>) {
+        let text = std::fs::read_to_string(path).unwrap();
+        let events = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        (text, events)
+    }
+
+    /// The number after `prefix` in `text` (with thousands separators).
+    fn count_after(text: &str, prefix: &str) -> Option<u64> {
+        let rest = &text[text.find(prefix)? + prefix.len()..];
+        rest.chars().take_while(|c| c.is_ascii_digit() || *c == ',').filter(char::is_ascii_digit).collect::<String>().parse().ok()
+    }
+
+    fn notes(events: &[AgentEvent]) -> Vec<&str> {
+        events.iter().filter(|e| e.source == Some(Source::Runner)).filter_map(|e| e.text.as_deref()).collect()
+    }
+
+    /// The red team's flood (177,188 refused requests in 45 s filled the whole transcript in 8 s), bigger and
+    /// faster: 300,000 refused requests in about 3 s, then the agent's robot call, a command and its last words.
+    /// The gateway's records keep to their quota, the later stdout events are written as they come, a note
+    /// counts the requests not shown, and the flood's last 200 records are written at the end.
+    #[test]
+    fn a_flood_of_gateway_records_hides_neither_the_agents_later_events_nor_how_the_flood_ended() {
+        use std::io::Write;
+        const FLOOD: usize = 300_000;
+        let dir = tempfile::tempdir().unwrap();
+        let (stdout, stderr, gateway) = (dir.path().join("stdout.jsonl"), dir.path().join("stderr.log"), dir.path().join("model_api.jsonl"));
+        std::fs::write(&stdout, claude_lines(&[json!({"type": "assistant", "message": {"content": [{"type": "text", "text": "before the flood"}]}})])).unwrap();
+        std::fs::write(&stderr, b"").unwrap();
+        let mut g = std::fs::File::create(&gateway).unwrap();
+        let run = dir.path().join("run");
+        std::fs::create_dir(&run).unwrap();
+        let started = Instant::now();
+        let follower = Follower::start(
+            Normalizer::new(Harness::ClaudeCode, Path::new("/ws/w1"), &[]),
+            Streams { stdout: stdout.clone(), stderr, gateway: Some(gateway.clone()) },
+            Target::RunDir(run.clone()),
+        );
+        for chunk in 0..FLOOD / 10_000 {
+            let lines: String = (chunk * 10_000..(chunk + 1) * 10_000).map(|i| refused_record(i) + "\n").collect();
+            g.write_all(lines.as_bytes()).unwrap();
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        std::fs::OpenOptions::new().append(true).open(&stdout).unwrap().write_all(after_the_flood().as_bytes()).unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+        let summary = follower.finish();
+        let took = started.elapsed();
+        assert!(took < Duration::from_secs(90), "the flood took {took:?}");
+        assert!(summary.errors.is_empty(), "{:?}", summary.errors);
+
+        let (text, events) = read_events(&run.join(libero_episode::agent_events::AGENT_EVENTS_FILE));
+        assert!((text.len() as u64) < MAX_TRANSCRIPT_BYTES && (text.len() as u64) <= QUOTAS.total(), "bounded: {} bytes", text.len());
+        assert_eq!(summary.written.events, events.len() as u64);
+        assert_eq!(summary.written.omitted_events, 0, "the hard limit was never reached");
+        let texts: Vec<&str> = events.iter().filter(|e| !e.tail).filter_map(|e| e.text.as_deref()).collect();
+        assert!(texts.contains(&"before the flood") && texts.contains(&"final words after the flood"), "{:?}", notes(&events));
+        let robot = events.iter().find(|e| e.kind == Kind::ToolCall && e.robot_tool.as_deref() == Some("osc_sequence")).expect("the robot call after the flood");
+        assert!(!robot.tail);
+        assert!(events.iter().any(|e| e.kind == Kind::ToolResult && e.observation_id.as_deref() == Some("obs_000042")));
+        assert!(events.iter().any(|e| e.kind == Kind::Shell && e.command.as_deref() == Some("echo after-the-flood") && e.output.as_deref() == Some("after-the-flood")));
+
+        // The gateway's records as they came: within their quota.
+        let shown: Vec<&AgentEvent> = events.iter().filter(|e| e.source == Some(Source::ModelApiGateway) && !e.tail).collect();
+        let shown_bytes: usize = shown.iter().map(|e| e.to_line().len() + 1).sum();
+        assert!(!shown.is_empty() && shown_bytes as u64 <= QUOTAS.gateway.bytes, "{} events, {shown_bytes} bytes", shown.len());
+        // The notes: the quota reached, what was not shown, in all.
+        let notes = notes(&events);
+        assert!(notes.iter().any(|t| t.starts_with("model-API gateway reached its quota of 2 MiB")), "{notes:?}");
+        let closing = notes.iter().find(|t| t.contains("in all over its quota")).expect("the closing note");
+        assert!(closing.contains("403: "), "{closing}");
+        let over = count_after(closing, "model-API gateway: ").unwrap();
+        let skipped = notes.iter().any(|t| t.contains("model-API gateway records were skipped"));
+        if skipped {
+            assert!(over + (shown.len() as u64) < FLOOD as u64, "{closing}");
+        } else {
+            assert_eq!(over + shown.len() as u64, FLOOD as u64, "every request is shown or counted: {closing}");
+        }
+        assert_eq!(summary.over_quota.get("gateway"), Some(&(over - 200)), "{:?}", summary.over_quota);
+        // The flood's tail: its last 200 records, in order, after the closing note.
+        let tail: Vec<&AgentEvent> = events.iter().filter(|e| e.tail).collect();
+        assert_eq!(tail.len(), 200);
+        assert!(tail.iter().all(|e| e.source == Some(Source::ModelApiGateway)));
+        assert!(tail.last().unwrap().text.as_deref().unwrap().contains(&format!("/v1/{:06}", FLOOD - 1)), "{:?}", tail.last());
+        assert!(tail.windows(2).all(|w| w[0].seq < w[1].seq));
+        let closing_at = events.iter().position(|e| e.text.as_deref() == Some(*closing)).unwrap();
+        let first_tail = events.iter().position(|e| e.tail).unwrap();
+        assert!(closing_at < first_tail, "the note stands before the tail");
+        // The writer's own hard limit stays untouched; every seq but the tail's rises.
+        let seqs: Vec<u64> = events.iter().filter(|e| !e.tail).map(|e| e.seq).collect();
+        assert!(seqs.windows(2).all(|w| w[0] < w[1]));
+    }
+
+    fn small_quotas() -> Quotas {
+        Quotas {
+            stdout: Quota { bytes: 8 << 10, tail_events: 5, tail_bytes: 64 << 10 },
+            stderr: Quota { bytes: 4 << 10, tail_events: 5, tail_bytes: 64 << 10 },
+            gateway: Quota { bytes: 4 << 10, tail_events: 10, tail_bytes: 64 << 10 },
+            notes: 8 << 10,
+            closing: 3 << 10,
+            summary_every: Duration::ZERO,
+        }
+    }
+
+    fn feed(n: &mut Normalizer, sink: &mut Sink, stream: Stream, line: &str) {
+        let got = n.capture(stream, Line::Complete(line.as_bytes()), "2026-01-01T00:00:00+00:00");
+        sink.admit(stream, got);
+    }
+
+    /// Every gateway request is either written as it came, or counted in the notes by status; the notes keep
+    /// to their own quota whatever their number, the closing note is written from what is kept for it, and the
+    /// tail is the stream's last events.
+    #[test]
+    fn over_quota_events_are_counted_by_label_and_the_last_kept_while_other_streams_go_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let q = small_quotas();
+        let mut sink = Sink::open_with(Target::RunDir(dir.path().to_path_buf()), q).unwrap();
+        let mut n = Normalizer::new(Harness::ClaudeCode, Path::new("/ws"), &[]);
+        let (mut refused, mut usage) = (0u64, 0u64);
+        for i in 0..3000 {
+            if i % 7 == 0 {
+                usage += 1;
+                feed(&mut n, &mut sink, Stream::Gateway, &usage_record(i));
+            } else {
+                refused += 1;
+                feed(&mut n, &mut sink, Stream::Gateway, &refused_record(i));
+            }
+            if i % 100 == 0 {
+                feed(&mut n, &mut sink, Stream::Stderr, &format!("stderr line {i}"));
+                // Each flush is a summary's chance (every 0 s here): the notes run out long before the flood.
+                sink.flush(&mut n);
+            }
+        }
+        feed(&mut n, &mut sink, Stream::Gateway, "not a record");
+        sink.flush(&mut n);
+        let stdout = after_the_flood();
+        for line in stdout.lines() {
+            feed(&mut n, &mut sink, Stream::Stdout, line);
+        }
+        sink.finish(&mut n);
+        let summary = sink.close();
+        let (text, events) = read_events(summary.path.as_ref().unwrap());
+        assert!(text.len() as u64 <= q.total(), "{} bytes", text.len());
+
+        // Stderr and stdout kept to their quotas and were written as they came.
+        let stderr = events.iter().filter(|e| e.kind == Kind::Stderr).count();
+        assert_eq!(stderr, 30);
+        assert!(events.iter().any(|e| e.text.as_deref() == Some("final words after the flood") && !e.tail));
+        assert!(events.iter().any(|e| e.robot_tool.as_deref() == Some("osc_sequence") && e.kind == Kind::ToolCall));
+
+        let shown = events.iter().filter(|e| e.source == Some(Source::ModelApiGateway) && !e.tail).count() as u64;
+        let notes = notes(&events);
+        let notes_bytes: usize = events.iter().filter(|e| e.source == Some(Source::Runner)).map(|e| e.to_line().len() + 1).sum();
+        assert!(notes_bytes as u64 <= q.notes, "{notes_bytes}");
+        let periodic: Vec<&&str> = notes.iter().filter(|t| t.contains("more requests not shown")).collect();
+        assert!(periodic.len() > 3, "{notes:?}");
+        let closing = notes.iter().find(|t| t.contains("in all over its quota")).expect("the closing note, from its reserve");
+        let over = count_after(closing, "model-API gateway: ").unwrap();
+        assert_eq!(over + shown, 3001, "{closing}");
+        let shown_refused = events.iter().filter(|e| e.source == Some(Source::ModelApiGateway) && !e.tail && e.kind == Kind::Other).count() as u64;
+        let shown_usage = shown - shown_refused;
+        assert_eq!(count_after(closing, "403: "), Some(refused - shown_refused), "{closing}");
+        assert_eq!(count_after(closing, "200: "), Some(usage - shown_usage), "{closing}");
+        assert_eq!(count_after(closing, "unparsed: "), Some(1), "{closing}");
+        assert_eq!(summary.over_quota.get("gateway"), Some(&(over - 10)));
+        assert!(!summary.over_quota.contains_key("stdout") && !summary.over_quota.contains_key("stderr"));
+        // The tail: the last ten, the last of them the line that did not parse.
+        let tail: Vec<&AgentEvent> = events.iter().filter(|e| e.tail).collect();
+        assert_eq!(tail.len(), 10);
+        assert_eq!(tail.last().unwrap().text.as_deref(), Some("a gateway record that does not parse"));
+        assert!(tail[8].text.as_deref().unwrap().contains("in 2999 ms"), "{:?}", tail[8]);
+    }
+
+    /// A flood on the agent's stdout keeps the gateway's and stderr's events, and stdout's own last lines.
+    #[test]
+    fn a_stdout_flood_keeps_its_last_lines_and_hides_no_other_stream() {
+        let dir = tempfile::tempdir().unwrap();
+        let q = small_quotas();
+        let mut sink = Sink::open_with(Target::RunDir(dir.path().to_path_buf()), q).unwrap();
+        let mut n = Normalizer::new(Harness::Command, Path::new("/ws"), &[]);
+        for i in 0..5000 {
+            feed(&mut n, &mut sink, Stream::Stdout, &format!("flood line {i}"));
+            if i % 1000 == 999 {
+                feed(&mut n, &mut sink, Stream::Gateway, &usage_record(i));
+                feed(&mut n, &mut sink, Stream::Stderr, &format!("warning {i}"));
+                sink.flush(&mut n);
+            }
+        }
+        // A line far longer than a tail's bytes is counted but cannot be kept.
+        feed(&mut n, &mut sink, Stream::Stdout, &"y".repeat(200 << 10));
+        feed(&mut n, &mut sink, Stream::Stdout, "the agent's last line");
+        sink.finish(&mut n);
+        let summary = sink.close();
+        let (text, events) = read_events(summary.path.as_ref().unwrap());
+        assert!(text.len() as u64 <= q.total());
+        assert_eq!(events.iter().filter(|e| e.source == Some(Source::ModelApiGateway)).count(), 5);
+        assert_eq!(events.iter().filter(|e| e.kind == Kind::Stderr).count(), 5);
+        let tail: Vec<&str> = events.iter().filter(|e| e.tail).filter_map(|e| e.text.as_deref()).collect();
+        assert_eq!(tail.len(), 5);
+        assert_eq!(tail.last(), Some(&"the agent's last line"));
+        assert!(tail.iter().all(|t| t.len() <= MAX_FIELD_BYTES));
+        let closing = notes(&events).into_iter().find(|t| t.contains("in all over its quota")).unwrap().to_owned();
+        assert!(closing.starts_with("the agent's stdout: ") && closing.contains("message: "), "{closing}");
+        let written = events.iter().filter(|e| e.source == Some(Source::Stdout) && !e.tail).count() as u64;
+        assert_eq!(count_after(&closing, "the agent's stdout: ").unwrap() + written, 5002);
+    }
+
+    #[test]
+    fn a_tail_keeps_to_its_bytes_and_events() {
+        let mut lane = Lane::new(Stream::Stderr, Quota { bytes: 0, tail_events: 3, tail_bytes: 1000 }, Duration::from_secs(5));
+        for i in 0..10 {
+            let ev = AgentEvent { seq: i, ..say(Kind::Stderr, Source::Stderr, "x") };
+            let bytes = ev.to_line().len() as u64 + 1;
+            let (now, note) = lane.take(ev, bytes, Label::Name("stderr"));
+            assert!(now.is_none());
+            assert_eq!(note.is_some(), i == 0, "the quota is said to be reached once");
+        }
+        assert_eq!(lane.tail.iter().map(|(e, _)| e.seq).collect::<Vec<_>>(), [7, 8, 9]);
+        let big = say(Kind::Stderr, Source::Stderr, "z".repeat(600));
+        let bytes = big.to_line().len() as u64 + 1;
+        lane.take(big.clone(), bytes, Label::Name("stderr"));
+        lane.take(big, bytes, Label::Name("stderr"));
+        assert_eq!(lane.tail.len(), 1, "two of 600 bytes do not fit in 1000");
+        assert!(lane.tail_bytes <= 1000 && lane.tail.iter().all(|(e, _)| e.tail));
+        assert!(lane.since_note().unwrap().contains("12 more lines not shown (stderr: 12); 12 in all"));
+        assert!(lane.since_note().is_none(), "nothing new since");
+        let (note, tail) = lane.closing().unwrap();
+        assert_eq!(tail.len(), 1);
+        assert!(note.contains("12 lines in all over its quota") && note.contains("11 are left out"), "{note}");
+    }
+
+    /// The gateway's counters line (the requests past its record cap, appended when it stops) is one note; a line of
+    /// an unknown shape stays what it was.
+    #[test]
+    fn the_gateways_overflow_line_is_one_note_and_unknown_lines_stay_unparsed() {
+        let mut n = Normalizer::new(Harness::ClaudeCode, Path::new("/ws"), &[]);
+        let t = "2026-01-01T00:00:00+00:00";
+        let line = r#"{"kind":"overflow","requests":177188,"by_status":{"403":177000,"200":188},"first_unix_ms":1,"last_unix_ms":45000}"#;
+        let got = n.capture(Stream::Gateway, Line::Complete(line.as_bytes()), t);
+        assert_eq!(got.len(), 1);
+        assert!(got[0].notice);
+        let ev = &got[0].ev;
+        assert_eq!((ev.kind, ev.source), (Kind::Other, Some(Source::Runner)));
+        let text = ev.text.as_deref().unwrap();
+        assert!(text.contains("requests: 177,188") && text.contains("by_status: (200: 188, 403: 177,000)"), "{text}");
+        // The shape `netgate::Overflow` writes: its summary flattened, the statuses, the last request passed on.
+        let real = json!({"kind": "overflow", "requests": 167188, "refused": 167000, "failed": 0, "unmetered": 0, "request_bytes": 0,
+            "response_bytes": 0, "tunnel_bytes": 0, "responses_with_usage": 188, "input_tokens": 150400, "output_tokens": 0,
+            "unreadable_lines": 0, "overflowed": 167188, "complete": true, "by_status": {"200": 188, "403": 167000},
+            "last_passed_on": {"time": "2026-01-01T00:00:45Z", "method": "POST", "path": "/v1/messages", "status": 200, "usage": {"input_tokens": 800}}});
+        let ev = n.line(Stream::Gateway, Line::Complete(real.to_string().as_bytes()), t);
+        let text = ev[0].text.as_deref().unwrap();
+        assert!(
+            text.starts_with("model-API gateway: past its record cap it only counts requests; its counters: requests: 167,188; by_status: (200: 188, 403: 167,000); "),
+            "{text}"
+        );
+        assert!(text.contains("refused: 167,000") && text.contains("complete: true") && text.contains("last_passed_on: (") && !text.contains("failed"), "{text}");
+        for odd in [
+            r#"{"kind":"overflow"}"#,
+            r#"{"kind":"overflow","requests":"many","by_status":[1,2],"nested":{"a":{"b":{"c":1}}},"neg":-3,"f":1.5}"#,
+        ] {
+            let ev = n.line(Stream::Gateway, Line::Complete(odd.as_bytes()), t);
+            assert_eq!(ev.len(), 1);
+            assert_eq!(ev[0].source, Some(Source::Runner), "{odd}");
+        }
+        for unknown in [r#"{"kind":"other","requests":1}"#, "[1,2]", "{\"kind\":", r#""overflow""#] {
+            let ev = n.line(Stream::Gateway, Line::Complete(unknown.as_bytes()), t);
+            assert_eq!(ev.len(), 1);
+            assert_eq!((ev[0].source, ev[0].text.as_deref()), (Some(Source::ModelApiGateway), Some("a gateway record that does not parse")), "{unknown}");
+        }
+        assert_eq!(thousands(0), "0");
+        assert_eq!(thousands(999), "999");
+        assert_eq!(thousands(1000), "1,000");
+        assert_eq!(thousands(12_345_678), "12,345,678");
     }
 
     #[test]
