@@ -2,10 +2,13 @@
 `libero-agent run --harness command`, inside the bubblewrap sandbox, with only its workspace, its session
 home and its own MCP endpoint's URL and token (`.libero/mcp.json`).
 
-It tries to reach everything an agent must not reach, records every attempt in `redteam.json` in its
-workspace, and leaves a watcher behind that plants symlinks and FIFOs into whatever appears under
-`benchmark_inputs/` (inotify), while the reference agent then plays the episode. Python's standard library
-only; the secret path (a host file outside the sandbox) comes as the first argument.
+It tries to reach everything an agent must not reach, records every attempt, and leaves a watcher behind that
+plants symlinks and FIFOs into whatever appears under `benchmark_inputs/` (inotify), while the reference agent
+then plays the episode. Python's standard library only; the secret path (a host file outside the sandbox) comes as
+the first argument. The workspace goes with the rollout's disk when it ends, so the reports are lines on stdout
+(the runner keeps it as `command_stdout.log`): `LIBERO-REDTEAM-REPORT <json>` once, and the watcher's
+`LIBERO-WATCHER-REPORT <json>` each time its counts change (it is killed with the sandbox when the agent exits,
+at any instruction: its last complete line is its report).
 
 Nothing here may contain a brace-wrapped runner placeholder name: the runner substitutes those in the
 agent command this script is inlined into.
@@ -182,6 +185,7 @@ def watch_and_plant(seconds):
     IN_CREATE, IN_MOVED_TO = 0x100, 0x80
     libc.inotify_add_watch(fd, bi.encode(), IN_CREATE | IN_MOVED_TO)
     planted, events = 0, 0
+    said, said_at = (-1, -1), 0.0
     end = time.time() + seconds
     while time.time() < end:
         try:
@@ -208,15 +212,21 @@ def watch_and_plant(seconds):
                     pass
         if not buf:
             time.sleep(0.0005)
-        # Replaced whole (temporary name, rename): the sandbox's PID namespace kills this process with SIGKILL
-        # when the agent exits, at any instruction, and a file truncated then would read as empty.
-        try:
-            tmp = os.path.join(WS, "scratch", "watcher.json.partial")
-            with open(tmp, "w") as f:
-                json.dump({"planted": planted, "inotify_events": events}, f)
-            os.replace(tmp, os.path.join(WS, "scratch", "watcher.json"))
-        except OSError:
-            pass
+        # Said at once when a publication was seen, else at most every second: the sandbox's PID namespace kills
+        # this process with SIGKILL when the agent exits, at any instruction, so the last line said is the report.
+        if events != said[1] or (planted != said[0] and time.time() - said_at >= 1.0):
+            say_watcher(planted, events)
+            said, said_at = (planted, events), time.time()
+    say_watcher(planted, events)
+
+
+def say_watcher(planted, events):
+    """One line on stdout in one write(2): never interleaved with another process's output mid-line."""
+    line = "LIBERO-WATCHER-REPORT " + json.dumps({"planted": planted, "inotify_events": events}) + "\n"
+    try:
+        os.write(1, line.encode())
+    except OSError:
+        pass
 
 
 def main():
@@ -233,13 +243,8 @@ def main():
     try_other_endpoints()
     sent = oversized_rejected_calls()
     report = {"attempts": attempts, "oversized_bytes_sent": sent, "episode": EPISODE}
-    # Written whole or not at all (a temporary name, fsync, rename), and said on stderr for the test's message.
-    tmp = os.path.join(WS, "scratch", "redteam.json.partial")
-    with open(tmp, "w") as f:
-        json.dump(report, f, indent=1)
-        f.flush()
-        os.fsync(f.fileno())
-    os.rename(tmp, os.path.join(WS, "redteam.json"))
+    # One line on stdout, flushed before the fork (the watcher must not inherit it unwritten); a summary on stderr.
+    print("LIBERO-REDTEAM-REPORT " + json.dumps(report), flush=True)
     print(f"redteam: {len(attempts)} attempts recorded, {sent} oversized bytes sent", file=sys.stderr, flush=True)
     # The watcher outlives this script: it plants while the reference agent plays the episode.
     if os.fork() == 0:

@@ -1,18 +1,28 @@
 """A red-team agent that tries to leave its sandbox (issue 30): run as `--harness command` by
 server/app/tests/sandbox_escape.rs, inside the bubblewrap sandbox, before the reference agent plays the episode.
 
-Every attempt is recorded with whether the boundary refused it; the report goes to `escape.json` in the workspace.
-Arguments: the path of the libero-agent binary, then a JSON object with the host's loopback port of a decoy
-service (`decoy_port`), the pid of a host process (`host_pid`), the runner's uid (`runner_uid`) and a marker file
-name (`marker`) that must not appear in the host's /tmp.
+Every attempt is recorded with whether the boundary refused it; the report is printed as one line on stdout,
+`LIBERO-ESCAPE-REPORT <json>` (the workspace goes with the rollout's disk when it ends; the runner keeps stdout as
+`command_stdout.log`). Arguments: the path of the libero-agent binary, then a JSON object with the host's loopback
+port of a decoy service (`decoy_port`), the pid of a host process (`host_pid`), the runner's uid (`runner_uid`), a
+marker file name (`marker`) that must not appear in the host's /tmp, the model API's `host:port` (`model_api`), and
+the rollout's caps (`caps`: `max_processes`, `memory_bytes`, `disk_bytes`; null where the runner runs agents
+unconfined, and the attacks on the caps are skipped).
+
+Nothing here may contain a brace-wrapped runner placeholder name: the runner substitutes those in the agent command
+this script is inlined into.
 """
 import ctypes
 import errno
 import json
 import os
+import platform
+import shutil
+import signal
 import socket
 import subprocess
 import sys
+import time
 import urllib.request
 
 ARGS = json.loads(sys.argv[2])
@@ -136,6 +146,118 @@ if proxy:
     raises("CONNECT to a host loopback service", lambda: connect_through_proxy(f"127.0.0.1:{ARGS['decoy_port']}"))
     raises("CONNECT to a host not on the allow-list", lambda: connect_through_proxy("example.com:443"))
     raises("forward-proxy GET to a host loopback service", lambda: forward_through_proxy(f"http://127.0.0.1:{ARGS['decoy_port']}/"))
+    # The model API itself only through the gateway's base URL (its routes, metered): a tunnel would pass anything.
+    if ARGS.get("model_api"):
+        raises("CONNECT to the model API's own host", lambda: connect_through_proxy(ARGS["model_api"]))
+
+# The kernel's less-guarded interfaces: refused by the seccomp allow-list whatever the kernel's own settings
+# (raw syscall numbers of x86_64; skipped on other architectures).
+if platform.machine() == "x86_64":
+    SYS_ADD_KEY, SYS_KEYCTL, SYS_PERF_EVENT_OPEN, SYS_BPF, SYS_USERFAULTFD, SYS_IO_URING_SETUP = 248, 250, 298, 321, 323, 425
+    KEY_SPEC_SESSION_KEYRING, KEY_SPEC_USER_KEYRING, KEYCTL_READ = -3, -4, 11
+    for ring, spec in (("user", KEY_SPEC_USER_KEYRING), ("session", KEY_SPEC_SESSION_KEYRING)):
+        syscall_refused(f"add_key into the {ring} keyring",
+                        lambda s=spec: libc.syscall(SYS_ADD_KEY, b"user", b"libero-escape", b"x", ctypes.c_size_t(1), ctypes.c_long(s)))
+        keybuf = ctypes.create_string_buffer(4096)
+        syscall_refused(f"keyctl read of the {ring} keyring",
+                        lambda s=spec: libc.syscall(SYS_KEYCTL, ctypes.c_long(KEYCTL_READ), ctypes.c_long(s), keybuf, ctypes.c_size_t(4096)))
+    uring_params = ctypes.create_string_buffer(120)  # struct io_uring_params, zeroed
+    syscall_refused("io_uring_setup", lambda: libc.syscall(SYS_IO_URING_SETUP, ctypes.c_uint(8), uring_params))
+    # struct perf_event_attr (128 bytes): type PERF_TYPE_SOFTWARE, size, config PERF_COUNT_SW_CPU_CLOCK; this process.
+    perf_attr = ctypes.create_string_buffer(128)
+    ctypes.memmove(perf_attr, (1).to_bytes(4, "little") + (128).to_bytes(4, "little"), 8)
+    syscall_refused("perf_event_open on itself",
+                    lambda: libc.syscall(SYS_PERF_EVENT_OPEN, perf_attr, ctypes.c_long(0), ctypes.c_long(-1), ctypes.c_long(-1), ctypes.c_ulong(0)))
+    # union bpf_attr for BPF_MAP_CREATE: an array map of one 4-byte entry.
+    bpf_attr = ctypes.create_string_buffer(128)
+    ctypes.memmove(bpf_attr, b"".join(v.to_bytes(4, "little") for v in (2, 4, 4, 1)), 16)
+    syscall_refused("bpf(BPF_MAP_CREATE)", lambda: libc.syscall(SYS_BPF, ctypes.c_long(0), bpf_attr, ctypes.c_uint(128)))
+    UFFD_USER_MODE_ONLY = 1
+    syscall_refused("userfaultfd", lambda: libc.syscall(SYS_USERFAULTFD, ctypes.c_long(os.O_CLOEXEC | os.O_NONBLOCK | UFFD_USER_MODE_ONLY)))
+else:
+    print(f"escape: {platform.machine()}: the raw-syscall attacks are x86_64's, skipped", file=sys.stderr)
+
+# The rollout's caps on processes, memory and disk (only where the runner enforces them: a root runner).
+LIMITS = ARGS.get("caps")
+
+
+def fork_flood(cap):
+    """Up to 2 x cap children that sleep; refused when the cap stopped them at cap or fewer."""
+    sleep = shutil.which("sleep") or "/bin/sleep"
+    children, failure = [], None
+    for _ in range(2 * cap):
+        try:
+            pid = os.fork()
+        except OSError as e:
+            failure = e
+            break
+        if pid == 0:
+            try:
+                os.execv(sleep, ["sleep", "120"])
+            finally:
+                os._exit(0)
+        children.append(pid)
+    for pid in children:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+    for pid in children:
+        try:
+            os.waitpid(pid, 0)
+        except OSError:
+            pass
+    record(f"fork more than the cap of {cap} processes", len(children) <= cap,
+           f"{len(children)} children forked, then {failure!r}")
+
+
+def allocate(cap):
+    """A child allocating (and touching) twice the memory cap; refused when it was killed or failed."""
+    n = 2 * cap
+    try:
+        p = subprocess.run([sys.executable, "-c", f"b = b'x' * {n}; print(len(b))"], capture_output=True, timeout=300)
+        record(f"allocate {n} bytes over the memory cap of {cap}", p.returncode != 0,
+               f"exit {p.returncode}: {p.stdout[-100:]!r} {p.stderr[-200:]!r}")
+    except subprocess.TimeoutExpired as e:
+        record(f"allocate {n} bytes over the memory cap of {cap}", False, f"still running: {e}")
+
+
+def fill_disk(cap):
+    """1 MiB writes in turn into the workspace, /tmp and $HOME until the disk is full; refused when no more than the
+    cap went in. The files are deleted after, so the episode can still publish its observations."""
+    dirs = [os.environ.get("LIBERO_AGENT_WORKSPACE") or os.getcwd(), "/tmp", os.environ.get("HOME") or "/tmp"]
+    paths = [os.path.join(d, f".libero-escape-fill-{i}") for i, d in enumerate(dirs)]
+    fds = [os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600) for p in paths]
+    chunk = b"\xa5" * (1 << 20)
+    total, refusal, i = 0, None, 0
+    try:
+        while total <= cap + (64 << 20):
+            try:
+                total += os.write(fds[i % len(fds)], chunk)
+            except OSError as e:
+                if e.errno in (errno.ENOSPC, errno.EDQUOT):
+                    refusal = e
+                    break
+                raise
+            i += 1
+    finally:
+        for fd in fds:
+            os.close(fd)
+        for p in paths:
+            try:
+                os.unlink(p)
+            except OSError:
+                pass
+    record(f"fill the workspace, /tmp and $HOME past the disk cap of {cap}", refusal is not None and total <= cap,
+           f"{total} bytes written, then {refusal!r}")
+
+
+if LIMITS:
+    fork_flood(int(LIMITS["max_processes"]))
+    allocate(int(LIMITS["memory_bytes"]))
+    fill_disk(int(LIMITS["disk_bytes"]))
+else:
+    print("escape: the runner caps no resources here: the fork, memory and disk attacks are skipped", file=sys.stderr)
 
 # The model API the harness is configured with is reachable (through the gateway).
 base = os.environ.get("LIBERO_MODEL_API_BASE")
@@ -148,6 +270,7 @@ if base:
 # A file in the sandbox's /tmp does not reach the host's.
 open(f"/tmp/{ARGS['marker']}", "w").write("escape")
 
-json.dump({"attempts": attempts, "uid": os.getuid(), "gid": os.getgid(), "model_reply": model_reply,
-           "capabilities": caps}, open("escape.json", "w"), indent=1)
+# The report: one line on stdout (kept as command_stdout.log; the workspace does not outlive the rollout).
+report = {"attempts": attempts, "uid": os.getuid(), "gid": os.getgid(), "model_reply": model_reply, "capabilities": caps}
+print("LIBERO-ESCAPE-REPORT " + json.dumps(report), flush=True)
 print(f"escape: {len(attempts)} attempts, {sum(not a['refused'] for a in attempts)} let through", file=sys.stderr)

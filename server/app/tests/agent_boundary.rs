@@ -5,7 +5,9 @@
 //! watcher that plants symlinks to a host secret and FIFOs into everything that appears under
 //! `benchmark_inputs/` (inotify) while the reference agent plays the episode. Every attempt must be refused, no
 //! byte of the secret may reach any record, nothing may hang, the private action log must stay small, and the
-//! episode must end exactly as the same agent's episode without the attacks.
+//! episode must end exactly as the same agent's episode without the attacks. The workspace goes with the rollout's
+//! disk when it ends: the red team's and its watcher's reports are the lines they printed on stdout, which the
+//! runner keeps (`command_stdout.log`).
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -113,21 +115,25 @@ fn a_red_team_agent_in_the_sandbox_reaches_nothing_but_its_own_endpoint() {
     let agent_log = String::from_utf8_lossy(&agent_log[agent_log.len().saturating_sub(4000)..]).into_owned();
     assert_eq!(rec["agent_exit_code"], 0, "{rec}\n{agent_log}");
     let ws = PathBuf::from(rec["workspace"].as_str().unwrap());
-    let report = std::fs::read(ws.join("redteam.json")).unwrap_or_default();
-    let report: Value = serde_json::from_slice(&report)
-        .unwrap_or_else(|e| panic!("the red team's report ({} bytes) does not parse: {e}\nits stderr:\n{agent_log}", report.len()));
+    let stdout = attacked.join("rollouts/w1_t14_level3/command_stdout.log");
+    let report = common::marked_line(&stdout, "LIBERO-REDTEAM-REPORT ")
+        .unwrap_or_else(|| panic!("no report of the red team on its stdout; its stderr:\n{agent_log}"));
     let attempts = report["attempts"].as_array().unwrap();
     assert!(attempts.len() >= 100, "{} attempts", attempts.len());
     let let_through: Vec<&Value> = attempts.iter().filter(|a| a["refused"] != true).collect();
     assert!(let_through.is_empty(), "the boundary let these through: {let_through:#?}");
-    let watcher = std::fs::read(ws.join("scratch/watcher.json")).expect("the watcher ran");
-    let watcher: Value = serde_json::from_slice(&watcher)
-        .unwrap_or_else(|e| panic!("the watcher's report ({} bytes) does not parse: {e}\nthe red team's stderr:\n{agent_log}", watcher.len()));
+    let watcher = common::marked_line(&stdout, "LIBERO-WATCHER-REPORT ")
+        .unwrap_or_else(|| panic!("the watcher ran and said so on stdout; the red team's stderr:\n{agent_log}"));
     assert!(watcher["inotify_events"].as_u64().unwrap() > 0, "the watcher saw publications: {watcher}");
 
     // Nothing of the secret in any record, observation archive, video or log; the secret is untouched.
     let mut files = Vec::new();
     regular_files(&attacked, &mut files);
+    // Where the runner caps the rollout (root), the workspace went with its disk: nothing of it is left to leak.
+    // SAFETY: geteuid(2) has no preconditions.
+    if unsafe { libc::geteuid() } == 0 {
+        assert!(!ws.exists(), "the workspace outlived its rollout: {}", ws.display());
+    }
     regular_files(&ws, &mut files);
     assert!(files.len() > 20, "{files:?}");
     for f in &files {

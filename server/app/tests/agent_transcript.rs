@@ -71,6 +71,8 @@ fn a_sandboxed_agents_printed_lines_stream_live_and_come_back_in_order_with_the_
         std::thread::sleep(Duration::from_millis(100));
     };
     let socket = common::read_socket(&format!("{}/ws/episodes/{id}", server.url), &server.token);
+    // The episode's token, from the workspace while the agent runs (the workspace goes with the rollout's disk).
+    let episode_token = common::episode_token_while_running(&tmp.path().join("ws"), Duration::from_secs(120), || matches!(run.try_wait(), Ok(Some(_))));
     wait_success(&mut run, Duration::from_secs(600), "libero-agent run --harness command");
     let live = socket.join().unwrap().unwrap_or_else(|e| panic!("the live socket: {e}"));
     let run_log = std::fs::read_to_string(&log).unwrap_or_default();
@@ -129,7 +131,7 @@ fn a_sandboxed_agents_printed_lines_stream_live_and_come_back_in_order_with_the_
     // Operator only: no credential, or the episode's own token, gets nothing.
     let url = format!("{}/api/episodes/{id}/agent", server.url);
     assert_eq!(http("GET", &url, &[], b"").0, 401);
-    let token = format!("Bearer {}", episode_token(Path::new(record["workspace"].as_str().unwrap())));
+    let token = format!("Bearer {}", episode_token.expect("the workspace's MCP configuration, read while the agent ran"));
     assert_eq!(http("GET", &url, &[("Authorization", &token)], b"").0, 401);
 }
 

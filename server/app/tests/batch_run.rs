@@ -38,7 +38,9 @@ fn libero(args: &[&str]) -> Output {
     out
 }
 
-/// The agent command: probes (each line `denied …` or `READABLE …`) into the workspace, then the reference agent.
+/// The agent command: probes (each line `LIBERO-PROBE denied …` or `LIBERO-PROBE READABLE …`, on stdout: the
+/// workspace goes with the rollout's disk when it ends, the runner keeps stdout as `command_stdout.log`), then the
+/// reference agent.
 fn agent_cmd(batch: &Path) -> String {
     let tasks = repo_root().join("tasks/manifest.json");
     let probes = [
@@ -52,13 +54,18 @@ fn agent_cmd(batch: &Path) -> String {
         format!("ls {}", cache_dir().join("hf-libero-0.1.4/bddl_files").display()),
         format!("ls {}", cache_dir().join("libero-assets-0.1.0/assets").display()),
     ];
-    let mut script = String::from("probe() { if \"$@\" >/dev/null 2>&1; then echo \"READABLE $*\"; else echo \"denied $*\"; fi; }; { ");
+    let mut script =
+        String::from("probe() { if \"$@\" >/dev/null 2>&1; then echo \"LIBERO-PROBE READABLE $*\"; else echo \"LIBERO-PROBE denied $*\"; fi; }; ");
     for p in probes {
         script.push_str(&format!("probe {p}; "));
     }
-    // The sibling workspaces: only this rollout's own directory may be visible.
-    script.push_str("for w in w1_t14_level3 w2_t14_level3; do probe ls \"$(dirname {workspace})/$w/.libero\"; done; ");
-    script.push_str("echo \"siblings: $(ls \"$(dirname {workspace})\")\"; } > {workspace}/probe.txt; ");
+    // The sibling rollouts' workspaces: only this rollout's own directory below the workspace root may be visible.
+    // The workspace is `<root>/<rollout id>/workspace` on the rollout's own disk (`<root>/<rollout id>` where the
+    // runner caps no rollout).
+    script.push_str("ws={workspace}; if [ \"$(basename \"$ws\")\" = workspace ]; then root=$(dirname \"$(dirname \"$ws\")\"); sub=/workspace; \
+                     else root=$(dirname \"$ws\"); sub=; fi; ");
+    script.push_str("for w in w1_t14_level3 w2_t14_level3; do probe ls \"$root/$w$sub/.libero\"; done; ");
+    script.push_str("echo \"LIBERO-PROBE siblings: $(ls \"$root\" | tr '\\n' ' ')\"; ");
     script.push_str("exec {libero_agent} agent --workspace {workspace}");
     script
 }
@@ -128,15 +135,14 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
         assert_eq!(r["accepted_agent_steps"], 4, "{r}");
         assert!(r["wall_time_s"].as_f64().unwrap() > 0.0);
         assert_eq!(r["agent_exit_code"], 0);
-        let ws = PathBuf::from(r["workspace"].as_str().unwrap());
-        let probe = std::fs::read_to_string(ws.join("probe.txt")).unwrap();
-        assert!(!probe.contains("READABLE") || probe.lines().filter(|l| l.starts_with("READABLE")).all(|l| {
-            l.contains(&format!("{}/.libero", r["rollout_id"].as_str().unwrap()))
-        }), "the sandbox leaked:\n{probe}");
-        assert!(probe.contains("denied cat") && probe.contains("episodes.sqlite"), "{probe}");
         let own = r["rollout_id"].as_str().unwrap();
-        assert!(probe.contains(&format!("READABLE ls {}/{own}/.libero", workspaces.display())), "own workspace visible:\n{probe}");
-        assert!(probe.lines().any(|l| l == format!("siblings: {own}")), "only its own workspace:\n{probe}");
+        let ws = PathBuf::from(r["workspace"].as_str().unwrap());
+        let probe = common::marked_lines(&batch.join("rollouts").join(own).join("command_stdout.log"), "LIBERO-PROBE ").join("\n");
+        let own_libero = format!("{}/.libero", ws.display());
+        assert!(probe.lines().filter(|l| l.starts_with("READABLE")).all(|l| l.ends_with(&own_libero)), "the sandbox leaked:\n{probe}");
+        assert!(probe.contains("denied cat") && probe.contains("episodes.sqlite"), "{probe}");
+        assert!(probe.lines().any(|l| l == format!("READABLE ls {own_libero}")), "own workspace visible:\n{probe}");
+        assert!(probe.lines().any(|l| l.trim_end() == format!("siblings: {own}")), "only its own workspace:\n{probe}");
         // The token and records stay out of the public log; the manifest never holds credentials.
         let manifest = std::fs::read_to_string(batch.join("rollouts").join(own).join("harness_manifest.json")).unwrap();
         assert!(manifest.contains("\"credential_material\": \"never_recorded\""));

@@ -70,11 +70,14 @@ fn contains(path: &Path, needle: &str) -> bool {
     std::fs::read(path).is_ok_and(|b| b.windows(needle.len()).any(|w| w == needle.as_bytes()))
 }
 
-/// One `run` of T14 by `harness` against the scripted model; the rollout's record, directory and workspace.
+/// One `run` of T14 by `harness` against the scripted model; the rollout's record, directory and workspace (gone
+/// with the rollout's disk where the runner caps it), and the episode's token, read from the workspace while the CLI
+/// ran.
 struct Rollout {
     record: Value,
     dir: PathBuf,
     workspace: PathBuf,
+    token: Option<String>,
     batch: PathBuf,
     answers: Vec<Value>,
     _tmp: tempfile::TempDir,
@@ -87,6 +90,13 @@ fn run_t14(harness: &str, cli: &str) -> Rollout {
     let creds = model.credentials(tmp.path());
     let (batch, workspaces) = (tmp.path().join("batch"), tmp.path().join("workspaces"));
     let t0 = std::time::Instant::now();
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let watch = {
+        let (workspaces, done) = (workspaces.clone(), done.clone());
+        std::thread::spawn(move || {
+            common::episode_token_while_running(&workspaces, std::time::Duration::from_secs(900), || done.load(std::sync::atomic::Ordering::SeqCst))
+        })
+    };
     let out = Command::new(bin())
         .args(["run", "--experiment", "main_table", "--tasks", "T14", "--reps", "1", "--harness", harness, "--model", "scripted"])
         .args(["--wall-time-s", "300", "--credentials-file"])
@@ -98,6 +108,8 @@ fn run_t14(harness: &str, cli: &str) -> Rollout {
         .env("PATH", cli_path())
         .output()
         .expect("run libero-agent run");
+    done.store(true, std::sync::atomic::Ordering::SeqCst);
+    let token = watch.join().unwrap();
     eprintln!("run --harness {harness}: {:.1} s\n{}", t0.elapsed().as_secs_f64(), String::from_utf8_lossy(&out.stderr));
     let records = jsonl(&batch.join("rollouts.jsonl"));
     assert_eq!(records.len(), 1, "{records:?}");
@@ -110,7 +122,7 @@ fn run_t14(harness: &str, cli: &str) -> Rollout {
     assert!(out.status.success(), "run failed");
     let workspace = PathBuf::from(record["workspace"].as_str().unwrap());
     let answers = model.answered();
-    Rollout { record, dir, workspace, batch, answers, _tmp: tmp }
+    Rollout { record, dir, workspace, token, batch, answers, _tmp: tmp }
 }
 
 /// What every CLI's run must show: a valid outcome with the scripted steps, the whole script answered with
@@ -133,11 +145,14 @@ fn check_rollout(r: &Rollout) {
     let script: Vec<&str> = script.iter().map(String::as_str).chain(["text"]).collect();
     assert_eq!(answered, script, "the whole script, by the names the CLI offered: {:?}", r.answers);
 
+    // The workspace, where it outlives the rollout (a runner that caps no rollout): the key in none of its files.
+    // SAFETY: geteuid(2) has no preconditions.
+    if unsafe { libc::geteuid() } == 0 {
+        assert!(!r.workspace.exists(), "the workspace outlived the rollout's disk: {}", r.workspace.display());
+    }
     let api_key_at: Vec<_> = files_below(&r.batch).into_iter().chain(files_below(&r.workspace)).filter(|f| contains(f, API_KEY)).collect();
     assert!(api_key_at.is_empty(), "the API key leaked into {api_key_at:?}");
-    let token = std::fs::read_to_string(r.workspace.join(".libero/mcp.json")).unwrap();
-    let token: Value = serde_json::from_str(&token).unwrap();
-    let token = token["mcpServers"]["libero"]["headers"]["Authorization"].as_str().unwrap().trim_start_matches("Bearer ").to_owned();
+    let token = r.token.clone().expect("the episode's token, read from the workspace while the CLI ran");
     let logs = files_below(&r.dir).into_iter().filter(|f| f.parent() == Some(r.dir.as_path()));
     let token_at: Vec<_> = logs.chain([r.batch.join("rollouts.jsonl")]).filter(|f| contains(f, &token)).collect();
     assert!(token_at.is_empty(), "the episode token is in {token_at:?}");

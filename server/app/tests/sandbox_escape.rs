@@ -4,11 +4,15 @@
 //! read-only system, the binary and the grader's code read-write, mount, chmod, write the `libero-agent` binary,
 //! read `/etc/shadow`, make new namespaces to regain capabilities, ptrace and signal a host process, open raw
 //! sockets, reach a decoy service on the host's loopback (IPv4 and IPv6), PostgreSQL's port and other hosts, and
-//! tunnel through the runner's proxy to anything off its allow-list. Every attempt must be refused, the decoy must see
-//! no connection, and the agent must still reach exactly its two addresses: its episode's MCP endpoint (the
-//! reference agent then plays the episode to a valid outcome) and its model API (a scripted endpoint on the host's
-//! loopback, reached only through the runner's gateway, which records the request). The harness manifest records
-//! the sandbox's ids, capability sets and mounts as the agent's first process saw them.
+//! tunnel through the runner's proxy to anything off its allow-list; use the kernel's keyrings, io_uring, perf
+//! events, bpf and userfaultfd (issue 47: the seccomp allow-list refuses them); and, where the runner is root and
+//! caps each rollout, fork past the process cap, allocate past the memory cap and fill the workspace, /tmp and
+//! $HOME past the disk cap. Every attempt must be refused, the decoy must see no connection, and the agent must
+//! still reach exactly its two addresses: its episode's MCP endpoint (the reference agent then plays the episode to
+//! a valid outcome) and its model API (a scripted endpoint on the host's loopback, reached only through the
+//! runner's gateway, which records the request). The harness manifest records the sandbox's ids, capability sets
+//! and mounts as the agent's first process saw them, the caps and what the agent used of them. The workspace goes
+//! with the rollout's disk, so the red team's report is the line it printed on stdout (`command_stdout.log`).
 use std::io::{Read, Write};
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
@@ -70,6 +74,12 @@ struct Runner {
 }
 
 impl Runner {
+    /// Whether this runner caps each rollout (root: a cgroup, a uid and a size-capped disk per rollout).
+    fn caps(&self) -> bool {
+        // SAFETY: getuid(2) has no preconditions.
+        self.as_user.is_none() && unsafe { libc::getuid() } == 0
+    }
+
     fn command(&self) -> Command {
         let Some((uid, gid)) = self.as_user else { return Command::new(bin()) };
         let mut c = Command::new("setpriv");
@@ -80,20 +90,29 @@ impl Runner {
     }
 }
 
+/// The caps a root runner gives the red team's rollout: small, so the fork, memory and disk attacks run fast.
+const MAX_PROCESSES: u64 = 256;
+const MEMORY_BYTES: u64 = 512 << 20;
+const DISK_BYTES: u64 = 256 << 20;
+/// `--agent-uids`' default: the host uids a root runner's agents run as, one per rollout.
+const AGENT_UIDS: std::ops::RangeInclusive<u64> = 3_000_000..=3_065_535;
+
 fn run_batch(runner: &Runner, batch: &Path, workspaces: &Path, credentials: &Path, agent_cmd: &str) {
-    let mut child = runner
-        .command()
-        .args(["run", "--experiment", "main_table", "--harness", "command", "--model", "escape", "--tasks", "T14", "--reps", "1"])
+    let mut cmd = runner.command();
+    cmd.args(["run", "--experiment", "main_table", "--harness", "command", "--model", "escape", "--tasks", "T14", "--reps", "1"])
         .args(["--agent-cmd", agent_cmd, "--wall-time-s", "300", "--batch"])
         .arg(batch)
         .arg("--workspace-root")
         .arg(workspaces)
         .arg("--credentials-file")
-        .arg(credentials)
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("run libero-agent run");
+        .arg(credentials);
+    if runner.caps() {
+        cmd.args(["--agent-max-processes", &MAX_PROCESSES.to_string(), "--agent-memory", "512MiB", "--agent-disk", "256MiB"]);
+    } else {
+        // An ordinary user's runner cannot mount each rollout's disk nor switch the agent to a uid of its own.
+        cmd.arg("--unconfined-resources");
+    }
+    let mut child = cmd.stdout(Stdio::null()).stderr(Stdio::inherit()).spawn().expect("run libero-agent run");
     common::wait_success(&mut child, Duration::from_secs(600), "the batch");
 }
 
@@ -155,7 +174,9 @@ fn escape_attempt(dir: &Path, runner: &Runner) {
     let marker = format!("libero-escape-{}", std::process::id());
     // SAFETY: getuid(2) has no preconditions.
     let runner_uid = runner.as_user.map(|(u, _)| u).unwrap_or_else(|| unsafe { libc::getuid() });
-    let args = serde_json::json!({"decoy_port": decoy_port, "host_pid": std::process::id(), "runner_uid": runner_uid, "marker": marker});
+    let caps = runner.caps().then(|| serde_json::json!({"max_processes": MAX_PROCESSES, "memory_bytes": MEMORY_BYTES, "disk_bytes": DISK_BYTES}));
+    let args = serde_json::json!({"decoy_port": decoy_port, "host_pid": std::process::id(), "runner_uid": runner_uid, "marker": marker,
+        "model_api": format!("127.0.0.1:{model_port}"), "caps": caps});
     let script = std::fs::read_to_string(repo_root().join("tests/redteam/escape.py")).unwrap();
     let agent_cmd = format!(
         "python3 - {{libero_agent}} '{args}' <<'PY'\n{script}\nPY\nexec {{libero_agent}} agent --workspace {{workspace}}"
@@ -168,12 +189,26 @@ fn escape_attempt(dir: &Path, runner: &Runner) {
     let rollout = batch.join("rollouts/w1_t14_level3");
     let stderr = String::from_utf8_lossy(&std::fs::read(rollout.join("command_stderr.log")).unwrap_or_default()).into_owned();
     let ws = PathBuf::from(rec["workspace"].as_str().unwrap());
-    let report: Value = serde_json::from_slice(&std::fs::read(ws.join("escape.json")).unwrap_or_default())
-        .unwrap_or_else(|e| panic!("no escape report ({e}); the agent's stderr:\n{stderr}"));
+    let report = common::marked_line(&rollout.join("command_stdout.log"), "LIBERO-ESCAPE-REPORT ")
+        .unwrap_or_else(|| panic!("no escape report on the agent's stdout; its stderr:\n{stderr}"));
     let attempts = report["attempts"].as_array().unwrap();
-    assert!(attempts.len() >= 30, "{} attempts", attempts.len());
+    // 32 attacks everywhere, 8 raw syscalls on x86_64, 3 on the caps where the runner enforces them.
+    let expected = 32 + if std::env::consts::ARCH == "x86_64" { 8 } else { 0 } + if runner.caps() { 3 } else { 0 };
+    assert!(attempts.len() >= expected, "{} attempts, {expected} expected: {attempts:#?}", attempts.len());
     let let_through: Vec<&Value> = attempts.iter().filter(|a| a["refused"] != true).collect();
     assert!(let_through.is_empty(), "the sandbox let these through: {let_through:#?}");
+    let tried = |prefix: &str| attempts.iter().any(|a| a["attack"].as_str().is_some_and(|n| n.starts_with(prefix)));
+    if std::env::consts::ARCH == "x86_64" {
+        for attack in ["add_key into the user keyring", "add_key into the session keyring", "keyctl read of the user keyring",
+            "keyctl read of the session keyring", "io_uring_setup", "perf_event_open", "bpf(BPF_MAP_CREATE)", "userfaultfd"]
+        {
+            assert!(tried(attack), "{attack} was not tried: {attempts:#?}");
+        }
+    }
+    assert!(tried("CONNECT to the model API's own host"), "{attempts:#?}");
+    for attack in ["fork more than the cap", "allocate", "fill the workspace, /tmp and $HOME"] {
+        assert_eq!(tried(attack), runner.caps(), "{attack}: tried exactly where the runner caps the rollout: {attempts:#?}");
+    }
     for (i, h) in hits.iter().enumerate() {
         assert_eq!(h.load(Ordering::SeqCst), 0, "the host's decoy {i} was reached");
     }
@@ -187,7 +222,7 @@ fn escape_attempt(dir: &Path, runner: &Runner) {
     let records = std::fs::read_to_string(rollout.join("sandbox/model_api.jsonl")).unwrap();
     let records: Vec<Value> = records.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert!(records.iter().any(|r| r["status"] == 200 && r["path"].as_str().is_some_and(|p| p.ends_with("/models"))), "{records:#?}");
-    assert!(records.iter().filter(|r| r["status"] == 403).count() >= 3, "the refused tunnels are recorded: {records:#?}");
+    assert!(records.iter().filter(|r| r["status"] == 403).count() >= 4, "the refused tunnels are recorded: {records:#?}");
     assert!(!std::fs::read_to_string(rollout.join("sandbox/model_api.jsonl")).unwrap().contains("sk-escape-test-key"), "no key in the records");
 
     // The manifest: the sandbox as the agent's first process saw it.
@@ -202,14 +237,42 @@ fn escape_attempt(dir: &Path, runner: &Runner) {
     assert_eq!(sr["seccomp"], "2", "a seccomp filter: {sr}");
     assert_eq!(sr["network_interfaces"], serde_json::json!(["lo"]), "{sr}");
     assert!(sr["mounts"].as_array().is_some_and(|m| m.iter().any(|x| x["mountpoint"] == "/usr" && x["options"].as_str().unwrap().starts_with("ro"))), "{sr}");
-    assert!(manifest["network"]["proxy_allow_list"].as_array().is_some_and(|a| a == &[Value::from(format!("127.0.0.1:{model_port}"))]), "{manifest}");
-    assert_eq!(report["uid"], if runner_uid == 0 { 65534 } else { runner_uid }, "{report}");
+    // The model API is reached through the gateway's base URL alone (metered, its routes only), never a tunnel.
+    assert!(manifest["network"]["proxy_allow_list"].as_array().is_some_and(|a| a.is_empty()), "{manifest}");
+    assert_eq!(manifest["network"]["model_api"]["upstream"], format!("http://127.0.0.1:{model_port}/v1"), "{manifest}");
+    assert!(manifest["network"]["model_api"]["routes"].as_array().is_some_and(|r| r.iter().any(|x| x == "GET /v1/models")), "{manifest}");
+    assert!(manifest["sandbox"]["seccomp"].is_object(), "the seccomp policy is described: {manifest}");
+    let uid = report["uid"].as_u64().expect("the agent's uid");
     if runner_uid == 0 {
-        // As root: the agent is an unprivileged host user, and what it wrote is that user's.
-        assert_eq!(sr["uid"][0], "65534", "{sr}");
-        assert_eq!(report["uid"], 65534);
-        use std::os::unix::fs::MetadataExt;
-        assert_eq!(std::fs::metadata(ws.join("escape.json")).unwrap().uid(), 65534);
-        assert_eq!(manifest["sandbox"]["identity"]["agent_uid"], 65534, "{manifest}");
+        // As root: the agent is a host uid of the rollout's own, one no host process runs as.
+        assert!(AGENT_UIDS.contains(&uid), "the agent's uid {uid} is not one of --agent-uids' {AGENT_UIDS:?}: {report}");
+        assert_eq!(sr["uid"][0], uid.to_string(), "{sr}");
+        assert_eq!(manifest["sandbox"]["identity"]["agent_uid"], uid, "{manifest}");
+        assert_eq!(manifest["sandbox"]["identity"]["agent_gid"], report["gid"], "{manifest}");
+    } else {
+        assert_eq!(uid, u64::from(runner_uid), "{report}");
+    }
+
+    // The caps: in the manifest and batch.json where the runner enforces them, and what the agent met of them.
+    let batch_doc: Value = serde_json::from_slice(&std::fs::read(batch.join("batch.json")).unwrap()).unwrap();
+    if runner.caps() {
+        let caps = &manifest["sandbox"]["resources"];
+        assert_eq!((caps["max_processes"].as_u64(), caps["memory_bytes"].as_u64(), caps["disk_bytes"].as_u64()), (Some(MAX_PROCESSES), Some(MEMORY_BYTES), Some(DISK_BYTES)), "{manifest}");
+        for cap in ["max_processes", "memory_bytes", "disk_bytes"] {
+            assert_eq!(batch_doc["sandbox"]["resources"][cap], caps[cap], "batch.json names the same caps: {batch_doc}");
+        }
+        let used = &manifest["resources_used"];
+        assert!(used["forks_refused"].as_u64().is_some_and(|n| n >= 1), "the fork flood met the cap: {used}");
+        assert!(
+            used["oom_kills"].as_u64().is_some_and(|n| n >= 1) || used["memory_limit_hits"].as_u64().is_some_and(|n| n >= 1),
+            "the allocation met the cap: {used}"
+        );
+        assert!(used["memory_peak_bytes"].as_u64().is_some_and(|b| b <= MEMORY_BYTES), "{used}");
+        assert!(used["processes_peak"].as_u64().is_some_and(|n| n <= MAX_PROCESSES), "{used}");
+        // The rollout's disk is gone with its workspace, session home and /tmp; its logs were kept.
+        assert!(!ws.exists() && !ws.parent().unwrap().exists(), "the rollout's disk outlived it: {}", ws.display());
+        assert!(!std::fs::read_to_string("/proc/self/mounts").unwrap().contains(&ws.parent().unwrap().display().to_string()), "still mounted");
+    } else {
+        assert!(manifest["sandbox"]["resources"].is_null() && batch_doc["sandbox"]["resources"].is_null(), "unconfined: no caps claimed: {manifest}");
     }
 }

@@ -4,9 +4,11 @@
 //!   episode's server, so the URL in the agent's configuration is unchanged (a server named by host name is mapped
 //!   to loopback in the sandbox's `/etc/hosts`);
 //! - the model API at `127.0.0.1:`[`MODEL_API_PORT`], relayed to the runner's gateway ([`crate::netgate`]), which
-//!   reverse-proxies the harness's API base to the real upstream and, as an HTTP(S) proxy, tunnels only to the
-//!   hosts of an allow-list taken from the harness's configuration. It records every request (time, bytes, the
-//!   model's reported token usage) in the rollout's private directory.
+//!   reverse-proxies the harness's own model-API endpoints ([`NetPlan::routes`]) below its API base to the real
+//!   upstream and, as an HTTP(S) proxy, tunnels only to the hosts of an allow-list taken from the harness's
+//!   launch (the npm registry for `npx` launches; never the model API itself, whose traffic goes through the base
+//!   URL, metered). It records every request (time, bytes, the model's reported token usage) in the rollout's
+//!   private directory.
 //!
 //! Every other address, on loopback or anywhere, does not exist for the agent.
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, ToSocketAddrs};
@@ -54,7 +56,11 @@ pub struct NetPlan {
     pub model_port: u16,
     /// The real API base the gateway forwards to (the credentials', else the harness's default).
     pub upstream: Option<url::Url>,
-    /// host:port pairs the gateway's proxy tunnels to.
+    /// The harness's model-API endpoints, the only origin-form requests the gateway passes on upstream
+    /// ([`Harness::model_api_endpoints`] below the upstream's path); empty without an upstream.
+    pub routes: Vec<netgate::Route>,
+    /// host:port pairs the gateway's proxy tunnels to. Never the upstream: every harness reaches its model API
+    /// through the gateway's base URL, and a tunnel there would pass any endpoint on, unmetered.
     pub allowed: Vec<(String, u16)>,
 }
 
@@ -87,16 +93,19 @@ impl NetPlan {
             Some(b) => Some(url::Url::parse(&b).with_context(|| format!("the API base URL {b}"))?),
             None => None,
         };
+        let routes = match &upstream {
+            Some(u) => harness
+                .model_api_endpoints(u.path())
+                .into_iter()
+                .filter_map(|(method, path)| Some(netgate::Route::new(http::Method::from_bytes(method.as_bytes()).ok()?, path)))
+                .collect(),
+            None => Vec::new(),
+        };
         let mut allowed = Vec::new();
-        if let Some(u) = &upstream {
-            if let (Some(h), Some(p)) = (u.host_str(), u.port_or_known_default()) {
-                allowed.push((h.trim_start_matches('[').trim_end_matches(']').to_owned(), p));
-            }
-        }
         if via_npx {
             allowed.push((NPM_REGISTRY.0.to_owned(), NPM_REGISTRY.1));
         }
-        Ok(Self { mcp_port, mcp_target, mcp_host_name, model_port, upstream, allowed })
+        Ok(Self { mcp_port, mcp_target, mcp_host_name, model_port, upstream, routes, allowed })
     }
 
     /// The model API base as the agent sees it: the gateway's loopback address with the upstream's path.
@@ -160,7 +169,7 @@ impl NetPlan {
             "mcp": {"inside": [format!("127.0.0.1:{}", self.mcp_port), format!("[::1]:{}", self.mcp_port)], "to": self.mcp_target.to_string(),
                 "host_name_on_loopback": self.mcp_host_name},
             "model_api": {"inside": format!("127.0.0.1:{}", self.model_port), "upstream": self.upstream.as_ref().map(|u| u.as_str()),
-                "agent_base": self.agent_api_base()},
+                "agent_base": self.agent_api_base(), "routes": self.routes.iter().map(ToString::to_string).collect::<Vec<_>>()},
             "proxy_allow_list": self.allowed.iter().map(|(h, p)| format!("{h}:{p}")).collect::<Vec<_>>(),
             "everything_else": "unreachable (the namespace has only lo)",
         })
@@ -233,7 +242,13 @@ pub fn contain(
     let records = private.join("model_api.jsonl");
     let gateway = netgate::start(
         bind("model.sock")?,
-        netgate::GatewayConfig { upstream: plan.upstream.clone(), allowed: plan.allowed.clone(), records: records.clone() },
+        netgate::GatewayConfig {
+            upstream: plan.upstream.clone(),
+            routes: plan.routes.clone(),
+            allowed: plan.allowed.clone(),
+            records: records.clone(),
+            max_records: netgate::MAX_RECORDS,
+        },
     )
     .context("cannot start the model API gateway")?;
     let hosts = private.join("hosts");
@@ -438,7 +453,10 @@ mod tests {
         assert_eq!(p.agent_api_base().as_deref(), Some("http://127.0.0.1:18790/v1"));
         assert_eq!(p.agent_credentials(&c).openai_base().as_deref(), Some("http://127.0.0.1:18790/v1"));
         assert_eq!(p.agent_credentials(&c).api_key, "sk-test-000000");
-        assert_eq!(p.allowed, vec![("api.example.com".to_owned(), 443)]);
+        assert!(p.allowed.is_empty(), "the model API is reached through the base URL, never a tunnel: {:?}", p.allowed);
+        let routes: Vec<String> = p.routes.iter().map(ToString::to_string).collect();
+        assert_eq!(routes, ["POST /v1/responses", "GET /v1/models"], "Codex's endpoints only");
+        assert_eq!(p.describe()["model_api"]["routes"], serde_json::json!(routes));
         let env = p.proxy_env();
         assert!(env.contains(&("HTTPS_PROXY".into(), "http://127.0.0.1:18790".into())));
         assert!(env.iter().any(|(k, v)| k == "NO_PROXY" && v.contains("127.0.0.1")));
@@ -446,11 +464,19 @@ mod tests {
         let q = NetPlan::new(Harness::ClaudeCode, "http://localhost:18790/mcp/x", Some(&creds(None)), true).unwrap();
         assert_eq!(q.model_port, 18791, "never the MCP endpoint's port");
         assert_eq!(q.agent_api_base().as_deref(), Some("http://127.0.0.1:18791"));
-        assert_eq!(q.allowed, vec![("api.anthropic.com".to_owned(), 443), ("registry.npmjs.org".to_owned(), 443)]);
+        assert_eq!(q.allowed, vec![("registry.npmjs.org".to_owned(), 443)], "the npm registry for npx, not the model API");
+        let routes: Vec<String> = q.routes.iter().map(ToString::to_string).collect();
+        assert_eq!(routes, ["POST /v1/messages", "POST /v1/messages/count_tokens", "GET /v1/models"]);
         assert!(q.mcp_host_name.is_none(), "localhost is loopback already");
         assert!(NetPlan::new(Harness::Command, "http://10.1.2.3:8080/mcp/x", None, false).is_err(), "a remote IP cannot be mapped");
         let none = NetPlan::new(Harness::Command, "http://127.0.0.1:8080/mcp/x", None, false).unwrap();
-        assert!(none.upstream.is_none() && none.allowed.is_empty() && none.agent_api_base().is_none());
+        assert!(none.upstream.is_none() && none.allowed.is_empty() && none.routes.is_empty() && none.agent_api_base().is_none());
+        // A command agent with credentials: every API's endpoints below its base (the escape test's `/models` too).
+        let cmd = NetPlan::new(Harness::Command, "http://127.0.0.1:8080/mcp/x", Some(&creds(Some("http://127.0.0.1:9/v1"))), false).unwrap();
+        let routes: Vec<String> = cmd.routes.iter().map(ToString::to_string).collect();
+        for r in ["POST /v1/chat/completions", "POST /v1/responses", "POST /v1/messages", "GET /v1/models"] {
+            assert!(routes.contains(&r.to_owned()), "{r}: {routes:?}");
+        }
     }
 
     #[test]

@@ -87,6 +87,77 @@ impl Harness {
             _ => "openai_chat",
         }
     }
+
+    /// The wire APIs the harness's CLI calls its model with (what the gateway passes on): Codex the Responses API,
+    /// Claude Code Anthropic's Messages, the others OpenAI-compatible chat completions; a `command` agent may
+    /// speak any of them.
+    pub fn model_apis(self) -> &'static [ModelApi] {
+        match self {
+            Harness::Codex => &[ModelApi::OpenaiResponses],
+            Harness::ClaudeCode => &[ModelApi::AnthropicMessages],
+            Harness::KimiCode | Harness::QwenCode | Harness::Deepseek => &[ModelApi::OpenaiChat],
+            Harness::Command => &[ModelApi::OpenaiChat, ModelApi::OpenaiResponses, ModelApi::AnthropicMessages],
+        }
+    }
+
+    /// The model-API endpoints the harness's CLI calls, `(method, path)`, given the path of the API base URL it
+    /// is handed (the gateway's, which has the upstream's path): each API's endpoints below the base the CLI
+    /// makes of it ([`ModelApi::base_path`]). A `command` agent gets them below the base as given too, since it
+    /// may use that unchanged. Nothing else (no files, batches or stored objects: memory that would outlive a
+    /// rollout).
+    pub fn model_api_endpoints(self, api_base_path: &str) -> Vec<(&'static str, String)> {
+        let mut out: Vec<(&'static str, String)> = Vec::new();
+        for api in self.model_apis() {
+            let mut bases = vec![api.base_path(api_base_path)];
+            if self == Harness::Command {
+                bases.push(api_base_path.trim_end_matches('/').to_owned());
+            }
+            for base in bases {
+                for (method, below) in api.endpoints() {
+                    let e = (*method, format!("{base}{below}"));
+                    if !out.contains(&e) {
+                        out.push(e);
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// A model API's wire protocol, as a client calls it below its API base.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelApi {
+    /// `POST {base}/chat/completions` (Qwen Code, Kimi Code, DeepSeek's dsh).
+    OpenaiChat,
+    /// `POST {base}/responses` (Codex).
+    OpenaiResponses,
+    /// `POST {base}/messages` and `/messages/count_tokens` (Claude Code).
+    AnthropicMessages,
+}
+
+impl ModelApi {
+    /// `(method, path below the base)` of the calls its clients make; `GET /models` for the model list the CLIs
+    /// read at start.
+    pub fn endpoints(self) -> &'static [(&'static str, &'static str)] {
+        match self {
+            ModelApi::OpenaiChat => &[("POST", "/chat/completions"), ("GET", "/models")],
+            ModelApi::OpenaiResponses => &[("POST", "/responses"), ("GET", "/models")],
+            ModelApi::AnthropicMessages => &[("POST", "/messages"), ("POST", "/messages/count_tokens"), ("GET", "/models")],
+        }
+    }
+
+    /// The path a client's endpoints hang below, made from the path of the API base URL it is handed as the
+    /// launches make it: OpenAI clients get [`Credentials::openai_base`] (`/v1` appended if missing), Anthropic's
+    /// get [`Credentials::anthropic_base`] (a trailing `/v1` removed) and add `/v1` themselves.
+    pub fn base_path(self, api_base_path: &str) -> String {
+        let b = api_base_path.trim_end_matches('/');
+        match self {
+            ModelApi::OpenaiChat | ModelApi::OpenaiResponses if b.ends_with("/v1") => b.to_owned(),
+            ModelApi::OpenaiChat | ModelApi::OpenaiResponses => format!("{b}/v1"),
+            ModelApi::AnthropicMessages => format!("{}/v1", b.trim_end_matches("/v1")),
+        }
+    }
 }
 
 /// Whether `harness`'s pinned npm CLI is installed on PATH at exactly the pinned version. Then the runner runs it
@@ -494,6 +565,31 @@ mod tests {
         let cfg: Value = serde_json::from_str(&claude.files[0].1).unwrap();
         assert_eq!(cfg["mcpServers"]["libero"]["headers"]["Authorization"], "Bearer tok123");
         assert_eq!(claude.files[0].2, 0o600);
+    }
+
+    /// Each CLI's model-API endpoints below the base it makes of the gateway's (the real CLIs: Codex's Responses
+    /// API, Claude Code's Messages and token counting, the others' chat completions), and nothing else.
+    #[test]
+    fn each_harness_calls_its_own_model_api_endpoints_only() {
+        let e = |h: Harness, base: &str| h.model_api_endpoints(base).into_iter().map(|(m, p)| format!("{m} {p}")).collect::<Vec<_>>();
+        assert_eq!(e(Harness::Codex, "/v1"), ["POST /v1/responses", "GET /v1/models"]);
+        assert_eq!(e(Harness::Codex, ""), ["POST /v1/responses", "GET /v1/models"], "openai_base appends /v1");
+        assert_eq!(e(Harness::QwenCode, "/api/v1/"), ["POST /api/v1/chat/completions", "GET /api/v1/models"]);
+        assert_eq!(e(Harness::KimiCode, "/coding"), ["POST /coding/v1/chat/completions", "GET /coding/v1/models"]);
+        assert_eq!(e(Harness::Deepseek, "/"), ["POST /v1/chat/completions", "GET /v1/models"]);
+        let claude = ["POST /v1/messages", "POST /v1/messages/count_tokens", "GET /v1/models"];
+        assert_eq!(e(Harness::ClaudeCode, "/v1"), claude, "anthropic_base drops /v1, the CLI adds it");
+        assert_eq!(e(Harness::ClaudeCode, ""), claude);
+        // The same paths the launches' base URLs lead to.
+        let c = Credentials { api_base: Some("http://127.0.0.1:18790/api".into()), api_key: "k".into(), source: "/c".into() };
+        assert!(e(Harness::Codex, "/api").contains(&format!("POST {}/responses", c.openai_base().unwrap().trim_start_matches("http://127.0.0.1:18790"))));
+        assert!(e(Harness::ClaudeCode, "/api").contains(&format!("POST {}/v1/messages", c.anthropic_base().unwrap().trim_start_matches("http://127.0.0.1:18790"))));
+        // A command agent: every API, below the base as given and as each CLI would make it.
+        let cmd = e(Harness::Command, "/v1");
+        assert_eq!(cmd, ["POST /v1/chat/completions", "GET /v1/models", "POST /v1/responses", "POST /v1/messages", "POST /v1/messages/count_tokens"]);
+        let bare = e(Harness::Command, "");
+        assert!(bare.contains(&"POST /chat/completions".to_owned()) && bare.contains(&"POST /v1/chat/completions".to_owned()), "{bare:?}");
+        assert!(!cmd.iter().chain(&bare).any(|r| r.contains("files") || r.contains("batches")));
     }
 
     #[test]

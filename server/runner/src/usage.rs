@@ -27,6 +27,10 @@ pub struct Usage {
     /// What the harness printed on stdout when the gateway's figures were taken instead, for comparison.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub harness_stdout: Option<StdoutFigures>,
+    /// Set when the gateway saw model traffic it could not meter (bytes through a tunnel or a forward, a response
+    /// whose usage could not be read): the figures are then a lower bound. Absent: complete, or not known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub incomplete: Option<String>,
 }
 
 /// The runner's model-API gateway records (`sandbox/model_api.jsonl`), which the agent cannot write.
@@ -71,6 +75,17 @@ impl Usage {
 /// (runs without the sandbox), else nothing. Lines the agent prints into its CLI's stdout thus never count
 /// when the gateway saw the traffic.
 pub fn choose(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> Usage {
+    let mut u = choose_source(stdout, gateway);
+    if let Some(g) = gateway.filter(|g| !g.complete) {
+        u.incomplete = Some(format!(
+            "the gateway could not meter all model traffic: {} bytes through tunnels or forwards, {} responses without readable usage, {} unreadable record lines",
+            g.tunnel_bytes, g.unmetered, g.unreadable_lines
+        ));
+    }
+    u
+}
+
+fn choose_source(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> Usage {
     match gateway {
         Some(g) if g.responses_with_usage > 0 => {
             let mut u = Usage::from_gateway(g);
@@ -344,6 +359,18 @@ fn codex_turn_record(v: &Value) -> Option<Record> {
 
 #[cfg(test)]
 mod tests {
+
+    /// Tokens that went through a tunnel were never counted: the chosen usage says it is a lower bound.
+    #[test]
+    fn usage_is_marked_incomplete_when_a_tunnel_carried_bytes() {
+        let g = crate::netgate::UsageSummary { requests: 2, responses_with_usage: 1, input_tokens: 10, output_tokens: 5, total_tokens: 15, ..Default::default() };
+        assert_eq!(choose(Usage::default(), Some(&g)).incomplete, None, "a complete summary");
+        let tunnelled = crate::netgate::UsageSummary { tunnel_bytes: 4096, complete: false, ..g };
+        let u = choose(Usage::default(), Some(&tunnelled));
+        assert_eq!(u.total_tokens, Some(15));
+        assert!(u.incomplete.as_deref().is_some_and(|w| w.contains("4096 bytes through tunnels")), "{u:?}");
+    }
+
     use super::*;
 
     #[test]

@@ -313,3 +313,47 @@ pub fn inline_python_agent(script: &str, args: &str) -> String {
     let agent = std::fs::read_to_string(dir.join(script)).unwrap();
     format!("python3 - {args} <<'PY'\n{client}\n{agent}\nPY")
 }
+
+/// The JSON of the last line of `log` that starts with `marker` and parses (an agent's report, printed on its
+/// stdout: a rollout's workspace goes with its disk when it ends, the runner keeps the scrubbed stdout as
+/// `<batch>/rollouts/<rollout id>/command_stdout.log`). A line cut short by a process killed mid-write does not
+/// parse and is passed over.
+pub fn marked_line(log: &Path, marker: &str) -> Option<Value> {
+    let text = std::fs::read(log).ok()?;
+    String::from_utf8_lossy(&text)
+        .lines()
+        .rev()
+        .filter_map(|l| l.strip_prefix(marker))
+        .find_map(|rest| serde_json::from_str(rest.trim()).ok())
+}
+
+/// Every line of `log` that starts with `marker`, without it.
+pub fn marked_lines(log: &Path, marker: &str) -> Vec<String> {
+    let text = std::fs::read(log).unwrap_or_default();
+    String::from_utf8_lossy(&text).lines().filter_map(|l| l.strip_prefix(marker)).map(str::to_owned).collect()
+}
+
+/// The episode token of the one rollout running under `workspace_root`, read from its workspace's
+/// `.libero/mcp.json` while the agent runs (the workspace goes with the rollout's disk when it ends): waits up to
+/// `limit` for it to appear (`<root>/<rollout id>/workspace/`, or `<root>/<rollout id>/` where the runner caps no
+/// rollout), or until `done()` says the run is over.
+pub fn episode_token_while_running(workspace_root: &Path, limit: Duration, mut done: impl FnMut() -> bool) -> Option<String> {
+    let t = std::time::Instant::now();
+    while t.elapsed() < limit {
+        let over = done();
+        for rollout in std::fs::read_dir(workspace_root).into_iter().flatten().flatten() {
+            for ws in [rollout.path().join("workspace"), rollout.path()] {
+                let Ok(text) = std::fs::read_to_string(ws.join(".libero/mcp.json")) else { continue };
+                let Ok(cfg) = serde_json::from_str::<Value>(&text) else { continue };
+                if let Some(auth) = cfg["mcpServers"]["libero"]["headers"]["Authorization"].as_str() {
+                    return Some(auth.trim_start_matches("Bearer ").to_owned());
+                }
+            }
+        }
+        if over {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    None
+}
