@@ -270,3 +270,51 @@ fn an_agent_whose_model_api_answers_503_before_it_exits_is_invalid() {
     let records = gateway_records(tmp.path(), "provider-503");
     assert!(records.iter().any(|r| r["status"] == 503 && r["cause"] == "upstream"), "{records:#?}");
 }
+
+/// A 30 s flood of model-API requests the gateway refuses (the agent's own, from inside the sandbox) leaves the
+/// gateway's records under 32 MiB (full records for the first 10,000, counters after) and the episode's transcript
+/// still showing what the agent printed after the flood, beside a count of what was not shown; the episode is
+/// then played to a valid outcome, and the flood made nothing INVALID.
+#[test]
+fn a_request_flood_leaves_bounded_records_and_a_transcript_that_still_shows_the_agent_s_later_lines() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flood = r#"import os, socket, time
+host, port = os.environ["HTTPS_PROXY"][len("http://"):].rsplit(":", 1)
+end, n = time.time() + 30, 0
+while time.time() < end:
+    try:
+        s = socket.create_connection((host, int(port)), timeout=5)
+        s.sendall(b"GET /v1/files HTTP/1.1\r\nHost: api\r\n\r\n")
+        s.recv(256)
+        s.close()
+        n += 1
+    except OSError:
+        pass
+print("LIBERO-FLOOD %d" % n, flush=True)
+print("agent line after the flood", flush=True)
+"#;
+    let agent = format!("python3 - <<'PY'\n{flood}PY\nexec {{libero_agent}} agent --workspace {{workspace}}");
+    let (rec, ok, err) = rollout(tmp.path(), "flood", &agent, None);
+    assert!(ok, "{err}");
+    assert!(rec["outcome"] == "SUCCESS" || rec["outcome"] == "FAIL", "{rec}\n{err}");
+    assert_eq!(rec["result_status"], "finished", "{rec}");
+    let rollout_dir = tmp.path().join("flood/rollouts/w1_t14_level3");
+    let stdout = std::fs::read_to_string(rollout_dir.join("command_stdout.log")).unwrap();
+    let sent: u64 = stdout.lines().find_map(|l| l.strip_prefix("LIBERO-FLOOD ")).and_then(|n| n.trim().parse().ok()).expect("the flood's count");
+    assert!(sent > 10_000, "the flood must pass the record cap to prove anything: {sent} requests");
+    let records = rollout_dir.join("sandbox/model_api.jsonl");
+    let size = std::fs::metadata(&records).unwrap().len();
+    assert!(size < 32 << 20, "the gateway's records are {size} bytes after {sent} requests");
+    let text = std::fs::read_to_string(&records).unwrap();
+    let overflow: Value = text.lines().filter_map(|l| serde_json::from_str::<Value>(l).ok()).find(|v| v["kind"] == "overflow").expect("the counters line");
+    let counted = text.lines().count() as u64 - 1 + overflow["overflowed"].as_u64().unwrap_or(0);
+    assert!(counted >= sent, "every request counted: {counted} of {sent}; {overflow}");
+    let manifest: Value = serde_json::from_slice(&std::fs::read(rollout_dir.join("harness_manifest.json")).unwrap()).unwrap();
+    assert!(manifest["model_api"]["requests"].as_u64().is_some_and(|r| r >= sent), "{}", manifest["model_api"]);
+    let transcript = PathBuf::from(rec["run_dir"].as_str().unwrap()).join("agent_events.jsonl");
+    let events = std::fs::read_to_string(&transcript).unwrap();
+    assert!(events.len() <= 16 << 20, "{} bytes", events.len());
+    eprintln!("flood: {sent} requests in 30 s; records {size} bytes; transcript {} bytes", events.len());
+    assert!(events.contains("agent line after the flood"), "the agent's later line is in the transcript");
+    assert!(events.contains("not shown") || events.contains("overflow") || events.contains("quota"), "the hidden requests are counted");
+}
