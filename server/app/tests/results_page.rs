@@ -270,9 +270,13 @@ fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() 
     let t3 = table("table-3");
     assert!(t3.contains("<td>None</td><td>— (0/5)</td><td>0.0 (1/5)</td><td>—</td><td>main</td>"), "{t3}");
     assert!(t3.contains("<td>Video</td><td>— (0/5)</td><td>100.0 (1/5)</td><td>—</td><td>ctx</td>"), "{t3}");
-    // Table 4 from the T28 records: 4 opportunities, 3 reached, 1 success, both mechanism stages.
+    // Table 4 from the T28 records: 4 opportunities; reached 2 (the first rollout's latch, and its door once the latch
+    // was open; the second rollout shows no evidence of touching either), 1 success, both mechanism stages; the door's
+    // failure is local execution.
     let t4 = table("table-4");
-    assert!(t4.contains("<td>2</td><td>4</td><td>3/4 = 75.0%</td><td>1/4 = 25.0%</td><td>—</td><td>1/3 = 33.3 [6.1, 79.2]</td>"), "{t4}");
+    assert!(t4.contains("<td>2/4 = 50.0%</td><td>1/4 = 25.0%</td><td>—</td><td>1/2 = 50.0%</td><td>1/1 = 100.0%</td><td>0/1 = 0.0%</td>"), "{t4}");
+    let t4x = table("table-4-extension");
+    assert!(t4x.contains("<td>2</td><td>4</td><td>2/4 = 50.0%</td><td>1/4 = 25.0%</td><td>—</td><td>1/2 = 50.0 [9.5, 90.5]</td>"), "{t4x}");
     // Figure 3 from the T16 records: SCR 40 opened, SCR 0 not; and its two plots, drawn inline.
     let f3 = table("figure-3");
     // (the T11 rollouts have no run directory: counted as without record)
@@ -287,7 +291,7 @@ fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() 
     let mut args: Vec<&str> = vec!["report", "--format", "json", "--reps", "2"];
     args.extend(dirs.iter().map(String::as_str));
     let report: Value = serde_json::from_slice(&libero(&args).stdout).unwrap();
-    for key in ["observation_ablation", "demonstration_ablation", "stage_diagnosis", "sustained_contact", "appendix_e"] {
+    for key in ["observation_ablation", "demonstration_ablation", "stage_diagnosis", "stage_diagnosis_extension", "sustained_contact", "appendix_e"] {
         assert_eq!(api["across_batches"][key], report[key], "{key}: the page and `report` disagree");
     }
 }

@@ -20,7 +20,9 @@ use serde_json::{Value, json};
 use libero_runner::batch::{LoadedBatch, RolloutRecord, load_batch};
 use libero_runner::report::tables::{DisplayTable, TableChoice, display_tables, paper_tables};
 use libero_runner::report::tokens::{self, RolloutTokens, TokenSummary};
-use libero_runner::report::{Row, coverage, default_reps, pct, pool_rows, report_json, row_records, rows, suite_records, svg, toolbox_text, wilson};
+use libero_runner::report::{
+    Row, coverage, default_reps, pct, pool_rows, report_json, row_records, rows, suite_records, svg, time_text, toolbox_text, wilson,
+};
 
 use crate::common::page;
 
@@ -194,7 +196,7 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
     json!({"ok": true, "schema_version": "libero_agent.results.v1", "available": names, "batches": list,
         "across_batches": {"reps": reps, "observation_ablation": across["observation_ablation"],
             "demonstration_ablation": across["demonstration_ablation"], "stage_diagnosis": across["stage_diagnosis"],
-            "sustained_contact": across["sustained_contact"], "appendix_e": across["appendix_e"]}})
+            "stage_diagnosis_extension": across["stage_diagnosis_extension"], "sustained_contact": across["sustained_contact"], "appendix_e": across["appendix_e"]}})
 }
 
 // ------------------------------------------------------------------------------------------- page view
@@ -418,7 +420,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                     None => format!("≥ {:.1}", s.score_lower_bound),
                 },
                 score_is_bound: s.score.is_none(),
-                time: s.avg_wall_time_min.map(|m| format!("{m:.1} min")).unwrap_or_else(|| "—".into()),
+                time: time_text(s.avg_wall_time_min, s.averaged_invalid),
                 tokens: TokenSummary::of(row_records(std::slice::from_ref(b), &r.agent, r.condition)).text(),
                 ordinary: Split::ALL
                     .iter()
@@ -562,7 +564,7 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
                 stable_sc: pct(s.stable_stage_completion),
                 mean_sc: pct(s.mean_stage_completion),
                 ordinary: wilson(&s.ordinary),
-                time: s.avg_wall_time_min.map(|m| format!("{m:.1} min")).unwrap_or_else(|| "—".into()),
+                time: time_text(s.avg_wall_time_min, s.averaged_invalid),
                 tokens: TokenSummary::of(suite_records(std::slice::from_ref(b), &libero_runner::batch::agent_of(b), &s.suite)).text(),
             });
         }

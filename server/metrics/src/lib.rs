@@ -8,8 +8,10 @@
 //! * ordinary success rates (SUCCESS / valid rollouts) with 95 % Wilson intervals, kept beside the stable
 //!   numbers, and average episode time and tokens.
 //!
-//! INVALID and INTERRUPTED rollouts are excluded from every denominator (§4.8); a task whose valid rollouts
-//! number fewer than `reps` has no stable value and is listed as incomplete rather than guessed.
+//! INVALID and INTERRUPTED rollouts are excluded from every rate's denominator (§4.8); a task whose valid rollouts
+//! number fewer than `reps` has no stable value and is listed as incomplete rather than guessed. Time, tokens and
+//! steps are averaged over every episode, INVALID ones included, as the paper averages over all episodes of a table
+//! (only INTERRUPTED rollouts, cut off by a stopped batch, are left out); how many INVALID ones are in is reported.
 //!
 //! The paper's other tables and its figure: the ablations (Tables 2 and 3, [`ablation`]), the stage-level diagnosis
 //! (Table 4, [`diagnosis`]) and the sustained-contact ratio of opening operations (Figure 3, [`contact`]).
@@ -24,7 +26,10 @@ mod pool;
 mod wilson;
 pub use ablation::{AblationKind, AblationRow};
 pub use contact::{ContactSummary, OpeningOperation, ScrBin, ScrBinSummary, pearson, summarize_contact};
-pub use diagnosis::{FailureMode, StageDiagnosis, StageOpportunity, StageType, TypeExecution, diagnose};
+pub use diagnosis::{
+    ExecutionRate, FailureMode, LabelSource, PaperStageDiagnosis, StageAnnotation, StageAnnotations, StageDiagnosis, StageEvidence,
+    StageKey, StageLabel, StageOpportunity, StageType, TypeExecution, diagnose, diagnose_paper, in_paper_table4,
+};
 pub use pool::{PoolRollout, PoolSuiteSummary, PoolSummary, PoolTaskSummary, summarize_pool};
 pub use wilson::{Proportion, wilson_interval};
 
@@ -194,8 +199,12 @@ impl Trial for Rollout {
 pub struct StableCounts {
     pub valid_rollouts: usize,
     pub excluded_rollouts: usize,
-    /// Successes among all valid rollouts (the per-task "x out of 3" of the paper).
+    /// Successes among all valid rollouts.
     pub successes: usize,
+    /// Successes among the first `reps` valid rollouts (the per-task "x/3" of the paper's Appendix E); `None` with
+    /// fewer than `reps` valid rollouts.
+    #[serde(default)]
+    pub stable_successes: Option<usize>,
     /// All of the first `reps` valid rollouts succeeded; `None` with fewer than `reps` valid rollouts.
     pub stable_success: Option<bool>,
     /// Minimum of `c / K` over the first `reps` valid rollouts.
@@ -217,6 +226,7 @@ pub fn stable_counts<T: Trial>(rollouts: &[&T], reps: usize) -> StableCounts {
         valid_rollouts: valid.len(),
         excluded_rollouts: rollouts.len() - valid.len(),
         successes,
+        stable_successes: used.map(|u| u.iter().filter(|r| r.outcome() == Outcome::Success).count()),
         stable_success: used.map(|u| u.iter().all(|r| r.outcome() == Outcome::Success)),
         stable_stage_fraction: used.map(|u| u.iter().map(|r| r.stage_fraction()).fold(f64::INFINITY, f64::min)),
         stage_fraction_sum: used.map(|u| u.iter().map(|r| r.stage_fraction()).sum()),
@@ -298,9 +308,15 @@ pub struct SuiteSummary {
     pub score: Option<f64>,
     /// The Score with every missing component and unscored task counted as 0: a lower bound for partial suites.
     pub score_lower_bound: f64,
+    /// Means over every episode (all rollouts but INTERRUPTED ones, INVALID included; see the module docs).
     pub avg_wall_time_min: Option<f64>,
     pub avg_tokens_millions: Option<f64>,
     pub avg_accepted_agent_steps: Option<f64>,
+    /// Episodes the means are over, and the INVALID ones among them.
+    #[serde(default)]
+    pub averaged_episodes: usize,
+    #[serde(default)]
+    pub averaged_invalid: usize,
     /// SUCCESS / valid rollouts over everything.
     pub ordinary: Proportion,
 }
@@ -309,6 +325,12 @@ impl SuiteSummary {
     pub fn split(&self, split: Split) -> Option<&SplitSummary> {
         self.splits.iter().find(|s| s.split == split)
     }
+}
+
+/// Counted in the time, token and step averages: every episode, INVALID included (the paper averages over all
+/// episodes of a table); an INTERRUPTED rollout was cut off by a stopped batch and is no episode of it.
+pub fn is_episode(outcome: Outcome) -> bool {
+    outcome != Outcome::Interrupted
 }
 
 pub(crate) fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -383,7 +405,7 @@ pub fn summarize(rollouts: &[Rollout], reps: usize) -> SuiteSummary {
         l_easy: scaled(Split::LongHorizonEasy, &|t| t.stable_stage_fraction),
         l_hard: scaled(Split::LongHorizonHard, &|t| t.stable_stage_fraction),
     };
-    let valid = || rollouts.iter().filter(|r| r.outcome.is_valid());
+    let episodes = || rollouts.iter().filter(|r| is_episode(r.outcome));
     SuiteSummary {
         reps,
         rollouts: rollouts.len(),
@@ -393,9 +415,11 @@ pub fn summarize(rollouts: &[Rollout], reps: usize) -> SuiteSummary {
         components,
         score,
         score_lower_bound: lower.score(),
-        avg_wall_time_min: mean(valid().filter_map(|r| r.wall_time_s).map(|s| s / 60.0)),
-        avg_tokens_millions: mean(valid().filter_map(|r| r.total_tokens).map(|t| t as f64 / 1e6)),
-        avg_accepted_agent_steps: mean(valid().filter_map(|r| r.accepted_agent_steps).map(|n| n as f64)),
+        avg_wall_time_min: mean(episodes().filter_map(|r| r.wall_time_s).map(|s| s / 60.0)),
+        avg_tokens_millions: mean(episodes().filter_map(|r| r.total_tokens).map(|t| t as f64 / 1e6)),
+        avg_accepted_agent_steps: mean(episodes().filter_map(|r| r.accepted_agent_steps).map(|n| n as f64)),
+        averaged_episodes: episodes().count(),
+        averaged_invalid: episodes().filter(|r| r.outcome == Outcome::Invalid).count(),
         ordinary: ordinary_of(&mut rollouts.iter()),
         tasks,
         splits,
@@ -469,6 +493,38 @@ mod tests {
         let mut more = rs.to_vec();
         more.push(rollout(14, 4, Outcome::Success, None, 1));
         assert_eq!(summarize(&more, 3).tasks[0].stable_success, Some(true));
+    }
+
+    #[test]
+    fn time_and_tokens_average_every_episode_invalid_included() {
+        let mut rs = vec![
+            rollout(14, 1, Outcome::Success, None, 1),
+            rollout(14, 2, Outcome::Invalid, None, 1),
+            rollout(14, 3, Outcome::Fail, None, 1),
+            rollout(14, 4, Outcome::Interrupted, None, 1),
+        ];
+        rs[1].wall_time_s = Some(30.0);
+        rs[1].total_tokens = Some(4_000_000);
+        rs[3].wall_time_s = Some(6000.0);
+        let s = summarize(&rs, 3);
+        // (600 + 30 + 600) / 3 s = 410 s; (1 + 4 + 1) / 3 M tokens; the INTERRUPTED rollout is no episode
+        assert_eq!(s.avg_wall_time_min, Some(1230.0 / 3.0 / 60.0));
+        assert_eq!(s.avg_tokens_millions, Some(2.0));
+        assert_eq!((s.averaged_episodes, s.averaged_invalid), (3, 1));
+        // the rates still leave INVALID out
+        assert_eq!((s.ordinary.successes, s.ordinary.trials), (1, 2));
+    }
+
+    #[test]
+    fn stable_successes_count_the_first_reps_valid_rollouts_only() {
+        let rs: Vec<Rollout> = [Outcome::Success, Outcome::Fail, Outcome::Success, Outcome::Success]
+            .into_iter()
+            .enumerate()
+            .map(|(i, o)| rollout(11, i as u32 + 1, o, None, 1))
+            .collect();
+        let t = &summarize(&rs, 3).tasks[0];
+        assert_eq!((t.successes, t.stable_successes), (3, Some(2)));
+        assert_eq!(summarize(&rs[..2], 3).tasks[0].stable_successes, None);
     }
 
     #[test]

@@ -68,7 +68,11 @@ pub struct PoolSuiteSummary {
     /// SUCCESS / valid rollouts with its Wilson interval.
     pub ordinary: Proportion,
     pub outcome_counts: BTreeMap<Outcome, usize>,
+    /// Mean episode time over every episode of the suite, INVALID included (as [`crate::SuiteSummary`]).
     pub avg_wall_time_min: Option<f64>,
+    /// INVALID episodes inside that mean.
+    #[serde(default)]
+    pub averaged_invalid: usize,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -102,6 +106,7 @@ pub fn summarize_pool(rollouts: &[PoolRollout], reps: usize) -> PoolSummary {
         .map(|suite| {
             let ts: Vec<&PoolTaskSummary> = tasks.iter().filter(|t| t.suite == suite).collect();
             let valid: Vec<&PoolRollout> = rollouts.iter().filter(|r| r.suite == suite && r.outcome.is_valid()).collect();
+            let episodes: Vec<&PoolRollout> = rollouts.iter().filter(|r| r.suite == suite && crate::is_episode(r.outcome)).collect();
             let mut outcome_counts = BTreeMap::new();
             for r in rollouts.iter().filter(|r| r.suite == suite) {
                 *outcome_counts.entry(r.outcome).or_insert(0) += 1;
@@ -115,7 +120,8 @@ pub fn summarize_pool(rollouts: &[PoolRollout], reps: usize) -> PoolSummary {
                 mean_stage_completion: mean(valid.iter().map(|r| r.stage_fraction())),
                 ordinary: Proportion::new(valid.iter().filter(|r| r.outcome == Outcome::Success).count() as u64, valid.len() as u64),
                 outcome_counts,
-                avg_wall_time_min: mean(valid.iter().filter_map(|r| r.wall_time_s).map(|s| s / 60.0)),
+                avg_wall_time_min: mean(episodes.iter().filter_map(|r| r.wall_time_s).map(|s| s / 60.0)),
+                averaged_invalid: episodes.iter().filter(|r| r.outcome == Outcome::Invalid).count(),
             }
         })
         .collect();
@@ -162,6 +168,8 @@ mod tests {
         assert_eq!(rma.mean_stage_completion, Some(0.75));
         assert_eq!((rma.ordinary.successes, rma.ordinary.trials), (0, 2));
         assert_eq!(rma.outcome_counts[&Outcome::Invalid], 1);
+        // the INVALID rollout's time is in the mean, and said to be
+        assert_eq!((rma.avg_wall_time_min, rma.averaged_invalid), (Some(2.0), 1));
         let t = s.tasks.iter().find(|t| t.task == "robomemarena/25").unwrap();
         assert_eq!((t.counts.valid_rollouts, t.counts.excluded_rollouts, t.counts.stable_success), (0, 1, None));
     }

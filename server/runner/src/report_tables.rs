@@ -4,8 +4,10 @@
 //!   `manip_observation` batch, level 3 from its `main_table` batch (level 3, no demonstration);
 //! * Table 3, demonstration ablation (T21–T30 stable SC with None / Video / Video + Traj.): the demonstrations from its
 //!   `context` batch, None from its `main_table` batch;
-//! * Table 4, the stage-level diagnosis of the long-horizon tasks, from each rollout's private stage diagnostics
-//!   (`result.json` → `private_evaluation.stage_diagnostics`, with the stage types the catalog declares);
+//! * Table 4, the paper's stage-level diagnosis of the hard long-horizon tasks (T21, T22, T25, T28, T30), and
+//!   "Table 4+", this project's extension over every long-horizon task, from each rollout's private record
+//!   (`result.json` → `private_evaluation`: its stage diagnostics, stage events and opening operations, with the stage
+//!   types the catalog declares) and, for Table 4, a person's stage annotations where there are any;
 //! * Figure 3, the sustained-contact ratio of every opening operation (`private_evaluation.details.opening_operations`);
 //! * Appendix E, the per-task tables in wide format.
 //!
@@ -18,10 +20,11 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use libero_metrics::{
-    AblationKind, AblationRow, ContactSummary, OpeningOperation, Proportion, Split, StageDiagnosis, StageOpportunity, StageType,
-    diagnose, summarize, summarize_contact,
+    AblationKind, AblationRow, ContactSummary, OpeningOperation, PaperStageDiagnosis, Proportion, Split, StageAnnotations,
+    StageDiagnosis, StageEvidence, StageOpportunity, StageType, diagnose, diagnose_paper, in_paper_table4, summarize,
+    summarize_contact,
 };
-use libero_episode::records::{PrivateEvaluation, RunDir, read_result};
+use libero_episode::records::{MechanismOperation, PrivateEvaluation, PrivateEvent, RunDir, StageDiagnostic, read_result};
 use serde::Serialize;
 
 use crate::batch::{Condition, LoadedBatch, RolloutRecord, agent_of};
@@ -43,7 +46,21 @@ pub struct AblationTable {
     pub rows: Vec<AblationLine>,
 }
 
-/// Table 4 for one agent under one condition.
+/// The paper's Table 4 for one agent under one condition (the hard long-horizon tasks).
+#[derive(Debug, Clone, Serialize)]
+pub struct PaperDiagnosisLine {
+    pub agent: String,
+    pub level: u8,
+    pub demo: Demo,
+    #[serde(flatten)]
+    pub diagnosis: PaperStageDiagnosis,
+    /// Counted rollouts whose record could not be read (no run directory here, or no `result.json`).
+    pub rollouts_without_record: usize,
+    /// The hard long-horizon tasks with a counted rollout (`T21`, …), and how many rollouts each.
+    pub tasks: BTreeMap<String, usize>,
+}
+
+/// Table 4+ (the extension: every long-horizon task, automatic labels) for one agent under one condition.
 #[derive(Debug, Clone, Serialize)]
 pub struct DiagnosisLine {
     pub agent: String,
@@ -73,10 +90,13 @@ impl ContactLine {
     }
 }
 
-/// One task of an Appendix E row: successes (perception, short horizon) or the sum of `c/K` (long horizon).
+/// One task of an Appendix E row: successes (perception, short horizon) or the sum of `c/K` (long horizon) over
+/// the first `reps` valid rollouts, printed `x/reps` and `sum/reps` as the paper does (`3/3`, `1.80/3`).
 #[derive(Debug, Clone, Serialize)]
 pub struct AppendixCell {
     pub task: String,
+    /// Over the first `reps` valid rollouts; with fewer valid rollouts, short-horizon and perception cells hold the
+    /// successes among those there are (`x/n valid`) and long-horizon cells none.
     pub value: Option<f64>,
     pub valid_rollouts: usize,
 }
@@ -94,6 +114,9 @@ pub struct AppendixLine {
 pub struct AppendixTable {
     pub name: &'static str,
     pub title: &'static str,
+    /// The long-horizon table's K row: each task's number of required stages (the catalog's, else the records'),
+    /// in column order; empty for the other tables.
+    pub stage_counts: Vec<Option<u32>>,
     pub rows: Vec<AppendixLine>,
 }
 
@@ -102,7 +125,10 @@ pub struct AppendixTable {
 pub struct PaperTables {
     pub observation_ablation: Vec<AblationTable>,
     pub demonstration_ablation: Vec<AblationTable>,
-    pub stage_diagnosis: Vec<DiagnosisLine>,
+    /// The paper's Table 4 (hard long-horizon tasks, annotations where given).
+    pub stage_diagnosis: Vec<PaperDiagnosisLine>,
+    /// Table 4+, the extension (every long-horizon task, automatic labels).
+    pub stage_diagnosis_extension: Vec<DiagnosisLine>,
     pub sustained_contact: Vec<ContactLine>,
     pub appendix_e: Vec<AppendixTable>,
 }
@@ -151,27 +177,76 @@ fn catalog_stage_types() -> &'static BTreeMap<u32, Vec<(String, Option<StageType
     })
 }
 
-/// The required stages of one long-horizon rollout's record as Table 4's opportunities.
+/// The required stages K the catalog declares, per task number (Appendix E's K row).
+fn catalog_stage_counts() -> &'static BTreeMap<u32, u32> {
+    static COUNTS: OnceLock<BTreeMap<u32, u32>> = OnceLock::new();
+    COUNTS.get_or_init(|| {
+        let Ok(catalog) = libero_tasks::Catalog::discover() else { return BTreeMap::new() };
+        catalog.tasks().iter().map(|t| (t.number, t.stage_count as u32)).collect()
+    })
+}
+
+/// The checker whose goals are all available at once (T21, T22): no stage comes first.
+const UNORDERED_CHECKER: &str = "private_unordered_goal_predicates";
+
+/// The gripper touched the mechanism of this operation: a contact run (`contact_runs`), or sustained steps or a
+/// positive SCR in records without the runs.
+fn touched(o: &MechanismOperation) -> bool {
+    let runs = o.rest.get("contact_runs").and_then(serde_json::Value::as_array).is_some_and(|r| !r.is_empty());
+    let sustained = o.rest.get("sustained_steps").and_then(serde_json::Value::as_u64).is_some_and(|n| n > 0);
+    runs || sustained || o.sustained_contact_ratio_percent.is_some_and(|p| p > 0.0)
+}
+
+/// The required stages of one long-horizon rollout's record as stage opportunities, each with the evidence its
+/// record holds ([`StageEvidence`]: reached only on evidence of the agent, never because a stage comes first).
 fn opportunities(r: &RolloutRecord, pe: &PrivateEvaluation) -> Vec<StageOpportunity> {
     let declared = catalog_stage_types().get(&r.task_number);
-    let stages = pe.stage_diagnostics.as_deref().unwrap_or_default();
+    let stages: Vec<&StageDiagnostic> = pe.stage_diagnostics.iter().flatten().filter(|d| d.required == Some(true)).collect();
+    let name = |d: &StageDiagnostic| d.stage_name.clone().unwrap_or_default();
+    let order = pe.details.as_ref().and_then(|d| d.rest.get("order")).and_then(serde_json::Value::as_str);
+    let unordered = pe.checker.as_deref() == Some(UNORDERED_CHECKER) || order == Some("unordered");
+    let events: Vec<&PrivateEvent> = pe.stage_events.iter().flatten().chain(pe.events.iter().flatten()).collect();
+    let of_kind = |kind: &'static str| events.iter().copied().filter(move |e| e.kind.as_deref() == Some(kind));
+    // The control step a stage first completed at (its diagnostic's, else its first completion event).
+    let completed_at = |d: &StageDiagnostic| {
+        let n = name(d);
+        d.completed_control_step.flatten().or_else(|| {
+            of_kind("stage_completed").filter(|e| e.stage_name.as_deref() == Some(n.as_str())).filter_map(|e| e.control_step).min()
+        })
+    };
+    let ever_completed = |d: &StageDiagnostic| d.succeeded == Some(true) || completed_at(d).is_some() || d.regressions.unwrap_or(0) > 0;
+    // Ordered stages: the required stage current at a control step (the first not completed by then).
+    let current_at = |step: u64| {
+        (!unordered).then(|| stages.iter().find(|d| completed_at(d).is_none_or(|c| c > step))).flatten().map(|d| name(d))
+    };
+    let ops: &[MechanismOperation] = pe.details.as_ref().and_then(|d| d.opening_operations.as_deref()).unwrap_or_default();
     stages
         .iter()
-        .filter(|d| d.required == Some(true))
-        .map(|d| {
-            let name = d.stage_name.clone().unwrap_or_default();
+        .enumerate()
+        .map(|(i, d)| {
+            let n = name(d);
             let recorded = d.stage_type.clone().and_then(|t| serde_json::from_value::<StageType>(t).ok());
-            let from_catalog = || declared.and_then(|ts| ts.iter().find(|(n, _)| *n == name)).and_then(|(_, t)| *t);
+            let from_catalog = || declared.and_then(|ts| ts.iter().find(|(s, _)| *s == n)).and_then(|(_, t)| *t);
+            // A strict order latched by a later stage's state made early, while this stage was current: that state
+            // blocked it (records from before the event named its stage carry the reason on the stage instead).
+            let blocked = of_kind("order_violation").any(|e| e.stage_name.as_deref() == Some(n.as_str()))
+                || d.failure_reason.as_ref().and_then(Option::as_deref) == Some("order_violation");
+            let forbidden = of_kind("forbidden_contact").any(|e| e.control_step.and_then(current_at).as_deref() == Some(n.as_str()));
             StageOpportunity {
+                episode_id: r.episode_id.clone(),
                 task_number: r.task_number,
                 stage_type: recorded.or_else(from_catalog),
-                reached: d.reached == Some(true),
-                succeeded: d.succeeded == Some(true),
-                regressions: d.regressions.map_or(0, |n| n as u32),
-                regressed_during_later_stage: d.regressed_during_later_stage == Some(true),
-                // A strict order latched by a later stage's state made early: that state blocked this stage.
-                blocked_by_other_stage: d.failure_reason.as_ref().and_then(Option::as_deref) == Some("order_violation"),
-                stage_name: name,
+                evidence: StageEvidence {
+                    succeeded: d.succeeded == Some(true),
+                    completed_at_some_point: ever_completed(d),
+                    preconditions_established: !unordered && i > 0 && ever_completed(stages[i - 1]),
+                    touched_mechanism: ops.iter().any(|o| o.stage_name.as_deref() == Some(n.as_str()) && touched(o)),
+                    acted_while_current: blocked || forbidden,
+                    regressions: d.regressions.map_or(0, |n| n as u32),
+                    regressed_during_later_stage: d.regressed_during_later_stage == Some(true),
+                    blocked_by_other_stage: blocked,
+                },
+                stage_name: n,
             }
         })
         .collect()
@@ -249,8 +324,14 @@ fn ablations(kind: AblationKind, rows: &[Row], batches: &BTreeMap<(String, Condi
         .collect()
 }
 
-/// The three wide tables of Appendix E over Table 1's rows.
-fn appendix(rows: &[Row]) -> Vec<AppendixTable> {
+/// The three wide tables of Appendix E over Table 1's rows (`batches` for the K row where the catalog lacks a task).
+fn appendix(rows: &[Row], batches: &[LoadedBatch]) -> Vec<AppendixTable> {
+    let k_of = |n: u32| {
+        catalog_stage_counts()
+            .get(&n)
+            .copied()
+            .or_else(|| batches.iter().flat_map(|b| &b.records).filter(|r| r.suite.is_none() && r.task_number == n).map(|r| r.stage_count).max())
+    };
     let table = |name, title, splits: &[Split], long: bool| {
         let mut tasks: Vec<u32> = splits.iter().flat_map(|s| s.members().iter().copied()).collect();
         tasks.sort_unstable();
@@ -267,14 +348,21 @@ fn appendix(rows: &[Row]) -> Vec<AppendixTable> {
                         let t = r.summary.tasks.iter().find(|t| t.task_number == n);
                         AppendixCell {
                             task: format!("T{n:02}"),
-                            value: t.and_then(|t| if long { t.stage_fraction_sum } else { Some(t.successes as f64) }),
+                            value: t.and_then(|t| {
+                                if long {
+                                    t.stage_fraction_sum
+                                } else {
+                                    Some(t.stable_successes.unwrap_or(t.successes) as f64)
+                                }
+                            }),
                             valid_rollouts: t.map_or(0, |t| t.valid_rollouts),
                         }
                     })
                     .collect(),
             })
             .collect();
-        AppendixTable { name, title, rows: lines }
+        let stage_counts = if long { tasks.iter().map(|&n| k_of(n)).collect() } else { Vec::new() };
+        AppendixTable { name, title, stage_counts, rows: lines }
     };
     vec![
         table("perception", "Perception tasks", &[Split::Perception], false),
@@ -283,10 +371,38 @@ fn appendix(rows: &[Row]) -> Vec<AppendixTable> {
     ]
 }
 
-/// Everything after Table 1, from the batches and Table 1's rows over them.
+/// Everything after Table 1, from the batches and Table 1's rows over them (Table 4 from automatic labels alone).
 pub fn paper_tables(batches: &[LoadedBatch], rows: &[Row], reps: usize) -> PaperTables {
+    paper_tables_annotated(batches, rows, reps, None)
+}
+
+/// Stage opportunities of one (agent, condition): the opportunities, counted rollouts, those without a record, and
+/// the rollouts per task.
+#[derive(Default)]
+struct Opportunities {
+    stages: Vec<StageOpportunity>,
+    rollouts: usize,
+    without_record: usize,
+    tasks: BTreeMap<String, usize>,
+}
+
+impl Opportunities {
+    fn add(&mut self, r: &RolloutRecord, pe: Option<&PrivateEvaluation>) {
+        self.rollouts += 1;
+        *self.tasks.entry(format!("T{:02}", r.task_number)).or_default() += 1;
+        match pe {
+            Some(pe) => self.stages.extend(opportunities(r, pe)),
+            None => self.without_record += 1,
+        }
+    }
+}
+
+/// Everything after Table 1, with the paper's Table 4 taking each stage's label from `annotations` where it has one
+/// (keyed by the rollout's episode and the stage's name) and from the automatic diagnosis elsewhere.
+pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize, annotations: Option<&StageAnnotations>) -> PaperTables {
     let names = batch_names(batches);
-    let mut diagnosis: BTreeMap<(String, Condition), (Vec<StageOpportunity>, usize, usize)> = BTreeMap::new();
+    let mut diagnosis: BTreeMap<(String, Condition), Opportunities> = BTreeMap::new();
+    let mut paper4: BTreeMap<(String, Condition), Opportunities> = BTreeMap::new();
     let mut contact: BTreeMap<(String, String), (Vec<OpeningOperation>, usize)> = BTreeMap::new();
     let mut by_agent: BTreeMap<String, Vec<&RolloutRecord>> = BTreeMap::new();
     for b in batches {
@@ -303,11 +419,9 @@ pub fn paper_tables(batches: &[LoadedBatch], rows: &[Row], reps: usize) -> Paper
                 None => c.1 += 1,
             }
             if r.suite.is_none() && r.split.is_some_and(Split::is_long_horizon) {
-                let d = diagnosis.entry((agent.clone(), condition)).or_default();
-                d.1 += 1;
-                match &pe {
-                    Some(pe) => d.0.extend(opportunities(r, pe)),
-                    None => d.2 += 1,
+                diagnosis.entry((agent.clone(), condition)).or_default().add(r, pe.as_ref());
+                if in_paper_table4(r.task_number) {
+                    paper4.entry((agent.clone(), condition)).or_default().add(r, pe.as_ref());
                 }
             }
         }
@@ -315,14 +429,25 @@ pub fn paper_tables(batches: &[LoadedBatch], rows: &[Row], reps: usize) -> Paper
     PaperTables {
         observation_ablation: ablations(AblationKind::Observation, rows, &names, reps),
         demonstration_ablation: ablations(AblationKind::Demonstration, rows, &names, reps),
-        stage_diagnosis: diagnosis
+        stage_diagnosis: paper4
             .into_iter()
-            .map(|((agent, c), (ops, rollouts, missing))| DiagnosisLine {
+            .map(|((agent, c), o)| PaperDiagnosisLine {
                 agent,
                 level: c.level,
                 demo: c.demo,
-                diagnosis: diagnose(&ops, rollouts - missing),
-                rollouts_without_record: missing,
+                diagnosis: diagnose_paper(&o.stages, o.rollouts - o.without_record, annotations),
+                rollouts_without_record: o.without_record,
+                tasks: o.tasks,
+            })
+            .collect(),
+        stage_diagnosis_extension: diagnosis
+            .into_iter()
+            .map(|((agent, c), o)| DiagnosisLine {
+                agent,
+                level: c.level,
+                demo: c.demo,
+                diagnosis: diagnose(&o.stages, o.rollouts - o.without_record),
+                rollouts_without_record: o.without_record,
             })
             .collect(),
         sustained_contact: contact
@@ -336,7 +461,7 @@ pub fn paper_tables(batches: &[LoadedBatch], rows: &[Row], reps: usize) -> Paper
                 rollouts_without_record: missing,
             })
             .collect(),
-        appendix_e: appendix(rows),
+        appendix_e: appendix(rows, batches),
     }
 }
 
@@ -359,13 +484,15 @@ fn of_type(d: &StageDiagnosis, t: StageType) -> Option<&libero_metrics::TypeExec
     d.by_type.iter().find(|x| x.stage_type == t)
 }
 
-/// An Appendix E cell: successes (`x/valid` when fewer than `reps` are valid), or the `c/K` sum to 2 decimals.
+/// An Appendix E cell as the paper writes it: successes over the `reps` rollouts (`3/3`), or the sum of `c/K` over
+/// them to 2 decimals (`1.80/3`); with fewer than `reps` valid rollouts, the successes among the valid ones
+/// (`1/2 valid`), and no long-horizon sum (`—`).
 fn appendix_text(cell: &AppendixCell, long: bool, reps: usize) -> String {
     match (cell.value, long) {
         (None, _) => "—".into(),
-        (Some(v), true) => format!("{v:.2}"),
-        (Some(v), false) if cell.valid_rollouts == reps => format!("{v:.0}"),
-        (Some(v), false) => format!("{v:.0}/{}", cell.valid_rollouts),
+        (Some(v), true) => format!("{v:.2}/{reps}"),
+        (Some(v), false) if cell.valid_rollouts >= reps => format!("{v:.0}/{reps}"),
+        (Some(v), false) => format!("{v:.0}/{} valid", cell.valid_rollouts),
     }
 }
 
@@ -440,6 +567,78 @@ fn ablation_display(kind: AblationKind, tables: &[AblationTable]) -> DisplayTabl
     }
 }
 
+/// `agent (L3, none)`: the paper's Table 4 has one Agent column, so the condition goes with it.
+fn agent_condition(agent: &str, level: u8, demo: Demo) -> String {
+    format!("{agent} ({})", condition_label(Condition { level, demo }))
+}
+
+/// What each paper Table 4 row stands on: its opportunities, rollouts, tasks, and labels (annotated / automatic).
+fn paper_basis(l: &PaperDiagnosisLine) -> String {
+    let d = &l.diagnosis;
+    let tasks: Vec<String> = l.tasks.iter().map(|(t, n)| format!("{t} ×{n}")).collect();
+    let mut o = format!(
+        "{}: {} stage opportunities over {} rollouts{} ({}); {} annotated, {} automatic",
+        agent_condition(&l.agent, l.level, l.demo),
+        d.opportunities,
+        d.rollouts,
+        without_record(l.rollouts_without_record),
+        tasks.join(", "),
+        d.annotated,
+        d.automatic
+    );
+    if d.geometric_error + d.other + d.unattributed > 0 {
+        let _ = write!(o, "; failed stages also annotated geometric error {}, other {}, no mode {}", d.geometric_error, d.other, d.unattributed);
+    }
+    if d.untyped_opportunities > 0 {
+        let _ = write!(o, "; {} without a stage type", d.untyped_opportunities);
+    }
+    o
+}
+
+/// The paper's Table 4: exactly its seven columns.
+fn paper_diagnosis_display(lines: &[PaperDiagnosisLine]) -> DisplayTable {
+    let rows = lines
+        .iter()
+        .map(|l| {
+            let d = &l.diagnosis;
+            vec![
+                agent_condition(&l.agent, l.level, l.demo),
+                share(&d.reached),
+                share(&d.success),
+                share(&d.object_manipulation.execution_success),
+                share(&d.mechanism_interaction.execution_success),
+                share(&d.local_execution),
+                share(&d.cross_stage_interference),
+            ]
+        })
+        .collect();
+    let note = if lines.is_empty() {
+        "No rollout of the hard long-horizon tasks (T21, T22, T25, T28, T30) in the report.".to_owned()
+    } else {
+        let basis: Vec<String> = lines.iter().map(paper_basis).collect();
+        format!(
+            "The hard long-horizon tasks T21, T22, T25, T28, T30 (20 stages per round of rollouts); a stage opportunity is one \
+             required stage of one counted rollout. Reached and Success: over all stage opportunities. Execution SR: successes / \
+             reached stages of that type, leaving out reached stages whose failure is attributed to cross-stage interference. \
+             Local Execution and Cross-stage Interference: shares of the reached stages that did not succeed; a stage may have \
+             both, so they need not sum to 100%. A stage is reached only on evidence in its record (docs/reports.md), and a \
+             person's annotation of a stage replaces its automatic label. {}.",
+            basis.join(" · ")
+        )
+    };
+    DisplayTable {
+        id: "table-4".into(),
+        title: "Stage-level diagnosis (Table 4; hard long-horizon tasks)".into(),
+        note,
+        heads: strings([
+            "Agent", "Reached", "Success", "Execution SR: Object Manipulation", "Execution SR: Mechanism Interaction",
+            "Local Execution", "Cross-stage Interference",
+        ]),
+        rows,
+    }
+}
+
+/// Table 4+, the extension over every long-horizon task.
 fn diagnosis_display(lines: &[DiagnosisLine]) -> DisplayTable {
     let rows = lines
         .iter()
@@ -463,16 +662,15 @@ fn diagnosis_display(lines: &[DiagnosisLine]) -> DisplayTable {
         })
         .collect();
     DisplayTable {
-        id: "table-4".into(),
-        title: "Stage-level diagnosis (Table 4; long-horizon tasks T21–T30)".into(),
+        id: "table-4-extension".into(),
+        title: "Table 4+ (all long-horizon tasks T21–T30; extension): stage-level diagnosis, automatic labels".into(),
         note: if lines.is_empty() {
             "No long-horizon rollout in the report.".into()
         } else {
-            "Automatic labels from each rollout's private stage record, not the paper's manual annotation (docs/reports.md): a \
-             stage opportunity is one required stage of one counted rollout; execution success = successes / reached stages \
-             of that type [95% Wilson]; a failure is a reached stage that did not succeed or a completed stage a later stage \
-             undid, counted as cross-stage interference when a completed stage regressed or an order violation blocked it, \
-             else local execution."
+            "Not a table of the paper: every long-horizon task, automatic labels only (annotations enter Table 4), reached on \
+             the same evidence as Table 4. Execution success = successes / reached stages of that type, nothing left out [95% \
+             Wilson]; a failure is a reached stage that did not succeed or a completed stage a later stage undid, counted once, \
+             as cross-stage interference when a completed stage regressed or an order violation blocked it, else local execution."
                 .into()
         },
         heads: strings([
@@ -547,21 +745,35 @@ fn contact_display(lines: &[ContactLine]) -> [DisplayTable; 2] {
     ]
 }
 
+/// `5`, or `—` where the stage count is unknown.
+fn k_text(k: Option<u32>) -> String {
+    k.map(|k| k.to_string()).unwrap_or_else(|| "—".into())
+}
+
 fn appendix_display(t: &AppendixTable, reps: usize) -> DisplayTable {
     let long = t.name == "long_horizon";
-    let unit = if long { format!("sum of c/K over {reps} rollouts") } else { format!("successes out of {reps}") };
+    let unit = if long { format!("sum of c/K over {reps} rollouts, /{reps}") } else { format!("successes out of {reps}, /{reps}") };
     let mut heads = strings(["Agent", "Condition"]);
     heads.extend(t.rows.first().into_iter().flat_map(|r| r.cells.iter().map(|c| c.task.clone())));
-    let rows = t
-        .rows
-        .iter()
-        .map(|r| {
-            let mut row = vec![r.agent.clone(), condition_label(Condition { level: r.level, demo: r.demo })];
-            row.extend(r.cells.iter().map(|c| appendix_text(c, long, reps)));
-            row
-        })
-        .collect();
-    DisplayTable { id: format!("appendix-e-{}", t.name.replace('_', "-")), title: format!("Appendix E: {} ({unit})", t.title), note: String::new(), heads, rows }
+    let mut rows: Vec<Vec<String>> = Vec::new();
+    if long && !t.rows.is_empty() {
+        let mut k = vec!["K (stages)".to_owned(), String::new()];
+        k.extend(t.stage_counts.iter().map(|&c| k_text(c)));
+        rows.push(k);
+    }
+    rows.extend(t.rows.iter().map(|r| {
+        let mut row = vec![r.agent.clone(), condition_label(Condition { level: r.level, demo: r.demo })];
+        row.extend(r.cells.iter().map(|c| appendix_text(c, long, reps)));
+        row
+    }));
+    let note = if long {
+        format!("Each cell is the sum over the {reps} rollouts of the completed-stage fraction c/K, written sum/{reps} as the paper \
+                 does (1.80/{reps}: the fractions sum to 1.80); the K row gives each task's number of stages; — without {reps} valid rollouts.")
+    } else {
+        format!("Each cell is the full-task successes among the {reps} rollouts, written x/{reps} as the paper does; x/n valid where \
+                 fewer than {reps} rollouts are valid.")
+    };
+    DisplayTable { id: format!("appendix-e-{}", t.name.replace('_', "-")), title: format!("Appendix E: {} ({unit})", t.title), note, heads, rows }
 }
 
 /// Tables 2–4, Figure 3's numbers and operations, and Appendix E (its non-empty tables) as `choice` selects them.
@@ -574,7 +786,8 @@ pub fn display_tables(t: &PaperTables, choice: TableChoice, reps: usize) -> Vec<
         out.push(ablation_display(AblationKind::Demonstration, &t.demonstration_ablation));
     }
     if choice.wants(TableChoice::Table4) {
-        out.push(diagnosis_display(&t.stage_diagnosis));
+        out.push(paper_diagnosis_display(&t.stage_diagnosis));
+        out.push(diagnosis_display(&t.stage_diagnosis_extension));
     }
     if choice.wants(TableChoice::Figure3) {
         out.extend(contact_display(&t.sustained_contact));
@@ -657,6 +870,31 @@ fn csv_ablation(o: &mut String, kind: AblationKind, tables: &[AblationTable]) {
     }
 }
 
+/// The paper's Table 4 as CSV: the seven columns' counts and percentages, and what each row stands on.
+fn csv_paper_diagnosis(o: &mut String, lines: &[PaperDiagnosisLine]) {
+    let _ = writeln!(
+        o,
+        "agent,level,demo,rollouts,rollouts_without_record,stage_opportunities,annotated,automatic,reached,reached_percent,\
+         succeeded,success_percent,om_succeeded,om_reached,om_excluded_interference,om_execution_sr_percent,mi_succeeded,mi_reached,\
+         mi_excluded_interference,mi_execution_sr_percent,failed,local_execution,local_execution_percent,cross_stage_interference,\
+         cross_stage_interference_percent,geometric_error,other,untyped_opportunities"
+    );
+    for l in lines {
+        let d = &l.diagnosis;
+        let (om, mi) = (&d.object_manipulation, &d.mechanism_interaction);
+        let _ = writeln!(
+            o,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            field(&l.agent), l.level, l.demo.as_str(), d.rollouts, l.rollouts_without_record, d.opportunities, d.annotated, d.automatic,
+            d.reached.successes, p4(d.reached.rate), d.success.successes, p4(d.success.rate),
+            om.execution_success.successes, om.reached, om.excluded_interference, p4(om.execution_success.rate),
+            mi.execution_success.successes, mi.reached, mi.excluded_interference, p4(mi.execution_success.rate),
+            d.failed, d.local_execution.successes, p4(d.local_execution.rate), d.cross_stage_interference.successes,
+            p4(d.cross_stage_interference.rate), d.geometric_error, d.other, d.untyped_opportunities
+        );
+    }
+}
+
 fn csv_diagnosis(o: &mut String, lines: &[DiagnosisLine]) {
     let _ = writeln!(
         o,
@@ -721,13 +959,18 @@ fn csv_appendix(o: &mut String, t: &AppendixTable, reps: usize) {
     let heads: Vec<&str> = first.cells.iter().map(|c| c.task.as_str()).collect();
     let _ = writeln!(o, "agent,level,demo,{}", heads.join(","));
     let long = t.name == "long_horizon";
+    if long {
+        let ks: Vec<String> = t.stage_counts.iter().map(|k| k.map(|k| k.to_string()).unwrap_or_default()).collect();
+        let _ = writeln!(o, "K,,,{}", ks.join(","));
+    }
     for r in &t.rows {
         let cells: Vec<String> = r.cells.iter().map(|c| if c.value.is_none() { String::new() } else { appendix_text(c, long, reps) }).collect();
         let _ = writeln!(o, "{},{},{},{}", field(&r.agent), r.level, r.demo.as_str(), cells.join(","));
     }
 }
 
-/// One `(name, CSV)` block per table `choice` selects (Figure 3: its bins and its operations; Appendix E: three).
+/// One `(name, CSV)` block per table `choice` selects (Table 4: the paper's and the extension; Figure 3: its bins and
+/// its operations; Appendix E: three).
 pub fn csv_blocks(t: &PaperTables, choice: TableChoice, reps: usize) -> Vec<(String, String)> {
     let mut blocks = Vec::new();
     let mut block = |name: &str, body: &dyn Fn(&mut String)| {
@@ -742,7 +985,8 @@ pub fn csv_blocks(t: &PaperTables, choice: TableChoice, reps: usize) -> Vec<(Str
         block("table_3_demonstration_ablation", &|o| csv_ablation(o, AblationKind::Demonstration, &t.demonstration_ablation));
     }
     if choice.wants(TableChoice::Table4) {
-        block("table_4_stage_diagnosis", &|o| csv_diagnosis(o, &t.stage_diagnosis));
+        block("table_4_stage_diagnosis", &|o| csv_paper_diagnosis(o, &t.stage_diagnosis));
+        block("table_4_extension_all_long_horizon", &|o| csv_diagnosis(o, &t.stage_diagnosis_extension));
     }
     if choice.wants(TableChoice::Figure3) {
         block("figure_3_scr_bins", &|o| csv_contact(o, &t.sustained_contact));
@@ -812,4 +1056,287 @@ pub fn write_figures(t: &PaperTables, dir: &Path) -> std::io::Result<Vec<std::pa
         written.push(path);
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    //! Golden tests: rollout records of the five hard long-horizon tasks written by hand, and Table 4's seven
+    //! columns computed by hand from the paper's definitions (see each test's comment).
+    use std::path::Path;
+
+    use libero_metrics::{FailureMode, StageAnnotation, StageKey};
+    use serde_json::{Value, json};
+
+    use super::*;
+    use crate::batch::load_batch;
+
+    const OM: &str = "object_manipulation";
+    const MI: &str = "mechanism_interaction";
+
+    /// A stage diagnostic as a record holds it. `reached` is the value an older evaluator wrote (first stages and
+    /// unordered goals always true): the tables must not read it.
+    fn stage(name: &str, ty: Option<&str>, old_reached: bool, succeeded: bool) -> Value {
+        let mut d = json!({"stage_name": name, "required": true, "reached": old_reached, "succeeded": succeeded, "regressions": 0,
+            "regressed_during_later_stage": false, "completed_control_step": null, "failure_reason": null});
+        if let Some(t) = ty {
+            d["type"] = json!(t);
+        }
+        d
+    }
+
+    fn completed(name: &str, step: u64) -> Value {
+        json!({"kind": "stage_completed", "control_step": step, "stage_name": name})
+    }
+
+    fn opening(name: &str, exec: u64, runs: &[u64], completed: bool) -> Value {
+        json!({"stage_name": name, "operation": "open", "exec_steps": exec, "contact_runs": runs,
+            "sustained_steps": runs.iter().filter(|&&r| r >= 5).sum::<u64>(), "sustained_contact_ratio_percent": 0.0, "completed": completed})
+    }
+
+    /// A batch of agent `command/golden` (L3, no demonstration, 1 repetition): `(task, K, c, private evaluation)`.
+    fn write_batch(dir: &Path, rollouts: &[(u32, u32, u32, Value)]) -> LoadedBatch {
+        std::fs::create_dir_all(dir).unwrap();
+        let batch = json!({
+            "schema_version": "libero_agent.batch.v1", "status": "finished",
+            "settings": {"experiment": "main_table", "harness": "command", "model": "golden", "effort": "high", "reps": 1,
+                "tasks": [], "seed": 100, "wall_time_s": 300.0, "max_agent_steps": 100, "agent_cmd": "true", "sandbox": false},
+            "rollout_count": rollouts.len(), "counts": {"done": rollouts.len(), "running": 0, "left": 0}, "outcomes": {},
+        });
+        std::fs::write(dir.join("batch.json"), batch.to_string()).unwrap();
+        let mut lines = String::new();
+        for (task, k, c, pe) in rollouts {
+            let id = format!("w1_t{task}_level3_none");
+            let run = dir.join("runs").join(&id);
+            std::fs::create_dir_all(&run).unwrap();
+            std::fs::write(run.join("result.json"), json!({"status": "finished", "private_evaluation": pe}).to_string()).unwrap();
+            let record = json!({
+                "schema_version": "libero_agent.rollout.v1", "rollout_id": id, "task": format!("T{task:02}"), "task_number": task,
+                "split": Split::of_task(*task).unwrap().as_str(), "stage_count": k, "repetition": 1, "level": 3, "demo": "none",
+                "outcome": if c == k { "SUCCESS" } else { "FAIL" }, "episode_id": format!("ep-t{task}"), "run_dir": run,
+                "completed_stages": c, "wall_time_s": 60.0, "started_at": "2025-01-01T00:00:00Z", "finished_at": "2025-01-01T00:01:00Z",
+            });
+            lines.push_str(&format!("{record}\n"));
+        }
+        std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
+        load_batch(dir).unwrap()
+    }
+
+    /// T21 (unordered cooking goals): the moka pot placed and kept (success); the second stove turned on, then off
+    /// again (completed, regressed: reached, failed, cross-stage interference); the microwave handle touched but not
+    /// opened (reached, failed, local execution); the frying pan and the first stove never touched (not reached).
+    fn t21() -> Value {
+        let mut st = vec![
+            stage("Moka_Pot_On_Second_Stove", Some(OM), true, true),
+            stage("Second_Stove_On", Some(MI), true, false),
+            stage("Frying_Pan_On_First_Stove", Some(OM), true, false),
+            stage("First_Stove_On", Some(MI), true, false),
+            stage("Microwave_Open", Some(MI), true, false),
+        ];
+        st[0]["completed_control_step"] = json!(120);
+        st[1]["completed_control_step"] = json!(200);
+        st[1]["regressions"] = json!(1);
+        json!({"checker": "private_unordered_goal_predicates", "stage_diagnostics": st,
+            "stage_events": [completed("Moka_Pot_On_Second_Stove", 120), completed("Second_Stove_On", 200),
+                {"kind": "stage_regressed", "control_step": 260, "stage_name": "Second_Stove_On"}],
+            "details": {"order": "unordered", "opening_operations": [opening("Microwave_Open", 80, &[2, 3], false)]}})
+    }
+
+    /// T22: the agent never touched the task (the microwave's pending opening spans the episode without contact).
+    fn t22() -> Value {
+        let st: Vec<Value> = [("Moka_Pot_On_Second_Stove", OM), ("Second_Stove_On", MI), ("Frying_Pan_On_First_Stove", OM), ("First_Stove_On", MI), ("Microwave_Open", MI)]
+            .iter()
+            .map(|(n, t)| stage(n, Some(t), true, false))
+            .collect();
+        json!({"checker": "private_unordered_goal_predicates", "stage_diagnostics": st, "stage_events": [],
+            "details": {"order": "unordered", "opening_operations": [opening("Microwave_Open", 1500, &[], false)]}})
+    }
+
+    /// T25 (strict order): stage 01 done; the right bowl moved before the middle one latched the order violation
+    /// while 02 was current (reached, failed, cross-stage interference); 03 and 04 not reached.
+    fn t25() -> Value {
+        let mut st = vec![
+            stage("01_Move_Left_Bowl_To_Empty_Plate", Some(OM), true, true),
+            stage("02_Move_Middle_Bowl_To_Left_Plate", Some(OM), true, false),
+            stage("03_Move_Right_Bowl_To_Middle_Plate", Some(OM), false, false),
+            stage("04_Move_Buffered_Bowl_To_Right_Plate", Some(OM), false, false),
+        ];
+        st[0]["completed_control_step"] = json!(300);
+        st[1]["failure_reason"] = json!("order_violation");
+        json!({"checker": "private_ordered_buffer_rotation_and_tabletop_avoidance", "stage_diagnostics": st,
+            "stage_events": [completed("01_Move_Left_Bowl_To_Empty_Plate", 300),
+                {"kind": "order_violation", "control_step": 410, "stage_name": "02_Move_Middle_Bowl_To_Left_Plate",
+                 "subject": "03_Move_Right_Bowl_To_Middle_Plate_before_02_Move_Middle_Bowl_To_Left_Plate"}],
+            "details": {"order": "strict", "opening_operations": []}})
+    }
+
+    /// T28: unlatched (success); the door handle touched, the door not opened (reached, failed, local execution).
+    fn t28() -> Value {
+        let mut st = vec![stage("01_Unlatch_Door", Some(MI), true, true), stage("02_Open_Door", Some(MI), true, false)];
+        st[0]["completed_control_step"] = json!(150);
+        json!({"checker": "private_ordered_stages", "stage_diagnostics": st, "stage_events": [completed("01_Unlatch_Door", 150)],
+            "details": {"order": "ordered", "opening_operations": [opening("01_Unlatch_Door", 150, &[20], true), opening("02_Open_Door", 300, &[1, 1], false)]}})
+    }
+
+    /// T30 (seesaw; the record names no types: the catalog's are used): 01–03 done, 01 knocked off while 02 ran and
+    /// still latched (a success in Table 4, an interference failure in the extension); 04 reached, failed, local.
+    fn t30() -> Value {
+        let mut st = vec![
+            stage("01_Place_First_Counterweight", None, true, true),
+            stage("02_Place_Second_Counterweight", None, true, true),
+            stage("03_Physical_Lift_Of_Target", None, true, true),
+            stage("04_Place_Target_In_Basket", None, true, false),
+        ];
+        st[0]["regressions"] = json!(1);
+        st[0]["regressed_during_later_stage"] = json!(true);
+        json!({"checker": "private_ordered_physical_seesaw", "stage_diagnostics": st,
+            "stage_events": [completed("01_Place_First_Counterweight", 100), completed("02_Place_Second_Counterweight", 200),
+                {"kind": "stage_regressed", "control_step": 180, "stage_name": "01_Place_First_Counterweight"},
+                completed("03_Physical_Lift_Of_Target", 320)],
+            "details": {"opening_operations": []}})
+    }
+
+    fn golden(dir: &Path) -> Vec<LoadedBatch> {
+        vec![write_batch(dir, &[(21, 5, 1, t21()), (22, 5, 0, t22()), (25, 4, 1, t25()), (28, 2, 1, t28()), (30, 4, 3, t30())])]
+    }
+
+    fn tables(batches: &[LoadedBatch], notes: Option<&StageAnnotations>) -> PaperTables {
+        paper_tables_annotated(batches, &crate::report::rows(batches, 1), 1, notes)
+    }
+
+    fn table4_row(t: &PaperTables) -> Vec<String> {
+        let d = display_tables(t, TableChoice::Table4, 1);
+        assert_eq!(d[0].id, "table-4");
+        assert_eq!(d[0].heads.len(), 7, "the paper's seven columns");
+        assert_eq!(d[0].rows.len(), 1);
+        d[0].rows[0].clone()
+    }
+
+    /// By hand, 20 stage opportunities (5 + 5 + 4 + 2 + 4):
+    /// * reached 11: T21 moka, second stove, microwave (3); T22 none; T25 01, 02 (2); T28 both (2); T30 all four → 55.0%;
+    /// * success 6: T21 moka; T25 01; T28 01; T30 01, 02, 03 → 30.0%;
+    /// * Object Manipulation reached 6 (T21 moka; T25 01, 02; T30 01, 02, 04), T25 02 left out (interference),
+    ///   successes 4 → 4/5 = 80.0%; Mechanism Interaction reached 5 (T21 second stove, microwave; T28 01, 02; T30 03),
+    ///   T21 second stove left out, successes 2 → 2/4 = 50.0%;
+    /// * failed 5: local execution T21 microwave, T28 02, T30 04 → 3/5 = 60.0%; interference T21 second stove, T25 02
+    ///   → 2/5 = 40.0%.
+    #[test]
+    fn table_4_over_the_hard_long_horizon_records_is_the_hand_computed_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let b = golden(dir.path());
+        let t = tables(&b, None);
+        let d = &t.stage_diagnosis[0].diagnosis;
+        assert_eq!((d.rollouts, d.opportunities, d.annotated, d.automatic, d.failed), (5, 20, 0, 20, 5));
+        assert_eq!(
+            table4_row(&t),
+            ["command/golden (L3, none)", "11/20 = 55.0%", "6/20 = 30.0%", "4/5 = 80.0%", "2/4 = 50.0%", "3/5 = 60.0%", "2/5 = 40.0%"]
+        );
+        assert_eq!((d.object_manipulation.reached, d.object_manipulation.excluded_interference), (6, 1));
+        assert_eq!((d.mechanism_interaction.reached, d.mechanism_interaction.excluded_interference), (5, 1));
+        // The extension over the same records: T30 01 undone while 02 ran is a failure there (interference), and
+        // execution success leaves nothing out: OM 4/6, MI 2/5.
+        let x = &t.stage_diagnosis_extension[0].diagnosis;
+        assert_eq!((x.opportunities, x.reached.successes, x.success.successes), (20, 11, 6));
+        assert_eq!((x.failures, x.local_execution, x.cross_stage_interference), (6, 3, 3));
+        let exec: Vec<(u64, u64)> = x.by_type.iter().map(|e| (e.execution_success.successes, e.execution_success.trials)).collect();
+        assert_eq!(exec, [(4, 6), (2, 5)]);
+        let ext = &display_tables(&t, TableChoice::Table4, 1)[1];
+        assert_eq!(ext.id, "table-4-extension");
+        assert!(ext.title.starts_with("Table 4+ (all long-horizon tasks T21–T30; extension)"), "{}", ext.title);
+        // Markdown and CSV carry the same numbers.
+        let md = markdown(&t, TableChoice::Table4, 1);
+        assert!(md.contains("| command/golden (L3, none) | 11/20 = 55.0% | 6/20 = 30.0% | 4/5 = 80.0% | 2/4 = 50.0% | 3/5 = 60.0% | 2/5 = 40.0% |"), "{md}");
+        assert!(md.contains("20 stage opportunities over 5 rollouts (T21 ×1, T22 ×1, T25 ×1, T28 ×1, T30 ×1); 0 annotated, 20 automatic"), "{md}");
+        let csv = csv_blocks(&t, TableChoice::Table4, 1);
+        assert_eq!(csv[0].0, "table_4_stage_diagnosis");
+        assert!(
+            csv[0].1.contains("command/golden,3,none,5,0,20,0,20,11,55.0000,6,30.0000,4,6,1,80.0000,2,5,1,50.0000,5,3,60.0000,2,40.0000,0,0,0\n"),
+            "{}",
+            csv[0].1
+        );
+    }
+
+    fn note(reached: bool, succeeded: bool, modes: &[FailureMode]) -> StageAnnotation {
+        StageAnnotation {
+            reached,
+            succeeded,
+            failure_modes: modes.to_vec(),
+            note: String::new(),
+            annotator: "reviewer".into(),
+            annotated_at: "2026-01-02T00:00:00Z".into(),
+        }
+    }
+
+    fn key(episode: &str, stage: &str) -> StageKey {
+        StageKey { episode_id: episode.into(), stage_name: stage.into() }
+    }
+
+    /// A person sees the frying pan grasped and knocked over by the pot's move (reached, failed, both local execution
+    /// and interference: the automatic label says not reached) and the door blocked by the open latch arm placed
+    /// wrongly (interference and geometric error, where the automatic label says local execution). By hand:
+    /// reached 12/20 = 60.0%; success 6/20 = 30.0%; Object Manipulation reached 7, two left out (the pan, T25 02) →
+    /// 4/5 = 80.0%; Mechanism Interaction reached 5, two left out (second stove, door) → 2/3 = 66.7%; failed 6: local
+    /// execution microwave, pan, T30 04 → 3/6 = 50.0%; interference second stove, pan, T25 02, door → 4/6 = 66.7%
+    /// (the two overlap on the pan: 116.7% together).
+    #[test]
+    fn annotations_replace_the_automatic_labels_where_they_differ() {
+        let dir = tempfile::tempdir().unwrap();
+        let b = golden(dir.path());
+        let mut notes = StageAnnotations::new();
+        use FailureMode::*;
+        notes.insert(key("ep-t21", "Frying_Pan_On_First_Stove"), note(true, false, &[LocalExecution, CrossStageInterference]));
+        notes.insert(key("ep-t28", "02_Open_Door"), note(true, false, &[CrossStageInterference, GeometricError]));
+        // an annotation of another episode's stage changes nothing here
+        notes.insert(key("ep-elsewhere", "02_Open_Door"), note(false, false, &[]));
+        let t = tables(&b, Some(&notes));
+        assert_eq!(
+            table4_row(&t),
+            ["command/golden (L3, none)", "12/20 = 60.0%", "6/20 = 30.0%", "4/5 = 80.0%", "2/3 = 66.7%", "3/6 = 50.0%", "4/6 = 66.7%"]
+        );
+        let d = &t.stage_diagnosis[0].diagnosis;
+        assert_eq!((d.annotated, d.automatic, d.geometric_error), (2, 18, 1));
+        let md = markdown(&t, TableChoice::Table4, 1);
+        assert!(md.contains("2 annotated, 18 automatic; failed stages also annotated geometric error 1, other 0, no mode 0"), "{md}");
+        // the extension stays automatic
+        assert_eq!(t.stage_diagnosis_extension[0].diagnosis.reached.successes, 11);
+        assert_ne!(table4_row(&tables(&b, None)), table4_row(&t));
+    }
+
+    /// An agent that never touched T28 (nothing completed, the latch's operation without a contact run), whose
+    /// record still says its first stage was reached (the old rule): 0 of 2 stages reached.
+    #[test]
+    fn an_agent_that_never_touched_a_task_reached_none_of_its_stages() {
+        let dir = tempfile::tempdir().unwrap();
+        let idle = json!({"checker": "private_ordered_stages",
+            "stage_diagnostics": [stage("01_Unlatch_Door", Some(MI), true, false), stage("02_Open_Door", Some(MI), false, false)],
+            "stage_events": [], "details": {"order": "ordered", "opening_operations": [opening("01_Unlatch_Door", 1200, &[], false)]}});
+        let b = vec![write_batch(dir.path(), &[(28, 2, 0, idle)])];
+        let t = tables(&b, None);
+        assert_eq!(table4_row(&t), ["command/golden (L3, none)", "0/2 = 0.0%", "0/2 = 0.0%", "—", "—", "—", "—"]);
+        assert_eq!(t.stage_diagnosis_extension[0].diagnosis.reached.successes, 0);
+    }
+
+    /// Cells as the paper writes them (`3/3`, `1.80/3`), and the long-horizon table's K row from the catalog.
+    #[test]
+    fn appendix_e_writes_x_over_reps_and_sum_over_reps_with_a_k_row() {
+        let cell = |value: Option<f64>, valid: usize| AppendixCell { task: "T01".into(), value, valid_rollouts: valid };
+        assert_eq!(appendix_text(&cell(Some(3.0), 3), false, 3), "3/3");
+        assert_eq!(appendix_text(&cell(Some(0.0), 4), false, 3), "0/3");
+        assert_eq!(appendix_text(&cell(Some(1.8), 3), true, 3), "1.80/3");
+        assert_eq!(appendix_text(&cell(Some(0.0), 3), true, 3), "0.00/3");
+        assert_eq!(appendix_text(&cell(Some(1.0), 2), false, 3), "1/2 valid");
+        assert_eq!(appendix_text(&cell(None, 1), true, 3), "—");
+
+        let dir = tempfile::tempdir().unwrap();
+        let t = tables(&golden(dir.path()), None);
+        let long = display_tables(&t, TableChoice::Appendix, 1).into_iter().find(|d| d.id == "appendix-e-long-horizon").unwrap();
+        assert_eq!(long.heads[2..], ["T21", "T22", "T23", "T24", "T25", "T26", "T27", "T28", "T29", "T30"]);
+        // The paper's K: T21 5, T22 5, T23 8, T24 4, T25 4, T26 3, T27 4, T28 2, T29 3, T30 4.
+        assert_eq!(long.rows[0], ["K (stages)", "", "5", "5", "8", "4", "4", "3", "4", "2", "3", "4"]);
+        // c/K of each rollout: T21 1/5, T22 0/5, T25 1/4, T28 1/2, T30 3/4, over 1 rollout.
+        assert_eq!(long.rows[1][2..], ["0.20/1", "0.00/1", "—", "—", "0.25/1", "—", "—", "0.50/1", "—", "0.75/1"]);
+        let csv = csv_blocks(&t, TableChoice::Appendix, 1);
+        let (_, body) = csv.iter().find(|(n, _)| n == "appendix_e_long_horizon").unwrap();
+        assert!(body.contains("\nK,,,5,5,8,4,4,3,4,2,3,4\n"), "{body}");
+        assert!(body.contains("\ncommand/golden,3,none,0.20/1,0.00/1,,,0.25/1,,,0.50/1,,0.75/1\n"), "{body}");
+    }
 }

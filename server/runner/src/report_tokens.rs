@@ -1,8 +1,9 @@
 //! Tokens with where each figure came from, for every row of `report` and the Results page. A rollout's `usage`
 //! says its source (`usage.source`): the runner's model-API gateway (which the agent cannot write), the harness's
 //! own stdout (only without the sandbox), or neither; records written before sources were recorded have none, and
-//! are shown as "source not recorded", never guessed. A row counts its valid rollouts (INVALID and INTERRUPTED ones
-//! never count, as in the metrics), averages the figures of those with usage, and says how many came from where.
+//! are shown as "source not recorded", never guessed. A row counts every episode (INVALID ones included, as the
+//! paper averages over all episodes of a table, and said so; INTERRUPTED rollouts, cut off by a stopped batch, are
+//! left out), averages the figures of those with usage, and says how many came from where.
 use std::fmt::Write as _;
 
 use serde::Serialize;
@@ -108,8 +109,10 @@ pub struct TokenSummary {
     pub mean_cached: Option<f64>,
     pub mean_output: Option<f64>,
     pub rollouts_with_usage: usize,
-    /// Valid rollouts of the row.
+    /// Episodes of the row: every rollout but INTERRUPTED ones, INVALID included.
     pub rollouts: usize,
+    /// INVALID rollouts among `rollouts` (inside the means when they have usage).
+    pub invalid_included: usize,
     pub sources: SourceCounts,
     pub stdout_disagrees: Vec<Disagreement>,
 }
@@ -120,10 +123,12 @@ fn mean(xs: impl Iterator<Item = u64>) -> Option<f64> {
 }
 
 impl TokenSummary {
-    /// Over `records`' valid rollouts (INVALID and INTERRUPTED ones are left out, as the metrics leave them out).
+    /// Over `records`' episodes: INVALID rollouts included (the paper averages over all episodes), INTERRUPTED ones
+    /// left out (as the metrics' time average, [`libero_metrics::is_episode`]).
     pub fn of<'a>(records: impl IntoIterator<Item = &'a RolloutRecord>) -> Self {
-        let valid: Vec<&RolloutRecord> = records.into_iter().filter(|r| r.outcome.is_valid()).collect();
-        let mut s = Self { rollouts: valid.len(), ..Self::default() };
+        let valid: Vec<&RolloutRecord> = records.into_iter().filter(|r| libero_metrics::is_episode(r.outcome)).collect();
+        let invalid_included = valid.iter().filter(|r| r.outcome == libero_metrics::Outcome::Invalid).count();
+        let mut s = Self { rollouts: valid.len(), invalid_included, ..Self::default() };
         let figures: Vec<RolloutTokens> = valid.iter().map(|r| RolloutTokens::of(r)).collect();
         for f in &figures {
             match f.source {
@@ -154,14 +159,16 @@ impl TokenSummary {
     }
 
     /// Where the figures came from, e.g. `gateway 90/90`, `gateway 58, stdout 2; 30 without usage`, `no usage: 90
-    /// rollouts`, with `; stdout disagrees: 1` when the harness printed other figures than the gateway recorded.
+    /// rollouts`, with `; stdout disagrees: 1` when the harness printed other figures than the gateway recorded, and
+    /// `; 2 INVALID incl.` when INVALID episodes are among those averaged.
     pub fn sources_text(&self) -> String {
         if self.rollouts == 0 {
-            return "no valid rollouts".into();
+            return "no episodes".into();
         }
+        let invalid = if self.invalid_included > 0 { format!("; {} INVALID incl.", self.invalid_included) } else { String::new() };
         if self.rollouts_with_usage == 0 {
             let unrecorded = if self.sources.not_recorded > 0 { format!(", {} with the source not recorded", self.sources.not_recorded) } else { String::new() };
-            return format!("no usage: {} rollout{}{unrecorded}", self.rollouts, if self.rollouts == 1 { "" } else { "s" });
+            return format!("no usage: {} rollout{}{unrecorded}{invalid}", self.rollouts, if self.rollouts == 1 { "" } else { "s" });
         }
         let c = &self.sources;
         let parts: Vec<String> = [("gateway", c.model_api_gateway), ("stdout", c.harness_stdout), ("source not recorded", c.not_recorded)]
@@ -181,6 +188,7 @@ impl TokenSummary {
         if !self.stdout_disagrees.is_empty() {
             let _ = write!(o, "; stdout disagrees: {}", self.stdout_disagrees.len());
         }
+        o.push_str(&invalid);
         o
     }
 

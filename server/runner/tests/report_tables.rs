@@ -11,10 +11,15 @@
 //! * ctx: video T27 4/4, 3/4 → 0.75 · T28 S,S → 1.0 (Overall 87.5); video+traj T27 2/4, 2/4 → 0.5 · T28 0/2, 1/2 → 0
 //!   (Overall 25.0). The ablation batches' rollouts have no run directory: Table 4 and Figure 3 count them as without
 //!   record.
-//! * Table 4 (L3, none), 12 stage opportunities (T27 ×2 × 4 stages, T28 ×2 × 2): reached 9 (75.0%), success 6
-//!   (50.0%); Object Manipulation: reached 3, succeeded 1; Mechanism Interaction: reached 6, succeeded 5; failures 4:
-//!   local 2 (T27 r1 stage 03, T27 r2 stage 02), interference 2 (T27 r2's drawer closed while a later stage ran; T28
-//!   r2's door blocked by an order violation). T27 r2's record has no stage types: the catalog's are used.
+//! * Table 4 (the paper's: hard long-horizon tasks only, here T28 ×2 × 2 stages = 4 opportunities, L3 none): reached
+//!   4 (100.0%: r1 both completed; r2's door reached once the latch was open), success 3 (75.0%); Mechanism Interaction
+//!   3 successes over 4 reached less 1 interference failure (r2's door, blocked by an order violation) = 3/3; failed 1:
+//!   local execution 0/1, cross-stage interference 1/1. The video conditions' T28 rollouts have no record.
+//! * Table 4+ (the extension, L3 none), 12 stage opportunities (T27 ×2 × 4 stages, T28 ×2 × 2): reached 9 (75.0%),
+//!   success 6 (50.0%); Object Manipulation: reached 3, succeeded 1; Mechanism Interaction: reached 6, succeeded 5;
+//!   failures 4: local 2 (T27 r1 stage 03, T27 r2 stage 02), interference 2 (T27 r2's drawer closed while a later
+//!   stage ran; T28 r2's door blocked by an order violation). T27 r2's record has no stage types: the catalog's are used.
+//! * Appendix E: x/2 and sum/2 (2 rollouts per task), the long-horizon table after its K row.
 //! * Figure 3 (L3, none), 8 opening operations (a closing and a legacy record left out / read by name): SCR 0, 8, 20,
 //!   30, 40, 50, 12, 0 with opened F, F, T, T, T, T, T, F → mean 20.0, success 5/8; bins 0: 0/2, (0,10]: 0/1,
 //!   (10,25]: 2/2, >25: 3/3; Pearson r = 52 / √(2408 · 1.875) = 0.77388.
@@ -213,7 +218,13 @@ fn markdown_prints_tables_1_to_4_figure_3_and_appendix_e_with_the_hand_computed_
     has(&md, "| command/fixture | None | 25.0 (1/5) | 50.0 (1/5) | 37.5 | main |");
     has(&md, "| command/fixture | Video | 75.0 (1/5) | 100.0 (1/5) | 87.5 | ctx |");
     has(&md, "| command/fixture | Video + Traj. | 50.0 (1/5) | 0.0 (1/5) | 25.0 | ctx |");
-    // Table 4.
+    // Table 4, the paper's seven columns.
+    has(&md, "| command/fixture (L3, none) | 4/4 = 100.0% | 3/4 = 75.0% | — | 3/3 = 100.0% | 0/1 = 0.0% | 1/1 = 100.0% |");
+    has(&md, "| command/fixture (L3, video) | — | — | — | — | — | — |");
+    assert!(md.contains("command/fixture (L3, none): 4 stage opportunities over 2 rollouts (T28 ×2); 0 annotated, 4 automatic"), "{md}");
+    assert!(md.contains("command/fixture (L3, video): 0 stage opportunities over 0 rollouts (+2 without record) (T28 ×2)"), "{md}");
+    // Table 4+, the extension.
+    assert!(md.contains("## Table 4+ (all long-horizon tasks T21–T30; extension)"), "{md}");
     has(
         &md,
         "| command/fixture | L3, none | 4 | 12 | 9/12 = 75.0% | 6/12 = 50.0% | 1/3 = 33.3 [6.1, 79.2] | 5/6 = 83.3 [43.6, 97.0] | 4 | 2 (50.0%) | 2 (50.0%) |",
@@ -229,9 +240,10 @@ fn markdown_prints_tables_1_to_4_figure_3_and_appendix_e_with_the_hand_computed_
     assert!(!md.contains("| 10.0% | 60 |"), "a closing is no opening operation");
     has(&md, "| command/fixture | L3, none | T27 | 01_Open_Middle_Drawer | 30.0% | 90 | yes |");
     // Appendix E, wide.
-    has(&md, "| command/fixture | L3, none | 2 | 2 | 1 | — | — | 0 | — | — | — | — |");
-    has(&md, "| command/fixture | L3, none | — | — | — | — | — | — | 0.75 | 1.50 | — | — |");
-    has(&md, "| command/fixture | L3, video | — | — | — | — | — | — | 1.75 | 2.00 | — | — |");
+    has(&md, "| command/fixture | L3, none | 2/2 | 2/2 | 1/2 | — | — | 0/2 | — | — | — | — |");
+    has(&md, "| K (stages) |  | 5 | 5 | 8 | 4 | 4 | 3 | 4 | 2 | 3 | 4 |");
+    has(&md, "| command/fixture | L3, none | — | — | — | — | — | — | 0.75/2 | 1.50/2 | — | — |");
+    has(&md, "| command/fixture | L3, video | — | — | — | — | — | — | 1.75/2 | 2.00/2 | — | — |");
     // One table alone.
     let only = report::markdown(&batches(dir.path()), REPS, TableChoice::Table3);
     assert!(only.contains("Demonstration ablation") && !only.contains("Observation ablation") && !only.contains("## Stable performance"));
@@ -251,6 +263,7 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
             "# table_2_observation_ablation",
             "# table_3_demonstration_ablation",
             "# table_4_stage_diagnosis",
+            "# table_4_extension_all_long_horizon",
             "# figure_3_scr_bins",
             "# figure_3_opening_operations",
             "# appendix_e_short_horizon",
@@ -274,6 +287,8 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
          command/fixture,video_traj,50.0000,0.0000,25.0000,1,1,5,ctx\n"
     );
     let t4 = report::csv(&b, REPS, TableChoice::Table4);
+    has(&t4, "command/fixture,3,none,2,0,4,0,4,4,100.0000,3,75.0000,0,0,0,,3,4,1,100.0000,1,0,0.0000,1,100.0000,0,0,0");
+    has(&t4, "command/fixture,3,video,0,2,0,0,0,0,,0,,0,0,0,,0,0,0,,0,0,,0,,0,0,0");
     has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,object_manipulation,4,3,1,33.3333,6.1492,79.2340,4,2,2");
     has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,mechanism_interaction,8,6,5,83.3333,43.6497,96.9947,4,2,2");
     has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,all,12,9,6,,,,4,2,2");
@@ -284,12 +299,13 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
     has(&f3, "command/fixture,\"L3, none\",T16,01_BDDL_Goal_At_Finish,8.0000,50,false");
     let appendix = report::csv(&b, REPS, TableChoice::Appendix);
     has(&appendix, "agent,level,demo,T11,T12,T13,T14,T15,T16,T17,T18,T19,T20");
-    has(&appendix, "command/fixture,3,none,2,2,1,,,0,,,,");
-    has(&appendix, "command/fixture,1,none,1,0,,,,,,,,");
-    has(&appendix, "command/fixture,3,video_traj,,,,,,,1.00,0.50,,");
+    has(&appendix, "command/fixture,3,none,2/2,2/2,1/2,,,0/2,,,,");
+    has(&appendix, "command/fixture,1,none,1/2,0/2,,,,,,,,");
+    has(&appendix, "K,,,5,5,8,4,4,3,4,2,3,4");
+    has(&appendix, "command/fixture,3,video_traj,,,,,,,1.00/2,0.50/2,,");
 
     let tex = report::latex(&b, REPS, TableChoice::All);
-    assert_eq!(tex.matches("\\begin{tabular}").count(), 8, "Tables 1–4, Figure 3 and its operations, two appendix tables:\n{tex}");
+    assert_eq!(tex.matches("\\begin{tabular}").count(), 9, "Tables 1–4, Table 4+, Figure 3 and its operations, two appendix tables:\n{tex}");
     assert_eq!(tex.matches("\\begin{tabular}").count(), tex.matches("\\end{tabular}").count());
     has(&tex, "command/fixture & L2 & 100.0 (1/5) & 0.0 (1/5) & 50.0 & obs \\\\");
     has(&tex, "command/fixture & Video + Traj. & 50.0 (1/5) & 0.0 (1/5) & 25.0 & ctx \\\\");
@@ -299,7 +315,8 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
     );
     has(&tex, "command/fixture & L3, none & T28 & 02\\_Open\\_Door & 0.0\\% & 80 & no \\\\");
     assert!(tex.contains("% Sustained-contact ratio of opening operations (Figure 3)\n\\begin{tabular}{lrrrrrrrrr}"), "{tex}");
-    has(&tex, "command/fixture & L3, none & 2 & 2 & 1 & -- & -- & 0 & -- & -- & -- & -- \\\\");
+    has(&tex, "command/fixture & L3, none & 2/2 & 2/2 & 1/2 & -- & -- & 0/2 & -- & -- & -- & -- \\\\");
+    has(&tex, "command/fixture (L3, none) & 4/4 = 100.0\\% & 3/4 = 75.0\\% & -- & 3/3 = 100.0\\% & 0/1 = 0.0\\% & 1/1 = 100.0\\% \\\\");
     assert!(!tex.contains('—') && !tex.contains("_fix"), "LaTeX-safe cells");
 }
 
@@ -316,6 +333,10 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
     let none = &v["demonstration_ablation"][0]["rows"][0];
     assert_eq!((none["easy"].as_f64(), none["hard"].as_f64(), none["overall"].as_f64()), (Some(0.25), Some(0.5), Some(0.375)));
     let t4 = v["stage_diagnosis"].as_array().unwrap().iter().find(|l| l["demo"] == "none").unwrap();
+    assert_eq!((t4["opportunities"].as_u64(), t4["failed"].as_u64(), t4["cross_stage_interference"]["successes"].as_u64()), (Some(4), Some(1), Some(1)));
+    assert_eq!((t4["annotated"].as_u64(), t4["automatic"].as_u64()), (Some(0), Some(4)));
+    assert_eq!(t4["tasks"], json!({"T28": 2}));
+    let t4 = v["stage_diagnosis_extension"].as_array().unwrap().iter().find(|l| l["demo"] == "none").unwrap();
     assert_eq!((t4["opportunities"].as_u64(), t4["failures"].as_u64(), t4["cross_stage_interference"].as_u64()), (Some(12), Some(4), Some(2)));
     assert_eq!(t4["untyped_opportunities"], 0, "T27 r2's stage types come from the catalog");
     let f3 = v["sustained_contact"].as_array().unwrap().iter().find(|l| l["condition"] == "L3, none").unwrap();
@@ -351,7 +372,7 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
 
 /// A 1-rep batch of agent `codex/tokens` whose five T11–T15 rollouts took their tokens from each source: the gateway
 /// (harness stdout disagreeing), the harness's stdout, none, a record from before sources were recorded, and an
-/// INVALID rollout (never counted).
+/// INVALID rollout (in the averages, as the paper averages over all episodes, and said to be).
 fn write_token_batch(dir: &Path) {
     std::fs::create_dir_all(dir).unwrap();
     let batch = json!({
@@ -397,12 +418,15 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
     let reps = report::default_reps(&b);
     let part = |text: &str, piece: &str| assert!(text.contains(piece), "missing\n{piece}\nin\n{text}");
 
-    // JSON: the row's mean over valid rollouts with usage (9000, 3000, 6000), the sources, the disagreement.
+    // JSON: the row's mean over every episode with usage, INVALID included (9000, 3000, 6000, 100000), the sources,
+    // the disagreement.
     let v = report::report_json(&b, reps);
     let t = &v["rows"][0]["tokens"];
-    assert_eq!(t["mean_total"], 6000.0, "{t}");
-    assert_eq!((t["rollouts_with_usage"].as_u64(), t["rollouts"].as_u64()), (Some(3), Some(4)), "INVALID never counts");
-    assert_eq!(t["sources"], json!({"model_api_gateway": 1, "harness_stdout": 1, "unavailable": 1, "not_recorded": 1}));
+    assert_eq!(t["mean_total"], 29500.0, "{t}");
+    assert_eq!((t["rollouts_with_usage"].as_u64(), t["rollouts"].as_u64(), t["invalid_included"].as_u64()), (Some(4), Some(5), Some(1)));
+    assert_eq!(t["sources"], json!({"model_api_gateway": 2, "harness_stdout": 1, "unavailable": 1, "not_recorded": 1}));
+    let s = &v["rows"][0]["summary"];
+    assert_eq!((s["averaged_episodes"].as_u64(), s["averaged_invalid"].as_u64()), (Some(5), Some(1)));
     assert_eq!(t["stdout_disagrees"], json!([{"rollout_id": "w1_t11_level3", "gateway": {"input": 8900, "output": 100, "total": 9000},
         "harness_stdout": {"input": 1, "output": 1, "total": 2}}]));
     let per: Vec<(String, String)> = v["rows"][0]["rollout_tokens"]
@@ -416,7 +440,7 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
 
     // Markdown: Table 1 with the sources, per-task cells with marks, and the legend.
     let md = report::markdown(&b, reps, TableChoice::All);
-    part(&md, "| 0.01M (gateway 1, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1) |");
+    part(&md, "| 1.0 min (1 INVALID incl.) | 0.03M (gateway 2, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1; 1 INVALID incl.) |");
     part(&md, "| 9,000 G |");
     part(&md, "| 3,000 S |");
     part(&md, "| – |");
@@ -427,7 +451,7 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
     let csv = report::csv(&b, reps, TableChoice::All);
     part(&csv, "mean_total_tokens,rollouts_with_usage,tokens_sources,stdout_disagrees");
     part(&csv, "codex/tokens,3,none,score,30,,");
-    part(&csv, ",6000.0,3,model_api_gateway=1 harness_stdout=1 unavailable=1 not_recorded=1,1\n");
+    part(&csv, ",29500.0,4,model_api_gateway=2 harness_stdout=1 unavailable=1 not_recorded=1,1\n");
     part(&csv, "codex/tokens,3,none,w1_t11_level3,T11,1,SUCCESS,9000,8900,50,100,model_api_gateway\n");
     part(&csv, "codex/tokens,3,none,w1_t13_level3,T13,1,FAIL,,,,,unavailable\n");
     part(&csv, "codex/tokens,3,none,w1_t14_level3,T14,1,SUCCESS,6000,5900,50,100,not_recorded\n");
@@ -435,5 +459,5 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
     // LaTeX: the mean and its source column.
     let tex = report::latex(&b, reps, TableChoice::Table1);
     part(&tex, "& Tokens (M) & Token source \\\\");
-    part(&tex, "& 0.01 & gateway 1, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1 \\\\");
+    part(&tex, "& 1.0 (1 INVALID incl.) & 0.03 & gateway 2, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1; 1 INVALID incl. \\\\");
 }

@@ -2,15 +2,19 @@
 //! opening operations the sustained-contact ratio), computed from any evaluator's record so every staged task gets
 //! them without evaluator-specific code.
 //!
-//! * **reached** — the agent could work on the stage: in ordered evaluators every earlier required stage completed
-//!   (the stage became current); in the unordered cooking evaluator every goal is available from the start.
+//! * **reached** — the record shows the agent got to the stage ([`libero_metrics::StageEvidence::reached`], the
+//!   rule Table 4 uses): its goal held at some point; or, for an ordered stage after the first, the stage before it
+//!   completed; or the gripper touched the stage's mechanism during its operation (a contact run); or a strict-order
+//!   violation or a forbidden contact latched while it was current. Never merely because it comes first or because
+//!   the unordered cooking goals are all available from the start.
 //! * **succeeded** — the stage latched as completed (unordered: the goal holds on the final state).
 //! * **regressed_during_later_stage** — a completed stage whose condition stopped holding while a later stage was
 //!   being worked on: the paper's cross-stage interference (an action in one stage undoing another's state).
-//! * **failure_reason** — on the first reached stage that did not succeed, why the episode failed.
+//! * **failure_reason** — on the first required stage that did not succeed, why the episode failed.
 //! * **type** — the stage type the catalog declares (Object Manipulation / Mechanism Interaction), for Table 4.
 //! * **operation** — for a stage with a monitored mechanism operation, which way it moves the mechanism, with the
 //!   operation's sustained-contact ratio (see [`crate::judge::mechanism`]).
+use libero_metrics::StageEvidence;
 use serde_json::Value;
 
 pub use crate::judge::evaluator::StageDiagnostic;
@@ -43,20 +47,51 @@ pub fn stage_diagnostics(record: &EvaluationRecord) -> Vec<StageDiagnostic> {
             .map(|e| e.tick.control_step)
     };
     let operations = record.details.as_ref().and_then(|d| d["opening_operations"].as_array());
+    // The gripper touched the stage's mechanism during its operation: a contact run of its monitored operation.
+    let touched = |n: &str| {
+        operations.into_iter().flatten().filter(|o| o["stage_name"].as_str() == Some(n)).any(|o| {
+            o["contact_runs"].as_array().is_some_and(|runs| !runs.is_empty()) || o["sustained_steps"].as_u64().is_some_and(|s| s > 0)
+        })
+    };
+    // Ordered stages: the required stage current at a control step (the first not completed by then).
+    let required: Vec<&String> = names.iter().filter(|(_, r)| *r).map(|(n, _)| *n).collect();
+    let current_at = |step: u64| {
+        (!unordered)
+            .then(|| required.iter().find(|n| first_step(n, EventKind::StageCompleted).is_none_or(|c| c > step)))
+            .flatten()
+            .map(|n| n.as_str())
+    };
+    let all_events = || record.stage_events.iter().chain(&record.events);
+    let violated_while_current =
+        |n: &str| all_events().any(|e| e.kind == EventKind::OrderViolation && e.stage_name.as_deref() == Some(n));
+    let forbidden_while_current = |n: &str| {
+        all_events().any(|e| e.kind == EventKind::ForbiddenContact && current_at(e.tick.control_step) == Some(n))
+    };
     let failure =
         record.failure_reason.and_then(|r| serde_json::to_value(r).ok()).and_then(|v| v.as_str().map(str::to_owned));
     let mut out: Vec<StageDiagnostic> = Vec::with_capacity(names.len());
     let mut failure_given = false;
     for (i, &(name, required)) in names.iter().enumerate() {
         let done = succeeded(name);
-        // Ordered: stage i is current once stage i−1 completed; optional stages follow the last required one.
-        let reached = unordered || i == 0 || succeeded(names[i - 1].0);
         let regressions = record.stage_regressions.iter().find(|r| &r.stage_name == name).map_or(0, |r| r.count);
         // Once a stage completes the next one is current, so a regression of any but the last stage happens while
         // later work is under way.
         let regressed_during_later_stage = !unordered && regressions > 0 && i + 1 < names.len();
+        let blocked = violated_while_current(name);
+        let evidence = StageEvidence {
+            succeeded: done,
+            completed_at_some_point: done || first_step(name, EventKind::StageCompleted).is_some(),
+            // Ordered: stage i is current once stage i−1 completed; optional stages follow the last required one.
+            preconditions_established: !unordered && i > 0 && succeeded(names[i - 1].0),
+            touched_mechanism: touched(name),
+            acted_while_current: blocked || forbidden_while_current(name),
+            regressions,
+            regressed_during_later_stage,
+            blocked_by_other_stage: blocked,
+        };
+        let reached = evidence.reached();
         let op = operations.and_then(|ops| ops.iter().rev().find(|o| o["stage_name"].as_str() == Some(name.as_str())));
-        let failure_reason = if reached && !done && required && !failure_given {
+        let failure_reason = if !done && required && !failure_given {
             failure_given = true;
             failure.clone()
         } else {
@@ -143,7 +178,7 @@ mod tests {
     }
 
     #[test]
-    fn the_failure_reason_lands_on_the_first_reached_stage_that_failed() {
+    fn the_failure_reason_lands_on_the_first_required_stage_that_failed() {
         let d = stage_diagnostics(&ordered_record());
         let reasons: Vec<Option<&str>> = d.iter().map(|s| s.failure_reason.as_deref()).collect();
         assert_eq!(reasons, [None, None, Some("incomplete_stage"), None]);
@@ -178,6 +213,49 @@ mod tests {
         assert_eq!(d.iter().map(|s| s.succeeded).collect::<Vec<_>>(), [false, true]);
         assert_eq!(d[0].regressions, 1);
         assert!(!d[0].regressed_during_later_stage);
+    }
+
+    #[test]
+    fn a_task_never_touched_has_no_reached_stage() {
+        // T28 as an agent that never acted: nothing completed, the unlatch operation without a contact run.
+        let mut r = EvaluationRecord::new("private_ordered_stages");
+        r.ordered_stage_names = vec!["01_Unlatch_Door".into(), "02_Open_Door".into()];
+        r.failure_reason = Some(FailureReason::IncompleteStage);
+        r.details = Some(json!({"opening_operations": [
+            {"stage_name": "01_Unlatch_Door", "operation": "open", "exec_steps": 300, "contact_runs": [], "sustained_steps": 0,
+             "sustained_contact_ratio_percent": 0.0}
+        ]}));
+        let d = stage_diagnostics(&r);
+        assert_eq!(d.iter().map(|s| s.reached).collect::<Vec<_>>(), [false, false]);
+        assert_eq!(d[0].failure_reason.as_deref(), Some("incomplete_stage"), "the reason still lands on the stage due");
+        // A touch of the latch handle reaches the first stage (and no further).
+        r.details = Some(json!({"opening_operations": [
+            {"stage_name": "01_Unlatch_Door", "operation": "open", "exec_steps": 300, "contact_runs": [3, 12], "sustained_steps": 12}
+        ]}));
+        assert_eq!(stage_diagnostics(&r).iter().map(|s| s.reached).collect::<Vec<_>>(), [true, false]);
+        // Unordered goals nobody touched are not reached either.
+        let mut u = EvaluationRecord::new("private_unordered_goal_predicates");
+        u.stages_unordered = true;
+        u.ordered_stage_names = vec!["G1".into(), "G2".into()];
+        assert!(stage_diagnostics(&u).iter().all(|s| !s.reached));
+    }
+
+    #[test]
+    fn an_order_violation_or_a_forbidden_contact_reaches_the_stage_then_current() {
+        let mut r = EvaluationRecord::new("private_ordered_buffer_rotation_and_tabletop_avoidance");
+        r.ordered_stage_names = vec!["01_a".into(), "02_b".into(), "03_c".into()];
+        r.completed_stage_names = vec!["01_a".into()];
+        r.stage_events = vec![
+            event(EventKind::StageCompleted, 10, "01_a"),
+            PrivateEvent { subject: Some("03_c_before_02_b".into()), ..event(EventKind::OrderViolation, 20, "02_b") },
+        ];
+        let d = stage_diagnostics(&r);
+        assert_eq!(d.iter().map(|s| s.reached).collect::<Vec<_>>(), [true, true, false]);
+        // A bowl dropped on the table at step 5, while the first stage was current.
+        let mut f = EvaluationRecord::new("private_ordered_buffer_rotation_and_tabletop_avoidance");
+        f.ordered_stage_names = vec!["01_a".into(), "02_b".into()];
+        f.events = vec![PrivateEvent { subject: Some("bowl_touched_table".into()), ..PrivateEvent::new(EventKind::ForbiddenContact, Tick::at_control_step(5, 0.25)) }];
+        assert_eq!(stage_diagnostics(&f).iter().map(|s| s.reached).collect::<Vec<_>>(), [true, false]);
     }
 
     #[test]
