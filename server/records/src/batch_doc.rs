@@ -109,7 +109,11 @@ record! {
 impl ResourceLimitsDoc {
     /// `1,024 processes, 4.0 GiB memory, 2.0 GiB disk, all CPUs`.
     pub fn summary(&self) -> String {
-        let gib = |b: Option<u64>| b.map(|b| format!("{:.1} GiB", b as f64 / (1u64 << 30) as f64)).unwrap_or_else(|| "?".into());
+        let gib = |b: Option<u64>| match b {
+            Some(b) if b >= 1 << 30 => format!("{:.1} GiB", b as f64 / (1u64 << 30) as f64),
+            Some(b) => format!("{} MiB", b >> 20),
+            None => "?".into(),
+        };
         let cpus = match self.cpus.flatten() {
             Some(c) => format!("{c} CPUs"),
             None => "all CPUs".into(),
@@ -302,4 +306,12 @@ mod tests {
         let r = RolloutSummary::from_value(json!({"infrastructure_error": "", "termination_reason": null})).unwrap();
         assert_eq!(r.reason(), None);
     }
+    #[test]
+    fn resource_limits_read_as_a_person_would_say_them() {
+        let r = ResourceLimitsDoc::from_value(json!({"max_processes": 1024, "memory_bytes": 4u64 << 30, "cpus": null, "disk_bytes": 256u64 << 20})).unwrap();
+        assert_eq!(r.summary(), "1024 processes, 4.0 GiB memory, 256 MiB disk, all CPUs");
+        let r = ResourceLimitsDoc::from_value(json!({"max_processes": 64, "memory_bytes": 512u64 << 20, "cpus": 0.5, "disk_bytes": 2u64 << 30})).unwrap();
+        assert_eq!(r.summary(), "64 processes, 512 MiB memory, 2.0 GiB disk, 0.5 CPUs");
+    }
+
 }
