@@ -178,8 +178,9 @@ fn check_reads(v: &Value, o: &Output) {
     }
 }
 
-/// As `run` sees it on this machine: root's runner drops the agent to nobody, whose reads go through the toolbox's
-/// bind at /opt (the cache itself lies below /root, which nobody cannot traverse).
+/// The sandbox as `Sandbox::detect` makes it (without a rollout's cage, whose uid `run` draws per rollout): root's
+/// runner drops the agent to an unprivileged uid (nobody here), whose reads go through the toolbox's bind at /opt
+/// (the cache itself lies below /root, which no other user can traverse).
 #[test]
 fn the_project_toolbox_reads_the_published_depth_png_and_demo_mp4_in_the_sandbox() {
     let sandbox = Sandbox::detect().unwrap().with_toolbox(Some(project_toolbox()));
