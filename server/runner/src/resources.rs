@@ -175,8 +175,14 @@ impl Resources {
             agent_uids: Some(args.agent_uids),
             lock_dir,
         };
+        let swept = sweep_orphaned_disks();
+        if swept > 0 {
+            eprintln!("unmounted {swept} rollout disk(s) left mounted by a runner that is gone");
+        }
         // A probe rollout: its cgroup made and removed, its disk mounted and unmounted.
-        let probe = std::env::temp_dir().join(format!("libero-agent-probe-{}", std::process::id()));
+        static PROBES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = PROBES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let probe = std::env::temp_dir().join(format!("libero-agent-probe-{}-{n}", std::process::id()));
         std::fs::create_dir_all(&probe).with_context(|| format!("cannot create {}", probe.display()))?;
         let cage = r.for_rollout("probe", &probe).context("a probe rollout's cage").map(drop);
         let _ = std::fs::remove_dir(&probe);
@@ -251,6 +257,8 @@ impl Resources {
         set_mode(&mount_point.join("logs"), 0o700)?;
         set_mode(&mount_point.join("home"), 0o700)?;
         set_mode(&mount_point.join("tmp"), 0o1777)?;
+        // Who holds this disk: a runner killed with SIGKILL leaves it mounted, and the next one unmounts it.
+        std::fs::write(mount_point.join(CAGE_MARKER), format!("{}\n", std::process::id())).context("cannot mark the rollout's disk")?;
         cage.disk = Some(disk);
         Ok(cage)
     }
@@ -436,6 +444,36 @@ impl Drop for Disk {
     }
 }
 
+/// The file at the root of each rollout's disk naming the pid of the runner that holds it (the agent cannot
+/// write there: the root is the runner's, 0755).
+const CAGE_MARKER: &str = ".libero-cage";
+
+/// Unmounts every rollout disk (a tmpfs with a [`CAGE_MARKER`] at its root) whose runner is no longer running;
+/// returns how many. A live runner's disks, and anything not marked, are left alone.
+pub fn sweep_orphaned_disks() -> usize {
+    let mountinfo = std::fs::read_to_string("/proc/self/mountinfo").unwrap_or_default();
+    let mut swept = 0;
+    for line in mountinfo.lines() {
+        let Some((left, right)) = line.split_once(" - ") else { continue };
+        if right.split_whitespace().next() != Some("tmpfs") {
+            continue;
+        }
+        // The mount point, with the kernel's octal escapes for space, tab, newline and backslash undone.
+        let Some(raw) = left.split_whitespace().nth(4) else { continue };
+        let point = PathBuf::from(raw.replace("\\040", " ").replace("\\011", "\t").replace("\\012", "\n").replace("\\134", "\\"));
+        let Ok(marker) = std::fs::read_to_string(point.join(CAGE_MARKER)) else { continue };
+        let Ok(pid) = marker.trim().parse::<i32>() else { continue };
+        // SAFETY: kill(2) with signal 0 only asks whether the process exists.
+        let alive = pid > 0 && (unsafe { libc::kill(pid, 0) } == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM));
+        if alive {
+            continue;
+        }
+        drop(Disk { mount_point: point });
+        swept += 1;
+    }
+    swept
+}
+
 /// A free uid of `range`: locked by an exclusive `flock` on `<lock_dir>/<uid>` (held by the returned file for the
 /// rollout's life, by whatever runner or worker of this host holds it), and no process of the host runs as it.
 fn claim_uid(range: (u32, u32), lock_dir: &Path) -> anyhow::Result<(u32, std::fs::File)> {
@@ -573,6 +611,37 @@ mod tests {
         assert_eq!(parse_uid_range("3000000-3065535"), Ok(DEFAULT_AGENT_UIDS));
         assert!(parse_uid_range("0-10").is_err() && parse_uid_range("10-5").is_err() && parse_uid_range("10").is_err());
         assert!(parse_cpus("0.5").is_ok() && parse_cpus("0").is_err() && parse_cpus("x").is_err());
+    }
+
+    /// A runner killed with SIGKILL leaves its rollout's disk mounted; the next one's start unmounts it, and leaves
+    /// a live runner's disk alone.
+    #[test]
+    fn a_disk_left_by_a_runner_that_is_gone_is_unmounted_and_a_live_one_is_not() {
+        if !root() {
+            eprintln!("not root: the cage needs root");
+            return;
+        }
+        let args = ResourceArgs { agent_disk: 16 << 20, ..Default::default() };
+        let r = Resources::detect(&args).unwrap().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let live = r.for_rollout("live", dir.path()).unwrap();
+        let orphan = r.for_rollout("orphan", dir.path()).unwrap();
+        let orphan_point = orphan.workspace().unwrap().parent().unwrap().to_path_buf();
+        // A dead runner's pid: a child that has exited and been reaped.
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let dead = child.id();
+        child.wait().unwrap();
+        std::fs::write(orphan_point.join(CAGE_MARKER), format!("{dead}\n")).unwrap();
+        let orphan_cgroups = orphan.cgroups.clone();
+        std::mem::forget(orphan);
+        let mounted = |p: &Path| std::fs::read_to_string("/proc/self/mountinfo").unwrap().contains(&format!(" {} ", p.display()));
+        assert!(mounted(&orphan_point));
+        assert!(sweep_orphaned_disks() >= 1);
+        assert!(!mounted(&orphan_point), "the orphan's disk is unmounted");
+        assert!(live.workspace().unwrap().is_dir(), "the live runner's disk stays");
+        for c in orphan_cgroups {
+            let _ = std::fs::remove_dir(c);
+        }
     }
 
     fn root() -> bool {
