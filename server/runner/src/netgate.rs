@@ -372,10 +372,14 @@ impl Overflow {
         self.summary.overflowed += 1;
         self.summary.complete = self.summary.tunnel_bytes == 0 && self.summary.unmetered == 0;
         *self.by_status.entry(r.status).or_default() += 1;
-        let later = self.last_passed_on.as_ref().is_none_or(|l| r.unix_ms >= l.unix_ms);
-        if matches!(r.mode, Mode::Reverse | Mode::Forward) && later {
-            self.last_passed_on = Some(r);
-        }
+        keep_if_last_passed_on(&mut self.last_passed_on, &r);
+    }
+}
+
+/// `r` becomes `last` when it was passed on (modes `reverse` and `forward`) and arrived no earlier.
+fn keep_if_last_passed_on(last: &mut Option<Record>, r: &Record) {
+    if matches!(r.mode, Mode::Reverse | Mode::Forward) && last.as_ref().is_none_or(|l| r.unix_ms >= l.unix_ms) {
+        *last = Some(r.clone());
     }
 }
 
@@ -394,9 +398,7 @@ struct Scan {
 
 impl Scan {
     fn passed_on(&mut self, r: &Record) {
-        if matches!(r.mode, Mode::Reverse | Mode::Forward) && self.last_passed_on.as_ref().is_none_or(|l| r.unix_ms >= l.unix_ms) {
-            self.last_passed_on = Some(r.clone());
-        }
+        keep_if_last_passed_on(&mut self.last_passed_on, r);
     }
 
     fn overflow(&mut self, o: &Overflow) {

@@ -353,11 +353,6 @@ impl RolloutCage {
         v
     }
 
-    /// Whether the kernel's OOM killer ended a process of the agent's.
-    pub fn oom_killed(&self) -> bool {
-        self.usage()["oom_kills"].as_u64().is_some_and(|n| n > 0)
-    }
-
     /// Ends every process left in the rollout's cgroups (what escaped the process group: `setsid`, daemons).
     pub fn kill_all(&self) {
         for dir in &self.cgroups {

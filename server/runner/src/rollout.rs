@@ -54,6 +54,19 @@ fn quit_cause(sandboxed: bool, sandbox_reported: bool, model_api_records: Option
     model_api_records.and_then(super::netgate::last_model_api_failure)
 }
 
+/// An episode the agent left open (`what` happened): the infrastructure's failure when `cause` names one
+/// (excluded and rescheduled, as the original does), else the agent's own doing, its FAIL through the server's
+/// forfeit with `reason`, never a free rerun. Returns the infrastructure error, if any.
+fn end_left_episode(ctx: &RunContext, episode_id: &str, what: &str, reason: &str, cause: Option<String>) -> Option<String> {
+    if let Some(cause) = cause {
+        return Some(format!("{what}: {cause}"));
+    }
+    let url = format!("/api/episodes/{episode_id}/forfeit");
+    post_json(&ctx.server_url, &url, &json!({"reason": reason}))
+        .err()
+        .map(|e| format!("{what}, and the server could not record it as the agent's failure: {e}"))
+}
+
 /// Replaces the API key, `sk-…` tokens and `Bearer …` values with `<redacted>` (the same matcher as the logs'
 /// streaming scrubber, [`super::logs`]).
 pub fn scrub(text: &str, secrets: &[&str]) -> String {
@@ -378,37 +391,21 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     drop(contained);
     // Before the logs are scrubbed in place: the last lines, and the gateway's last records.
     let transcript = transcript.finish();
+    let cause = || quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), model_api_records.as_deref());
     if watchdog {
         // Still open past budget + grace: an episode never started (prepared) is the agent's forfeit like any
         // other it leaves; one the server still runs past its budget stays the watchdog's (§8.4).
         let never_started = matches!(get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)), Ok((200, v)) if v["state"] == "prepared");
-        let cause = quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), model_api_records.as_deref());
-        match (never_started, cause) {
-            (_, Some(cause)) => infra = Some(format!("{WATCHDOG_ERROR}: {cause}")),
-            (true, None) => {
-                let reason = format!("the agent did not start its episode within the budget and {WATCHDOG_GRACE_S} s");
-                let url = format!("/api/episodes/{}/forfeit", prepared.episode_id);
-                if let Err(e) = post_json(&ctx.server_url, &url, &json!({"reason": reason})) {
-                    infra = Some(format!("{WATCHDOG_ERROR}, and the server could not record it as the agent's failure: {e}"));
-                }
-            }
-            (false, None) => infra = Some(WATCHDOG_ERROR.into()),
-        }
+        let reason = format!("the agent did not start its episode within the budget and {WATCHDOG_GRACE_S} s");
+        infra = match (never_started, cause()) {
+            (true, cause) => end_left_episode(ctx, &prepared.episode_id, WATCHDOG_ERROR, &reason, cause),
+            (false, Some(cause)) => Some(format!("{WATCHDOG_ERROR}: {cause}")),
+            (false, None) => Some(WATCHDOG_ERROR.into()),
+        };
     }
     if quit_before_finish {
         let exited = format!("harness exited before finish_episode (exit code {})", exit_code.unwrap_or(-1));
-        match quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), model_api_records.as_deref()) {
-            // The infrastructure failed the agent: excluded and rescheduled, as the original does.
-            Some(cause) => infra = Some(format!("{exited}: {cause}")),
-            // The agent's own doing (it stopped, or killed its CLI): its FAIL, never a free rerun.
-            None => {
-                let reason = format!("the agent's {exited}");
-                let url = format!("/api/episodes/{}/forfeit", prepared.episode_id);
-                if let Err(e) = post_json(&ctx.server_url, &url, &json!({"reason": reason})) {
-                    infra = Some(format!("{exited}, and the server could not record it as the agent's failure: {e}"));
-                }
-            }
-        }
+        infra = end_left_episode(ctx, &prepared.episode_id, &exited, &format!("the agent's {exited}"), cause());
     }
     if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
         let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
