@@ -9,12 +9,16 @@ that is renamed into place, so an interrupted run never leaves a half-written ca
 Cache: $LIBERO_AGENT_CACHE, default ~/.cache/libero-agent. The repository gets one link,
 .deps -> the cache, which .cargo/config.toml uses to find libmujoco at build time.
 
-Usage: setup.py [--test] [--no-apt] | --toolbox | --print-toolbox-dir
+Usage: setup.py [--test] [--no-apt] | --toolbox | --harnesses | --print-toolbox-dir
   --test    also the test extras: Debian packages for browser tests and MuJoCo's software renderer,
             a Python venv with mujoco/numpy/pillow/mcp/pyarrow/av (independent peers of some tests), and from
             npm: playwright-core for the browser tests (they drive Debian's chromium; no browser download), the
             agent CLIs the runner launches (Claude Code, Codex, Qwen Code, Kimi Code) and the MCP Inspector for the real-CLI
-            tests, and the Node.js 22 runtime those CLIs need (Debian 12 ships Node 18); and the agents' toolbox.
+            tests, and the Node.js 22 runtime those CLIs need (Debian 12 ships Node 18); the agents' toolbox; and the
+            other agent CLI versions of --harnesses.
+  --harnesses  the agent CLI versions the lock's `harness_versions` lists (the paper's Codex 0.154.0 and Claude Code
+            2.1.139 beside the tests'), each not already in node_test installed with npm at its exact version into
+            cache/harnesses/<harness>-<version>, where `libero-agent run --harness-version` finds it.
   --toolbox the agents' toolbox only (what `libero-agent run` calls on first use): the lock's scientific Python
             wheels installed as a venv over Debian's /usr/bin/python3 in cache/toolbox-<name>-<hash>.
   --print-toolbox-dir  where the lock's toolbox lives (installed or not), and nothing else.
@@ -108,13 +112,14 @@ def write_member(z: zipfile.ZipFile, info: zipfile.ZipInfo, out: Path) -> None:
 
 
 def install_tree(name: str, marker: str, builder) -> Path:
-    """Build cache/<name> through a temp dir + rename; `marker` records what it was built from."""
+    """Build cache/<name> (`name` may be `dir/sub`) through a temp dir beside it + rename; `marker` records what it
+    was built from."""
     root = cache_dir()
     final = root / name
     stamp = final / ".complete"
     if stamp.exists() and stamp.read_text() == marker:
         return final
-    tmp = Path(tempfile.mkdtemp(dir=root, prefix=f".{name}-"))
+    tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}-"))
     try:
         builder(tmp)
         (tmp / ".complete").write_text(marker)
@@ -397,6 +402,44 @@ def check_node_clis(node: Path) -> None:
             fail(f"{bin_dir / cmd} --version failed after npm install")
 
 
+def harness_dir_name(harness: str, version: str) -> str:
+    """`<harness>-<version>`, as the runner looks for it (server/runner/src/harness_versions.rs)."""
+    return f"{harness}-{version}"
+
+
+def setup_harness_versions(lock: dict) -> None:
+    """Each CLI version of the lock's `harness_versions` that node_test does not already install goes into a prefix
+    of its own, cache/harnesses/<harness>-<version> (npm, exact version), so that several versions of one CLI stand
+    side by side; its command lands in that prefix's node_modules/.bin. It runs on the `node` found on PATH."""
+    spec = lock["harness_versions"]
+    in_node_test = set(lock["node_test"])
+    root = cache_dir() / "harnesses"
+    for harness, entry in spec.items():
+        if not isinstance(entry, dict):
+            continue
+        for version in entry["versions"]:
+            package = f"{entry['package']}@{version}"
+            if package in in_node_test:
+                continue
+            marker = package
+
+            def build(tmp: Path, package=package, command=entry["command"], version=version) -> None:
+                if shutil.which("npm") is None:
+                    setup_apt(["npm"])
+                say(f"installing {package} into its own prefix")
+                if subprocess.call(["npm", "install", "--prefix", str(tmp), "--no-audit", "--no-fund", "--save-exact",
+                                    package]) != 0:
+                    fail(f"npm install {package} failed; nothing was kept")
+                cli = tmp / "node_modules" / ".bin" / command
+                r = subprocess.run([str(cli), "--version"], capture_output=True, text=True, stdin=subprocess.DEVNULL)
+                if r.returncode != 0 or version not in r.stdout:
+                    fail(f"{cli} --version printed {r.stdout.strip()!r} {r.stderr.strip()[-500:]!r}, not {version}")
+                readable_by_all(tmp)
+
+            root.mkdir(parents=True, exist_ok=True)
+            install_tree(f"harnesses/{harness_dir_name(harness, version)}", marker, build)
+
+
 def setup_s3_server(spec: dict) -> None:
     """The S3-compatible test server (`s3s-fs`, a crate on crates.io) built once into the cache with `cargo install`
     at the locked version; the queue test starts it on a free loopback port over a temporary directory."""
@@ -422,6 +465,10 @@ def main() -> None:
     if "--toolbox" in args:
         say(f"toolbox ready: {setup_toolbox(lock)}")
         return
+    if "--harnesses" in args:
+        setup_harness_versions(lock)
+        say(f"agent CLI versions ready under {cache_dir() / 'harnesses'}")
+        return
     if "--no-apt" not in args:
         setup_apt(lock["debian"]["run"] + (lock["debian"]["test"] if "--test" in args else []))
     setup_pypi(lock)
@@ -430,6 +477,7 @@ def main() -> None:
         setup_node(lock["node_test"])
         setup_s3_server(lock["s3_test_server"])
         setup_toolbox(lock)
+        setup_harness_versions(lock)
     if "--test" in args:
         check_free_disk()
     say(f"ready (cache {cache_dir()})")
