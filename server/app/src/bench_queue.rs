@@ -58,6 +58,7 @@ pub fn run(args: &BenchQueueArgs) -> anyhow::Result<()> {
     let settings = BatchSettings {
         experiment: "main_table".into(),
         harness: "command".into(),
+        harness_version: None,
         model: "reference".into(),
         effort: "high".into(),
         reps: args.rollouts,

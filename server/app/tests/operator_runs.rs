@@ -32,6 +32,7 @@ fn settings(reps: u32, agent_cmd: &str) -> BatchSettings {
     BatchSettings {
         experiment: "main_table".into(),
         harness: "command".into(),
+        harness_version: None,
         model: "reference".into(),
         effort: "high".into(),
         reps,

@@ -75,11 +75,16 @@ record! {
 }
 
 record! {
-    /// What the harness's version probe asked and saw.
+    /// What the harness's version probe asked and saw: the batch's (`batch.json`), and each rollout's, probed on the
+    /// executable that rollout launched (a line of `rollouts.jsonl`).
     pub struct HarnessVersion {
+        /// The command probed, without `--version` (`codex`, a pinned install's path, `npx --yes <package>`).
         pub requested: Option<String>,
+        /// The first version-looking word it printed (`0.154.0`).
         pub observed: Option<String>,
         pub probe_output: Option<String>,
+        /// The file the command resolved to on the runner's PATH (absent in records written before it was kept).
+        pub executable: Option<String>,
     }
 }
 

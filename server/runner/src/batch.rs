@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use libero_episode::json::write_json_file;
-use libero_episode::batch_doc::{BatchDoc, BatchSettingsDoc};
+use libero_episode::batch_doc::{BatchDoc, BatchSettingsDoc, HarnessVersion};
 use libero_episode::records::RunResult;
 use libero_metrics::{Outcome, PoolRollout, Rollout, Split};
 use serde::{Deserialize, Serialize};
@@ -25,6 +25,10 @@ pub const ROLLOUT_SCHEMA: &str = "libero_agent.rollout.v1";
 pub struct BatchSettings {
     pub experiment: String,
     pub harness: String,
+    /// `--harness-version`: the CLI version every rollout runs (absent: the command on PATH). Left out of the JSON
+    /// when absent, so the hash of a batch run without it is what it was.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub harness_version: Option<String>,
     pub model: String,
     pub effort: String,
     pub reps: u32,
@@ -99,6 +103,10 @@ pub struct RolloutRecord {
     /// Where a queued rollout's run directory is in the artifact store (`<artifacts URL>/runs/<episode id>`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub artifacts: Option<String>,
+    /// `--version` of the harness CLI this rollout launched, probed just before its launch (absent for `command`,
+    /// for a rollout that ended before its launch, and in records written before rollouts were probed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub harness_version: Option<HarnessVersion>,
 }
 
 impl RolloutRecord {
@@ -135,6 +143,7 @@ impl RolloutRecord {
             finished_at: now,
             worker: None,
             artifacts: None,
+            harness_version: None,
         }
     }
 
@@ -479,6 +488,7 @@ mod tests {
         let s = BatchSettings {
             experiment: "main_table".into(),
             harness: "codex".into(),
+            harness_version: None,
             model: "m".into(),
             effort: "high".into(),
             reps: 3,
@@ -499,6 +509,11 @@ mod tests {
         assert!(!serde_json::to_string(&s).unwrap().contains("pool_tasks"));
         t.pool_tasks = vec!["suite:robomemarena".into()];
         assert_ne!(s.sha256(), t.sha256());
+        // Without --harness-version too; with it, another batch (`--resume` refuses a changed version).
+        assert!(!serde_json::to_string(&s).unwrap().contains("harness_version"));
+        let mut v = s.clone();
+        v.harness_version = Some("0.154.0".into());
+        assert_ne!(s.sha256(), v.sha256());
     }
 
     #[test]
@@ -509,7 +524,7 @@ mod tests {
             "infrastructure_error":null,"wall_time_s":1.0,"harness_elapsed_s":null,"accepted_agent_steps":4,
             "completed_stages":1,"judgment_correct":null,"agent_exit_code":0,"usage":null,"started_at":"x","finished_at":"y"}"#;
         let r: RolloutRecord = serde_json::from_str(line).unwrap();
-        assert_eq!(r.suite, None);
+        assert_eq!((r.suite.as_ref(), r.harness_version.as_ref()), (None, None));
         assert_eq!(r.to_metrics().unwrap().split, libero_metrics::Split::ShortHorizonEasy);
         assert!(r.to_pool().is_none());
     }

@@ -17,7 +17,7 @@ use libero_server::client::{InProcessServer, prepare_episode};
 use libero_server::episodes::{PrepareRequest, Prepared};
 
 const SETUP_HINT: &str = "run `python3 scripts/setup.py --test`, which installs the pinned agent CLIs with npm into \
-                          ~/.cache/libero-agent/node";
+                          ~/.cache/libero-agent/node (and the paper's versions into ~/.cache/libero-agent/harnesses)";
 
 /// Where `scripts/setup.py --test` puts the CLIs' commands (and the Node 22 they run on).
 fn cli_dir() -> PathBuf {
@@ -90,6 +90,7 @@ impl Episode {
             self_exe: Path::new("/nonexistent/libero-agent"),
             sandboxed: true,
             npm_cli_installed: true,
+            cli_path: None,
         };
         let mut launch = build_launch(&ctx).unwrap();
         for (k, v) in &mut launch.env {
@@ -143,6 +144,24 @@ fn launch_file(launch: &Launch, name: &str) -> Value {
     let (_, content, mode) = launch.files.iter().find(|f| f.0.ends_with(name)).unwrap_or_else(|| panic!("no {name} in the launch"));
     assert_eq!(*mode, 0o600, "{name} holds the episode token");
     serde_json::from_str(content).unwrap()
+}
+
+/// The paper's CLI versions (App. A: Codex 0.154.0, Claude Code 2.1.139), installed apart by `scripts/setup.py
+/// --harnesses` (part of `--test`), and the tests' versions are what `run --harness-version` resolves them to: each
+/// executable found prints exactly the version asked for.
+#[test]
+fn the_papers_and_the_tests_cli_versions_resolve_to_executables_that_print_them() {
+    use super::harness_versions::{install_dir, probe, resolve};
+    let cache = super::host_paths::cache_dir();
+    let path = std::ffi::OsString::from(format!("{}:/usr/bin:/bin", cli_dir().display()));
+    for (harness, version) in [(Harness::Codex, "0.154.0"), (Harness::ClaudeCode, "2.1.139"), (Harness::Codex, "0.169.0"), (Harness::ClaudeCode, "2.1.330")] {
+        let exe = resolve(harness, version, &cache, &path).unwrap_or_else(|e| panic!("{e:#}\n({SETUP_HINT})"));
+        let v = probe(&[exe.to_string_lossy().into_owned(), "--version".into()], &path);
+        assert_eq!(v.observed.as_deref(), Some(version), "{} --version: {v:?}", exe.display());
+        if version == "0.154.0" || version == "2.1.139" {
+            assert!(exe.starts_with(install_dir(&cache, harness, version)), "the paper's version installed apart: {}", exe.display());
+        }
+    }
 }
 
 /// `claude mcp list` health-checks every server of its configured scopes (it ignores `--mcp-config`), so the

@@ -42,17 +42,23 @@ impl Harness {
         }
     }
 
-    /// `<program> --version` argv (None for `command`), the npm CLIs through `npx` unless installed.
-    pub fn version_probe(self, npm_cli_installed: bool) -> Option<Vec<String>> {
+    /// `<program> --version` argv (None for `command`): the program as [`cli_command`] starts it.
+    pub fn version_probe(self, npm_cli_installed: bool, cli_path: Option<&Path>) -> Option<Vec<String>> {
+        let mut a = cli_command(self, npm_cli_installed, cli_path);
+        if a.is_empty() {
+            return None;
+        }
+        a.push("--version".into());
+        Some(a)
+    }
+
+    /// The command the harness's CLI installs (`codex`, `claude`, `qwen`, …); `None` for `command`.
+    pub fn command(self) -> Option<&'static str> {
         match self {
-            Harness::Codex => Some(vec!["codex".into(), "--version".into()]),
-            Harness::ClaudeCode => Some(vec!["claude".into(), "--version".into()]),
+            Harness::Codex => Some("codex"),
+            Harness::ClaudeCode => Some("claude"),
             Harness::Command => None,
-            _ => {
-                let mut a = npm_cli_command(self, npm_cli_installed);
-                a.push("--version".into());
-                Some(a)
-            }
+            _ => self.npm_cli().map(|(_, command)| command),
         }
     }
 
@@ -170,12 +176,18 @@ pub fn pinned_npm_cli_installed(harness: Harness) -> bool {
     out.is_ok_and(|o| o.status.success() && String::from_utf8_lossy(&o.stdout).split_whitespace().any(|w| w.trim_start_matches('v') == pinned))
 }
 
-/// How an npm harness is started: its installed command, or `npx --yes <package>@<version>`.
-fn npm_cli_command(harness: Harness, installed: bool) -> Vec<String> {
-    match harness.npm_cli() {
-        Some((_, command)) if installed => vec![command.to_owned()],
-        Some((package, _)) => vec!["npx".to_owned(), "--yes".to_owned(), package.to_owned()],
-        None => Vec::new(),
+/// How the harness's CLI is started (empty for `command`): a version installed apart (`run --harness-version`) by
+/// its executable's path; else Codex and Claude Code by the command on PATH, the other npm harnesses by their
+/// installed command or `npx --yes <package>@<version>`.
+pub fn cli_command(harness: Harness, npm_cli_installed: bool, cli_path: Option<&Path>) -> Vec<String> {
+    if let (Some(path), Some(_)) = (cli_path, harness.command()) {
+        return vec![path.to_string_lossy().into_owned()];
+    }
+    match (harness, harness.npm_cli()) {
+        (Harness::Codex | Harness::ClaudeCode, _) => harness.command().map(str::to_owned).into_iter().collect(),
+        (_, Some((_, command))) if npm_cli_installed => vec![command.to_owned()],
+        (_, Some((package, _))) => vec!["npx".to_owned(), "--yes".to_owned(), package.to_owned()],
+        (_, None) => Vec::new(),
     }
 }
 
@@ -260,6 +272,9 @@ pub struct LaunchContext<'a> {
     pub sandboxed: bool,
     /// Whether the harness's pinned npm CLI is installed ([`pinned_npm_cli_installed`]): run it without `npx`.
     pub npm_cli_installed: bool,
+    /// The executable of a version asked for with `run --harness-version` (`crate::harness_versions::resolve`),
+    /// run instead of the command on PATH.
+    pub cli_path: Option<&'a Path>,
 }
 
 /// A launch: argv, the child's whole environment, files to write first (path, content, mode).
@@ -349,7 +364,8 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             env.push((s("CODEX_HOME"), home_s.clone()));
             env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
             env.push((s("CODEX_API_KEY"), c.api_key.clone()));
-            let mut a = vec![s("codex"), s("exec")];
+            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
+            a.push(s("exec"));
             if ctx.sandboxed {
                 // Our bubblewrap sandbox is the isolation; Codex's own (landlock/bwrap) cannot nest inside it.
                 a.push(s("--dangerously-bypass-approvals-and-sandbox"));
@@ -381,11 +397,13 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
                 // root (the uid a CI container runs as), although our sandbox is exactly the isolation it asks for.
                 env.push((s("CLAUDE_CODE_BUBBLEWRAP"), s("1")));
             }
-            vec![
-                s("claude"), s("--bare"), s("--strict-mcp-config"), s("--mcp-config"), cfg.to_string_lossy().into_owned(),
+            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
+            a.extend([
+                s("--bare"), s("--strict-mcp-config"), s("--mcp-config"), cfg.to_string_lossy().into_owned(),
                 s("--print"), s("--output-format"), s("stream-json"), s("--verbose"), s("--model"), s(ctx.model),
                 s("--effort"), s(ctx.effort), s("--permission-mode"), s("bypassPermissions"), prompt,
-            ]
+            ]);
+            a
         }
         Harness::KimiCode => {
             let c = creds()?;
@@ -411,7 +429,7 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
                 env.push((s(k), s(v)));
             }
             env.push((s("KIMI_CODE_HOME"), home_s.clone()));
-            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
             a.extend([
                 s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
                 s("--skills-dir"), format!("{home_s}/empty-skills"), s("--prompt"), prompt,
@@ -437,7 +455,7 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             {
                 env.push((s(k), s(v)));
             }
-            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
             a.extend([
                 s("--auth-type"), s("openai"), s("--model"), s(ctx.model), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
                 s("--approval-mode"), s("yolo"), s("--chat-recording"), s("--output-format"), s("stream-json"), prompt,
@@ -477,7 +495,7 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
             {
                 env.push((s(k), s(v)));
             }
-            let mut a = npm_cli_command(ctx.harness, ctx.npm_cli_installed);
+            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
             a.extend([s("--profile"), s("headless"), s("--patch"), patch_file.to_string_lossy().into_owned(), prompt]);
             a
         }
@@ -525,6 +543,7 @@ mod tests {
             self_exe: Path::new("/opt/libero-agent"),
             sandboxed: true,
             npm_cli_installed: false,
+            cli_path: None,
         }
     }
 
@@ -590,6 +609,23 @@ mod tests {
         let bare = e(Harness::Command, "");
         assert!(bare.contains(&"POST /chat/completions".to_owned()) && bare.contains(&"POST /v1/chat/completions".to_owned()), "{bare:?}");
         assert!(!cmd.iter().chain(&bare).any(|r| r.contains("files") || r.contains("batches")));
+    }
+
+    /// `run --harness-version`: the same launch, started by the executable of the version asked for.
+    #[test]
+    fn a_version_asked_for_is_launched_by_its_executable_with_the_same_arguments() {
+        let c = Credentials { api_base: Some("https://api.test".into()), api_key: "sk-secret-key".into(), source: "/c".into() };
+        for (h, command) in [(Harness::Codex, "codex"), (Harness::ClaudeCode, "claude"), (Harness::QwenCode, "qwen")] {
+            let pinned = PathBuf::from(format!("/cache/harnesses/{}-1.2.3/node_modules/.bin/{command}", h.as_str()));
+            let default = build_launch(&LaunchContext { npm_cli_installed: true, ..ctx(h, Some(&c)) }).unwrap();
+            let chosen = build_launch(&LaunchContext { cli_path: Some(&pinned), ..ctx(h, Some(&c)) }).unwrap();
+            assert_eq!(default.argv[0], command, "{h:?}: the command on PATH without --harness-version");
+            assert_eq!((chosen.argv[0].as_str(), &chosen.argv[1..]), (pinned.to_str().unwrap(), &default.argv[1..]), "{h:?}");
+            assert_eq!(h.version_probe(false, Some(&pinned)).unwrap(), [pinned.to_str().unwrap(), "--version"]);
+        }
+        assert_eq!(Harness::Codex.version_probe(false, None).unwrap(), ["codex", "--version"]);
+        assert_eq!(Harness::KimiCode.version_probe(false, None).unwrap(), ["npx", "--yes", KIMI_PACKAGE, "--version"]);
+        assert_eq!(Harness::Command.version_probe(false, Some(Path::new("/x"))), None);
     }
 
     #[test]

@@ -8,6 +8,7 @@ pub mod batch;
 #[cfg(test)]
 mod cli_checks;
 pub mod harness;
+pub mod harness_versions;
 mod host_paths;
 pub mod lines;
 pub mod logs;
@@ -63,6 +64,12 @@ pub struct RunArgs {
     pub experiment: Experiment,
     #[arg(long, value_enum)]
     pub harness: Harness,
+    /// Run this version of the harness's CLI (e.g. `0.154.0` for Codex, `2.1.139` for Claude Code: the paper's), found
+    /// installed apart in the cache (`python3 scripts/setup.py --harnesses`), in the tests' install or on PATH; an
+    /// error lists the installed versions when it is not there. Default: the command on PATH. Each rollout records
+    /// the version it ran.
+    #[arg(long, value_name = "VERSION")]
+    pub harness_version: Option<String>,
     /// The model id, always explicit (for `command` it labels the agent in reports).
     #[arg(long)]
     pub model: String,
@@ -195,6 +202,8 @@ pub struct RunContext {
     pub self_exe: PathBuf,
     /// The harness's pinned npm CLI is installed: launched directly, not through `npx`.
     pub npm_cli_installed: bool,
+    /// `--harness-version`'s executable ([`harness_versions::resolve`]), launched instead of the command on PATH.
+    pub cli_path: Option<PathBuf>,
     /// `--store`: the batch is written there after every change too.
     pub store: Option<batch::StoreMirror>,
     /// The batch's name, as its episodes carry it on the server (a queued batch's name, else its directory's).
@@ -265,6 +274,7 @@ fn settings_of(args: &RunArgs, tasks: &[u32], pool_tasks: &[String]) -> BatchSet
     BatchSettings {
         experiment: args.experiment.as_str().to_owned(),
         harness: args.harness.as_str().to_owned(),
+        harness_version: args.harness_version.clone(),
         model: args.model.clone(),
         effort: args.effort.clone(),
         reps: args.reps,
@@ -278,20 +288,21 @@ fn settings_of(args: &RunArgs, tasks: &[u32], pool_tasks: &[String]) -> BatchSet
     }
 }
 
-/// `<program> --version` (90 s), first version-looking word of the output.
-pub(crate) fn probe_version(harness: Harness, npm_cli_installed: bool) -> Value {
-    let Some(argv) = harness.version_probe(npm_cli_installed) else {
-        return json!({"requested": null, "observed": null, "probe_output": null});
-    };
-    let out = std::process::Command::new(&argv[0]).args(&argv[1..]).stdin(std::process::Stdio::null()).output();
-    let text = match out {
-        Ok(o) => format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)),
-        Err(e) => format!("cannot run {}: {e}", argv[0]),
-    };
-    let observed = text
-        .split(|c: char| c.is_whitespace() || c == '@' || c == 'v')
-        .find(|w| w.split('.').count() >= 3 && w.split('.').next().is_some_and(|x| x.parse::<u32>().is_ok()));
-    json!({"requested": argv[..argv.len() - 1].join(" "), "observed": observed, "probe_output": text.trim().chars().take(500).collect::<String>()})
+/// The batch's `harness.version`: `<program> --version` of the CLI its rollouts launch ([`harness_versions::probe_cli`]),
+/// all null for `command`.
+pub(crate) fn probe_version(harness: Harness, npm_cli_installed: bool, cli_path: Option<&Path>) -> Value {
+    match harness_versions::probe_cli(harness, npm_cli_installed, cli_path) {
+        Some(v) => v.to_value(),
+        None => json!({"requested": null, "observed": null, "probe_output": null}),
+    }
+}
+
+/// `--harness-version`'s executable, resolved on this machine (`None` without the flag), said on stderr.
+pub(crate) fn cli_path_of(harness: Harness, version: Option<&str>) -> anyhow::Result<Option<PathBuf>> {
+    let Some(version) = version else { return Ok(None) };
+    let path = harness_versions::resolve_here(harness, version)?;
+    eprintln!("{} {version}: {}", harness.as_str(), path.display());
+    Ok(Some(path))
 }
 
 /// `numpy 1.26.4, scipy 1.14.1, …` for the progress line.
@@ -464,6 +475,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if (args.harness == Harness::Command) != args.agent_cmd.is_some() {
         bail!("--agent-cmd is required with --harness command and only allowed with it");
     }
+    if args.harness_version.is_some() && args.harness.command().is_none() {
+        bail!("--harness-version picks a version of an agent CLI; --harness command runs --agent-cmd, which has none");
+    }
     let catalog = Catalog::discover()?;
     let (schedule, skipped, only, pool_tasks) = schedule_of(&args, &catalog)?;
     if !skipped.is_empty() {
@@ -494,6 +508,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(url) = queue_store {
         return queue::enqueue_and_follow(&args, url, &schedule, &skipped, &settings);
     }
+    // The CLI version asked for is installed here, or nothing starts (a queued batch's workers resolve it each).
+    let cli_path = cli_path_of(args.harness, args.harness_version.as_deref())?;
     if let Some(url) = &args.server {
         check_server(url)?;
     }
@@ -551,7 +567,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     let self_exe = agent_exe()?;
     let npm_cli_installed = harness::pinned_npm_cli_installed(args.harness);
-    let harness_version = probe_version(args.harness, npm_cli_installed);
+    let harness_version = probe_version(args.harness, npm_cli_installed, cli_path.as_deref());
     // Rollouts with a directory but no record were running when an earlier runner died: INTERRUPTED, no retry.
     let mut finished: BTreeSet<String> = done_records.iter().map(|r| r.rollout_id.clone()).collect();
     for r in &schedule {
@@ -590,6 +606,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         harness_version,
         self_exe,
         npm_cli_installed,
+        cli_path,
         store,
         batch_name: batch_name.clone(),
         server_mirror: args.server.as_deref().map(|url| Mutex::new(batch::ServerMirror::new(url))),

@@ -201,7 +201,7 @@ mod tests {
     #[test]
     fn a_queued_batch_document_has_every_key_its_readers_and_workers_expect() {
         let settings = BatchSettings {
-            experiment: "main_table".into(), harness: "codex".into(), model: "m".into(), effort: "high".into(), reps: 3,
+            experiment: "main_table".into(), harness: "codex".into(), harness_version: None, model: "m".into(), effort: "high".into(), reps: 3,
             tasks: vec![14], pool_tasks: vec![], seed: 100, wall_time_s: 1800.0, max_agent_steps: 400, agent_cmd: None, sandbox: true,
         };
         let plan: PlannedRollout = serde_json::from_value(json!({"rollout_id": "w1_t14_level3", "task": "T14", "task_number": 14,

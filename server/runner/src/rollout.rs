@@ -10,6 +10,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use libero_episode::batch_doc::HarnessVersion;
 use libero_episode::demo::DemoCondition;
 use libero_episode::json::{utc_now_iso, write_json_file};
 use libero_episode::records::{PrivateEvaluation, RunDir, RunResult, STATUS_ABORTED, STATUS_FINISHED};
@@ -18,6 +19,7 @@ use serde_json::{Value, json};
 
 use super::batch::RolloutRecord;
 use super::harness::{Harness, Launch, LaunchContext, build_launch};
+use super::harness_versions::probe_cli;
 use super::agent_net::{NetPlan, contain};
 use super::schedule::{Demo, PlannedRollout};
 use super::logs::{Limits, scrub_log, scrub_text};
@@ -252,7 +254,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     let token = prepared.mcp_headers.get("Authorization").map(|t| t.trim_start_matches("Bearer ").to_owned()).unwrap_or_default();
     let prompt = fs::read_to_string(&prepared.prompt_file).context("cannot read the prepared prompt")?;
     // The agent's addresses: its endpoint and its model API through the runner's relays, nothing else.
-    let via_npx = ctx.harness.npm_cli().is_some() && !ctx.npm_cli_installed;
+    let via_npx = ctx.harness.npm_cli().is_some() && !ctx.npm_cli_installed && ctx.cli_path.is_none();
     let net = match ctx.sandbox {
         Some(_) => Some(NetPlan::new(ctx.harness, &prepared.mcp_url, ctx.credentials.as_ref(), via_npx)?),
         None => None,
@@ -276,8 +278,11 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         self_exe: &ctx.self_exe,
         sandboxed: ctx.sandbox.is_some(),
         npm_cli_installed: ctx.npm_cli_installed,
+        cli_path: ctx.cli_path.as_deref(),
     };
     let launch = build_launch(&lctx)?;
+    // The version this rollout runs: `--version` of the very executable launched next, not the batch's first look.
+    rec.harness_version = probe_cli(ctx.harness, ctx.npm_cli_installed, ctx.cli_path.as_deref());
     write_launch_files(&launch)?;
     let mut contained = contain(sandbox.as_ref(), net.as_ref(), &launch, &prepared.workspace, &home, &ctx.self_exe, &dir.join("sandbox"))?;
     let stdout_name = ctx.harness.stdout_file();
@@ -291,7 +296,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         "harness": ctx.harness.as_str(),
         "model_requested": ctx.settings.model,
         "effort": ctx.settings.effort,
-        "harness_version": ctx.harness_version,
+        "harness_version": rec.harness_version.as_ref().map_or_else(|| ctx.harness_version.clone(), HarnessVersion::to_value),
         "api_protocol": ctx.harness.api_protocol(),
         "credential_source": ctx.credentials.as_ref().map(|c| c.source.clone()),
         "credential_material": "never_recorded",

@@ -14,14 +14,15 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 
-use super::host_paths::{SYSTEM_DIRS, which};
+use super::host_paths::{SYSTEM_DIRS, cache_dir, which};
 
 /// Where the sandbox shows the toolbox: a neutral path, since the cache lies below the runner's home (`/root`
 /// when it runs as root), which the agent's user could not traverse.
 pub const INSIDE: &str = "/opt/libero-toolbox";
 
-/// The lock this runner was built with: the project's toolbox is the one it names.
-const LOCK: &str = include_str!("../../../assets/third_party.lock.json");
+/// The lock this runner was built with: the project's toolbox is the one it names (and the agent CLI versions,
+/// `crate::harness_versions`, the ones it lists).
+pub(crate) const LOCK: &str = include_str!("../../../assets/third_party.lock.json");
 
 /// The most bytes of a package's `METADATA` read for its name and version.
 const MAX_METADATA_BYTES: u64 = 64 * 1024;
@@ -77,14 +78,6 @@ pub struct Toolbox {
     pub size_bytes: Option<u64>,
     /// The lock's toolbox, installed by `scripts/setup.py`.
     pub project: bool,
-}
-
-/// `$LIBERO_AGENT_CACHE`, else `~/.cache/libero-agent` (the cache `scripts/setup.py` fills).
-fn cache_dir() -> PathBuf {
-    if let Some(dir) = std::env::var_os("LIBERO_AGENT_CACHE") {
-        return PathBuf::from(dir);
-    }
-    std::env::var_os("HOME").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/")).join(".cache/libero-agent")
 }
 
 /// `toolbox-<name>-<12 hex>`, the hash over the interpreter and every wheel's sha256, as `scripts/setup.py`'s

@@ -301,6 +301,8 @@ impl Worker {
             false => None,
         };
         let npm_cli_installed = pinned_npm_cli_installed(harness);
+        // The batch's `--harness-version`, installed on this machine (else each of its rollouts here is INVALID, why said).
+        let cli_path = super::cli_path_of(harness, settings.harness_version.as_deref())?;
         let name = libero_artifacts::check_name(batch)?;
         let attempt_dir = super::fresh_dir(&self.data.join("batches").join(name), &format!("a{attempt}"))?;
         let unique = attempt_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| format!("a{attempt}"));
@@ -308,13 +310,14 @@ impl Worker {
             batch_dir: attempt_dir,
             workspace_root: self.workspace_root.join(name).join(&unique),
             server_url: self.server_url.clone(),
-            harness_version: super::probe_version(harness, npm_cli_installed),
+            harness_version: super::probe_version(harness, npm_cli_installed, cli_path.as_deref()),
             settings,
             harness,
             credentials,
             sandbox,
             self_exe: super::agent_exe()?,
             npm_cli_installed,
+            cli_path,
             store: None,
             // The batch is in the shared store already (every dashboard on it lists it); episodes carry its name.
             batch_name: batch.to_owned(),
