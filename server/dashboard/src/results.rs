@@ -20,8 +20,10 @@ use serde_json::{Value, json};
 use libero_runner::batch::{LoadedBatch, RolloutRecord, load_batch};
 use libero_runner::report::tables::{DisplayTable, TableChoice, display_tables, paper_tables};
 use libero_runner::report::tokens::{self, RolloutTokens, TokenSummary};
+use libero_runner::report::versions::HarnessVersions;
 use libero_runner::report::{
-    Row, coverage, default_reps, pct, pool_rows, report_json, row_records, rows, suite_records, svg, time_text, toolbox_text, wilson,
+    Row, coverage, default_reps, pct, pool_rows, report_json, row_records, row_versions, rows, suite_records, svg, time_text, toolbox_text,
+    wilson,
 };
 
 use crate::common::page;
@@ -181,6 +183,7 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
                 "status": d.status,
                 "experiment": d.experiment(),
                 "harness": d.harness_setting(),
+                "harness_versions": HarnessVersions::of_batch(b),
                 "model": d.model(),
                 "reps": reps,
                 "toolbox": d.toolbox,
@@ -209,6 +212,8 @@ fn condition_label(r: &Row) -> String {
 pub struct MainRow {
     pub batch: String,
     pub agent: String,
+    /// The harness versions the row's rollouts ran, flagged when they differ.
+    pub version: VersionCell,
     pub condition: String,
     pub reps: usize,
     pub j: String,
@@ -238,12 +243,32 @@ pub struct ToolboxRow {
     pub limits: String,
 }
 
+/// The harness versions a batch's (or a row's) rollouts ran: `codex 0.154.0`, or with `mixed` set,
+/// `codex 0.154.0 / 0.169.0 (mixed versions)`, shown as a warning.
+pub struct VersionCell {
+    pub text: String,
+    pub mixed: bool,
+    /// Each version with how many rollouts ran it.
+    pub title: String,
+}
+
+impl From<HarnessVersions> for VersionCell {
+    fn from(v: HarnessVersions) -> Self {
+        let mut counts: Vec<String> = v.versions.iter().map(|c| format!("{}: {} rollouts", c.version, c.rollouts)).collect();
+        if v.unknown > 0 {
+            counts.push(format!("no version: {} rollouts (never launched)", v.unknown));
+        }
+        Self { text: v.text, mixed: v.mixed, title: counts.join(", ") }
+    }
+}
+
 /// A batch's progress line (done/running/left, outcomes so far).
 pub struct ProgressRow {
     pub batch: String,
     pub status: String,
     pub experiment: String,
     pub agent: String,
+    pub version: VersionCell,
     pub done: String,
     pub running: String,
     pub left: String,
@@ -382,6 +407,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             status,
             experiment: experiment.clone(),
             agent: agent_of(b),
+            version: HarnessVersions::of_batch(b).into(),
             done: count(counts.done),
             running: count(counts.running),
             left: count(counts.left),
@@ -403,6 +429,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
             v.main.push(MainRow {
                 batch: b.name(),
                 agent: agent_of(b),
+                version: row_versions(std::slice::from_ref(b), &r.agent, r.condition).into(),
                 condition: condition_label(r),
                 reps,
                 j: if s.judgment_tasks_scored == 0 {

@@ -13,9 +13,12 @@ pub mod svg;
 pub mod tables;
 #[path = "report_tokens.rs"]
 pub mod tokens;
+#[path = "report_versions.rs"]
+pub mod versions;
 
 use tables::TableChoice;
 use tokens::{RolloutTokens, TokenSummary};
+use versions::HarnessVersions;
 
 use anyhow::bail;
 use libero_episode::batch_doc::ToolboxDoc;
@@ -84,6 +87,12 @@ pub fn row_records<'a>(batches: &'a [LoadedBatch], agent: &str, condition: Condi
         .collect()
 }
 
+/// The harness versions a Table 1 row's rollouts ran ([`row_records`]' rollouts, each batch's own).
+pub fn row_versions(batches: &[LoadedBatch], agent: &str, condition: Condition) -> HarnessVersions {
+    let of_agent = batches.iter().filter(|b| agent_of(b) == agent);
+    HarnessVersions::of(of_agent, |r| r.suite.is_none() && r.level == condition.level && r.demo == condition.demo)
+}
+
 /// The records of one pool suite of an agent.
 pub fn suite_records<'a>(batches: &'a [LoadedBatch], agent: &str, suite: &str) -> Vec<&'a RolloutRecord> {
     batches.iter().filter(|b| agent_of(b) == agent).flat_map(|b| b.records.iter()).filter(|r| r.suite.as_deref() == Some(suite)).collect()
@@ -122,7 +131,7 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
         .map(|r| {
             let (tokens, per_rollout) = tokens_json(&row_records(batches, &r.agent, r.condition));
             json!({"agent": r.agent, "level": r.condition.level, "demo": r.condition.demo, "summary": r.summary,
-                "tokens": tokens, "rollout_tokens": per_rollout})
+                "tokens": tokens, "rollout_tokens": per_rollout, "harness_versions": row_versions(batches, &r.agent, r.condition)})
         })
         .collect();
     let meta: Vec<Value> = batches
@@ -130,7 +139,7 @@ pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
         .map(|b| {
             let d = &b.batch;
             json!({"name": b.name(), "dir": b.dir, "status": d.status, "settings": d.settings, "harness": d.harness,
-                "sandbox": d.sandbox, "toolbox": d.toolbox, "counts": d.counts, "outcomes": d.outcomes,
+                "harness_versions": HarnessVersions::of_batch(b), "sandbox": d.sandbox, "toolbox": d.toolbox, "counts": d.counts, "outcomes": d.outcomes,
                 "rollouts_recorded": b.records.len()})
         })
         .collect();
@@ -237,7 +246,7 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
             h.and_then(|h| h.name.as_deref()).unwrap_or("?"),
             d.model().unwrap_or("?"),
             d.settings.as_ref().and_then(|s| s.effort.as_deref()).unwrap_or("?"),
-            h.and_then(|h| h.version.as_ref()?.as_ref()?.observed.as_deref()).unwrap_or("unknown"),
+            HarnessVersions::of_batch(b).versions_text().unwrap_or_else(|| "unknown".into()),
             d.sandbox().and_then(|s| s.version.as_deref()).unwrap_or("none"),
             toolbox_text(d.toolbox()),
             d.status.as_deref().unwrap_or("?"),
@@ -275,6 +284,12 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
         );
     }
     let _ = writeln!(o, "\n{}", tokens::LEGEND);
+    for r in &rows {
+        let v = row_versions(batches, &r.agent, r.condition);
+        if v.mixed {
+            let _ = writeln!(o, "\n**Warning: {} pools rollouts of different harness versions: {}.**", label(r), v.text);
+        }
+    }
     let _ = writeln!(o, "\n## Ordinary success rates (SUCCESS / valid rollouts, 95% Wilson interval)\n");
     let _ = writeln!(o, "| Agent | Perception | Short Easy | Short Hard | Long Easy | Long Hard | All |");
     let _ = writeln!(o, "|---|---|---|---|---|---|---|");
