@@ -84,6 +84,11 @@ struct Rollout {
 }
 
 fn run_t14(harness: &str, cli: &str) -> Rollout {
+    run_t14_with(harness, cli, &[])
+}
+
+/// [`run_t14`] with more arguments to `run` (`--harness-version V`).
+fn run_t14_with(harness: &str, cli: &str, extra: &[&str]) -> Rollout {
     require_cli(cli);
     let tmp = tempfile::tempdir().unwrap();
     let model = ScriptedModel::start(tmp.path());
@@ -105,6 +110,7 @@ fn run_t14(harness: &str, cli: &str) -> Rollout {
         .arg(&batch)
         .arg("--workspace-root")
         .arg(&workspaces)
+        .args(extra)
         .env("PATH", cli_path())
         .output()
         .expect("run libero-agent run");
@@ -217,6 +223,38 @@ fn claude_code_plays_a_t14_episode_against_a_scripted_model() {
     assert!(stdout.contains(r#""name":"mcp__libero__osc_sequence""#), "its tool calls are in its stdout");
     assert!(ends_in_success(&stdout), "{stdout}");
     check_usage(&r, ["/input_tokens", "/cache_read_input_tokens", "/output_tokens"]);
+    assert_eq!(r.record["harness_version"]["observed"], "2.1.330", "the rollout's own probe: {}", r.record);
+}
+
+/// The CLI of the version asked for, installed apart by `scripts/setup.py --harnesses` (part of `--test`) and picked
+/// with `run --harness-version`, launched by its path; the record and the manifest say the version it ran.
+fn check_version_ran(r: &Rollout, harness: &str, version: &str) {
+    assert_eq!(r.record["harness_version"]["observed"], version, "{}", r.record);
+    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(r.dir.join("harness_manifest.json")).unwrap()).unwrap();
+    let apart = cli_dir().parent().unwrap().parent().unwrap().parent().unwrap().join(format!("harnesses/{harness}-{version}"));
+    assert!(manifest["command"][0].as_str().is_some_and(|c| Path::new(c).starts_with(&apart)), "{manifest}");
+    assert_eq!(manifest["harness_version"]["observed"], version, "{manifest}");
+    let b: Value = serde_json::from_str(&std::fs::read_to_string(r.batch.join("batch.json")).unwrap()).unwrap();
+    assert_eq!((b["settings"]["harness_version"].as_str(), b["harness"]["version"]["observed"].as_str()), (Some(version), Some(version)), "{b}");
+}
+
+/// The paper's Claude Code (2.1.139, App. A) plays T14 as the tests' version does.
+#[test]
+fn the_papers_claude_code_plays_a_t14_episode_when_asked_for() {
+    let r = run_t14_with("claude_code", "claude", &["--harness-version", "2.1.139"]);
+    check_rollout(&r);
+    assert!(ends_in_success(&stdout_of(&r, "claude_code")));
+    check_usage(&r, ["/input_tokens", "/cache_read_input_tokens", "/output_tokens"]);
+    check_version_ran(&r, "claude_code", "2.1.139");
+}
+
+/// The paper's Codex (0.154.0, App. A) plays T14 as the tests' version does.
+#[test]
+fn the_papers_codex_plays_a_t14_episode_when_asked_for() {
+    let r = run_t14_with("codex", "codex", &["--harness-version", "0.154.0"]);
+    check_rollout(&r);
+    check_usage(&r, ["/input_tokens", "/input_tokens_details/cached_tokens", "/output_tokens"]);
+    check_version_ran(&r, "codex", "0.154.0");
 }
 
 /// Codex (`exec --json`, pointed at the endpoint by `openai_base_url`) plays T14 through the sandbox and the
@@ -237,6 +275,7 @@ fn codex_plays_a_t14_episode_against_a_scripted_model() {
     assert!(calls.iter().all(|c| c[0] == "libero" && c[2] == "completed"), "{calls:?}");
     check_usage(&r, ["/input_tokens", "/input_tokens_details/cached_tokens", "/output_tokens"]);
     assert_eq!(r.record["usage"]["total_tokens"], reported(&r.answers, "/total_tokens"));
+    assert_eq!(r.record["harness_version"]["observed"], "0.169.0", "the rollout's own probe: {}", r.record);
 }
 
 /// Qwen Code, the pinned version installed (so `run` starts it directly rather than through `npx`), plays T14
