@@ -5,13 +5,21 @@ import { el, postJson } from './common.js';
 const $ = (x) => document.getElementById(x);
 const status = (t) => { $('status').textContent = t; };
 
+/** One line per configuration the bundle was replay-checked in (stages earned directly and after an offset). */
+function checks(lines) {
+  if (!lines || lines.length === 0) return '–';
+  const box = el('div', { class: 'replay-checks' });
+  for (const l of lines) box.append(el('div', { class: l.endsWith('refused') ? 'refused' : 'shown' }, l));
+  return box;
+}
+
 function row(b) {
   const [task, bundle] = b.key.split('/');
   const tr = el('tr', { 'data-key': b.key });
   const pick = el('input', { type: 'checkbox', class: 'pick', value: b.key });
   const date = b.modified_unix_s ? new Date(b.modified_unix_s * 1000).toISOString().replace('T', ' ').slice(0, 19) : '–';
   const cells = [pick, b.task ?? task, bundle, b.source_type ?? '', b.verified ? 'yes' : 'no',
-    b.valid ? 'yes' : `no: ${b.first_violation}`, String(b.actions ?? '–'), date];
+    b.valid ? 'yes' : `no: ${b.first_violation}`, String(b.actions ?? '–'), checks(b.replay_checks), date];
   for (const c of cells) {
     const td = el('td');
     td.append(c);

@@ -1,13 +1,15 @@
 //! `libero-agent demo replay-attack --task T21 [--task …] [--server URL | --data DIR]`: plays the agent that only
 //! replays its demonstration. For each task it prepares a demonstration-conditioned episode (video + trajectory),
 //! reads `benchmark_inputs/expert_demo/trajectory.jsonl` from the agent's workspace, sends every action through
-//! `osc_sequence` (50 per call, as an agent would), finishes, and prints the verdict. The paper: "Direct replay of
-//! this trajectory does not solve the evaluation episode"; the command exits non-zero if a replay succeeds.
+//! `osc_sequence` (50 per call, as an agent would), finishes, and prints the verdict with the stages the replay
+//! earned. The paper: "Direct replay of this trajectory does not solve the evaluation episode"; issue 48: nor may
+//! it earn more than half the stages. The command exits non-zero if a replay succeeds or earns more than half.
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use libero_episode::demo::{DemoCondition, parse_action};
+use libero_episode::demo::{DemoCondition, parse_action, read_json};
+use libero_episode::records::{PrivateEvaluation, RunDir, RunResult};
 use libero_episode::expert_run::ToolPort;
 use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
 use serde_json::{Value, json};
@@ -76,9 +78,18 @@ pub fn run(args: &ReplayAttackArgs) -> anyhow::Result<()> {
     for task in &args.task {
         let t0 = Instant::now();
         match attack(args, local.as_ref(), task) {
-            Ok((episode_id, actions, success)) => {
-                println!("{}", json!({"task": task, "episode_id": episode_id, "replayed_actions": actions, "success": success, "seconds": t0.elapsed().as_secs_f64()}));
-                if success {
+            Ok(a) => {
+                let (c, k) = (a.evaluation.completed_required_stage_count, a.evaluation.required_stage_count);
+                let over_half = matches!((c, k), (Some(c), Some(k)) if 2 * c > k);
+                println!(
+                    "{}",
+                    json!({
+                        "task": task, "episode_id": a.episode_id, "replayed_actions": a.actions, "success": a.success,
+                        "completed_required_stage_count": c, "required_stage_count": k,
+                        "bundle": a.bundle, "stored_replay_check": a.check, "seconds": t0.elapsed().as_secs_f64(),
+                    })
+                );
+                if a.success || over_half {
                     solved.push(task.clone());
                 }
             }
@@ -90,13 +101,25 @@ pub fn run(args: &ReplayAttackArgs) -> anyhow::Result<()> {
     }
     match (solved.is_empty(), failed.is_empty()) {
         (true, true) => Ok(()),
-        (false, _) => bail!("direct replay of the demonstration solved {}", solved.join(", ")),
+        (false, _) => bail!("direct replay of the demonstration solved or earned more than half the stages of {}", solved.join(", ")),
         (true, false) => bail!("no demonstration-conditioned episode could be replayed for {}", failed.join(", ")),
     }
 }
 
-/// One task: prepare, replay the placed trajectory, finish. Returns the episode id, the actions sent, and success.
-fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyhow::Result<(String, usize, bool)> {
+/// What one attack got.
+struct Attack {
+    episode_id: String,
+    actions: usize,
+    success: bool,
+    /// The evaluator's record of the replayed episode (its stages).
+    evaluation: PrivateEvaluation,
+    /// The library bundle the episode was shown, and the replay check stored in it for this episode.
+    bundle: Option<String>,
+    check: Option<Value>,
+}
+
+/// One task: prepare, replay the placed trajectory, finish, read the stages from the run directory.
+fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyhow::Result<Attack> {
     let request = PrepareRequest {
         level: 1,
         seed: args.seed,
@@ -106,14 +129,14 @@ fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyh
         ..PrepareRequest::new(task.to_owned())
     };
     eprintln!("[{task}] preparing a video+traj episode (the first one records a demonstration in another layout)");
-    let (episode_id, actions, finish) = match (local, &args.server) {
+    let (episode_id, run_dir, actions, finish) = match (local, &args.server) {
         (Some(episodes), _) => {
             let prepared = episodes.prepare(request)?;
             let mut handle = episodes.lifecycle().handle(&prepared.episode_id).context("the episode vanished")?;
             let actions = workspace_trajectory(&prepared.workspace)?;
             eprintln!("[{task}] replaying {} actions", actions.len());
             let finish = replay(&mut handle, &actions);
-            (prepared.episode_id, actions.len(), finish)
+            (prepared.episode_id, prepared.run_dir, actions.len(), finish)
         }
         (None, Some(server)) => {
             let prepared = prepare_episode(server, &request)?;
@@ -122,11 +145,28 @@ fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyh
             let actions = workspace_trajectory(&prepared.workspace)?;
             eprintln!("[{task}] replaying {} actions over MCP", actions.len());
             let finish = replay(&mut port, &actions);
-            (prepared.episode_id, actions.len(), finish)
+            (prepared.episode_id, prepared.run_dir, actions.len(), finish)
         }
         (None, None) => unreachable!("either local or remote"),
     };
     let finish = finish.with_context(|| format!("replay in {episode_id}"))?;
     let success = finish["success"].as_bool().context("finish_episode reported no success")?;
-    Ok((episode_id, actions, success))
+    let run = RunDir::new(&run_dir);
+    let result = RunResult::from_value(read_json(&run.result_json())?).map_err(|e| anyhow::anyhow!("result.json: {e}"))?;
+    let evaluation = result.private_evaluation.context("result.json has no private_evaluation")?;
+    let (bundle, check) = shown_bundle(&run_dir, task, args).unwrap_or_default();
+    Ok(Attack { episode_id, actions, success, evaluation, bundle, check })
+}
+
+/// The bundle the episode was shown (its projection receipt) and the replay check stored in it for the episode's
+/// configuration.
+fn shown_bundle(run_dir: &Path, task: &str, args: &ReplayAttackArgs) -> Option<(Option<String>, Option<Value>)> {
+    let receipt = read_json(&run_dir.join("icl_projection_receipt.json")).ok()?;
+    let bundle = PathBuf::from(receipt["source_bundle"].as_str()?);
+    let manifest = read_json(&bundle.join("manifest.json")).ok()?;
+    let paths = libero_sim::AssetPaths::discover().ok()?;
+    let layout = libero_episode::task::resolve_task(task, &paths).ok()?.effective_layout(args.seed, args.init_index).ok()?;
+    let layout = serde_json::to_value(layout).ok()?;
+    let check = manifest["replay_checks"].as_array()?.iter().find(|c| c["target"]["effective_layout"] == layout).cloned();
+    Some((Some(bundle.display().to_string()), check))
 }

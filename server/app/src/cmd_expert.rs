@@ -129,6 +129,9 @@ pub struct ExpertArgs {
     /// … and the whole table scene moved by `X,Y` metres (at most 0.1 each).
     #[arg(long, value_delimiter = ',', num_args = 2, requires = "layout_seed", allow_hyphen_values = true)]
     pub scene_shift_m: Vec<f64>,
+    /// … and every table region's yaw interval widened by this much at both ends, radians (at most 0.8).
+    #[arg(long, default_value_t = 0.0, requires = "layout_seed")]
+    pub yaw_margin_rad: f64,
 }
 
 impl ExpertArgs {
@@ -145,7 +148,7 @@ impl ExpertArgs {
             [x, y] => [*x, *y],
             other => bail!("--scene-shift-m takes X,Y (got {other:?})"),
         };
-        let v = LayoutVariant { placement_seed, init_index: self.layout_init, region_margin_m: self.region_margin_m, scene_shift_m };
+        let v = LayoutVariant { placement_seed, init_index: self.layout_init, region_margin_m: self.region_margin_m, scene_shift_m, yaw_margin_rad: self.yaw_margin_rad };
         v.validate()?;
         Ok(Some(v))
     }

@@ -195,6 +195,8 @@ fn prepared_episodes_get_the_papers_demo_and_notice_without_private_data() {
     copy_of(dir, &lib.join(dir.file_name().unwrap()));
     let notice = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/demo_notice.txt")).unwrap();
     let server = common::Server::start(data.path());
+    let mut used = Vec::new();
+    let mut traj_rows = None;
     for (condition, expected_files) in [
         ("video", vec!["manifest.json", "video/contact_sheets/head_rgb.png", "video/contact_sheets/wrist_rgb.png", "video/head_wrist_rgb.mp4"]),
         (
@@ -240,28 +242,41 @@ fn prepared_episodes_get_the_papers_demo_and_notice_without_private_data() {
                 assert_eq!(row["action"]["schema_version"], "libero.normalized_osc_pose_action.v1");
                 assert_eq!(row["action"]["normalized_vector_7d"].as_array().map(Vec::len), Some(7));
             }
-            assert_eq!(rows.lines().count() as u64, record["actions"].as_u64().unwrap());
+            traj_rows = Some(rows.lines().count() as u64);
         }
         let out = bin().args(["demo", "validate", "--agent", condition]).arg(&demo).output().unwrap();
         assert!(out.status.success(), "{condition}: {}", text(&out));
         let receipt = PathBuf::from(prepared["run_dir"].as_str().unwrap()).join("icl_projection_receipt.json");
         let receipt: Value = serde_json::from_str(&fs::read_to_string(receipt).unwrap()).unwrap();
-        assert_eq!(receipt["source_episode_id"], source_id, "the decoys are passed over");
-        assert_ne!(prepared["episode_id"], source_id, "a separate episode");
+        let shown = PathBuf::from(receipt["source_bundle"].as_str().unwrap());
+        assert!(shown != own && shown != solving, "the decoys are passed over: {}", shown.display());
+        if let Some(n) = traj_rows.take() {
+            let m: Value = serde_json::from_str(&fs::read_to_string(shown.join("manifest.json")).unwrap()).unwrap();
+            assert_eq!(Some(n), m["transition_count"].as_u64(), "every action of the shown bundle");
+        }
+        assert_ne!(prepared["episode_id"], receipt["source_episode_id"], "a separate episode");
+        used.push(shown);
     }
-    // The replay check was stored once, in the bundle that was used, and says the replay fails.
-    let used: Value = serde_json::from_str(&fs::read_to_string(lib.join(dir.file_name().unwrap()).join("manifest.json")).unwrap()).unwrap();
-    let checks = used["replay_checks"].as_array().unwrap();
+    // Both conditions were shown one bundle: the library's good one, or (when an offset replay of it earns too
+    // much) one recorded in another layout. Its replay check for this configuration is stored and passes.
+    assert_eq!(used[0], used[1], "one bundle per configuration");
+    let good_checks: Value = serde_json::from_str(&fs::read_to_string(lib.join(dir.file_name().unwrap()).join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(good_checks["replay_checks"].as_array().map(Vec::len), Some(1), "the good bundle was checked once: {good_checks}");
+    let manifest: Value = serde_json::from_str(&fs::read_to_string(used[0].join("manifest.json")).unwrap()).unwrap();
+    let checks = manifest["replay_checks"].as_array().unwrap();
     assert_eq!(checks.len(), 1, "{checks:?}");
     assert_eq!(checks[0]["target"]["effective_layout"]["placement_seed"], 100);
-    assert_eq!(checks[0]["replay_solves"], false);
+    assert_eq!((checks[0]["accepted"].as_bool(), checks[0]["replay_solves"].as_bool()), (Some(true), Some(false)), "{checks:?}");
     let own: Value = serde_json::from_str(&fs::read_to_string(own.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(own["replay_checks"], serde_json::json!([]), "the own-configuration decoy is never even replayed");
+    let solving: Value = serde_json::from_str(&fs::read_to_string(solving.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(solving["replay_checks"][0]["replay_solves"], true, "a stored failure is final, never replayed again");
     // An agent that only replays the placed trajectory through MCP does not solve the episode.
     let out = bin().args(["demo", "replay-attack", "--server", &server.url, "--task", "T14"]).output().unwrap();
     assert!(out.status.success(), "{}", text(&out));
     let line: Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!((line["success"].as_bool(), line["replayed_actions"].as_u64()), (Some(false), record["actions"].as_u64()), "{line}");
+    assert_eq!((line["success"].as_bool(), line["replayed_actions"].as_u64()), (Some(false), manifest["transition_count"].as_u64()), "{line}");
+    assert_eq!(line["stored_replay_check"], checks[0], "the command reports the check it replayed against");
 }
 
 #[test]
@@ -334,9 +349,10 @@ fn an_empty_library_gets_a_verified_expert_demo_on_first_use() {
 
 /// Long-horizon sample of the T21–T30 sweep (`tasks/results/demo_replay_attack.jsonl` holds all ten): with an
 /// empty library the server records each demonstration in another layout, and an agent that replays the placed
-/// trajectory through MCP does not solve its episode.
+/// trajectory through MCP neither solves its episode nor earns more than half its stages (issue 48). Each bundle's
+/// manifest keeps the check (direct and offset replays, the idle start) and the Demonstrations API shows it.
 #[test]
-fn replaying_long_horizon_demonstrations_through_mcp_does_not_solve_them() {
+fn replaying_long_horizon_demonstrations_through_mcp_earns_no_success_and_at_most_half_the_stages() {
     let data = tempfile::tempdir().unwrap();
     let server = common::Server::start(data.path());
     let out = bin().args(["demo", "replay-attack", "--server", &server.url, "--task", "T28,T29"]).output().unwrap();
@@ -346,10 +362,27 @@ fn replaying_long_horizon_demonstrations_through_mcp_does_not_solve_them() {
     for line in &lines {
         assert_eq!(line["success"], false, "{line}");
         assert!(line["replayed_actions"].as_u64().is_some_and(|n| n > 50), "a whole demonstration was replayed: {line}");
+        let (c, k) = (line["completed_required_stage_count"].as_u64().unwrap(), line["required_stage_count"].as_u64().unwrap());
+        assert!(k >= 2 && 2 * c <= k, "at most half the stages through MCP: {line}");
         let task = line["task"].as_str().unwrap();
         let bundles: Vec<PathBuf> = fs::read_dir(data.path().join("demos").join(task)).unwrap().flatten().map(|e| e.path()).collect();
+        assert_eq!(bundles.len(), 1, "{task}: {bundles:?}");
         let manifest: Value = serde_json::from_str(&fs::read_to_string(bundles[0].join("manifest.json")).unwrap()).unwrap();
         assert!(manifest["source"]["layout"].is_object(), "{task}: recorded in a layout variant");
-        assert_eq!(manifest["replay_checks"][0]["replay_solves"], false, "{task}");
+        let check = &manifest["replay_checks"][0];
+        assert_eq!(check, &line["stored_replay_check"], "{task}: the command reports the stored check");
+        assert_eq!((check["method"].as_str(), check["direct_accepted"].as_bool()), (Some("direct_and_offset_replay_v2"), Some(true)), "{task}: {check}");
+        assert_eq!(check["completed_required_stage_count"].as_u64(), Some(c), "{task}: the physics check predicts the MCP replay");
+        assert!(check["completed_required_stage_count"].as_u64() <= check["allowed_stage_count"].as_u64(), "{task}: {check}");
+        assert!(check["offset_replays"].as_array().is_some_and(|o| !o.is_empty()), "{task}: offsets were tried: {check}");
+        if check["accepted"] == false {
+            // only the direct rule held: then no source layout of the eight passed the offset replays
+            assert!(check["best_completed_stage_count"].as_u64() > check["allowed_stage_count"].as_u64() || check["replay_solves"] == true, "{check}");
+        }
     }
+    let (status, demos) = common::http_get_json(&format!("{}/api/demos", server.url));
+    assert_eq!(status, 200);
+    let shown: Vec<&str> = demos["bundles"].as_array().unwrap().iter().flat_map(|b| b["replay_checks"].as_array().unwrap()).filter_map(Value::as_str).collect();
+    assert_eq!(shown.len(), 2, "{demos}");
+    assert!(shown.iter().all(|l| l.starts_with("seed 100: direct ") && l.contains("→ shown")), "{shown:?}");
 }

@@ -68,6 +68,8 @@ struct DemoLine {
     verified: String,
     actions: String,
     video: String,
+    /// One line per episode configuration the bundle was replayed in (`ReplayCheck::summary`).
+    replay_checks: Vec<String>,
 }
 
 /// One batch column's cell of this task (the Results page's per-task table).
@@ -355,6 +357,7 @@ fn demo_line(b: &Value) -> DemoLine {
         source: b["source_type"].as_str().unwrap_or("?").to_owned(),
         actions: b["actions"].as_u64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
         verified,
+        replay_checks: b["replay_checks"].as_array().into_iter().flatten().filter_map(|c| c.as_str().map(str::to_owned)).collect(),
         key,
     }
 }

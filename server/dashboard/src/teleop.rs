@@ -353,6 +353,7 @@ pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
             "actions": m.transition_count, "source_type": m.source.as_ref().and_then(|s| s.source_type.as_deref()),
             "episode_id": m.source.as_ref().and_then(|s| s.episode_id.as_deref()), "modified_unix_s": modified,
             "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
+            "replay_checks": m.replay_checks.iter().flatten().map(|c| c.summary()).collect::<Vec<_>>(),
         }));
     }
     newest_first(&mut rows);

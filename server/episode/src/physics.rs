@@ -61,7 +61,7 @@ impl WorldPhysics {
         let (mut model, compiled) = scene.compile_shared()?;
         let suite = spec.task.suite.as_ref();
         let layout = spec.task.effective_layout(spec.seed, spec.init_index)?;
-        let placement = match adjusted_table_regions(&scene, layout.region_margin_m, layout.scene_shift_m) {
+        let placement = match adjusted_table_regions(&scene, layout.region_margin_m, layout.scene_shift_m, layout.yaw_margin_rad) {
             Some(moved) => Placement::sample(&moved, layout.placement_seed, Some(&model))?,
             None => Placement::sample(&scene, layout.placement_seed, Some(&model))?,
         };
@@ -252,8 +252,8 @@ fn placement_row(sim: &Simulation, placement: &Placement) -> Result<Vec<f64>, Ep
 /// samples on the workspace fixture) widened by `margin_m` on each side and moved by `shift_m`. Only the placement
 /// sees it; the episode keeps the task's own scene, so goal regions and evaluators are untouched. None without a
 /// variant.
-fn adjusted_table_regions(scene: &ComposedScene, margin_m: f64, shift_m: [f64; 2]) -> Option<ComposedScene> {
-    if margin_m <= 0.0 && shift_m == [0.0; 2] {
+fn adjusted_table_regions(scene: &ComposedScene, margin_m: f64, shift_m: [f64; 2], yaw_margin_rad: f64) -> Option<ComposedScene> {
+    if margin_m <= 0.0 && shift_m == [0.0; 2] && yaw_margin_rad <= 0.0 {
         return None;
     }
     let mut moved = scene.clone();
@@ -263,6 +263,7 @@ fn adjusted_table_regions(scene: &ComposedScene, margin_m: f64, shift_m: [f64; 2
         for r in &mut region.ranges {
             *r = [r[0] - margin_m + dx, r[1] - margin_m + dy, r[2] + margin_m + dx, r[3] + margin_m + dy];
         }
+        region.yaw_rotation = [region.yaw_rotation[0] - yaw_margin_rad, region.yaw_rotation[1] + yaw_margin_rad];
     }
     Some(moved)
 }

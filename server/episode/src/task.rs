@@ -66,7 +66,18 @@ pub struct LayoutVariant {
     /// moves rigidly relative to the robot (its relative layout stays one the task's expert knows).
     #[serde(default)]
     pub scene_shift_m: [f64; 2],
+    /// Added to both ends of every table region's yaw interval before placement, radians (0 keeps the task's):
+    /// objects and fixtures turn as well as move, so no one offset lines a replayed path up with all of them.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub yaw_margin_rad: f64,
 }
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
+}
+
+/// Largest yaw widening a layout variant may ask for.
+pub const MAX_YAW_MARGIN_RAD: f64 = 0.8;
 
 /// Largest region widening a layout variant may ask for (beyond it objects leave the reachable table).
 pub const MAX_REGION_MARGIN_M: f64 = 0.10;
@@ -87,6 +98,12 @@ impl LayoutVariant {
                 self.scene_shift_m
             )));
         }
+        if !(self.yaw_margin_rad.is_finite() && (0.0..=MAX_YAW_MARGIN_RAD).contains(&self.yaw_margin_rad)) {
+            return Err(EpisodeError::Task(format!(
+                "layout yaw_margin_rad must lie in [0, {MAX_YAW_MARGIN_RAD}] rad, not {}",
+                self.yaw_margin_rad
+            )));
+        }
         Ok(())
     }
 }
@@ -101,6 +118,8 @@ pub struct EffectiveLayout {
     pub init_index: Option<usize>,
     pub region_margin_m: f64,
     pub scene_shift_m: [f64; 2],
+    #[serde(skip_serializing_if = "is_zero")]
+    pub yaw_margin_rad: f64,
 }
 
 impl TaskSource {
@@ -115,6 +134,7 @@ impl TaskSource {
                 init_index: self.init_states.is_some().then_some(v.init_index),
                 region_margin_m: v.region_margin_m,
                 scene_shift_m: v.scene_shift_m,
+                yaw_margin_rad: v.yaw_margin_rad,
             });
         }
         let placement_seed = match suite.and_then(|s| s.placement_seed) {
@@ -123,7 +143,7 @@ impl TaskSource {
         };
         let init_index = suite.map_or(init_index, |s| s.init_index);
         let init_index = self.init_states.is_some().then_some(init_index);
-        Ok(EffectiveLayout { placement_seed, init_index, region_margin_m: 0.0, scene_shift_m: [0.0; 2] })
+        Ok(EffectiveLayout { placement_seed, init_index, region_margin_m: 0.0, scene_shift_m: [0.0; 2], yaw_margin_rad: 0.0 })
     }
 }
 

@@ -63,7 +63,22 @@ record! {
     pub struct ReplayCheck {
         /// The target: its task and effective layout.
         pub target: Option<Value>,
+        /// Whether any replay (direct or offset) solved the target.
         pub replay_solves: Option<bool>,
+        /// The rule the check was made under (`direct_and_offset_replay_v2`).
+        pub method: Option<String>,
+        /// Whether the bundle may be shown in the target: every replay (direct and offset) within the rule …
+        pub accepted: Option<bool>,
+        /// … or the direct replay alone (what is asked where no source passes the offset replays).
+        pub direct_accepted: Option<bool>,
+        /// Stages the direct replay earned, of `required_stage_count`.
+        pub completed_required_stage_count: Option<u64>,
+        pub required_stage_count: Option<u64>,
+        /// The most stages any replay (direct or offset) earned.
+        pub best_completed_stage_count: Option<u64>,
+        /// Stages the target's idle start earns, and the most a replay may earn.
+        pub idle_completed_stage_count: Option<u64>,
+        pub allowed_stage_count: Option<u64>,
     }
 }
 
@@ -95,9 +110,49 @@ impl DemoManifest {
         self.task.as_ref()?.instruction.as_deref()
     }
 
-    /// The stored verdict of replaying the bundle in `target`, if one is stored.
-    pub fn replay_check(&self, target: &Value) -> Option<bool> {
-        self.replay_checks.iter().flatten().find(|c| c.target.as_ref() == Some(target))?.replay_solves
+    /// The stored check of replaying the bundle in `target`, if one is stored.
+    pub fn replay_check(&self, target: &Value) -> Option<&ReplayCheck> {
+        self.replay_checks.iter().flatten().find(|c| c.target.as_ref() == Some(target))
+    }
+}
+
+/// The rule a replay check is made under today (issue 48: direct and offset replays, stages counted); a stored
+/// acceptance under another rule is checked again.
+pub const REPLAY_CHECK_METHOD: &str = "direct_and_offset_replay_v2";
+
+impl ReplayCheck {
+    /// One line for people: which episode configuration, what the direct and the best offset replay earned of the
+    /// target's stages, and whether the bundle may be shown there (`direct 0/2 · offset 2/2 (solves) · idle 0 ·
+    /// at most 1 → shown, direct rule`).
+    pub fn summary(&self) -> String {
+        let target = self.target.as_ref();
+        let layout = target.map(|t| &t["effective_layout"]);
+        let seed = layout.and_then(|l| l["placement_seed"].as_u64()).map_or_else(|| "?".to_owned(), |s| s.to_string());
+        let init = layout.and_then(|l| l["init_index"].as_u64()).map(|i| format!(", init {i}")).unwrap_or_default();
+        let k = self.required_stage_count.map_or_else(|| "?".to_owned(), |k| k.to_string());
+        let c = |n: Option<u64>| n.map_or_else(|| "?".to_owned(), |n| n.to_string());
+        if self.method.as_deref() != Some(REPLAY_CHECK_METHOD) {
+            let solves = match self.replay_solves {
+                Some(true) => "solves",
+                Some(false) => "does not solve",
+                None => "?",
+            };
+            return format!("seed {seed}{init}: direct replay {solves} (stages not checked, older rule)");
+        }
+        let offsets = self.rest.get("offset_replays").and_then(|v| v.as_array()).map_or(0, Vec::len);
+        let verdict = match (self.accepted, self.direct_accepted) {
+            (Some(true), _) => "shown",
+            (_, Some(true)) => "shown, direct rule (an offset replay earns more)",
+            _ => "refused",
+        };
+        format!(
+            "seed {seed}{init}: direct {}/{k} · best of {offsets} offsets {}/{k}{} · idle {} · at most {} → {verdict}",
+            c(self.completed_required_stage_count),
+            c(self.best_completed_stage_count),
+            if self.replay_solves == Some(true) { " (solves)" } else { "" },
+            c(self.idle_completed_stage_count),
+            c(self.allowed_stage_count),
+        )
     }
 }
 
@@ -124,7 +179,26 @@ mod tests {
     fn a_stored_replay_check_is_found_by_its_target() {
         let target = json!({"task": "T14", "effective_layout": {"init_index": 1}});
         let m = DemoManifest::from_value(json!({"replay_checks": [{"target": target, "replay_solves": false, "method": "x"}]})).unwrap();
-        assert_eq!(m.replay_check(&target), Some(false));
-        assert_eq!(m.replay_check(&json!({"task": "T14"})), None);
+        assert_eq!(m.replay_check(&target).and_then(|c| c.replay_solves), Some(false));
+        assert_eq!(m.replay_check(&target).and_then(|c| c.method.as_deref()), Some("x"));
+        assert!(m.replay_check(&json!({"task": "T14"})).is_none());
+    }
+
+    #[test]
+    fn a_replay_check_reads_in_one_line_with_its_stage_counts() {
+        let check = ReplayCheck::from_value(json!({
+            "target": {"task": "T28", "effective_layout": {"placement_seed": 100, "init_index": null}},
+            "method": "direct_and_offset_replay_v2", "replay_solves": true, "accepted": false, "direct_accepted": true,
+            "completed_required_stage_count": 0, "required_stage_count": 2, "best_completed_stage_count": 2,
+            "idle_completed_stage_count": 0, "allowed_stage_count": 1,
+            "offset_replays": [{"instance": "latched_door_1", "offset_m": [0.01, 0.0, 0.0], "success": true, "completed_required_stage_count": 2}],
+        }))
+        .unwrap();
+        assert_eq!(
+            check.summary(),
+            "seed 100: direct 0/2 · best of 1 offsets 2/2 (solves) · idle 0 · at most 1 → shown, direct rule (an offset replay earns more)"
+        );
+        let old = ReplayCheck::from_value(json!({"target": {"effective_layout": {"placement_seed": 7, "init_index": 3}}, "replay_solves": false})).unwrap();
+        assert_eq!(old.summary(), "seed 7, init 3: direct replay does not solve (stages not checked, older rule)");
     }
 }

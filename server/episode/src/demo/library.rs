@@ -1,7 +1,8 @@
 //! The demonstration library: `<root>/<task>/<source episode id>/`, one library bundle each. An episode with a
 //! demonstration condition takes a valid, verified bundle of its task recorded in a *different* configuration
-//! whose trajectory, replayed directly in that episode, does not solve it (issue 31; the paper: "Direct replay of
-//! this trajectory does not solve the evaluation episode"). Each replay check is stored in the bundle's manifest
+//! whose trajectory, replayed in that episode directly or after a constant end-effector offset, neither solves it
+//! nor earns more than half its stages (issues 31 and 48; the paper: "Direct replay of this trajectory does not
+//! solve the evaluation episode", and Table 3 scores stages). Each replay check is stored in the bundle's manifest
 //! (`replay_checks`), so a bundle is replayed once per target configuration.
 use std::path::{Path, PathBuf};
 
@@ -10,9 +11,10 @@ use serde_json::{Value, json};
 
 use super::*;
 use super::record::bundle_source;
+use super::replay_attack::{REPLAY_CHECK_METHOD, ReplayAttack, ReplayRule};
 use crate::demo_manifest::ReplayCheck;
 use crate::json::{utc_now_iso, write_json_file};
-use crate::physics::{WorldPhysics, WorldSpec};
+use crate::physics::WorldSpec;
 use crate::task::{EffectiveLayout, TaskSource};
 
 /// Directory name of a task in the library (`T14`; `suite/name` and paths become safe names).
@@ -42,7 +44,7 @@ impl TargetEpisode {
         Ok(self.task.effective_layout(self.seed, self.init_index)?)
     }
 
-    fn spec(&self, paths: &AssetPaths) -> WorldSpec {
+    pub fn spec(&self, paths: &AssetPaths) -> WorldSpec {
         WorldSpec { task: self.task.clone(), level: crate::Level::L1, seed: self.seed, init_index: self.init_index, paths: paths.clone() }
     }
 
@@ -87,43 +89,65 @@ pub fn source_layout(dir: &Path, paths: &AssetPaths) -> Result<EffectiveLayout, 
     Ok(spec.task.effective_layout(spec.seed, spec.init_index)?)
 }
 
-/// Replays `actions`, one by one, in the target episode's world (no rendering) and returns the evaluator's record
-/// at the end: what an agent that only replays a demonstration would get.
-pub fn replay_in_target(actions: &[[f64; 7]], target: &TargetEpisode, paths: &AssetPaths) -> Result<libero_tasks::EvaluationRecord, DemoError> {
-    let mut physics = WorldPhysics::build(&target.spec(paths), |_, _, _| Ok(()))?;
-    physics.start(|_| {})?;
-    for a in actions {
-        physics.step(a)?;
+/// Whether a stored check settles the question under `rule`: `Some(Err(why))` for a stored rejection (a stored
+/// success is final, whatever method made it), `Some(Ok(()))` for an acceptance under today's method, `None` to
+/// check again.
+fn stored_verdict(check: &ReplayCheck, rule: ReplayRule) -> Option<Result<(), String>> {
+    let count = |n: Option<u64>| n.map_or_else(|| "?".to_owned(), |n| n.to_string());
+    if check.replay_solves == Some(true) {
+        return Some(Err("replaying its trajectory solves the target episode".to_owned()));
     }
-    Ok(physics.evaluate())
+    if check.method.as_deref() != Some(REPLAY_CHECK_METHOD) {
+        return None;
+    }
+    let (passed, earned) = match rule {
+        ReplayRule::WithOffsets => (check.accepted, check.best_completed_stage_count),
+        ReplayRule::DirectOnly => (check.direct_accepted, check.completed_required_stage_count),
+    };
+    Some(match passed? {
+        true => Ok(()),
+        false => Err(format!(
+            "replaying its trajectory earns {} of {} stages{}; at most {} allowed",
+            count(earned),
+            count(check.required_stage_count),
+            if rule == ReplayRule::WithOffsets { " (direct or after an offset)" } else { " (direct replay)" },
+            count(check.allowed_stage_count)
+        )),
+    })
 }
 
-/// Whether replaying `dir` solves `target`, from the manifest's stored check or by replaying now (and storing the
-/// verdict in the manifest).
-pub fn replay_solves(dir: &Path, target: &TargetEpisode, paths: &AssetPaths) -> Result<bool, DemoError> {
+/// Whether `dir` may be shown in `target` under `rule` ([`replay_attack`]): from the manifest's stored check or
+/// by replaying now (and storing the check in the manifest). `Err(why)` when it may not.
+pub fn replay_verdict(dir: &Path, target: &TargetEpisode, paths: &AssetPaths, rule: ReplayRule) -> Result<Result<(), String>, DemoError> {
     let key = target.key()?;
-    if let Some(solves) = read_manifest(&dir.join(MANIFEST))?.replay_check(&key) {
-        return Ok(solves);
+    if let Some(verdict) = read_manifest(&dir.join(MANIFEST))?.replay_check(&key).and_then(|c| stored_verdict(c, rule)) {
+        return Ok(verdict);
     }
     let (_, source) = bundle_source(dir)?;
     let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
-    let record = replay_in_target(&actions, target, paths)?;
-    store_replay_check(dir, target, &record)?;
-    Ok(record.success)
+    let attack = replay_attack::attack(&actions, Some(&source.spec(paths)?), &target.spec(paths))?;
+    store_replay_check(dir, target, &attack)?;
+    Ok(attack.rejection(rule).map_or(Ok(()), Err))
 }
 
-/// Writes the outcome of replaying `dir` in `target` into its manifest's `replay_checks` (replacing an older check
-/// of the same target). The manifest is outside the integrity block, so the bundle stays valid.
-pub fn store_replay_check(dir: &Path, target: &TargetEpisode, record: &libero_tasks::EvaluationRecord) -> Result<(), DemoError> {
+/// Writes the replays of `dir` in `target` into its manifest's `replay_checks` (replacing an older check of the
+/// same target). The manifest is outside the integrity block, so the bundle stays valid.
+pub fn store_replay_check(dir: &Path, target: &TargetEpisode, attack: &ReplayAttack) -> Result<(), DemoError> {
     let key = target.key()?;
     let manifest_path = dir.join(MANIFEST);
     let mut manifest = read_manifest(&manifest_path)?;
     let check = json!({
         "target": key,
-        "replay_solves": record.success,
-        "completed_required_stage_count": record.completed_required_stage_count,
-        "required_stage_count": record.required_stage_count,
-        "method": "direct_replay_on_world_physics",
+        "replay_solves": attack.any_success(),
+        "accepted": attack.accepted(),
+        "direct_accepted": attack.direct_accepted(),
+        "completed_required_stage_count": attack.direct.completed_required_stage_count,
+        "required_stage_count": attack.required_stage_count,
+        "best_completed_stage_count": attack.best_completed_stage_count(),
+        "idle_completed_stage_count": attack.idle_completed_stage_count,
+        "allowed_stage_count": attack.allowed_stage_count(),
+        "offset_replays": attack.offsets,
+        "method": REPLAY_CHECK_METHOD,
         "checked_at": utc_now_iso(),
     });
     let check = ReplayCheck::from_value(check).map_err(|e| DemoError::Source(format!("replay check: {e}")))?;
@@ -137,19 +161,19 @@ pub fn store_replay_check(dir: &Path, target: &TargetEpisode, record: &libero_ta
 }
 
 /// A bundle of the target's task that may be shown in the target episode: valid, verified, recorded in another
-/// configuration, and not solving the target by direct replay. `Err(skipped)` lists why each bundle was passed
+/// configuration, and passing [`replay_verdict`] under `rule`. `Err(skipped)` lists why each bundle was passed
 /// over when none qualifies.
-pub fn select_for_target(root: &Path, target: &TargetEpisode, paths: &AssetPaths) -> Result<Result<PathBuf, Vec<Skipped>>, DemoError> {
+pub fn select_for_target(root: &Path, target: &TargetEpisode, paths: &AssetPaths, rule: ReplayRule) -> Result<Result<PathBuf, Vec<Skipped>>, DemoError> {
     let target_layout = target.layout()?;
     let mut skipped = Vec::new();
     for bundle in verified_bundles(root, &target.task.task_ref) {
         let reason = match source_layout(&bundle, paths) {
             Err(e) => format!("its source cannot be rebuilt: {e}"),
             Ok(layout) if layout == target_layout => "it was recorded in the target's own configuration".to_owned(),
-            Ok(_) => match replay_solves(&bundle, target, paths) {
+            Ok(_) => match replay_verdict(&bundle, target, paths, rule) {
                 Err(e) => format!("its replay check failed: {e}"),
-                Ok(true) => "replaying its trajectory solves the target episode".to_owned(),
-                Ok(false) => return Ok(Ok(bundle)),
+                Ok(Err(why)) => why,
+                Ok(Ok(())) => return Ok(Ok(bundle)),
             },
         };
         skipped.push(Skipped { bundle, reason });
@@ -161,11 +185,13 @@ pub fn select_for_target(root: &Path, target: &TargetEpisode, paths: &AssetPaths
 pub const MAX_SOURCE_ATTEMPTS: u32 = 8;
 
 /// The `attempt`-th source layout for `target` (deterministic), never the target's own configuration. Every draw
-/// takes the next row of the init-state file where the task has one (`init_rows` of them). Then, in turn: another
-/// placement seed; the target's seed with the whole table scene moved 4 cm left, right, 3 cm nearer, farther (the
-/// relative layout stays the one the task's expert is tuned to, its poses relative to the robot do not); another
-/// seed with regions widened 3 cm; another with 6 cm (for tasks whose regions are too narrow for a seed to move
-/// anything, such as 2 mm button regions).
+/// takes the next row of the init-state file where the task has one (`init_rows` of them) and another placement
+/// seed. The first keeps the task's regions; the next five re-sample every object in regions widened by 3 to
+/// 6 cm, two of them with yaw intervals widened by 0.35 and 0.6 rad (so objects move and turn independently of
+/// each other, also in tasks whose regions are too narrow for a seed to move anything, such as 2 mm button
+/// regions, or a single fixture such as T28's door, which an offset alone lines up again). Only the last two move
+/// the target's own scene rigidly by 4 cm left and right (the relative layout stays the one the task's expert is
+/// tuned to): a replay shifted by that offset usually earns what the source did, which the replay check refuses.
 pub fn source_layout_candidate(target: &TargetEpisode, attempt: u32, init_rows: Option<usize>) -> Result<LayoutVariant, DemoError> {
     let layout = target.layout()?;
     let other_seed = layout.placement_seed.wrapping_add(1 + attempt.wrapping_mul(7919));
@@ -173,16 +199,17 @@ pub fn source_layout_candidate(target: &TargetEpisode, attempt: u32, init_rows: 
         (Some(rows), Some(index)) if rows > 1 => (index + 1 + attempt as usize % (rows - 1)) % rows,
         _ => target.init_index,
     };
-    let (placement_seed, scene_shift_m, region_margin_m) = match attempt {
-        0 => (other_seed, [0.0, 0.0], 0.0),
-        1 => (layout.placement_seed, [0.0, 0.04], 0.0),
-        2 => (layout.placement_seed, [0.0, -0.04], 0.0),
-        3 => (layout.placement_seed, [-0.03, 0.0], 0.0),
-        4 => (layout.placement_seed, [0.03, 0.0], 0.0),
-        5 => (other_seed, [0.0, 0.0], 0.03),
-        _ => (other_seed, [0.0, 0.0], 0.06),
+    let (placement_seed, scene_shift_m, region_margin_m, yaw_margin_rad) = match attempt {
+        0 => (other_seed, [0.0, 0.0], 0.0, 0.0),
+        1 => (other_seed, [0.0, 0.0], 0.03, 0.0),
+        2 => (other_seed, [0.0, 0.0], 0.03, 0.35),
+        3 => (other_seed, [0.0, 0.0], 0.06, 0.0),
+        4 => (other_seed, [0.0, 0.0], 0.06, 0.6),
+        5 => (other_seed, [0.0, 0.0], 0.045, 0.0),
+        6 => (layout.placement_seed, [0.0, 0.04], 0.0, 0.0),
+        _ => (layout.placement_seed, [0.0, -0.04], 0.0, 0.0),
     };
-    Ok(LayoutVariant { placement_seed, init_index, region_margin_m, scene_shift_m })
+    Ok(LayoutVariant { placement_seed, init_index, region_margin_m, scene_shift_m, yaw_margin_rad })
 }
 
 #[cfg(test)]
@@ -202,7 +229,7 @@ mod tests {
     }
 
     #[test]
-    fn source_layouts_never_repeat_the_target_and_widen_late() {
+    fn source_layouts_never_repeat_the_target_and_resample_before_shifting() {
         for (init, fixed) in [(true, None), (false, Some(100)), (false, None)] {
             let t = target(init, fixed);
             let own = t.layout().unwrap();
@@ -217,8 +244,10 @@ mod tests {
                 if init {
                     assert_ne!(layout.init_index, own.init_index, "another init row");
                 }
-                assert_eq!(v.region_margin_m > 0.0, attempt >= 5);
-                assert_eq!(v.scene_shift_m != [0.0; 2], (1..=4).contains(&attempt));
+                assert_eq!(v.region_margin_m > 0.0, (1..=5).contains(&attempt), "attempt {attempt}");
+                assert_eq!(v.scene_shift_m != [0.0; 2], attempt >= 6, "rigid shifts come last");
+                assert_eq!(v.placement_seed != own.placement_seed, attempt < 6, "re-sampled placements");
+                assert_eq!(v.yaw_margin_rad > 0.0, [2, 4].contains(&attempt), "turned placements");
                 seen.push(layout);
             }
         }

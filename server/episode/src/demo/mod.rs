@@ -20,6 +20,7 @@ pub mod lerobot;
 pub mod library;
 pub mod project;
 pub mod record;
+pub mod replay_attack;
 pub mod validate;
 
 pub use project::{DemoCondition, ProjectionReceipt, project_bundle};

@@ -366,7 +366,7 @@ mod tests {
     const GOLDEN_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/demo_bundle");
 
     fn golden_fields<'a>(source: &'a SourceEpisode, options: &'a RecordOptions, replay: Option<bool>) -> ManifestFields<'a> {
-        let effective_layout = Some(EffectiveLayout { placement_seed: 100, init_index: Some(0), region_margin_m: 0.0, scene_shift_m: [0.0; 2] });
+        let effective_layout = Some(EffectiveLayout { placement_seed: 100, init_index: Some(0), region_margin_m: 0.0, scene_shift_m: [0.0; 2], yaw_margin_rad: 0.0 });
         ManifestFields { source, options, replay_success: replay, effective_layout, replay_checks: json!([]) }
     }
 

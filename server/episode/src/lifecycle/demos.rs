@@ -8,7 +8,8 @@ use super::EpisodeSet;
 use super::request::PrepareRequest;
 use crate::demo::library::TargetEpisode;
 use crate::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
-use crate::demo::{LayoutVariant, library, record_bundle, verify_bundle};
+use crate::demo::replay_attack::ReplayRule;
+use crate::demo::{LayoutVariant, library, record_bundle, replay_attack, verify_bundle};
 use crate::expert_run::run_expert;
 use crate::physics::WorldSpec as PhysicsSpec;
 use crate::records::PrivateEvaluation;
@@ -22,19 +23,25 @@ impl EpisodeSet {
     }
 
     /// A library bundle that may be shown in the episode (`task`, `seed`, `init_index`): valid, verified,
-    /// recorded in another configuration, and not solving this episode by direct replay (issue 31). When the
-    /// library has none, one is recorded now with the task's scripted expert from the next source layout
-    /// ([`library::source_layout_candidate`]) until one qualifies.
+    /// recorded in another configuration, and whose replay neither solves this episode nor earns more than half
+    /// its stages (issues 31 and 48, [`library::replay_verdict`]), directly or after a constant end-effector
+    /// offset. When the library has none, one is recorded now with the task's scripted expert from the next source
+    /// layout ([`library::source_layout_candidate`]) until one qualifies. Only when no bundle and no source layout
+    /// passes the offset replays (a single mechanism, such as T28's door, that any offset lines up again) does the
+    /// direct replay alone decide, as the paper states it; the bundle's stored check then says so.
     pub fn demo_bundle(&self, task: &TaskSource, seed: u64, init_index: usize) -> anyhow::Result<PathBuf> {
         let lib = self.demo_library();
         let paths = self.paths.clone().context("assets are missing")?;
         let target = TargetEpisode { task: task.clone(), seed, init_index };
         // replay checks write manifests: one selection or recording at a time
         let _one_at_a_time = self.demo_recording.lock().map_err(|_| anyhow::anyhow!("demo lock poisoned"))?;
-        let mut passed_over = match library::select_for_target(&lib, &target, &paths)? {
-            Ok(bundle) => return Ok(bundle),
-            Err(skipped) => skipped.into_iter().map(|s| format!("{}: {}", s.bundle.display(), s.reason)).collect::<Vec<_>>(),
-        };
+        let mut passed_over = Vec::new();
+        for rule in [ReplayRule::WithOffsets, ReplayRule::DirectOnly] {
+            match self.demo_bundle_under(&target, &lib, &paths, rule, &mut passed_over)? {
+                Some(bundle) => return Ok(bundle),
+                None => tracing::info!(task = %task.task_ref, ?rule, "no demonstration passes this replay rule"),
+            }
+        }
         let task_ref = task.task_ref.as_str();
         if libero_tasks::expert_behaviours(task_ref).is_none() {
             bail!(
@@ -46,35 +53,58 @@ impl EpisodeSet {
                 lib.display()
             );
         }
+        bail!(
+            "no demonstration of {task_ref} could be recorded whose replay neither solves the episode nor earns more \
+             than half its stages (seed {seed}, init {init_index}): {}",
+            passed_over.join("; ")
+        )
+    }
+
+    /// [`Self::demo_bundle`] under one rule: a library bundle that passes it, or one recorded now (where the task
+    /// has a scripted expert); `None` when neither. Why each was passed over is added to `passed_over`.
+    fn demo_bundle_under(
+        &self,
+        target: &TargetEpisode,
+        lib: &Path,
+        paths: &libero_sim::AssetPaths,
+        rule: ReplayRule,
+        passed_over: &mut Vec<String>,
+    ) -> anyhow::Result<Option<PathBuf>> {
+        match library::select_for_target(lib, target, paths, rule)? {
+            Ok(bundle) => return Ok(Some(bundle)),
+            Err(skipped) => passed_over.extend(skipped.into_iter().map(|s| format!("{}: {}", s.bundle.display(), s.reason))),
+        }
+        let task = &target.task;
+        let task_ref = task.task_ref.as_str();
+        if libero_tasks::expert_behaviours(task_ref).is_none() {
+            return Ok(None);
+        }
         let init_rows = match &task.init_states {
             Some(path) => Some(libero_sim::InitStates::read(path)?.len()),
             None => None,
         };
         for attempt in 0..library::MAX_SOURCE_ATTEMPTS {
-            let layout = library::source_layout_candidate(&target, attempt, init_rows)?;
+            let layout = library::source_layout_candidate(target, attempt, init_rows)?;
             let what = format!("source layout {}", serde_json::to_string(&layout)?);
-            match self.record_expert_demo(task, layout, &target) {
+            match self.record_expert_demo(task, layout, target, rule) {
                 Ok(dir) => {
-                    tracing::info!(task = task_ref, attempt, bundle = %dir.display(), "demonstration recorded");
-                    return Ok(dir);
+                    tracing::info!(task = task_ref, attempt, ?rule, bundle = %dir.display(), "demonstration recorded");
+                    return Ok(Some(dir));
                 }
                 Err(e) => {
-                    tracing::info!(task = task_ref, attempt, why = format!("{e:#}"), "demonstration source passed over");
+                    tracing::info!(task = task_ref, attempt, ?rule, why = format!("{e:#}"), "demonstration source passed over");
                     passed_over.push(format!("{what}: {e:#}"));
                 }
             }
         }
-        bail!(
-            "no demonstration of {task_ref} could be recorded whose replay does not solve the episode (seed {seed}, \
-             init {init_index}): {}",
-            passed_over.join("; ")
-        )
+        Ok(None)
     }
 
     /// Records a scripted-expert demonstration of `task` in `layout` (a separate episode, level 1, no video) for
-    /// `target`: the expert's actions are first replayed in the target (physics only), and only a source whose
-    /// replay fails is rendered into a bundle, verified by replay, with that check stored in its manifest.
-    fn record_expert_demo(&self, task: &TaskSource, layout: LayoutVariant, target: &TargetEpisode) -> anyhow::Result<PathBuf> {
+    /// `target`: the expert's actions are first replayed in the target (physics only, directly and after each
+    /// candidate offset), and only a source that passes `rule` ([`replay_attack::ReplayAttack::passes`]) is
+    /// rendered into a bundle, verified by replay, with that check stored in its manifest.
+    fn record_expert_demo(&self, task: &TaskSource, layout: LayoutVariant, target: &TargetEpisode, rule: ReplayRule) -> anyhow::Result<PathBuf> {
         let task_ref = task.task_ref.as_str();
         let seed = u64::from(layout.placement_seed);
         let req = PrepareRequest { level: 1, seed, init_index: layout.init_index, video: false, layout: Some(layout), ..PrepareRequest::new(task_ref) };
@@ -98,16 +128,16 @@ impl EpisodeSet {
             );
         }
         let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
-        let replay = library::replay_in_target(&actions, target, &paths)?;
-        if replay.success {
-            bail!("replaying its {} actions solves the target episode", actions.len());
+        let attack = replay_attack::attack(&actions, Some(&spec), &target.spec(&paths))?;
+        if let Some(why) = attack.rejection(rule) {
+            bail!("{why}");
         }
         let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "libero-agent expert solve".into() };
         let summary = self.record_demo(&prepared.episode_id, &options)?;
         if !summary.verified {
             bail!("the expert's demonstration did not verify by replay ({})", summary.dir.display());
         }
-        library::store_replay_check(&summary.dir, target, &replay)?;
+        library::store_replay_check(&summary.dir, target, &attack)?;
         Ok(summary.dir)
     }
 
