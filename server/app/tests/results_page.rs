@@ -233,10 +233,22 @@ fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() 
             "details": {"opening_operations": [{"stage_name": "01_BDDL_Goal_At_Finish", "operation": "open", "exec_steps": 60,
                 "sustained_contact_ratio_percent": scr, "completed": opened}]}})
     };
+    // The first rollout unlatched holding the lever (24 of 60 steps in one handle run: SCR 40 %) and pushed the door's
+    // panel without its handle (SCR 0 %); the second never touched the door: its unlatching was never entered.
     let t28 = |unlatched: bool| {
+        let op = |stage: &str, contact: &[u64], handle: &[u64], completed: bool| {
+            serde_json::json!({"stage_name": stage, "operation": "open", "exec_steps": 60, "contact_runs": contact,
+                "handle_contact_runs": handle, "completed": completed})
+        };
+        let ops = if unlatched {
+            vec![op("01_Unlatch_Door", &[30], &[24], true), op("02_Open_Door", &[20], &[], false)]
+        } else {
+            vec![op("01_Unlatch_Door", &[], &[], false)]
+        };
         serde_json::json!({"stage_diagnostics": [
             {"stage_name": "01_Unlatch_Door", "type": "mechanism_interaction", "required": true, "reached": true, "succeeded": unlatched},
-            {"stage_name": "02_Open_Door", "type": "mechanism_interaction", "required": true, "reached": unlatched, "succeeded": false}]})
+            {"stage_name": "02_Open_Door", "type": "mechanism_interaction", "required": true, "reached": unlatched, "succeeded": false}],
+            "details": {"opening_operations": ops}})
     };
     write_fixture_batch(
         &extra.join("main"),
@@ -277,12 +289,16 @@ fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() 
     assert!(t4.contains("<td>2/4 = 50.0%</td><td>1/4 = 25.0%</td><td>—</td><td>1/2 = 50.0%</td><td>1/1 = 100.0%</td><td>0/1 = 0.0%</td>"), "{t4}");
     let t4x = table("table-4-extension");
     assert!(t4x.contains("<td>2</td><td>4</td><td>2/4 = 50.0%</td><td>1/4 = 25.0%</td><td>—</td><td>1/2 = 50.0 [9.5, 90.5]</td>"), "{t4x}");
-    // Figure 3 from the T16 records: SCR 40 opened, SCR 0 not; and its two plots, drawn inline.
+    // Figure 3 from the main table's T28 records (not T16's: short horizon): the lever held (SCR 40, opened) and the
+    // panel pushed (SCR 0, not opened) count, the untouched latch does not; and its two-panel figure, drawn inline.
     let f3 = table("figure-3");
-    // (the T11 rollouts have no run directory: counted as without record)
-    assert!(f3.contains("<td>2 (+2 without record)</td><td>20.0%</td><td>1/2 = 50.0%</td><td>1.000</td><td>0/1 = 0.0 [0.0, 79.3]</td>"), "{f3}");
+    assert!(f3.contains("<td>command/fixture</td><td>2</td><td>20.0%</td><td>1/2 = 50.0%</td>"), "{f3}");
+    let bins = table("figure-3-bins");
+    assert!(bins.contains("<td>SCR 0</td><td>1</td><td>0</td><td>0/1 = 0.0 [0.0, 79.3]</td>"), "{bins}");
+    assert!(bins.contains("<td>all</td><td>2</td><td>1</td><td>1/2 = 50.0 [9.5, 90.5]</td><td>1.000</td>"), "{bins}");
     let plots = &html[html.find("id=\"figure-3-plots\"").expect("the plots")..];
-    assert_eq!(plots.matches("<svg xmlns=\"http://www.w3.org/2000/svg\"").count(), 2);
+    assert_eq!(plots.matches("<svg xmlns=\"http://www.w3.org/2000/svg\"").count(), 1);
+    assert!(plots.contains("(b) local opening success by SCR bin, pooled: n = 2"));
     assert!(html.contains("id=\"appendix-e-short-horizon\"") && html.contains("id=\"appendix-e-long-horizon\""));
 
     // The API: the same numbers as `report` over the same three batches.

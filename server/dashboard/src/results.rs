@@ -349,7 +349,7 @@ pub struct View {
     pub tasks: Vec<TaskRow>,
     /// Tables 2–4, Figure 3's numbers and Appendix E, across the selected batches of each agent (those with rows).
     pub paper: Vec<DisplayTable>,
-    /// Figure 3 as inline SVG, drawn by the server (the same as `report --figures`).
+    /// Figure 3 as inline SVG (its two panels in one), drawn by the server (the same as `report --figures`).
     pub figures: Vec<String>,
     /// Every rollout that does not count, with its reason.
     pub excluded: Vec<ExcludedRow>,
@@ -519,7 +519,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
     let paper = paper_tables(batches, &rows(batches, reps), reps);
     v.paper = display_tables(&paper, TableChoice::All, reps).into_iter().filter(|t| !t.rows.is_empty()).collect();
     if !paper.sustained_contact.is_empty() {
-        v.figures = vec![svg::success_by_bin(&paper.sustained_contact), svg::mean_scr(&paper.sustained_contact)];
+        v.figures = vec![svg::figure3(&paper.sustained_contact)];
     }
     v
 }

@@ -25,7 +25,10 @@ pub mod diagnosis;
 mod pool;
 mod wilson;
 pub use ablation::{AblationKind, AblationRow};
-pub use contact::{ContactSummary, OpeningOperation, ScrBin, ScrBinSummary, pearson, summarize_contact};
+pub use contact::{
+    AgentScr, ContactSummary, Figure3, OpeningOperation, SUSTAINED_RUN_STEPS, ScrBin, ScrBinSummary, figure3, pearson, summarize_contact,
+    sustained_contact_ratio_percent, sustained_steps,
+};
 pub use diagnosis::{
     ExecutionRate, FailureMode, LabelSource, PaperStageDiagnosis, StageAnnotation, StageAnnotations, StageDiagnosis, StageEvidence,
     StageKey, StageLabel, StageOpportunity, StageType, TypeExecution, diagnose, diagnose_paper, in_paper_table4,

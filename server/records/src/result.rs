@@ -197,6 +197,12 @@ record! {
         /// `open`, `close`, …; absent in records from before operations carried a direction.
         pub operation: Option<String>,
         pub exec_steps: Option<u64>,
+        /// Runs of gripper contact with any part of the mechanism (control steps, in order).
+        pub contact_runs: Option<Vec<u64>>,
+        /// Runs of gripper contact with the mechanism's declared handle: the runs Figure 3's SCR counts. Absent in
+        /// records from before handle contact was told apart.
+        pub handle_contact_runs: Option<Vec<u64>>,
+        pub sustained_steps: Option<u64>,
         pub sustained_contact_ratio_percent: Option<f64>,
         pub completed: Option<bool>,
     }
@@ -224,7 +230,8 @@ mod tests {
                     "completed_control_step": 3, "regressions": 0, "regressed_during_later_stage": false,
                     "sustained_contact_ratio_percent": null, "contact_exec_steps": null, "failure_reason": null}],
                 "details": {"opening_operations": [{"stage_name": "a", "operation": "open", "exec_steps": 4,
-                    "sustained_contact_ratio_percent": 75.0, "completed": true, "window": "first_contact"}]},
+                    "contact_runs": [4], "handle_contact_runs": [3], "sustained_steps": 0,
+                    "sustained_contact_ratio_percent": 0.0, "completed": true, "window": "first_contact"}]},
                 "new_evaluator_field": {"x": [1, 2.5]}
             },
             "remaining_resets": 0, "reset_count": 0, "schema_version": RESULT_SCHEMA, "status": "finished", "success": false,
@@ -250,6 +257,7 @@ mod tests {
         assert_eq!((d.stage_type.clone(), d.succeeded, d.sustained_contact_ratio_percent), (Some(json!("grasp")), Some(true), Some(None)));
         let op = &pe.details.as_ref().unwrap().opening_operations.as_ref().unwrap()[0];
         assert_eq!((op.operation.as_deref(), op.exec_steps, op.rest["window"].clone()), (Some("open"), Some(4), json!("first_contact")));
+        assert_eq!((op.contact_runs.as_deref(), op.handle_contact_runs.as_deref()), (Some(&[4][..]), Some(&[3][..])));
         assert_eq!(r.rest["agent_harness"], "codex");
     }
 

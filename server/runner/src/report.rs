@@ -2,11 +2,13 @@
 //! from batch directories, through the metrics crate. Rollouts are grouped by agent (`harness/model`) and condition
 //! (level, demonstration); several batches of the same agent combine (a re-run of INVALID rollouts, and the main
 //! table, observation and context batches whose conditions Tables 2 and 3 put side by side). Table 1 is here;
-//! Tables 2–4, Figure 3's data and Appendix E are in [`tables`], Figure 3's plots in [`svg`]. [`report_json`] is the
-//! JSON the dashboard's Results page reads.
+//! Tables 2–4, Figure 3's data and Appendix E are in [`tables`] (which operations Figure 3 counts: [`figure3`]), its
+//! plot in [`svg`]. [`report_json`] is the JSON the dashboard's Results page reads.
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+#[path = "report_figure3.rs"]
+pub mod figure3;
 #[path = "report_svg.rs"]
 pub mod svg;
 #[path = "report_tables.rs"]
@@ -53,7 +55,8 @@ pub struct ReportArgs {
     /// appendix (the per-task tables of Appendix E, wide).
     #[arg(long, value_enum, default_value = "all")]
     pub table: TableChoice,
-    /// Also write Figure 3 to this folder: two SVG plots and their data (CSV, JSON).
+    /// Also write Figure 3 to this folder: one SVG with its two panels (mean SCR per agent; local opening success by
+    /// SCR bin, pooled) and their data (CSV, JSON).
     #[arg(long, value_name = "DIR")]
     pub figures: Option<PathBuf>,
 }

@@ -8,7 +8,8 @@
 //!   "Table 4+", this project's extension over every long-horizon task, from each rollout's private record
 //!   (`result.json` → `private_evaluation`: its stage diagnostics, stage events and opening operations, with the stage
 //!   types the catalog declares) and, for Table 4, a person's stage annotations where there are any;
-//! * Figure 3, the sustained-contact ratio of every opening operation (`private_evaluation.details.opening_operations`);
+//! * Figure 3, the sustained-contact ratio of the stage analysis's opening operations (`private_evaluation.details.
+//!   opening_operations`; which operations and how, [`crate::report::figure3`]);
 //! * Appendix E, the per-task tables in wide format.
 //!
 //! Rollouts are grouped by agent (`harness/model`) and condition exactly as Table 1's rows, whichever batch they came
@@ -20,14 +21,14 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use libero_metrics::{
-    AblationKind, AblationRow, ContactSummary, OpeningOperation, PaperStageDiagnosis, Proportion, Split, StageAnnotations,
-    StageDiagnosis, StageEvidence, StageOpportunity, StageType, diagnose, diagnose_paper, in_paper_table4, summarize,
-    summarize_contact,
+    AblationKind, AblationRow, PaperStageDiagnosis, Proportion, Split, StageAnnotations, StageDiagnosis, StageEvidence,
+    StageOpportunity, StageType, diagnose, diagnose_paper, in_paper_table4, summarize,
 };
 use libero_episode::records::{MechanismOperation, PrivateEvaluation, PrivateEvent, RunDir, StageDiagnostic, read_result};
 use serde::Serialize;
 
 use crate::batch::{Condition, LoadedBatch, RolloutRecord, agent_of};
+use crate::report::figure3::{self, Figure3Data};
 use crate::report::{Row, cell, pct, wilson};
 use crate::schedule::Demo;
 
@@ -72,24 +73,6 @@ pub struct DiagnosisLine {
     pub rollouts_without_record: usize,
 }
 
-/// Figure 3's numbers for one agent under one condition (`pool`: its task-pool rollouts).
-#[derive(Debug, Clone, Serialize)]
-pub struct ContactLine {
-    pub agent: String,
-    /// `L3, none`, `L3, video`, …, or `pool`.
-    pub condition: String,
-    #[serde(flatten)]
-    pub summary: ContactSummary,
-    pub opening_operations: Vec<OpeningOperation>,
-    pub rollouts_without_record: usize,
-}
-
-impl ContactLine {
-    pub fn label(&self) -> String {
-        format!("{} ({})", self.agent, self.condition)
-    }
-}
-
 /// One task of an Appendix E row: successes (perception, short horizon) or the sum of `c/K` (long horizon) over
 /// the first `reps` valid rollouts, printed `x/reps` and `sum/reps` as the paper does (`3/3`, `1.80/3`).
 #[derive(Debug, Clone, Serialize)]
@@ -129,7 +112,8 @@ pub struct PaperTables {
     pub stage_diagnosis: Vec<PaperDiagnosisLine>,
     /// Table 4+, the extension (every long-horizon task, automatic labels).
     pub stage_diagnosis_extension: Vec<DiagnosisLine>,
-    pub sustained_contact: Vec<ContactLine>,
+    /// Figure 3 over the stage analysis's opening operations (every agent's).
+    pub sustained_contact: Figure3Data,
     pub appendix_e: Vec<AppendixTable>,
 }
 
@@ -189,12 +173,11 @@ fn catalog_stage_counts() -> &'static BTreeMap<u32, u32> {
 /// The checker whose goals are all available at once (T21, T22): no stage comes first.
 const UNORDERED_CHECKER: &str = "private_unordered_goal_predicates";
 
-/// The gripper touched the mechanism of this operation: a contact run (`contact_runs`), or sustained steps or a
-/// positive SCR in records without the runs.
-fn touched(o: &MechanismOperation) -> bool {
-    let runs = o.rest.get("contact_runs").and_then(serde_json::Value::as_array).is_some_and(|r| !r.is_empty());
-    let sustained = o.rest.get("sustained_steps").and_then(serde_json::Value::as_u64).is_some_and(|n| n > 0);
-    runs || sustained || o.sustained_contact_ratio_percent.is_some_and(|p| p > 0.0)
+/// The gripper touched the mechanism of this operation (anywhere on it): a contact run (`contact_runs`), or sustained
+/// steps or a positive SCR in records without the runs.
+pub(crate) fn touched(o: &MechanismOperation) -> bool {
+    let runs = o.contact_runs.as_ref().is_some_and(|r| !r.is_empty());
+    runs || o.sustained_steps.is_some_and(|n| n > 0) || o.sustained_contact_ratio_percent.is_some_and(|p| p > 0.0)
 }
 
 /// The required stages of one long-horizon rollout's record as stage opportunities, each with the evidence its
@@ -247,35 +230,6 @@ fn opportunities(r: &RolloutRecord, pe: &PrivateEvaluation) -> Vec<StageOpportun
                     blocked_by_other_stage: blocked,
                 },
                 stage_name: n,
-            }
-        })
-        .collect()
-}
-
-/// The opening operations of one rollout's record (Figure 3). Records from before operations carried a direction
-/// name their opening stages `…Open…`/`…Unlatch…`.
-fn opening_operations(r: &RolloutRecord, pe: &PrivateEvaluation) -> Vec<OpeningOperation> {
-    let ops = pe.details.as_ref().and_then(|d| d.opening_operations.as_deref()).unwrap_or_default();
-    let succeeded = |stage: &str| {
-        pe.stage_diagnostics.iter().flatten().any(|d| d.stage_name.as_deref() == Some(stage) && d.succeeded == Some(true))
-    };
-    ops.iter()
-        .filter(|o| match o.operation.as_deref() {
-            Some(kind) => kind == "open",
-            None => o.stage_name.as_deref().is_some_and(|s| {
-                let s = s.to_ascii_lowercase();
-                s.contains("open") || s.contains("unlatch")
-            }),
-        })
-        .filter(|o| o.exec_steps.is_some_and(|n| n > 0))
-        .map(|o| {
-            let stage = o.stage_name.clone();
-            OpeningOperation {
-                task: r.task.clone(),
-                opened: o.completed.unwrap_or_else(|| stage.as_deref().is_some_and(succeeded)),
-                stage_name: stage,
-                scr_percent: o.sustained_contact_ratio_percent.unwrap_or(0.0),
-                exec_steps: o.exec_steps.unwrap_or(0),
             }
         })
         .collect()
@@ -403,7 +357,7 @@ pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize
     let names = batch_names(batches);
     let mut diagnosis: BTreeMap<(String, Condition), Opportunities> = BTreeMap::new();
     let mut paper4: BTreeMap<(String, Condition), Opportunities> = BTreeMap::new();
-    let mut contact: BTreeMap<(String, String), (Vec<OpeningOperation>, usize)> = BTreeMap::new();
+    let (mut openings, mut analysed, mut analysed_without_record) = (Vec::new(), 0, 0);
     let mut by_agent: BTreeMap<String, Vec<&RolloutRecord>> = BTreeMap::new();
     for b in batches {
         by_agent.entry(agent_of(b)).or_default().extend(&b.records);
@@ -411,12 +365,13 @@ pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize
     for (agent, records) in &by_agent {
         for r in counted(records.iter().copied(), reps) {
             let condition = Condition { level: r.level, demo: r.demo };
-            let group = if r.suite.is_some() { "pool".to_owned() } else { condition_label(condition) };
             let pe = private_evaluation(r);
-            let c = contact.entry((agent.clone(), group)).or_default();
-            match &pe {
-                Some(pe) => c.0.extend(opening_operations(r, pe)),
-                None => c.1 += 1,
+            if figure3::in_stage_analysis(r) {
+                analysed += 1;
+                match &pe {
+                    Some(pe) => openings.extend(figure3::operations(agent, r, pe, &opportunities(r, pe))),
+                    None => analysed_without_record += 1,
+                }
             }
             if r.suite.is_none() && r.split.is_some_and(Split::is_long_horizon) {
                 diagnosis.entry((agent.clone(), condition)).or_default().add(r, pe.as_ref());
@@ -450,17 +405,7 @@ pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize
                 rollouts_without_record: o.without_record,
             })
             .collect(),
-        sustained_contact: contact
-            .into_iter()
-            .filter(|(_, (ops, missing))| !ops.is_empty() || *missing > 0)
-            .map(|((agent, condition), (ops, missing))| ContactLine {
-                agent,
-                condition,
-                summary: summarize_contact(&ops),
-                opening_operations: ops,
-                rollouts_without_record: missing,
-            })
-            .collect(),
+        sustained_contact: Figure3Data::new(openings, analysed, analysed_without_record),
         appendix_e: appendix(rows, batches),
     }
 }
@@ -473,7 +418,7 @@ fn partial(value: Option<f64>, scored: usize, member: usize) -> String {
 }
 
 /// `k/n = p%`.
-fn share(p: &Proportion) -> String {
+pub(crate) fn share(p: &Proportion) -> String {
     match p.rate {
         Some(r) => format!("{}/{} = {:.1}%", p.successes, p.trials, 100.0 * r),
         None => "—".into(),
@@ -496,7 +441,7 @@ fn appendix_text(cell: &AppendixCell, long: bool, reps: usize) -> String {
     }
 }
 
-fn r_text(r: Option<f64>) -> String {
+pub(crate) fn r_text(r: Option<f64>) -> String {
     r.map(|r| format!("{r:.3}")).unwrap_or_else(|| "—".into())
 }
 
@@ -527,7 +472,7 @@ pub struct DisplayTable {
     pub rows: Vec<Vec<String>>,
 }
 
-fn strings<const N: usize>(heads: [&str; N]) -> Vec<String> {
+pub(crate) fn strings<const N: usize>(heads: [&str; N]) -> Vec<String> {
     heads.map(str::to_owned).to_vec()
 }
 
@@ -685,66 +630,6 @@ fn without_record(n: usize) -> String {
     if n > 0 { format!(" (+{n} without record)") } else { String::new() }
 }
 
-fn contact_display(lines: &[ContactLine]) -> [DisplayTable; 2] {
-    let mut heads = strings(["Agent", "Condition", "Opening operations", "Mean SCR", "Local opening success", "Pearson r (SCR, success)"]);
-    heads.extend(libero_metrics::ScrBin::ALL.iter().map(|b| format!("SCR {} [95% Wilson]", b.label())));
-    let rows = lines
-        .iter()
-        .map(|l| {
-            let s = &l.summary;
-            let mut row = vec![
-                l.agent.clone(),
-                l.condition.clone(),
-                format!("{}{}", s.operations, without_record(l.rollouts_without_record)),
-                s.mean_scr_percent.map(|m| format!("{m:.1}%")).unwrap_or_else(|| "—".into()),
-                share(&s.local_success),
-                r_text(s.pearson_r),
-            ];
-            row.extend(s.bins.iter().map(|b| wilson(&b.local_success)));
-            row
-        })
-        .collect();
-    let operations = lines
-        .iter()
-        .flat_map(|l| {
-            l.opening_operations.iter().map(move |op| {
-                vec![
-                    l.agent.clone(),
-                    l.condition.clone(),
-                    op.task.clone(),
-                    op.stage_name.clone().unwrap_or_else(|| "—".into()),
-                    format!("{:.1}%", op.scr_percent),
-                    op.exec_steps.to_string(),
-                    if op.opened { "yes" } else { "no" }.into(),
-                ]
-            })
-        })
-        .collect();
-    [
-        DisplayTable {
-            id: "figure-3".into(),
-            title: "Sustained-contact ratio of opening operations (Figure 3)".into(),
-            note: if lines.is_empty() {
-                "No opening operation in the report.".into()
-            } else {
-                "SCR = N_sustained / N_exec × 100%: the share of an operation's control steps inside gripper–mechanism contact \
-                 runs of ≥ 5 steps. Local opening success: the opening completed, whatever the rest of the task did; per SCR \
-                 bin with 95% Wilson intervals; Pearson r over operations. `report --figures DIR` draws these as SVG."
-                    .into()
-            },
-            heads,
-            rows,
-        },
-        DisplayTable {
-            id: "figure-3-operations".into(),
-            title: "Opening operations (Figure 3's data)".into(),
-            note: String::new(),
-            heads: strings(["Agent", "Condition", "Task", "Stage", "SCR", "N_exec", "Opened"]),
-            rows: operations,
-        },
-    ]
-}
-
 /// `5`, or `—` where the stage count is unknown.
 fn k_text(k: Option<u32>) -> String {
     k.map(|k| k.to_string()).unwrap_or_else(|| "—".into())
@@ -790,7 +675,7 @@ pub fn display_tables(t: &PaperTables, choice: TableChoice, reps: usize) -> Vec<
         out.push(diagnosis_display(&t.stage_diagnosis_extension));
     }
     if choice.wants(TableChoice::Figure3) {
-        out.extend(contact_display(&t.sustained_contact));
+        out.extend(figure3::display(&t.sustained_contact));
     }
     if choice.wants(TableChoice::Appendix) {
         out.extend(t.appendix_e.iter().filter(|a| !a.rows.is_empty()).map(|a| appendix_display(a, reps)));
@@ -845,12 +730,12 @@ pub fn markdown(t: &PaperTables, choice: TableChoice, reps: usize) -> String {
 // --------------------------------------------------------------------------------------------- CSV
 
 /// A CSV field, quoted where it needs to be.
-fn field(s: &str) -> String {
+pub(crate) fn field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_owned() }
 }
 
 /// A fraction in [0, 1] as a percentage with 4 decimals, empty when unknown.
-fn p4(x: Option<f64>) -> String {
+pub(crate) fn p4(x: Option<f64>) -> String {
     x.map(|v| format!("{:.4}", 100.0 * v)).unwrap_or_default()
 }
 
@@ -923,37 +808,6 @@ fn csv_diagnosis(o: &mut String, lines: &[DiagnosisLine]) {
     }
 }
 
-fn csv_contact(o: &mut String, lines: &[ContactLine]) {
-    let _ = writeln!(o, "agent,condition,scr_bin,operations,opened,local_success_percent,wilson_low_percent,wilson_high_percent,mean_scr_percent,pearson_r");
-    for l in lines {
-        let s = &l.summary;
-        let mean = s.mean_scr_percent.map(|m| format!("{m:.4}")).unwrap_or_default();
-        let r = s.pearson_r.map(|r| format!("{r:.6}")).unwrap_or_default();
-        for b in s.bins.iter().map(|b| (b.label.as_str(), &b.local_success)).chain([("all", &s.local_success)]) {
-            let (label, p) = b;
-            let _ = writeln!(
-                o,
-                "{},{},{},{},{},{},{},{},{mean},{r}",
-                field(&l.agent), field(&l.condition), field(label), p.trials, p.successes, p4(p.rate), p4(p.wilson_low), p4(p.wilson_high)
-            );
-        }
-    }
-}
-
-fn csv_operations(o: &mut String, lines: &[ContactLine]) {
-    let _ = writeln!(o, "agent,condition,task,stage,scr_percent,exec_steps,opened");
-    for l in lines {
-        for op in &l.opening_operations {
-            let _ = writeln!(
-                o,
-                "{},{},{},{},{:.4},{},{}",
-                field(&l.agent), field(&l.condition), field(&op.task), field(op.stage_name.as_deref().unwrap_or("")), op.scr_percent,
-                op.exec_steps, op.opened
-            );
-        }
-    }
-}
-
 fn csv_appendix(o: &mut String, t: &AppendixTable, reps: usize) {
     let Some(first) = t.rows.first() else { return };
     let heads: Vec<&str> = first.cells.iter().map(|c| c.task.as_str()).collect();
@@ -969,8 +823,8 @@ fn csv_appendix(o: &mut String, t: &AppendixTable, reps: usize) {
     }
 }
 
-/// One `(name, CSV)` block per table `choice` selects (Table 4: the paper's and the extension; Figure 3: its bins and
-/// its operations; Appendix E: three).
+/// One `(name, CSV)` block per table `choice` selects (Table 4: the paper's and the extension; Figure 3: its two
+/// panels and its operations; Appendix E: three).
 pub fn csv_blocks(t: &PaperTables, choice: TableChoice, reps: usize) -> Vec<(String, String)> {
     let mut blocks = Vec::new();
     let mut block = |name: &str, body: &dyn Fn(&mut String)| {
@@ -989,8 +843,9 @@ pub fn csv_blocks(t: &PaperTables, choice: TableChoice, reps: usize) -> Vec<(Str
         block("table_4_extension_all_long_horizon", &|o| csv_diagnosis(o, &t.stage_diagnosis_extension));
     }
     if choice.wants(TableChoice::Figure3) {
-        block("figure_3_scr_bins", &|o| csv_contact(o, &t.sustained_contact));
-        block("figure_3_opening_operations", &|o| csv_operations(o, &t.sustained_contact));
+        block("figure_3a_mean_scr", &|o| figure3::csv_mean(o, &t.sustained_contact));
+        block("figure_3b_scr_bins", &|o| figure3::csv_bins(o, &t.sustained_contact));
+        block("figure_3_opening_operations", &|o| figure3::csv_operations(o, &t.sustained_contact));
     }
     if choice.wants(TableChoice::Appendix) {
         for a in t.appendix_e.iter().filter(|a| !a.rows.is_empty()) {
@@ -1034,28 +889,9 @@ pub fn latex(t: &PaperTables, choice: TableChoice, reps: usize) -> String {
     o
 }
 
-/// Figure 3 as files in `dir`: the two SVG plots and the data behind them (CSV, JSON). Returns the paths written.
+/// Figure 3 as files in `dir` ([`figure3::write_figures`]). Returns the paths written.
 pub fn write_figures(t: &PaperTables, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
-    std::fs::create_dir_all(dir)?;
-    let mut data = String::new();
-    csv_contact(&mut data, &t.sustained_contact);
-    let mut ops = String::new();
-    csv_operations(&mut ops, &t.sustained_contact);
-    let json = serde_json::to_string_pretty(&t.sustained_contact).map_err(std::io::Error::other)? + "\n";
-    let files = [
-        ("figure3_success_by_scr_bin.svg", crate::report::svg::success_by_bin(&t.sustained_contact)),
-        ("figure3_mean_scr.svg", crate::report::svg::mean_scr(&t.sustained_contact)),
-        ("figure3_scr_bins.csv", data),
-        ("figure3_opening_operations.csv", ops),
-        ("figure3.json", json),
-    ];
-    let mut written = Vec::new();
-    for (name, text) in files {
-        let path = dir.join(name);
-        std::fs::write(&path, text)?;
-        written.push(path);
-    }
-    Ok(written)
+    figure3::write_figures(&t.sustained_contact, dir)
 }
 
 #[cfg(test)]

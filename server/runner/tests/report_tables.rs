@@ -1,7 +1,7 @@
 //! `report` over one agent's three batches — a main-table batch, an observation-ablation batch and a context batch,
 //! written by hand with their rollouts' private records — prints Tables 1–4, Figure 3's data and Appendix E, each
-//! checked against values computed by hand below, in Markdown, CSV, LaTeX and JSON, and `--figures DIR` writes the
-//! two SVG plots with their data. Stable rule over 2 rollouts per task (`--reps 2`).
+//! checked against values computed by hand below, in Markdown, CSV, LaTeX and JSON, and `--figures DIR` writes
+//! Figure 3's two-panel SVG with its data. Stable rule over 2 rollouts per task (`--reps 2`).
 //!
 //! Hand computation (agent `command/fixture`):
 //! * main (L3, none): T11 S,S (stable) · T13 S,F · T12 S,S (stable) · T16 F,F → easy 1/2 scored = 50.0 (2/5), hard 50.0
@@ -20,9 +20,11 @@
 //!   failures 4: local 2 (T27 r1 stage 03, T27 r2 stage 02), interference 2 (T27 r2's drawer closed while a later
 //!   stage ran; T28 r2's door blocked by an order violation). T27 r2's record has no stage types: the catalog's are used.
 //! * Appendix E: x/2 and sum/2 (2 rollouts per task), the long-horizon table after its K row.
-//! * Figure 3 (L3, none), 8 opening operations (a closing and a legacy record left out / read by name): SCR 0, 8, 20,
-//!   30, 40, 50, 12, 0 with opened F, F, T, T, T, T, T, F → mean 20.0, success 5/8; bins 0: 0/2, (0,10]: 0/1,
-//!   (10,25]: 2/2, >25: 3/3; Pearson r = 52 / √(2408 · 1.875) = 0.77388.
+//! * Figure 3 (the main table's long-horizon rollouts; T16 and the ablation batches are not read): 6 opening
+//!   operations (T28's closing is none), all entered; T27 r2's legacy record (no direction, no handle runs) is left out;
+//!   the 5 counted have SCR 20, 40, 50, 12, 0 (T28 r2's door: contact on the panel only) with opened T, T, T, T, F →
+//!   mean 24.4, success 4/5; bins 0: 0/1, (0,10]: 0/0, (10,25]: 2/2, >25: 2/2; Pearson r = 24.4 / √(1667.2 · 0.8) =
+//!   0.66811. (The multi-agent golden test is `figure_3_pools_…` below.)
 use std::path::Path;
 
 use libero_runner::batch::{LoadedBatch, load_batch};
@@ -57,10 +59,15 @@ fn with(mut x: Rollout, private: Value) -> Rollout {
 }
 
 fn write_batch(dir: &Path, experiment: &str, rollouts: &[Rollout]) {
+    write_agent_batch(dir, experiment, "fixture", rollouts);
+}
+
+/// A batch of agent `command/<model>`.
+fn write_agent_batch(dir: &Path, experiment: &str, model: &str, rollouts: &[Rollout]) {
     std::fs::create_dir_all(dir).unwrap();
     let batch = json!({
         "schema_version": "libero_agent.batch.v1", "status": "finished",
-        "settings": {"experiment": experiment, "harness": "command", "model": "fixture", "effort": "high", "reps": REPS,
+        "settings": {"experiment": experiment, "harness": "command", "model": model, "effort": "high", "reps": REPS,
             "tasks": [], "seed": 100, "wall_time_s": 300.0, "max_agent_steps": 100, "agent_cmd": "true", "sandbox": false},
         "rollout_count": rollouts.len(), "counts": {"done": rollouts.len(), "running": 0, "left": 0}, "outcomes": {},
     });
@@ -143,7 +150,7 @@ fn batches(root: &Path) -> Vec<LoadedBatch> {
                     stage("03_Place_Chocolate_Middle_Drawer", OM, true, false),
                     stage("04_Close_Middle_Drawer", MI, false, false),
                 ],
-                vec![op("01_Open_Middle_Drawer", Some("open"), 20.0, 100, true)],
+                vec![opening("01_Open_Middle_Drawer", 100, &[20], &[20], true)],
             ),
         ),
         with(r(27, 4, 2, 3, "none", "FAIL", 1), pe(t27_r2, vec![op("01_Open_Middle_Drawer", None, 30.0, 90, false)])),
@@ -152,15 +159,15 @@ fn batches(root: &Path) -> Vec<LoadedBatch> {
             pe(
                 vec![stage("01_Unlatch_Door", MI, true, true), stage("02_Open_Door", MI, true, true)],
                 vec![
-                    op("01_Unlatch_Door", Some("open"), 40.0, 110, true),
-                    op("02_Open_Door", Some("open"), 50.0, 60, true),
+                    opening("01_Unlatch_Door", 110, &[44], &[44], true),
+                    opening("02_Open_Door", 60, &[30], &[30], true),
                     op("03_Close_Door", Some("close"), 10.0, 60, true),
                 ],
             ),
         ),
         with(
             r(28, 2, 2, 3, "none", "FAIL", 1),
-            pe(t28_r2, vec![op("01_Unlatch_Door", Some("open"), 12.0, 100, true), op("02_Open_Door", Some("open"), 0.0, 80, false)]),
+            pe(t28_r2, vec![opening("01_Unlatch_Door", 100, &[12], &[12], true), opening("02_Open_Door", 80, &[6], &[], false)]),
         ),
     ];
     let obs = [
@@ -230,15 +237,17 @@ fn markdown_prints_tables_1_to_4_figure_3_and_appendix_e_with_the_hand_computed_
         "| command/fixture | L3, none | 4 | 12 | 9/12 = 75.0% | 6/12 = 50.0% | 1/3 = 33.3 [6.1, 79.2] | 5/6 = 83.3 [43.6, 97.0] | 4 | 2 (50.0%) | 2 (50.0%) |",
     );
     has(&md, "| command/fixture | L3, video | 0 (+4 without record) | 0 | — | — | — | — | 0 | 0 | 0 |");
-    // Figure 3.
-    has(
-        &md,
-        "| command/fixture | L3, none | 8 | 20.0% | 5/8 = 62.5% | 0.774 | 0/2 = 0.0 [0.0, 65.8] | 0/1 = 0.0 [0.0, 79.3] | 2/2 = 100.0 [34.2, 100.0] | 3/3 = 100.0 [43.9, 100.0] |",
-    );
-    has(&md, "| command/fixture | L3, video | 0 (+4 without record) | — | — | — | — | — | — | — |");
-    has(&md, "| command/fixture | L3, none | T28 | 02_Open_Door | 0.0% | 80 | no |");
-    assert!(!md.contains("| 10.0% | 60 |"), "a closing is no opening operation");
-    has(&md, "| command/fixture | L3, none | T27 | 01_Open_Middle_Drawer | 30.0% | 90 | yes |");
+    // Figure 3: (a) the agent's mean, (b) the pooled bins, and every operation read.
+    has(&md, "| command/fixture | 5 | 24.4% | 4/5 = 80.0% |");
+    has(&md, "| SCR 0 | 1 | 0 | 0/1 = 0.0 [0.0, 79.3] |  |");
+    has(&md, "| SCR (0,10%] | 0 | 0 | — |  |");
+    has(&md, "| all | 5 | 4 | 4/5 = 80.0 [37.6, 96.4] | 0.668 |");
+    assert!(md.contains("6 opening operations of 4 long-horizon rollouts (T21–T30, L3, no demonstration; the stable rule's) read, 5 counted; \
+                         left out: 0 not entered, 1 recorded without handle contact runs"), "{md}");
+    has(&md, "| command/fixture | T28 | 02_Open_Door | 80 | [] | 0.0% | yes | no | yes |");
+    has(&md, "| command/fixture | T27 | 01_Open_Middle_Drawer | 90 | — (not recorded) | — | yes | yes | no |");
+    let ops = md.split("## Opening operations (Figure 3's data)").nth(1).unwrap().split("\n## ").next().unwrap();
+    assert!(!ops.contains("03_Close_Door") && !ops.contains("| T16 |"), "a closing and a short-horizon task are no operation of Figure 3");
     // Appendix E, wide.
     has(&md, "| command/fixture | L3, none | 2/2 | 2/2 | 1/2 | — | — | 0/2 | — | — | — | — |");
     has(&md, "| K (stages) |  | 5 | 5 | 8 | 4 | 4 | 3 | 4 | 2 | 3 | 4 |");
@@ -264,7 +273,8 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
             "# table_3_demonstration_ablation",
             "# table_4_stage_diagnosis",
             "# table_4_extension_all_long_horizon",
-            "# figure_3_scr_bins",
+            "# figure_3a_mean_scr",
+            "# figure_3b_scr_bins",
             "# figure_3_opening_operations",
             "# appendix_e_short_horizon",
             "# appendix_e_long_horizon"
@@ -294,9 +304,10 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
     has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,all,12,9,6,,,,4,2,2");
     has(&t4, "command/fixture,3,video,0,4,0,0,,0,,all,0,0,0,,,,0,0,0");
     let f3 = report::csv(&b, REPS, TableChoice::Figure3);
-    has(&f3, "command/fixture,\"L3, none\",\"(10,25%]\",2,2,100.0000,34.2380,100.0000,20.0000,0.773882");
-    has(&f3, "command/fixture,\"L3, none\",all,8,5,62.5000,30.5742,86.3156,20.0000,0.773882");
-    has(&f3, "command/fixture,\"L3, none\",T16,01_BDDL_Goal_At_Finish,8.0000,50,false");
+    has(&f3, "command/fixture,5,24.4000,4,80.0000,37.5535,96.3776");
+    has(&f3, "\"(10,25%]\",2,2,100.0000,34.2380,100.0000,");
+    has(&f3, "all,5,4,80.0000,37.5535,96.3776,0.668115");
+    has(&f3, "command/fixture,T28,ep-w2_t28_level3_none,02_Open_Door,80,,0.0000,true,false,true");
     let appendix = report::csv(&b, REPS, TableChoice::Appendix);
     has(&appendix, "agent,level,demo,T11,T12,T13,T14,T15,T16,T17,T18,T19,T20");
     has(&appendix, "command/fixture,3,none,2/2,2/2,1/2,,,0/2,,,,");
@@ -305,7 +316,7 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
     has(&appendix, "command/fixture,3,video_traj,,,,,,,1.00/2,0.50/2,,");
 
     let tex = report::latex(&b, REPS, TableChoice::All);
-    assert_eq!(tex.matches("\\begin{tabular}").count(), 9, "Tables 1–4, Table 4+, Figure 3 and its operations, two appendix tables:\n{tex}");
+    assert_eq!(tex.matches("\\begin{tabular}").count(), 10, "Tables 1–4, Table 4+, Figure 3(a), 3(b) and its operations, two appendix tables:\n{tex}");
     assert_eq!(tex.matches("\\begin{tabular}").count(), tex.matches("\\end{tabular}").count());
     has(&tex, "command/fixture & L2 & 100.0 (1/5) & 0.0 (1/5) & 50.0 & obs \\\\");
     has(&tex, "command/fixture & Video + Traj. & 50.0 (1/5) & 0.0 (1/5) & 25.0 & ctx \\\\");
@@ -313,8 +324,8 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
         &tex,
         "command/fixture & L3, none & 4 & 12 & 9/12 = 75.0\\% & 6/12 = 50.0\\% & 1/3 = 33.3 [6.1, 79.2] & 5/6 = 83.3 [43.6, 97.0] & 4 & 2 (50.0\\%) & 2 (50.0\\%) \\\\",
     );
-    has(&tex, "command/fixture & L3, none & T28 & 02\\_Open\\_Door & 0.0\\% & 80 & no \\\\");
-    assert!(tex.contains("% Sustained-contact ratio of opening operations (Figure 3)\n\\begin{tabular}{lrrrrrrrrr}"), "{tex}");
+    has(&tex, "command/fixture & T28 & 02\\_Open\\_Door & 80 & [] & 0.0\\% & yes & no & yes \\\\");
+    assert!(tex.contains("% Figure 3(b): local opening success by SCR bin, every agent's operations pooled\n\\begin{tabular}{lrrrr}"), "{tex}");
     has(&tex, "command/fixture & L3, none & 2/2 & 2/2 & 1/2 & -- & -- & 0/2 & -- & -- & -- & -- \\\\");
     has(&tex, "command/fixture (L3, none) & 4/4 = 100.0\\% & 3/4 = 75.0\\% & -- & 3/3 = 100.0\\% & 0/1 = 0.0\\% & 1/1 = 100.0\\% \\\\");
     assert!(!tex.contains('—') && !tex.contains("_fix"), "LaTeX-safe cells");
@@ -339,11 +350,11 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
     let t4 = v["stage_diagnosis_extension"].as_array().unwrap().iter().find(|l| l["demo"] == "none").unwrap();
     assert_eq!((t4["opportunities"].as_u64(), t4["failures"].as_u64(), t4["cross_stage_interference"].as_u64()), (Some(12), Some(4), Some(2)));
     assert_eq!(t4["untyped_opportunities"], 0, "T27 r2's stage types come from the catalog");
-    let f3 = v["sustained_contact"].as_array().unwrap().iter().find(|l| l["condition"] == "L3, none").unwrap();
-    assert!((f3["pearson_r"].as_f64().unwrap() - 52.0 / (2408.0f64 * 1.875).sqrt()).abs() < 1e-12);
-    assert_eq!(f3["opening_operations"].as_array().map(Vec::len), Some(8));
-    let bins: Vec<(u64, u64)> = f3["bins"].as_array().unwrap().iter().map(|b| (b["local_success"]["successes"].as_u64().unwrap(), b["local_success"]["trials"].as_u64().unwrap())).collect();
-    assert_eq!(bins, [(0, 2), (0, 1), (2, 2), (3, 3)]);
+    let f3 = &v["sustained_contact"];
+    assert!((f3["pooled"]["pearson_r"].as_f64().unwrap() - 24.4 / (1667.2f64 * 0.8).sqrt()).abs() < 1e-12);
+    assert_eq!((f3["operations"].as_array().map(Vec::len), f3["without_handle_runs"].as_u64()), (Some(6), Some(1)));
+    let bins: Vec<(u64, u64)> = f3["pooled"]["bins"].as_array().unwrap().iter().map(|b| (b["local_success"]["successes"].as_u64().unwrap(), b["local_success"]["trials"].as_u64().unwrap())).collect();
+    assert_eq!(bins, [(0, 1), (0, 0), (2, 2), (2, 2)]);
     let appendix = v["appendix_e"].as_array().unwrap();
     assert_eq!(appendix.iter().map(|a| a["rows"].as_array().unwrap().len()).collect::<Vec<_>>(), [0, 3, 3]);
 
@@ -358,16 +369,16 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
         figures: Some(figures.clone()),
     };
     report::run(args).unwrap();
-    let bins_svg = std::fs::read_to_string(figures.join("figure3_success_by_scr_bin.svg")).unwrap();
-    assert!(bins_svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\"") && bins_svg.contains(">3/3<") && bins_svg.contains(">0/2<"));
-    assert!(bins_svg.contains("command/fixture (L3, none) — 8 operations, r = 0.77"), "{bins_svg}");
-    let mean_svg = std::fs::read_to_string(figures.join("figure3_mean_scr.svg")).unwrap();
-    assert!(mean_svg.contains("20.0% · n = 8 · r = 0.77"), "{mean_svg}");
-    let data = std::fs::read_to_string(figures.join("figure3_scr_bins.csv")).unwrap();
-    assert_eq!(data, report::csv(&b, REPS, TableChoice::Figure3).split("\n# ").next().unwrap().trim_start_matches("# figure_3_scr_bins\n"));
+    let svg = std::fs::read_to_string(figures.join("figure3.svg")).unwrap();
+    assert!(svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\"") && svg.contains(">2/2<") && svg.contains(">0/1<"));
+    assert!(svg.contains("24.4% (n = 5)") && svg.contains("pooled: n = 5, r = 0.67"), "{svg}");
+    let csv = report::csv(&b, REPS, TableChoice::Figure3);
+    let block = |name: &str| csv.split(&format!("# {name}\n")).nth(1).unwrap().split("\n# ").next().unwrap().to_owned();
+    for (file, name) in [("figure3_mean_scr.csv", "figure_3a_mean_scr"), ("figure3_scr_bins.csv", "figure_3b_scr_bins"), ("figure3_opening_operations.csv", "figure_3_opening_operations")] {
+        assert_eq!(std::fs::read_to_string(figures.join(file)).unwrap().trim_end(), block(name).trim_end(), "{file}");
+    }
     let json: Value = serde_json::from_str(&std::fs::read_to_string(figures.join("figure3.json")).unwrap()).unwrap();
     assert_eq!(json, v["sustained_contact"]);
-    assert!(figures.join("figure3_opening_operations.csv").is_file());
 }
 
 /// A 1-rep batch of agent `codex/tokens` whose five T11–T15 rollouts took their tokens from each source: the gateway
@@ -460,4 +471,145 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
     let tex = report::latex(&b, reps, TableChoice::Table1);
     part(&tex, "& Tokens (M) & Token source \\\\");
     part(&tex, "& 1.0 (1 INVALID incl.) & 0.03 & gateway 2, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1; 1 INVALID incl. \\\\");
+}
+
+/// An opening operation as the evaluators now record it: `contact` the runs of gripper contact anywhere on the
+/// mechanism, `handle` those on its handle (no SCR given: the report computes it from the runs).
+fn opening(stage: &str, exec: u64, contact: &[u64], handle: &[u64], completed: bool) -> Value {
+    json!({"stage_name": stage, "operation": "open", "exec_steps": exec, "contact_runs": contact, "handle_contact_runs": handle,
+        "completed": completed})
+}
+
+/// A record of the unordered cooking goals (T21, T22): only the microwave's goal is listed.
+fn cooking(opened: bool, op: Value) -> Value {
+    let mut v = pe(vec![stage("Microwave_Open", MI, false, opened)], vec![op]);
+    v["details"]["order"] = json!("unordered");
+    v
+}
+
+/// T28's two ordered stages with the operations the agent got to.
+fn door(unlatched: bool, opened: bool, ops: Vec<Value>) -> Value {
+    pe(vec![stage("01_Unlatch_Door", MI, false, unlatched), stage("02_Open_Door", MI, false, opened)], ops)
+}
+
+/// Figure 3 golden test, computed by hand from the paper's definitions (§5.3) over three agents' main-table rollouts
+/// (`--reps 2`). SCR = N_sustained / N_exec × 100 with N_sustained = Σ handle runs ≥ 5; an operation counts when
+/// entered (its stage reached in the stage analysis).
+///
+/// * command/a: T21 r1 microwave, 40 steps, handle runs 4, 5, 6 (inside one 30-step contact with the door) → 11/40 =
+///   27.5 %, opened; T21 r2 never touched (1,500 pending steps) → not entered; T28 r1 unlatch 20/100 = 20 %, opened, and
+///   its door (reached: the latch opened) 50 steps with contact runs 12, 30 on the panel and one handle run of 4 → 0 %,
+///   not opened (the panel does not count, a run of 4 is not sustained); T28 r2 unlatch never touched (first stage) →
+///   not entered. Mean (27.5 + 20 + 0) / 3 = 95/6.
+/// * command/b: T27 r1 drawer 50/200 = 25 %, opened; T27 r2 drawer pushed on its front for 40 steps, no handle → 0 %,
+///   entered (touched), not opened; T22 r1 one handle run of 5 in 60 steps → 25/3 %, not opened; T22 r2 one of 4 in 50
+///   → 0 %, not opened; a T16 opening (short horizon, 100 %) is no operation of the stage analysis. Mean 25/3.
+/// * command/c: T28 r1 unlatch 30/30 = 100 %, door 10/20 = 50 %, both opened; T28 r2 unlatch runs 5, 4 in 50 = 10 %,
+///   opened, door never touched but reached (the latch opened) → 0 %, not opened; a video-condition T28 rollout is not
+///   read. Mean 160/4 = 40.
+/// * Pooled, 11 operations: SCR 0 → 0/4; (0, 10 %] → 1/2 (8.33 no, 10 yes); (10, 25 %] → 2/2 (20, 25); > 25 % → 3/3
+///   (27.5, 100, 50); all 6/11. Pearson r = (n Σxy − Σx Σy) / √((n Σx² − (Σx)²)(n Σy² − (Σy)²)) with n = 11,
+///   Σx = 1445/6, Σy = 6, Σxy = 232.5, Σx² = 14450 + 25/36 …: numerator 2225/2, x-term 1817225/18, y-term 30.
+#[test]
+fn figure_3_pools_the_entered_handle_openings_of_every_agent_as_computed_by_hand() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = [
+        with(r(21, 5, 1, 3, "none", "FAIL", 1), cooking(true, opening("Microwave_Open", 40, &[30], &[4, 5, 6], true))),
+        with(r(21, 5, 2, 3, "none", "FAIL", 0), cooking(false, opening("Microwave_Open", 1500, &[], &[], false))),
+        with(
+            r(28, 2, 1, 3, "none", "FAIL", 1),
+            door(true, false, vec![opening("01_Unlatch_Door", 100, &[20], &[20], true), opening("02_Open_Door", 50, &[12, 30], &[4], false)]),
+        ),
+        with(r(28, 2, 2, 3, "none", "FAIL", 0), door(false, false, vec![opening("01_Unlatch_Door", 80, &[], &[], false)])),
+    ];
+    let drawer = |opened: bool, op: Value| {
+        pe(vec![stage("01_Open_Middle_Drawer", MI, false, opened), stage("02_Place_Cookies_Middle_Drawer", OM, false, false)], vec![op])
+    };
+    let b = [
+        with(r(27, 4, 1, 3, "none", "FAIL", 1), drawer(true, opening("01_Open_Middle_Drawer", 200, &[50], &[50], true))),
+        with(r(27, 4, 2, 3, "none", "FAIL", 0), drawer(false, opening("01_Open_Middle_Drawer", 100, &[40], &[], false))),
+        with(r(22, 5, 1, 3, "none", "FAIL", 0), cooking(false, opening("Microwave_Open", 60, &[5], &[5], false))),
+        with(r(22, 5, 2, 3, "none", "FAIL", 0), cooking(false, opening("Microwave_Open", 50, &[4], &[4], false))),
+        with(
+            r(16, 1, 1, 3, "none", "SUCCESS", 1),
+            pe(vec![stage("01_BDDL_Goal_At_Finish", MI, true, true)], vec![opening("01_BDDL_Goal_At_Finish", 50, &[50], &[50], true)]),
+        ),
+    ];
+    let c = [
+        with(
+            r(28, 2, 1, 3, "none", "SUCCESS", 2),
+            door(true, true, vec![opening("01_Unlatch_Door", 30, &[30], &[30], true), opening("02_Open_Door", 20, &[10], &[10], true)]),
+        ),
+        with(
+            r(28, 2, 2, 3, "none", "FAIL", 1),
+            door(true, false, vec![opening("01_Unlatch_Door", 50, &[5, 4], &[5, 4], true), opening("02_Open_Door", 40, &[], &[], false)]),
+        ),
+        with(r(28, 2, 1, 3, "video", "SUCCESS", 2), door(true, true, vec![opening("01_Unlatch_Door", 10, &[10], &[10], true)])),
+    ];
+    for (name, rollouts) in [("a", &a[..]), ("b", &b[..]), ("c", &c[..])] {
+        write_agent_batch(&dir.path().join(name), "main_table", name, rollouts);
+    }
+    let batches: Vec<LoadedBatch> = ["a", "b", "c"].iter().map(|n| load_batch(&dir.path().join(n)).unwrap()).collect();
+    let v = report::report_json(&batches, REPS);
+    let f = &v["sustained_contact"];
+    let close = |got: &Value, want: f64, what: &str| {
+        let got = got.as_f64().unwrap_or_else(|| panic!("{what}: {got}"));
+        assert!((got - want).abs() < 1e-9, "{what}: {got} ≠ {want}");
+    };
+
+    // (a) mean SCR per agent over its entered operations
+    let agents = f["agents"].as_array().unwrap();
+    let names: Vec<(&str, u64)> = agents.iter().map(|a| (a["agent"].as_str().unwrap(), a["operations"].as_u64().unwrap())).collect();
+    assert_eq!(names, [("command/a", 3), ("command/b", 4), ("command/c", 4)]);
+    for (a, want) in agents.iter().zip([95.0 / 6.0, 25.0 / 3.0, 40.0]) {
+        close(&a["mean_scr_percent"], want, a["agent"].as_str().unwrap());
+    }
+    // what was read and left out: 13 operations (not T16's, not the video rollout's), 2 never entered
+    assert_eq!(f["operations"].as_array().map(Vec::len), Some(13));
+    assert_eq!((f["not_entered"].as_u64(), f["without_handle_runs"].as_u64(), f["rollouts"].as_u64()), (Some(2), Some(0), Some(10)));
+    let scr_of = |agent: &str, task: &str, stage: &str| {
+        let op = f["operations"].as_array().unwrap().iter().find(|o| o["agent"] == agent && o["task"] == task && o["stage_name"] == stage).unwrap();
+        (op["scr_percent"].as_f64(), op["entered"].as_bool())
+    };
+    assert_eq!(scr_of("command/a", "T28", "02_Open_Door"), (Some(0.0), Some(true)), "panel contact and a run of 4 count nothing");
+    assert_eq!(scr_of("command/a", "T21", "Microwave_Open").1, Some(true));
+
+    // (b) pooled over every agent: per-bin successes with their 95 % Wilson bounds, each from its closed form
+    let z: f64 = 1.959_963_984_540_054;
+    let z2 = z * z;
+    let half = |n: f64| z / (1.0 + z2 / n) * (0.25 / n + z2 / (4.0 * n * n)).sqrt();
+    let want: [(u64, u64, f64, f64); 4] = [
+        (0, 4, 0.0, z2 / (4.0 + z2)),
+        (1, 2, 0.5 - half(2.0), 0.5 + half(2.0)),
+        (2, 2, 2.0 / (2.0 + z2), 1.0),
+        (3, 3, 3.0 / (3.0 + z2), 1.0),
+    ];
+    let bins = f["pooled"]["bins"].as_array().unwrap();
+    for (b, (k, n, lo, hi)) in bins.iter().zip(want) {
+        let p = &b["local_success"];
+        assert_eq!((p["successes"].as_u64(), p["trials"].as_u64()), (Some(k), Some(n)), "{b}");
+        close(&p["wilson_low"], lo, b["label"].as_str().unwrap());
+        close(&p["wilson_high"], hi, b["label"].as_str().unwrap());
+    }
+    let all = &f["pooled"]["local_success"];
+    assert_eq!((all["successes"].as_u64(), all["trials"].as_u64()), (Some(6), Some(11)));
+    close(&f["pooled"]["pearson_r"], (2225.0 / 2.0) / (1_817_225.0 / 18.0 * 30.0f64).sqrt(), "Pearson r");
+
+    // the same in CSV and Markdown, and the two-panel SVG
+    let csv = report::csv(&batches, REPS, TableChoice::Figure3);
+    has(&csv, "command/b,4,8.3333,1,25.0000,4.5587,69.9358");
+    has(&csv, "\"(0,10%]\",2,1,50.0000,9.4531,90.5469,");
+    has(&csv, "all,11,6,54.5455,28.0092,78.7287,0.639251");
+    has(&csv, "command/a,T28,ep-w1_t28_level3_none,02_Open_Door,50,4,0.0000,true,false,true");
+    has(&csv, "command/a,T21,ep-w2_t21_level3_none,Microwave_Open,1500,,0.0000,false,false,false");
+    let md = report::markdown(&batches, REPS, TableChoice::Figure3);
+    has(&md, "| command/c | 4 | 40.0% | 3/4 = 75.0% |");
+    has(&md, "| SCR 0 | 4 | 0 | 0/4 = 0.0 [0.0, 49.0] |  |");
+    has(&md, "| all | 11 | 6 | 6/11 = 54.5 [28.0, 78.7] | 0.639 |");
+    assert!(md.contains("13 opening operations of 10 long-horizon rollouts"), "{md}");
+    let figures = dir.path().join("figures");
+    let paper = report::tables::paper_tables(&batches, &report::rows(&batches, REPS), REPS);
+    report::tables::write_figures(&paper, &figures).unwrap();
+    let svg = std::fs::read_to_string(figures.join("figure3.svg")).unwrap();
+    assert!(svg.contains("pooled: n = 11, r = 0.64") && svg.contains("15.8% (n = 3)") && svg.contains(">0/4<") && svg.contains(">3/3<"), "{svg}");
 }

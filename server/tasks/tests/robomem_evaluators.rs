@@ -125,6 +125,8 @@ fn t23_occupied_drawer_is_bound_at_reset_to_the_region_nearest_the_hidden_object
     assert_eq!(kinds[6], ("07_Open_Occupied_Drawer_Again", "open"));
     assert_eq!(ops[6]["mechanism_bodies"], serde_json::json!(["wooden_cabinet_1_cabinet_top"]), "the bound top drawer moves");
     assert_eq!(ops[0]["mechanism_bodies"], ops[6]["mechanism_bodies"], "the named handle is the drawer's moving body");
+    let handle = serde_json::json!(["wooden_cabinet_1_g18", "wooden_cabinet_1_g19", "wooden_cabinet_1_g20"]);
+    assert_eq!((&ops[0]["handle_geoms"], &ops[6]["handle_geoms"]), (&handle, &handle), "the bound drawer's declared handle (bar and posts)");
 
     // the same scene with the cream cheese moved into the middle drawer before the reset: the middle drawer is the
     // occupied one, and reopening the top drawer no longer completes stage 07

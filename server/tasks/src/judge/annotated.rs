@@ -13,7 +13,7 @@ use serde_json::Value;
 
 use crate::TasksError;
 use crate::judge::evaluator::{EvaluationRecord, Evaluator, PrivateEvent, Tick};
-use crate::judge::mechanism::{GripperContact, PendingOpening, moving_bodies};
+use crate::judge::mechanism::{GripperContact, PendingOpening, Watched, body_names, moving_bodies};
 use crate::judge::predicates::{CompiledAtom, PredicateKind, SceneIndex};
 use crate::judge::stage_types::StageType;
 
@@ -45,16 +45,19 @@ impl GoalOpenings {
             return Ok(None);
         }
         let index = Arc::new(SceneIndex::new(scene, model)?);
+        let gripper = GripperContact::new(&index, model)?;
         let mut openings = Vec::new();
         for atom in atoms {
             let compiled = CompiledAtom::compile(&index, atom)?;
             let bodies = compiled.args.first().map(|&e| moving_bodies(&index, model, e)).unwrap_or_default();
             if compiled.kind == PredicateKind::Open && !bodies.is_empty() {
-                let opening = PendingOpening::new(compiled.text.clone(), bodies, model);
+                let handle_geoms = gripper.require_handle(&bodies, model, &format!("goal {}", compiled.text))?;
+                let watched = Watched { bodies: body_names(model, &bodies), handle_geoms };
+                let opening = PendingOpening::new(compiled.text.clone(), bodies, watched);
                 openings.push((compiled, opening));
             }
         }
-        Ok((!openings.is_empty()).then(|| Self { index, gripper: GripperContact::new(model), openings }))
+        Ok((!openings.is_empty()).then(|| Self { index, gripper, openings }))
     }
 }
 
@@ -101,8 +104,8 @@ impl Evaluator for Annotated {
         self.inner.observe_control_step(data, tick);
         if let Some(g) = &mut self.goal_openings {
             for (atom, opening) in &mut g.openings {
-                let touching = g.gripper.touches(data, &opening.bodies);
-                opening.step(touching, atom.evaluate(&g.index, data));
+                let touch = g.gripper.touches(data, &opening.bodies);
+                opening.step(touch, atom.evaluate(&g.index, data));
             }
         }
     }

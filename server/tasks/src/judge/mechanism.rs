@@ -1,27 +1,37 @@
 //! Operations on articulated mechanisms and their sustained-contact ratio (paper Figure 3). For each control step `t`
-//! of an operation, `l_t` is the length of the gripper–handle contact run containing `t` (0 without contact);
-//! `N_sustained = #{t : l_t ≥ 5}` and `SCR = N_sustained / N_exec × 100 %`.
+//! of an operation, `l_t` is the length of the gripper–**handle** contact run containing `t` (0 without contact);
+//! `N_sustained = #{t : l_t ≥ 5}` and `SCR = N_sustained / N_exec × 100 %` (the definition lives in
+//! [`libero_metrics::sustained_contact_ratio_percent`], which the report uses too).
 //!
-//! **The contact body** of a mechanism is found from the task's own goal, with no per-task list: the subtree of the
-//! body that carries each articulation joint the goal tests (a microwave's door, a drawer's box, a door's leaf with its
-//! handle), so any gripper contact with the moving part — handle, edge or face — counts. A drawer named by its region
-//! site (`drawer_open`) moves the site's body. A stage may name a narrower `contact_body` (T28's latch handle), which
-//! then wins.
+//! **The mechanism** of an operation is found from the task's own goal, with no per-task list: the subtree of the
+//! body that carries each articulation joint the goal tests (a microwave's door, a drawer's box, a door's leaf). A
+//! drawer named by its region site (`drawer_open`) moves the site's body. A stage may name a narrower `contact_body`
+//! (T28's latch), which then wins.
+//!
+//! **The handle** of a mechanism is declared per fixture class in `tasks/mechanism_handles.json` (compiled in): its
+//! collision geoms by name. Two contact runs are recorded per operation: `contact_runs`, gripper contact with any part
+//! of the mechanism (what says the agent engaged it: the stage diagnostics' and Table 4's evidence), and
+//! `handle_contact_runs`, gripper contact with a declared handle geom of the mechanism — the runs the SCR counts. A push
+//! on a door's panel or a drawer's front is contact with the mechanism, not with its handle. An evaluator that
+//! monitors an opening refuses to build when a declared handle is missing from the model or the mechanism it opens
+//! has none declared.
 //!
 //! **An operation's steps** (`N_exec`): where the order of stages says when the agent turned to the operation (ordered
 //! stages), the control steps its stage was current; where every goal is available at once (the unordered cooking
-//! goals, a single-goal task), from the first step the gripper touches the mechanism while the opening is pending to
-//! the step it first holds, or the episode's end. A pending opening never touched spans every step it was pending, with
-//! SCR 0; one already open at reset is no operation.
+//! goals, a single-goal task), from the first step the gripper touches the mechanism (anywhere) while the opening is
+//! pending to the step it first holds, or the episode's end. A pending opening never touched spans every step it was
+//! pending, with no contact (the report counts it as not entered); one already open at reset is no operation.
+use std::sync::OnceLock;
+
+pub use libero_metrics::SUSTAINED_RUN_STEPS;
+use libero_metrics::{sustained_contact_ratio_percent, sustained_steps};
 use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
 use libero_sim::simulation::SimData;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
+use crate::TasksError;
 use crate::judge::predicates::{EntityRef, JointRef, JointTest, SceneIndex, in_subtree};
-
-/// Minimum contact run (control steps) that counts as sustained.
-pub const SUSTAINED_RUN_STEPS: u32 = 5;
 
 /// Which way an operation moves its mechanism.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -41,15 +51,63 @@ pub enum Window {
     FirstContact,
 }
 
-/// Gripper–mechanism contact over one operation.
-#[derive(Debug, Clone, Default, Serialize)]
+/// What the gripper touches at one control step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Touch {
+    /// Any part of the mechanism (handle included).
+    pub mechanism: bool,
+    /// One of the mechanism's declared handle geoms.
+    pub handle: bool,
+}
+
+/// Contact runs of one kind over an operation's control steps.
+#[derive(Debug, Clone, Default)]
+pub struct Runs {
+    done: Vec<u64>,
+    current: u64,
+}
+
+impl Runs {
+    fn step(&mut self, contact: bool) {
+        if contact {
+            self.current += 1;
+        } else if self.current > 0 {
+            self.done.push(self.current);
+            self.current = 0;
+        }
+    }
+
+    fn close(&mut self) {
+        if self.current > 0 {
+            self.done.push(self.current);
+            self.current = 0;
+        }
+    }
+
+    /// The run lengths in order, an open run included.
+    pub fn all(&self) -> Vec<u64> {
+        let mut runs = self.done.clone();
+        runs.extend((self.current > 0).then_some(self.current));
+        runs
+    }
+}
+
+/// The names of what an operation watches, for its record: the mechanism's bodies and its handle geoms.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Watched {
+    pub bodies: Vec<String>,
+    pub handle_geoms: Vec<String>,
+}
+
+/// Gripper contact over one operation: with the mechanism anywhere, and with its handle.
+#[derive(Debug, Clone, Default)]
 pub struct ContactMonitor {
     pub stage_name: String,
-    pub exec_steps: u32,
-    /// Lengths of the contact runs, in order.
-    pub runs: Vec<u32>,
-    #[serde(skip)]
-    current_run: u32,
+    pub exec_steps: u64,
+    /// Runs of contact with any part of the mechanism.
+    pub mechanism: Runs,
+    /// Runs of contact with its handle (the SCR's).
+    pub handle: Runs,
 }
 
 impl ContactMonitor {
@@ -57,69 +115,169 @@ impl ContactMonitor {
         Self { stage_name: stage_name.into(), ..Default::default() }
     }
 
-    pub fn step(&mut self, contact: bool) {
+    pub fn step(&mut self, touch: Touch) {
         self.exec_steps += 1;
-        if contact {
-            self.current_run += 1;
-        } else if self.current_run > 0 {
-            self.runs.push(self.current_run);
-            self.current_run = 0;
-        }
+        self.mechanism.step(touch.mechanism);
+        self.handle.step(touch.handle);
     }
 
     pub fn close(&mut self) {
-        if self.current_run > 0 {
-            self.runs.push(self.current_run);
-            self.current_run = 0;
-        }
+        self.mechanism.close();
+        self.handle.close();
     }
 
-    /// Steps inside runs of ≥ [`SUSTAINED_RUN_STEPS`].
-    pub fn sustained_steps(&self) -> u32 {
-        self.runs.iter().chain((self.current_run > 0).then_some(&self.current_run)).filter(|&&r| r >= SUSTAINED_RUN_STEPS).sum()
+    /// `N_sustained`: steps inside handle-contact runs of ≥ [`SUSTAINED_RUN_STEPS`].
+    pub fn sustained_steps(&self) -> u64 {
+        sustained_steps(&self.handle.all())
     }
 
     pub fn ratio_percent(&self) -> f64 {
-        if self.exec_steps == 0 { 0.0 } else { 100.0 * f64::from(self.sustained_steps()) / f64::from(self.exec_steps) }
+        sustained_contact_ratio_percent(&self.handle.all(), self.exec_steps)
     }
 
     /// One entry of `details.opening_operations`.
-    pub fn to_json(&self, kind: OperationKind, window: Window, bodies: &[String], completed: bool) -> Value {
-        let mut runs = self.runs.clone();
-        runs.extend((self.current_run > 0).then_some(self.current_run));
-        json!({"stage_name": self.stage_name, "operation": kind, "window": window, "mechanism_bodies": bodies,
-            "exec_steps": self.exec_steps, "contact_runs": runs, "sustained_steps": self.sustained_steps(),
+    pub fn to_json(&self, kind: OperationKind, window: Window, watched: &Watched, completed: bool) -> Value {
+        json!({"stage_name": self.stage_name, "operation": kind, "window": window, "mechanism_bodies": watched.bodies,
+            "handle_geoms": watched.handle_geoms, "exec_steps": self.exec_steps, "contact_runs": self.mechanism.all(),
+            "handle_contact_runs": self.handle.all(), "sustained_steps": self.sustained_steps(),
             "sustained_contact_ratio_percent": self.ratio_percent(), "completed": completed})
     }
 }
 
-/// Contact between the gripper (robosuite's `gripper0_*` bodies) and a body subtree.
+/// One handle of a fixture class: its body and collision geoms, without the instance prefix.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HandleSpec {
+    pub body: String,
+    pub geoms: Vec<String>,
+}
+
+/// The handles of one or more fixture classes with the same geometry.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClassHandles {
+    pub classes: Vec<String>,
+    /// Where in the asset the geoms come from (documentation).
+    pub source: String,
+    pub handles: Vec<HandleSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HandleFile {
+    #[allow(dead_code)]
+    description: String,
+    classes: Vec<ClassHandles>,
+}
+
+/// `tasks/mechanism_handles.json`, compiled in: the handles belong to the assets the composer names, not to a
+/// deployment.
+const HANDLES_JSON: &str = include_str!("../../../../tasks/mechanism_handles.json");
+
+/// Every declared handle, by class group (`tasks/mechanism_handles.json`).
+pub fn declared_handles() -> Result<&'static [ClassHandles], TasksError> {
+    static FILE: OnceLock<Result<Vec<ClassHandles>, String>> = OnceLock::new();
+    FILE.get_or_init(|| serde_json::from_str::<HandleFile>(HANDLES_JSON).map(|f| f.classes).map_err(|e| e.to_string()))
+        .as_deref()
+        .map_err(|e| TasksError::Scene(format!("tasks/mechanism_handles.json: {e}")))
+}
+
+/// The handles declared for fixture class `category` (empty when none is).
+pub fn class_handles(category: &str) -> Result<&'static [HandleSpec], TasksError> {
+    Ok(declared_handles()?.iter().find(|c| c.classes.iter().any(|k| k == category)).map_or(&[], |c| &c.handles))
+}
+
+/// Contact between the gripper (robosuite's `gripper0_*` bodies) and a mechanism's body subtree, and its handle.
 #[derive(Debug, Clone)]
 pub struct GripperContact {
     gripper_bodies: Vec<bool>,
     body_parent: Vec<i32>,
     geom_body: Vec<usize>,
+    /// geom id → its name where it is a declared handle geom of the scene's fixtures
+    handle_geom: Vec<Option<String>>,
 }
 
 impl GripperContact {
-    pub fn new(model: &MjModel) -> Self {
+    /// The gripper of `model`, with the handle geoms declared for the fixtures of `index` (an error names a declared
+    /// body or geom the model lacks, or a declared geom on another body).
+    pub fn new(index: &SceneIndex, model: &MjModel) -> Result<Self, TasksError> {
         let nbody = model.ffi().nbody as usize;
-        Self {
+        let geom_body: Vec<usize> = model.geom_bodyid().iter().map(|&b| b as usize).collect();
+        let mut handle_geom = vec![None; geom_body.len()];
+        for inst in &index.instances {
+            for h in class_handles(&inst.category)? {
+                let missing = |what: String| {
+                    TasksError::Scene(format!(
+                        "the handle of {} (class {}, tasks/mechanism_handles.json): {what}",
+                        inst.name, inst.category
+                    ))
+                };
+                let body_name = format!("{}_{}", inst.name, h.body);
+                let body = model
+                    .name_to_id(MjtObjBase::mjOBJ_BODY, &body_name)
+                    .ok_or_else(|| missing(format!("the model has no body {body_name:?}")))?;
+                for g in &h.geoms {
+                    let name = format!("{}_{g}", inst.name);
+                    let id = model
+                        .name_to_id(MjtObjBase::mjOBJ_GEOM, &name)
+                        .ok_or_else(|| missing(format!("the model has no geom {name:?}")))?;
+                    if geom_body[id] != body {
+                        return Err(missing(format!("geom {name:?} is not on body {body_name:?}")));
+                    }
+                    handle_geom[id] = Some(name);
+                }
+            }
+        }
+        Ok(Self {
             gripper_bodies: (0..nbody)
                 .map(|b| model.id_to_name(MjtObjBase::mjOBJ_BODY, b).is_some_and(|n| n.starts_with("gripper0_")))
                 .collect(),
             body_parent: model.body_parentid().to_vec(),
-            geom_body: model.geom_bodyid().iter().map(|&b| b as usize).collect(),
-        }
+            geom_body,
+            handle_geom,
+        })
     }
 
-    /// Some current contact pairs a gripper geom with a geom in the subtree of any of `roots`.
-    pub fn touches(&self, data: &SimData, roots: &[usize]) -> bool {
-        let in_roots = |b: usize| roots.iter().any(|&r| in_subtree(&self.body_parent, b, r));
-        data.contact().iter().any(|c| {
-            let (b1, b2) = (self.geom_body[c.geom[0] as usize], self.geom_body[c.geom[1] as usize]);
-            (self.gripper_bodies[b1] && in_roots(b2)) || (self.gripper_bodies[b2] && in_roots(b1))
-        })
+    fn in_roots(&self, roots: &[usize], geom: usize) -> bool {
+        roots.iter().any(|&r| in_subtree(&self.body_parent, self.geom_body[geom], r))
+    }
+
+    /// What of the subtrees of `roots` (a mechanism) a gripper geom touches in the current contacts.
+    pub fn touches(&self, data: &SimData, roots: &[usize]) -> Touch {
+        let mut touch = Touch::default();
+        for c in data.contact() {
+            let (g1, g2) = (c.geom[0] as usize, c.geom[1] as usize);
+            let other = if self.gripper_bodies[self.geom_body[g1]] {
+                g2
+            } else if self.gripper_bodies[self.geom_body[g2]] {
+                g1
+            } else {
+                continue;
+            };
+            if self.in_roots(roots, other) {
+                touch.mechanism = true;
+                touch.handle |= self.handle_geom[other].is_some();
+            }
+        }
+        touch
+    }
+
+    /// The names of the declared handle geoms in the subtrees of `roots`.
+    pub fn handle_names(&self, roots: &[usize]) -> Vec<String> {
+        self.handle_geom.iter().enumerate().filter(|(g, _)| self.in_roots(roots, *g)).filter_map(|(_, n)| n.clone()).collect()
+    }
+
+    /// The handle geoms of an opening's mechanism (`roots`); an error when none is declared there, as the opening's
+    /// sustained-contact ratio could count nothing.
+    pub fn require_handle(&self, roots: &[usize], model: &MjModel, what: &str) -> Result<Vec<String>, TasksError> {
+        let names = self.handle_names(roots);
+        if names.is_empty() {
+            let bodies = body_names(model, roots).join(", ");
+            return Err(TasksError::Scene(format!(
+                "{what} opens {bodies}, which carries no handle declared in tasks/mechanism_handles.json (Figure 3 counts gripper-handle contact)"
+            )));
+        }
+        Ok(names)
     }
 }
 
@@ -181,50 +339,46 @@ pub fn joint_operation(index: &SceneIndex, joint: &str, min: Option<f64>, max: O
 #[derive(Debug, Clone)]
 enum Pending {
     /// Not touched and not open yet; counts the steps it was pending.
-    Waiting(u32),
+    Waiting(u64),
     Engaged(ContactMonitor),
     Opened(ContactMonitor),
     /// Open at reset: nothing to operate.
     OpenAtReset,
 }
 
-/// An opening available from the start (an unordered goal, a single-goal task), delimited by first contact.
+/// An opening available from the start (an unordered goal, a single-goal task), delimited by first contact with its
+/// mechanism.
 #[derive(Debug, Clone)]
 pub struct PendingOpening {
     stage_name: String,
     pub bodies: Vec<usize>,
-    body_names: Vec<String>,
+    watched: Watched,
     state: Pending,
 }
 
 impl PendingOpening {
-    /// `stage_name`: the stage (or goal atom) the opening completes.
-    pub fn new(stage_name: impl Into<String>, bodies: Vec<usize>, model: &MjModel) -> Self {
-        let names = body_names(model, &bodies);
-        Self::named(stage_name, bodies, names)
-    }
-
-    /// As [`Self::new`], with the bodies' names already known.
-    pub fn named(stage_name: impl Into<String>, bodies: Vec<usize>, body_names: Vec<String>) -> Self {
-        Self { stage_name: stage_name.into(), bodies, body_names, state: Pending::Waiting(0) }
+    /// `stage_name`: the stage (or goal atom) the opening completes; `bodies`: its mechanism, whose names and handle
+    /// geoms `watched` gives for the record.
+    pub fn new(stage_name: impl Into<String>, bodies: Vec<usize>, watched: Watched) -> Self {
+        Self { stage_name: stage_name.into(), bodies, watched, state: Pending::Waiting(0) }
     }
 
     pub fn reset(&mut self, open_now: bool) {
         self.state = if open_now { Pending::OpenAtReset } else { Pending::Waiting(0) };
     }
 
-    /// One control step: whether the gripper touches the mechanism and whether the opening holds now.
-    pub fn step(&mut self, touching: bool, open_now: bool) {
+    /// One control step: what the gripper touches and whether the opening holds now.
+    pub fn step(&mut self, touch: Touch, open_now: bool) {
         let mut monitor = match &mut self.state {
             Pending::OpenAtReset | Pending::Opened(_) => return,
-            Pending::Waiting(steps) if !touching && !open_now => {
+            Pending::Waiting(steps) if !touch.mechanism && !open_now => {
                 *steps += 1;
                 return;
             }
             Pending::Waiting(_) => ContactMonitor::new(self.stage_name.clone()),
             Pending::Engaged(m) => std::mem::take(m),
         };
-        monitor.step(touching);
+        monitor.step(touch);
         self.state = if open_now {
             monitor.close();
             Pending::Opened(monitor)
@@ -243,7 +397,7 @@ impl PendingOpening {
             Pending::Opened(m) => (m.clone(), true),
         };
         let monitor = ContactMonitor { stage_name: stage_name.unwrap_or(&self.stage_name).to_owned(), ..monitor };
-        let mut v = monitor.to_json(OperationKind::Open, Window::FirstContact, &self.body_names, completed);
+        let mut v = monitor.to_json(OperationKind::Open, Window::FirstContact, &self.watched, completed);
         if stage_name.is_some() {
             v["goal"] = json!(self.stage_name);
         }
@@ -255,49 +409,77 @@ impl PendingOpening {
 mod tests {
     use super::*;
 
+    const HANDLE: Touch = Touch { mechanism: true, handle: true };
+    const PANEL: Touch = Touch { mechanism: true, handle: false };
+    const NONE: Touch = Touch { mechanism: false, handle: false };
+
     #[test]
-    fn sustained_contact_counts_only_runs_of_five_or_more() {
+    fn sustained_contact_counts_only_handle_runs_of_five_or_more() {
         let mut m = ContactMonitor::default();
-        for c in [true, true, false, true, true, true, true, true, false, false, true] {
-            m.step(c);
+        // handle 2, off, handle 5, panel 4 (the door's face: the mechanism, not its handle), off 2, handle 4
+        let steps = [HANDLE, HANDLE, NONE].into_iter().chain([HANDLE; 5]).chain([PANEL; 4]).chain([NONE; 2]).chain([HANDLE; 4]);
+        for t in steps {
+            m.step(t);
         }
         m.close();
-        assert_eq!(m.runs, [2, 5, 1]);
-        assert_eq!(m.sustained_steps(), 5);
-        assert!((m.ratio_percent() - 100.0 * 5.0 / 11.0).abs() < 1e-12);
+        assert_eq!(m.handle.all(), [2, 5, 4]);
+        assert_eq!(m.mechanism.all(), [2, 9, 4], "the panel extends the mechanism run, not the handle run");
+        assert_eq!(m.sustained_steps(), 5, "the run of 4 is not sustained, the run of 5 is; the panel never counts");
+        assert_eq!(m.exec_steps, 18);
+        assert!((m.ratio_percent() - 100.0 * 5.0 / 18.0).abs() < 1e-12);
     }
 
     fn pending() -> PendingOpening {
-        PendingOpening::named("Microwave_Open", vec![3], vec!["door".into()])
+        PendingOpening::new("Microwave_Open", vec![3], Watched { bodies: vec!["door".into()], handle_geoms: vec!["door_g14".into()] })
     }
 
     #[test]
-    fn a_pending_opening_counts_from_first_contact_to_the_step_it_opens() {
+    fn a_pending_opening_counts_from_first_contact_with_the_mechanism_to_the_step_it_opens() {
         let mut p = pending();
-        // 3 steps elsewhere, then 6 steps on the handle, 1 off, opened on the 2nd step back on it, then ignored.
-        let steps = [(false, false); 3].into_iter().chain([(true, false); 6]).chain([(false, false), (true, false), (true, true)]);
-        for (touch, open) in steps.chain([(false, false), (true, false)]) {
+        // 3 steps elsewhere, 2 on the panel, then 6 on the handle, 1 off, opened on the 2nd step back on it, then ignored.
+        let steps = [(NONE, false); 3]
+            .into_iter()
+            .chain([(PANEL, false); 2])
+            .chain([(HANDLE, false); 6])
+            .chain([(NONE, false), (HANDLE, false), (HANDLE, true)]);
+        for (touch, open) in steps.chain([(NONE, false), (HANDLE, false)]) {
             p.step(touch, open);
         }
         let v = p.to_json(None).unwrap();
-        assert_eq!((v["exec_steps"].as_u64(), v["completed"].as_bool()), (Some(9), Some(true)));
-        assert_eq!(v["contact_runs"], json!([6, 2]));
+        assert_eq!((v["exec_steps"].as_u64(), v["completed"].as_bool()), (Some(11), Some(true)));
+        assert_eq!((&v["contact_runs"], &v["handle_contact_runs"]), (&json!([8, 2]), &json!([6, 2])));
         assert_eq!(v["sustained_steps"], 6);
-        assert!((v["sustained_contact_ratio_percent"].as_f64().unwrap() - 600.0 / 9.0).abs() < 1e-9);
+        assert!((v["sustained_contact_ratio_percent"].as_f64().unwrap() - 600.0 / 11.0).abs() < 1e-9);
         assert_eq!((v["operation"].as_str(), v["window"].as_str()), (Some("open"), Some("first_contact")));
+        assert_eq!((&v["mechanism_bodies"], &v["handle_geoms"]), (&json!(["door"]), &json!(["door_g14"])));
     }
 
     #[test]
     fn an_untouched_opening_spans_its_pending_steps_and_one_open_at_reset_is_none() {
         let mut p = pending();
         for _ in 0..4 {
-            p.step(false, false);
+            p.step(NONE, false);
         }
         let v = p.to_json(Some("01_BDDL_Goal_At_Finish")).unwrap();
         assert_eq!((v["exec_steps"].as_u64(), v["sustained_contact_ratio_percent"].as_f64()), (Some(4), Some(0.0)));
+        assert_eq!((&v["contact_runs"], &v["handle_contact_runs"]), (&json!([]), &json!([])));
         assert_eq!((v["stage_name"].as_str(), v["goal"].as_str(), v["completed"].as_bool()), (Some("01_BDDL_Goal_At_Finish"), Some("Microwave_Open"), Some(false)));
         p.reset(true);
-        p.step(true, true);
+        p.step(HANDLE, true);
         assert!(p.to_json(None).is_none());
+    }
+
+    #[test]
+    fn the_handle_declarations_parse_and_name_each_class_once() {
+        let all = declared_handles().unwrap();
+        let mut classes: Vec<&str> = all.iter().flat_map(|c| c.classes.iter().map(String::as_str)).collect();
+        let n = classes.len();
+        classes.sort_unstable();
+        classes.dedup();
+        assert_eq!(classes.len(), n, "a class declared twice");
+        for c in ["microwave", "wooden_cabinet", "white_cabinet", "wooden_cabinet_tall_bottom", "short_cabinet", "robosuite_latched_door"] {
+            assert!(!class_handles(c).unwrap().is_empty(), "{c}");
+        }
+        assert!(class_handles("short_fridge").unwrap().is_empty());
     }
 }

@@ -41,7 +41,8 @@
 //!
 //! Completed stages are re-tested every control step: a completed stage whose conjunction stops holding is recorded
 //! as a regression (event + count), and stays completed. Mechanism operations record the sustained-contact ratio as a
-//! diagnostic (paper Figure 3: SCR = N_sustained / N_exec, [`crate::judge::mechanism`]): every stage whose atoms
+//! diagnostic (paper Figure 3: SCR = N_sustained / N_exec over gripper contact with the mechanism's declared handle,
+//! [`crate::judge::mechanism`]; an opening whose mechanism has no declared handle is refused): every stage whose atoms
 //! open an articulation (`bddl open`, `drawer_open`, a `joint` bound toward its class's open test) is an opening
 //! operation on the moving bodies of the articulations it tests, and a stage naming a `contact_body` is an operation
 //! on that body whatever its direction (T23's closings, T28's latch). Ordered modes count the control steps the stage
@@ -64,7 +65,9 @@ use crate::judge::evaluator::{
 };
 use crate::judge::goal::GoalChecker;
 pub use crate::judge::mechanism::{ContactMonitor, SUSTAINED_RUN_STEPS};
-use crate::judge::mechanism::{GripperContact, OperationKind, PendingOpening, Window, body_names, joint_operation, moving_bodies};
+use crate::judge::mechanism::{
+    GripperContact, OperationKind, PendingOpening, Watched, Window, body_names, joint_operation, moving_bodies,
+};
 use crate::judge::predicates::{CompiledAtom, EntityRef, PredicateKind, SceneIndex, SubtreeContact, in_subtree};
 use crate::judge::kind::{EvaluatorKind, check};
 use crate::judge::stage_types::StageType;
@@ -934,6 +937,8 @@ impl StagedEvaluator {
             .collect::<Result<Vec<_>, TasksError>>()?;
         let guards =
             params.forbidden_contacts.iter().map(|g| ForbiddenContactGuard::compile(g, &index, model)).collect::<Result<Vec<_>, _>>()?;
+        let gripper = GripperContact::new(&index, model)?;
+        require_opening_handles(&stages, &bindings, &gripper, model)?;
         let nbody = model.ffi().nbody as usize;
         let specs = Self::specs(&stages, n_required);
         let goals = GoalSetTracker::new(stages_names(&stages), n_required);
@@ -947,7 +952,7 @@ impl StagedEvaluator {
             stages,
             n_required,
             terminal,
-            gripper: GripperContact::new(model),
+            gripper,
             site_names: (0..model.ffi().nsite as usize).map(|s| model.id_to_name(MjtObjBase::mjOBJ_SITE, s).unwrap_or_default().to_owned()).collect(),
             site_body: model.site_bodyid().iter().map(|&b| b as usize).collect(),
             body_name: body_names(model, &(0..nbody).collect::<Vec<_>>()),
@@ -992,12 +997,19 @@ impl StagedEvaluator {
             .collect()
     }
 
-    /// The record of an operation: which way, on which bodies, and whether its stage completed.
+    /// The names of stage `stage`'s mechanism bodies and handle geoms on this episode.
+    fn watched(&self, stage: usize) -> Watched {
+        let bodies = self.operation_bodies.get(stage).map_or(&[][..], Vec::as_slice);
+        Watched {
+            bodies: bodies.iter().map(|&b| self.body_name.get(b).cloned().unwrap_or_default()).collect(),
+            handle_geoms: self.gripper.handle_names(bodies),
+        }
+    }
+
+    /// The record of an operation: which way, on which bodies and handle, and whether its stage completed.
     fn operation_json(&self, stage: usize, monitor: &ContactMonitor, window: Window, completed: bool) -> serde_json::Value {
         let kind = self.stages[stage].operation.as_ref().map_or(OperationKind::Operate, |o| o.kind);
-        let bodies: Vec<String> =
-            self.operation_bodies.get(stage).into_iter().flatten().map(|&b| self.body_name.get(b).cloned().unwrap_or_default()).collect();
-        monitor.to_json(kind, window, &bodies, completed)
+        monitor.to_json(kind, window, &self.watched(stage), completed)
     }
 
     fn site_name(&self, site: usize) -> String {
@@ -1068,9 +1080,9 @@ impl StagedEvaluator {
                 self.monitors.push((i, ContactMonitor::new(self.stages[i].name.clone())));
                 self.monitor_open = Some((i, self.monitors.len() - 1));
             }
-            let contact = self.operation_bodies.get(i).is_some_and(|b| self.gripper.touches(data, b));
+            let touch = self.operation_bodies.get(i).map(|b| self.gripper.touches(data, b)).unwrap_or_default();
             if let Some((_, m)) = self.monitor_open {
-                self.monitors[m].1.step(contact);
+                self.monitors[m].1.step(touch);
             }
         }
     }
@@ -1078,8 +1090,8 @@ impl StagedEvaluator {
     /// Unordered mode: each pending opening, after the goals were sampled on this control step.
     fn observe_pending_openings(&mut self, data: &SimData) {
         for (i, opening) in &mut self.pending_openings {
-            let touching = self.gripper.touches(data, &opening.bodies);
-            opening.step(touching, self.goals.holding.get(*i).copied().unwrap_or(false));
+            let touch = self.gripper.touches(data, &opening.bodies);
+            opening.step(touch, self.goals.holding.get(*i).copied().unwrap_or(false));
         }
     }
 
@@ -1140,6 +1152,27 @@ impl StagedEvaluator {
     }
 }
 
+/// Every opening stage's mechanism carries a declared handle (each candidate drawer of a bound site too): an error
+/// otherwise, as its sustained-contact ratio could count nothing.
+fn require_opening_handles(stages: &[Stage], bindings: &[Binding], gripper: &GripperContact, model: &MjModel) -> Result<(), TasksError> {
+    for s in stages {
+        let Some(op) = s.operation.as_ref().filter(|o| o.kind == OperationKind::Open) else { continue };
+        let what = format!("stage {}", s.name);
+        let fixed: Vec<usize> = op.bodies.iter().filter_map(|b| if let BodySource::Body(b) = b { Some(*b) } else { None }).collect();
+        if !fixed.is_empty() {
+            gripper.require_handle(&fixed, model, &what)?;
+        }
+        for b in &op.bodies {
+            if let BodySource::BoundSite(k) = b {
+                for &site in bindings.get(*k).map_or(&[][..], |b| b.sites.as_slice()) {
+                    gripper.require_handle(&[model.site_bodyid()[site] as usize], model, &what)?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 impl Evaluator for StagedEvaluator {
     fn checker(&self) -> &str {
         &self.checker
@@ -1175,9 +1208,7 @@ impl Evaluator for StagedEvaluator {
                 .enumerate()
                 .filter(|(_, s)| s.operation.as_ref().is_some_and(|o| o.kind == OperationKind::Open))
                 .map(|(i, s)| {
-                    let bodies = self.operation_bodies[i].clone();
-                    let names = bodies.iter().map(|&b| self.body_name.get(b).cloned().unwrap_or_default()).collect();
-                    let mut opening = PendingOpening::named(s.name.clone(), bodies, names);
+                    let mut opening = PendingOpening::new(s.name.clone(), self.operation_bodies[i].clone(), self.watched(i));
                     opening.reset(now[i]);
                     (i, opening)
                 })
