@@ -453,3 +453,65 @@ fn first_unimplemented_task() -> String {
         .unwrap_or("-")
         .to_owned()
 }
+
+/// Issue 48: a person annotates the stages of a real batch's long-horizon rollouts in the review page by keyboard
+/// (name, r, 3, n + note, Enter, c, ]), in Chromium. The annotations land in the batch's `stage_annotations.jsonl`
+/// and the store, and the report's Table 4 counts them: reached moves from the automatic 0 of 4 to the annotated
+/// 1 of 4, with 2 annotated and 2 automatic stage opportunities.
+#[test]
+fn stages_are_annotated_by_keyboard_in_the_review_and_table_4_counts_them() {
+    let (chromium, node_modules, _python) = browser_prerequisites();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let batch = data.join("batches/lh");
+    let out = Command::new(bin())
+        .args(["run", "--experiment", "main_table", "--harness", "command", "--model", "reference", "--tasks", "T28", "--reps", "2"])
+        .args(["--concurrency", "2", "--agent-cmd", "exec {libero_agent} agent --workspace {workspace}", "--wall-time-s", "300", "--no-sandbox"])
+        .arg("--batch")
+        .arg(&batch)
+        .arg("--workspace-root")
+        .arg(tmp.path().join("ws"))
+        .output()
+        .expect("run");
+    assert!(out.status.success(), "run: {}", String::from_utf8_lossy(&out.stderr));
+    let table4 = || {
+        let out = Command::new(bin()).args(["report", "--format", "json"]).arg(&batch).output().expect("report");
+        assert!(out.status.success(), "report: {}", String::from_utf8_lossy(&out.stderr));
+        let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+        v["stage_diagnosis"][0].clone()
+    };
+    let before = table4();
+    assert_eq!((before["annotated"].as_u64(), before["automatic"].as_u64(), before["reached"]["successes"].as_u64()), (Some(0), Some(4), Some(0)), "{before}");
+    let records = std::fs::read_to_string(batch.join("rollouts.jsonl")).unwrap();
+    let first: Value = serde_json::from_str(records.lines().next().unwrap()).unwrap();
+    let episode = first["episode_id"].as_str().unwrap();
+    let (server, _stderr) = Server::start(&data, "127.0.0.1:0", &[]);
+    let artifacts = artifacts_dir();
+    let report = browser_script("annotate_check.cjs", &[server.url.as_ref(), episode.as_ref(), artifacts.as_os_str()], &server, &chromium, &node_modules);
+    for shot in ["annotate-start", "annotate-done", "annotate-next-episode"] {
+        assert!(artifacts.join(format!("{shot}.png")).is_file(), "screenshot {shot}.png");
+    }
+    assert_eq!(report["stages"], 2);
+    let stages = report["saved"]["stages"].as_array().unwrap();
+    assert_eq!(stages[0]["annotation"]["failure_modes"], json!(["geometric_error"]), "{report}");
+    assert_eq!(stages[0]["annotation"]["note"], "gripper closed 2 cm short of the handle");
+    assert_eq!(stages[0]["counted"]["source"], "annotated");
+    assert!(stages.iter().all(|s| s["annotation"]["annotator"] == "Ada Annotator"), "{report}");
+    // The batch's file holds both (the export), and Table 4 counts them.
+    let lines = std::fs::read_to_string(batch.join("stage_annotations.jsonl")).unwrap();
+    assert_eq!(lines.lines().count(), 2, "{lines}");
+    let after = table4();
+    assert_eq!((after["annotated"].as_u64(), after["automatic"].as_u64(), after["reached"]["successes"].as_u64()), (Some(2), Some(2), Some(1)), "{after}");
+    assert_eq!(after["geometric_error"], 1, "{after}");
+    // Bad input changes nothing: an unknown stage, and modes on a stage that succeeded.
+    let url = format!("{}/api/episodes/{episode}/stages", server.url);
+    for body in [
+        json!({"stage_name": "99_nope", "reached": true, "succeeded": false, "annotator": "x"}),
+        json!({"stage_name": "01_Unlatch_Door", "reached": true, "succeeded": true, "failure_modes": ["other"], "annotator": "x"}),
+        json!({"stage_name": "01_Unlatch_Door", "reached": true, "succeeded": false, "annotator": ""}),
+    ] {
+        let (status, _, _) = http("POST", &url, &[("Authorization", &server.op()), ("Content-Type", "application/json")], body.to_string().as_bytes());
+        assert_eq!(status, 422, "{body}");
+    }
+    assert_eq!(std::fs::read_to_string(batch.join("stage_annotations.jsonl")).unwrap(), lines, "refused input wrote nothing");
+}

@@ -6,6 +6,7 @@
 //! [`live`] (with `live_elsewhere`), [`review`], [`tasks`], [`task_page`] (`task.html`), [`results`], [`teleop`]
 //! (with `demos`), [`login`] and [`error_page`] (`error.html`). [`routes`] assembles the episode, Tasks and
 //! Results pages' routes; [`common`] and [`rows`] hold what several pages share.
+pub mod annotate;
 pub mod common;
 pub mod error_page;
 pub mod expert_sweep;
@@ -29,7 +30,9 @@ use libero_server::Console;
 /// The console's routes, login page and error pages, to set as `ServeArgs::console`.
 pub fn console() -> Console {
     Console {
-        operator_compressed: || routes::compressed_routes().merge(teleop::compressed_routes()).merge(task_page::compressed_routes()),
+        operator_compressed: || {
+            routes::compressed_routes().merge(teleop::compressed_routes()).merge(task_page::compressed_routes()).merge(annotate::compressed_routes())
+        },
         operator_raw: || routes::raw_routes().merge(teleop::raw_routes()),
         public: || routes::static_routes().merge(error_page::public_routes()),
         login_page: login::login_page,

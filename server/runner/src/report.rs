@@ -7,6 +7,8 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+#[path = "report_annotations.rs"]
+pub mod annotations;
 #[path = "report_figure3.rs"]
 pub mod figure3;
 #[path = "report_svg.rs"]

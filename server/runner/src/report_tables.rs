@@ -325,9 +325,16 @@ fn appendix(rows: &[Row], batches: &[LoadedBatch]) -> Vec<AppendixTable> {
     ]
 }
 
-/// Everything after Table 1, from the batches and Table 1's rows over them (Table 4 from automatic labels alone).
+/// Everything after Table 1, from the batches and Table 1's rows over them (Table 4 from the people's annotations
+/// in the batches' `stage_annotations.jsonl` where there are any, automatic labels elsewhere).
 pub fn paper_tables(batches: &[LoadedBatch], rows: &[Row], reps: usize) -> PaperTables {
-    paper_tables_annotated(batches, rows, reps, None)
+    let annotations = super::annotations::batches_annotations(batches);
+    paper_tables_annotated(batches, rows, reps, Some(&annotations))
+}
+
+/// The required stages of one rollout with their evidence, read from its private record (empty without one).
+pub fn rollout_opportunities(r: &RolloutRecord) -> Vec<StageOpportunity> {
+    private_evaluation(r).map(|pe| opportunities(r, &pe)).unwrap_or_default()
 }
 
 /// Stage opportunities of one (agent, condition): the opportunities, counted rollouts, those without a record, and

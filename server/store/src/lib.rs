@@ -49,10 +49,16 @@ const SCHEMA: &str = "CREATE TABLE IF NOT EXISTS episodes (
 /// Batches of `libero-agent run` and their ended rollouts, as the batch directory holds them (`batch.json`, the
 /// lines of `rollouts.jsonl` in order): `run --store` writes them, `report --store` reads them back. `dir` is
 /// where the batch's files are on the machine that ran it.
-const BATCH_TABLES: [&str; 2] = [
+const BATCH_TABLES: [&str; 4] = [
     "CREATE TABLE IF NOT EXISTS batches (name TEXT PRIMARY KEY, dir TEXT NOT NULL, doc TEXT NOT NULL, updated_at TEXT NOT NULL)",
     "CREATE TABLE IF NOT EXISTS rollouts (batch TEXT NOT NULL, seq BIGINT NOT NULL, rollout_id TEXT NOT NULL, doc TEXT NOT NULL, \
      PRIMARY KEY (batch, seq))",
+    // A person's judgment of one stage of one episode (the latest per stage) …
+    "CREATE TABLE IF NOT EXISTS stage_annotations (episode_id TEXT NOT NULL, stage_name TEXT NOT NULL, doc TEXT NOT NULL, \
+     annotator TEXT NOT NULL, annotated_at TEXT NOT NULL, PRIMARY KEY (episode_id, stage_name))",
+    // … and every one ever saved, in order.
+    "CREATE TABLE IF NOT EXISTS stage_annotation_history (episode_id TEXT NOT NULL, stage_name TEXT NOT NULL, doc TEXT NOT NULL, \
+     annotator TEXT NOT NULL, annotated_at TEXT NOT NULL)",
 ];
 
 /// Creates the tables and adds the columns later versions added (idempotent: every server and worker runs it).
@@ -446,6 +452,62 @@ impl Store {
         Ok(Some(StoredBatch { name: name.to_owned(), dir, doc, records }))
     }
 
+    /// Saves a person's annotation of one stage of one episode (`doc`: the annotation as JSON), replacing the one
+    /// stored before and adding it to the history.
+    pub async fn put_stage_annotation(&self, episode_id: &str, stage_name: &str, annotator: &str, annotated_at: &str, doc: &Value) -> Result<()> {
+        let what = || format!("store: cannot save the annotation of {episode_id} stage {stage_name}");
+        let mut tx = self.pool.begin().await.context("store: cannot begin")?;
+        sqlx::query(
+            "INSERT INTO stage_annotations (episode_id, stage_name, doc, annotator, annotated_at) VALUES ($1, $2, $3, $4, $5) \
+             ON CONFLICT (episode_id, stage_name) DO UPDATE SET doc = excluded.doc, annotator = excluded.annotator, annotated_at = excluded.annotated_at",
+        )
+        .bind(episode_id)
+        .bind(stage_name)
+        .bind(doc.to_string())
+        .bind(annotator)
+        .bind(annotated_at)
+        .execute(&mut *tx)
+        .await
+        .with_context(what)?;
+        sqlx::query("INSERT INTO stage_annotation_history (episode_id, stage_name, doc, annotator, annotated_at) VALUES ($1, $2, $3, $4, $5)")
+            .bind(episode_id)
+            .bind(stage_name)
+            .bind(doc.to_string())
+            .bind(annotator)
+            .bind(annotated_at)
+            .execute(&mut *tx)
+            .await
+            .with_context(what)?;
+        tx.commit().await.with_context(what)?;
+        Ok(())
+    }
+
+    /// The latest annotation of each annotated stage of `episode_id`: `(stage name, annotation JSON)`, by name.
+    pub async fn stage_annotations(&self, episode_id: &str) -> Result<Vec<(String, Value)>> {
+        let rows = sqlx::query("SELECT stage_name, doc FROM stage_annotations WHERE episode_id = $1 ORDER BY stage_name")
+            .bind(episode_id)
+            .fetch_all(&self.pool)
+            .await
+            .with_context(|| format!("store: cannot read the annotations of {episode_id}"))?;
+        rows.iter()
+            .map(|r| {
+                let doc: String = r.try_get("doc")?;
+                let value = serde_json::from_str(&doc).with_context(|| format!("store: an annotation of {episode_id} holds bad JSON"))?;
+                Ok((r.try_get("stage_name")?, value))
+            })
+            .collect()
+    }
+
+    /// How many annotations of `episode_id`'s stages were ever saved (the history's length).
+    pub async fn stage_annotation_history_len(&self, episode_id: &str) -> Result<i64> {
+        sqlx::query("SELECT CAST(COUNT(*) AS BIGINT) AS n FROM stage_annotation_history WHERE episode_id = $1")
+            .bind(episode_id)
+            .fetch_one(&self.pool)
+            .await
+            .and_then(|r| r.try_get("n"))
+            .with_context(|| format!("store: cannot count the annotations of {episode_id}"))
+    }
+
     /// The names of the stored batches, sorted.
     pub async fn batch_names(&self) -> Result<Vec<String>> {
         let rows = sqlx::query("SELECT name FROM batches ORDER BY name").fetch_all(&self.pool).await.context("store: cannot list batches")?;
@@ -696,6 +758,33 @@ mod tests {
         let pg = TestPostgres::start();
         let store = Store::connect(&pg.url).await.unwrap();
         batches_round_trip(store.clone()).await;
+        store.close().await;
+    }
+
+    /// A stage annotated twice reads back as the second, the history keeps both, other episodes see none.
+    async fn stage_annotations_round_trip(store: Store) {
+        let first = json!({"reached": true, "succeeded": false, "failure_modes": ["local_execution"], "note": "slipped", "annotator": "ana"});
+        let second = json!({"reached": true, "succeeded": false, "failure_modes": ["geometric_error", "other"], "note": "ünïcode ' \" ;", "annotator": "bo"});
+        store.put_stage_annotation("ep-1", "02_open", "ana", "2026-12-07T10:00:00Z", &first).await.unwrap();
+        store.put_stage_annotation("ep-1", "01_grasp", "ana", "2026-12-07T10:00:01Z", &first).await.unwrap();
+        store.put_stage_annotation("ep-1", "02_open", "bo", "2026-12-07T10:00:02Z", &second).await.unwrap();
+        let got = store.stage_annotations("ep-1").await.unwrap();
+        assert_eq!(got, vec![("01_grasp".to_owned(), first), ("02_open".to_owned(), second)]);
+        assert_eq!(store.stage_annotation_history_len("ep-1").await.unwrap(), 3);
+        assert!(store.stage_annotations("ep-2").await.unwrap().is_empty());
+    }
+
+    #[tokio::test]
+    async fn sqlite_stage_annotations_replace_the_last_and_keep_the_history() {
+        let dir = tempfile::tempdir().unwrap();
+        stage_annotations_round_trip(sqlite_store(dir.path()).await).await;
+    }
+
+    #[tokio::test]
+    async fn postgres_stage_annotations_replace_the_last_and_keep_the_history() {
+        let pg = TestPostgres::start();
+        let store = Store::connect(&pg.url).await.unwrap();
+        stage_annotations_round_trip(store.clone()).await;
         store.close().await;
     }
 
