@@ -355,10 +355,11 @@ fn an_empty_library_gets_a_verified_expert_demo_on_first_use() {
 fn replaying_long_horizon_demonstrations_through_mcp_earns_no_success_and_at_most_half_the_stages() {
     let data = tempfile::tempdir().unwrap();
     let server = common::Server::start(data.path());
-    let out = bin().args(["demo", "replay-attack", "--server", &server.url, "--task", "T28,T29"]).output().unwrap();
+    let out = bin().args(["demo", "replay-attack", "--server", &server.url, "--task", "T28,T29,T28"]).output().unwrap();
     assert!(out.status.success(), "{}", text(&out));
     let lines: Vec<Value> = String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
-    assert_eq!(lines.len(), 2, "{lines:?}");
+    assert_eq!(lines.len(), 3, "{lines:?}");
+    assert_eq!(lines[0]["bundle"], lines[2]["bundle"], "a second episode of the target takes the bundle chosen before");
     for line in &lines {
         assert_eq!(line["success"], false, "{line}");
         assert!(line["replayed_actions"].as_u64().is_some_and(|n| n > 50), "a whole demonstration was replayed: {line}");
@@ -383,6 +384,6 @@ fn replaying_long_horizon_demonstrations_through_mcp_earns_no_success_and_at_mos
     let (status, demos) = common::http_get_json(&format!("{}/api/demos", server.url));
     assert_eq!(status, 200);
     let shown: Vec<&str> = demos["bundles"].as_array().unwrap().iter().flat_map(|b| b["replay_checks"].as_array().unwrap()).filter_map(Value::as_str).collect();
-    assert_eq!(shown.len(), 2, "{demos}");
+    assert_eq!(shown.len(), 2, "one check per bundle: {demos}");
     assert!(shown.iter().all(|l| l.starts_with("seed 100: direct ") && l.contains("→ shown")), "{shown:?}");
 }

@@ -89,16 +89,13 @@ pub fn source_layout(dir: &Path, paths: &AssetPaths) -> Result<EffectiveLayout, 
     Ok(spec.task.effective_layout(spec.seed, spec.init_index)?)
 }
 
-/// Whether a stored check settles the question under `rule`: `Some(Err(why))` for a stored rejection (a stored
-/// success is final, whatever method made it), `Some(Ok(()))` for an acceptance under today's method, `None` to
-/// check again.
+/// Whether a stored check settles the question under `rule`: today's method's verdict under `rule`; for an older
+/// check, `Some(Err(why))` when its direct replay succeeded (final) and `None` (check again) otherwise.
 fn stored_verdict(check: &ReplayCheck, rule: ReplayRule) -> Option<Result<(), String>> {
     let count = |n: Option<u64>| n.map_or_else(|| "?".to_owned(), |n| n.to_string());
-    if check.replay_solves == Some(true) {
-        return Some(Err("replaying its trajectory solves the target episode".to_owned()));
-    }
     if check.method.as_deref() != Some(REPLAY_CHECK_METHOD) {
-        return None;
+        // an older check replayed directly only: a success it found stands, anything else is checked again
+        return (check.replay_solves == Some(true)).then(|| Err("replaying its trajectory solves the target episode".to_owned()));
     }
     let (passed, earned) = match rule {
         ReplayRule::WithOffsets => (check.accepted, check.best_completed_stage_count),
@@ -158,6 +155,34 @@ pub fn store_replay_check(dir: &Path, target: &TargetEpisode, attack: &ReplayAtt
     // A list the typed view could not read is replaced, as any list was.
     manifest.rest.remove("replay_checks");
     write_json_file(&manifest_path, &manifest.to_value()).map_err(io_err(&manifest_path))
+}
+
+/// Marks `dir`'s stored check for `target` as chosen under the direct replay rule (after no source passed the
+/// offset replays), so later episodes of the target take it without searching for sources again.
+pub fn mark_direct_rule_choice(dir: &Path, target: &TargetEpisode) -> Result<(), DemoError> {
+    let key = target.key()?;
+    let manifest_path = dir.join(MANIFEST);
+    let mut manifest = read_manifest(&manifest_path)?;
+    for c in manifest.replay_checks.iter_mut().flatten().filter(|c| c.target.as_ref() == Some(&key)) {
+        c.rest.insert(DIRECT_RULE_CHOICE.to_owned(), Value::Bool(true));
+    }
+    write_json_file(&manifest_path, &manifest.to_value()).map_err(io_err(&manifest_path))
+}
+
+/// The key [`mark_direct_rule_choice`] sets on a replay check.
+pub const DIRECT_RULE_CHOICE: &str = "shown_under_direct_rule";
+
+/// The bundle an earlier search chose for `target` under the direct replay rule, if it still passes that rule.
+pub fn direct_rule_choice(root: &Path, target: &TargetEpisode) -> Result<Option<PathBuf>, DemoError> {
+    let key = target.key()?;
+    for bundle in verified_bundles(root, &target.task.task_ref) {
+        let manifest = read_manifest(&bundle.join(MANIFEST))?;
+        let Some(check) = manifest.replay_check(&key) else { continue };
+        if check.rest.get(DIRECT_RULE_CHOICE) == Some(&Value::Bool(true)) && stored_verdict(check, ReplayRule::DirectOnly) == Some(Ok(())) {
+            return Ok(Some(bundle));
+        }
+    }
+    Ok(None)
 }
 
 /// A bundle of the target's task that may be shown in the target episode: valid, verified, recorded in another
@@ -226,6 +251,20 @@ mod tests {
             s.placement_seed = fixed_seed;
         }
         TargetEpisode { task, seed: 100, init_index: 0 }
+    }
+
+    #[test]
+    fn a_stored_check_decides_per_rule_and_an_older_one_only_by_its_success() {
+        let check = |v: Value| ReplayCheck::from_value(v).unwrap();
+        // today's method: an offset replay solved, the direct one earned nothing
+        let t28 = check(json!({"method": REPLAY_CHECK_METHOD, "replay_solves": true, "accepted": false, "direct_accepted": true,
+            "best_completed_stage_count": 2, "completed_required_stage_count": 0, "required_stage_count": 2, "allowed_stage_count": 1}));
+        assert_eq!(stored_verdict(&t28, ReplayRule::DirectOnly), Some(Ok(())));
+        let why = stored_verdict(&t28, ReplayRule::WithOffsets).unwrap().unwrap_err();
+        assert!(why.contains("2 of 2 stages (direct or after an offset)"), "{why}");
+        // older checks: a success stands, a failure is checked again under today's rule
+        assert!(stored_verdict(&check(json!({"replay_solves": true})), ReplayRule::DirectOnly).unwrap().is_err());
+        assert_eq!(stored_verdict(&check(json!({"replay_solves": false, "method": "direct_replay_on_world_physics"})), ReplayRule::WithOffsets), None);
     }
 
     #[test]

@@ -8,7 +8,7 @@ use super::EpisodeSet;
 use super::request::PrepareRequest;
 use crate::demo::library::TargetEpisode;
 use crate::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
-use crate::demo::replay_attack::ReplayRule;
+use crate::demo::replay_attack::{ReplayAttack, ReplayRule};
 use crate::demo::{LayoutVariant, library, record_bundle, replay_attack, verify_bundle};
 use crate::expert_run::run_expert;
 use crate::physics::WorldSpec as PhysicsSpec;
@@ -36,14 +36,60 @@ impl EpisodeSet {
         // replay checks write manifests: one selection or recording at a time
         let _one_at_a_time = self.demo_recording.lock().map_err(|_| anyhow::anyhow!("demo lock poisoned"))?;
         let mut passed_over = Vec::new();
-        for rule in [ReplayRule::WithOffsets, ReplayRule::DirectOnly] {
-            match self.demo_bundle_under(&target, &lib, &paths, rule, &mut passed_over)? {
-                Some(bundle) => return Ok(bundle),
-                None => tracing::info!(task = %task.task_ref, ?rule, "no demonstration passes this replay rule"),
-            }
+        match library::select_for_target(&lib, &target, &paths, ReplayRule::WithOffsets)? {
+            Ok(bundle) => return Ok(bundle),
+            Err(skipped) => passed_over.extend(skipped.into_iter().map(|s| format!("{}: {}", s.bundle.display(), s.reason))),
+        }
+        // An earlier search for this target found no source passing the offset replays: its choice stands.
+        if let Some(bundle) = library::direct_rule_choice(&lib, &target)? {
+            return Ok(bundle);
         }
         let task_ref = task.task_ref.as_str();
-        if libero_tasks::expert_behaviours(task_ref).is_none() {
+        let has_expert = libero_tasks::expert_behaviours(task_ref).is_some();
+        // Sources the expert solved whose direct replay passes but an offset replay does not: the first is kept
+        // for when no source passes both (it is not run again).
+        let mut direct_only: Option<(String, ReplayAttack)> = None;
+        if has_expert {
+            let init_rows = match &task.init_states {
+                Some(path) => Some(libero_sim::InitStates::read(path)?.len()),
+                None => None,
+            };
+            for attempt in 0..library::MAX_SOURCE_ATTEMPTS {
+                let layout = library::source_layout_candidate(&target, attempt, init_rows)?;
+                let what = format!("source layout {}", serde_json::to_string(&layout)?);
+                let outcome = self.expert_source(task, layout, &target).and_then(|(episode_id, attack)| match attack.rejection(ReplayRule::WithOffsets) {
+                    None => self.render_source(&episode_id, &target, &attack).map(Some),
+                    Some(why) => {
+                        if direct_only.is_none() && attack.direct_accepted() {
+                            direct_only = Some((episode_id, attack));
+                        }
+                        Err(anyhow::anyhow!(why))
+                    }
+                });
+                match outcome {
+                    Ok(Some(dir)) => {
+                        tracing::info!(task = task_ref, attempt, bundle = %dir.display(), "demonstration recorded");
+                        return Ok(dir);
+                    }
+                    Ok(None) => {}
+                    Err(e) => {
+                        tracing::info!(task = task_ref, attempt, why = format!("{e:#}"), "demonstration source passed over");
+                        passed_over.push(format!("{what}: {e:#}"));
+                    }
+                }
+            }
+        }
+        // No bundle passes the offset replays: the direct replay alone decides, a library bundle first.
+        let chosen = match library::select_for_target(&lib, &target, &paths, ReplayRule::DirectOnly)? {
+            Ok(bundle) => Some(bundle),
+            Err(_) => direct_only.map(|(episode_id, attack)| self.render_source(&episode_id, &target, &attack)).transpose()?,
+        };
+        if let Some(bundle) = chosen {
+            library::mark_direct_rule_choice(&bundle, &target)?;
+            tracing::info!(task = task_ref, bundle = %bundle.display(), "demonstration shown under the direct replay rule");
+            return Ok(bundle);
+        }
+        if !has_expert {
             bail!(
                 "no usable demonstration of {task_ref} in {} ({}) and no scripted expert to record one (record one \
                  in another layout by teleoperation, or with `libero-agent expert --task {task_ref} --layout-seed N \
@@ -60,51 +106,10 @@ impl EpisodeSet {
         )
     }
 
-    /// [`Self::demo_bundle`] under one rule: a library bundle that passes it, or one recorded now (where the task
-    /// has a scripted expert); `None` when neither. Why each was passed over is added to `passed_over`.
-    fn demo_bundle_under(
-        &self,
-        target: &TargetEpisode,
-        lib: &Path,
-        paths: &libero_sim::AssetPaths,
-        rule: ReplayRule,
-        passed_over: &mut Vec<String>,
-    ) -> anyhow::Result<Option<PathBuf>> {
-        match library::select_for_target(lib, target, paths, rule)? {
-            Ok(bundle) => return Ok(Some(bundle)),
-            Err(skipped) => passed_over.extend(skipped.into_iter().map(|s| format!("{}: {}", s.bundle.display(), s.reason))),
-        }
-        let task = &target.task;
-        let task_ref = task.task_ref.as_str();
-        if libero_tasks::expert_behaviours(task_ref).is_none() {
-            return Ok(None);
-        }
-        let init_rows = match &task.init_states {
-            Some(path) => Some(libero_sim::InitStates::read(path)?.len()),
-            None => None,
-        };
-        for attempt in 0..library::MAX_SOURCE_ATTEMPTS {
-            let layout = library::source_layout_candidate(target, attempt, init_rows)?;
-            let what = format!("source layout {}", serde_json::to_string(&layout)?);
-            match self.record_expert_demo(task, layout, target, rule) {
-                Ok(dir) => {
-                    tracing::info!(task = task_ref, attempt, ?rule, bundle = %dir.display(), "demonstration recorded");
-                    return Ok(Some(dir));
-                }
-                Err(e) => {
-                    tracing::info!(task = task_ref, attempt, ?rule, why = format!("{e:#}"), "demonstration source passed over");
-                    passed_over.push(format!("{what}: {e:#}"));
-                }
-            }
-        }
-        Ok(None)
-    }
-
-    /// Records a scripted-expert demonstration of `task` in `layout` (a separate episode, level 1, no video) for
-    /// `target`: the expert's actions are first replayed in the target (physics only, directly and after each
-    /// candidate offset), and only a source that passes `rule` ([`replay_attack::ReplayAttack::passes`]) is
-    /// rendered into a bundle, verified by replay, with that check stored in its manifest.
-    fn record_expert_demo(&self, task: &TaskSource, layout: LayoutVariant, target: &TargetEpisode, rule: ReplayRule) -> anyhow::Result<PathBuf> {
+    /// Runs the task's scripted expert in `layout` (a separate episode, level 1, no video) and replays its actions
+    /// in `target` (physics only, directly and after each candidate offset): the source episode and what its
+    /// replays earn. An error when the expert did not solve the layout.
+    fn expert_source(&self, task: &TaskSource, layout: LayoutVariant, target: &TargetEpisode) -> anyhow::Result<(String, ReplayAttack)> {
         let task_ref = task.task_ref.as_str();
         let seed = u64::from(layout.placement_seed);
         let req = PrepareRequest { level: 1, seed, init_index: layout.init_index, video: false, layout: Some(layout), ..PrepareRequest::new(task_ref) };
@@ -129,15 +134,18 @@ impl EpisodeSet {
         }
         let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
         let attack = replay_attack::attack(&actions, Some(&spec), &target.spec(&paths))?;
-        if let Some(why) = attack.rejection(rule) {
-            bail!("{why}");
-        }
+        Ok((prepared.episode_id, attack))
+    }
+
+    /// Renders source episode `episode_id` into a library bundle, verified by replay, with its replay check for
+    /// `target` stored in the manifest.
+    fn render_source(&self, episode_id: &str, target: &TargetEpisode, attack: &ReplayAttack) -> anyhow::Result<PathBuf> {
         let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "libero-agent expert solve".into() };
-        let summary = self.record_demo(&prepared.episode_id, &options)?;
+        let summary = self.record_demo(episode_id, &options)?;
         if !summary.verified {
             bail!("the expert's demonstration did not verify by replay ({})", summary.dir.display());
         }
-        library::store_replay_check(&summary.dir, target, &attack)?;
+        library::store_replay_check(&summary.dir, target, attack)?;
         Ok(summary.dir)
     }
 
