@@ -322,3 +322,42 @@ fn chromium_clicks_a_results_cell_through_to_the_review() {
     let last = common::browser_script("results_click.cjs", &[server.url.as_str(), "T14", &artifacts.to_string_lossy()], &server.token);
     assert_eq!(last["ok"], true, "{last}");
 }
+
+/// Issue 49 (links and downloads, bad input): the Results page downloads exactly what `report --format
+/// csv|markdown|latex` prints for the selection, the batch name links to the batch's own Results, the review names
+/// its batch, and a bad `reps` or download format is an error page that says what is wrong, never a silent default.
+#[test]
+fn results_download_as_the_report_prints_and_bad_values_are_refused_visibly() {
+    let (_dir, server, batch) = setup();
+    for (format, cli) in [("csv", "csv"), ("markdown", "markdown"), ("latex", "latex")] {
+        let (status, body) = http_get_text(&format!("{}/results/report/{format}?batch=main&reps=2", server.url));
+        assert_eq!(status, 200, "{format}: {body}");
+        let out = libero(&["report", batch.to_str().unwrap(), "--format", cli, "--reps", "2"]);
+        assert!(out.status.success());
+        assert_eq!(body, String::from_utf8_lossy(&out.stdout), "{format}: the download is the report");
+    }
+    let (_, page) = http_get_text(&format!("{}/results?batch=main&reps=2", server.url));
+    for link in [
+        r#"id="download-csv" href="/results/report/csv?batch=main&#38;reps=2""#,
+        r#"id="download-latex" href="/results/report/latex?batch=main&#38;reps=2""#,
+        r#"class="batch-link" href="/results?batch=main">main</a>"#,
+    ] {
+        assert!(page.contains(link), "{link} in the Results page");
+    }
+    let (_, all) = http_get_json(&format!("{}/api/results?batch=main", server.url));
+    let episode = all["batches"][0]["episodes"][0]["episode_id"].as_str().expect("an episode").to_owned();
+    let (status, review) = http_get_text(&format!("{}/episodes/{episode}/review", server.url));
+    assert_eq!(status, 200);
+    assert!(review.contains(r#"<a id="batch-link" href="/results?batch=main">main</a>"#), "the review names its batch");
+    for (query, says) in [
+        ("/results?reps=abc", "reps must be a whole number from 1 to 100"),
+        ("/results?reps=0", "reps must be a whole number from 1 to 100"),
+        ("/api/results?reps=1000", "reps must be a whole number from 1 to 100"),
+        ("/results/report/pdf", "csv, markdown or latex, not"),
+        ("/results/report/csv?batch=nope", "no batch"),
+    ] {
+        let (status, body) = http_get_text(&format!("{}{query}", server.url));
+        assert!((400..500).contains(&status), "{query}: {status}");
+        assert!(body.contains(says), "{query}: {body}");
+    }
+}

@@ -10,7 +10,8 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use askama::Template;
-use axum::extract::{RawQuery, State};
+use axum::extract::{Path as UrlPath, RawQuery, State};
+use axum::http::header;
 use axum::response::IntoResponse;
 use libero_episode::batch_doc::ToolboxDoc;
 use libero_metrics::{PAPER_REPS, Split};
@@ -85,20 +86,45 @@ fn percent_decode(s: &str) -> String {
 }
 
 impl Selection {
-    /// `batch=A&batch=B&reps=3` (repeated keys, which axum's `Query` cannot collect).
-    pub fn parse(query: Option<&str>) -> Self {
+    /// `batch=A&batch=B&reps=3` (repeated keys, which axum's `Query` cannot collect). A `reps` that is no whole
+    /// number from 1 to [`MAX_REPS`] is an error the page shows, never a silent default; an empty one means the
+    /// batch's own.
+    pub fn parse(query: Option<&str>) -> Result<Self, String> {
         let mut s = Self::default();
         for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
             let (k, v) = pair.split_once('=').unwrap_or((pair, ""));
             let v = percent_decode(v);
             match k {
                 "batch" if !v.trim().is_empty() && !s.batches.contains(&v) => s.batches.push(v),
-                "reps" => s.reps = v.parse().ok().filter(|&n| (1..=MAX_REPS).contains(&n)),
+                "reps" if v.trim().is_empty() => s.reps = None,
+                "reps" => match v.trim().parse::<usize>() {
+                    Ok(n) if (1..=MAX_REPS).contains(&n) => s.reps = Some(n),
+                    _ => return Err(format!("reps must be a whole number from 1 to {MAX_REPS} (or empty for each batch's own), not {v:?}")),
+                },
                 _ => {}
             }
         }
-        s
+        Ok(s)
     }
+
+    /// The query that selects the same (`batch=…&reps=…`, percent-encoded), for links and downloads.
+    pub fn query(&self) -> String {
+        let mut parts: Vec<String> = self.batches.iter().map(|b| format!("batch={}", percent_encode(b))).collect();
+        if let Some(n) = self.reps {
+            parts.push(format!("reps={n}"));
+        }
+        parts.join("&")
+    }
+}
+
+/// Percent-encodes everything but unreserved characters (RFC 3986).
+pub fn percent_encode(s: &str) -> String {
+    s.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' | b'~' => (b as char).to_string(),
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
 }
 
 /// Largest `?reps=` the Results page accepts (the paper uses 3).
@@ -265,6 +291,8 @@ impl From<HarnessVersions> for VersionCell {
 /// A batch's progress line (done/running/left, outcomes so far).
 pub struct ProgressRow {
     pub batch: String,
+    /// The Results page of this batch alone.
+    pub href: String,
     pub status: String,
     pub experiment: String,
     pub agent: String,
@@ -403,6 +431,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
         let counts = d.counts.clone().unwrap_or_default();
         v.toolboxes.push(toolbox_row(b));
         v.progress.push(ProgressRow {
+            href: format!("/results?batch={}", percent_encode(&b.name())),
             batch: b.name(),
             status,
             experiment: experiment.clone(),
@@ -626,6 +655,8 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
 struct ResultsPage {
     available: Vec<(String, bool)>,
     reps: String,
+    /// The selection's query (for the download links).
+    query: String,
     view: View,
 }
 
@@ -655,20 +686,40 @@ pub(crate) async fn selected(app: &App, sel: &Selection) -> ApiResult<(Vec<Strin
 }
 
 pub(crate) async fn results_page(State(app): State<AppState>, RawQuery(query): RawQuery) -> ApiResult {
-    let sel = Selection::parse(query.as_deref());
+    let sel = Selection::parse(query.as_deref()).map_err(ApiError::bad_request)?;
     let (names, batches) = selected(&app, &sel).await?;
     let view = view(&batches, &sel);
     Ok(page(ResultsPage {
         available: names.into_iter().map(|n| (n.clone(), sel.batches.contains(&n))).collect(),
         reps: sel.reps.map(|n| n.to_string()).unwrap_or_default(),
+        query: sel.query(),
         view,
     }))
 }
 
 pub(crate) async fn results_api(State(app): State<AppState>, RawQuery(query): RawQuery) -> ApiResult {
-    let sel = Selection::parse(query.as_deref());
+    let sel = Selection::parse(query.as_deref()).map_err(ApiError::bad_request)?;
     let (names, batches) = selected(&app, &sel).await?;
     Ok(axum::Json(results_json(&names, &batches, &sel)).into_response())
+}
+
+/// `/results/report/{csv|markdown|latex}?batch=…&reps=…`: what `libero-agent report --format F` prints for the
+/// selected batches (every table), as a download.
+pub(crate) async fn results_download(State(app): State<AppState>, UrlPath(format): UrlPath<String>, RawQuery(query): RawQuery) -> ApiResult {
+    let sel = Selection::parse(query.as_deref()).map_err(ApiError::bad_request)?;
+    let (render, kind, ext): (fn(&[LoadedBatch], usize, TableChoice) -> String, &str, &str) = match format.as_str() {
+        "csv" => (libero_runner::report::csv, "text/csv; charset=utf-8", "csv"),
+        "markdown" | "md" => (libero_runner::report::markdown, "text/markdown; charset=utf-8", "md"),
+        "latex" | "tex" => (libero_runner::report::latex, "application/x-latex; charset=utf-8", "tex"),
+        other => return Err(ApiError::bad_request(format!("the report downloads as csv, markdown or latex, not {other:?}"))),
+    };
+    let (_, batches) = selected(&app, &sel).await?;
+    let reps = sel.reps.unwrap_or_else(|| libero_runner::report::default_reps(&batches));
+    let body = tokio::task::spawn_blocking(move || render(&batches, reps, TableChoice::All))
+        .await
+        .map_err(|e| ApiError::internal(format!("report: {e}")))?;
+    let file = format!("attachment; filename=\"libero-agent-results.{ext}\"");
+    Ok(([(header::CONTENT_TYPE, kind.to_owned()), (header::CONTENT_DISPOSITION, file)], body).into_response())
 }
 
 #[cfg(test)]
@@ -677,10 +728,16 @@ mod tests {
 
     #[test]
     fn repeated_batch_keys_are_all_kept() {
-        let s = Selection::parse(Some("batch=a&batch=b%2Dc&reps=3&batch=a&x=1"));
+        let s = Selection::parse(Some("batch=a&batch=b%2Dc&reps=3&batch=a&x=1")).unwrap();
         assert_eq!(s, Selection { batches: vec!["a".into(), "b-c".into()], reps: Some(3) });
-        assert_eq!(Selection::parse(None), Selection::default());
-        assert_eq!(Selection::parse(Some("reps=0&batch=")).reps, None);
+        assert_eq!(s.query(), "batch=a&batch=b-c&reps=3");
+        assert_eq!(Selection::parse(None).unwrap(), Selection::default());
+        assert_eq!(Selection::parse(Some("reps=&batch=")).unwrap().reps, None, "an empty reps is each batch's own");
+        for bad in ["reps=0", "reps=abc", "reps=101", "reps=-1", "reps=2.5"] {
+            let e = Selection::parse(Some(bad)).unwrap_err();
+            assert!(e.contains("from 1 to 100"), "{bad}: {e}");
+        }
+        assert_eq!(Selection { batches: vec!["a b/ü".into()], reps: None }.query(), "batch=a%20b%2F%C3%BC");
         assert_eq!(percent_decode("100%"), "100%");
     }
 }

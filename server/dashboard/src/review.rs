@@ -33,6 +33,8 @@ struct ReviewPage {
     outcome: String,
     /// A branch's parent episode and control step.
     branch: Option<(String, i64)>,
+    /// The batch the episode ran in, and its Results page.
+    batch: Option<(String, String)>,
 }
 
 pub(crate) async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -45,6 +47,7 @@ pub(crate) async fn review_page(State(app): State<AppState>, Path(id): Path<Stri
             task_href: task_link(&row.episode.task_ref).0,
             instruction: task_link(&row.episode.task_ref).1,
             branch: row.episode.branch_parent.clone().zip(row.episode.branch_step),
+            batch: row.episode.batch.clone().filter(|b| !b.is_empty()).map(|b| (format!("/results?batch={}", crate::results::percent_encode(&b)), b)),
             task: row.episode.task_ref,
             level: row.episode.level,
             outcome: row.outcome.unwrap_or_else(|| "RUNNING".into()),

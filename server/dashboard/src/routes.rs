@@ -20,6 +20,7 @@ pub fn compressed_routes() -> Router<AppState> {
         .route("/api/tasks", get(tasks::tasks_json))
         .route("/results", get(results::results_page))
         .route("/api/results", get(results::results_api))
+        .route("/results/report/{format}", get(results::results_download))
 }
 
 /// Streams and media: never compressed (range requests, WebSocket upgrades, JPEG/PNG/MP4).
