@@ -325,7 +325,8 @@ fn chromium_clicks_a_results_cell_through_to_the_review() {
 
 /// Issue 49 (links and downloads, bad input): the Results page downloads exactly what `report --format
 /// csv|markdown|latex` prints for the selection, the batch name links to the batch's own Results, the review names
-/// its batch, and a bad `reps` or download format is an error page that says what is wrong, never a silent default.
+/// its batch, and a bad `reps`, download format or home-page outcome filter is an error page that says what is
+/// wrong, never a silent default.
 #[test]
 fn results_download_as_the_report_prints_and_bad_values_are_refused_visibly() {
     let (_dir, server, batch) = setup();
@@ -355,9 +356,14 @@ fn results_download_as_the_report_prints_and_bad_values_are_refused_visibly() {
         ("/api/results?reps=1000", "reps must be a whole number from 1 to 100"),
         ("/results/report/pdf", "csv, markdown or latex, not"),
         ("/results/report/csv?batch=nope", "no batch"),
+        ("/?outcome=bogus", "outcome must be one of RUNNING, SUCCESS, FAIL, SIM_TIMEOUT, WATCHDOG_TIMEOUT, INVALID, INTERRUPTED"),
     ] {
         let (status, body) = http_get_text(&format!("{}{query}", server.url));
         assert!((400..500).contains(&status), "{query}: {status}");
         assert!(body.contains(says), "{query}: {body}");
     }
+    let (status, home) = http_get_text(&format!("{}/?outcome=fail", server.url));
+    assert_eq!(status, 200, "an outcome in any case filters");
+    assert!(home.contains(r#"<option value="FAIL" selected>"#), "the filter shows what it filters on");
+    assert!(home.contains(r#"<option value="WATCHDOG_TIMEOUT">"#), "every outcome is a choice");
 }

@@ -104,8 +104,24 @@ async fn episode_list(app: &App, filter: &EpisodeFilter) -> anyhow::Result<Vec<V
         .collect())
 }
 
+/// The outcome filter's choices: open episodes and every outcome an episode can end with.
+fn outcome_choices() -> Vec<String> {
+    std::iter::once("RUNNING").chain(libero_episode::Outcome::ALL.map(libero_episode::Outcome::as_str)).map(String::from).collect()
+}
+
+/// A filter on an outcome no episode can have would show an empty table under "any": refused, naming the choices.
+fn known_outcome(filter: &EpisodeFilter) -> Result<(), String> {
+    match &filter.outcome {
+        Some(o) if !outcome_choices().contains(o) => Err(format!("outcome must be one of {}, not {o:?}", outcome_choices().join(", "))),
+        _ => Ok(()),
+    }
+}
+
 pub(crate) async fn home(State(app): State<AppState>, headers: axum::http::HeaderMap, Query(filter): Query<EpisodeFilter>) -> Response {
     let filter = filter.normalized();
+    if let Err(why) = known_outcome(&filter) {
+        return ApiError::bad_request(why).into_response();
+    }
     let list = match episode_list(&app, &filter).await {
         Ok(l) => l,
         Err(e) => return ApiError::internal(format!("{e:#}")).into_response(),
@@ -123,13 +139,16 @@ pub(crate) async fn home(State(app): State<AppState>, headers: axum::http::Heade
         filter_batch: filter.batch.unwrap_or_default(),
         filter_harness: filter.harness.unwrap_or_default(),
         harnesses: vec!["expert", "teleop", "command", "codex", "claude_code", "kimi_code", "qwen_code", "deepseek"],
-        outcomes: ["RUNNING", "SUCCESS", "FAIL", "SIM_TIMEOUT", "INVALID"].map(String::from).to_vec(),
+        outcomes: outcome_choices(),
         tasks,
     })
 }
 
 pub(crate) async fn list_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Query(filter): Query<EpisodeFilter>) -> Response {
     let filter = filter.normalized();
+    if let Err(why) = known_outcome(&filter) {
+        return ApiError::bad_request(why).into_response();
+    }
     ws.on_upgrade(move |socket| list_stream(socket, app, filter))
 }
 
