@@ -21,6 +21,11 @@ async function main() {
     const n = await rows.count();
     check(n >= 2, `one row per required stage (${n})`);
     check(await page.locator('#annotate-stages tr.automatic').count() === n, 'every stage starts automatic, not confirmed');
+    // stage names read as words, the record's name on hover (here and in the Stages table)
+    const cell = rows.nth(0).locator('td').first();
+    check(/^1 · [A-Z][a-z]/.test(await cell.innerText()), `a stage name for people: ${await cell.innerText()}`);
+    check(/^01_/.test(await cell.getAttribute('title')), 'the record name on hover');
+    check(/^1 · /.test(await page.locator('#stages tbody tr td:nth-child(2)').first().innerText()), 'the Stages table too');
     check((await page.locator('#annotate-count').innerText()).startsWith(`0 of ${n}`), 'nothing annotated yet');
     await shot(page, 'annotate-start');
     // Saving before naming oneself is refused with a clear message.

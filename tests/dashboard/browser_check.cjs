@@ -110,7 +110,9 @@ async function main() {
     check(/osc_sequence|finish_episode|start_episode/.test(await text(review, '#call-detail')), 'the call at this moment is shown');
     check((await text(review, '#result')).includes('private_evaluation'), 'the result record is shown');
     const stageRows = await review.locator('#stages tbody tr').count();
-    check(stageRows >= 1 && /01_/.test(await text(review, '#stages')), `the per-stage diagnostics table is shown (${stageRows} rows)`);
+    const firstStage = await review.locator('#stages tbody tr td:nth-child(2)').first().innerText();
+    check(stageRows >= 1 && /^1 · [A-Z]/.test(firstStage), `the per-stage diagnostics table is shown, names for people (${stageRows} rows: ${firstStage})`);
+    check(/^01_/.test(await review.locator('#stages tbody tr td:nth-child(2)').first().getAttribute('title')), 'the record\'s stage name on hover');
     report.review = { duration, before, after, scrubbed, events: await review.locator('#events li').count() };
     await shot(review, 'review');
     await review.goto(`${base}/episodes/${episode}/review?t=1.5`);

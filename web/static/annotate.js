@@ -2,7 +2,7 @@
 // automatic label, pre-filled and marked "automatic" until a person saves it (reached, succeeded, failure modes,
 // note). Keyboard: j/k stage, r reached, s succeeded, 1–4 modes, n note (Esc leaves it), Enter saves the stage and
 // goes to the next, c saves every stage not yet annotated as shown, ] / [ next / previous episode of the batch.
-import { el, postJson } from './common.js';
+import { el, postJson, stageLabel } from './common.js';
 
 const $ = (x) => document.getElementById(x);
 const box = $('annotate');
@@ -53,7 +53,7 @@ function stageRow(s, i) {
     return input;
   };
   const cells = [
-    el('td', {}, s.stage_name),
+    el('td', { title: s.stage_name }, stageLabel(s.stage_name)),
     el('td', { class: 'muted' }, s.stage_type ? s.stage_type.replaceAll('_', ' ') : '–'),
     el('td', { class: 'auto' }, autoText(s.automatic)),
   ];

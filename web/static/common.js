@@ -26,10 +26,22 @@ export function callSummary(tool, actions) {
   return actions === null || actions === undefined ? tool : `${tool} (${actions} actions)`;
 }
 
+/**
+ * A stage's name for people: `01_Moka_Pot_On_Second_Stove` → `1 · Moka pot on second stove` (the record's name stays
+ * in the element's title where the caller sets it).
+ */
+export function stageLabel(name) {
+  if (!name) return '';
+  const m = /^(\d+)_(.*)$/.exec(name);
+  const words = (m ? m[2] : name).replaceAll('_', ' ').trim().toLowerCase();
+  const text = words.charAt(0).toUpperCase() + words.slice(1);
+  return m ? `${Number(m[1])} · ${text}` : text;
+}
+
 /** Human text of a private evaluator event. */
 export function stageText(e) {
   const what = (e.kind || 'event').replaceAll('_', ' ');
-  const name = e.stage_name ? ` ${e.stage_name}` : '';
+  const name = e.stage_name ? ` ${stageLabel(e.stage_name)}` : '';
   const subject = e.subject ? ` (${e.subject})` : '';
   return `${what}${name}${subject} @ step ${e.control_step}, ${fmtS(e.sim_time_s)} s`;
 }

@@ -1,7 +1,7 @@
 // Review page: the private continuous video synchronised with the calls, private stage events, telemetry plots,
 // the observation the agent received at each call and what the agent read, thought and ran before it (its
 // transcript, /api/episodes/{id}/agent). ←/→ step one control step, space plays or pauses, ?t=seconds opens a moment.
-import { el, fmtS, callSummary, stageText, agentEventItem, agentEventText } from './common.js';
+import { el, fmtS, callSummary, stageText, stageLabel, agentEventItem, agentEventText } from './common.js';
 
 const root = document.querySelector('.review');
 const id = root.dataset.episode;
@@ -315,10 +315,10 @@ function buildStages() {
       ? `${s.sustained_contact_ratio_percent.toFixed(0)}% of ${s.contact_exec_steps} steps` : '';
     const regressed = s.regressions > 0
       ? `${s.regressions}×${s.regressed_during_later_stage ? ' (undone by a later stage)' : ''}` : '';
-    const name = `${s.stage_name}${s.required ? '' : ' (optional)'}${s.failure_reason ? ` — ${failureText(s.failure_reason)}` : ''}`;
+    const name = `${stageLabel(s.stage_name)}${s.required ? '' : ' (optional)'}${s.failure_reason ? ` — ${failureText(s.failure_reason)}` : ''}`;
     const tr = node('tr', { class: state, 'data-t': t ?? undefined },
       el('td', { class: 'mark' }, s.succeeded ? '✔' : s.reached ? '✘' : '·'),
-      el('td', {}, name),
+      el('td', { title: s.stage_name }, name),
       el('td', {}, s.reached ? 'yes' : 'no'),
       el('td', {}, s.completed_control_step != null ? `step ${s.completed_control_step}` : '–'),
       el('td', {}, regressed),
