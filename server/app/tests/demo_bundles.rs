@@ -386,4 +386,13 @@ fn replaying_long_horizon_demonstrations_through_mcp_earns_no_success_and_at_mos
     let shown: Vec<&str> = demos["bundles"].as_array().unwrap().iter().flat_map(|b| b["replay_checks"].as_array().unwrap()).filter_map(Value::as_str).collect();
     assert_eq!(shown.len(), 2, "one check per bundle: {demos}");
     assert!(shown.iter().all(|l| l.starts_with("seed 100: direct ") && l.contains("→ shown")), "{shown:?}");
+    // Verifying a bundle again rewrites its manifest, not its date in the list.
+    let t29 = demos["bundles"].as_array().unwrap().iter().find(|b| b["task"] == "T29").unwrap().clone();
+    std::thread::sleep(std::time::Duration::from_millis(1100));
+    let key = t29["key"].as_str().unwrap();
+    let (status, _, body) = common::http("POST", &format!("{}/api/demos/{key}/verify", server.url), &[("Authorization", &format!("Bearer {}", server.token))], b"");
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    let (_, again) = common::http_get_json(&format!("{}/api/demos", server.url));
+    let after = again["bundles"].as_array().unwrap().iter().find(|b| b["key"] == key).unwrap();
+    assert_eq!(after["modified_unix_s"], t29["modified_unix_s"], "Verify keeps the bundle's date");
 }

@@ -17,7 +17,7 @@ use axum::routing::{get, post};
 use libero_episode::EpisodeHandle;
 use libero_episode::demo::lerobot::export_lerobot;
 use libero_episode::demo::record::RecordOptions;
-use libero_episode::demo::{MANIFEST, VIDEO_HEAD_WRIST, library, read_manifest, validate_bundle};
+use libero_episode::demo::{MANIFEST, TRAJECTORY, VIDEO_HEAD_WRIST, library, read_manifest, validate_bundle};
 use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
@@ -339,7 +339,10 @@ pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
             continue;
         }
         let Ok(m) = read_manifest(&dir.join(MANIFEST)) else { continue };
-        let modified = std::fs::metadata(dir.join(MANIFEST))
+        // When it was recorded: the trajectory is written once (integrity-protected); the manifest is rewritten by
+        // every verification and replay check, so its time is not the bundle's date.
+        let modified = std::fs::metadata(dir.join(TRAJECTORY))
+            .or_else(|_| std::fs::metadata(dir.join(MANIFEST)))
             .and_then(|md| md.modified())
             .ok()
             .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
