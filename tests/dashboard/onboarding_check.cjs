@@ -29,6 +29,10 @@ const shot = shotter(artifacts);
     const reference = await text(page, '#reference-agent');
     check(reference.includes(' agent --workspace '), `the reference-agent command (${reference})`);
     await page.waitForSelector('#episodes tr', { timeout: 30000 });
+    // the table says when each episode started, in minutes UTC, the record's timestamp on hover
+    const started = page.locator('#episodes tr').first().locator('td time');
+    check(/^\d{4}-\d{2}-\d{2} \d{2}:\d{2} UTC$/.test(await started.innerText()), `a start time (${await started.innerText()})`);
+    check(/^\d{4}-\d{2}-\d{2}T/.test(await started.getAttribute('title')), 'the record\'s timestamp on hover');
     await shot(page, 'onboarding-prepared');
     say({ ok: true, mcp_url: server.url });
   } catch (err) {

@@ -18,10 +18,15 @@ function row(e) {
   }
   const progress = e.completed_stage_count != null && e.required_stage_count != null
     ? `${e.completed_stage_count}/${e.required_stage_count}` : '–';
+  // The batch links to this page filtered on it; times read as minutes in UTC, the record's timestamp on hover.
+  const batch = e.batch ? el('a', { class: 'batch-link', href: `/?batch=${encodeURIComponent(e.batch)}` }, e.batch) : '';
+  const startedIso = e.started_at ?? e.created_at ?? '';
+  const started = el('time', { datetime: startedIso, title: startedIso },
+    /^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}/.test(startedIso) ? `${startedIso.slice(0, 10)} ${startedIso.slice(11, 16)} UTC` : startedIso);
   const cells = [
-    idCell, e.task_ref, e.harness ?? '', e.model ?? '', e.batch ?? '', String(e.level),
+    idCell, e.task_ref, e.harness ?? '', e.model ?? '', batch, String(e.level),
     e.outcome ?? 'RUNNING', progress, e.wall_time_s != null ? `${fmtS(e.wall_time_s, 1)} s` : '–',
-    e.accepted_agent_steps != null ? String(e.accepted_agent_steps) : '–',
+    e.accepted_agent_steps != null ? String(e.accepted_agent_steps) : '–', started,
   ];
   cells.forEach((c, i) => {
     const td = el('td', i === 6 ? { class: `outcome ${c}` } : {});

@@ -46,6 +46,19 @@ struct HomeRow {
     submissions: String,
     /// A branch's parent episode and control step (issue 33).
     branch: Option<(String, i64)>,
+    /// When it started (prepared, while it has not started), `2026-12-07 14:08 UTC`, and the record's timestamp.
+    started: String,
+    started_iso: String,
+    /// The home page filtered on this row's batch.
+    batch_href: String,
+}
+
+/// `2026-12-07T14:08:28.38+00:00` → `2026-12-07 14:08 UTC` (as `home.js` writes it).
+pub(crate) fn short_utc(iso: &str) -> String {
+    match (iso.get(..10), iso.get(11..16)) {
+        (Some(day), Some(time)) if iso.as_bytes().get(10) == Some(&b'T') => format!("{day} {time} UTC"),
+        _ => iso.to_owned(),
+    }
 }
 
 impl HomeRow {
@@ -67,6 +80,9 @@ impl HomeRow {
             wall_time: v["wall_time_s"].as_f64().map(|s| format!("{s:.1} s")).unwrap_or_else(|| "–".into()),
             submissions: v["accepted_agent_steps"].as_i64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
             branch: branch_of(v),
+            started: short_utc(v["started_at"].as_str().or(v["created_at"].as_str()).unwrap_or("")),
+            started_iso: v["started_at"].as_str().or(v["created_at"].as_str()).unwrap_or("").to_owned(),
+            batch_href: format!("/?batch={}", crate::results::percent_encode(v["batch"].as_str().unwrap_or(""))),
         }
     }
 }
@@ -166,5 +182,15 @@ async fn list_stream(mut socket: WebSocket, app: AppState, filter: EpisodeFilter
         if matches!(next_wake(&mut socket, &mut changes, None).await, Wake::Gone) {
             return;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn timestamps_read_as_minutes_in_utc() {
+        assert_eq!(super::short_utc("2026-12-07T14:08:28.383004+00:00"), "2026-12-07 14:08 UTC");
+        assert_eq!(super::short_utc("yesterday"), "yesterday");
+        assert_eq!(super::short_utc(""), "");
     }
 }
