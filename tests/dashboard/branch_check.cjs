@@ -30,6 +30,11 @@ async function main() {
     report.continue_step = await text(page, '#continue-step');
     check(report.continue_step === steps, `"Continue from here" offers step ${steps} (${report.continue_step})`);
     await shot(page, 'branch-review');
+    // "prepare for an agent" prints a command that works: this server's binary by its path
+    await page.locator('#continue-agent').click();
+    await page.locator('#continue-command').waitFor({ timeout: 60000 });
+    report.agent_command = await text(page, '#continue-command');
+    check(/^\/\S*libero-agent agent --workspace '\//.test(report.agent_command), `the agent command names the binary's path (${report.agent_command})`);
     await page.locator('#continue-teleop').click();
     await page.waitForURL(`**/teleop/**branch=${episode}**`, { timeout: 30000 });
     page.on('pageerror', (e) => errors.push(`teleop: ${e}`));

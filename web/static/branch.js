@@ -45,7 +45,7 @@ if (box) {
       el('a', { id: 'continue-live', href: `/episodes/${encodeURIComponent(r.episode_id)}` }, 'its live view'),
       el('p', {}, 'Workspace'), pre(r.workspace, 'continue-workspace'),
       el('p', {}, 'MCP URL'), pre(r.mcp_url, 'continue-mcp-url'),
-      el('p', {}, 'Run the reference agent into it'), pre(`libero-agent agent --workspace '${r.workspace}'`, 'continue-command'),
+      el('p', {}, 'Run the reference agent into it'), pre(`${box.dataset.exe || 'libero-agent'} agent --workspace '${r.workspace}'`, 'continue-command'),
       el('p', {}, 'or give an agent this MCP configuration'), pre(JSON.stringify(config, null, 2), 'continue-mcp-config'),
     );
   });

@@ -35,6 +35,8 @@ struct ReviewPage {
     branch: Option<(String, i64)>,
     /// The batch the episode ran in, and its Results page.
     batch: Option<(String, String)>,
+    /// This server's binary, as "prepare for an agent" prints the command (it may not be on PATH).
+    exe: String,
 }
 
 pub(crate) async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -47,6 +49,7 @@ pub(crate) async fn review_page(State(app): State<AppState>, Path(id): Path<Stri
             task_href: task_link(&row.episode.task_ref).0,
             instruction: task_link(&row.episode.task_ref).1,
             branch: row.episode.branch_parent.clone().zip(row.episode.branch_step),
+            exe: std::env::current_exe().map(|p| p.display().to_string()).unwrap_or_else(|_| "libero-agent".into()),
             batch: row.episode.batch.clone().filter(|b| !b.is_empty()).map(|b| (format!("/results?batch={}", crate::results::percent_encode(&b)), b)),
             task: row.episode.task_ref,
             level: row.episode.level,
