@@ -296,6 +296,16 @@ fn a_t14_branch_starts_where_its_parent_was_and_continues_over_mcp_and_teleop() 
     assert!(home.contains(&format!("branch of <a href=\"/episodes/{parent_id}/review\">{parent_id}</a> at step {k}")), "home list");
     let (_, page) = common::http_get_text(&format!("{}/episodes/{branch_id}/review", server.url));
     assert!(page.contains("branch of") && page.contains("id=\"continue-teleop\""), "review page");
+    // A teleop branch the page could not start is an error page saying why (issue 49), not a page with dead controls.
+    for (query, status, says) in [
+        ("/teleop/T14?branch=ep-20990101T000000Z-deadbeef&step=1".to_owned(), 404, "no episode ep-20990101T000000Z-deadbeef".to_owned()),
+        (format!("/teleop/T14?branch={parent_id}&step=99999"), 400, "step 99999 is beyond".to_owned()),
+        (format!("/teleop/T21?branch={parent_id}&step=1"), 400, format!("episode {parent_id} is an episode of T14, not T21")),
+    ] {
+        let (got, body) = common::http_get_text(&format!("{}{query}", server.url));
+        assert_eq!(got, status, "{query}: {body}");
+        assert!(body.contains(&says) && body.contains("error-message"), "{query}: {body}");
+    }
 
     // Chromium: the parent's review, three control steps in, "Continue from here" by teleop.
     let artifacts = artifacts_dir();

@@ -110,24 +110,50 @@ impl BranchQuery {
     }
 }
 
-async fn teleop_page(Path(task): Path<String>, Query(q): Query<BranchQuery>) -> Response {
-    teleop_page_of(&task, q)
+async fn teleop_page(State(app): State<AppState>, Path(task): Path<String>, Query(q): Query<BranchQuery>) -> Response {
+    teleop_page_of(&app, &task, q).await
 }
 
 /// `/teleop/{suite}/{task_id}`: a pool entry.
-async fn pool_teleop_page(Path((suite, task_id)): Path<(String, String)>, Query(q): Query<BranchQuery>) -> Response {
-    teleop_page_of(&format!("{suite}/{task_id}"), q)
+async fn pool_teleop_page(State(app): State<AppState>, Path((suite, task_id)): Path<(String, String)>, Query(q): Query<BranchQuery>) -> Response {
+    teleop_page_of(&app, &format!("{suite}/{task_id}"), q).await
 }
 
-fn teleop_page_of(task: &str, q: BranchQuery) -> Response {
+async fn teleop_page_of(app: &AppState, task: &str, q: BranchQuery) -> Response {
     let branch = match q.origin() {
         Ok(b) => b,
         Err(e) => return ApiError::bad_request(e).into_response(),
     };
-    match implemented_task(task) {
-        Ok((task, instruction, k)) => page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED, branch }),
-        Err(e) => ApiError::not_found(e).into_response(),
+    let (task, instruction, k) = match implemented_task(task) {
+        Ok(t) => t,
+        Err(e) => return ApiError::not_found(e).into_response(),
+    };
+    // A branch the page could not start is an error page now, not a page whose controls fail later.
+    if let Some((parent, step)) = &branch
+        && let Err(e) = branch_point(app, &task, parent, *step).await
+    {
+        return e.into_response();
     }
+    page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED, branch })
+}
+
+/// Whether episode `parent` of `task` can be continued from control step `step` (its action log holds that many).
+async fn branch_point(app: &AppState, task: &str, parent: &str, step: u64) -> Result<(), ApiError> {
+    let Some(run) = crate::rows::run_dir_of(app, parent).await else {
+        return Err(ApiError::not_found(format!("no episode {parent} to branch from")));
+    };
+    let source = tokio::task::spawn_blocking(move || libero_episode::demo::record::SourceEpisode::read(&run))
+        .await
+        .map_err(|e| ApiError::internal(format!("branch: {e}")))?
+        .map_err(|e| ApiError::unprocessable(format!("episode {parent} cannot be continued: {e}")))?;
+    if source.task_ref != task {
+        return Err(ApiError::bad_request(format!("episode {parent} is an episode of {}, not {task}: open /teleop/{}?branch={parent}&step={step}", source.task_ref, source.task_ref)));
+    }
+    let available = source.actions.len() as u64;
+    if step > available {
+        return Err(ApiError::bad_request(format!("step {step} is beyond episode {parent}'s action log ({available} control steps were executed)")));
+    }
+    Ok(())
 }
 
 #[derive(Deserialize)]
