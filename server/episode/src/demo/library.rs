@@ -122,7 +122,7 @@ pub fn replay_verdict(dir: &Path, target: &TargetEpisode, paths: &AssetPaths, ru
     }
     let (_, source) = bundle_source(dir)?;
     let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
-    let attack = replay_attack::attack(&actions, Some(&source.spec(paths)?), &target.spec(paths))?;
+    let attack = replay_attack::attack(&actions, &source.spec(paths)?, &target.spec(paths))?;
     store_replay_check(dir, target, &attack)?;
     Ok(attack.rejection(rule).map_or(Ok(()), Err))
 }

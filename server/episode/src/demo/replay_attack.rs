@@ -123,8 +123,8 @@ impl ReplayAttack {
 }
 
 /// Replays `actions` in `target`: directly, after each candidate offset, and the idle start for comparison.
-/// `source` is the world the demonstration was recorded in (for the offsets; None tries no offset).
-pub fn attack(actions: &[[f64; 7]], source: Option<&WorldSpec>, target: &WorldSpec) -> Result<ReplayAttack, DemoError> {
+/// `source` is the world the demonstration was recorded in (where the offsets come from).
+pub fn attack(actions: &[[f64; 7]], source: &WorldSpec, target: &WorldSpec) -> Result<ReplayAttack, DemoError> {
     let mut world = WorldPhysics::build(target, |_, _, _| Ok(()))?;
     let fresh = |w: &WorldPhysics| -> Result<WorldPhysics, DemoError> {
         let mut f = w.fork(target)?;
@@ -133,20 +133,16 @@ pub fn attack(actions: &[[f64; 7]], source: Option<&WorldSpec>, target: &WorldSp
     };
     world.start(|_| {})?;
     let target_start = start_positions(&world);
-    let offsets = match source {
-        Some(spec) => {
-            let mut s = WorldPhysics::build(spec, |_, _, _| Ok(()))?;
-            s.start(|_| {})?;
-            candidate_offsets(&start_positions(&s), &target_start, &interest(&world))
-        }
-        None => Vec::new(),
-    };
+    let mut source_world = WorldPhysics::build(source, |_, _, _| Ok(()))?;
+    source_world.start(|_| {})?;
+    let offsets = candidate_offsets(&start_positions(&source_world), &target_start, &interest(&world));
+    drop(source_world);
     let idle_action = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0];
     let idle = replay(fresh(&world)?, std::iter::repeat_n(&idle_action, actions.len()))?;
+    let gripper = actions.first().map_or(-1.0, |a| a[6]);
     let mut offset_replays = Vec::with_capacity(offsets.len());
     for (instance, offset_m) in offsets {
         let mut w = fresh(&world)?;
-        let gripper = actions.first().map_or(-1.0, |a| a[6]);
         shift_end_effector(&mut w, offset_m, gripper)?;
         offset_replays.push(OffsetReplay { instance, offset_m, outcome: replay(w, actions.iter())? });
     }
@@ -297,7 +293,7 @@ mod tests {
         let source = spec("T28", Some(shifted));
         // Holding still for 30 steps: the offset replay moves the end effector by the scene's displacement first.
         let actions = vec![[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]; 30];
-        let a = super::attack(&actions, Some(&source), &target).unwrap();
+        let a = super::attack(&actions, &source, &target).unwrap();
         assert_eq!(a.required_stage_count, 2);
         assert!(!a.offsets.is_empty(), "the door moved with the scene: {a:?}");
         for o in &a.offsets {

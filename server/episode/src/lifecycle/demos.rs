@@ -133,7 +133,7 @@ impl EpisodeSet {
             );
         }
         let actions: Vec<[f64; 7]> = source.actions.iter().map(|(_, a)| *a).collect();
-        let attack = replay_attack::attack(&actions, Some(&spec), &target.spec(&paths))?;
+        let attack = replay_attack::attack(&actions, &spec, &target.spec(&paths))?;
         Ok((prepared.episode_id, attack))
     }
 
