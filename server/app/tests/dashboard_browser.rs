@@ -339,7 +339,8 @@ fn on_loopback_every_route_needs_the_operator_credential_and_the_login_link_open
     let pages = ["/", "/tasks", "/results", "/demos", &format!("/episodes/{episode}"), &format!("/episodes/{episode}/review"), "/teleop/T14", "/teleop/libero_90/35"];
     let apis = ["/api/episodes", &format!("/api/episodes/{episode}"), &format!("/api/episodes/{episode}/review"), "/api/results", "/api/tasks",
         "/api/demos", &format!("/episodes/{episode}/video.mp4"), &format!("/episodes/{episode}/observations/obs_000000/observation.json"),
-        "/tasks/T14/thumbnail.png", "/tasks/libero_90/35/thumbnail.png", "/ws/episodes", &format!("/ws/episodes/{episode}")];
+        "/tasks/T14/thumbnail.png", "/tasks/libero_90/35/thumbnail.png", "/ws/episodes", &format!("/ws/episodes/{episode}"),
+        &format!("/api/episodes/{episode}/stages"), "/results/report/csv"];
     for path in pages.iter().chain(apis.iter()) {
         for auth in [None, Some(agent.as_str())] {
             let headers: Vec<(&str, &str)> = auth.map(|a| vec![("Authorization", a)]).unwrap_or_default();
@@ -349,7 +350,8 @@ fn on_loopback_every_route_needs_the_operator_credential_and_the_login_link_open
         }
     }
     for (path, body) in [("/api/episodes", r#"{"task":"T14"}"#.to_owned()), (&format!("/api/episodes/{episode}/abort"), r#"{"reason":"x"}"#.to_owned()),
-        ("/api/teleop", r#"{"task":"T14"}"#.to_owned())] {
+        ("/api/teleop", r#"{"task":"T14"}"#.to_owned()),
+        (&format!("/api/episodes/{episode}/stages"), r#"{"stage_name":"x","reached":true,"succeeded":false,"annotator":"a"}"#.to_owned())] {
         let (status, _, _) = http("POST", &format!("{base}{path}"), &[("Authorization", &agent), ("Content-Type", "application/json")], body.as_bytes());
         assert_eq!(status, 401, "POST {path} with the agent token");
     }
