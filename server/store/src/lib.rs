@@ -339,6 +339,32 @@ pub fn sqlite_url(path: &Path) -> String {
     format!("sqlite://{encoded}?mode=rwc")
 }
 
+/// Switches a SQLite store to WAL (kept in the file). Changing the journal mode needs the file to itself, and SQLite
+/// answers "database is locked" at once, without its busy handler, while another opener of a fresh file holds it
+/// (workers started together on one file): so the switch is retried for up to ten seconds before it is an error.
+async fn switch_to_wal(pool: &AnyPool) -> Result<()> {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    let mut wait_ms = 5u64;
+    loop {
+        match sqlx::query("PRAGMA journal_mode=WAL").execute(pool).await {
+            Ok(_) => return Ok(()),
+            Err(e) if is_sqlite_busy(&e) && std::time::Instant::now() < deadline => {
+                tokio::time::sleep(std::time::Duration::from_millis(wait_ms)).await;
+                wait_ms = (wait_ms * 2).min(200);
+            }
+            Err(e) => return Err(e).context("cannot switch the store to WAL"),
+        }
+    }
+}
+
+/// SQLITE_BUSY (5) or SQLITE_LOCKED (6), possibly extended.
+fn is_sqlite_busy(e: &sqlx::Error) -> bool {
+    match e {
+        sqlx::Error::Database(db) => db.code().and_then(|c| c.parse::<i64>().ok()).is_some_and(|c| matches!(c & 0xff, 5 | 6)),
+        _ => false,
+    }
+}
+
 #[derive(Clone)]
 pub struct Store {
     pool: AnyPool,
@@ -366,7 +392,7 @@ impl Store {
         if backend == Backend::Sqlite {
             // WAL (kept in the file): readers (the API) never block the writer; a killed process loses no
             // committed row.
-            sqlx::query("PRAGMA journal_mode=WAL").execute(&pool).await.context("cannot switch the store to WAL")?;
+            switch_to_wal(&pool).await?;
         }
         // On PostgreSQL the schema is created under a session advisory lock: `CREATE TABLE IF NOT EXISTS` is not
         // safe against itself, so workers and dashboards starting at once on a fresh database would fail on the
