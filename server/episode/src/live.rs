@@ -400,13 +400,82 @@ mod live_renderer {
         pub rendered: Option<(Vec<u8>, Vec<u8>)>,
     }
 
-    /// The one-state mailbox between the episode thread and the live renderer: a newer state replaces an
-    /// unrendered one, so the renderer never works through a backlog.
+    /// Motion of at most this much simulated time since the last shown frame is shown as its newest state at once
+    /// (teleop's short calls feel immediate); a longer stretch (an agent's or an expert's 50-action call) is
+    /// played back at the control rate's pace, so a watcher sees the robot move rather than jump.
+    pub const PLAYBACK_SNAP_S: f64 = 0.25;
+    /// The most a played-back frame trails the newest simulated state: past it, playback skips ahead.
+    pub const MAX_PLAYBACK_LAG_S: f64 = 3.0;
+    /// One control period (20 Hz): the first state of a played-back stretch is due this long after it starts.
+    const CONTROL_PERIOD_S: f64 = 0.05;
+
+    /// The states waiting for the live renderer, oldest first, and the playback clock. While nobody watches only
+    /// the newest is kept; while someone does, states older than [`MAX_PLAYBACK_LAG_S`] behind the newest are
+    /// dropped, so the queue stays short (at most about 3 s of control steps).
     struct Slot {
-        newest: Option<LiveState>,
-        /// When the slot last went from empty to holding a state: how long the pending frame has waited.
+        queue: std::collections::VecDeque<LiveState>,
+        playback: Playback,
+        /// When the queue last went from empty to holding a state: how long the pending frame has waited.
         pending_since: Option<Instant>,
         closed: bool,
+    }
+
+    /// Where playback stands: the simulated time last shown, and while a stretch is being played back, the
+    /// wall-clock instant and simulated time it is anchored at (1 s of wall time shows 1 s of motion).
+    #[derive(Debug, Clone, Copy, Default, PartialEq)]
+    struct Playback {
+        shown_sim_s: Option<f64>,
+        anchor: Option<(Instant, f64)>,
+    }
+
+    /// What the renderer does next with the queued states (their simulated times and whether each carries its
+    /// images).
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    enum Next {
+        /// Show the state at this index (the ones before it are skipped).
+        Show(usize),
+        Wait(Duration),
+    }
+
+    impl Playback {
+        /// Decides the next frame. A short stretch (≤ [`PLAYBACK_SNAP_S`]) shows its newest state: at once when it
+        /// carries its images (an observation's), else once the render pace allows and it has waited
+        /// [`LIVE_OBSERVATION_GRACE`] for an observation. A longer one is played back: the newest state due by the
+        /// clock, no sooner than the render pace allows, the clock moved on when it trails by more than
+        /// [`MAX_PLAYBACK_LAG_S`].
+        fn next(&mut self, now: Instant, queued: &[(f64, bool)], not_before: Option<Instant>, pending_since: Option<Instant>) -> Next {
+            let (Some(&(first_s, _)), Some(&(newest_s, newest_rendered))) = (queued.first(), queued.last()) else {
+                return Next::Wait(Duration::from_secs(3600));
+            };
+            let start_s = match self.shown_sim_s {
+                Some(shown) if shown >= first_s - CONTROL_PERIOD_S && shown <= first_s => shown,
+                _ => first_s - CONTROL_PERIOD_S,
+            };
+            let paced = not_before.map_or(Duration::ZERO, |t| t.saturating_duration_since(now));
+            if self.anchor.is_none() && newest_s - start_s <= PLAYBACK_SNAP_S {
+                let wait = wait_before_showing(now, newest_rendered, not_before, pending_since);
+                return if wait.is_zero() { Next::Show(queued.len() - 1) } else { Next::Wait(wait) };
+            }
+            let anchor = self.anchor.get_or_insert((now, start_s));
+            let mut due_s = anchor.1 + now.saturating_duration_since(anchor.0).as_secs_f64();
+            if newest_s - due_s > MAX_PLAYBACK_LAG_S {
+                anchor.1 += newest_s - due_s - MAX_PLAYBACK_LAG_S;
+                due_s = newest_s - MAX_PLAYBACK_LAG_S;
+            }
+            match queued.iter().rposition(|&(t, _)| t <= due_s + 1e-9) {
+                None => Next::Wait(paced.max(Duration::from_secs_f64((first_s - due_s).clamp(0.001, 1.0)))),
+                Some(i) if paced.is_zero() || queued[i].1 => Next::Show(i),
+                Some(_) => Next::Wait(paced),
+            }
+        }
+
+        /// After showing a state of simulated time `shown_s`; `drained` when nothing is left to play.
+        fn shown(&mut self, shown_s: f64, drained: bool) {
+            self.shown_sim_s = Some(shown_s);
+            if drained {
+                self.anchor = None;
+            }
+        }
     }
 
     struct Shared {
@@ -422,12 +491,15 @@ mod live_renderer {
         }
     }
 
-    /// An episode's live renderer thread: renders head | wrist of the newest published state while at least one
-    /// viewer watches, at most every [`LIVE_FRAME_MIN_INTERVAL`], on the renderer's normal lane (the video keeps
-    /// to its background lane), and hands the JPEG to the sink. Dropping it ends the thread; a state still
-    /// waiting then is rendered first if someone watches, so viewers always end on the final state.
+    /// An episode's live renderer thread: while at least one viewer watches, renders head | wrist of the states
+    /// the episode publishes, played back at the control rate's pace ([`Playback`]), at most every
+    /// [`LIVE_FRAME_MIN_INTERVAL`] and leaving the simulation at least half a core, on the renderer's normal lane
+    /// (the video keeps to its background lane), and hands the JPEG to the sink. Dropping it ends the thread;
+    /// the newest state still waiting then is rendered first if someone watches, so viewers always end on the
+    /// final state.
     pub struct LiveRenderer {
         shared: Arc<Shared>,
+        viewers: LiveViewers,
         renders: Arc<AtomicU64>,
         thread: Option<JoinHandle<()>>,
     }
@@ -441,26 +513,38 @@ mod live_renderer {
             viewers: LiveViewers,
         ) -> std::io::Result<Self> {
             let shared = Arc::new(Shared {
-                slot: Mutex::new(Slot { newest: None, pending_since: None, closed: false }),
+                slot: Mutex::new(Slot { queue: Default::default(), playback: Playback::default(), pending_since: None, closed: false }),
                 wake: Condvar::new(),
             });
             let waker = shared.clone();
             viewers.on_change(Arc::new(move || waker.notify()));
             let renders = Arc::new(AtomicU64::new(0));
-            let job = Job { shared: shared.clone(), viewers, renderer, model, cameras, sink, renders: renders.clone(), failed: false };
+            let job = Job { shared: shared.clone(), viewers: viewers.clone(), renderer, model, cameras, sink, renders: renders.clone(), failed: false };
             let thread = std::thread::Builder::new().name("live-render".into()).spawn(move || job.run())?;
-            Ok(Self { shared, renders, thread: Some(thread) })
+            Ok(Self { shared, viewers, renders, thread: Some(thread) })
         }
 
-        /// Offers the newest state, replacing one not yet rendered. Never waits for a render.
+        /// Queues the newest state. The same control step again (its call's observation, with images) replaces
+        /// the queued one; a state earlier in simulated time than the queue's newest (a restart) starts playback
+        /// over; with nobody watching only the newest is kept. Never waits for a render.
         pub fn publish(&self, state: LiveState) {
-            if let Ok(mut slot) = self.shared.slot.lock() {
-                if slot.newest.is_none() {
-                    slot.pending_since = Some(Instant::now());
-                }
-                slot.newest = Some(state);
-                self.shared.wake.notify_all();
+            let Ok(mut slot) = self.shared.slot.lock() else { return };
+            let newest_s = slot.queue.back().map(|s| s.sim_time_s);
+            if slot.queue.back().is_some_and(|s| s.control_step.is_some() && s.control_step == state.control_step) {
+                slot.queue.pop_back();
             }
+            if newest_s.is_some_and(|t| state.sim_time_s < t) || self.viewers.count() == 0 {
+                slot.queue.clear();
+                slot.playback = Playback::default();
+            }
+            while slot.queue.front().is_some_and(|s| s.sim_time_s < state.sim_time_s - MAX_PLAYBACK_LAG_S - CONTROL_PERIOD_S) {
+                slot.queue.pop_front();
+            }
+            if slot.queue.is_empty() {
+                slot.pending_since = Some(Instant::now());
+            }
+            slot.queue.push_back(state);
+            self.shared.wake.notify_all();
         }
 
         /// Frames rendered so far (a test hook: zero while nobody watches).
@@ -482,7 +566,7 @@ mod live_renderer {
             }
             // The hub's viewer count outlives the world and holds the wake-up: leave no pose snapshot there.
             if let Ok(mut slot) = self.shared.slot.lock() {
-                slot.newest = None;
+                slot.queue.clear();
             }
         }
     }
@@ -508,7 +592,7 @@ mod live_renderer {
         (started + LIVE_FRAME_MIN_INTERVAL).max(ended + cost)
     }
 
-    /// How long the pending state must still wait before it is shown (see [`Job::next`]).
+    /// How long the newest state of a short stretch must still wait before it is shown (see [`Playback::next`]).
     fn wait_before_showing(now: Instant, prerendered: bool, not_before: Option<Instant>, pending_since: Option<Instant>) -> Duration {
         if prerendered {
             return Duration::ZERO;
@@ -535,29 +619,33 @@ mod live_renderer {
             }
         }
 
-        /// Waits for a state worth showing while someone watches. One that carries its images (an
-        /// observation's: only a JPEG to make) is taken at once, so the frame after a call never waits out the
-        /// pause a render earns; one without is rendered no sooner than `not_before` and once it has waited
-        /// [`LIVE_OBSERVATION_GRACE`] for an observation. `None` once the world is gone and nothing is left to
-        /// show.
+        /// Waits for the next state to show while someone watches ([`Playback::next`]); `None` once the world is
+        /// gone and nothing is left to show (then the newest waiting state is the last one shown).
         fn next(&self, not_before: Option<Instant>) -> Option<LiveState> {
             let mut slot = self.shared.slot.lock().ok()?;
             loop {
-                let wanted = slot.newest.is_some() && self.viewers.count() > 0;
+                let wanted = !slot.queue.is_empty() && self.viewers.count() > 0;
                 if slot.closed {
-                    return if wanted { slot.newest.take() } else { None };
+                    let last = if wanted { slot.queue.pop_back() } else { None };
+                    slot.queue.clear();
+                    return last;
                 }
                 if !wanted {
                     slot = self.shared.wake.wait(slot).ok()?;
                     continue;
                 }
-                let prerendered = slot.newest.as_ref().is_some_and(|s| s.rendered.is_some());
-                let wait = wait_before_showing(Instant::now(), prerendered, not_before, slot.pending_since);
-                if wait.is_zero() {
-                    slot.pending_since = None;
-                    return slot.newest.take();
+                let queued: Vec<(f64, bool)> = slot.queue.iter().map(|s| (s.sim_time_s, s.rendered.is_some())).collect();
+                let pending_since = slot.pending_since;
+                match slot.playback.next(Instant::now(), &queued, not_before, pending_since) {
+                    Next::Show(i) => {
+                        let state = slot.queue.drain(..=i).last()?;
+                        let drained = slot.queue.is_empty();
+                        slot.playback.shown(state.sim_time_s, drained);
+                        slot.pending_since = if drained { None } else { Some(Instant::now()) };
+                        return Some(state);
+                    }
+                    Next::Wait(wait) => slot = self.shared.wake.wait_timeout(slot, wait).ok()?.0,
                 }
-                slot = self.shared.wake.wait_timeout(slot, wait).ok()?.0;
             }
         }
 
@@ -610,6 +698,53 @@ mod live_renderer {
             assert_eq!(wait_before_showing(t0 + LIVE_OBSERVATION_GRACE, false, Some(paced), Some(t0)), ms(30));
             // A state left from before anyone watched waited long ago: shown at once to a new viewer.
             assert_eq!(wait_before_showing(t0 + ms(5000), false, None, Some(t0)), Duration::ZERO);
+        }
+
+        /// `n` control steps' simulated times from `from_s` on, the last one carrying its images if `observed`.
+        fn stretch(from_s: f64, n: usize, observed: bool) -> Vec<(f64, bool)> {
+            (1..=n).map(|k| (from_s + k as f64 * CONTROL_PERIOD_S, observed && k == n)).collect()
+        }
+
+        #[test]
+        fn a_long_call_is_played_back_at_the_control_rate_not_jumped_to_its_end() {
+            let t0 = Instant::now();
+            let queued = stretch(0.0, 50, true);
+            let mut playback = Playback::default();
+            // The first state is due one control period after playback starts.
+            assert_eq!(playback.next(t0, &queued, None, Some(t0)), Next::Wait(Duration::from_millis(50)));
+            // One second of wall time later, the state one second into the call (not the call's last).
+            let Next::Show(i) = playback.next(t0 + Duration::from_secs(1), &queued, None, Some(t0)) else { panic!("a frame is due") };
+            assert!((queued[i].0 - 1.0).abs() < 1e-9, "showed {}", queued[i].0);
+            playback.shown(queued[i].0, false);
+            let rest = &queued[i + 1..];
+            // The render pace holds a state that has no images...
+            let paced = t0 + Duration::from_millis(1100);
+            assert_eq!(playback.next(t0 + Duration::from_millis(1060), rest, Some(paced), None), Next::Wait(Duration::from_millis(40)));
+            // ... and the call's observation is shown when its time comes: at 2.5 s.
+            assert_eq!(playback.next(t0 + Duration::from_millis(2400), rest, None, None), Next::Show(rest.len() - 3));
+            assert_eq!(playback.next(t0 + Duration::from_millis(2500), rest, Some(paced + Duration::from_secs(9)), None), Next::Show(rest.len() - 1));
+            playback.shown(2.5, true);
+            assert_eq!(playback.anchor, None, "caught up: the next stretch starts its own clock");
+        }
+
+        #[test]
+        fn playback_never_trails_the_simulation_by_more_than_the_lag_bound() {
+            let t0 = Instant::now();
+            let queued = stretch(0.0, 200, false);
+            let mut playback = Playback::default();
+            let Next::Show(i) = playback.next(t0, &queued, None, None) else { panic!("10 s queued: a frame is due at once") };
+            assert!((queued[i].0 - (10.0 - MAX_PLAYBACK_LAG_S)).abs() < 1e-9, "showed {}", queued[i].0);
+        }
+
+        #[test]
+        fn a_short_teleop_call_shows_its_observation_at_once() {
+            let t0 = Instant::now();
+            let mut playback = Playback { shown_sim_s: Some(1.0), anchor: None };
+            let queued = stretch(1.0, 2, true);
+            assert_eq!(playback.next(t0, &queued, Some(t0 + Duration::from_millis(80)), Some(t0)), Next::Show(1));
+            // Without its observation yet, it waits for it (the grace), as before.
+            let queued = stretch(1.0, 2, false);
+            assert_eq!(playback.next(t0, &queued, None, Some(t0)), Next::Wait(LIVE_OBSERVATION_GRACE));
         }
 
         #[test]

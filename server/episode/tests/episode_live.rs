@@ -266,3 +266,26 @@ fn the_frame_after_a_call_reuses_the_observation_it_rendered() {
     assert!(frames > renders, "{frames} frames from {renders} renders: the observations' images were not reused");
     ep.handle.stop("test over");
 }
+
+/// A 50-action call (2.5 s of motion) is shown to a watcher as motion played back at the control rate, not as one
+/// jump to its end: frames of several control steps inside the call, in order, spread over about the call's
+/// simulated duration, ending on its last step.
+#[test]
+fn a_long_call_is_watched_as_motion_at_the_control_rate() {
+    let ep = watched_episode(Duration::ZERO);
+    let _viewer = ep.viewers.watch();
+    let t0 = Instant::now();
+    ep.act(50);
+    let answered = t0.elapsed();
+    ep.wait_for_frame(50, Duration::from_secs(30)).expect("the call's last state is shown");
+    let took = t0.elapsed();
+    let frames: Vec<u64> = ep.frame_steps().into_iter().flatten().filter(|&c| c > 0).collect();
+    eprintln!("call answered after {answered:?}; frames {frames:?}, the last after {took:?}");
+    assert!(frames.windows(2).all(|w| w[0] < w[1]), "in order: {frames:?}");
+    let inside = frames.iter().filter(|&&c| c < 50).count();
+    assert!(inside >= 3, "motion inside the call is shown, not only its end: {frames:?}");
+    // Played back, not jumped: the last frame cannot come before most of the call's 2.5 s of motion has been shown
+    // (however fast the simulation ran the call).
+    assert!(took >= Duration::from_millis(2000), "the call's motion was shown in {took:?}");
+    ep.handle.stop("test over");
+}
