@@ -340,7 +340,8 @@ fn on_loopback_every_route_needs_the_operator_credential_and_the_login_link_open
     let apis = ["/api/episodes", &format!("/api/episodes/{episode}"), &format!("/api/episodes/{episode}/review"), "/api/results", "/api/tasks",
         "/api/demos", &format!("/episodes/{episode}/video.mp4"), &format!("/episodes/{episode}/observations/obs_000000/observation.json"),
         "/tasks/T14/thumbnail.png", "/tasks/libero_90/35/thumbnail.png", "/ws/episodes", &format!("/ws/episodes/{episode}"),
-        &format!("/api/episodes/{episode}/stages"), "/results/report/csv"];
+        &format!("/api/episodes/{episode}/stages"), "/results/report/csv",
+        "/results/logs/b/w1_t14_level3", "/results/logs/b/w1_t14_level3/stdout"];
     for path in pages.iter().chain(apis.iter()) {
         for auth in [None, Some(agent.as_str())] {
             let headers: Vec<(&str, &str)> = auth.map(|a| vec![("Authorization", a)]).unwrap_or_default();

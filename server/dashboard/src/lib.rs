@@ -4,9 +4,11 @@
 //!
 //! One module per page, named like its template in `web/templates/` and its script in `web/static/`: [`home`],
 //! [`live`] (with `live_elsewhere`), [`review`], [`tasks`], [`task_page`] (`task.html`), [`results`], [`teleop`]
-//! (with `demos`), [`login`] and [`error_page`] (`error.html`). [`routes`] assembles the episode, Tasks and
+//! (with `demos`), [`batch_logs`] (`rollout_logs.html`, a rollout's logs), [`login`] and [`error_page`] (`error.html`).
+//! [`routes`] assembles the episode, Tasks and
 //! Results pages' routes; [`common`] and [`rows`] hold what several pages share.
 pub mod annotate;
+pub mod batch_logs;
 pub mod common;
 pub mod error_page;
 pub mod expert_sweep;
@@ -32,6 +34,7 @@ pub fn console() -> Console {
     Console {
         operator_compressed: || {
             routes::compressed_routes().merge(teleop::compressed_routes()).merge(task_page::compressed_routes()).merge(annotate::compressed_routes())
+                .merge(batch_logs::routes())
         },
         operator_raw: || routes::raw_routes().merge(teleop::raw_routes()),
         public: || routes::static_routes().merge(error_page::public_routes()),

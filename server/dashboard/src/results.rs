@@ -27,6 +27,7 @@ use libero_runner::report::{
     wilson,
 };
 
+use crate::batch_logs;
 use crate::common::page;
 
 /// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
@@ -177,12 +178,13 @@ pub fn load_selected(roots: &[PathBuf], stored: &[String], sel: &Selection) -> R
     Ok((names, selected))
 }
 
-fn episode_json(r: &RolloutRecord) -> Value {
+fn episode_json(b: &LoadedBatch, r: &RolloutRecord) -> Value {
     json!({
         "rollout_id": r.rollout_id, "task": r.task, "task_number": r.task_number, "split": r.split, "suite": r.suite,
         "repetition": r.repetition, "level": r.level, "demo": r.demo, "outcome": r.outcome,
         "completed_stages": r.completed_stages, "stage_count": r.stage_count, "episode_id": r.episode_id,
         "review": r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")),
+        "logs": Some(batch_logs::logs_href(b, r)).filter(|h| !h.is_empty()),
         "wall_time_s": r.wall_time_s, "judgment_correct": r.judgment_correct,
         "reason": (!r.outcome.is_valid()).then(|| r.reason()).flatten(), "worker": r.worker,
         "tokens": RolloutTokens::of(r),
@@ -216,7 +218,7 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
                 "progress": {"rollout_count": d.rollout_count, "counts": d.counts,
                     "running": d.running, "outcomes": d.outcomes, "updated_at": d.updated_at},
                 "report": report_json(std::slice::from_ref(b), reps),
-                "episodes": b.records.iter().map(episode_json).collect::<Vec<_>>(),
+                "episodes": b.records.iter().map(|r| episode_json(b, r)).collect::<Vec<_>>(),
             })
         })
         .collect();
@@ -314,6 +316,24 @@ pub struct EpisodeLink {
     pub title: String,
     /// Why an INVALID or INTERRUPTED rollout does not count, shortened (the title has all of it); empty otherwise.
     pub reason: String,
+    /// The rollout's logs (stdout, stderr, manifest, transcript) for operators; empty when it has no plain name.
+    pub logs: String,
+}
+
+/// One rollout of a shown batch, with its review and its logs.
+pub struct RolloutRow {
+    pub batch: String,
+    pub rollout: String,
+    pub task: String,
+    pub repetition: u32,
+    pub condition: String,
+    pub outcome: String,
+    /// `c/K`.
+    pub stages: String,
+    pub review: String,
+    pub logs: String,
+    /// Why an INVALID or INTERRUPTED rollout does not count, shortened; empty otherwise.
+    pub reason: String,
 }
 
 /// A rollout that does not count (INVALID, INTERRUPTED), with why.
@@ -325,6 +345,7 @@ pub struct ExcludedRow {
     pub worker: String,
     pub reason: String,
     pub href: String,
+    pub logs: String,
 }
 
 pub struct TaskCell {
@@ -381,6 +402,8 @@ pub struct View {
     pub figures: Vec<String>,
     /// Every rollout that does not count, with its reason.
     pub excluded: Vec<ExcludedRow>,
+    /// Every recorded rollout of the shown batches, in the order they ended, each with its review and logs.
+    pub rollouts: Vec<RolloutRow>,
     /// Each shown batch's agent toolbox.
     pub toolboxes: Vec<ToolboxRow>,
     /// [`tokens::LEGEND`].
@@ -409,6 +432,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
         paper: vec![],
         figures: vec![],
         excluded: vec![],
+        rollouts: vec![],
         toolboxes: vec![],
         token_legend: tokens::LEGEND,
         any_running: false,
@@ -495,6 +519,22 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                 worker: r.worker.clone().unwrap_or_default(),
                 reason: r.reason().unwrap_or_else(|| "no reason recorded".into()),
                 href: r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")).unwrap_or_default(),
+                logs: batch_logs::logs_href(b, r),
+            });
+        }
+        for r in &b.records {
+            let link = episode_link(b, r);
+            v.rollouts.push(RolloutRow {
+                batch: b.name(),
+                rollout: r.rollout_id.clone(),
+                task: r.task.clone(),
+                repetition: r.repetition,
+                condition: format!("L{}, demo {}", r.level, r.demo.as_str()),
+                outcome: link.outcome,
+                stages: link.label,
+                review: link.href,
+                logs: link.logs,
+                reason: link.reason,
             });
         }
         pool_view(&mut v, b, reps);
@@ -534,7 +574,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                             }
                         })
                         .unwrap_or_default(),
-                    links: recs.iter().map(|x| episode_link(x)).collect(),
+                    links: recs.iter().map(|x| episode_link(b, x)).collect(),
                 }
             })
             .collect();
@@ -581,8 +621,8 @@ fn toolbox_row(b: &LoadedBatch) -> ToolboxRow {
     ToolboxRow { batch: b.name(), name, packages, python: text(|t| t.python.as_ref()), source: text(|t| t.source.as_ref()), limits }
 }
 
-/// A rollout as `c/K`, linked to its review.
-fn episode_link(x: &RolloutRecord) -> EpisodeLink {
+/// A rollout of batch `b` as `c/K`, linked to its review and its logs.
+fn episode_link(b: &LoadedBatch, x: &RolloutRecord) -> EpisodeLink {
     let c = x.completed_stages.map(|c| c.to_string()).unwrap_or_else(|| "?".into());
     let reason = if x.outcome.is_valid() { None } else { x.reason() };
     EpisodeLink {
@@ -594,6 +634,7 @@ fn episode_link(x: &RolloutRecord) -> EpisodeLink {
             None => format!("repetition {}: {} ({}), tokens {}", x.repetition, x.outcome.as_str(), x.rollout_id, RolloutTokens::of(x).short()),
         },
         reason: reason.map(|why| shorten(&why, 80)).unwrap_or_default(),
+        logs: batch_logs::logs_href(b, x),
     }
 }
 
@@ -642,7 +683,7 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
                     (Some(false), _) => "not stable".into(),
                     (None, _) => "incomplete".into(),
                 },
-                links: recs.iter().map(|x| episode_link(x)).collect(),
+                links: recs.iter().map(|x| episode_link(b, x)).collect(),
             });
         }
     }
