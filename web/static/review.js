@@ -1,12 +1,16 @@
 // Review page: the private continuous video synchronised with the calls, private stage events, telemetry plots,
 // the observation the agent received at each call and what the agent read, thought and ran before it (its
 // transcript, /api/episodes/{id}/agent). ←/→ step one control step, space plays or pauses, ?t=seconds opens a moment.
-import { el, fmtS, callSummary, stageText, stageLabel, agentEventItem, agentEventText } from './common.js';
+// Without the video (an episode run without one, or one not rendered yet) each moment is rendered on demand from
+// the recorded state (/api/episodes/{id}/moment?step=N) by a player with the video element's interface.
+import { el, fmtS, callSummary, stageText, stageLabel, agentEventItem, agentEventText, showBlob } from './common.js';
 
 const root = document.querySelector('.review');
 const id = root.dataset.episode;
 const $ = (x) => document.getElementById(x);
 const video = $('video');
+/** What shows the episode: the video element, or a MomentPlayer while there is no video. */
+let player = video;
 let data = null;
 let fps = 20;
 let byFrame = new Map(); // video frame -> telemetry row
@@ -40,9 +44,98 @@ function callAt(t) {
 }
 
 function seek(t) {
-  const max = duration || video.duration || 0;
-  video.currentTime = Math.min(Math.max(0, t), Math.max(0, max - 1e-3));
+  const max = duration || player.duration || 0;
+  player.currentTime = Math.min(Math.max(0, t), Math.max(0, max - 1e-3));
   update();
+}
+
+/**
+ * Plays the episode from moments rendered on demand: the same interface as the video element where the page uses
+ * it (currentTime, duration, paused, play, pause, readyState and its events). One moment is fetched at a time; while
+ * playing, the newest moment due is fetched next, so playback keeps the episode's pace and skips what the renderer
+ * has no time for.
+ */
+class MomentPlayer extends EventTarget {
+  constructor(img, note) {
+    super();
+    this.img = img; this.note = note;
+    this.t = 0; this.paused = true; this.readyState = 4;
+    this.wanted = null; this.loading = null; this.lastTick = 0;
+    this.shownStep = null; this.failures = 0;
+  }
+
+  get duration() { return duration; }
+  get currentTime() { return this.t; }
+  set currentTime(t) { this.t = t; this.request(); this.dispatchEvent(new Event('seeked')); }
+
+  play() {
+    if (!this.paused) return;
+    if (this.t >= duration - 1 / fps) this.t = 0;
+    this.paused = false; this.lastTick = performance.now();
+    this.dispatchEvent(new Event('play'));
+    requestAnimationFrame(() => this.tick());
+  }
+
+  pause() {
+    if (this.paused) return;
+    this.paused = true;
+    this.dispatchEvent(new Event('pause'));
+  }
+
+  tick() {
+    if (this.paused) return;
+    const now = performance.now();
+    this.t = Math.min(duration, this.t + (now - this.lastTick) / 1000);
+    this.lastTick = now;
+    this.request();
+    this.dispatchEvent(new Event('timeupdate'));
+    if (this.t >= duration - 1e-3) this.pause(); else requestAnimationFrame(() => this.tick());
+  }
+
+  /** Fetches the moment of the current time, after the one being fetched if any. */
+  request() {
+    const step = stepAt(this.t) ?? 0;
+    this.wanted = step;
+    if (this.loading === null && step !== this.shownStep) this.load(step);
+  }
+
+  async load(step) {
+    this.loading = step;
+    this.img.setAttribute('aria-busy', 'true');
+    try {
+      const r = await fetch(`/api/episodes/${encodeURIComponent(id)}/moment?step=${step}`);
+      if (!r.ok) {
+        const body = await r.json().catch(() => ({}));
+        throw new Error(body.error ?? `HTTP ${r.status}`);
+      }
+      showBlob(this.img, await r.blob());
+      this.shownStep = step; this.failures = 0;
+      this.img.dataset.step = String(step);
+      this.img.alt = `head | wrist at control step ${step}`;
+      this.note.classList.remove('error');
+      this.note.textContent = this.baseNote;
+    } catch (err) {
+      this.failures += 1;
+      this.note.classList.add('error');
+      this.note.textContent = `control step ${step} could not be shown: ${err.message}`;
+    } finally {
+      this.loading = null;
+      this.img.removeAttribute('aria-busy');
+      if (this.wanted !== null && this.wanted !== this.shownStep && this.failures < 3) this.load(this.wanted);
+    }
+  }
+}
+
+/** Shows `p` (the video or a MomentPlayer) and follows its events. */
+const bound = new WeakSet();
+function bindPlayer(p) {
+  player = p;
+  if (bound.has(p)) return;
+  bound.add(p);
+  p.addEventListener('play', () => { $('play').textContent = 'pause'; });
+  p.addEventListener('pause', () => { $('play').textContent = 'play'; update(); });
+  p.addEventListener('seeked', update);
+  p.addEventListener('timeupdate', update);
 }
 
 // ---- drawing
@@ -74,7 +167,7 @@ function drawTimeline() {
     g.fillStyle = e.kind === 'stage_completed' || e.kind === 'goal_satisfied' ? '#16a34a' : '#d97706';
     g.beginPath(); g.moveTo(x, 40); g.lineTo(x - 6, 56); g.lineTo(x + 6, 56); g.fill();
   }
-  const x = xOf(video.currentTime, c.width);
+  const x = xOf(player.currentTime, c.width);
   g.fillStyle = '#111'; g.fillRect(x - 1, 0, 2, c.height);
 }
 
@@ -131,7 +224,7 @@ function drawPlot(canvasId, title, series, labels, colors) {
   });
   g.fillStyle = '#6b7280'; g.font = '11px sans-serif';
   g.fillText(`${hi.toPrecision(3)}`, c.width - 60, top + 10); g.fillText(`${lo.toPrecision(3)}`, c.width - 60, top + h - 3);
-  const x = xOf(video.currentTime, c.width);
+  const x = xOf(player.currentTime, c.width);
   g.fillStyle = '#111'; g.fillRect(x - 1, top, 2, h);
 }
 
@@ -183,7 +276,7 @@ async function showObservation(obsId) {
 
 function update() {
   if (!data) return;
-  const t = video.currentTime;
+  const t = player.currentTime;
   $('time').textContent = fmtS(t);
   const step = stepAt(t);
   $('cstep').textContent = step ?? 'settle';
@@ -252,9 +345,9 @@ async function loadAgent() {
     if (call) {
       li.title = `${e.t} · before call #${call.event_index} ${call.tool}`;
       li.addEventListener('click', () => {
-        video.pause();
+        player.pause();
         seek(call.t ?? 0);
-        agent.pinned = { call, at: video.currentTime };
+        agent.pinned = { call, at: player.currentTime };
         update();
       });
     } else li.title = `${e.t} · after the last call`;
@@ -271,7 +364,7 @@ function buildEvents() {
   ].sort((a, b) => (a.t ?? -1) - (b.t ?? -1));
   $('events').replaceChildren(...items.map((it) => {
     const li = el('li', { class: it.cls, 'data-t': it.t ?? '' }, `${it.t != null ? fmtS(it.t) : '–'} s · ${it.text}`);
-    if (it.t != null) li.addEventListener('click', () => { video.pause(); seek(it.t); });
+    if (it.t != null) li.addEventListener('click', () => { player.pause(); seek(it.t); });
     return li;
   }));
 }
@@ -323,7 +416,7 @@ function buildStages() {
       el('td', {}, s.completed_control_step != null ? `step ${s.completed_control_step}` : '–'),
       el('td', {}, regressed),
       el('td', {}, scr));
-    if (t != null) tr.addEventListener('click', () => { video.pause(); seek(t); });
+    if (t != null) tr.addEventListener('click', () => { player.pause(); seek(t); });
     return tr;
   });
   table.replaceChildren(node('thead', {}, head), node('tbody', {}, ...rows));
@@ -332,8 +425,8 @@ function buildStages() {
 // ---- input
 
 function stepBy(k) {
-  video.pause();
-  seek((frameAt(video.currentTime) + k + 0.5) / fps);
+  player.pause();
+  seek((frameAt(player.currentTime) + k + 0.5) / fps);
 }
 
 function scrub(ev) {
@@ -342,49 +435,61 @@ function scrub(ev) {
 }
 
 $('timeline').addEventListener('pointerdown', (ev) => {
-  video.pause(); scrub(ev);
+  player.pause(); scrub(ev);
   const move = (e) => scrub(e);
   window.addEventListener('pointermove', move);
   window.addEventListener('pointerup', () => window.removeEventListener('pointermove', move), { once: true });
 });
-$('play').addEventListener('click', () => (video.paused ? video.play() : video.pause()));
+$('play').addEventListener('click', () => (player.paused ? player.play() : player.pause()));
 $('prev').addEventListener('click', () => stepBy(-1));
 $('next').addEventListener('click', () => stepBy(1));
 document.addEventListener('keydown', (e) => {
   if (e.target instanceof HTMLInputElement) return;
   if (e.key === 'ArrowLeft') { e.preventDefault(); stepBy(-1); }
   if (e.key === 'ArrowRight') { e.preventDefault(); stepBy(1); }
-  if (e.key === ' ') { e.preventDefault(); if (video.paused) video.play(); else video.pause(); }
+  if (e.key === ' ') { e.preventDefault(); if (player.paused) player.play(); else player.pause(); }
 });
-video.addEventListener('play', () => { $('play').textContent = 'pause'; });
-video.addEventListener('pause', () => { $('play').textContent = 'play'; update(); });
-video.addEventListener('seeked', update);
-video.addEventListener('timeupdate', update);
-function animate() { if (!video.paused) update(); requestAnimationFrame(animate); }
+bindPlayer(video);
+function animate() { if (!player.paused && player === video) update(); requestAnimationFrame(animate); }
 requestAnimationFrame(animate);
 
 // ---- load
 
-// The private video is rendered from the episode's state record after it ends: say how far it is, then show it.
+// The private video is rendered from the episode's state record after it ends. Until it is there (or for an episode
+// without one), moments are rendered from the recorded state; a video that becomes ready replaces them at the same
+// moment.
 function videoStatusText(st) {
-  if (!st) return 'This episode records no video.';
-  if (st.state === 'failed') return `The video could not be rendered: ${st.error}`;
-  if (st.state === 'queued') return 'video rendering, 0 % (queued)';
-  return `video rendering, ${st.percent ?? 0} %`;
+  if (!st) return 'This episode records no video: each moment is rendered from the recorded state.';
+  if (st.state === 'failed') return `The video could not be rendered (${st.error}): each moment is rendered from the recorded state.`;
+  const percent = st.state === 'queued' ? '0 % (queued)' : `${st.percent ?? 0} %`;
+  return `video rendering, ${percent}: meanwhile each moment is rendered from the recorded state.`;
 }
 
-function awaitVideo(api, status) {
-  const note = el('p', { id: 'video-status', class: status && status.state === 'failed' ? 'error' : '' }, videoStatusText(status));
-  video.replaceWith(note);
+function useMoments(api, status) {
+  const note = el('p', { id: 'video-status', class: 'muted' }, videoStatusText(status));
+  const img = el('img', { id: 'moment', width: 512, height: 256, alt: 'head | wrist' });
+  const box = el('div', { class: 'moment' });
+  box.append(img, note);
+  video.replaceWith(box);
+  const moments = new MomentPlayer(img, note);
+  moments.baseNote = note.textContent;
+  bindPlayer(moments);
+  document.body.dataset.player = 'moments';
   if (!status || status.state === 'failed') return;
   const poll = async () => {
-    const v = await (await fetch(`${api}?part=video`)).json();
+    const v = await (await fetch(`${api}?part=video`)).json().catch(() => ({}));
     if (v.video) {
-      note.replaceWith(video);
+      const at = moments.currentTime;
+      moments.pause();
+      box.replaceWith(video);
+      bindPlayer(video);
+      document.body.dataset.player = 'video';
+      video.addEventListener('loadedmetadata', () => seek(at), { once: true });
       video.load();
       return;
     }
-    note.textContent = videoStatusText(v.video_status);
+    moments.baseNote = videoStatusText(v.video_status);
+    if (!note.classList.contains('error')) note.textContent = moments.baseNote;
     if (v.video_status && v.video_status.state !== 'failed') setTimeout(poll, 1000);
   };
   setTimeout(poll, 1000);
@@ -404,6 +509,8 @@ async function load() {
     }
   }
   fps = data.video_fps || 20;
+  // Without a video the telemetry names no video frames: one frame per control step, as the video would have.
+  if (!data.telemetry.some((r) => r.video_frame != null)) for (const r of data.telemetry) r.video_frame = r.control_step;
   byFrame = new Map(data.telemetry.filter((r) => r.video_frame != null).map((r) => [r.video_frame, r]));
   for (const c of data.calls) {
     c.t = timeOfStep(c.control_step_end);
@@ -413,14 +520,13 @@ async function load() {
   const last = data.telemetry.reduce((m, r) => Math.max(m, r.video_frame ?? 0), 0);
   duration = (last + 1) / fps;
   $('result').textContent = JSON.stringify(data.result, null, 2);
-  if (!data.video) awaitVideo(api, data.video_status);
+  if (!data.video) useMoments(api, data.video_status);
   buildEvents();
   buildStages();
   await loadAgent().catch((err) => { $('agent-log').replaceChildren(el('li', { class: 'error' }, `cannot load the agent's transcript: ${err}`)); });
   const t = Number(new URL(location.href).searchParams.get('t'));
   const start = () => { if (Number.isFinite(t) && t > 0) seek(t); else update(); };
-  if (video.readyState >= 1) start(); else video.addEventListener('loadedmetadata', start, { once: true });
-  if (!data.video) update();
+  if (player.readyState >= 1) start(); else player.addEventListener('loadedmetadata', start, { once: true });
   document.body.dataset.ready = 'true';
 }
 

@@ -11,10 +11,9 @@ mod common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::{Duration, Instant, SystemTime};
 
-use common::{Server, bin, http_get_json, http_get_text};
+use common::{Server, http_get_json, http_get_text};
 use serde_json::Value;
 
 /// The pool entry whose page is checked besides T14's (a stock LIBERO scene, K = 1).
@@ -50,14 +49,7 @@ fn ahead_done(server: &Server, limit: Duration) -> Value {
 
 /// One T14 episode played by the scripted expert on `server`; its episode id.
 fn play_t14(server: &Server) -> String {
-    let out = Command::new(bin())
-        .args(["expert", "--task", "T14", "--no-video", "--server", &server.url])
-        .output()
-        .expect("run libero-agent expert");
-    assert!(out.status.success(), "expert: {}", String::from_utf8_lossy(&out.stderr));
-    let text = String::from_utf8_lossy(&out.stdout);
-    let line = text.lines().filter(|l| l.trim_start().starts_with('{')).last().expect("a result line");
-    let v: Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{line}: {e}"));
+    let v = common::expert_on_server(&server.url, "T14");
     v["episode_id"].as_str().map(str::to_owned).unwrap_or_else(|| panic!("no episode_id in {v}"))
 }
 

@@ -10,6 +10,7 @@ use axum::body::Body;
 use axum::extract::{Path, Query, Request, State};
 use axum::response::{IntoResponse, Response};
 use libero_episode::RunDir;
+use libero_episode::lifecycle::MomentError;
 use libero_episode::records::{ActionEvent, PrivateEvent, read_result};
 use libero_episode::video_queue::VideoProgress;
 use libero_server::{ApiError, ApiResult, AppState};
@@ -333,6 +334,46 @@ pub(crate) async fn video(State(app): State<AppState>, Path(id): Path<String>, r
             ApiError::not_found(message).into_response()
         }
         None => ApiError::not_found(format!("no episode {id}")).into_response(),
+    }
+}
+
+/// `?step=N`: the control step of a moment.
+#[derive(serde::Deserialize)]
+pub(crate) struct MomentQuery {
+    step: Option<String>,
+}
+
+/// `GET /api/episodes/{id}/moment?step=N`: head | wrist of the state after control step N as a JPEG, rendered from
+/// the episode's recorded actions (the review of an episode without its video). Operator-only, as the review.
+/// The answer names its control step and the episode's count in `X-Control-Step` / `X-Control-Steps`.
+pub(crate) async fn moment(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<MomentQuery>) -> Response {
+    let Some(step) = q.step.as_deref().and_then(|s| s.trim().parse::<u64>().ok()) else {
+        let got = q.step.as_deref().map_or("nothing".to_owned(), |s| format!("{:?}", s.chars().take(40).collect::<String>()));
+        return ApiError::bad_request(format!("step must be a control step number: 0, 1, 2, … (got {got})")).into_response();
+    };
+    let Some(run) = run_dir_of(&app, &id).await else {
+        return ApiError::not_found(format!("no episode {id}")).into_response();
+    };
+    if !run.episode_record().is_file() {
+        return ApiError::not_found(format!("the run directory of {id} is not on this machine (it ran on another worker)")).into_response();
+    }
+    let episodes = app.episodes.clone();
+    let rendered = tokio::task::spawn_blocking(move || episodes.lifecycle().moment(&run, step)).await;
+    match rendered {
+        Ok(Ok(m)) => (
+            [
+                (axum::http::header::CONTENT_TYPE, "image/jpeg".to_owned()),
+                (axum::http::header::CACHE_CONTROL, "private, max-age=600".to_owned()),
+                (axum::http::HeaderName::from_static("x-control-step"), m.control_step.to_string()),
+                (axum::http::HeaderName::from_static("x-control-steps"), m.control_steps.to_string()),
+            ],
+            Body::from(m.jpeg.to_vec()),
+        )
+            .into_response(),
+        Ok(Err(e @ MomentError::OutOfRange { .. })) => ApiError::bad_request(e.to_string()).into_response(),
+        Ok(Err(e @ MomentError::NotReplayable(_))) => ApiError::unprocessable(e.to_string()).into_response(),
+        Ok(Err(e)) => ApiError::internal(e.to_string()).into_response(),
+        Err(e) => ApiError::internal(format!("moment: {e}")).into_response(),
     }
 }
 

@@ -30,6 +30,7 @@ pub fn raw_routes() -> Router<AppState> {
         .route("/ws/episodes/{id}", get(live::episode_socket))
         .route("/episodes/{id}/video.mp4", get(review::video))
         .route("/episodes/{id}/observations/{*path}", get(review::observation_file))
+        .route("/api/episodes/{id}/moment", get(review::moment))
         .route("/tasks/{id}/thumbnail.png", get(tasks::thumbnail))
         .route("/tasks/{suite}/{task_id}/thumbnail.png", get(tasks::pool_thumbnail))
 }

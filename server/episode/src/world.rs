@@ -299,6 +299,18 @@ impl LiberoWorld {
         Ok(())
     }
 
+    /// Hands every later control step's poses (settle steps included) to `sink`: the `qpos` the step's poses came
+    /// from and the mocap poses, what [`libero_sim::PoseReplay`] turns back into exactly those poses (the review's
+    /// moments of an episode without a video are drawn from them).
+    pub fn observe_poses(&mut self, mut sink: Box<dyn FnMut(&[f64], Vec<f64>) + Send>) {
+        let nmocap = self.physics.model().ffi().nmocap;
+        let observe = move |model: &MjModel, data: &libero_sim::SimData, pose_qpos: &[f64]| {
+            let mocap = if nmocap == 0 { Vec::new() } else { libero_sim::pose_replay::mocap_of(model, data) };
+            sink(pose_qpos, mocap);
+        };
+        self.physics.sim.set_step_observer(Some(Box::new(observe)));
+    }
+
     /// The simulation model, the renderer and its upload of the model: what a video of this world is drawn with.
     pub fn video_models(&self) -> crate::video_queue::VideoModels {
         (self.physics.model().clone(), self.renderer.clone(), self.gpu_model.clone())

@@ -277,6 +277,15 @@ pub fn browser_script(script: &str, args: &[&str], operator_token: &str) -> Valu
     stdout.lines().last().and_then(|l| serde_json::from_str(l).ok()).expect("a JSON line from the script")
 }
 
+/// `task`'s scripted expert run once on the server at `server_url` with `--no-video`: its last JSON result line.
+pub fn expert_on_server(server_url: &str, task: &str) -> Value {
+    let out = Command::new(bin()).args(["expert", "--task", task, "--no-video", "--server", server_url]).output().expect("run libero-agent expert");
+    assert!(out.status.success(), "expert: {}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().filter(|l| l.trim_start().starts_with('{')).last().expect("a result line");
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("{line}: {e}"))
+}
+
 /// `episode prepare --server URL --task T14` into `workspace`: the prepared episode as `prepare` prints it.
 pub fn prepare_t14(server_url: &str, workspace: &Path) -> Value {
     let out = Command::new(bin())

@@ -5,6 +5,7 @@
 //! the store from the [`EpisodeEvent`]s it is sent; in-process tools (the CLI's expert) use this alone.
 mod demos;
 mod log;
+mod moments;
 mod prepare;
 mod request;
 mod videos;
@@ -20,6 +21,7 @@ use anyhow::Context;
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
 
+pub use moments::{MAX_CACHED_MOMENTS, Moment, MomentError, SCENE_IDLE};
 pub use request::{BranchError, BranchRequest, MAX_WALL_TIME_S, PrepareRequest, Prepared, valid_episode_id};
 
 use self::log::EpisodeLog;
@@ -84,6 +86,8 @@ pub struct EpisodeSet {
     ending: Mutex<HashMap<String, Instant>>,
     /// The background worker that renders private videos from state records (started with the renderer).
     videos: Mutex<Option<VideoQueue>>,
+    /// The review's moments rendered from recorded state (`moments`).
+    moments: Arc<moments::MomentCache>,
 }
 
 /// `bytes` random bytes from the OS as lowercase hex (episode ids, tokens, login codes).
@@ -134,6 +138,7 @@ impl EpisodeSet {
             demo_recording: Mutex::new(()),
             ending: Mutex::new(HashMap::new()),
             videos: Mutex::new(None),
+            moments: Arc::default(),
         })
     }
 
