@@ -26,21 +26,30 @@ pub fn prefix_path(run: &RunDir) -> PathBuf {
 /// Writes `actions` (the parent's first control steps) into the branch's run directory, one JSON array a line.
 /// `serde_json` writes each `f64` so that it reads back bit for bit.
 pub fn write_prefix(run: &RunDir, actions: &[MicroAction]) -> std::io::Result<()> {
+    let path = prefix_path(run);
+    let mut file = std::fs::OpenOptions::new().write(true).create_new(true).open(&path)?;
+    file.write_all(prefix_text(actions)?.as_bytes())?;
+    file.sync_data()
+}
+
+/// The prefix file's text: one JSON array a line (a demonstration bundle of a branch keeps the same file).
+pub fn prefix_text(actions: &[MicroAction]) -> std::io::Result<String> {
     let mut text = String::with_capacity(actions.len() * 80);
     for a in actions {
         text.push_str(&serde_json::to_string(a).map_err(std::io::Error::other)?);
         text.push('\n');
     }
-    let path = prefix_path(run);
-    let mut file = std::fs::OpenOptions::new().write(true).create_new(true).open(&path)?;
-    file.write_all(text.as_bytes())?;
-    file.sync_data()
+    Ok(text)
 }
 
 /// The replayed actions of the episode in `run` (none for an episode that is not a branch).
 pub fn read_prefix(run: &RunDir) -> Result<Vec<MicroAction>, String> {
-    let path = prefix_path(run);
-    let text = match std::fs::read_to_string(&path) {
+    read_prefix_file(&prefix_path(run))
+}
+
+/// The actions of a prefix file at `path` (none when there is no such file).
+pub fn read_prefix_file(path: &std::path::Path) -> Result<Vec<MicroAction>, String> {
+    let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
         Err(e) => return Err(format!("{}: {e}", path.display())),

@@ -47,6 +47,21 @@ record! {
         /// `scripted_expert`, `human_teleop`, `agent`.
         pub source_type: Option<String>,
         pub source_desc: Option<String>,
+        /// Where the source episode branched from another one (absent: it started at the task's start).
+        pub branch: Option<DemoBranch>,
+    }
+}
+
+record! {
+    /// A demonstration recorded from a branch (issue 49): its trajectory and videos hold only the branch's own
+    /// actions, from the branch point on; the parent's actions that led there are in `prefix_file`, replayed first.
+    pub struct DemoBranch {
+        pub parent_episode_id: Option<String>,
+        pub parent_control_step: Option<u64>,
+        /// Lines of `prefix_file`: the actions replayed before the trajectory's first row.
+        pub replayed_actions: Option<u64>,
+        /// The bundle-relative file of the replayed actions (`branch_prefix.jsonl`, one 7-number array a line).
+        pub prefix_file: Option<String>,
     }
 }
 
@@ -108,6 +123,11 @@ impl DemoManifest {
 
     pub fn instruction(&self) -> Option<&str> {
         self.task.as_ref()?.instruction.as_deref()
+    }
+
+    /// The branch the bundle's source episode was (None: it started at the task's start).
+    pub fn branch(&self) -> Option<&DemoBranch> {
+        self.source.as_ref()?.branch.as_ref()
     }
 
     /// The stored check of replaying the bundle in `target`, if one is stored.

@@ -61,8 +61,8 @@ pub struct Skipped {
     pub reason: String,
 }
 
-/// The valid, verified bundles of `task_ref` (oldest episode id first). Invalid bundles are skipped with a log
-/// line, never used.
+/// The valid, verified bundles of `task_ref` that start at its start (no branch), oldest episode id first. Invalid
+/// bundles are skipped with a log line, never used.
 pub fn verified_bundles(root: &Path, task_ref: &str) -> Vec<PathBuf> {
     let dir = task_dir(root, task_ref);
     let Ok(read) = std::fs::read_dir(&dir) else { return Vec::new() };
@@ -77,7 +77,8 @@ pub fn verified_bundles(root: &Path, task_ref: &str) -> Vec<PathBuf> {
                 log::warn!("demo library: skipping {} ({} violations, first: {})", p.display(), violations.len(), violations[0]);
                 return false;
             }
-            read_manifest(&p.join(MANIFEST)).is_ok_and(|m| m.verified() && m.task_id() == Some(task_ref))
+            // A branch's bundle starts at its parent's step, not at the task's start: never an episode's demonstration.
+            read_manifest(&p.join(MANIFEST)).is_ok_and(|m| m.verified() && m.task_id() == Some(task_ref) && m.branch().is_none())
         })
         .collect()
 }

@@ -24,7 +24,7 @@ pub mod replay_attack;
 pub mod validate;
 
 pub use project::{DemoCondition, ProjectionReceipt, project_bundle};
-pub use record::{BundleSummary, RecordOptions, SourceEpisode, record_bundle, verify_bundle};
+pub use record::{BranchOrigin, BundleSummary, RecordOptions, SourceEpisode, record_bundle, record_bundle_with_progress, verify_bundle};
 pub use validate::{Violation, validate_bundle};
 pub use crate::json::sha256_hex;
 pub use crate::task::{EffectiveLayout, LayoutVariant};

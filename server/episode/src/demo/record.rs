@@ -36,6 +36,17 @@ pub struct SourceEpisode {
     pub success: Option<bool>,
     /// The layout variant the source episode ran (None: the task's own configuration for its seed).
     pub layout: Option<LayoutVariant>,
+    /// Where the episode branched (None: it started at the task's start). Its first `replayed_actions` actions
+    /// are the parent's, replayed to reach the branch point; a bundle records only the ones after them.
+    pub branch: Option<BranchOrigin>,
+}
+
+/// A branch's parent, the control step it continued from, and how many of its actions were replayed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BranchOrigin {
+    pub parent_episode_id: String,
+    pub parent_control_step: u64,
+    pub replayed_actions: usize,
 }
 
 impl SourceEpisode {
@@ -58,6 +69,7 @@ impl SourceEpisode {
         // A branch's actions begin with the parent's it replayed (at the `branch_from` line's index, 0).
         let mut actions: Vec<(u64, [f64; 7])> =
             crate::branch::read_prefix(run).map_err(DemoError::Source)?.into_iter().map(|a| (0, a)).collect();
+        let replayed = actions.len();
         for (n, line) in log.lines().enumerate() {
             let event: ActionEvent = serde_json::from_str(line)
                 .map_err(|e| DemoError::Source(format!("actions.jsonl line {}: not a JSON object: {e}", n + 1)))?;
@@ -79,7 +91,22 @@ impl SourceEpisode {
         }
         let success = read_result(run).and_then(|r| r.success);
         let layout = layout_from_json(record.layout())?;
-        Ok(Self { episode_id, task_ref, instruction, level, seed, init_state_index, actions, success, layout })
+        let branch = crate::branch::record_branch(&record).map(|(parent_episode_id, parent_control_step)| BranchOrigin {
+            parent_episode_id,
+            parent_control_step,
+            replayed_actions: replayed,
+        });
+        Ok(Self { episode_id, task_ref, instruction, level, seed, init_state_index, actions, success, layout, branch })
+    }
+
+    /// How many of [`Self::actions`] were replayed from a parent (0: not a branch).
+    pub fn replayed(&self) -> usize {
+        self.branch.as_ref().map_or(0, |b| b.replayed_actions.min(self.actions.len()))
+    }
+
+    /// The episode's own actions: after a branch's replayed prefix (what a bundle's trajectory holds).
+    pub fn own_actions(&self) -> &[(u64, [f64; 7])] {
+        &self.actions[self.replayed()..]
     }
 
     /// The world the source episode ran on (its layout variant included).
@@ -123,10 +150,11 @@ pub(crate) struct ManifestFields<'a> {
 
 /// Writes `manifest.json` for the files already in `dir` (artifacts and integrity recomputed from disk).
 pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<Value, DemoError> {
-    let frame_count = f.source.actions.len() + 1;
+    let own = f.source.own_actions().len();
+    let frame_count = own + 1;
     let sampled = sample_frame_indices(frame_count, MAX_FRAMES_PER_SHEET);
     let verified = f.source.success == Some(true) && f.replay_success == Some(true);
-    let manifest = json!({
+    let mut manifest = json!({
         "schema_version": BUNDLE_SCHEMA,
         "task": {"id": f.source.task_ref, "instruction": crate::workspace::normalize_instruction(&f.source.instruction)},
         "source": {
@@ -148,7 +176,7 @@ pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<Value
         },
         "replay_checks": f.replay_checks,
         "frame_count": frame_count,
-        "transition_count": f.source.actions.len(),
+        "transition_count": own,
         "action_semantics": action_semantics(),
         "trajectory": artifact(dir, TRAJECTORY, "application/x-ndjson")?,
         "video": {
@@ -173,18 +201,34 @@ pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<Value
         },
         "integrity": integrity_block(dir)?,
     });
+    // Only a branch's manifest has the key: every other bundle's manifest stays as it was.
+    if let Some(b) = &f.source.branch {
+        manifest["source"]["branch"] = json!({
+            "parent_episode_id": b.parent_episode_id,
+            "parent_control_step": b.parent_control_step,
+            "replayed_actions": f.source.replayed(),
+            "prefix_file": crate::branch::PREFIX_FILE,
+        });
+    }
     let path = dir.join(MANIFEST);
     write_json_file(&path, &manifest).map_err(io_err(&path))?;
     Ok(manifest)
 }
 
-/// Writes `trajectory.jsonl` (compact, keys sorted, one row per action).
+/// Writes `trajectory.jsonl` (compact, keys sorted, one row per action of the episode's own) and, for a branch,
+/// the replayed prefix beside it (`branch_prefix.jsonl`).
 pub(crate) fn write_trajectory(dir: &Path, source: &SourceEpisode, states: &[MeasuredState]) -> Result<(), DemoError> {
-    if states.len() != source.actions.len() + 1 {
-        return Err(DemoError::Source(format!("{} states for {} actions", states.len(), source.actions.len())));
+    let own = source.own_actions();
+    if states.len() != own.len() + 1 {
+        return Err(DemoError::Source(format!("{} states for {} actions", states.len(), own.len())));
+    }
+    if source.branch.is_some() {
+        let prefix: Vec<[f64; 7]> = source.actions[..source.replayed()].iter().map(|(_, a)| *a).collect();
+        let path = dir.join(crate::branch::PREFIX_FILE);
+        fs::write(&path, crate::branch::prefix_text(&prefix).map_err(io_err(&path))?).map_err(io_err(&path))?;
     }
     let mut text = String::new();
-    for (i, (call, a)) in source.actions.iter().enumerate() {
+    for (i, (call, a)) in own.iter().enumerate() {
         text.push_str(&compact_sorted(&trajectory_row(i, *call, a, &states[i], &states[i + 1])));
         text.push('\n');
     }
@@ -226,7 +270,8 @@ fn measured(frame: &Frame) -> MeasuredState {
 /// Records the bundle of the finished episode in `run_dir` into `out` (which must not exist): replays its actions
 /// with rendering, writes videos, contact sheets, `trajectory.jsonl` and the manifest. The bundle is marked
 /// verified only if the episode succeeded and the replay reproduces the evaluator's success. Written under
-/// `<out>.partial` and renamed, so a crash never leaves a half bundle under the final name.
+/// `<out>.partial` and renamed, so a crash never leaves a half bundle under the final name. A branch's replayed
+/// prefix is stepped without frames: the bundle starts at the branch point.
 pub fn record_bundle(
     run_dir: &Path,
     out: &Path,
@@ -234,9 +279,23 @@ pub fn record_bundle(
     renderer: Renderer,
     paths: &AssetPaths,
 ) -> Result<BundleSummary, DemoError> {
+    record_bundle_with_progress(run_dir, out, options, renderer, paths, &mut |_, _| {})
+}
+
+/// [`record_bundle`], telling `progress(frames rendered, frames in all)` after each frame (the replay that
+/// verifies the bundle takes tens of seconds: the teleop page shows how far it is).
+pub fn record_bundle_with_progress(
+    run_dir: &Path,
+    out: &Path,
+    options: &RecordOptions,
+    renderer: Renderer,
+    paths: &AssetPaths,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<BundleSummary, DemoError> {
     let source = SourceEpisode::read(&RunDir::new(run_dir))?;
-    if source.actions.is_empty() {
-        return Err(DemoError::Source(format!("{}: the episode accepted no actions", run_dir.display())));
+    if source.own_actions().is_empty() {
+        let what = if source.branch.is_some() { "no actions after its branch point" } else { "no actions" };
+        return Err(DemoError::Source(format!("{}: the episode accepted {what}", run_dir.display())));
     }
     if out.exists() {
         return Err(DemoError::Library(format!("{} already exists", out.display())));
@@ -252,14 +311,18 @@ pub fn record_bundle(
     let mut both = Mp4Writer::new(&partial.join(VIDEO_HEAD_WRIST), 2 * size, size)?;
     let mut head_video = Mp4Writer::new(&partial.join(VIDEO_HEAD), size, size)?;
     let mut wrist_video = Mp4Writer::new(&partial.join(VIDEO_WRIST), size, size)?;
-    let frame_count = source.actions.len() + 1;
+    let own = source.own_actions();
+    let frame_count = own.len() + 1;
     let sampled = sample_frame_indices(frame_count, MAX_FRAMES_PER_SHEET);
     let (mut head_tiles, mut wrist_tiles) = (Vec::new(), Vec::new());
     let mut states = Vec::with_capacity(frame_count);
     world.start()?;
+    for (_, a) in &source.actions[..source.replayed()] {
+        world.step(a)?;
+    }
     for index in 0..frame_count {
         if index > 0 {
-            world.step(&source.actions[index - 1].1)?;
+            world.step(&own[index - 1].1)?;
         }
         let frame = world.frame(index as u64)?;
         states.push(measured(&frame));
@@ -271,6 +334,7 @@ pub fn record_bundle(
             head_tiles.push(head.clone());
             wrist_tiles.push(wrist.clone());
         }
+        progress(index + 1, frame_count);
     }
     let replay_success = world.verdict()?.success;
     for w in [both, head_video, wrist_video] {
@@ -295,7 +359,7 @@ pub fn record_bundle(
     Ok(BundleSummary {
         dir: out.to_owned(),
         frame_count,
-        transition_count: source.actions.len(),
+        transition_count: own.len(),
         source_success: source.success,
         replay_success,
         verified: DemoManifest::from_value(manifest).is_ok_and(|m| m.verified()),
@@ -308,7 +372,31 @@ pub fn bundle_source(dir: &Path) -> Result<(DemoManifest, SourceEpisode), DemoEr
     let s = manifest.source.clone().unwrap_or_default();
     let path = dir.join(TRAJECTORY);
     let text = fs::read_to_string(&path).map_err(io_err(&path))?;
-    let mut actions = Vec::new();
+    // A branch's bundle: the replayed prefix comes first, so replays start where the source episode started.
+    let branch = match manifest.branch() {
+        None => None,
+        Some(b) => {
+            let prefix = crate::branch::read_prefix_file(&dir.join(crate::branch::PREFIX_FILE)).map_err(DemoError::Source)?;
+            if b.replayed_actions != Some(prefix.len() as u64) {
+                return Err(DemoError::Source(format!(
+                    "{}: {} actions, the manifest's source.branch.replayed_actions is {:?}",
+                    crate::branch::PREFIX_FILE,
+                    prefix.len(),
+                    b.replayed_actions
+                )));
+            }
+            let missing = |k: &str| DemoError::Source(format!("{MANIFEST}: source.branch.{k} missing"));
+            Some((
+                BranchOrigin {
+                    parent_episode_id: b.parent_episode_id.clone().ok_or_else(|| missing("parent_episode_id"))?,
+                    parent_control_step: b.parent_control_step.ok_or_else(|| missing("parent_control_step"))?,
+                    replayed_actions: prefix.len(),
+                },
+                prefix,
+            ))
+        }
+    };
+    let mut actions: Vec<(u64, [f64; 7])> = branch.iter().flat_map(|(_, p)| p.iter().map(|a| (0, *a))).collect();
     for (n, line) in text.lines().enumerate() {
         let row: Value = serde_json::from_str(line).map_err(|e| DemoError::Source(format!("{TRAJECTORY} line {}: {e}", n + 1)))?;
         let a = parse_action(&row["action"])
@@ -326,12 +414,13 @@ pub fn bundle_source(dir: &Path) -> Result<(DemoManifest, SourceEpisode), DemoEr
         actions,
         success: s.episode_success,
         layout: layout_from_json(s.layout.as_ref().unwrap_or(&Value::Null))?,
+        branch: branch.map(|(origin, _)| origin),
     };
     Ok((manifest, source))
 }
 
-/// Replays a bundle's actions from its init state on [`WorldPhysics`] (no rendering) and rewrites its manifest
-/// with the outcome: verified only if the evaluator's success is reproduced. Returns the replayed success.
+/// Replays a bundle's actions (a branch's prefix first) from its init state on [`WorldPhysics`] (no rendering)
+/// and rewrites its manifest with the outcome: verified only if the evaluator's success is reproduced. Returns the replayed success.
 pub fn verify_bundle(dir: &Path, paths: &AssetPaths) -> Result<bool, DemoError> {
     let (manifest, source) = bundle_source(dir)?;
     let spec = source.spec(paths)?;
@@ -382,6 +471,7 @@ mod tests {
             actions: vec![(1, [0.5, -0.25, 0.0, 0.0, 0.0, 0.125, -1.0]), (1, [1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0])],
             success: Some(true),
             layout: None,
+            branch: None,
         };
         let state = |k: f64| MeasuredState {
             eef_pose_robot_base_xyzw: [0.5 + k, 0.0, 0.25, 1.0, 0.0, 0.0, 0.0],
@@ -419,6 +509,36 @@ mod tests {
         assert_eq!(back.to_value(), manifest);
         assert_eq!(read.actions.iter().map(|a| a.1).collect::<Vec<_>>(), source.actions.iter().map(|a| a.1).collect::<Vec<_>>());
         assert_eq!(read.task_ref, "T14");
+    }
+
+    /// A branch's bundle (issue 49): the trajectory holds only the actions after the branch point, the manifest
+    /// names the parent, its step and the replayed prefix, and reading the bundle back puts the prefix first.
+    #[test]
+    fn a_branch_bundle_keeps_only_its_own_actions_and_replays_the_prefix_first() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut source = synthetic(dir.path());
+        let prefix = (0, [0.0, 0.0, 0.375, 0.0, 0.0, 0.0, 1.0]);
+        source.actions.insert(0, prefix);
+        source.branch = Some(BranchOrigin { parent_episode_id: "ep-20251231T000000Z-00000001".into(), parent_control_step: 1, replayed_actions: 1 });
+        let state = |k: f64| MeasuredState { eef_pose_robot_base_xyzw: [k, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], gripper_finger_joint_position_m: [0.01, -0.01] };
+        write_trajectory(dir.path(), &source, &[state(0.0), state(0.5), state(1.0)]).unwrap();
+        let options = RecordOptions { source_type: "human_teleop".into(), source_desc: String::new() };
+        let manifest = write_manifest(dir.path(), &golden_fields(&source, &options, Some(true))).unwrap();
+        assert_eq!((manifest["transition_count"].as_u64(), manifest["frame_count"].as_u64()), (Some(2), Some(3)), "only the branch's own actions");
+        assert_eq!(
+            manifest["source"]["branch"],
+            json!({"parent_episode_id": "ep-20251231T000000Z-00000001", "parent_control_step": 1, "replayed_actions": 1, "prefix_file": "branch_prefix.jsonl"})
+        );
+        let rows = fs::read_to_string(dir.path().join(TRAJECTORY)).unwrap();
+        assert_eq!(rows.lines().count(), 2);
+        assert!(!rows.contains("0.375"), "the replayed action is not a trajectory row: {rows}");
+        let listed = manifest["integrity"]["files"].as_array().unwrap().iter().any(|f| f["path"] == "branch_prefix.jsonl");
+        assert!(listed, "the prefix file is under the integrity block");
+        let (back, read) = bundle_source(dir.path()).unwrap();
+        assert_eq!(read.actions.iter().map(|a| a.1).collect::<Vec<_>>(), source.actions.iter().map(|a| a.1).collect::<Vec<_>>(), "prefix first, then the trajectory");
+        assert_eq!((read.branch.clone(), read.replayed(), back.branch().and_then(|b| b.parent_control_step)), (source.branch.clone(), 1, Some(1)));
+        fs::write(dir.path().join(crate::branch::PREFIX_FILE), "").unwrap();
+        assert!(bundle_source(dir.path()).is_err(), "a prefix that lost its actions is refused, not replayed from the wrong state");
     }
 
     #[test]

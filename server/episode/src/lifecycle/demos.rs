@@ -9,7 +9,7 @@ use super::request::PrepareRequest;
 use crate::demo::library::TargetEpisode;
 use crate::demo::record::{BundleSummary, RecordOptions, SourceEpisode};
 use crate::demo::replay_attack::{ReplayAttack, ReplayRule};
-use crate::demo::{LayoutVariant, library, record_bundle, replay_attack, verify_bundle};
+use crate::demo::{LayoutVariant, library, record_bundle_with_progress, replay_attack, verify_bundle};
 use crate::expert_run::run_expert;
 use crate::physics::WorldSpec as PhysicsSpec;
 use crate::records::PrivateEvaluation;
@@ -153,6 +153,11 @@ impl EpisodeSet {
     /// replayed, rendered, and verified if the episode succeeded and the replay reproduces it. What the teleop
     /// page's "save demonstration" calls.
     pub fn record_demo(&self, episode_id: &str, options: &RecordOptions) -> anyhow::Result<BundleSummary> {
+        self.record_demo_with_progress(episode_id, options, &mut |_, _| {})
+    }
+
+    /// [`Self::record_demo`], telling `progress(frames rendered, frames in all)` as the replay goes.
+    pub fn record_demo_with_progress(&self, episode_id: &str, options: &RecordOptions, progress: &mut dyn FnMut(usize, usize)) -> anyhow::Result<BundleSummary> {
         if episode_id.is_empty() || !episode_id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
             bail!("not an episode id: {episode_id:?}");
         }
@@ -160,7 +165,7 @@ impl EpisodeSet {
         let run_dir = self.runs_dir().join(episode_id);
         let source = SourceEpisode::read(&RunDir::new(&run_dir)).with_context(|| format!("episode {episode_id}"))?;
         let out = library::bundle_dir(&self.demo_library(), &source.task_ref, episode_id);
-        Ok(record_bundle(&run_dir, &out, options, self.renderer()?, &paths)?)
+        Ok(record_bundle_with_progress(&run_dir, &out, options, self.renderer()?, &paths, progress)?)
     }
 
     /// Replays library bundle `dir` and rewrites its verification; true if the evaluator's success is reproduced.
