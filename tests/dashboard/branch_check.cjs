@@ -1,6 +1,6 @@
 // The review page's "Continue from here" (issue 33) with Debian's chromium (headless, playwright-core): opens
 // EPISODE's review, steps STEPS control steps forward with → from its start, clicks "by teleop", follows the teleop
-// page the control opens (it makes the branch) until it drives and shows frames, and reads the branch's episode id.
+// page the control opens (its first key makes the branch) until it drives and shows frames, and reads the branch's episode id.
 // Prints one JSON line {"ok":true, "episode_id":"ep-…", "step":N, ...}. Screenshots go to ARTIFACTS.
 const { launch, say, shotter, check, text, login } = require('./common.cjs');
 
@@ -38,6 +38,10 @@ async function main() {
     await page.locator('#continue-teleop').click();
     await page.waitForURL(`**/teleop/**branch=${episode}**`, { timeout: 30000 });
     page.on('pageerror', (e) => errors.push(`teleop: ${e}`));
+    // The page makes the branch on the first input (issue 49): a key press starts it.
+    await page.locator('#state', { hasText: 'ready' }).waitFor({ timeout: 30000 });
+    await page.locator('.teleop').focus();
+    await page.keyboard.press('r');
     await page.locator('#state', { hasText: 'driving' }).waitFor({ timeout: 180000 });
     await page.waitForFunction(() => Number(document.getElementById('frame-count').textContent) >= 1, null, { timeout: 120000 });
     report.episode_id = await text(page, '#episode');

@@ -30,4 +30,29 @@ async function login(context, base) {
   await page.close();
 }
 
-module.exports = { launch, login, say, shotter, check, text };
+/**
+ * Runs `body(context, report, errors)` in a logged-in 1500×1100 chromium context, then prints `report` as one JSON line
+ * (`ok`, or the error and the page errors `body` collected) and exits 0 or 1.
+ */
+async function runChecks(base, body) {
+  const browser = await launch();
+  const report = {};
+  const errors = [];
+  try {
+    const context = await browser.newContext({ viewport: { width: 1500, height: 1100 } });
+    await login(context, base);
+    await body(context, report, errors);
+    check(errors.length === 0, `page errors: ${errors.join('; ')}`);
+    report.ok = true;
+  } catch (e) {
+    report.ok = false;
+    report.error = String(e && e.stack ? e.stack : e);
+    report.errors = errors;
+  } finally {
+    await browser.close();
+  }
+  say(report);
+  process.exit(report.ok ? 0 : 1);
+}
+
+module.exports = { launch, login, say, shotter, check, text, runChecks };

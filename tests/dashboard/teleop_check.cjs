@@ -1,5 +1,5 @@
 // Drives the teleop page with Debian's chromium (headless, playwright-core): from the tasks page's Teleoperate link
-// for TASK, waits for live frames, holds `d` then `f` and taps space (robosuite 1.4 keys), checks that frames
+// for TASK, starts the episode with a key, waits for live frames, holds `d` then `f` and taps space (robosuite 1.4 keys), checks that frames
 // change, the control step advances, the latency and achieved-rate labels fill in, saves the demonstration and
 // reads the verdict, then opens the Demos page (the bundle is listed, its video loads) and exports it to LeRobot.
 // Prints one JSON line {"ok":true, "bundle":"T14/ep-…", ...}. Screenshots go to ARTIFACTS.
@@ -27,6 +27,10 @@ async function main() {
     await page.goto(`${base}/tasks`);
     await page.locator(`#${task} a.teleop-link`).click();
     await page.waitForURL(`**/teleop/${task}`);
+    // The page makes its episode on the first input (issue 49): a key press starts it.
+    await page.locator('#state', { hasText: 'ready' }).waitFor({ timeout: 30000 });
+    await page.locator('.teleop').focus();
+    await page.keyboard.press('d');
     await page.locator('#state', { hasText: 'driving' }).waitFor({ timeout: 180000 });
     await page.waitForFunction(() => Number(document.getElementById('frame-count').textContent) >= 2, null, { timeout: 120000 });
     const before = { src: await frameSrc(page), step: await text(page, '#frame-step') };
@@ -53,7 +57,9 @@ async function main() {
     await shot(page, 'teleop-driving');
 
     await page.locator('#save').click();
-    await page.locator('#save-result:not(.hidden)').waitFor({ timeout: 300000 });
+    // The replay that verifies the bundle shows its progress before the result.
+    await page.locator('#save-progress').waitFor({ timeout: 300000 });
+    report.save_progress = await text(page, '#save-result');
     await page.locator('#state', { hasText: /saved|save failed/ }).waitFor({ timeout: 300000 });
     const result = page.locator('#save-result');
     report.save_text = await result.innerText();

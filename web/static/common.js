@@ -114,3 +114,21 @@ export function agentEventItem(e) {
   if (e.truncated) li.append(el('span', { class: 'muted' }, ' (cut)'));
   return li;
 }
+
+/** "SUCCESS · stages 1/1" (or why not) from `POST /api/episodes/{id}/finish`'s answer: the evaluator's verdict. */
+export function verdictText(v) {
+  if (!v.ok && !v.outcome) return `not judged: ${v.error ?? v.answer?.error ?? 'the episode could not finish'}`;
+  const stages = v.required_stage_count != null ? ` · stages ${v.completed_required_stage_count ?? '?'}/${v.required_stage_count}` : '';
+  const why = v.reason ? ` (${v.reason})` : '';
+  return `${v.outcome ?? v.state}${stages}${why}`;
+}
+
+/** "Finish and judge": ends episode `id` with its own finish_episode; the answer carries the verdict. */
+export function finishEpisode(id) {
+  return postJson(`/api/episodes/${encodeURIComponent(id)}/finish`);
+}
+
+/** Aborts episode `id` with `reason` (ended as INVALID, the reason kept in its record). */
+export function abortEpisode(id, reason) {
+  return postJson(`/api/episodes/${encodeURIComponent(id)}/abort`, { reason });
+}

@@ -1,7 +1,7 @@
 // Live episode page: head | wrist frames, calls, private evaluator events, the agent's transcript and budgets as
 // they happen.
 // Frames arrive as binary messages (4-byte LE header length, JSON header, JPEG); everything else as JSON.
-import { wsUrl, el, fmtS, callSummary, parseFrame, showBlob, showEvaluatorEvent, agentEventItem } from './common.js';
+import { wsUrl, el, fmtS, callSummary, parseFrame, showBlob, showEvaluatorEvent, agentEventItem, verdictText, finishEpisode, abortEpisode } from './common.js';
 
 const root = document.querySelector('.live');
 const id = root.dataset.episode;
@@ -63,6 +63,7 @@ function onEvent(e) {
       $('outcome').textContent = e.outcome ?? e.state;
       $('reason').textContent = e.reason ?? '';
       $('finished').classList.remove('hidden');
+      for (const b of ['finish', 'abort']) $(b).disabled = true;
       break;
     default:
       break;
@@ -87,5 +88,26 @@ function connect() {
   };
   ws.onopen = () => { $('calls').replaceChildren(); $('stages').replaceChildren(); $('agent').replaceChildren(); };
 }
+
+/** The operator's end of an episode (Finish and judge, Abort): the answer under the buttons. */
+function showEnd(kind, text) {
+  const out = $('end-result');
+  out.className = kind;
+  out.textContent = text;
+}
+
+$('finish').onclick = async () => {
+  if (!confirm(`Finish ${id} now and judge it?`)) return;
+  showEnd('muted', 'finishing …');
+  const v = await finishEpisode(id);
+  showEnd(v.success ? 'ok' : 'error', `judged: ${verdictText(v)}`);
+};
+$('abort').onclick = async () => {
+  const reason = prompt(`Abort ${id}? The reason is kept in its record.`, 'aborted by the operator (live page)');
+  if (reason === null || !reason.trim()) return;
+  showEnd('muted', 'aborting …');
+  const r = await abortEpisode(id, reason);
+  showEnd(r.ok === false ? 'error' : 'muted', r.ok === false ? `not aborted: ${r.error}` : `aborted: ${reason}`);
+};
 
 connect();

@@ -1,7 +1,9 @@
 // Teleop page: keyboard (robosuite 1.4 key map) and Gamepad API → normalized OSC_POSE actions, one per 50 ms
 // tick in real time, sent in small batches over /ws/teleop/<id> (each batch is one osc_sequence call in the
 // episode's own thread); frames, stage progress and calls come from the ordinary live stream /ws/episodes/<id>.
-import { wsUrl, el, callSummary, parseFrame, showBlob, postJson, showEvaluatorEvent } from './common.js';
+// The episode is made on the first input (opening the page makes none); a branch page starts with its parent's
+// last gripper command, so what the robot holds stays held.
+import { wsUrl, el, callSummary, parseFrame, showBlob, postJson, showEvaluatorEvent, verdictText, finishEpisode, abortEpisode } from './common.js';
 
 const root = document.querySelector('.teleop');
 const task = root.dataset.task;
@@ -10,21 +12,58 @@ const $ = (x) => document.getElementById(x);
 const TICK_MS = 50;
 /** Batches allowed in flight; beyond that the page stops generating (sim time slows, the rate label shows it). */
 const MAX_IN_FLIGHT = 2;
+/** A branch page (the review's "Continue from here") starts every episode from the parent's state at that step. */
+const branch = root.dataset.branchParent ? { parent: root.dataset.branchParent, step: Number(root.dataset.branchStep) } : undefined;
+/** The gripper command every episode of the page starts with: open, or a branch's parent's last command. */
+const START_GRIPPER = Number(root.dataset.gripper ?? -1);
 
 // robosuite 1.4 keyboard: w/s ∓x, a/d ∓y, r/f ±z, z/x t/g c/v ± rotation about x, y, z (component, sign).
 const KEYS = { w: [0, -1], s: [0, 1], a: [1, -1], d: [1, 1], r: [2, 1], f: [2, -1],
   z: [3, 1], x: [3, -1], t: [4, 1], g: [4, -1], c: [5, 1], v: [5, -1] };
 
 const held = new Set();
-let s = null; // the current episode's session
+let s = null; // the current episode's session (null: none yet, the next input makes one)
+let starting = false;
+let gripper = START_GRIPPER;
 
 function newSession(id) {
   return { id, control: null, live: null, queue: [], inFlight: 0, seq: 0, sent: 0, acked: 0, generated: 0,
-    nextTick: performance.now(), acks: [], gripper: -1, latency: null, frames: 0, paused: false, ended: false,
-    pendingCall: null, flushWaiters: [] };
+    nextTick: performance.now(), acks: [], latency: null, frames: 0, paused: false, ended: false, saving: false,
+    byOperator: false, aborted: false, judged: false, flushWaiters: [] };
 }
 
 function setState(text) { $('state').textContent = text; }
+
+const gripperLabel = (g) => (g > 0 ? 'closed' : g < 0 ? 'open' : 'unchanged (0)');
+function showGripper() { $('gripper').textContent = gripperLabel(gripper); }
+
+/** The message line under the controls: `kind` is its class (verified, unverified, error, pending, …). */
+function showResult(kind, ...parts) {
+  const out = $('save-result');
+  out.className = kind;
+  delete out.dataset.bundle;
+  delete out.dataset.verified;
+  out.replaceChildren(...parts);
+}
+
+/** Reset: no episode, nothing left of the last one's messages, counters or gripper. */
+function clearPage() {
+  const out = $('save-result');
+  out.replaceChildren();
+  out.className = 'hidden';
+  delete out.dataset.bundle;
+  delete out.dataset.verified;
+  $('episode').textContent = 'no episode yet';
+  for (const x of ['frame-count', 'sent', 'acked']) $(x).textContent = '0';
+  for (const x of ['rate', 'latency', 'progress', 'frame-step', 'exec']) $(x).textContent = '–';
+  $('stages').replaceChildren(); $('calls').replaceChildren();
+  gripper = START_GRIPPER;
+  showGripper();
+  $('hint').classList.remove('hidden');
+  $('preview')?.classList.remove('hidden');
+  $('frame').classList.add('hidden');
+  setState('ready');
+}
 
 /** One action from the held keys and the gamepad, scaled by the speed slider. */
 function currentAction() {
@@ -36,7 +75,7 @@ function currentAction() {
   }
   const pad = gamepadAxes();
   for (let i = 0; i < 6; i++) a[i] = Math.max(-1, Math.min(1, (a[i] + pad[i]) * speed));
-  a[6] = s.gripper;
+  a[6] = gripper;
   return a;
 }
 
@@ -60,10 +99,16 @@ function gamepadAxes() {
 }
 
 function toggleGripper() {
-  if (!s) return;
-  s.gripper = -s.gripper;
-  $('gripper').textContent = s.gripper > 0 ? 'closed' : 'open';
+  if (s?.ended) return;
+  gripper = gripper > 0 ? -1 : 1;
+  showGripper();
   markLatency();
+  begin();
+}
+
+/** The first input makes the page's episode (none exists before; after one ended, Reset makes way for the next). */
+function begin() {
+  if (!s && !starting) start();
 }
 
 /** Starts a latency measurement: the next generated action carries the input; its effect shows in the frame
@@ -73,8 +118,13 @@ function markLatency() {
 }
 
 function tick() {
-  if (!s || s.paused || s.ended || !s.control || s.control.readyState !== WebSocket.OPEN) {
-    if (s) s.nextTick = performance.now();
+  if (!s) {
+    // No episode yet: only watch the gamepad for the input that makes one.
+    if (gamepadAxes().some((x) => x !== 0)) begin();
+    return;
+  }
+  if (s.paused || s.ended || !s.control || s.control.readyState !== WebSocket.OPEN) {
+    s.nextTick = performance.now();
     return;
   }
   const batch = Number($('batch').value);
@@ -117,8 +167,21 @@ function onAck(a) {
   if (s.inFlight === 0 && !s.queue.length) { s.flushWaiters.forEach((f) => f()); s.flushWaiters = []; }
 }
 
+/** The control socket's answers: action acks, and the save's progress and result. */
+function onControl(m) {
+  switch (m.type) {
+    case 'ack': onAck(m); break;
+    case 'save_progress': showSaveProgress(m); break;
+    case 'saved': showSaved(m); break;
+    case 'save_failed': showSaved(m); break;
+    default: if (m.error) $('calls').prepend(el('li', { class: 'error' }, m.error)); break;
+  }
+}
+
 function onFrame(buf) {
   const { header, blob } = parseFrame(buf);
+  $('preview')?.classList.add('hidden');
+  $('frame').classList.remove('hidden');
   showBlob($('frame'), blob);
   $('frame-step').textContent = header.control_step ?? 'settle';
   $('frame-count').textContent = ++s.frames;
@@ -137,7 +200,12 @@ function onEvent(e) {
       break;
     case 'finished':
       s.ended = true;
-      setState(e.outcome ?? e.state);
+      // While a demonstration is saved the verdict is not the page's result yet: the replay still verifies it.
+      if (!s.saving && !s.byOperator) {
+        setState(e.outcome ?? e.state);
+        // Ended by nobody on this page (abandoned, the wall-time budget, another page's Abort): say why.
+        showResult('error', `the episode ended: ${e.outcome ?? e.state}${e.reason ? ` — ${e.reason}` : ''}`);
+      }
       break;
     default:
       break;
@@ -146,23 +214,20 @@ function onEvent(e) {
 
 /** Prepares and starts a new operator episode of this task and seed, then opens its two sockets. */
 async function start() {
-  setState('preparing');
-  // A branch page (the review's "Continue from here") starts every episode from the parent's state at that step.
-  const branch = root.dataset.branchParent ? { parent: root.dataset.branchParent, step: Number(root.dataset.branchStep) } : undefined;
+  starting = true;
+  setState('starting');
+  $('hint').classList.add('hidden');
   const r = await postJson('/api/teleop', branch ? { branch } : { task, seed });
-  if (!r.ok) { setState('error'); $('save-result').textContent = r.error; $('save-result').classList.remove('hidden'); return; }
+  starting = false;
+  if (!r.ok) { setState('error'); showResult('error', `no episode: ${r.error}`); return; }
   s = newSession(r.episode_id);
   $('episode').textContent = r.episode_id;
-  for (const x of ['frame-count', 'sent', 'acked']) $(x).textContent = '0';
-  for (const x of ['rate', 'latency', 'progress', 'frame-step', 'exec']) $(x).textContent = '–';
-  $('stages').replaceChildren(); $('calls').replaceChildren();
-  $('gripper').textContent = 'open';
   const session = s;
   const live = new WebSocket(wsUrl(`/ws/episodes/${encodeURIComponent(r.episode_id)}`));
   live.binaryType = 'arraybuffer';
   live.onmessage = (m) => { if (s === session) { if (typeof m.data === 'string') onEvent(JSON.parse(m.data)); else onFrame(m.data); } };
   const control = new WebSocket(wsUrl(`/ws/teleop/${encodeURIComponent(r.episode_id)}`));
-  control.onmessage = (m) => { if (s === session) onAck(JSON.parse(m.data)); };
+  control.onmessage = (m) => { if (s === session) onControl(JSON.parse(m.data)); };
   control.onopen = () => { if (s === session) { s.nextTick = performance.now(); setState('driving'); } };
   control.onclose = () => { if (s === session && !s.ended) setState('disconnected'); };
   s.live = live; s.control = control;
@@ -177,51 +242,99 @@ function close(session) {
 
 /** Waits until every queued action has been executed. */
 function flush() {
+  if (s.ended || !s.control || s.control.readyState !== WebSocket.OPEN) return Promise.resolve();
   sendBatch();
   if (s.inFlight === 0) return Promise.resolve();
   return new Promise((res) => s.flushWaiters.push(res));
 }
 
-async function abort(reason) {
-  if (!s) return;
+/** The replay that records and verifies the demonstration, as it goes (10–40 s). */
+function showSaveProgress(m) {
+  setState('verifying');
+  const seconds = `${Math.round(m.elapsed_s ?? 0)} s`;
+  if (m.phase === 'replaying') {
+    showResult('pending', 'recording the demonstration and verifying it by replay: frame ',
+      el('b', { id: 'save-frames' }, `${m.done} / ${m.total}`), ` · ${seconds} `,
+      el('progress', { id: 'save-progress', max: String(m.total), value: String(m.done) }));
+  } else {
+    showResult('pending', `finishing the episode and starting the replay … ${seconds}`);
+  }
+}
+
+function showSaved(r) {
   const session = s;
-  close(session);
-  await postJson(`/api/episodes/${encodeURIComponent(session.id)}/abort`, { reason });
+  if (session) { session.saving = false; close(session); }
+  if (!r.ok) {
+    showResult('error', `not saved: ${r.error}`);
+    setState('save failed');
+    return;
+  }
+  showResult(r.verified ? 'verified' : 'unverified', `saved ${r.bundle} (${r.transition_count} actions, ${r.frame_count} frames${r.branch ? `, after the ${r.branch.replayed_actions} replayed actions of ${r.branch.parent_episode_id}` : ''}): `,
+    el('b', { id: 'verdict' }, r.verified ? 'verified by replay' : 'not verified'),
+    r.reason ? ` — ${r.reason}` : '', ` (${Math.round(r.elapsed_s ?? 0)} s) · `, el('a', { href: '/demos' }, 'demos'));
+  const out = $('save-result');
+  out.dataset.bundle = r.bundle;
+  out.dataset.verified = String(r.verified);
+  setState('saved');
 }
 
 $('pause').onclick = () => {
-  if (!s) return;
+  if (!s || s.ended) return;
   s.paused = !s.paused;
   $('pause').textContent = s.paused ? 'Resume' : 'Pause';
   setState(s.paused ? 'paused' : 'driving');
   s.nextTick = performance.now();
 };
-$('reset').onclick = async () => { await abort('reset by the operator'); await start(); };
-$('discard').onclick = async () => { await abort('discarded by the operator'); setState('discarded'); };
-$('save').onclick = async () => {
-  if (!s || s.ended) return;
-  s.paused = true;
-  setState('saving');
-  await flush();
+$('reset').onclick = async () => {
+  const old = s;
+  s = null;
+  $('pause').textContent = 'Pause';
+  clearPage();
+  if (old) {
+    close(old);
+    if (!old.byOperator && !old.saving) await abortEpisode(old.id, 'reset by the operator (teleop page)');
+  }
+};
+$('abort').onclick = async () => {
+  if (!s || s.ended || s.saving) return;
   const session = s;
-  const r = await postJson(`/api/teleop/${encodeURIComponent(session.id)}/save`);
+  session.byOperator = true;
+  session.aborted = true;
   close(session);
-  const out = $('save-result');
-  out.classList.remove('hidden');
-  out.replaceChildren();
-  if (!r.ok) {
-    out.className = 'error';
-    out.textContent = `not saved: ${r.error}`;
-    setState('save failed');
+  const r = await abortEpisode(session.id, 'aborted by the operator (teleop page)');
+  setState(r.ok === false ? 'abort failed' : 'aborted');
+  showResult(r.ok === false ? 'error' : 'unverified', r.ok === false ? `not aborted: ${r.error}` : `aborted ${session.id}: nothing was saved · Reset starts a new episode`);
+};
+$('finish').onclick = async () => {
+  if (!s || s.ended || s.saving) return;
+  const session = s;
+  session.paused = true;
+  setState('judging');
+  await flush();
+  session.byOperator = true;
+  const v = await finishEpisode(session.id);
+  session.ended = true;
+  session.judged = true;
+  setState(v.outcome ?? (v.ok ? 'finished' : 'error'));
+  showResult(v.success ? 'verified' : 'unverified', 'judged: ', el('b', { id: 'judged' }, verdictText(v)),
+    ' · Save demonstration records it, Reset starts a new episode');
+};
+$('save').onclick = async () => {
+  // An open episode, or one judged here (it is recorded as it ended); never an aborted one.
+  if (!s || s.saving || s.aborted || (s.ended && !s.judged)) return;
+  const session = s;
+  session.paused = true;
+  session.saving = true;
+  setState('saving');
+  showResult('pending', 'finishing the episode …');
+  await flush();
+  if (session.control?.readyState === WebSocket.OPEN) {
+    session.control.send(JSON.stringify({ type: 'save' }));
     return;
   }
-  out.className = r.verified ? 'verified' : 'unverified';
-  out.dataset.bundle = r.bundle;
-  out.dataset.verified = String(r.verified);
-  out.append(`saved ${r.bundle} (${r.transition_count} actions, ${r.frame_count} frames): `,
-    el('b', { id: 'verdict' }, r.verified ? 'verified by replay' : 'not verified'),
-    r.reason ? ` — ${r.reason}` : '', ' · ', el('a', { href: '/demos' }, 'demos'));
-  setState('saved');
+  // No control socket any more: save without progress.
+  const r = await postJson(`/api/teleop/${encodeURIComponent(session.id)}/save`);
+  showSaved(r);
 };
 
 document.addEventListener('keydown', (e) => {
@@ -234,11 +347,11 @@ document.addEventListener('keydown', (e) => {
   }
   if (KEYS[k]) {
     e.preventDefault();
-    if (!held.has(k)) { held.add(k); markLatency(); }
+    if (!held.has(k)) { held.add(k); markLatency(); begin(); }
   }
 });
 document.addEventListener('keyup', (e) => held.delete(e.key.toLowerCase()));
 window.addEventListener('blur', () => held.clear());
 $('speed').oninput = () => { $('speed-value').textContent = Number($('speed').value).toFixed(2); };
 setInterval(tick, 10);
-start();
+clearPage();

@@ -11,27 +11,10 @@ use libero_episode::state_record::StateRecordReader;
 use libero_server::client::McpClient;
 use serde_json::{Value, json};
 
-/// `POST` of a JSON body with the operator token (or without it: `token` None); (status, JSON answer).
-fn post(server: &common::Server, path: &str, body: &Value, token: Option<&str>) -> (u16, Value) {
-    let auth = token.map(|t| format!("Bearer {t}"));
-    let mut headers = vec![("Content-Type", "application/json")];
-    if let Some(a) = &auth {
-        headers.push(("Authorization", a.as_str()));
-    }
-    let (status, _, body) = common::http("POST", &format!("{}{path}", server.url), &headers, body.to_string().as_bytes());
-    (status, serde_json::from_slice(&body).unwrap_or_else(|_| json!({"raw": String::from_utf8_lossy(&body)})))
-}
+use common::{call_ok, post_json as post};
 
 fn mcp(prepared: &Value) -> McpClient {
-    let token = prepared["mcp_headers"]["Authorization"].as_str().expect("token").trim_start_matches("Bearer ");
-    McpClient::connect_with_token(prepared["mcp_url"].as_str().expect("mcp url"), token, "branches-test").expect("MCP session")
-}
-
-/// A call's payload, checked to be ok.
-fn call_ok(client: &mut McpClient, tool: &str, args: Value) -> Value {
-    let payload = client.call_tool_payload(tool, args).expect("the MCP call");
-    assert_eq!(payload["ok"], true, "{tool}: {payload}");
-    payload
+    common::mcp_session(prepared, "branches-test")
 }
 
 fn actions(a: [f64; 7], n: usize) -> Value {

@@ -4,8 +4,13 @@
 //! finishes the episode and records a bundle into `<data>/demos/<task>/<episode>/` with the demo library, which
 //! verifies it by replay. The Demos page lists, plays, verifies, deletes and exports bundles. Everything here
 //! sits behind the operator guard (token and cross-site check).
+//!
+//! Lifecycle (issue 49): the page makes its episode on the first action (opening it makes none); an episode no
+//! teleop page is connected to for `serve --teleop-abandon-s` is ended as abandoned; "Finish and judge"
+//! (`POST /api/episodes/{id}/finish`, any episode of this server, the live page too) asks the evaluator's verdict;
+//! saving over the control socket reports the verifying replay's progress before its result.
 use std::path::{Path as FsPath, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use askama::Template;
 use axum::Router;
@@ -24,7 +29,8 @@ use serde_json::{Map, Value, json};
 
 use crate::common::{page, serve_file, valid_id};
 use libero_server::episodes::{BranchRequest, PrepareRequest, random_hex};
-use libero_server::{ApiError, ApiResult, AppState};
+use libero_server::{ApiError, ApiResult, AppState, TeleopEpisode};
+use tokio::sync::mpsc;
 
 /// Wall-clock budget of an operator episode: long enough for unhurried driving.
 const TELEOP_WALL_TIME_S: f64 = 3600.0;
@@ -38,6 +44,7 @@ pub fn compressed_routes() -> Router<AppState> {
         .route("/teleop/{suite}/{task_id}", get(pool_teleop_page))
         .route("/api/teleop", post(create))
         .route("/api/teleop/{id}/save", post(save))
+        .route("/api/episodes/{id}/finish", post(finish))
         .route("/demos", get(demos_page))
         .route("/api/demos", get(demos_json))
         .route("/api/demos/export", post(export))
@@ -91,6 +98,8 @@ struct TeleopPage {
     /// Drive a branch of this episode at this control step (`?branch=ID&step=N`, the review's "Continue from
     /// here"): every episode the page makes (Reset too) starts from that state.
     branch: Option<(String, u64)>,
+    /// The gripper command the page starts with: a branch's parent's last one, so a held object stays held.
+    gripper: f64,
 }
 
 /// `?branch=ID&step=N` of a teleop page.
@@ -129,16 +138,23 @@ async fn teleop_page_of(app: &AppState, task: &str, q: BranchQuery) -> Response 
         Err(e) => return ApiError::not_found(e).into_response(),
     };
     // A branch the page could not start is an error page now, not a page whose controls fail later.
-    if let Some((parent, step)) = &branch
-        && let Err(e) = branch_point(app, &task, parent, *step).await
-    {
-        return e.into_response();
-    }
-    page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED, branch })
+    let gripper = match &branch {
+        Some((parent, step)) => match branch_point(app, &task, parent, *step).await {
+            Ok(g) => g,
+            Err(e) => return e.into_response(),
+        },
+        None => GRIPPER_OPEN,
+    };
+    page(TeleopPage { task, instruction, k, seed: DEFAULT_SEED, branch, gripper })
 }
 
-/// Whether episode `parent` of `task` can be continued from control step `step` (its action log holds that many).
-async fn branch_point(app: &AppState, task: &str, parent: &str, step: u64) -> Result<(), ApiError> {
+/// The gripper command of a fresh start (robosuite: −1 opens, +1 closes).
+const GRIPPER_OPEN: f64 = -1.0;
+
+/// Whether episode `parent` of `task` can be continued from control step `step` (its action log holds that many),
+/// and the gripper command in force there: the last executed action's (open before any), which the branch's
+/// first actions repeat instead of opening the gripper on what it holds.
+async fn branch_point(app: &AppState, task: &str, parent: &str, step: u64) -> Result<f64, ApiError> {
     let Some(run) = crate::rows::run_dir_of(app, parent).await else {
         return Err(ApiError::not_found(format!("no episode {parent} to branch from")));
     };
@@ -153,7 +169,7 @@ async fn branch_point(app: &AppState, task: &str, parent: &str, step: u64) -> Re
     if step > available {
         return Err(ApiError::bad_request(format!("step {step} is beyond episode {parent}'s action log ({available} control steps were executed)")));
     }
-    Ok(())
+    Ok(source.actions[..step as usize].last().map_or(GRIPPER_OPEN, |(_, a)| a[6]))
 }
 
 #[derive(Deserialize)]
@@ -219,16 +235,92 @@ async fn create(State(app): State<AppState>, body: Bytes) -> ApiResult {
     .map_err(|e| ApiError::internal(format!("teleop start: {e}")))?;
     started.map_err(|e| ApiError::unprocessable(format!("{e:#}")))?;
     if let Ok(mut m) = app.teleop.lock() {
-        m.insert(prepared.episode_id.clone(), task.clone());
+        m.insert(prepared.episode_id.clone(), TeleopEpisode::new(task.clone()));
     }
+    watch_abandonment(app.clone(), prepared.episode_id.clone());
     app.sync(&prepared.episode_id).await;
     Ok(ok_json(json!({"ok": true, "episode_id": prepared.episode_id, "task": task, "seed": req.seed, "branch": prepared.branch})))
 }
 
 /// The handle and task of an operator episode; agents' episodes are never returned.
 fn teleop_episode(app: &libero_server::App, id: &str) -> Option<(EpisodeHandle, String)> {
-    let task = app.teleop.lock().ok()?.get(id).cloned()?;
+    let task = app.teleop.lock().ok()?.get(id)?.task.clone();
     Some((app.episodes.lifecycle().handle(id)?, task))
+}
+
+/// Why an episode nobody drives was ended (what the live page, review and API show as its reason).
+fn abandoned_reason(after: Duration) -> String {
+    format!("abandoned: no teleop page was connected to it for {} s (serve --teleop-abandon-s)", after.as_secs())
+}
+
+/// Ends teleop episode `id` as abandoned once no teleop page has been connected to it for
+/// [`libero_server::App::teleop_abandon_after`] (a page closed or navigated away from, or one that never
+/// connected). Stops watching when the episode ends otherwise or leaves the teleop map.
+fn watch_abandonment(app: AppState, id: String) {
+    let after = app.teleop_abandon_after;
+    let period = (after / 4).clamp(Duration::from_millis(200), Duration::from_secs(5));
+    tokio::spawn(async move {
+        loop {
+            tokio::time::sleep(period).await;
+            let (due, sockets) = match app.teleop.lock().ok().and_then(|m| m.get(&id).cloned()) {
+                Some(t) => (!t.saving && t.sockets == 0 && t.unattended_since.elapsed() >= after, t.sockets),
+                None => return,
+            };
+            let open = app.episodes.lifecycle().status(&id).is_some_and(|s| s.outcome.is_none());
+            if !open {
+                // Ended some other way (finished, aborted, saved): forget it once no page holds it any more.
+                if sockets == 0 {
+                    forget(&app, &id);
+                    return;
+                }
+                continue;
+            }
+            if due {
+                let (eps, episode) = (app.episodes.clone(), id.clone());
+                // A join error leaves the episode to the wall-time budget; nothing else can end it here.
+                let _ = tokio::task::spawn_blocking(move || eps.lifecycle().stop(&episode, &abandoned_reason(after))).await;
+                app.sync(&id).await;
+                forget(&app, &id);
+                return;
+            }
+        }
+    });
+}
+
+fn forget(app: &libero_server::App, id: &str) {
+    if let Ok(mut m) = app.teleop.lock() {
+        m.remove(id);
+    }
+}
+
+/// Counts a teleop socket as connected for the abandonment watch while it lives.
+struct Attended {
+    app: AppState,
+    id: String,
+}
+
+impl Attended {
+    fn new(app: AppState, id: String) -> Self {
+        if let Ok(mut m) = app.teleop.lock()
+            && let Some(t) = m.get_mut(&id)
+        {
+            t.sockets += 1;
+        }
+        Self { app, id }
+    }
+}
+
+impl Drop for Attended {
+    fn drop(&mut self) {
+        if let Ok(mut m) = self.app.teleop.lock()
+            && let Some(t) = m.get_mut(&self.id)
+        {
+            t.sockets = t.sockets.saturating_sub(1);
+            if t.sockets == 0 {
+                t.unattended_since = Instant::now();
+            }
+        }
+    }
 }
 
 async fn control_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -236,6 +328,14 @@ async fn control_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Path(
         return ApiError::not_found(format!("{id} is not an operator episode of this server")).into_response();
     };
     ws.on_upgrade(move |socket| control_stream(socket, app, id, handle))
+}
+
+/// A message of the control socket that is not an action batch: `{"type": "save"}` saves the demonstration,
+/// answering with `save_progress` messages and then `saved` (or `save_failed`).
+#[derive(Deserialize)]
+struct ControlRequest {
+    #[serde(rename = "type")]
+    kind: String,
 }
 
 /// One batch from the page: `seq` echoes back so the page can pair answers and measure the achieved rate.
@@ -248,12 +348,26 @@ struct ActionBatch {
 /// Runs the page's batches one after another as `osc_sequence` calls and answers each. Batches are executed
 /// in order; the page keeps at most a couple in flight, so the queue here stays short.
 async fn control_stream(mut socket: WebSocket, app: AppState, id: String, handle: EpisodeHandle) {
+    let _attended = Attended::new(app.clone(), id.clone());
     while let Some(Ok(message)) = socket.recv().await {
         let text = match message {
             Message::Text(t) => t,
             Message::Close(_) => return,
             _ => continue,
         };
+        if let Ok(ControlRequest { kind }) = serde_json::from_str::<ControlRequest>(&text) {
+            if kind != "save" {
+                let reply = json!({"type": "error", "error": format!("unknown request {kind:?}: an action batch or {{\"type\": \"save\"}}")});
+                if socket.send(Message::Text(reply.to_string().into())).await.is_err() {
+                    return;
+                }
+                continue;
+            }
+            if !save_over_socket(&mut socket, &app, &id).await {
+                return;
+            }
+            continue;
+        }
         let reply = match serde_json::from_str::<ActionBatch>(&text) {
             Ok(batch) if (1..=MAX_MICRO_ACTIONS_PER_CALL).contains(&batch.actions.len()) => run_batch(&handle, batch).await,
             Ok(batch) => json!({"type": "ack", "seq": batch.seq, "ok": false,
@@ -286,18 +400,73 @@ async fn run_batch(handle: &EpisodeHandle, batch: ActionBatch) -> Value {
 /// Finishes the operator episode, records its bundle (replayed, hence verified or not) and reports why it is
 /// not verified when it is not.
 async fn save(State(app): State<AppState>, Path(id): Path<String>) -> Response {
-    let Some((handle, task)) = teleop_episode(&app, &id) else {
-        return ApiError::not_found(format!("{id} is not an operator episode of this server")).into_response();
+    match save_demo(&app, &id, None).await {
+        Ok(v) => ok_json(v),
+        Err(e) => e.into_response(),
+    }
+}
+
+/// "Save demonstration" over the control socket: `save_progress` messages while the replay renders and verifies
+/// (10–40 s), then `saved` with [`save_demo`]'s answer or `save_failed`. False when the page has gone.
+async fn save_over_socket(socket: &mut WebSocket, app: &AppState, id: &str) -> bool {
+    let (tx, mut rx) = mpsc::unbounded_channel::<(usize, usize)>();
+    let started = Instant::now();
+    let send = |v: Value| Message::Text(v.to_string().into());
+    if socket.send(send(json!({"type": "save_progress", "phase": "finishing", "elapsed_s": 0.0}))).await.is_err() {
+        return false;
+    }
+    let work = save_demo(app, id, Some(tx));
+    tokio::pin!(work);
+    let mut gone = false;
+    let result = loop {
+        tokio::select! {
+            r = &mut work => break r,
+            Some((done, total)) = rx.recv() => {
+                // Only the latest of a burst: the page needs where it is, not every frame.
+                let (mut done, mut total) = (done, total);
+                while let Ok((d, t)) = rx.try_recv() {
+                    (done, total) = (d, t);
+                }
+                let msg = json!({"type": "save_progress", "phase": "replaying", "done": done, "total": total,
+                    "elapsed_s": started.elapsed().as_secs_f64()});
+                // A page that went away does not stop the save: it goes on and the bundle is kept.
+                gone = gone || socket.send(send(msg)).await.is_err();
+            }
+        }
     };
+    let reply = match result {
+        Ok(mut v) => {
+            v["type"] = json!("saved");
+            v["elapsed_s"] = json!(started.elapsed().as_secs_f64());
+            v
+        }
+        Err(e) => json!({"type": "save_failed", "ok": false, "error": e.message()}),
+    };
+    !gone && socket.send(send(reply)).await.is_ok()
+}
+
+/// Finishes teleop episode `id` (if it is still open), records its bundle with the verifying replay, telling
+/// `progress` each rendered frame, and answers what the page shows.
+async fn save_demo(app: &AppState, id: &str, progress: Option<mpsc::UnboundedSender<(usize, usize)>>) -> Result<Value, ApiError> {
+    let Some((handle, task)) = teleop_episode(app, id) else {
+        return Err(ApiError::not_found(format!("{id} is not an operator episode of this server")));
+    };
+    if let Ok(mut m) = app.teleop.lock()
+        && let Some(t) = m.get_mut(id)
+    {
+        t.saving = true;
+    }
     let eps = app.episodes.clone();
-    let episode = id.clone();
+    let episode = id.to_owned();
     let saved = tokio::task::spawn_blocking(move || -> anyhow::Result<Value> {
         let finish = handle.call("finish_episode", None);
-        let options = RecordOptions {
-            source_type: "human_teleop".into(),
-            source_desc: "libero-agent dashboard teleop (keyboard / gamepad)".into(),
+        let options = RecordOptions { source_type: "human_teleop".into(), source_desc: teleop_desc(&eps, &episode) };
+        let mut tell = |done: usize, total: usize| {
+            if let Some(tx) = &progress {
+                let _ = tx.send((done, total));
+            }
         };
-        let s = eps.lifecycle().record_demo(&episode, &options)?;
+        let s = eps.lifecycle().record_demo_with_progress(&episode, &options, &mut tell)?;
         let violations: Vec<String> = validate_bundle(&s.dir).iter().map(ToString::to_string).collect();
         let reason = if !violations.is_empty() {
             Some(format!("the bundle breaks {} rule(s) of §7.7", violations.len()))
@@ -313,18 +482,53 @@ async fn save(State(app): State<AppState>, Path(id): Path<String>) -> Response {
             "bundle": format!("{}/{}", library::task_dir_name(&task), library::task_dir_name(&episode)),
             "frame_count": s.frame_count, "transition_count": s.transition_count,
             "source_success": s.source_success, "replay_success": s.replay_success, "finish": finish,
+            "branch": libero_episode::demo::read_manifest(&s.dir.join(MANIFEST)).ok().and_then(|m| m.branch().cloned()),
         }))
     })
     .await;
-    app.sync(&id).await;
-    if let Ok(mut m) = app.teleop.lock() {
-        m.remove(&id);
-    }
+    app.sync(id).await;
+    forget(app, id);
     match saved {
-        Ok(Ok(v)) => ok_json(v),
-        Ok(Err(e)) => ApiError::unprocessable(format!("{e:#}")).into_response(),
-        Err(e) => ApiError::internal(format!("save: {e}")).into_response(),
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => Err(ApiError::unprocessable(format!("{e:#}"))),
+        Err(e) => Err(ApiError::internal(format!("save: {e}"))),
     }
+}
+
+/// The bundle's `source_desc`: who drove, and for a branch where it continued from.
+fn teleop_desc(eps: &libero_server::episodes::Episodes, episode: &str) -> String {
+    let base = "libero-agent dashboard teleop (keyboard / gamepad)";
+    let run = libero_episode::RunDir::new(eps.lifecycle().runs_dir().join(episode));
+    match libero_episode::demo::SourceEpisode::read(&run).ok().and_then(|s| s.branch) {
+        Some(b) => format!("{base}, continuing {} from control step {} (its {} actions replayed first)", b.parent_episode_id, b.parent_control_step, b.replayed_actions),
+        None => base.to_owned(),
+    }
+}
+
+/// `POST /api/episodes/{id}/finish`: "Finish and judge" on the live and teleop pages. Calls the episode's own
+/// `finish_episode` (in-process, as the teleop socket drives it) and answers the evaluator's verdict from
+/// `result.json`. 404 for an episode this server does not hold; an episode that already ended answers its
+/// verdict as it stands.
+async fn finish(State(app): State<AppState>, Path(id): Path<String>) -> ApiResult {
+    let Some(handle) = app.episodes.lifecycle().handle(&id) else {
+        return Err(ApiError::not_found(format!("no open episode {id} on this server")));
+    };
+    let answer = tokio::task::spawn_blocking(move || handle.call("finish_episode", None))
+        .await
+        .map_err(|e| ApiError::internal(format!("finish: {e}")))?;
+    app.sync(&id).await;
+    let status = app.episodes.lifecycle().status(&id);
+    let run = crate::rows::run_dir_of(&app, &id).await;
+    let result = run.as_ref().and_then(libero_episode::records::read_result);
+    let evaluation = result.as_ref().and_then(|r| r.private_evaluation.clone()).unwrap_or_default();
+    Ok(ok_json(json!({
+        "ok": answer["ok"] == true, "episode_id": id, "answer": answer,
+        "state": status.as_ref().map(|s| json!(s.state)), "outcome": status.as_ref().and_then(|s| s.outcome),
+        "reason": status.and_then(|s| s.reason),
+        "success": result.as_ref().and_then(|r| r.success),
+        "completed_required_stage_count": evaluation.completed_required_stage_count,
+        "required_stage_count": evaluation.required_stage_count,
+    })))
 }
 
 // ---------------------------------------------------------------------------------------------- demos page
@@ -381,6 +585,7 @@ pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
             "replay_success": m.verification.as_ref().and_then(|v| v.replay_success),
             "actions": m.transition_count, "source_type": m.source.as_ref().and_then(|s| s.source_type.as_deref()),
             "episode_id": m.source.as_ref().and_then(|s| s.episode_id.as_deref()), "modified_unix_s": modified,
+            "branch": m.branch(),
             "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
             "replay_checks": m.replay_checks.iter().flatten().map(|c| c.summary()).collect::<Vec<_>>(),
         }));

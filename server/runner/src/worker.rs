@@ -106,6 +106,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         limits: libero_server::listener::ConnLimits::default(),
         console: args.console,
         thumbnails: libero_server::ThumbnailArgs::off(),
+        teleop_abandon_s: libero_server::args::DEFAULT_TELEOP_ABANDON_S,
     };
     let has_console = serve_args.console.is_some();
     let server = InProcessServer::start_args(serve_args, "worker_stopped_before_finish")?;

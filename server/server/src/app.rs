@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use axum::Router;
@@ -46,7 +47,9 @@ pub struct App {
     pub batch_roots: Vec<PathBuf>,
     /// Episodes the operator drives from the teleop page; only these accept actions from the operator's socket,
     /// so an agent's benchmark episode can never be steered from the dashboard.
-    pub teleop: Mutex<HashMap<String, String>>,
+    pub teleop: Mutex<HashMap<String, TeleopEpisode>>,
+    /// How long a teleop episode may go without a connected teleop page before it is ended as abandoned.
+    pub teleop_abandon_after: Duration,
     /// `--artifacts`: where run directories recorded on other machines are fetched from.
     pub artifacts: Option<libero_artifacts::Artifacts>,
     /// The browser console's routes, when this server has one.
@@ -57,6 +60,25 @@ pub struct App {
 }
 
 pub type AppState = Arc<App>;
+
+/// A teleop episode of [`App::teleop`]: its task, and whether a page is driving it (the console ends one nobody
+/// drives after [`App::teleop_abandon_after`]).
+#[derive(Debug, Clone)]
+pub struct TeleopEpisode {
+    pub task: String,
+    /// Teleop sockets open on it now.
+    pub sockets: usize,
+    /// Since when no socket has been open (its creation, or its last socket's close).
+    pub unattended_since: Instant,
+    /// A demonstration is being saved from it: ending it then is the save's business.
+    pub saving: bool,
+}
+
+impl TeleopEpisode {
+    pub fn new(task: String) -> Self {
+        Self { task, sockets: 0, unattended_since: Instant::now(), saving: false }
+    }
+}
 
 impl App {
     /// Waits until the store writer has written what `id` shows now (the writer alone writes rows; a reader that

@@ -80,7 +80,15 @@ pub struct ServeArgs {
     /// Which task thumbnails a server with a console renders ahead, at start.
     #[command(flatten)]
     pub thumbnails: ThumbnailArgs,
+    /// Seconds a teleop episode may go without its teleop page's connection before it is ended as abandoned
+    /// (aborted, the reason saying so): a page closed or navigated away from leaves nothing running.
+    #[arg(long = "teleop-abandon-s", value_name = "SECONDS", default_value_t = DEFAULT_TELEOP_ABANDON_S,
+        value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    pub teleop_abandon_s: u64,
 }
+
+/// `--teleop-abandon-s`'s default: a reload or a short network hiccup never ends an episode, a page left does.
+pub const DEFAULT_TELEOP_ABANDON_S: u64 = 180;
 
 /// Task thumbnails rendered ahead at start by a server with a console ([`crate::thumbnails`]).
 #[derive(clap::Args, Debug, Clone)]

@@ -190,6 +190,7 @@ impl InProcessServer {
             limits: crate::listener::ConnLimits::default(),
             console,
             thumbnails: crate::ThumbnailArgs::off(),
+            teleop_abandon_s: crate::args::DEFAULT_TELEOP_ABANDON_S,
         };
         Self::start_args(args, stop_reason)
     }

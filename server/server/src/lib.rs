@@ -38,7 +38,7 @@ pub use libero_episode::memory;
 
 pub use api::{episode_json, video_part};
 pub use api_error::{ApiError, ApiResult};
-pub use app::{App, AppState, Console};
+pub use app::{App, AppState, Console, TeleopEpisode};
 pub use args::{ServeArgs, ServerFlags, StoreFlags, ThumbnailArgs, batch_roots, check_public_url, default_data_dir};
 pub use mcp_gate::bearer;
 pub use router::router;

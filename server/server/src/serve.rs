@@ -172,6 +172,7 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         thumbnails,
         batch_roots: batch_roots(&data, &args.batches),
         teleop: Mutex::new(HashMap::new()),
+        teleop_abandon_after: Duration::from_secs(args.teleop_abandon_s),
         artifacts,
         console: args.console,
         public_url: flags.public_url.as_deref().map(|u| u.trim_end_matches('/').to_owned()).unwrap_or_else(|| base_url.clone()),

@@ -366,3 +366,29 @@ pub fn episode_token_while_running(workspace_root: &Path, limit: Duration, mut d
     }
     None
 }
+
+/// `POST` of a JSON body to `server` with the operator token (or without it: `token` None); (status, JSON answer).
+pub fn post_json(server: &Server, path: &str, body: &Value, token: Option<&str>) -> (u16, Value) {
+    let auth = token.map(|t| format!("Bearer {t}"));
+    let mut headers = vec![("Content-Type", "application/json")];
+    if let Some(a) = &auth {
+        headers.push(("Authorization", a.as_str()));
+    }
+    let (status, _, body) = http("POST", &format!("{}{path}", server.url), &headers, body.to_string().as_bytes());
+    (status, serde_json::from_slice(&body).unwrap_or_else(|_| serde_json::json!({"raw": String::from_utf8_lossy(&body)})))
+}
+
+/// An MCP session on a prepared episode (`POST /api/episodes`'s answer), as client `name`.
+#[cfg(feature = "episode-serve")]
+pub fn mcp_session(prepared: &Value, name: &str) -> libero_server::client::McpClient {
+    let token = prepared["mcp_headers"]["Authorization"].as_str().expect("token").trim_start_matches("Bearer ");
+    libero_server::client::McpClient::connect_with_token(prepared["mcp_url"].as_str().expect("mcp url"), token, name).expect("MCP session")
+}
+
+/// A tool call's payload, checked to be ok.
+#[cfg(feature = "episode-serve")]
+pub fn call_ok(client: &mut libero_server::client::McpClient, tool: &str, args: Value) -> Value {
+    let payload = client.call_tool_payload(tool, args).expect("the MCP call");
+    assert_eq!(payload["ok"], true, "{tool}: {payload}");
+    payload
+}
