@@ -357,13 +357,52 @@ async function loadAgent() {
   document.body.dataset.agentText = log.map(([e]) => agentEventText(e)).join('\n').slice(0, 20000);
 }
 
+/** Calls of at most this many actions are teleop-sized (the teleop page sends 2 at a time). */
+const SHORT_CALL_ACTIONS = 5;
+
+/**
+ * The calls as timeline rows: a run of three or more accepted teleop-sized `osc_sequence` calls with no stage event
+ * in it is one row ("146 short calls · 292 actions, steps 40–332"), so a teleop episode's timeline is not
+ * flooded; every other call is a row of its own.
+ */
+function callRows() {
+  const rows = [];
+  let run = [];
+  const stageSteps = data.stage_events.map((e) => e.control_step).filter((c) => c != null);
+  const flush = () => {
+    if (run.length >= 3) {
+      const actions = run.reduce((n, c) => n + (c.actions ?? 0), 0);
+      const [first, last] = [run[0], run[run.length - 1]];
+      rows.push({ t: first.t0 ?? first.t, cls: 'ok grouped', text: `${run.length} short osc_sequence calls · ${actions} actions, steps ${first.control_step_begin}–${last.control_step_end}`,
+        title: run.map((c) => `#${c.event_index} ${callSummary(c.tool, c.actions)}`).join('\n') });
+    } else {
+      for (const c of run) rows.push(callRow(c));
+    }
+    run = [];
+  };
+  for (const c of data.calls) {
+    const short = c.ok && c.tool === 'osc_sequence' && (c.actions ?? 0) > 0 && c.actions <= SHORT_CALL_ACTIONS;
+    // A stage event during the run's last call ends the run there, so the event stands between two rows.
+    const last = run[run.length - 1];
+    const stageInside = last != null && stageSteps.some((s) => s > last.control_step_begin && s <= last.control_step_end);
+    if (!short || stageInside) flush();
+    if (short) run.push(c); else rows.push(callRow(c));
+  }
+  flush();
+  return rows;
+}
+
+function callRow(c) {
+  return { t: c.t, cls: c.ok ? 'ok' : 'error', text: `${callSummary(c.tool, c.actions)} ${c.ok ? 'ok' : `${c.error_type}: ${c.error}`}` };
+}
+
 function buildEvents() {
   const items = [
-    ...data.calls.map((c) => ({ t: c.t, cls: c.ok ? 'ok' : 'error', text: `${callSummary(c.tool, c.actions)} ${c.ok ? 'ok' : `${c.error_type}: ${c.error}`}` })),
+    ...callRows(),
     ...data.stage_events.map((e) => ({ t: e.t, cls: e.kind, text: stageText(e) })),
   ].sort((a, b) => (a.t ?? -1) - (b.t ?? -1));
   $('events').replaceChildren(...items.map((it) => {
-    const li = el('li', { class: it.cls, 'data-t': it.t ?? '' }, `${it.t != null ? fmtS(it.t) : '–'} s · ${it.text}`);
+    const li = el('li', { class: it.cls, 'data-t': it.t ?? '', title: it.title ?? '' }, `${it.t != null ? fmtS(it.t) : '–'} s · ${it.text}`);
     if (it.t != null) li.addEventListener('click', () => { player.pause(); seek(it.t); });
     return li;
   }));

@@ -144,7 +144,7 @@ fn key_to_frame_ms(sent: &[BatchSent], frames: &[FrameSeen]) -> Vec<f64> {
 }
 
 /// Opens `path` on the server as the browser would, with the operator's credential.
-async fn open_socket(base_url: &str, path: &str) -> anyhow::Result<Socket> {
+pub(crate) async fn open_socket(base_url: &str, path: &str) -> anyhow::Result<Socket> {
     let ws_base = base_url.replacen("http://", "ws://", 1);
     let mut request = format!("{}{path}", ws_base.trim_end_matches('/')).into_client_request()?;
     for (name, value) in operator_headers(base_url)? {
@@ -155,7 +155,7 @@ async fn open_socket(base_url: &str, path: &str) -> anyhow::Result<Socket> {
 }
 
 /// The control step of a binary frame message (4-byte LE header length, JSON header, JPEG).
-fn frame_step(bytes: &[u8]) -> Option<Option<u64>> {
+pub(crate) fn frame_step(bytes: &[u8]) -> Option<Option<u64>> {
     let len = u32::from_le_bytes(bytes.get(..4)?.try_into().ok()?) as usize;
     let header: Value = serde_json::from_slice(bytes.get(4..4 + len)?).ok()?;
     Some(header["control_step"].as_u64())

@@ -14,6 +14,8 @@ mod bench_queue;
 #[cfg(feature = "episode-serve")]
 mod bench_teleop;
 #[cfg(feature = "episode-serve")]
+mod bench_review;
+#[cfg(feature = "episode-serve")]
 mod bench_soak;
 #[cfg(feature = "episode-serve")]
 mod bench_scale;
@@ -115,6 +117,10 @@ enum BenchCommand {
     /// over K scenes, per-episode increments, open time cold and warm, `osc_sequence` latency with N open.
     #[cfg(feature = "episode-serve")]
     Scale(bench_scale::BenchScaleArgs),
+    /// A paced expert watched live (distinct frames per second of motion) and its review without video (moments
+    /// rendered from recorded state: the first, uncached and cached).
+    #[cfg(feature = "episode-serve")]
+    Review(bench_review::BenchReviewArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -144,6 +150,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(BenchCommand::Scale(a)) => bench_scale::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Queue(a)) => bench_queue::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Review(a)) => bench_review::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Serve(a) => {
             libero_server::run_serve(libero_server::ServeArgs { console: Some(libero_dashboard::console()), ..a })?;

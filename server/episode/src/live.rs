@@ -417,6 +417,8 @@ mod live_renderer {
         playback: Playback,
         /// When the queue last went from empty to holding a state: how long the pending frame has waited.
         pending_since: Option<Instant>,
+        /// When the episode last published a state (the simulation stepped then).
+        last_published: Option<Instant>,
         closed: bool,
     }
 
@@ -513,7 +515,7 @@ mod live_renderer {
             viewers: LiveViewers,
         ) -> std::io::Result<Self> {
             let shared = Arc::new(Shared {
-                slot: Mutex::new(Slot { queue: Default::default(), playback: Playback::default(), pending_since: None, closed: false }),
+                slot: Mutex::new(Slot { queue: Default::default(), playback: Playback::default(), pending_since: None, last_published: None, closed: false }),
                 wake: Condvar::new(),
             });
             let waker = shared.clone();
@@ -540,9 +542,11 @@ mod live_renderer {
             while slot.queue.front().is_some_and(|s| s.sim_time_s < state.sim_time_s - MAX_PLAYBACK_LAG_S - CONTROL_PERIOD_S) {
                 slot.queue.pop_front();
             }
+            let now = Instant::now();
             if slot.queue.is_empty() {
-                slot.pending_since = Some(Instant::now());
+                slot.pending_since = Some(now);
             }
+            slot.last_published = Some(now);
             slot.queue.push_back(state);
             self.shared.wake.notify_all();
         }
@@ -587,9 +591,13 @@ mod live_renderer {
     /// When the next live render may start after one that ran from `started` to `ended`: at the rate cap, and
     /// after an idle time as long as the render took, so that watching never takes more than half a core from
     /// the simulation on a CPU renderer (a render there costs about as much as many control steps).
-    fn next_render_at(started: Instant, ended: Instant) -> Instant {
+    /// While the simulation stands still (`simulating` false: no state was published during the render, as between
+    /// an agent's calls or while a paced expert waits out its call), there is nothing to leave room for: only the
+    /// rate cap holds, so a call played back after it ran is shown as smoothly as the renderer allows.
+    fn next_render_at(started: Instant, ended: Instant, simulating: bool) -> Instant {
         let cost = ended.saturating_duration_since(started);
-        (started + LIVE_FRAME_MIN_INTERVAL).max(ended + cost)
+        let capped = started + LIVE_FRAME_MIN_INTERVAL;
+        if simulating { capped.max(ended + cost) } else { capped }
     }
 
     /// How long the newest state of a short stretch must still wait before it is shown (see [`Playback::next`]).
@@ -615,7 +623,8 @@ mod live_renderer {
                 shown = label.or(shown);
                 let started = Instant::now();
                 self.render(state);
-                not_before = Some(next_render_at(started, Instant::now()));
+                let simulating = self.shared.slot.lock().map_or(true, |slot| slot.last_published.is_some_and(|t| t >= started));
+                not_before = Some(next_render_at(started, Instant::now(), simulating));
             }
         }
 
@@ -748,13 +757,15 @@ mod live_renderer {
         }
 
         #[test]
-        fn live_renders_leave_the_simulation_at_least_half_a_core() {
+        fn live_renders_leave_a_running_simulation_at_least_half_a_core() {
             let t0 = Instant::now();
             // A cheap render waits for the rate cap.
-            assert_eq!(next_render_at(t0, t0 + Duration::from_millis(10)), t0 + LIVE_FRAME_MIN_INTERVAL);
-            // A costly one (a CPU renderer) idles as long as it took.
+            assert_eq!(next_render_at(t0, t0 + Duration::from_millis(10), true), t0 + LIVE_FRAME_MIN_INTERVAL);
+            // A costly one (a CPU renderer) idles as long as it took while the simulation runs...
             let ended = t0 + Duration::from_millis(200);
-            assert_eq!(next_render_at(t0, ended), ended + Duration::from_millis(200));
+            assert_eq!(next_render_at(t0, ended, true), ended + Duration::from_millis(200));
+            // ... and not while it stands still (playing a finished call back): only the rate cap then.
+            assert_eq!(next_render_at(t0, ended, false), t0 + LIVE_FRAME_MIN_INTERVAL);
         }
     }
 }

@@ -97,7 +97,7 @@ impl McpClient {
 
 /// `request` to the operator API at `base` with the operator credential this user can find; a 401 says how
 /// to pass one.
-fn operator_request(method: &str, base: &str, path: &str, body: &[u8], timeout: Duration) -> anyhow::Result<crate::http_client::HttpResponse> {
+pub fn operator_request(method: &str, base: &str, path: &str, body: &[u8], timeout: Duration) -> anyhow::Result<crate::http_client::HttpResponse> {
     let base = base.trim_end_matches('/');
     let url = HttpUrl::parse(&format!("{base}{path}"))?;
     let mut headers = credential::operator_headers(base)?;
