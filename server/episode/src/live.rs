@@ -408,6 +408,11 @@ mod live_renderer {
     pub const MAX_PLAYBACK_LAG_S: f64 = 3.0;
     /// One control period (20 Hz): the first state of a played-back stretch is due this long after it starts.
     const CONTROL_PERIOD_S: f64 = 0.05;
+    /// A stretch is played back only when the simulation ran it at least this much faster than real time (an
+    /// agent's call executed in a fraction of its duration). A stream of states arriving in real time (teleop, or a
+    /// simulation that is no faster than the clock) is already motion at its pace: its newest state is shown, so
+    /// playback never adds latency there.
+    const RAN_AHEAD_FACTOR: f64 = 1.5;
 
     /// The states waiting for the live renderer, oldest first, and the playback clock. While nobody watches only
     /// the newest is kept; while someone does, states older than [`MAX_PLAYBACK_LAG_S`] behind the newest are
@@ -440,12 +445,20 @@ mod live_renderer {
     }
 
     impl Playback {
-        /// Decides the next frame. A short stretch (≤ [`PLAYBACK_SNAP_S`]) shows its newest state: at once when it
+        /// Decides the next frame. A short stretch (≤ [`PLAYBACK_SNAP_S`]), or one published no faster than real
+        /// time ([`RAN_AHEAD_FACTOR`]; `pending_since` to `last_published`), shows its newest state: at once when it
         /// carries its images (an observation's), else once the render pace allows and it has waited
-        /// [`LIVE_OBSERVATION_GRACE`] for an observation. A longer one is played back: the newest state due by the
-        /// clock, no sooner than the render pace allows, the clock moved on when it trails by more than
-        /// [`MAX_PLAYBACK_LAG_S`].
-        fn next(&mut self, now: Instant, queued: &[(f64, bool)], not_before: Option<Instant>, pending_since: Option<Instant>) -> Next {
+        /// [`LIVE_OBSERVATION_GRACE`] for an observation. A longer one the simulation ran ahead is played back: the
+        /// newest state due by the clock, no sooner than the render pace allows, the clock moved on when it trails
+        /// by more than [`MAX_PLAYBACK_LAG_S`].
+        fn next(
+            &mut self,
+            now: Instant,
+            queued: &[(f64, bool)],
+            not_before: Option<Instant>,
+            pending_since: Option<Instant>,
+            last_published: Option<Instant>,
+        ) -> Next {
             let (Some(&(first_s, _)), Some(&(newest_s, newest_rendered))) = (queued.first(), queued.last()) else {
                 return Next::Wait(Duration::from_secs(3600));
             };
@@ -454,7 +467,12 @@ mod live_renderer {
                 _ => first_s - CONTROL_PERIOD_S,
             };
             let paced = not_before.map_or(Duration::ZERO, |t| t.saturating_duration_since(now));
-            if self.anchor.is_none() && newest_s - start_s <= PLAYBACK_SNAP_S {
+            let published_over_s = match (pending_since, last_published) {
+                (Some(a), Some(b)) => b.saturating_duration_since(a).as_secs_f64(),
+                _ => 0.0,
+            };
+            let ran_ahead = newest_s - start_s > PLAYBACK_SNAP_S && newest_s - first_s > RAN_AHEAD_FACTOR * published_over_s;
+            if self.anchor.is_none() && !ran_ahead {
                 let wait = wait_before_showing(now, newest_rendered, not_before, pending_since);
                 return if wait.is_zero() { Next::Show(queued.len() - 1) } else { Next::Wait(wait) };
             }
@@ -644,8 +662,8 @@ mod live_renderer {
                     continue;
                 }
                 let queued: Vec<(f64, bool)> = slot.queue.iter().map(|s| (s.sim_time_s, s.rendered.is_some())).collect();
-                let pending_since = slot.pending_since;
-                match slot.playback.next(Instant::now(), &queued, not_before, pending_since) {
+                let (pending_since, last_published) = (slot.pending_since, slot.last_published);
+                match slot.playback.next(Instant::now(), &queued, not_before, pending_since, last_published) {
                     Next::Show(i) => {
                         let state = slot.queue.drain(..=i).last()?;
                         let drained = slot.queue.is_empty();
@@ -720,18 +738,18 @@ mod live_renderer {
             let queued = stretch(0.0, 50, true);
             let mut playback = Playback::default();
             // The first state is due one control period after playback starts.
-            assert_eq!(playback.next(t0, &queued, None, Some(t0)), Next::Wait(Duration::from_millis(50)));
+            assert_eq!(playback.next(t0, &queued, None, Some(t0), Some(t0)), Next::Wait(Duration::from_millis(50)));
             // One second of wall time later, the state one second into the call (not the call's last).
-            let Next::Show(i) = playback.next(t0 + Duration::from_secs(1), &queued, None, Some(t0)) else { panic!("a frame is due") };
+            let Next::Show(i) = playback.next(t0 + Duration::from_secs(1), &queued, None, Some(t0), Some(t0)) else { panic!("a frame is due") };
             assert!((queued[i].0 - 1.0).abs() < 1e-9, "showed {}", queued[i].0);
             playback.shown(queued[i].0, false);
             let rest = &queued[i + 1..];
             // The render pace holds a state that has no images...
             let paced = t0 + Duration::from_millis(1100);
-            assert_eq!(playback.next(t0 + Duration::from_millis(1060), rest, Some(paced), None), Next::Wait(Duration::from_millis(40)));
+            assert_eq!(playback.next(t0 + Duration::from_millis(1060), rest, Some(paced), None, None), Next::Wait(Duration::from_millis(40)));
             // ... and the call's observation is shown when its time comes: at 2.5 s.
-            assert_eq!(playback.next(t0 + Duration::from_millis(2400), rest, None, None), Next::Show(rest.len() - 3));
-            assert_eq!(playback.next(t0 + Duration::from_millis(2500), rest, Some(paced + Duration::from_secs(9)), None), Next::Show(rest.len() - 1));
+            assert_eq!(playback.next(t0 + Duration::from_millis(2400), rest, None, None, None), Next::Show(rest.len() - 3));
+            assert_eq!(playback.next(t0 + Duration::from_millis(2500), rest, Some(paced + Duration::from_secs(9)), None, None), Next::Show(rest.len() - 1));
             playback.shown(2.5, true);
             assert_eq!(playback.anchor, None, "caught up: the next stretch starts its own clock");
         }
@@ -741,7 +759,7 @@ mod live_renderer {
             let t0 = Instant::now();
             let queued = stretch(0.0, 200, false);
             let mut playback = Playback::default();
-            let Next::Show(i) = playback.next(t0, &queued, None, None) else { panic!("10 s queued: a frame is due at once") };
+            let Next::Show(i) = playback.next(t0, &queued, None, Some(t0), Some(t0)) else { panic!("10 s queued: a frame is due at once") };
             assert!((queued[i].0 - (10.0 - MAX_PLAYBACK_LAG_S)).abs() < 1e-9, "showed {}", queued[i].0);
         }
 
@@ -750,10 +768,25 @@ mod live_renderer {
             let t0 = Instant::now();
             let mut playback = Playback { shown_sim_s: Some(1.0), anchor: None };
             let queued = stretch(1.0, 2, true);
-            assert_eq!(playback.next(t0, &queued, Some(t0 + Duration::from_millis(80)), Some(t0)), Next::Show(1));
+            assert_eq!(playback.next(t0, &queued, Some(t0 + Duration::from_millis(80)), Some(t0), Some(t0)), Next::Show(1));
             // Without its observation yet, it waits for it (the grace), as before.
             let queued = stretch(1.0, 2, false);
-            assert_eq!(playback.next(t0, &queued, None, Some(t0)), Next::Wait(LIVE_OBSERVATION_GRACE));
+            assert_eq!(playback.next(t0, &queued, None, Some(t0), Some(t0)), Next::Wait(LIVE_OBSERVATION_GRACE));
+        }
+
+        #[test]
+        fn states_arriving_in_real_time_are_shown_newest_first_however_many_queued() {
+            // A teleop stream the renderer fell behind on: 1 s of motion published over 1 s. Playing it back would
+            // keep the picture a second behind the operator's keys for good; the newest state is shown instead.
+            let t0 = Instant::now();
+            let mut playback = Playback { shown_sim_s: Some(1.0), anchor: None };
+            let queued = stretch(1.0, 20, true);
+            let published = Some(t0 + Duration::from_secs(1));
+            assert_eq!(playback.next(t0 + Duration::from_secs(1), &queued, None, Some(t0), published), Next::Show(19));
+            // The same second of motion run in 0.2 s (an agent's call) is played back.
+            let mut playback = Playback { shown_sim_s: Some(1.0), anchor: None };
+            let ran = Some(t0 + Duration::from_millis(200));
+            assert!(matches!(playback.next(t0 + Duration::from_millis(200), &queued, None, Some(t0), ran), Next::Wait(_)));
         }
 
         #[test]
