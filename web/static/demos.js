@@ -18,7 +18,12 @@ function row(b) {
   const tr = el('tr', { 'data-key': b.key });
   const pick = el('input', { type: 'checkbox', class: 'pick', value: b.key });
   const date = b.modified_unix_s ? new Date(b.modified_unix_s * 1000).toISOString().replace('T', ' ').slice(0, 19) : '–';
-  const cells = [pick, b.task ?? task, bundle, b.source_type ?? '', b.verified ? 'yes' : 'no',
+  const source = el('span', {}, b.source_type ?? '');
+  if (b.episode_id) {
+    // the source episode by id; linked to its review once the store says it knows it (linkSources)
+    source.append(el('br'), el('small', { class: 'muted source-episode', 'data-episode': b.episode_id, title: 'not in this server\'s store' }, b.episode_id));
+  }
+  const cells = [pick, b.task ?? task, bundle, source, b.verified ? 'yes' : 'no',
     b.valid ? 'yes' : `no: ${b.first_violation}`, String(b.actions ?? '–'), checks(b.replay_checks), date];
   for (const c of cells) {
     const td = el('td');
@@ -53,11 +58,28 @@ function row(b) {
   return tr;
 }
 
+/** Links each source episode the store knows to its review (a few lookups at a time); the others stay plain ids. */
+async function linkSources() {
+  const ids = [...new Set([...document.querySelectorAll('small.source-episode')].map((s) => s.dataset.episode))];
+  const known = async (id) => (await fetch(`/api/episodes/${encodeURIComponent(id)}`)).ok;
+  for (let i = 0; i < ids.length; i += 4) {
+    const part = ids.slice(i, i + 4);
+    const found = await Promise.all(part.map((id) => known(id).catch(() => false)));
+    part.forEach((id, k) => {
+      if (!found[k]) return;
+      for (const s of document.querySelectorAll(`small.source-episode[data-episode="${CSS.escape(id)}"]`)) {
+        s.replaceWith(el('a', { class: 'source-episode', href: `/episodes/${encodeURIComponent(id)}/review` }, id));
+      }
+    });
+  }
+}
+
 async function load() {
   const r = await fetch('/api/demos').then((x) => x.json());
   if (!r.ok) { status(r.error); return; }
   $('bundles').replaceChildren(...r.bundles.map(row));
   if (!r.bundles.length) $('bundles').append(el('tr', {}, 'No bundles yet: record one from a task\'s Teleoperate page.'));
+  await linkSources();
 }
 
 $('all').onchange = () => { for (const c of document.querySelectorAll('.pick')) c.checked = $('all').checked; };

@@ -50,6 +50,7 @@ pub(crate) async fn static_file(Path(file): Path<String>) -> Response {
         "elsewhere.js" => (web_static!("elsewhere.js"), "text/javascript; charset=utf-8"),
         "branch.js" => (web_static!("branch.js"), "text/javascript; charset=utf-8"),
         "annotate.js" => (web_static!("annotate.js"), "text/javascript; charset=utf-8"),
+        "thumbs.js" => (web_static!("thumbs.js"), "text/javascript; charset=utf-8"),
         _ => return ApiError::not_found("no such file").into_response(),
     };
     ([(header::CONTENT_TYPE, kind), (header::CACHE_CONTROL, "no-cache")], body).into_response()

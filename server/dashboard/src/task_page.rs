@@ -70,6 +70,10 @@ struct DemoLine {
     video: String,
     /// One line per episode configuration the bundle was replayed in (`ReplayCheck::summary`).
     replay_checks: Vec<String>,
+    /// The source episode's id (empty when the manifest names none).
+    episode: String,
+    /// Its review, when the store knows the episode; empty otherwise.
+    review: String,
 }
 
 /// One batch column's cell of this task (the Results page's per-task table).
@@ -286,7 +290,12 @@ async fn gather(app: &App, f: TaskFacts) -> anyhow::Result<TaskPage> {
     let rows = app.store.list_filtered(&filter, EPISODE_LIMIT).await?;
     let episodes = rows.iter().map(episode_line).collect();
     let library = libero_episode::demo::library::task_dir(&app.episodes.lifecycle().demo_library(), &f.task_ref);
-    let demos = tokio::task::spawn_blocking(move || crate::teleop::task_bundles(&library)).await?.iter().map(demo_line).collect();
+    let mut demos: Vec<DemoLine> = tokio::task::spawn_blocking(move || crate::teleop::task_bundles(&library)).await?.iter().map(demo_line).collect();
+    for d in demos.iter_mut().filter(|d| crate::common::valid_id(&d.episode)) {
+        if app.store.get(&d.episode).await?.is_some() {
+            d.review = format!("/episodes/{}/review", d.episode);
+        }
+    }
     let (batch_cells, pool_cells) = match results::selected(app, &Selection::default()).await {
         Ok((_, batches)) => batch_cells(&results::view(&batches, &Selection::default()), &f.id),
         // a batch that cannot be read is the Results page's error to show; the task page still opens
@@ -358,6 +367,8 @@ fn demo_line(b: &Value) -> DemoLine {
         actions: b["actions"].as_u64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
         verified,
         replay_checks: b["replay_checks"].as_array().into_iter().flatten().filter_map(|c| c.as_str().map(str::to_owned)).collect(),
+        episode: b["episode_id"].as_str().unwrap_or_default().to_owned(),
+        review: String::new(),
         key,
     }
 }

@@ -12,7 +12,9 @@
 //! server's answers never queue behind them. A page asking for one not rendered yet renders it on demand
 //! ([`Thumbnails::get`]): one at a time, in the order asked (a page's cards top to bottom), and a request whose
 //! page has gone (the browser closed its connection, so its handler was dropped) leaves the queue before its
-//! render starts, so the next page never waits behind the thumbnails of pages nobody is looking at.
+//! render starts, so the next page never waits behind the thumbnails of pages nobody is looking at. Pages come
+//! first: the background pass starts no scene while a page's request waits or renders, and a request for a scene
+//! being rendered right now (by the pass or for another page) waits for that render outside the queue.
 use std::collections::HashMap;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -36,6 +38,9 @@ const SEED: u64 = 100;
 const MAX_ID_LEN: usize = 80;
 /// How long a background render waits for open episodes to end before it looks again.
 const EPISODE_POLL: Duration = Duration::from_secs(2);
+/// How long a background render waits for the pages' renders before it looks again: short, so the pass goes on
+/// soon after a page has what it asked for.
+const ON_DEMAND_POLL: Duration = Duration::from_millis(250);
 
 /// Which camera's view.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -170,6 +175,12 @@ impl Thumbnails {
         if path.is_file() {
             return Ok(path);
         }
+        // The same scene being rendered now (for another page, or by the pass): wait for that render, out of the
+        // queue, instead of waiting for a turn to find the files there.
+        if self.wait_for_render_in_flight(&hash).await && path.is_file() {
+            self.reused.fetch_add(1, Ordering::Relaxed);
+            return Ok(path);
+        }
         let permit = {
             let waiting = Waiting::new(self);
             let permit = self.on_demand.clone().acquire_owned().await;
@@ -185,6 +196,22 @@ impl Thumbnails {
             done.map(|()| path)
         })
         .await
+    }
+
+    /// Waits for a render of scene `hash` in progress, if one is; whether there was one.
+    async fn wait_for_render_in_flight(&self, hash: &str) -> bool {
+        let lock = self.scenes.lock().unwrap_or_else(|p| p.into_inner()).get(hash).cloned();
+        let Some(lock) = lock else { return false };
+        if lock.try_lock().is_ok() {
+            return false;
+        }
+        let waited = tokio::task::spawn_blocking(move || drop(lock.lock().unwrap_or_else(|p| p.into_inner())));
+        waited.await.is_ok()
+    }
+
+    /// Whether a page is waiting for a render or has one running: the background pass then holds back.
+    fn pages_waiting(&self) -> bool {
+        self.on_demand_waiting.load(Ordering::Relaxed) + self.on_demand_rendering.load(Ordering::Relaxed) > 0
     }
 
     /// The scene hash of `id` and its resolved task.
@@ -276,8 +303,14 @@ impl Thumbnails {
         loop {
             let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
             let Some(id) = next else { break };
-            while self.episodes.lifecycle().count() > 0 {
-                std::thread::sleep(EPISODE_POLL);
+            loop {
+                if self.episodes.lifecycle().count() > 0 {
+                    std::thread::sleep(EPISODE_POLL);
+                } else if self.pages_waiting() {
+                    std::thread::sleep(ON_DEMAND_POLL);
+                } else {
+                    break;
+                }
             }
             let done = self.scene(&id).and_then(|(hash, task)| self.ensure(&hash, &id, task));
             if let Err(e) = done {
