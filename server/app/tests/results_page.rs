@@ -366,4 +366,10 @@ fn results_download_as_the_report_prints_and_bad_values_are_refused_visibly() {
     assert_eq!(status, 200, "an outcome in any case filters");
     assert!(home.contains(r#"<option value="FAIL" selected>"#), "the filter shows what it filters on");
     assert!(home.contains(r#"<option value="WATCHDOG_TIMEOUT">"#), "every outcome is a choice");
+    // A filter that matches nothing says so (not "no episodes yet"), and an unknown task group is named.
+    let (status, home) = http_get_text(&format!("{}/?batch=no-such-batch", server.url));
+    assert_eq!(status, 200);
+    assert!(home.contains("No episode matches batch “no-such-batch”") && !home.contains("No episodes yet"), "{home}");
+    let (_, tasks) = http_get_text(&format!("{}/tasks?group=nope", server.url));
+    assert!(tasks.contains("group must be one of perception, short_horizon, long_horizon, not &#34;nope&#34;"), "{tasks}");
 }

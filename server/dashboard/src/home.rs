@@ -30,6 +30,8 @@ struct HomePage {
     outcomes: Vec<String>,
     rows: Vec<HomeRow>,
     tasks: Vec<String>,
+    /// The filters in words when any is set (an empty list then says no episode matches them, not "no episodes").
+    filters_text: String,
 }
 
 /// One line of the episode table (the same fields the live list sends as JSON).
@@ -146,7 +148,13 @@ pub(crate) async fn home(State(app): State<AppState>, headers: axum::http::Heade
     // The Host header passed the allow-list, so it names this server.
     let host = headers.get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("127.0.0.1:8080");
     let exe = std::env::current_exe().map(|p| p.display().to_string()).unwrap_or_else(|_| "libero-agent".into());
+    let filters_text = [("task", &filter.task), ("outcome", &filter.outcome), ("batch", &filter.batch), ("harness", &filter.harness)]
+        .iter()
+        .filter_map(|(name, v)| v.as_ref().map(|v| format!("{name} “{}”", v.chars().take(80).collect::<String>())))
+        .collect::<Vec<_>>()
+        .join(", ");
     page(HomePage {
+        filters_text,
         base_url: format!("http://{host}"),
         exe,
         rows: list.iter().map(HomeRow::of).collect(),

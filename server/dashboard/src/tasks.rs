@@ -163,10 +163,14 @@ fn tasks_view(query: &TasksQuery) -> anyhow::Result<TasksPage> {
     let pool = libero_tasks::Pool::discover()?;
     let text = query.selection_text();
     let picks = text.parse::<libero_tasks::Selection>().and_then(|s| Ok((s.resolve(catalog.tasks(), &pool)?, s.to_string())));
-    let (picks, selection, error) = match picks {
+    let (picks, selection, mut error) = match picks {
         Ok((picks, shown)) => (picks, shown, String::new()),
         Err(e) => (Vec::new(), text.chars().take(200).collect(), e.to_string()),
     };
+    if let Some(g) = query.group().filter(|g| !libero_tasks::pool::GROUPS.contains(g)) {
+        let g: String = g.chars().take(60).collect();
+        error = format!("group must be one of {}, not {g:?}", libero_tasks::pool::GROUPS.join(", "));
+    }
     let counts = pool.suite_counts();
     let mut suites = vec![SuiteOption { value: RELEASE_SUITE.into(), label: "release (T01–T30)".into() }];
     let (runs, total): (usize, usize) = counts.iter().fold((0, 0), |(r, t), c| (r + c.runs, t + c.registered));
