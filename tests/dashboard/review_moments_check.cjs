@@ -101,6 +101,7 @@ async function main() {
     await page.locator('#continue-command').waitFor({ timeout: 120000 });
     report.branch_text = await text(page, '#continue-result');
     check(report.branch_text.includes(`at step ${branchStep}`), `the branch is prepared at step ${branchStep} (${report.branch_text.slice(0, 120)})`);
+    check(report.branch_text.includes('harness expert, model solve, no batch'), `the branch names its harness and model, the parent's (${report.branch_text.slice(0, 160)})`);
     report.branch_step = branchStep;
     await shot(page, 'review-moments-branch');
     check(errors.length === 0, `page errors: ${errors.join('; ')}`);

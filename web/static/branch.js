@@ -35,13 +35,17 @@ if (box) {
     const button = ev.currentTarget;
     button.disabled = true;
     const step = currentStep();
-    const r = await postJson('/api/episodes', { branch: { parent, step }, level: Number(box.dataset.level) });
+    // Recorded with the harness and model asked for (the parent's by default); never in a batch, so a branch does not
+    // count toward the parent batch's results.
+    const named = (input) => { const v = $(input).value.trim(); return v === '' ? undefined : v; };
+    const [harness, model] = [named('continue-harness'), named('continue-model')];
+    const r = await postJson('/api/episodes', { branch: { parent, step }, level: Number(box.dataset.level), harness, model });
     button.disabled = false;
     if (!r.ok && !r.episode_id) { show(el('p', { class: 'error' }, `cannot branch: ${r.error}`)); return; }
     const config = { mcpServers: { libero: { type: 'http', url: r.mcp_url, headers: r.mcp_headers } } };
     const pre = (text, id) => el('pre', { id }, text);
     show(
-      el('p', {}, `Prepared branch ${r.episode_id} at step ${step}: `),
+      el('p', {}, `Prepared branch ${r.episode_id} at step ${step} (harness ${harness ?? '–'}, model ${model ?? '–'}, no batch): `),
       el('a', { id: 'continue-live', href: `/episodes/${encodeURIComponent(r.episode_id)}` }, 'its live view'),
       el('p', {}, 'Workspace'), pre(r.workspace, 'continue-workspace'),
       el('p', {}, 'MCP URL'), pre(r.mcp_url, 'continue-mcp-url'),

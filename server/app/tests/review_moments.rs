@@ -69,4 +69,5 @@ fn an_episode_without_video_is_reviewed_from_moments_rendered_from_its_recorded_
     let branch = rows["episodes"].as_array().expect("episodes").iter().find(|r| r["branch_parent"] == id.as_str()).cloned();
     let branch = branch.unwrap_or_else(|| panic!("a branch of {id}: {rows}"));
     assert_eq!(branch["branch_step"].as_u64(), Some(branch_step), "{branch}");
+    assert_eq!((branch["harness"].as_str(), branch["model"].as_str(), branch["batch"].as_str()), (Some("expert"), Some("solve"), None), "{branch}");
 }

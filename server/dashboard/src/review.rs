@@ -38,6 +38,9 @@ struct ReviewPage {
     batch: Option<(String, String)>,
     /// This server's binary, as "prepare for an agent" prints the command (it may not be on PATH).
     exe: String,
+    /// The episode's harness and model: a branch prepared for an agent is recorded with them unless changed.
+    harness: String,
+    model: String,
 }
 
 pub(crate) async fn review_page(State(app): State<AppState>, Path(id): Path<String>) -> Response {
@@ -52,6 +55,8 @@ pub(crate) async fn review_page(State(app): State<AppState>, Path(id): Path<Stri
             branch: row.episode.branch_parent.clone().zip(row.episode.branch_step),
             exe: std::env::current_exe().map(|p| p.display().to_string()).unwrap_or_else(|_| "libero-agent".into()),
             batch: row.episode.batch.clone().filter(|b| !b.is_empty()).map(|b| (format!("/results?batch={}", crate::results::percent_encode(&b)), b)),
+            harness: row.episode.harness.clone().unwrap_or_default(),
+            model: row.episode.model.clone().unwrap_or_default(),
             task: row.episode.task_ref,
             level: row.episode.level,
             outcome: row.outcome.unwrap_or_else(|| "RUNNING".into()),
