@@ -79,16 +79,16 @@ pub struct BenchScaleArgs {
 
 /// One reading of a process: resident memory, threads and CPU time so far (all threads, user + system).
 #[derive(Debug, Clone, Copy, Serialize)]
-struct ProcSample {
-    rss_mb: f64,
-    threads: u64,
+pub(crate) struct ProcSample {
+    pub(crate) rss_mb: f64,
+    pub(crate) threads: u64,
     #[serde(skip)]
     cpu_s: f64,
 }
 
 impl ProcSample {
     /// Reads `/proc/<pid>/status` (VmRSS, Threads) and `/proc/<pid>/stat` (utime, stime).
-    fn of(pid: u32) -> anyhow::Result<Self> {
+    pub(crate) fn of(pid: u32) -> anyhow::Result<Self> {
         let status = std::fs::read_to_string(format!("/proc/{pid}/status")).with_context(|| format!("is process {pid} gone?"))?;
         let field = |name: &str| -> anyhow::Result<u64> {
             let line = status.lines().find_map(|l| l.strip_prefix(name)).with_context(|| format!("no {name} in /proc/{pid}/status"))?;
@@ -106,19 +106,26 @@ impl ProcSample {
 }
 
 /// A `libero-agent serve` child on a free loopback port; stopped (SIGTERM, then killed) on drop.
-struct ServeProcess {
+pub(crate) struct ServeProcess {
     child: Child,
-    url: String,
+    pub(crate) url: String,
     log: PathBuf,
 }
 
 impl ServeProcess {
     fn start(data: &Path) -> anyhow::Result<Self> {
+        // Thumbnails rendered ahead at start would be counted as the idle server's memory and CPU.
+        Self::start_with(data, &["--thumbnails-ahead".into(), "off".into()])
+    }
+
+    /// `serve` with `extra` arguments (`bench thumbnails` asks for the background pass).
+    pub(crate) fn start_with(data: &Path, extra: &[String]) -> anyhow::Result<Self> {
         std::fs::create_dir_all(data).with_context(|| format!("creating {}", data.display()))?;
         let log = data.join("serve.log");
         let mut child = Command::new(std::env::current_exe().context("which binary is this?")?)
-            // Thumbnails rendered ahead at start would be counted as the idle server's memory and CPU.
-            .args(["serve", "--addr", "127.0.0.1:0", "--thumbnails-ahead", "off", "--data"])
+            .args(["serve", "--addr", "127.0.0.1:0"])
+            .args(extra)
+            .arg("--data")
             .arg(data)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -142,7 +149,7 @@ impl ServeProcess {
         Ok(serve)
     }
 
-    fn pid(&self) -> u32 {
+    pub(crate) fn pid(&self) -> u32 {
         self.child.id()
     }
 
@@ -308,7 +315,7 @@ fn sizing(idle_mb: f64, first_episode_mb: f64, later_first_mb: Option<f64>, addi
 }
 
 /// Waits until `serve` has no episode thread left (at most [`THREAD_EXIT_TIMEOUT`]); returns how long it took.
-fn wait_episode_threads_gone(pid: u32) -> anyhow::Result<f64> {
+pub(crate) fn wait_episode_threads_gone(pid: u32) -> anyhow::Result<f64> {
     let t = Instant::now();
     loop {
         let alive = std::fs::read_dir(format!("/proc/{pid}/task"))?

@@ -191,7 +191,7 @@ impl PeakSampler {
 
 /// One episode as an agent drives it: prepare, initialize, start, `calls` short `osc_sequence` calls, finish.
 /// Returns how long preparing took (the world is built then: compose, compile, place, upload to the renderer).
-fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> anyhow::Result<f64> {
+pub(crate) fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> anyhow::Result<f64> {
     let req = PrepareRequest { level: args.level, seed: 100 + index as u64, video: !args.no_video, ..PrepareRequest::new(&args.task) };
     let t = Instant::now();
     let prepared = prepare_episode(base, &req)?;

@@ -20,6 +20,8 @@ mod bench_soak;
 #[cfg(feature = "episode-serve")]
 mod bench_scale;
 #[cfg(feature = "episode-serve")]
+mod bench_thumbnails;
+#[cfg(feature = "episode-serve")]
 mod cmd_demo;
 #[cfg(feature = "episode-serve")]
 mod cmd_demo_replay;
@@ -121,6 +123,10 @@ enum BenchCommand {
     /// rendered from recorded state: the first, uncached and cached).
     #[cfg(feature = "episode-serve")]
     Review(bench_review::BenchReviewArgs),
+    /// The background thumbnail pass: a real `serve`'s resident memory before, during (max) and after it, and a
+    /// soak of short episodes beside it.
+    #[cfg(feature = "episode-serve")]
+    Thumbnails(bench_thumbnails::BenchThumbnailsArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -148,6 +154,8 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(BenchCommand::Soak(a)) => bench_soak::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Scale(a)) => bench_scale::run(&a),
+        #[cfg(feature = "episode-serve")]
+        Command::Bench(BenchCommand::Thumbnails(a)) => bench_thumbnails::run(&a),
         #[cfg(feature = "episode-serve")]
         Command::Bench(BenchCommand::Queue(a)) => bench_queue::run(&a),
         #[cfg(feature = "episode-serve")]

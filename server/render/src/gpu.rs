@@ -328,6 +328,14 @@ struct GpuModel {
     /// One bind group per texture, and a last one with no texture.
     texture_groups: Vec<wgpu::BindGroup>,
     skybox: Option<usize>,
+    /// The renderer's count of live uploads ([`Renderer::live_uploads`]), decremented when this one goes.
+    live: Arc<AtomicUsize>,
+}
+
+impl Drop for GpuModel {
+    fn drop(&mut self) {
+        self.live.fetch_sub(1, Ordering::SeqCst);
+    }
 }
 
 #[repr(C)]
@@ -410,6 +418,8 @@ struct Inner {
     /// all of them share one upload of its meshes and textures (a LIBERO kitchen's are hundreds of MB) for as long
     /// as any of them holds it.
     content_cache: Mutex<HashMap<[u8; 32], (u64, Weak<GpuModel>)>>,
+    /// Uploads alive now, however they were made ([`Renderer::live_uploads`]).
+    live_uploads: Arc<AtomicUsize>,
 }
 
 /// A key of everything an upload is made from: two scenes with the same key get the same upload. The
@@ -640,6 +650,7 @@ impl Renderer {
                 foreground_waiting: AtomicUsize::new(0),
                 model_cache: Mutex::new(HashMap::new()),
                 content_cache: Mutex::new(HashMap::new()),
+                live_uploads: Arc::default(),
             }),
         })
     }
@@ -807,8 +818,25 @@ impl Renderer {
                 site_shapes,
                 texture_groups,
                 skybox,
+                live: {
+                    inner.live_uploads.fetch_add(1, Ordering::SeqCst);
+                    inner.live_uploads.clone()
+                },
             }),
         })
+    }
+
+    /// Uploads (a scene's meshes and textures on the device) some handle still holds: what a released scene
+    /// must leave at its earlier value.
+    pub fn live_uploads(&self) -> usize {
+        self.inner.live_uploads.load(Ordering::SeqCst)
+    }
+
+    /// Frees on the device what released uploads still hold there: wgpu destroys a dropped buffer or texture
+    /// only when the device is next polled after its last use, so without this the last scene a caller released
+    /// stays in memory (process memory on a software renderer) until the next render.
+    pub fn release_freed(&self) -> Result<(), RenderError> {
+        self.inner.device.poll(wgpu::PollType::wait_indefinitely()).map(drop).map_err(|e| RenderError::Readback(e.to_string()))
     }
 
     fn texture_group(&self, v2d: &wgpu::TextureView, vcube: &wgpu::TextureView) -> wgpu::BindGroup {

@@ -316,9 +316,28 @@ impl Thumbnails {
             if let Err(e) = done {
                 tracing::warn!("thumbnail of {id}: {e}");
             }
+            self.release_scene();
             self.ahead_pending.fetch_sub(1, Ordering::Relaxed);
         }
         self.ahead_running.fetch_sub(1, Ordering::Relaxed);
+    }
+
+    /// After a background render: hands back what its scene held, as an ended episode does. The world went with
+    /// [`Self::render`] (model, upload, simulation), but MuJoCo's compiler keeps the meshes and textures it
+    /// decoded in its process-wide asset cache (up to 500 MB, filled by scenes no episode may ever open), a base
+    /// model another scene's read from stays until [`libero_sim::shared_model::release_unused`], the upload's
+    /// device memory until the device is polled, and the freed pages in the allocator's arenas until trimmed.
+    /// Episodes compile from the asset files again afterwards (their scenes' compiled models are shared while
+    /// they live, whatever this cache holds).
+    fn release_scene(&self) {
+        libero_sim::mujoco_rs::prelude::MjCache::current().clear();
+        libero_sim::shared_model::release_unused();
+        if let Ok(renderer) = self.episodes.lifecycle().renderer()
+            && let Err(e) = renderer.release_freed()
+        {
+            tracing::debug!("thumbnails: the renderer did not free released uploads: {e}");
+        }
+        libero_episode::memory::return_freed_memory();
     }
 }
 
@@ -435,6 +454,32 @@ mod tests {
         assert_eq!(Camera::parse(None), Some(Camera::Head));
         assert_eq!(Camera::parse(Some("wrist")), Some(Camera::Wrist));
         assert_eq!(Camera::parse(Some("depth")), None);
+    }
+
+    /// The background pass lets go of every scene it rendered: once it is done, the renderer's uploads, the
+    /// process's shared models and MuJoCo's compiler cache are back where they were before it. A pass that kept a
+    /// scene (its world, its model, a base model another read from, its upload, its decoded assets) leaves it
+    /// counted here.
+    #[test]
+    fn the_background_pass_leaves_no_model_or_upload_of_its_scenes_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        let episodes = Arc::new(Episodes::new(dir.path().join("data"), "http://127.0.0.1:9".into()).unwrap());
+        let renderer = episodes.lifecycle().renderer().unwrap();
+        let cache = libero_sim::mujoco_rs::prelude::MjCache::current();
+        let (uploads, models, cached) = (renderer.live_uploads(), libero_sim::shared_model::alive(), cache.size());
+        let thumbnails = Arc::new(Thumbnails::new(episodes));
+        thumbnails.render_ahead(vec!["T14".into(), "libero_90/35".into()], 1);
+        let started = std::time::Instant::now();
+        while !thumbnails.stats().ahead_done {
+            assert!(started.elapsed() < Duration::from_secs(900), "the pass did not end: {:?}", thumbnails.stats());
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        let stats = thumbnails.stats();
+        assert_eq!((stats.rendered, stats.failed), (2, 0), "{stats:?}");
+        assert_eq!(renderer.live_uploads(), uploads, "uploads of rendered scenes are still alive");
+        assert_eq!(libero_sim::shared_model::alive(), models, "models of rendered scenes are still alive");
+        assert_eq!(libero_sim::shared_model::compiled_scenes_alive(), 0);
+        assert_eq!(cache.size(), cached, "MuJoCo's compiler still caches the rendered scenes' assets");
     }
 
     #[test]
