@@ -31,7 +31,7 @@ use libero_server::{ApiError, ApiResult, App, AppState};
 use rustix::fs::{Mode, OFlags};
 
 use crate::common::page;
-use crate::results::{self, Selection, percent_encode};
+use crate::results::{self, Selection, percent_encode, plain_name};
 
 /// The most of a file's end the rollout page shows inline.
 pub const PAGE_TAIL_BYTES: u64 = 256 << 10;
@@ -228,12 +228,6 @@ impl Rollout {
     }
 }
 
-/// Batch and rollout names as the runner makes them (directory names): letters, digits, `-`, `_`, `.`, not
-/// starting with a dot. Anything else never reaches the filesystem.
-pub fn plain_name(s: &str) -> bool {
-    !s.is_empty() && s.len() <= 160 && !s.starts_with('.') && s.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
-}
-
 /// The finished rollout `rollout` of batch `batch`, or the answer saying why there is none.
 async fn find(app: &App, batch: &str, rollout: &str) -> ApiResult<Rollout> {
     if !plain_name(batch) || !plain_name(rollout) {
@@ -387,16 +381,6 @@ async fn raw_file(State(app): State<AppState>, UrlPath((batch, rollout, file)): 
         body,
     )
         .into_response())
-}
-
-/// The rollout page of `r` in batch `b`, when the batch's rollout directories are on this machine.
-pub fn logs_href(b: &LoadedBatch, r: &RolloutRecord) -> String {
-    let name = b.name();
-    if plain_name(&name) && plain_name(&r.rollout_id) {
-        format!("/results/logs/{}/{}", percent_encode(&name), percent_encode(&r.rollout_id))
-    } else {
-        String::new()
-    }
 }
 
 #[cfg(test)]

@@ -27,8 +27,23 @@ use libero_runner::report::{
     wilson,
 };
 
-use crate::batch_logs;
 use crate::common::page;
+
+/// Batch and rollout names as the runner makes them (directory names): letters, digits, `-`, `_`, `.`, not
+/// starting with a dot. Anything else never reaches the filesystem.
+pub fn plain_name(s: &str) -> bool {
+    !s.is_empty() && s.len() <= 160 && !s.starts_with('.') && s.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}
+
+/// The rollout logs page of `r` in batch `b` (`batch_logs`), when the batch's rollout directories are on this machine.
+pub fn logs_href(b: &LoadedBatch, r: &RolloutRecord) -> String {
+    let name = b.name();
+    if plain_name(&name) && plain_name(&r.rollout_id) {
+        format!("/results/logs/{}/{}", percent_encode(&name), percent_encode(&r.rollout_id))
+    } else {
+        String::new()
+    }
+}
 
 /// Where the server looks for batches: `<data>/batches/` first, then the `--batches` directories.
 pub fn batch_roots(data: &Path, extra: &[PathBuf]) -> Vec<PathBuf> {
@@ -184,7 +199,7 @@ fn episode_json(b: &LoadedBatch, r: &RolloutRecord) -> Value {
         "repetition": r.repetition, "level": r.level, "demo": r.demo, "outcome": r.outcome,
         "completed_stages": r.completed_stages, "stage_count": r.stage_count, "episode_id": r.episode_id,
         "review": r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")),
-        "logs": Some(batch_logs::logs_href(b, r)).filter(|h| !h.is_empty()),
+        "logs": Some(logs_href(b, r)).filter(|h| !h.is_empty()),
         "wall_time_s": r.wall_time_s, "judgment_correct": r.judgment_correct,
         "reason": (!r.outcome.is_valid()).then(|| r.reason()).flatten(), "worker": r.worker,
         "tokens": RolloutTokens::of(r),
@@ -519,7 +534,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
                 worker: r.worker.clone().unwrap_or_default(),
                 reason: r.reason().unwrap_or_else(|| "no reason recorded".into()),
                 href: r.episode_id.as_ref().map(|id| format!("/episodes/{id}/review")).unwrap_or_default(),
-                logs: batch_logs::logs_href(b, r),
+                logs: logs_href(b, r),
             });
         }
         for r in &b.records {
@@ -634,7 +649,7 @@ fn episode_link(b: &LoadedBatch, x: &RolloutRecord) -> EpisodeLink {
             None => format!("repetition {}: {} ({}), tokens {}", x.repetition, x.outcome.as_str(), x.rollout_id, RolloutTokens::of(x).short()),
         },
         reason: reason.map(|why| shorten(&why, 80)).unwrap_or_default(),
-        logs: batch_logs::logs_href(b, x),
+        logs: logs_href(b, x),
     }
 }
 
