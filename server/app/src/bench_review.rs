@@ -14,12 +14,12 @@ use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
 use crate::bench_mcp::percentile_ms;
-use crate::bench_teleop::{frame_step, open_socket};
+use crate::bench_teleop::{frame_step, open_socket, with_console_server};
 use crate::cmd_expert::{McpPort, Pace, Paced};
 use libero_episode::Level;
 use libero_episode::task::resolve_task;
 use libero_episode::world::WorldSpec;
-use libero_server::client::{InProcessServer, McpClient, prepare_episode};
+use libero_server::client::{McpClient, prepare_episode};
 use libero_server::episodes::PrepareRequest;
 use libero_sim::AssetPaths;
 
@@ -44,24 +44,7 @@ pub fn run(args: &BenchReviewArgs) -> anyhow::Result<()> {
     if args.moments == 0 || args.moments > 500 {
         bail!("--moments must be 1 to 500");
     }
-    let (data, remove_data) = match &args.data {
-        Some(d) => (d.clone(), false),
-        None => (std::env::temp_dir().join(format!("libero-agent-bench-review-{}", std::process::id())), true),
-    };
-    let server = InProcessServer::start_with(data.clone(), None, Some(libero_dashboard::console()), "bench_review_over")?;
-    let result = bench(&server.url, args);
-    let stopped = server.stop();
-    if remove_data {
-        let _ = std::fs::remove_dir_all(&data);
-    }
-    let report = result?;
-    stopped?;
-    if args.json {
-        println!("{report}");
-    } else {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    }
-    Ok(())
+    with_console_server("review", args.data.as_ref(), args.json, |url| bench(url, args))
 }
 
 fn bench(base_url: &str, args: &BenchReviewArgs) -> anyhow::Result<Value> {

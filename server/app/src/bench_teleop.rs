@@ -77,19 +77,25 @@ pub fn run(args: &BenchTeleopArgs) -> anyhow::Result<()> {
     if args.batch == 0 || args.batch > 50 || !(args.seconds > 0.0) {
         bail!("--batch must be 1 to 50 and --seconds positive");
     }
-    let (data, remove_data) = match &args.data {
+    with_console_server("teleop", args.data.as_ref(), args.json, |url| drive(url, args))
+}
+
+/// Runs `bench` against an in-process server with the console on `data` (default: a new temporary directory,
+/// removed afterwards), stops the server and prints the report as JSON (pretty unless `json`).
+pub(crate) fn with_console_server(name: &str, data: Option<&PathBuf>, json: bool, bench: impl FnOnce(&str) -> anyhow::Result<Value>) -> anyhow::Result<()> {
+    let (data, remove_data) = match data {
         Some(d) => (d.clone(), false),
-        None => (std::env::temp_dir().join(format!("libero-agent-bench-teleop-{}", std::process::id())), true),
+        None => (std::env::temp_dir().join(format!("libero-agent-bench-{name}-{}", std::process::id())), true),
     };
-    let server = InProcessServer::start_with(data.clone(), None, Some(libero_dashboard::console()), "bench_teleop_over")?;
-    let result = drive(&server.url, args);
+    let server = InProcessServer::start_with(data.clone(), None, Some(libero_dashboard::console()), &format!("bench_{name}_over"))?;
+    let result = bench(&server.url);
     let stopped = server.stop();
     if remove_data {
         let _ = std::fs::remove_dir_all(&data);
     }
     let report = result?;
     stopped?;
-    if args.json {
+    if json {
         println!("{report}");
     } else {
         println!("{}", serde_json::to_string_pretty(&report)?);
