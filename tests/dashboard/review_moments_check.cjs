@@ -3,7 +3,7 @@
 // page shows moments rendered from the recorded state (an image per control step, not "no video"), that the plots
 // have their telemetry, that ← / → step one control step and the image follows, that play advances, and that
 // "Continue from here" prepares a branch at the step shown. Prints one JSON line; screenshots go to ARTIFACTS.
-const { launch, say, shotter, check, text, login } = require('./common.cjs');
+const { shotter, check, text, runChecks } = require('./common.cjs');
 
 const [base, episode, stepArg, artifacts] = process.argv.slice(2);
 const shot = shotter(artifacts);
@@ -29,13 +29,7 @@ async function shownStep(page, expected) {
   return page.evaluate(() => ({ step: Number(document.getElementById('moment').dataset.step), width: document.getElementById('moment').naturalWidth }));
 }
 
-async function main() {
-  const browser = await launch();
-  const context = await browser.newContext({ viewport: { width: 1500, height: 1100 } });
-  await login(context, base);
-  const report = {};
-  const errors = [];
-  try {
+runChecks(base, async (context, report, errors) => {
     const page = await context.newPage();
     page.on('pageerror', (e) => errors.push(`review: ${e}`));
     const t = ((step + 0.5) / 20).toFixed(3);
@@ -104,17 +98,4 @@ async function main() {
     check(report.branch_text.includes('harness expert, model solve, no batch'), `the branch names its harness and model, the parent's (${report.branch_text.slice(0, 160)})`);
     report.branch_step = branchStep;
     await shot(page, 'review-moments-branch');
-    check(errors.length === 0, `page errors: ${errors.join('; ')}`);
-    report.ok = true;
-  } catch (e) {
-    report.ok = false;
-    report.error = String(e && e.stack ? e.stack : e);
-    report.errors = errors;
-  } finally {
-    await browser.close();
-  }
-  say(report);
-  process.exit(report.ok ? 0 : 1);
-}
-
-main();
+});
