@@ -48,7 +48,7 @@ pub fn run(args: &BenchQueueArgs) -> anyhow::Result<()> {
     let url = args.store.clone().unwrap_or_else(|| libero_store::sqlite_url(&tmp.path().join("queue.sqlite")));
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     let store = runtime.block_on(Store::connect(&url))?;
-    let tag = libero_episode::json::random_name("")?[..8].to_owned();
+    let tag = libero_records::json::random_name("")?[..8].to_owned();
     let mut claims = Vec::new();
     for &n in &args.workers {
         claims.push(runtime.block_on(claim_latency(&store, &format!("bench_claims_{tag}_{n}"), n, args.claims))?);

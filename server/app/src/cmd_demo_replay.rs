@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use libero_episode::demo::{DemoCondition, parse_action, read_json};
-use libero_episode::records::{PrivateEvaluation, RunDir, RunResult};
+use libero_records::records::{PrivateEvaluation, RunDir, RunResult};
 use libero_episode::expert_run::ToolPort;
 use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
 use serde_json::{Value, json};

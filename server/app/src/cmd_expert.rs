@@ -17,7 +17,7 @@ use libero_episode::demo::record::RecordOptions;
 use libero_episode::demo::{LayoutVariant, library, record_bundle};
 use libero_episode::expert_run::{IDLE, ToolPort, run_expert, run_replica_only};
 use libero_episode::physics::WorldSpec;
-use libero_episode::records::{PrivateEvaluation, RunResult, read_result};
+use libero_records::records::{PrivateEvaluation, RunResult, read_result};
 use libero_episode::task::resolve_task;
 use libero_episode::video_queue::VideoProgress;
 use libero_episode::{EpisodeError, Level, RunDir};
@@ -382,7 +382,7 @@ pub(crate) fn prepare_request(args: &ExpertArgs, task_id: &str, behaviour: &str)
 fn expert_batch() -> &'static str {
     static NAME: std::sync::OnceLock<String> = std::sync::OnceLock::new();
     NAME.get_or_init(|| {
-        let stamp: String = libero_episode::json::utc_now_iso().chars().take(19).filter(|c| c.is_ascii_digit() || *c == 'T').collect();
+        let stamp: String = libero_records::json::utc_now_iso().chars().take(19).filter(|c| c.is_ascii_digit() || *c == 'T').collect();
         format!("expert_{stamp}Z")
     })
 }

@@ -407,7 +407,7 @@ fn git_commit() -> String {
 
 /// Now, as the sweep files say it: `2026-11-28T04:09:45Z`.
 fn now_utc() -> String {
-    format!("{}Z", libero_episode::json::utc_now_iso().chars().take(19).collect::<String>())
+    format!("{}Z", libero_records::json::utc_now_iso().chars().take(19).collect::<String>())
 }
 
 /// Writes `text` to a file beside `path` and renames it over `path`, so a reader (the dashboard) never sees half a

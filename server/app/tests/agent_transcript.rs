@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use libero_episode::agent_events::{AgentEvent, Kind, Source};
+use libero_records::agent_events::{AgentEvent, Kind, Source};
 use libero_runner::harness::Harness;
 use libero_runner::transcript::{Follower, Normalizer, Streams, Target};
 use serde_json::{Value, json};

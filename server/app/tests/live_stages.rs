@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use libero_episode::expert_run::{ToolPort, run_expert};
-use libero_episode::records::{RunDir, read_result_value};
+use libero_records::records::{RunDir, read_result_value};
 use libero_episode::task::resolve_task;
 use libero_episode::tools::MAX_AGENT_STEPS_CAP;
 use libero_episode::world::{LiberoWorld, WorldSpec};

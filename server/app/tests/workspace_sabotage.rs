@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use libero_episode::records::{Outcome, RunDir, classify, read_result};
+use libero_records::records::{Outcome, RunDir, classify, read_result};
 use libero_server::client::{InProcessServer, McpClient, get_json, prepare_episode};
 use libero_server::episodes::PrepareRequest;
 use serde_json::{Value, json};

@@ -12,7 +12,7 @@ use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::response::IntoResponse;
 use axum::routing::get;
-use libero_episode::json::utc_now_iso;
+use libero_records::json::utc_now_iso;
 use libero_metrics::{FailureMode, Split, StageAnnotation, StageAnnotations, StageKey, StageOpportunity, in_paper_table4};
 use libero_runner::batch::{RolloutRecord, read_records};
 use libero_runner::report::annotations::{AnnotationLine, append_annotation, invalid_annotation, read_annotations, rollout_stages};

@@ -95,7 +95,7 @@ impl LogFile {
             Self::Stderr => vec![format!("{}_stderr.log", harness?.as_str())],
             Self::Manifest => vec!["harness_manifest.json".into()],
             Self::Usage => vec!["harness_usage.json".into()],
-            Self::Transcript => vec![libero_episode::agent_events::AGENT_EVENTS_FILE.into()],
+            Self::Transcript => vec![libero_records::agent_events::AGENT_EVENTS_FILE.into()],
             Self::ModelApi => vec!["sandbox".into(), "model_api.jsonl".into()],
         })
     }

@@ -5,7 +5,7 @@ use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
-use libero_server::store::EpisodeFilter;
+use libero_store::EpisodeFilter;
 use libero_server::{ApiError, App, AppState, episode_json};
 use serde_json::{Value, json};
 

@@ -23,10 +23,6 @@ pub mod task_page;
 pub mod tasks;
 pub mod teleop;
 
-/// The former name of [`routes`] (the episode, Tasks and Results pages' routers), kept so paths written against
-/// `libero_dashboard::dashboard` still resolve.
-pub use routes as dashboard;
-
 use libero_server::Console;
 
 /// The console's routes, login page and error pages, to set as `ServeArgs::console`.

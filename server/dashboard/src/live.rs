@@ -12,7 +12,7 @@ use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
 use axum::response::{IntoResponse, Redirect, Response};
 use libero_episode::RunDir;
-use libero_episode::records::read_episode_record;
+use libero_records::records::read_episode_record;
 use libero_server::live::Hub;
 use libero_server::{App, AppState};
 use serde_json::{Value, json};
@@ -96,7 +96,7 @@ pub(crate) async fn live_page(State(app): State<AppState>, Path(id): Path<String
 /// For a stored episode that is still open and that this server does not run (the caller checked it has no live
 /// hub here): `Some(Some(url))`, the server whose live view shows it; `Some(None)`, a server without a console
 /// (`libero-worker`, `run`'s in-process server) runs it, so only the store follows it. `None` otherwise.
-fn runs_elsewhere(app: &App, row: &libero_server::store::EpisodeRow, source: RowSource) -> Option<Option<String>> {
+fn runs_elsewhere(app: &App, row: &libero_store::EpisodeRow, source: RowSource) -> Option<Option<String>> {
     if row.outcome.is_some() || source != RowSource::Store {
         return None;
     }
@@ -128,15 +128,15 @@ pub(crate) async fn episode_socket(ws: WebSocketUpgrade, State(app): State<AppSt
 const ELSEWHERE_REREAD: Duration = Duration::from_secs(5);
 
 /// The state of an open episode another server runs.
-fn elsewhere_state(row: &libero_server::store::EpisodeRow) -> &'static str {
+fn elsewhere_state(row: &libero_store::EpisodeRow) -> &'static str {
     if row.started_at.is_some() { "running" } else { "prepared" }
 }
 
-fn elsewhere_steps(row: &libero_server::store::EpisodeRow) -> String {
+fn elsewhere_steps(row: &libero_store::EpisodeRow) -> String {
     row.accepted_agent_steps.map_or_else(|| "none yet".into(), |n| n.to_string())
 }
 
-fn elsewhere_stages(row: &libero_server::store::EpisodeRow) -> String {
+fn elsewhere_stages(row: &libero_store::EpisodeRow) -> String {
     match (row.completed_stage_count, row.required_stage_count) {
         (Some(c), Some(r)) => format!("{c} / {r}"),
         _ => "not reported yet".into(),
@@ -147,7 +147,7 @@ fn elsewhere_stages(row: &libero_server::store::EpisodeRow) -> String {
 /// again whenever the store changes (a PostgreSQL store's `NOTIFY`, which the running server sends with every
 /// change of steps and stages, wakes it; otherwise every few seconds), until the row has its outcome: then an
 /// `ended` message and the socket closes, and the page opens the review.
-async fn elsewhere_stream(mut socket: WebSocket, app: AppState, mut row: libero_server::store::EpisodeRow) {
+async fn elsewhere_stream(mut socket: WebSocket, app: AppState, mut row: libero_store::EpisodeRow) {
     let id = row.episode.id.clone();
     let mut changes = app.hubs.changes();
     let mut last_sent = String::new();
@@ -186,7 +186,7 @@ async fn elsewhere_stream(mut socket: WebSocket, app: AppState, mut row: libero_
 
 /// What a viewer of an episode without a live hub gets: `hello` with the budgets, the final state as a
 /// `finished` event (the live page then stops reconnecting), then the socket closes.
-async fn ended_stream(mut socket: WebSocket, row: libero_server::store::EpisodeRow) {
+async fn ended_stream(mut socket: WebSocket, row: libero_store::EpisodeRow) {
     let record = read_episode_record(&RunDir::new(&row.episode.run_dir)).ok().flatten().unwrap_or_default();
     let hello = json!({"type": "hello", "max_agent_steps": record.max_agent_steps, "max_wall_time_s": record.max_wall_time_seconds});
     let state = if row.outcome.is_some() { "ended" } else { "not live on this server" };

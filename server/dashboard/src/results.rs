@@ -13,7 +13,7 @@ use askama::Template;
 use axum::extract::{Path as UrlPath, RawQuery, State};
 use axum::http::header;
 use axum::response::IntoResponse;
-use libero_episode::batch_doc::ToolboxDoc;
+use libero_records::batch_doc::ToolboxDoc;
 use libero_metrics::{PAPER_REPS, Split};
 use libero_server::{ApiError, ApiResult, App, AppState};
 use serde_json::{Value, json};

@@ -11,7 +11,7 @@ use axum::extract::{Path, Query, Request, State};
 use axum::response::{IntoResponse, Response};
 use libero_episode::RunDir;
 use libero_episode::lifecycle::MomentError;
-use libero_episode::records::{ActionEvent, PrivateEvent, read_result};
+use libero_records::records::{ActionEvent, PrivateEvent, read_result};
 use libero_episode::video_queue::VideoProgress;
 use libero_server::{ApiError, ApiResult, AppState};
 use serde::Serialize;

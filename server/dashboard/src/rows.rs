@@ -15,7 +15,7 @@ use crate::results;
 const LIST_REFRESH_MIN_INTERVAL: Duration = Duration::from_millis(250);
 
 /// The stored row of episode `id`, or the response saying why there is none.
-pub(crate) async fn stored_row(app: &App, id: &str) -> ApiResult<libero_server::store::EpisodeRow> {
+pub(crate) async fn stored_row(app: &App, id: &str) -> ApiResult<libero_store::EpisodeRow> {
     row_and_source(app, id).await.map(|(row, _)| row)
 }
 
@@ -28,7 +28,7 @@ pub(crate) enum RowSource {
     BatchDir,
 }
 
-pub(crate) async fn row_and_source(app: &App, id: &str) -> ApiResult<(libero_server::store::EpisodeRow, RowSource)> {
+pub(crate) async fn row_and_source(app: &App, id: &str) -> ApiResult<(libero_store::EpisodeRow, RowSource)> {
     if !valid_id(id) {
         return Err(ApiError::not_found("no such episode"));
     }
@@ -44,7 +44,7 @@ pub(crate) async fn row_and_source(app: &App, id: &str) -> ApiResult<(libero_ser
 /// A stored episode whose run directory is not on this machine (a worker elsewhere ran it): with `--artifacts`,
 /// its run directory is fetched from the artifact store once its upload is complete, kept under
 /// `<data>/artifact_cache/<id>`, and the row points there. Otherwise the row is returned as it is.
-async fn fetched_if_elsewhere(app: &App, mut row: libero_server::store::EpisodeRow) -> libero_server::store::EpisodeRow {
+async fn fetched_if_elsewhere(app: &App, mut row: libero_store::EpisodeRow) -> libero_store::EpisodeRow {
     let Some(artifacts) = app.artifacts.as_ref() else { return row };
     if tokio::fs::metadata(&row.episode.run_dir).await.is_ok_and(|m| m.is_dir()) {
         return row;
@@ -58,7 +58,7 @@ async fn fetched_if_elsewhere(app: &App, mut row: libero_server::store::EpisodeR
     }
     let Ok(prefix) = libero_artifacts::run_prefix(&id) else { return row };
     // Fetched beside the destination and renamed into place: a concurrent view never sees half a directory.
-    let Ok(staging_name) = libero_episode::json::random_name(&format!(".{id}.")) else { return row };
+    let Ok(staging_name) = libero_records::json::random_name(&format!(".{id}.")) else { return row };
     let staging = cache.join(staging_name);
     match artifacts.fetch_run(&prefix, &staging).await {
         Ok(Some(_)) => match tokio::fs::rename(&staging, &dest).await {
@@ -75,7 +75,7 @@ async fn fetched_if_elsewhere(app: &App, mut row: libero_server::store::EpisodeR
 
 /// An episode a batch ran on its own in-process server (`<batch>/server`, not this server's store): found
 /// through the batch's `rollouts.jsonl`, read from its run directory, so Results links open its review.
-async fn batch_episode(app: &App, id: &str) -> Option<libero_server::store::EpisodeRow> {
+async fn batch_episode(app: &App, id: &str) -> Option<libero_store::EpisodeRow> {
     let roots = app.batch_roots.clone();
     let id = id.to_owned();
     tokio::task::spawn_blocking(move || {
@@ -87,9 +87,9 @@ async fn batch_episode(app: &App, id: &str) -> Option<libero_server::store::Epis
                 .and_then(|r| r.run_dir)
         })?;
         let run = RunDir::new(run_dir);
-        let episode = libero_server::store::NewEpisode::from_record(&run).filter(|e| e.id == id)?;
-        let end = libero_server::store::EpisodeEnd::from_run(&run);
-        Some(libero_server::store::EpisodeRow {
+        let episode = libero_store::NewEpisode::from_record(&run).filter(|e| e.id == id)?;
+        let end = libero_store::EpisodeEnd::from_run(&run);
+        Some(libero_store::EpisodeRow {
             episode,
             started_at: None,
             finished_at: end.as_ref().map(|e| e.finished_at.clone()),

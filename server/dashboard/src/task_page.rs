@@ -10,7 +10,7 @@ use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use axum::response::Response;
 use axum::routing::get;
-use libero_server::store::EpisodeFilter;
+use libero_store::EpisodeFilter;
 use libero_server::{App, AppState};
 use libero_tasks::catalog::CheckerSpec;
 use serde_json::Value;
@@ -329,7 +329,7 @@ async fn gather(app: &App, f: TaskFacts) -> anyhow::Result<TaskPage> {
     })
 }
 
-fn episode_line(r: &libero_server::store::EpisodeRow) -> EpisodeLine {
+fn episode_line(r: &libero_store::EpisodeRow) -> EpisodeLine {
     let id = r.episode.id.clone();
     let agent = match (&r.episode.harness, &r.episode.model) {
         (Some(h), Some(m)) => format!("{h} + {m}"),

@@ -519,7 +519,7 @@ async fn finish(State(app): State<AppState>, Path(id): Path<String>) -> ApiResul
     app.sync(&id).await;
     let status = app.episodes.lifecycle().status(&id);
     let run = crate::rows::run_dir_of(&app, &id).await;
-    let result = run.as_ref().and_then(libero_episode::records::read_result);
+    let result = run.as_ref().and_then(libero_records::records::read_result);
     let evaluation = result.as_ref().and_then(|r| r.private_evaluation.clone()).unwrap_or_default();
     Ok(ok_json(json!({
         "ok": answer["ok"] == true, "episode_id": id, "answer": answer,

@@ -13,18 +13,18 @@ use serde_json::{Map, Value, json};
 
 use crate::EpisodeError;
 use crate::call::{MicroAction, ToolCall, ToolError, validate_actions};
-use crate::json::{compact_sorted, utc_now_iso};
+use libero_records::json::{compact_sorted, utc_now_iso};
 use crate::live::{LiveEvent, LiveSink, unix_now_s};
 use crate::observation::{EncodedObservation, Frame, Level, encode_observation};
 use crate::publish::{ObservationPublisher, write_private_copy};
-use crate::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, RunResult, aborted_result, classify, write_result};
+use libero_records::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, RunResult, aborted_result, classify, write_result};
 use crate::tools::{MAX_AGENT_STEPS_CAP, ToolName};
 use crate::workspace::OBSERVATION_FILE;
 
 /// How often an idle active episode checks its wall clock (the original polled every 0.5 s).
 pub const IDLE_POLL: Duration = Duration::from_millis(500);
-const BUDGET_SCOPE: &str = crate::records::WALL_TIME_BUDGET_SCOPE;
-const EXPIRY_REASON: &str = crate::records::WALL_TIME_EXHAUSTED;
+const BUDGET_SCOPE: &str = libero_records::records::WALL_TIME_BUDGET_SCOPE;
+const EXPIRY_REASON: &str = libero_records::records::WALL_TIME_EXHAUSTED;
 /// `termination_reason` of an episode whose agent ended without `finish_episode` (docs/protocol.md §4.8).
 pub const FORFEIT_REASON: &str = "agent_ended_without_finish_episode";
 const FINISHED_TEXT: &str = "the episode is already finished; finish_episode was called and no further commands are accepted";
@@ -564,7 +564,7 @@ impl<W: World> Actor<W> {
             return ToolError::environment().payload();
         }
         if std::mem::take(&mut self.step_budget_spent) && matches!(self.phase, Phase::Active { .. }) {
-            self.expire(crate::records::STEP_BUDGET_EXHAUSTED, "agent_step_budget_exhausted");
+            self.expire(libero_records::records::STEP_BUDGET_EXHAUSTED, "agent_step_budget_exhausted");
         }
         payload
     }
@@ -597,7 +597,7 @@ impl<W: World> Actor<W> {
                     self.step_budget_spent = true;
                     if let Some(p) = payload.as_object_mut() {
                         p.insert("episode_ended".into(), json!(true));
-                        p.insert("termination_reason".into(), json!(crate::records::STEP_BUDGET_EXHAUSTED));
+                        p.insert("termination_reason".into(), json!(libero_records::records::STEP_BUDGET_EXHAUSTED));
                     }
                 }
                 Ok(payload)
@@ -742,7 +742,7 @@ impl<W: World> Actor<W> {
                     text.push_str(&compact_sorted(e));
                     text.push('\n');
                 }
-                crate::json::write_atomic(&self.run.stage_events_jsonl(), text.as_bytes())?;
+                libero_records::json::write_atomic(&self.run.stage_events_jsonl(), text.as_bytes())?;
             }
         }
         write_result(&self.run, &result)
@@ -833,7 +833,7 @@ impl<W: World> Actor<W> {
         }
         let outcome = match state {
             EpisodeState::Finished | EpisodeState::Aborted => {
-                Some(classify(crate::records::read_result(&self.run).as_ref()))
+                Some(classify(libero_records::records::read_result(&self.run).as_ref()))
             }
             _ => None,
         };
@@ -1055,7 +1055,7 @@ mod tests {
         assert_eq!((finished["status"].clone(), finished["accepted_agent_steps"].clone()), (json!("finished"), json!(2)), "{finished}");
         let status = h.status();
         assert_eq!((status.state, status.outcome), (EpisodeState::Finished, Some(Outcome::Fail)));
-        let result = crate::records::read_result(&RunDir::new(dir.path().join("run"))).unwrap();
+        let result = libero_records::records::read_result(&RunDir::new(dir.path().join("run"))).unwrap();
         assert_eq!(result.status.as_deref(), Some("finished"));
         // Every frame is in the private archive, the unpublished one included.
         for id in ["obs_000000", "obs_000001", "obs_000002"] {

@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use serde_json::json;
 
 use crate::call::MicroAction;
-use crate::records::{ActionLog, RunDir};
+use libero_records::records::{ActionLog, RunDir};
 
 /// The replayed actions of a branch, in its run directory.
 pub const PREFIX_FILE: &str = "branch_prefix.jsonl";
@@ -75,7 +75,7 @@ pub fn log_branch_point(run: &RunDir, parent: &str, step: u64) -> std::io::Resul
 }
 
 /// The `branch` object of an episode record: `{"parent_episode_id", "parent_control_step"}` or null.
-pub fn record_branch(record: &crate::records::EpisodeRecord) -> Option<(String, u64)> {
+pub fn record_branch(record: &libero_records::records::EpisodeRecord) -> Option<(String, u64)> {
     let b = record.branch.as_ref()?;
     Some((b.parent_episode_id.clone()?, b.parent_control_step?))
 }

@@ -175,9 +175,9 @@ mod tests {
     fn the_largest_valid_call_is_logged_in_full() {
         let args = maximal_valid_arguments();
         assert!(validate_actions(&args["actions"]).is_ok());
-        let size = crate::json::compact_sorted(&args).len();
-        assert!(size * 3 / 2 < crate::records::MAX_LOGGED_FIELD_BYTES, "{size} bytes: the limit must stay well above a valid call");
-        assert_eq!(crate::records::bounded_for_log(&args), args);
+        let size = libero_records::json::compact_sorted(&args).len();
+        assert!(size * 3 / 2 < libero_records::records::MAX_LOGGED_FIELD_BYTES, "{size} bytes: the limit must stay well above a valid call");
+        assert_eq!(libero_records::records::bounded_for_log(&args), args);
     }
 
     use serde_json::json;

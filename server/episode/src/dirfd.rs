@@ -269,7 +269,7 @@ fn remove_tree(parent: BorrowedFd<'_>, name: std::ffi::CString, mut budget: usiz
 }
 
 /// `prefix` + 128 random bits in hex: a name nobody can have created in advance except by watching.
-pub use crate::json::random_name;
+pub use libero_records::json::random_name;
 
 #[cfg(test)]
 pub(crate) mod test_support {

@@ -76,7 +76,7 @@ pub fn unix_now_s() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
 }
 
-pub use crate::records::TELEMETRY_FILE;
+pub use libero_records::records::TELEMETRY_FILE;
 
 /// Called when the number of viewers changes (the live renderer wakes up on it).
 type ViewersChanged = Arc<dyn Fn() + Send + Sync>;

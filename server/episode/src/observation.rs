@@ -421,7 +421,7 @@ pub fn encode_observation(frame: &Frame, level: Level) -> std::io::Result<Encode
         files.push(file("task_reference/rgb.png".into(), encode_png(reference.width, reference.height, 3, &reference.rgb)?));
     }
     let document = observation_json(frame, level, (previews.len() == 2).then(|| (&previews[0], &previews[1])));
-    let mut text = crate::json::pretty_sorted(&document);
+    let mut text = libero_records::json::pretty_sorted(&document);
     text.push('\n');
     files.push(file("observation.json".into(), text.into_bytes()));
     Ok(EncodedObservation { observation_id: observation_id(frame.frame_index), document, files })

@@ -127,7 +127,7 @@ pub fn tools_list() -> Value {
 /// Whether the actions of a recorded `osc_sequence` response were executed: an accepted call, or one whose
 /// actions ran but whose observation the agent's own workspace could not take (`ok: false` with
 /// `execution.command_completed`). Replays and timelines count both.
-pub use crate::records::actions_executed;
+pub use libero_records::records::actions_executed;
 
 #[cfg(test)]
 mod executed_tests {

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
-use crate::json::{format_g, write_atomic, write_json_file};
+use libero_records::json::{format_g, write_atomic, write_json_file};
 use crate::tools::{MAX_MICRO_ACTIONS_PER_CALL, MCP_SERVER_KEY, ToolName};
 
 /// Workspace-relative path of the published observation file.

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::time::Duration;
 
-use libero_episode::records::{Outcome, RunDir, classify, read_result, read_result_value};
+use libero_records::records::{Outcome, RunDir, classify, read_result, read_result_value};
 use libero_episode::task::resolve_task;
 use libero_episode::world::{LiberoWorld, WorldSpec};
 use libero_episode::{EpisodeConfig, EpisodeHandle, EpisodeState, Level, spawn_episode};
@@ -46,7 +46,7 @@ fn assert_matches_result_fixture(result: &Value, name: &str) {
     }
     let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name);
     if std::env::var_os("UPDATE_GOLDEN").is_some() {
-        let mut text = libero_episode::json::pretty_sorted(&masked);
+        let mut text = libero_records::json::pretty_sorted(&masked);
         text.push('\n');
         std::fs::write(&path, text).unwrap();
     }

@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use libero_episode::records::RunDir;
+use libero_records::records::RunDir;
 use libero_episode::task::resolve_task;
 use libero_episode::video_queue::VideoQueue;
 use libero_episode::world::{LiberoWorld, SETTLE_STEPS, WorldSpec, head_wrist_cameras};

@@ -4,7 +4,7 @@
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use libero_episode::records::{RunDir, read_result};
+use libero_records::records::{RunDir, read_result};
 use libero_episode::{EpisodeConfig, EpisodeError, Frame, Level, MicroAction, Verdict, World, spawn_episode};
 
 fn config(dir: &std::path::Path, name: &str) -> EpisodeConfig {

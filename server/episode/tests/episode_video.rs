@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use libero_episode::records::RunDir;
+use libero_records::records::RunDir;
 use libero_episode::task::resolve_task;
 use libero_episode::physics::WorldPhysics;
 use libero_episode::state_record::{StateRecordReader, StateRecordWriter};

@@ -13,7 +13,7 @@ fn fixture() -> PathBuf {
 fn tools_list_matches_the_golden_fixture() {
     let actual = tools_list();
     if std::env::var_os("UPDATE_GOLDEN").is_some() {
-        let mut text = libero_episode::json::pretty_sorted(&actual);
+        let mut text = libero_records::json::pretty_sorted(&actual);
         text.push('\n');
         std::fs::write(fixture(), text).unwrap();
     }

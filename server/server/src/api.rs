@@ -12,7 +12,7 @@ use serde_json::{Value, json};
 use crate::api_error::{ApiError, ApiResult};
 use crate::app::{App, AppState};
 use crate::episodes::PrepareRequest;
-use crate::{batches, store, transcript};
+use crate::{batches, transcript};
 
 /// The operator API's routes (behind the operator guard, gzip-compressed: see [`crate::router`]).
 pub(crate) fn operator_routes() -> Router<AppState> {
@@ -45,7 +45,7 @@ async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> ApiRes
 }
 
 /// A stored row for the API: no paths, plus the live state while this process serves the episode.
-pub fn episode_json(app: &App, row: &store::EpisodeRow) -> Value {
+pub fn episode_json(app: &App, row: &libero_store::EpisodeRow) -> Value {
     let mut v = row.public();
     if let (Some(live), Some(obj)) = (app.episodes.lifecycle().status(&row.episode.id), v.as_object_mut()) {
         obj.insert("state".into(), json!(live.state));

@@ -86,8 +86,8 @@ impl ApiError {
 }
 
 /// A store that fails answers 500 with its own words (`{e:#}`, as every handler always wrote it).
-impl From<crate::store::StoreError> for ApiError {
-    fn from(e: crate::store::StoreError) -> Self {
+impl From<libero_store::StoreError> for ApiError {
+    fn from(e: libero_store::StoreError) -> Self {
         Self::internal(format!("{e:#}"))
     }
 }

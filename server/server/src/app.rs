@@ -12,7 +12,7 @@ use libero_episode::RunDir;
 
 use crate::api_error::{ApiError, ApiResult};
 use crate::episodes::{BranchError, Episodes, PrepareRequest, Prepared};
-use crate::store::{NewEpisode, Store};
+use libero_store::{NewEpisode, Store};
 use crate::store_writer::StoreWriter;
 use crate::{auth, live, thumbnails};
 

@@ -17,7 +17,7 @@ use axum::extract::{Request, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Redirect, Response};
-use libero_episode::json::sha256_hex;
+use libero_records::json::sha256_hex;
 
 use crate::credential::{self, TOKEN_FILE};
 use crate::episodes::{random_hex, tokens_equal};

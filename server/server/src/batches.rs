@@ -8,7 +8,7 @@ use axum::extract::State;
 use axum::response::IntoResponse;
 use serde_json::{Value, json};
 
-use crate::store::StoredBatch;
+use libero_store::StoredBatch;
 use crate::{ApiError, ApiResult, AppState};
 
 /// Most bytes of one request's body (the runner posts at most [`MAX_POST_RECORDS`] records and 1 MiB at a time).

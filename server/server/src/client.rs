@@ -304,7 +304,7 @@ mod tests {
         }
         // What a dashboard on another machine reads: the store's row, not this server's live state.
         let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-        let store = runtime.block_on(crate::store::Store::open(&data.join(crate::store::STORE_FILE))).unwrap();
+        let store = runtime.block_on(libero_store::Store::open(&data.join(libero_store::STORE_FILE))).unwrap();
         let t = std::time::Instant::now();
         let row = loop {
             let row = runtime.block_on(store.get(&prepared.episode_id)).unwrap().unwrap();

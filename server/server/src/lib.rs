@@ -33,9 +33,6 @@ pub mod store_writer;
 pub mod thumbnails;
 pub mod transcript;
 
-/// The allocator policy lives with the lifecycle that builds and frees the worlds.
-pub use libero_episode::memory;
-
 pub use api::{episode_json, video_part};
 pub use api_error::{ApiError, ApiResult};
 pub use app::{App, AppState, Console, TeleopEpisode};

@@ -1,7 +1,7 @@
 //! One episode's MCP server: `tools/list` from the episode crate's contract, `tools/call` forwarded to the
 //! episode actor, results wrapped in the original envelope (§2.6).
 use libero_episode::EpisodeHandle;
-use libero_episode::json::pretty_sorted;
+use libero_records::json::pretty_sorted;
 use libero_episode::tools::{PROTOCOL_VERSION, SERVER_INSTRUCTIONS, SERVER_NAME, SERVER_VERSION, tools_list};
 use rmcp::model::{
     CallToolRequestParams, CallToolResponse, CallToolResult, ContentBlock, ErrorCode, Implementation, ListPromptsResult,

@@ -13,8 +13,8 @@ use crate::app::App;
 use crate::args::{ServeArgs, batch_roots, check_public_url, default_data_dir};
 use crate::episodes::Episodes;
 use crate::router::router;
-use crate::store::{STORE_FILE, Store};
-use crate::{auth, credential, listener, live, store, store_writer, thumbnails};
+use libero_store::{STORE_FILE, Store};
+use crate::{auth, credential, listener, live, store_writer, thumbnails};
 
 /// How often ended episodes are looked at for release.
 const RELEASE_PERIOD: Duration = Duration::from_secs(1);
@@ -147,12 +147,12 @@ pub async fn start(args: &ServeArgs) -> anyhow::Result<Bound> {
         Some(url) => Store::connect(url).await?,
         None => Store::open(&episodes.lifecycle().data_dir().join(STORE_FILE)).await?,
     };
-    if store.backend() == store::Backend::Postgres {
-        eprintln!("libero-agent serve: episode store {}", store::redact(stores.store.as_deref().unwrap_or_default()));
+    if store.backend() == libero_store::Backend::Postgres {
+        eprintln!("libero-agent serve: episode store {}", libero_store::redact(stores.store.as_deref().unwrap_or_default()));
     }
     let reconciled = store.reconcile(&episodes.lifecycle().runs_dir()).await?;
     let artifacts = stores.artifacts.as_deref().map(libero_artifacts::Artifacts::open).transpose()?;
-    if let Some(url) = stores.store.as_deref().filter(|_| store.backend() == store::Backend::Postgres) {
+    if let Some(url) = stores.store.as_deref().filter(|_| store.backend() == libero_store::Backend::Postgres) {
         follow_store_changes(url, hubs.clone()).await?;
     }
     // A bad `--thumbnails-ahead` stops the start; a server without a console renders none ahead.
@@ -192,7 +192,7 @@ async fn release_ended(episodes: Arc<Episodes>) {
 /// On a shared PostgreSQL store, every episode and queue change any machine makes (`LISTEN libero_episodes,
 /// libero_queue`) refreshes this dashboard's episode list at once, as its own episodes' changes do.
 async fn follow_store_changes(url: &str, hubs: Arc<live::LiveHubs>) -> anyhow::Result<()> {
-    let mut listener = store::QueueListener::connect_to(url, &[store::EPISODE_CHANNEL, store::QUEUE_CHANNEL]).await?;
+    let mut listener = libero_store::QueueListener::connect_to(url, &[libero_store::EPISODE_CHANNEL, libero_store::QUEUE_CHANNEL]).await?;
     tokio::spawn(async move {
         loop {
             if listener.wait(Duration::from_secs(60)).await.is_some() {

@@ -7,14 +7,14 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
-use libero_episode::json::utc_now_iso;
+use libero_records::json::utc_now_iso;
 use libero_episode::lifecycle::{EpisodeEvent, EventSink};
 use libero_episode::{EpisodeState, EpisodeStatus, RunDir};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::episodes::Episodes;
 use crate::live::LiveHubs;
-use crate::store::{EpisodeEnd, NewEpisode, Store};
+use libero_store::{EpisodeEnd, NewEpisode, Store};
 
 /// How often open episodes are checked for changes no event reports.
 const STORE_SYNC_PERIOD: Duration = Duration::from_secs(1);

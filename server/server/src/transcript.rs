@@ -6,7 +6,7 @@ use axum::body::Bytes;
 use axum::extract::{Path, State};
 use axum::response::IntoResponse;
 use libero_episode::RunDir;
-use libero_episode::agent_events::{AgentEvent, TranscriptFile};
+use libero_records::agent_events::{AgentEvent, TranscriptFile};
 use serde_json::json;
 
 use crate::{ApiError, ApiResult, AppState};

@@ -27,13 +27,16 @@ const TOWER: &[(&str, &[&str])] = &[
     ),
     (
         "libero-dashboard",
-        &["libero-sim", "libero-tasks", "libero-metrics", "libero-episode", "libero-artifacts", "libero-server", "libero-runner"],
+        &[
+            "libero-sim", "libero-tasks", "libero-metrics", "libero-records", "libero-episode", "libero-store", "libero-artifacts",
+            "libero-server", "libero-runner",
+        ],
     ),
     (
         "libero-agent",
         &[
-            "libero-bddl", "libero-sim", "libero-render", "libero-tasks", "libero-metrics", "libero-episode", "libero-store",
-            "libero-server", "libero-runner", "libero-dashboard",
+            "libero-bddl", "libero-sim", "libero-render", "libero-records", "libero-tasks", "libero-metrics", "libero-episode",
+            "libero-store", "libero-server", "libero-runner", "libero-dashboard",
         ],
     ),
 ];

@@ -12,8 +12,8 @@ use serde_json::{Value, json};
 use super::*;
 use super::record::bundle_source;
 use super::replay_attack::{REPLAY_CHECK_METHOD, ReplayAttack, ReplayRule};
-use crate::demo_manifest::ReplayCheck;
-use crate::json::{utc_now_iso, write_json_file};
+use libero_records::demo_manifest::ReplayCheck;
+use libero_records::json::{utc_now_iso, write_json_file};
 use crate::physics::WorldSpec;
 use crate::task::{EffectiveLayout, TaskSource};
 

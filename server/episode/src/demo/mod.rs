@@ -13,7 +13,7 @@ use serde_json::{Value, json};
 use thiserror::Error;
 
 use crate::EpisodeError;
-pub use crate::demo_manifest::DemoManifest;
+pub use libero_records::demo_manifest::DemoManifest;
 use crate::video::VideoError;
 
 pub mod lerobot;
@@ -26,7 +26,7 @@ pub mod validate;
 pub use project::{DemoCondition, ProjectionReceipt, project_bundle};
 pub use record::{BranchOrigin, BundleSummary, RecordOptions, SourceEpisode, record_bundle, record_bundle_with_progress, verify_bundle};
 pub use validate::{Violation, validate_bundle};
-pub use crate::json::sha256_hex;
+pub use libero_records::json::sha256_hex;
 pub use crate::task::{EffectiveLayout, LayoutVariant};
 
 /// Schema of a library bundle's `manifest.json`.

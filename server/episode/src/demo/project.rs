@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 use super::*;
-use crate::json::{compact_sorted, write_json_file};
+use libero_records::json::{compact_sorted, write_json_file};
 use crate::workspace::normalize_instruction;
 
 pub const VIDEO_ONLY_SCHEMA: &str = "libero.video_only_demo_bundle.v1";

@@ -12,10 +12,10 @@ use serde_json::{Value, json};
 
 use super::*;
 use crate::actor::World;
-use crate::json::{compact_sorted, write_json_file};
+use libero_records::json::{compact_sorted, write_json_file};
 use crate::observation::{Frame, Level, write_png};
 use crate::physics::{SETTLE_STEPS, WorldPhysics, WorldSpec};
-use crate::records::{ActionEvent, EpisodeRecord, RunDir, read_result};
+use libero_records::records::{ActionEvent, EpisodeRecord, RunDir, read_result};
 use crate::task::resolve_task;
 use crate::video::{Mp4Writer, side_by_side};
 use crate::world::{LiberoWorld, RESOLUTION_PX};

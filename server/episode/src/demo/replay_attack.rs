@@ -13,7 +13,7 @@ use serde::Serialize;
 use super::DemoError;
 use crate::physics::{WorldPhysics, WorldSpec};
 
-pub use crate::demo_manifest::REPLAY_CHECK_METHOD;
+pub use libero_records::demo_manifest::REPLAY_CHECK_METHOD;
 /// At most this many offsets are tried (the task's objects of interest first).
 pub const MAX_OFFSET_REPLAYS: usize = 6;
 /// Displacements shorter than this are not offsets (the same place), longer ones leave the reachable table.

@@ -7,7 +7,7 @@ use std::path::Path;
 use serde_json::Value;
 
 use super::*;
-use crate::json::compact_sorted;
+use libero_records::json::compact_sorted;
 
 /// One broken rule.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -12,7 +12,7 @@ use crate::demo::replay_attack::{ReplayAttack, ReplayRule};
 use crate::demo::{LayoutVariant, library, record_bundle_with_progress, replay_attack, verify_bundle};
 use crate::expert_run::run_expert;
 use crate::physics::WorldSpec as PhysicsSpec;
-use crate::records::PrivateEvaluation;
+use libero_records::records::PrivateEvaluation;
 use crate::task::TaskSource;
 use crate::{Level, RunDir};
 

@@ -26,7 +26,7 @@ pub use request::{BranchError, BranchRequest, MAX_WALL_TIME_S, PrepareRequest, P
 
 use self::log::EpisodeLog;
 use crate::live::{LiveEvent, LiveSink, LiveViewers};
-use crate::records::{aborted_result, read_episode_record, read_result, write_result};
+use libero_records::records::{aborted_result, read_episode_record, read_result, write_result};
 use crate::tools::DEFAULT_WALL_TIME_S;
 use crate::video_queue::VideoQueue;
 use crate::{EpisodeHandle, EpisodeStatus, RunDir};

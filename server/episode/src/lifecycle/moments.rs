@@ -144,7 +144,7 @@ impl EpisodeSet {
             return Ok(scene);
         }
         // An ended episode's action log does not grow: a step past the kept replay is past the episode.
-        if let Some(steps) = self.kept_steps(run).filter(|_| crate::records::read_result(run).is_some()) {
+        if let Some(steps) = self.kept_steps(run).filter(|_| libero_records::records::read_result(run).is_some()) {
             return Err(MomentError::OutOfRange { step: control_step, steps });
         }
         let _one_replay = self.moments.replaying.lock().map_err(|_| MomentError::Render("replay lock poisoned".into()))?;

@@ -13,8 +13,8 @@ use super::request::{BranchError, BranchRequest, PrepareRequest, Prepared, valid
 use super::{Entry, EpisodeSet, absolute, random_hex};
 use crate::demo::record::SourceEpisode;
 use crate::demo::{DemoCondition, layout_from_json, project_bundle};
-use crate::json::{utc_now_iso, write_json_file};
-use crate::records::{BranchRecord, EPISODE_RECORD_SCHEMA, EpisodeRecord, RecordedTask};
+use libero_records::json::{utc_now_iso, write_json_file};
+use libero_records::records::{BranchRecord, EPISODE_RECORD_SCHEMA, EpisodeRecord, RecordedTask};
 use crate::task::{TaskSource, resolve_task};
 use crate::workspace::{DemoNotice, WorkspaceContract, WorkspaceLayout, create_workspace};
 use crate::world::{LiberoWorld, WorldSpec};
