@@ -11,20 +11,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-fn server_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").canonicalize().expect("server/")
-}
-
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("read {}: {e}", dir.display())) {
-        let path = entry.unwrap().path();
-        if path.is_dir() {
-            rust_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            out.push(path);
-        }
-    }
-}
+mod source_tree;
+use source_tree::{module_path, rust_files, server_dir};
 
 /// One compilation unit: the library (`src/lib.rs`), the binary (`src/main.rs`) or a `src/bin/*.rs` binary, each
 /// with the file modules that belong to it.
@@ -32,18 +20,6 @@ struct Unit {
     name: String,
     /// File module path (`a::b`; the root is empty) → file.
     modules: BTreeMap<String, PathBuf>,
-}
-
-/// The module path of `file` relative to `root_dir` (the directory of the unit's root file).
-fn module_path(root_dir: &Path, file: &Path) -> String {
-    let rel = file.strip_prefix(root_dir).unwrap();
-    let mut parts: Vec<String> = rel.iter().map(|p| p.to_string_lossy().to_string()).collect();
-    let last = parts.pop().unwrap();
-    let stem = last.trim_end_matches(".rs");
-    if !matches!(stem, "mod" | "lib" | "main") {
-        parts.push(stem.to_string());
-    }
-    parts.join("::")
 }
 
 fn units(crate_dir: &Path) -> Vec<Unit> {

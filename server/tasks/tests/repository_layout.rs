@@ -2,58 +2,8 @@
 //! outside the clone — in particular not the sibling `shared` folder the project was started from. The data the
 //! tests compare against lives in `tests/reference/` (provenance in its README.md), the protocol the code comments
 //! cite by section in `docs/protocol.md`.
-use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
-}
-
-/// The repository's files: tracked ones plus new ones git does not ignore (a violation fails before it is committed).
-/// Without git (an exported tree), every file below the root except `.git/` and the folders `.gitignore` names.
-fn repository_files(root: &Path) -> Vec<PathBuf> {
-    let listed = Command::new("git")
-        .arg("-C")
-        .arg(root)
-        .args(["ls-files", "-z", "--cached", "--others", "--exclude-standard"])
-        .output()
-        .ok()
-        .filter(|o| o.status.success());
-    match listed {
-        Some(out) => out
-            .stdout
-            .split(|b| *b == 0)
-            .filter(|name| !name.is_empty())
-            .map(|name| root.join(String::from_utf8_lossy(name).as_ref()))
-            .filter(|p| p.is_file()) // tracked but deleted in the working tree
-            .collect(),
-        None => {
-            let ignored: Vec<String> = std::fs::read_to_string(root.join(".gitignore"))
-                .unwrap_or_default()
-                .lines()
-                .map(|l| l.trim().trim_matches('/').to_string())
-                .filter(|l| !l.is_empty() && !l.starts_with('#') && !l.contains(['*', '!', '/']))
-                .collect();
-            let mut out = Vec::new();
-            walk(root, &ignored, &mut out);
-            out
-        }
-    }
-}
-
-fn walk(dir: &Path, ignored: &[String], out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("read {}: {e}", dir.display())) {
-        let path = entry.unwrap().path();
-        let name = path.file_name().unwrap().to_string_lossy().to_string();
-        if path.is_dir() {
-            if name != ".git" && !ignored.contains(&name) {
-                walk(&path, ignored, out);
-            }
-        } else {
-            out.push(path);
-        }
-    }
-}
+mod source_tree;
+use source_tree::{repo_root, repository_files};
 
 /// Text that names a path outside the clone. Built from pieces so that this file does not name them itself.
 fn outside_paths() -> Vec<String> {
