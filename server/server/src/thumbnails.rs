@@ -192,6 +192,7 @@ impl Thumbnails {
             let _one_page_render = permit;
             me.on_demand_rendering.fetch_add(1, Ordering::Relaxed);
             let done = me.ensure(&hash, &id, task);
+            release_scene();
             me.on_demand_rendering.fetch_sub(1, Ordering::Relaxed);
             done.map(|()| path)
         })
@@ -250,11 +251,15 @@ impl Thumbnails {
         }
     }
 
+    /// Renders scene `task` on a GPU device of its own, closed with the world: the episodes' shared device never
+    /// holds a thumbnail's pipelines, uploads or per-frame buffers (about 200 MB on a software renderer, kept for
+    /// the server's lifetime once opened), and opening one costs tens of milliseconds against seconds of scene
+    /// set-up. On the pass's thread the device's own threads inherit its lowest priority.
     fn render(&self, id: &str, task: libero_episode::task::TaskSource, head: &Path, wrist: &Path) -> Result<(), ThumbnailError> {
         let failed = |cause: String| ThumbnailError::Render { task: id.to_owned(), cause };
         let paths = self.episodes.lifecycle().asset_paths().ok_or(ThumbnailError::NoAssets)?.clone();
         let spec = WorldSpec { task, level: Level::L1, seed: SEED, init_index: 0, paths };
-        let renderer = self.episodes.lifecycle().renderer().map_err(|e| failed(format!("{e:#}")))?;
+        let renderer = libero_render::Renderer::new().map_err(|e| failed(format!("cannot open a GPU for rendering: {e}")))?;
         let mut world = LiberoWorld::new(&spec, renderer).map_err(|e| failed(e.to_string()))?;
         libero_episode::World::start(&mut world).map_err(|e| failed(e.to_string()))?;
         let frame = libero_episode::World::frame(&mut world, 0).map_err(|e| failed(e.to_string()))?;
@@ -291,15 +296,14 @@ impl Thumbnails {
     }
 
     fn ahead_worker(&self, queue: &Mutex<std::vec::IntoIter<String>>) {
-        // The shared renderer is opened at normal priority first: a software renderer's worker threads inherit
-        // the priority of the thread that starts them, and episodes use the same renderer afterwards.
-        if let Err(e) = self.episodes.lifecycle().renderer() {
-            tracing::warn!("thumbnails are not rendered ahead: {e:#}");
+        lowest_priority();
+        // Each scene opens a device of its own: a machine that has none says so once, not once per scene.
+        if let Err(e) = libero_render::Renderer::new() {
+            tracing::warn!("thumbnails are not rendered ahead: cannot open a GPU for rendering: {e}");
             self.ahead_pending.store(0, Ordering::Relaxed);
             self.ahead_running.fetch_sub(1, Ordering::Relaxed);
             return;
         }
-        lowest_priority();
         loop {
             let next = queue.lock().unwrap_or_else(|p| p.into_inner()).next();
             let Some(id) = next else { break };
@@ -316,29 +320,24 @@ impl Thumbnails {
             if let Err(e) = done {
                 tracing::warn!("thumbnail of {id}: {e}");
             }
-            self.release_scene();
+            release_scene();
             self.ahead_pending.fetch_sub(1, Ordering::Relaxed);
         }
         self.ahead_running.fetch_sub(1, Ordering::Relaxed);
     }
 
-    /// After a background render: hands back what its scene held, as an ended episode does. The world went with
-    /// [`Self::render`] (model, upload, simulation), but MuJoCo's compiler keeps the meshes and textures it
-    /// decoded in its process-wide asset cache (up to 500 MB, filled by scenes no episode may ever open), a base
-    /// model another scene's read from stays until [`libero_sim::shared_model::release_unused`], the upload's
-    /// device memory until the device is polled, and the freed pages in the allocator's arenas until trimmed.
-    /// Episodes compile from the asset files again afterwards (their scenes' compiled models are shared while
-    /// they live, whatever this cache holds).
-    fn release_scene(&self) {
-        libero_sim::mujoco_rs::prelude::MjCache::current().clear();
-        libero_sim::shared_model::release_unused();
-        if let Ok(renderer) = self.episodes.lifecycle().renderer()
-            && let Err(e) = renderer.release_freed()
-        {
-            tracing::debug!("thumbnails: the renderer did not free released uploads: {e}");
-        }
-        libero_episode::memory::return_freed_memory();
-    }
+}
+
+/// After a render: hands back what its scene held, as an ended episode does. The world and its device went with
+/// [`Thumbnails::render`] (model, upload, simulation, pipelines), but MuJoCo's compiler keeps the meshes and
+/// textures it decoded in its process-wide asset cache (up to 500 MB, filled by scenes no episode may ever open), a
+/// base model another scene's read from stays until [`libero_sim::shared_model::release_unused`], and the freed
+/// pages in the allocator's arenas until trimmed. Episodes compile from the asset files again afterwards (their
+/// scenes' compiled models are shared while they live, whatever this cache holds).
+fn release_scene() {
+    libero_sim::mujoco_rs::prelude::MjCache::current().clear();
+    libero_sim::shared_model::release_unused();
+    libero_episode::memory::return_freed_memory();
 }
 
 /// A page request in the on-demand queue: counted while it waits, and counted as cancelled if it is dropped there.
@@ -456,18 +455,17 @@ mod tests {
         assert_eq!(Camera::parse(Some("depth")), None);
     }
 
-    /// The background pass lets go of every scene it rendered: once it is done, the renderer's uploads, the
-    /// process's shared models and MuJoCo's compiler cache are back where they were before it. A pass that kept a
-    /// scene (its world, its model, a base model another read from, its upload, its decoded assets) leaves it
-    /// counted here.
+    /// The background pass lets go of every scene it rendered: once it is done, the episodes' GPU device was never
+    /// opened (each scene rendered on a device of its own, closed with it), and the process's shared models and
+    /// MuJoCo's compiler cache are back where they were before it. A pass that kept a scene (its world, its model,
+    /// a base model another read from, its device, its decoded assets) leaves it counted here.
     #[test]
     fn the_background_pass_leaves_no_model_or_upload_of_its_scenes_behind() {
         let dir = tempfile::tempdir().unwrap();
         let episodes = Arc::new(Episodes::new(dir.path().join("data"), "http://127.0.0.1:9".into()).unwrap());
-        let renderer = episodes.lifecycle().renderer().unwrap();
         let cache = libero_sim::mujoco_rs::prelude::MjCache::current();
-        let (uploads, models, cached) = (renderer.live_uploads(), libero_sim::shared_model::alive(), cache.size());
-        let thumbnails = Arc::new(Thumbnails::new(episodes));
+        let (models, cached) = (libero_sim::shared_model::alive(), cache.size());
+        let thumbnails = Arc::new(Thumbnails::new(episodes.clone()));
         thumbnails.render_ahead(vec!["T14".into(), "libero_90/35".into()], 1);
         let started = std::time::Instant::now();
         while !thumbnails.stats().ahead_done {
@@ -476,7 +474,7 @@ mod tests {
         }
         let stats = thumbnails.stats();
         assert_eq!((stats.rendered, stats.failed), (2, 0), "{stats:?}");
-        assert_eq!(renderer.live_uploads(), uploads, "uploads of rendered scenes are still alive");
+        assert!(!episodes.lifecycle().renderer_is_open(), "the pass opened the episodes' shared GPU device and left it open");
         assert_eq!(libero_sim::shared_model::alive(), models, "models of rendered scenes are still alive");
         assert_eq!(libero_sim::shared_model::compiled_scenes_alive(), 0);
         assert_eq!(cache.size(), cached, "MuJoCo's compiler still caches the rendered scenes' assets");

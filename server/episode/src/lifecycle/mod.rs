@@ -199,6 +199,11 @@ impl EpisodeSet {
         Ok(r)
     }
 
+    /// Whether the shared GPU device has been opened (by an episode, a video, a review moment or teleop).
+    pub fn renderer_is_open(&self) -> bool {
+        self.renderer.lock().map(|slot| slot.is_some()).unwrap_or(true)
+    }
+
     pub fn runs_dir(&self) -> PathBuf {
         self.data.join("runs")
     }
