@@ -471,7 +471,17 @@ mod tests {
     #[test]
     fn this_process_can_be_read_from_proc() {
         let s = ProcSample::of(std::process::id()).unwrap();
-        assert!(s.rss_mb > 0.0 && s.threads >= 1 && s.cpu_s >= 0.0, "{s:?}");
+        assert!(s.rss_mb > 0.0 && s.threads >= 1, "{s:?}");
+        // CPU time is whole clock ticks, and it grows while this thread works (10 s is a bound, not a measure).
+        // SAFETY: sysconf only reads a system constant.
+        let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+        assert!(((s.cpu_s * hz) - (s.cpu_s * hz).round()).abs() < 1e-6, "{s:?}");
+        let t = Instant::now();
+        let mut spin = 0u64;
+        while ProcSample::of(std::process::id()).unwrap().cpu_s <= s.cpu_s {
+            spin = std::hint::black_box(spin.wrapping_add(1));
+            assert!(t.elapsed() < Duration::from_secs(10), "this process's CPU time did not grow: {s:?}");
+        }
     }
 
     #[test]

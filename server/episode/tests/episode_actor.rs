@@ -1,7 +1,7 @@
 //! The episode actor on the real LIBERO world (MuJoCo simulation + wgpu renderer): budgets, wall-clock
 //! expiry while idle, fault isolation between concurrent episodes, private records.
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use libero_records::records::{Outcome, RunDir, classify, read_result, read_result_value};
 use libero_episode::task::resolve_task;
@@ -163,12 +163,16 @@ fn a_mujoco_fault_ends_only_its_own_episode_as_invalid() {
 fn stopping_an_open_episode_records_it_as_aborted_with_the_reason() {
     let dir = tempfile::tempdir().unwrap();
     let renderer = Renderer::new().expect("renderer");
+    let t = Instant::now();
     let h = episode(dir.path(), "stopped", Level::L3, 100, 600.0, &renderer);
     assert_eq!(h.call("start_episode", None)["ok"], true);
     h.stop("server_received_signal_15_before_finish");
+    let lived_s = t.elapsed().as_secs_f64();
     let result = read_result(&RunDir::new(&h.config().run_dir)).unwrap();
     assert_eq!(result.reason.as_deref(), Some("server_received_signal_15_before_finish"));
-    assert!(result.wall_time_s().unwrap() >= 0.0);
+    // Started, so it has a wall time: the stretch from its start to the stop, inside this test's own.
+    let wall = result.wall_time_s().expect("a started episode's wall time");
+    assert!(wall > 0.0 && wall <= lived_s, "{wall} s within {lived_s} s");
     assert_eq!(classify(Some(&result)), Outcome::Invalid);
 }
 
