@@ -39,6 +39,18 @@ use serde::{Deserialize, Serialize};
 
 use crate::{Proportion, Split};
 
+/// What the report reads of the release tasks beside their records: each task's declared stage types (for records
+/// written before the evaluator reported them) and its required stages K (Appendix E's K row). Plain data, so the
+/// report computes without the task catalog (and so without the simulator): its callers fill it from the catalog
+/// (`libero_tasks::catalog::task_facts`); empty, the report takes what the records say.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TaskFacts {
+    /// Per task number, its stages' names and declared types, in order.
+    pub stage_types: BTreeMap<u32, Vec<(String, Option<StageType>)>>,
+    /// Per task number, its required stages K.
+    pub stage_counts: BTreeMap<u32, u32>,
+}
+
 /// What a stage asks of the agent (declared per stage in `tasks/manifest.json` and `tasks/pool.json`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

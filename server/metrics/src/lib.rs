@@ -31,7 +31,7 @@ pub use contact::{
 };
 pub use diagnosis::{
     ExecutionRate, FailureMode, LabelSource, PaperStageDiagnosis, StageAnnotation, StageAnnotations, StageDiagnosis, StageEvidence,
-    StageKey, StageLabel, StageOpportunity, StageType, TypeExecution, diagnose, diagnose_paper, in_paper_table4,
+    StageKey, StageLabel, StageOpportunity, StageType, TaskFacts, TypeExecution, diagnose, diagnose_paper, in_paper_table4,
 };
 pub use pool::{PoolRollout, PoolSuiteSummary, PoolSummary, PoolTaskSummary, summarize_pool};
 pub use wilson::{Proportion, wilson_interval};

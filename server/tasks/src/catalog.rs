@@ -225,6 +225,13 @@ pub fn tasks_dir() -> PathBuf {
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tasks"))
 }
 
+/// The release tasks' facts the report reads beside the records (their stage types and K), from the discovered
+/// catalog once per process; empty where there is no catalog (the report then takes what the records say).
+pub fn task_facts() -> &'static libero_metrics::TaskFacts {
+    static FACTS: std::sync::OnceLock<libero_metrics::TaskFacts> = std::sync::OnceLock::new();
+    FACTS.get_or_init(|| Catalog::discover().map(|c| c.task_facts()).unwrap_or_default())
+}
+
 impl Catalog {
     /// Loads and validates `<tasks_dir()>/manifest.json`.
     pub fn discover() -> Result<Self, TasksError> {
@@ -242,6 +249,14 @@ impl Catalog {
 
     pub fn tasks(&self) -> &[TaskEntry] {
         &self.manifest.tasks
+    }
+
+    /// The tasks' facts the report reads beside the records ([`task_facts`]).
+    pub fn task_facts(&self) -> libero_metrics::TaskFacts {
+        libero_metrics::TaskFacts {
+            stage_types: self.tasks().iter().filter_map(|t| Some((t.number, t.checker.stage_types().ok()?))).collect(),
+            stage_counts: self.tasks().iter().map(|t| (t.number, t.stage_count as u32)).collect(),
+        }
     }
 
     /// `T16`, `t16` or `16`.

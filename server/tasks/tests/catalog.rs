@@ -37,6 +37,18 @@ fn manifest_lists_30_unique_tasks_with_the_paper_splits_and_catalog_stage_counts
     assert!(catalog.get("T31").is_none());
 }
 
+/// What the report reads of the catalog beside the records (`libero_report` tests hand it the same K and types).
+#[test]
+fn the_report_s_task_facts_are_the_catalog_s_k_and_stage_types() {
+    let facts = libero_tasks::catalog::task_facts();
+    let k: Vec<u32> = (1..=30).map(|n| facts.stage_counts[&n]).collect();
+    assert_eq!(k, CATALOG_K.map(|k| k as u32));
+    let names = |n: u32| facts.stage_types[&n].iter().map(|(s, t)| (s.as_str(), t.map(|t| t.label()))).collect::<Vec<_>>();
+    let (om, mi) = (Some("Object Manipulation"), Some("Mechanism Interaction"));
+    assert_eq!(names(27), [("01_Open_Middle_Drawer", mi), ("02_Place_Cookies_Middle_Drawer", om), ("03_Place_Chocolate_Middle_Drawer", om), ("04_Close_Middle_Drawer", mi)]);
+    assert_eq!(names(30), [("01_Place_First_Counterweight", om), ("02_Place_Second_Counterweight", om), ("03_Physical_Lift_Of_Target", mi), ("04_Place_Target_In_Basket", om)]);
+}
+
 #[test]
 fn implemented_tasks_run_from_available_files_and_others_say_why_not() {
     let catalog = Catalog::discover().unwrap();
