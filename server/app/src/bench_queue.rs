@@ -114,7 +114,7 @@ pub fn run(args: &BenchQueueArgs) -> anyhow::Result<()> {
 
 /// `claimers` concurrent claimers drain `claims` synthetic rollouts; each claim call timed.
 async fn claim_latency(store: &Store, batch: &str, claimers: usize, claims: usize) -> anyhow::Result<Value> {
-    let doc = json!({"schema_version": libero_runner::batch::BATCH_SCHEMA, "status": "queued", "rollout_count": claims});
+    let doc = json!({"schema_version": libero_report::batch::BATCH_SCHEMA, "status": "queued", "rollout_count": claims});
     let jobs: Vec<(String, Value)> = (0..claims).map(|i| (format!("r{i}"), json!({"rollout_id": format!("r{i}")}))).collect();
     store.enqueue(&libero_store::StoredBatch { name: batch.into(), dir: batch.into(), doc, records: vec![] }, &jobs).await?;
     let t = Instant::now();

@@ -14,8 +14,8 @@ use axum::response::IntoResponse;
 use axum::routing::get;
 use libero_records::json::utc_now_iso;
 use libero_metrics::{FailureMode, Split, StageAnnotation, StageAnnotations, StageKey, StageOpportunity, in_paper_table4};
-use libero_runner::batch::{RolloutRecord, read_records};
-use libero_runner::report::annotations::{AnnotationLine, append_annotation, invalid_annotation, read_annotations, rollout_stages};
+use libero_report::annotations::{AnnotationLine, append_annotation, invalid_annotation, read_annotations, rollout_stages};
+use libero_report::batch::{RolloutRecord, read_records};
 use libero_server::{ApiError, ApiResult, AppState};
 use serde::Deserialize;
 use serde_json::{Value, json};
@@ -56,7 +56,7 @@ async fn rollout(app: &AppState, id: &str) -> ApiResult<(Found, Vec<StageOpportu
     let (roots, owned) = (app.batch_roots.clone(), id.to_owned());
     let found = tokio::task::spawn_blocking(move || {
         let found = find(&roots, &owned)?;
-        let stages = rollout_stages(&found.record);
+        let stages = rollout_stages(&found.record, libero_tasks::catalog::task_facts());
         Some((found, stages))
     })
     .await
@@ -117,7 +117,7 @@ async fn stages(State(app): State<AppState>, Path(id): Path<String>) -> ApiResul
         "episodes": found.long_horizon.len(),
         "previous": neighbour(-1),
         "next": neighbour(1),
-        "modes": libero_runner::report::annotations::MODES.map(|m| json!({"key": m, "label": m.label()})),
+        "modes": libero_report::annotations::MODES.map(|m| json!({"key": m, "label": m.label()})),
     }))
     .into_response())
 }

@@ -25,8 +25,7 @@ use axum::http::header;
 use axum::response::IntoResponse;
 use axum::routing::get;
 use libero_episode::dirfd;
-use libero_runner::batch::{LoadedBatch, RolloutRecord};
-use libero_runner::harness::Harness;
+use libero_report::batch::{LoadedBatch, RolloutRecord, agent_of, stderr_file, stdout_file};
 use libero_server::{ApiError, ApiResult, App, AppState};
 use rustix::fs::{Mode, OFlags};
 
@@ -88,11 +87,11 @@ impl LogFile {
     }
 
     /// Where the runner writes it, relative to the rollout directory (directories, then the file's name), for a
-    /// batch of `harness`; `None` when that harness leaves no such file name (an unknown harness's stdout).
-    pub fn relative(self, harness: Option<Harness>) -> Option<Vec<String>> {
+    /// batch of `harness`; `None` when that harness leaves no such file name (an unknown harness's logs).
+    pub fn relative(self, harness: Option<&str>) -> Option<Vec<String>> {
         Some(match self {
-            Self::Stdout => vec![harness?.stdout_file()],
-            Self::Stderr => vec![format!("{}_stderr.log", harness?.as_str())],
+            Self::Stdout => vec![stdout_file(harness?)?],
+            Self::Stderr => vec![stderr_file(harness?)?],
             Self::Manifest => vec!["harness_manifest.json".into()],
             Self::Usage => vec!["harness_usage.json".into()],
             Self::Transcript => vec![libero_records::agent_events::AGENT_EVENTS_FILE.into()],
@@ -223,8 +222,8 @@ impl Rollout {
         self.batch.dir.join("rollouts").join(&self.record.rollout_id)
     }
 
-    fn harness(&self) -> Option<Harness> {
-        serde_json::from_value(serde_json::json!(self.batch.batch.harness_setting()?)).ok()
+    fn harness(&self) -> Option<&str> {
+        self.batch.batch.harness_setting()
     }
 }
 
@@ -329,7 +328,7 @@ async fn rollout_page(State(app): State<AppState>, UrlPath((batch, rollout)): Ur
         ("level".to_owned(), rec.level.to_string()),
         ("demonstration".to_owned(), rec.demo.as_str().to_owned()),
         ("stages".to_owned(), format!("{}/{}", rec.completed_stages.map_or("?".into(), |c| c.to_string()), rec.stage_count)),
-        ("agent".to_owned(), libero_runner::batch::agent_of(&r.batch)),
+        ("agent".to_owned(), agent_of(&r.batch)),
         ("agent exit code".to_owned(), rec.agent_exit_code.map_or("–".into(), |c| c.to_string())),
         ("harness time".to_owned(), rec.harness_elapsed_s.map_or("–".into(), |s| format!("{s:.1} s"))),
     ];
@@ -445,11 +444,12 @@ mod tests {
         assert!(plain_name("w1_t28_level3") && plain_name("batch-2026.01"));
         assert_eq!(LogFile::from_slug("home"), None);
         assert_eq!(LogFile::from_slug("stdout"), Some(LogFile::Stdout));
-        assert_eq!(LogFile::Stdout.relative(Some(Harness::Codex)), Some(rel(&["codex_stdout.jsonl"])));
-        assert_eq!(LogFile::Stderr.relative(Some(Harness::Command)), Some(rel(&["command_stderr.log"])));
+        assert_eq!(LogFile::Stdout.relative(Some("codex")), Some(rel(&["codex_stdout.jsonl"])));
+        assert_eq!(LogFile::Stderr.relative(Some("command")), Some(rel(&["command_stderr.log"])));
         assert_eq!(LogFile::Stdout.relative(None), None);
+        assert_eq!((LogFile::Stdout.relative(Some("../x")), LogFile::Stderr.relative(Some("../x"))), (None, None), "an unknown harness names no file");
         for f in LogFile::ALL {
-            assert!(!f.relative(Some(Harness::Command)).unwrap().iter().any(|p| p == "home" || p.contains('/')), "{f:?}");
+            assert!(!f.relative(Some("command")).unwrap().iter().any(|p| p == "home" || p.contains('/')), "{f:?}");
         }
     }
 }

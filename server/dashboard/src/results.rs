@@ -14,15 +14,17 @@ use axum::extract::{Path as UrlPath, RawQuery, State};
 use axum::http::header;
 use axum::response::IntoResponse;
 use libero_records::batch_doc::ToolboxDoc;
-use libero_metrics::{PAPER_REPS, Split};
+use libero_metrics::{PAPER_REPS, Split, TaskFacts};
+use libero_tasks::catalog::task_facts;
 use libero_server::{ApiError, ApiResult, App, AppState};
 use serde_json::{Value, json};
 
-use libero_runner::batch::{LoadedBatch, RolloutRecord, load_batch};
-use libero_runner::report::tables::{DisplayTable, TableChoice, display_tables, paper_tables};
-use libero_runner::report::tokens::{self, RolloutTokens, TokenSummary};
-use libero_runner::report::versions::HarnessVersions;
-use libero_runner::report::{
+use libero_report::batch::{LoadedBatch, RolloutRecord, load_batch};
+use libero_report::display::DisplayTable;
+use libero_report::tables::{TableChoice, display_tables, paper_tables};
+use libero_report::tokens::{self, RolloutTokens, TokenSummary};
+use libero_report::versions::HarnessVersions;
+use libero_report::{
     Row, coverage, default_reps, pct, pool_rows, report_json, row_records, row_versions, rows, suite_records, svg, time_text, toolbox_text,
     wilson,
 };
@@ -232,13 +234,13 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
                 "toolbox": d.toolbox,
                 "progress": {"rollout_count": d.rollout_count, "counts": d.counts,
                     "running": d.running, "outcomes": d.outcomes, "updated_at": d.updated_at},
-                "report": report_json(std::slice::from_ref(b), reps),
+                "report": report_json(std::slice::from_ref(b), reps, task_facts()),
                 "episodes": b.records.iter().map(|r| episode_json(b, r)).collect::<Vec<_>>(),
             })
         })
         .collect();
     let reps = selection_reps(batches, sel);
-    let across = report_json(batches, reps);
+    let across = report_json(batches, reps, task_facts());
     json!({"ok": true, "schema_version": "libero_agent.results.v1", "available": names, "batches": list,
         "across_batches": {"reps": reps, "observation_ablation": across["observation_ablation"],
             "demonstration_ablation": across["demonstration_ablation"], "stage_diagnosis": across["stage_diagnosis"],
@@ -600,7 +602,7 @@ pub fn view(batches: &[LoadedBatch], sel: &Selection) -> View {
         });
     }
     let reps = selection_reps(batches, sel);
-    let paper = paper_tables(batches, &rows(batches, reps), reps);
+    let paper = paper_tables(batches, &rows(batches, reps), reps, task_facts());
     v.paper = display_tables(&paper, TableChoice::All, reps).into_iter().filter(|t| !t.rows.is_empty()).collect();
     if !paper.sustained_contact.is_empty() {
         v.figures = vec![svg::figure3(&paper.sustained_contact)];
@@ -677,7 +679,7 @@ fn pool_view(v: &mut View, b: &LoadedBatch, reps: usize) {
                 mean_sc: pct(s.mean_stage_completion),
                 ordinary: wilson(&s.ordinary),
                 time: time_text(s.avg_wall_time_min, s.averaged_invalid),
-                tokens: TokenSummary::of(suite_records(std::slice::from_ref(b), &libero_runner::batch::agent_of(b), &s.suite)).text(),
+                tokens: TokenSummary::of(suite_records(std::slice::from_ref(b), &libero_report::batch::agent_of(b), &s.suite)).text(),
             });
         }
         for t in &p.tasks {
@@ -718,7 +720,7 @@ struct ResultsPage {
 
 /// Loads the selected batches: batch directories off the async workers (they are files of any size), and the
 /// batches only the store holds (`run --store`) from the store.
-pub(crate) async fn selected(app: &App, sel: &Selection) -> ApiResult<(Vec<String>, Vec<libero_runner::batch::LoadedBatch>)> {
+pub(crate) async fn selected(app: &App, sel: &Selection) -> ApiResult<(Vec<String>, Vec<LoadedBatch>)> {
     let internal = |e: String| ApiError::internal(format!("results: {e}"));
     let stored = app.store.batch_names().await.map_err(|e| internal(format!("{e:#}")))?;
     let (roots, sel) = (app.batch_roots.clone(), sel.clone());
@@ -734,7 +736,7 @@ pub(crate) async fn selected(app: &App, sel: &Selection) -> ApiResult<(Vec<Strin
             Selected::InStore(name) => {
                 let b = app.store.batch(&name).await.map_err(|e| internal(format!("{e:#}")))?;
                 let b = b.ok_or_else(|| internal(format!("batch {name} left the store")))?;
-                libero_runner::batch::from_stored(b).map_err(|e| internal(format!("{e:#}")))?
+                LoadedBatch::from_stored(&b.name, b.dir, b.doc, b.records).map_err(|e| internal(e.to_string()))?
             }
         });
     }
@@ -763,15 +765,15 @@ pub(crate) async fn results_api(State(app): State<AppState>, RawQuery(query): Ra
 /// selected batches (every table), as a download.
 pub(crate) async fn results_download(State(app): State<AppState>, UrlPath(format): UrlPath<String>, RawQuery(query): RawQuery) -> ApiResult {
     let sel = Selection::parse(query.as_deref()).map_err(ApiError::bad_request)?;
-    let (render, kind, ext): (fn(&[LoadedBatch], usize, TableChoice) -> String, &str, &str) = match format.as_str() {
-        "csv" => (libero_runner::report::csv, "text/csv; charset=utf-8", "csv"),
-        "markdown" | "md" => (libero_runner::report::markdown, "text/markdown; charset=utf-8", "md"),
-        "latex" | "tex" => (libero_runner::report::latex, "application/x-latex; charset=utf-8", "tex"),
+    let (render, kind, ext): (fn(&[LoadedBatch], usize, TableChoice, &TaskFacts) -> String, &str, &str) = match format.as_str() {
+        "csv" => (libero_report::csv, "text/csv; charset=utf-8", "csv"),
+        "markdown" | "md" => (libero_report::markdown, "text/markdown; charset=utf-8", "md"),
+        "latex" | "tex" => (libero_report::latex, "application/x-latex; charset=utf-8", "tex"),
         other => return Err(ApiError::bad_request(format!("the report downloads as csv, markdown or latex, not {other:?}"))),
     };
     let (_, batches) = selected(&app, &sel).await?;
-    let reps = sel.reps.unwrap_or_else(|| libero_runner::report::default_reps(&batches));
-    let body = tokio::task::spawn_blocking(move || render(&batches, reps, TableChoice::All))
+    let reps = sel.reps.unwrap_or_else(|| default_reps(&batches));
+    let body = tokio::task::spawn_blocking(move || render(&batches, reps, TableChoice::All, task_facts()))
         .await
         .map_err(|e| ApiError::internal(format!("report: {e}")))?;
     let file = format!("attachment; filename=\"libero-agent-results.{ext}\"");

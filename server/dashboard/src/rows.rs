@@ -80,7 +80,7 @@ async fn batch_episode(app: &App, id: &str) -> Option<libero_store::EpisodeRow> 
     let id = id.to_owned();
     tokio::task::spawn_blocking(move || {
         let run_dir = results::discover(&roots).into_iter().find_map(|(_, dir)| {
-            libero_runner::batch::read_records(&dir)
+            libero_report::batch::read_records(&dir)
                 .ok()?
                 .into_iter()
                 .find(|r| r.episode_id.as_deref() == Some(id.as_str()))

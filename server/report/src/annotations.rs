@@ -6,7 +6,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use libero_metrics::{FailureMode, StageAnnotation, StageAnnotations, StageKey, StageOpportunity};
+use libero_metrics::{FailureMode, StageAnnotation, StageAnnotations, StageKey, StageOpportunity, TaskFacts};
 use serde::{Deserialize, Serialize};
 
 use crate::batch::{LoadedBatch, RolloutRecord};
@@ -74,9 +74,9 @@ pub fn invalid_annotation(stages: &[StageOpportunity], stage_name: &str, a: &Sta
 }
 
 /// The required stages of one rollout with their automatic evidence ([`StageOpportunity`]), from its private
-/// record; empty when the rollout has none.
-pub fn rollout_stages(r: &RolloutRecord) -> Vec<StageOpportunity> {
-    super::tables::rollout_opportunities(r)
+/// record (stage types it lacks from `facts`); empty when the rollout has none.
+pub fn rollout_stages(r: &RolloutRecord, facts: &TaskFacts) -> Vec<StageOpportunity> {
+    crate::stages::rollout_opportunities(r, facts)
 }
 
 /// The failure modes in the order the page lists them (keys 1–4).

@@ -19,16 +19,15 @@
 //! (a) is each agent's mean SCR over its entered operations; (b) the local opening success per SCR bin with 95 %
 //! Wilson intervals and Pearson's r, pooled over every agent's entered operations.
 use std::fmt::Write as _;
-use std::path::Path;
 
-use libero_episode::records::{MechanismOperation, PrivateEvaluation};
+use libero_records::records::{MechanismOperation, PrivateEvaluation};
 use libero_metrics::{Figure3, OpeningOperation, Split, StageOpportunity, figure3};
 use serde::Serialize;
 
-use crate::batch::RolloutRecord;
-use crate::report::tables::{DisplayTable, field, p4, r_text, share, strings, touched};
-use crate::report::wilson;
-use crate::schedule::Demo;
+use crate::batch::{Demo, RolloutRecord};
+use crate::display::{DisplayTable, field, p4, r_text, share, strings};
+use crate::stages::touched;
+use crate::wilson;
 
 /// Figure 3 with the operations it was computed from.
 #[derive(Debug, Clone, Serialize)]
@@ -241,29 +240,4 @@ pub fn csv_operations(o: &mut String, d: &Figure3Data) {
             op.counted().is_some()
         );
     }
-}
-
-/// Figure 3 as files in `dir`: the two-panel SVG and the data behind it (CSV, JSON). Returns the paths written.
-pub fn write_figures(d: &Figure3Data, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
-    std::fs::create_dir_all(dir)?;
-    let csv = |f: fn(&mut String, &Figure3Data)| {
-        let mut o = String::new();
-        f(&mut o, d);
-        o
-    };
-    let json = serde_json::to_string_pretty(d).map_err(std::io::Error::other)? + "\n";
-    let files = [
-        ("figure3.svg", crate::report::svg::figure3(d)),
-        ("figure3_mean_scr.csv", csv(csv_mean)),
-        ("figure3_scr_bins.csv", csv(csv_bins)),
-        ("figure3_opening_operations.csv", csv(csv_operations)),
-        ("figure3.json", json),
-    ];
-    let mut written = Vec::new();
-    for (name, text) in files {
-        let path = dir.join(name);
-        std::fs::write(&path, text)?;
-        written.push(path);
-    }
-    Ok(written)
 }

@@ -1,67 +1,36 @@
-//! `libero-agent report BATCH… [--format markdown|csv|json|latex] [--table …] [--figures DIR]`: the paper's tables
-//! from batch directories, through the metrics crate. Rollouts are grouped by agent (`harness/model`) and condition
-//! (level, demonstration); several batches of the same agent combine (a re-run of INVALID rollouts, and the main
-//! table, observation and context batches whose conditions Tables 2 and 3 put side by side). Table 1 is here;
-//! Tables 2–4, Figure 3's data and Appendix E are in [`tables`] (which operations Figure 3 counts: [`figure3`]), its
-//! plot in [`svg`]. [`report_json`] is the JSON the dashboard's Results page reads.
-use std::fmt::Write as _;
-use std::path::PathBuf;
-
-#[path = "report_annotations.rs"]
+//! The paper's reports: Table 1 here, Tables 2–4, Figure 3's data and Appendix E in [`tables`] (which operations
+//! Figure 3 counts: [`figure3`]), its plot in [`svg`], in Markdown, CSV, LaTeX and JSON ([`report_json`], what the
+//! dashboard's Results page reads), from batches read by [`batch`]. Rollouts are grouped by agent (`harness/model`)
+//! and condition (level, demonstration); several batches of the same agent combine (a re-run of INVALID rollouts,
+//! and the main table, observation and context batches whose conditions Tables 2 and 3 put side by side).
+//!
+//! Why a crate of its own: reports compute from records alone (`batch.json`, `rollouts.jsonl`, run directories'
+//! `result.json`, stage annotations), so this crate links neither the simulator nor the runner's sandbox, and the
+//! console reads batches and prints tables through it without linking either. What the report needs of the task
+//! catalog beyond the records comes in as plain data ([`TaskFacts`], filled by the caller).
 pub mod annotations;
-#[path = "report_figure3.rs"]
+pub mod batch;
+pub mod display;
 pub mod figure3;
-#[path = "report_svg.rs"]
+pub mod stages;
 pub mod svg;
-#[path = "report_tables.rs"]
 pub mod tables;
-#[path = "report_tokens.rs"]
 pub mod tokens;
-#[path = "report_versions.rs"]
+pub mod usage;
 pub mod versions;
+
+use std::fmt::Write as _;
 
 use tables::TableChoice;
 use tokens::{RolloutTokens, TokenSummary};
 use versions::HarnessVersions;
 
-use anyhow::bail;
-use libero_episode::batch_doc::ToolboxDoc;
+pub use libero_metrics::TaskFacts;
 use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
+use libero_records::batch_doc::ToolboxDoc;
 use serde_json::{Value, json};
 
-use crate::batch::{Condition, LoadedBatch, RolloutRecord, agent_of, load_batch, metrics_rollouts, pool_rollouts};
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Format {
-    #[value(alias = "md")]
-    Markdown,
-    Csv,
-    Json,
-    Latex,
-}
-
-#[derive(clap::Args, Debug)]
-pub struct ReportArgs {
-    /// Batch directories written by `libero-agent run`; with `--store`, batch names in that store.
-    #[arg(required = true)]
-    pub batches: Vec<PathBuf>,
-    /// Read the batches from this store (`sqlite://PATH`, `postgres://…`) as `run --store` wrote them, by name.
-    #[arg(long, value_name = "URL")]
-    pub store: Option<String>,
-    #[arg(long, value_enum, default_value = "markdown")]
-    pub format: Format,
-    /// Rollouts per task the stable rule needs (default: the first batch's own `--reps`, as the Results page uses).
-    #[arg(long)]
-    pub reps: Option<usize>,
-    /// Which table Markdown, CSV and LaTeX print (JSON always holds every one): all, table1…table4, figure3 (its data),
-    /// appendix (the per-task tables of Appendix E, wide).
-    #[arg(long, value_enum, default_value = "all")]
-    pub table: TableChoice,
-    /// Also write Figure 3 to this folder: one SVG with its two panels (mean SCR per agent; local opening success by
-    /// SCR bin, pooled) and their data (CSV, JSON).
-    #[arg(long, value_name = "DIR")]
-    pub figures: Option<PathBuf>,
-}
+use crate::batch::{Condition, LoadedBatch, RolloutRecord, agent_of, metrics_rollouts, pool_rollouts};
 
 /// One agent under one condition.
 pub struct Row {
@@ -128,9 +97,9 @@ pub fn pool_rows(batches: &[LoadedBatch], reps: usize) -> Vec<(String, PoolSumma
 
 /// The report as JSON: batches (settings, harness version, counts), per-row summaries (Table 1), and Tables 2–4,
 /// Figure 3's data and Appendix E across the batches of each agent.
-pub fn report_json(batches: &[LoadedBatch], reps: usize) -> Value {
+pub fn report_json(batches: &[LoadedBatch], reps: usize, facts: &TaskFacts) -> Value {
     let table1 = rows(batches, reps);
-    let paper = tables::paper_tables(batches, &table1, reps);
+    let paper = tables::paper_tables(batches, &table1, reps, facts);
     let rows: Vec<Value> = table1
         .into_iter()
         .map(|r| {
@@ -237,7 +206,7 @@ fn score(s: &SuiteSummary) -> String {
 }
 
 /// The whole report as Markdown (with `choice`, one table of it).
-pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String {
+pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice, facts: &TaskFacts) -> String {
     let rows = rows(batches, reps);
     let mut o = String::new();
     let _ = writeln!(o, "# LIBERO-Agent results\n");
@@ -259,7 +228,7 @@ pub fn markdown(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> St
             json!(d.outcomes),
         );
     }
-    let paper = tables::paper_tables(batches, &rows, reps);
+    let paper = tables::paper_tables(batches, &rows, reps, facts);
     if choice != TableChoice::All && choice != TableChoice::Table1 {
         o.push_str(&tables::markdown(&paper, choice, reps));
         return o;
@@ -393,9 +362,9 @@ pub(crate) fn stable_word(s: Option<bool>) -> &'static str {
 
 /// The report as CSV, one block per table (`choice`: all, or one table). A single block prints as plain CSV; several
 /// are each headed by a `# name` line and separated by a blank line.
-pub fn csv(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String {
+pub fn csv(batches: &[LoadedBatch], reps: usize, choice: TableChoice, facts: &TaskFacts) -> String {
     let table1 = rows(batches, reps);
-    let paper = tables::paper_tables(batches, &table1, reps);
+    let paper = tables::paper_tables(batches, &table1, reps, facts);
     let mut blocks = Vec::new();
     if choice.wants(TableChoice::Table1) {
         blocks.push(("table_1_stable_performance".to_owned(), csv_table1(&table1, batches, reps)));
@@ -495,9 +464,9 @@ pub fn toolbox_text(t: Option<&ToolboxDoc>) -> String {
 }
 
 /// The report as LaTeX tabulars (booktabs): Table 1, then (with `choice` `all`) the others, each after a `% caption`.
-pub fn latex(batches: &[LoadedBatch], reps: usize, choice: TableChoice) -> String {
+pub fn latex(batches: &[LoadedBatch], reps: usize, choice: TableChoice, facts: &TaskFacts) -> String {
     let table1 = rows(batches, reps);
-    let paper = tables::paper_tables(batches, &table1, reps);
+    let paper = tables::paper_tables(batches, &table1, reps, facts);
     let mut o = String::new();
     if choice.wants(TableChoice::Table1) {
         o.push_str(&latex_table1(&table1, batches));
@@ -526,35 +495,4 @@ fn latex_table1(table1: &[Row], batches: &[LoadedBatch]) -> String {
     }
     o.push_str("\\bottomrule\n\\end{tabular}\n");
     o.replace('—', "--")
-}
-
-pub fn run(args: ReportArgs) -> anyhow::Result<()> {
-    if args.reps == Some(0) {
-        bail!("--reps must be at least 1");
-    }
-    let batches = match &args.store {
-        Some(url) => {
-            let names: Vec<String> = args.batches.iter().map(|n| n.to_string_lossy().into_owned()).collect();
-            crate::batch::load_batches_from_store(url, &names)?
-        }
-        None => args.batches.iter().map(|d| load_batch(d)).collect::<anyhow::Result<Vec<_>>>()?,
-    };
-    let reps = args.reps.unwrap_or_else(|| default_reps(&batches));
-    if args.reps.is_none() && batches.iter().filter_map(batch_reps).any(|n| n != reps) {
-        eprintln!("note: the batches were run with different --reps; the stable rule uses {reps} (the first batch's); pass --reps N to choose");
-    }
-    let out = match args.format {
-        Format::Markdown => markdown(&batches, reps, args.table),
-        Format::Csv => csv(&batches, reps, args.table),
-        Format::Json => serde_json::to_string_pretty(&report_json(&batches, reps))? + "\n",
-        Format::Latex => latex(&batches, reps, args.table),
-    };
-    print!("{out}");
-    if let Some(dir) = &args.figures {
-        let paper = tables::paper_tables(&batches, &rows(&batches, reps), reps);
-        for path in tables::write_figures(&paper, dir).map_err(|e| anyhow::anyhow!("cannot write figures to {}: {e}", dir.display()))? {
-            eprintln!("wrote {}", path.display());
-        }
-    }
-    Ok(())
 }

@@ -3,7 +3,7 @@
 //! success per SCR bin over every agent's operations, with 95 % Wilson whiskers, `k/n` and Pearson's r.
 use std::fmt::Write as _;
 
-use crate::report::figure3::Figure3Data;
+use crate::figure3::Figure3Data;
 
 /// Series colours (colour-blind safe, Okabe–Ito).
 const PALETTE: [&str; 8] = ["#0072B2", "#E69F00", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#F0E442", "#000000"];

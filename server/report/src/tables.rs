@@ -7,9 +7,9 @@
 //! * Table 4, the paper's stage-level diagnosis of the hard long-horizon tasks (T21, T22, T25, T28, T30), and
 //!   "Table 4+", this project's extension over every long-horizon task, from each rollout's private record
 //!   (`result.json` → `private_evaluation`: its stage diagnostics, stage events and opening operations, with the stage
-//!   types the catalog declares) and, for Table 4, a person's stage annotations where there are any;
+//!   types the catalog declares, [`TaskFacts`]) and, for Table 4, a person's stage annotations where there are any;
 //! * Figure 3, the sustained-contact ratio of the stage analysis's opening operations (`private_evaluation.details.
-//!   opening_operations`; which operations and how, [`crate::report::figure3`]);
+//!   opening_operations`; which operations and how, [`crate::figure3`]);
 //! * Appendix E, the per-task tables in wide format.
 //!
 //! Rollouts are grouped by agent (`harness/model`) and condition exactly as Table 1's rows, whichever batch they came
@@ -18,19 +18,19 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::Path;
-use std::sync::OnceLock;
 
 use libero_metrics::{
-    AblationKind, AblationRow, PaperStageDiagnosis, Proportion, Split, StageAnnotations, StageDiagnosis, StageEvidence,
-    StageOpportunity, StageType, diagnose, diagnose_paper, in_paper_table4, summarize,
+    AblationKind, AblationRow, PaperStageDiagnosis, Split, StageAnnotations, StageDiagnosis, StageOpportunity, StageType,
+    TaskFacts, diagnose, diagnose_paper, in_paper_table4, summarize,
 };
-use libero_episode::records::{MechanismOperation, PrivateEvaluation, PrivateEvent, RunDir, StageDiagnostic, read_result};
+use libero_records::records::PrivateEvaluation;
 use serde::Serialize;
 
-use crate::batch::{Condition, LoadedBatch, RolloutRecord, agent_of};
-use crate::report::figure3::{self, Figure3Data};
-use crate::report::{Row, cell, pct, wilson};
-use crate::schedule::Demo;
+use crate::batch::{Condition, Demo, LoadedBatch, RolloutRecord, agent_of};
+use crate::display::{DisplayTable, field, p4, share, strings};
+use crate::figure3::{self, Figure3Data};
+use crate::stages::{opportunities, private_evaluation};
+use crate::{Row, cell, pct, wilson};
 
 /// One line of Table 2 or 3, with the batches its rollouts came from.
 #[derive(Debug, Clone, Serialize)]
@@ -147,94 +147,6 @@ fn counted<'a>(records: impl Iterator<Item = &'a RolloutRecord>, reps: usize) ->
         .collect()
 }
 
-/// The rollout's private evaluation (`<run_dir>/result.json` → `private_evaluation`), if it can be read here.
-fn private_evaluation(r: &RolloutRecord) -> Option<PrivateEvaluation> {
-    read_result(&RunDir::new(r.run_dir.as_deref()?))?.private_evaluation
-}
-
-/// Stage types the catalog declares, per task number: for records written before the evaluator reported them.
-fn catalog_stage_types() -> &'static BTreeMap<u32, Vec<(String, Option<StageType>)>> {
-    static TYPES: OnceLock<BTreeMap<u32, Vec<(String, Option<StageType>)>>> = OnceLock::new();
-    TYPES.get_or_init(|| {
-        let Ok(catalog) = libero_tasks::Catalog::discover() else { return BTreeMap::new() };
-        catalog.tasks().iter().filter_map(|t| Some((t.number, t.checker.stage_types().ok()?))).collect()
-    })
-}
-
-/// The required stages K the catalog declares, per task number (Appendix E's K row).
-fn catalog_stage_counts() -> &'static BTreeMap<u32, u32> {
-    static COUNTS: OnceLock<BTreeMap<u32, u32>> = OnceLock::new();
-    COUNTS.get_or_init(|| {
-        let Ok(catalog) = libero_tasks::Catalog::discover() else { return BTreeMap::new() };
-        catalog.tasks().iter().map(|t| (t.number, t.stage_count as u32)).collect()
-    })
-}
-
-/// The checker whose goals are all available at once (T21, T22): no stage comes first.
-const UNORDERED_CHECKER: &str = "private_unordered_goal_predicates";
-
-/// The gripper touched the mechanism of this operation (anywhere on it): a contact run (`contact_runs`), or sustained
-/// steps or a positive SCR in records without the runs.
-pub(crate) fn touched(o: &MechanismOperation) -> bool {
-    let runs = o.contact_runs.as_ref().is_some_and(|r| !r.is_empty());
-    runs || o.sustained_steps.is_some_and(|n| n > 0) || o.sustained_contact_ratio_percent.is_some_and(|p| p > 0.0)
-}
-
-/// The required stages of one long-horizon rollout's record as stage opportunities, each with the evidence its
-/// record holds ([`StageEvidence`]: reached only on evidence of the agent, never because a stage comes first).
-fn opportunities(r: &RolloutRecord, pe: &PrivateEvaluation) -> Vec<StageOpportunity> {
-    let declared = catalog_stage_types().get(&r.task_number);
-    let stages: Vec<&StageDiagnostic> = pe.stage_diagnostics.iter().flatten().filter(|d| d.required == Some(true)).collect();
-    let name = |d: &StageDiagnostic| d.stage_name.clone().unwrap_or_default();
-    let order = pe.details.as_ref().and_then(|d| d.rest.get("order")).and_then(serde_json::Value::as_str);
-    let unordered = pe.checker.as_deref() == Some(UNORDERED_CHECKER) || order == Some("unordered");
-    let events: Vec<&PrivateEvent> = pe.stage_events.iter().flatten().chain(pe.events.iter().flatten()).collect();
-    let of_kind = |kind: &'static str| events.iter().copied().filter(move |e| e.kind.as_deref() == Some(kind));
-    // The control step a stage first completed at (its diagnostic's, else its first completion event).
-    let completed_at = |d: &StageDiagnostic| {
-        let n = name(d);
-        d.completed_control_step.flatten().or_else(|| {
-            of_kind("stage_completed").filter(|e| e.stage_name.as_deref() == Some(n.as_str())).filter_map(|e| e.control_step).min()
-        })
-    };
-    let ever_completed = |d: &StageDiagnostic| d.succeeded == Some(true) || completed_at(d).is_some() || d.regressions.unwrap_or(0) > 0;
-    // Ordered stages: the required stage current at a control step (the first not completed by then).
-    let current_at = |step: u64| {
-        (!unordered).then(|| stages.iter().find(|d| completed_at(d).is_none_or(|c| c > step))).flatten().map(|d| name(d))
-    };
-    let ops: &[MechanismOperation] = pe.details.as_ref().and_then(|d| d.opening_operations.as_deref()).unwrap_or_default();
-    stages
-        .iter()
-        .enumerate()
-        .map(|(i, d)| {
-            let n = name(d);
-            let recorded = d.stage_type.clone().and_then(|t| serde_json::from_value::<StageType>(t).ok());
-            let from_catalog = || declared.and_then(|ts| ts.iter().find(|(s, _)| *s == n)).and_then(|(_, t)| *t);
-            // A strict order latched by a later stage's state made early, while this stage was current: that state
-            // blocked it (records from before the event named its stage carry the reason on the stage instead).
-            let blocked = of_kind("order_violation").any(|e| e.stage_name.as_deref() == Some(n.as_str()))
-                || d.failure_reason.as_ref().and_then(Option::as_deref) == Some("order_violation");
-            let forbidden = of_kind("forbidden_contact").any(|e| e.control_step.and_then(current_at).as_deref() == Some(n.as_str()));
-            StageOpportunity {
-                episode_id: r.episode_id.clone(),
-                task_number: r.task_number,
-                stage_type: recorded.or_else(from_catalog),
-                evidence: StageEvidence {
-                    succeeded: d.succeeded == Some(true),
-                    completed_at_some_point: ever_completed(d),
-                    preconditions_established: !unordered && i > 0 && ever_completed(stages[i - 1]),
-                    touched_mechanism: ops.iter().any(|o| o.stage_name.as_deref() == Some(n.as_str()) && touched(o)),
-                    acted_while_current: blocked || forbidden,
-                    regressions: d.regressions.map_or(0, |n| n as u32),
-                    regressed_during_later_stage: d.regressed_during_later_stage == Some(true),
-                    blocked_by_other_stage: blocked,
-                },
-                stage_name: n,
-            }
-        })
-        .collect()
-}
-
 /// The batches whose rollouts fall in each (agent, condition), by name.
 fn batch_names(batches: &[LoadedBatch]) -> BTreeMap<(String, Condition), BTreeSet<String>> {
     let mut out: BTreeMap<(String, Condition), BTreeSet<String>> = BTreeMap::new();
@@ -278,10 +190,11 @@ fn ablations(kind: AblationKind, rows: &[Row], batches: &BTreeMap<(String, Condi
         .collect()
 }
 
-/// The three wide tables of Appendix E over Table 1's rows (`batches` for the K row where the catalog lacks a task).
-fn appendix(rows: &[Row], batches: &[LoadedBatch]) -> Vec<AppendixTable> {
+/// The three wide tables of Appendix E over Table 1's rows (`batches` for the K row where `facts` lack a task).
+fn appendix(rows: &[Row], batches: &[LoadedBatch], facts: &TaskFacts) -> Vec<AppendixTable> {
     let k_of = |n: u32| {
-        catalog_stage_counts()
+        facts
+            .stage_counts
             .get(&n)
             .copied()
             .or_else(|| batches.iter().flat_map(|b| &b.records).filter(|r| r.suite.is_none() && r.task_number == n).map(|r| r.stage_count).max())
@@ -327,14 +240,9 @@ fn appendix(rows: &[Row], batches: &[LoadedBatch]) -> Vec<AppendixTable> {
 
 /// Everything after Table 1, from the batches and Table 1's rows over them (Table 4 from the people's annotations
 /// in the batches' `stage_annotations.jsonl` where there are any, automatic labels elsewhere).
-pub fn paper_tables(batches: &[LoadedBatch], rows: &[Row], reps: usize) -> PaperTables {
-    let annotations = super::annotations::batches_annotations(batches);
-    paper_tables_annotated(batches, rows, reps, Some(&annotations))
-}
-
-/// The required stages of one rollout with their evidence, read from its private record (empty without one).
-pub fn rollout_opportunities(r: &RolloutRecord) -> Vec<StageOpportunity> {
-    private_evaluation(r).map(|pe| opportunities(r, &pe)).unwrap_or_default()
+pub fn paper_tables(batches: &[LoadedBatch], rows: &[Row], reps: usize, facts: &TaskFacts) -> PaperTables {
+    let annotations = crate::annotations::batches_annotations(batches);
+    paper_tables_annotated(batches, rows, reps, Some(&annotations), facts)
 }
 
 /// Stage opportunities of one (agent, condition): the opportunities, counted rollouts, those without a record, and
@@ -348,11 +256,11 @@ struct Opportunities {
 }
 
 impl Opportunities {
-    fn add(&mut self, r: &RolloutRecord, pe: Option<&PrivateEvaluation>) {
+    fn add(&mut self, r: &RolloutRecord, pe: Option<&PrivateEvaluation>, facts: &TaskFacts) {
         self.rollouts += 1;
         *self.tasks.entry(format!("T{:02}", r.task_number)).or_default() += 1;
         match pe {
-            Some(pe) => self.stages.extend(opportunities(r, pe)),
+            Some(pe) => self.stages.extend(opportunities(r, pe, facts)),
             None => self.without_record += 1,
         }
     }
@@ -360,7 +268,13 @@ impl Opportunities {
 
 /// Everything after Table 1, with the paper's Table 4 taking each stage's label from `annotations` where it has one
 /// (keyed by the rollout's episode and the stage's name) and from the automatic diagnosis elsewhere.
-pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize, annotations: Option<&StageAnnotations>) -> PaperTables {
+pub fn paper_tables_annotated(
+    batches: &[LoadedBatch],
+    rows: &[Row],
+    reps: usize,
+    annotations: Option<&StageAnnotations>,
+    facts: &TaskFacts,
+) -> PaperTables {
     let names = batch_names(batches);
     let mut diagnosis: BTreeMap<(String, Condition), Opportunities> = BTreeMap::new();
     let mut paper4: BTreeMap<(String, Condition), Opportunities> = BTreeMap::new();
@@ -376,14 +290,14 @@ pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize
             if figure3::in_stage_analysis(r) {
                 analysed += 1;
                 match &pe {
-                    Some(pe) => openings.extend(figure3::operations(agent, r, pe, &opportunities(r, pe))),
+                    Some(pe) => openings.extend(figure3::operations(agent, r, pe, &opportunities(r, pe, facts))),
                     None => analysed_without_record += 1,
                 }
             }
             if r.suite.is_none() && r.split.is_some_and(Split::is_long_horizon) {
-                diagnosis.entry((agent.clone(), condition)).or_default().add(r, pe.as_ref());
+                diagnosis.entry((agent.clone(), condition)).or_default().add(r, pe.as_ref(), facts);
                 if in_paper_table4(r.task_number) {
-                    paper4.entry((agent.clone(), condition)).or_default().add(r, pe.as_ref());
+                    paper4.entry((agent.clone(), condition)).or_default().add(r, pe.as_ref(), facts);
                 }
             }
         }
@@ -413,7 +327,7 @@ pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize
             })
             .collect(),
         sustained_contact: Figure3Data::new(openings, analysed, analysed_without_record),
-        appendix_e: appendix(rows, batches),
+        appendix_e: appendix(rows, batches, facts),
     }
 }
 
@@ -422,14 +336,6 @@ pub fn paper_tables_annotated(batches: &[LoadedBatch], rows: &[Row], reps: usize
 /// A stable percentage, with (scored/member) when partial.
 fn partial(value: Option<f64>, scored: usize, member: usize) -> String {
     if scored == member { pct(value) } else { format!("{} ({scored}/{member})", pct(value)) }
-}
-
-/// `k/n = p%`.
-pub(crate) fn share(p: &Proportion) -> String {
-    match p.rate {
-        Some(r) => format!("{}/{} = {:.1}%", p.successes, p.trials, 100.0 * r),
-        None => "—".into(),
-    }
 }
 
 fn of_type(d: &StageDiagnosis, t: StageType) -> Option<&libero_metrics::TypeExecution> {
@@ -448,10 +354,6 @@ fn appendix_text(cell: &AppendixCell, long: bool, reps: usize) -> String {
     }
 }
 
-pub(crate) fn r_text(r: Option<f64>) -> String {
-    r.map(|r| format!("{r:.3}")).unwrap_or_else(|| "—".into())
-}
-
 /// A Table 2/3 row's condition as the paper names it (`L1`; `None`, `Video`, `Video + Traj.`).
 fn ablation_label(kind: AblationKind, condition: &str) -> String {
     match kind {
@@ -466,22 +368,6 @@ fn ablation_label(kind: AblationKind, condition: &str) -> String {
 }
 
 // --------------------------------------------------------------------------------------------- display tables
-
-/// One table as text cells: what Markdown, LaTeX and the Results page show.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DisplayTable {
-    /// `table-2`, `figure-3`, `appendix-e-short-horizon`, … (the page's element id).
-    pub id: String,
-    pub title: String,
-    /// What the numbers mean and where they come from (the whole body when `rows` is empty).
-    pub note: String,
-    pub heads: Vec<String>,
-    pub rows: Vec<Vec<String>>,
-}
-
-pub(crate) fn strings<const N: usize>(heads: [&str; N]) -> Vec<String> {
-    heads.map(str::to_owned).to_vec()
-}
 
 fn ablation_display(kind: AblationKind, tables: &[AblationTable]) -> DisplayTable {
     let (id, by, source) = match kind {
@@ -736,16 +622,6 @@ pub fn markdown(t: &PaperTables, choice: TableChoice, reps: usize) -> String {
 
 // --------------------------------------------------------------------------------------------- CSV
 
-/// A CSV field, quoted where it needs to be.
-pub(crate) fn field(s: &str) -> String {
-    if s.contains([',', '"', '\n', '\r']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_owned() }
-}
-
-/// A fraction in [0, 1] as a percentage with 4 decimals, empty when unknown.
-pub(crate) fn p4(x: Option<f64>) -> String {
-    x.map(|v| format!("{:.4}", 100.0 * v)).unwrap_or_default()
-}
-
 fn csv_ablation(o: &mut String, kind: AblationKind, tables: &[AblationTable]) {
     let by = if kind == AblationKind::Observation { "level" } else { "demo" };
     let _ = writeln!(o, "agent,{by},easy_percent,hard_percent,overall_percent,easy_tasks_scored,hard_tasks_scored,member_tasks,batches");
@@ -896,9 +772,31 @@ pub fn latex(t: &PaperTables, choice: TableChoice, reps: usize) -> String {
     o
 }
 
-/// Figure 3 as files in `dir` ([`figure3::write_figures`]). Returns the paths written.
+/// Figure 3 as files in `dir`: the two-panel SVG ([`crate::svg::figure3`]) and the data behind it (CSV, JSON).
+/// Returns the paths written.
 pub fn write_figures(t: &PaperTables, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
-    figure3::write_figures(&t.sustained_contact, dir)
+    let d = &t.sustained_contact;
+    std::fs::create_dir_all(dir)?;
+    let csv = |f: fn(&mut String, &Figure3Data)| {
+        let mut o = String::new();
+        f(&mut o, d);
+        o
+    };
+    let json = serde_json::to_string_pretty(d).map_err(std::io::Error::other)? + "\n";
+    let files = [
+        ("figure3.svg", crate::svg::figure3(d)),
+        ("figure3_mean_scr.csv", csv(figure3::csv_mean)),
+        ("figure3_scr_bins.csv", csv(figure3::csv_bins)),
+        ("figure3_opening_operations.csv", csv(figure3::csv_operations)),
+        ("figure3.json", json),
+    ];
+    let mut written = Vec::new();
+    for (name, text) in files {
+        let path = dir.join(name);
+        std::fs::write(&path, text)?;
+        written.push(path);
+    }
+    Ok(written)
 }
 
 #[cfg(test)]
@@ -1020,7 +918,7 @@ mod tests {
             "details": {"order": "ordered", "opening_operations": [opening("01_Unlatch_Door", 150, &[20], true), opening("02_Open_Door", 300, &[1, 1], false)]}})
     }
 
-    /// T30 (seesaw; the record names no types: the catalog's are used): 01–03 done, 01 knocked off while 02 ran and
+    /// T30 (seesaw; the record names no types: the task facts' are used): 01–03 done, 01 knocked off while 02 ran and
     /// still latched (a success in Table 4, an interference failure in the extension); 04 reached, failed, local.
     fn t30() -> Value {
         let mut st = vec![
@@ -1042,8 +940,18 @@ mod tests {
         vec![write_batch(dir, &[(21, 5, 1, t21()), (22, 5, 0, t22()), (25, 4, 1, t25()), (28, 2, 1, t28()), (30, 4, 3, t30())])]
     }
 
+    /// The catalog's facts these tests read: the paper's K of T21–T30 and T30's declared stage types.
+    pub(crate) fn facts() -> TaskFacts {
+        use StageType::{MechanismInteraction as Mi, ObjectManipulation as Om};
+        let t30 = [("01_Place_First_Counterweight", Om), ("02_Place_Second_Counterweight", Om), ("03_Physical_Lift_Of_Target", Mi), ("04_Place_Target_In_Basket", Om)];
+        TaskFacts {
+            stage_types: [(30, t30.iter().map(|(n, t)| (n.to_string(), Some(*t))).collect())].into(),
+            stage_counts: (21..=30).zip([5, 5, 8, 4, 4, 3, 4, 2, 3, 4]).collect(),
+        }
+    }
+
     fn tables(batches: &[LoadedBatch], notes: Option<&StageAnnotations>) -> PaperTables {
-        paper_tables_annotated(batches, &crate::report::rows(batches, 1), 1, notes)
+        paper_tables_annotated(batches, &crate::rows(batches, 1), 1, notes, &facts())
     }
 
     fn table4_row(t: &PaperTables) -> Vec<String> {
@@ -1158,7 +1066,7 @@ mod tests {
         assert_eq!(t.stage_diagnosis_extension[0].diagnosis.reached.successes, 0);
     }
 
-    /// Cells as the paper writes them (`3/3`, `1.80/3`), and the long-horizon table's K row from the catalog.
+    /// Cells as the paper writes them (`3/3`, `1.80/3`), and the long-horizon table's K row from the task facts.
     #[test]
     fn appendix_e_writes_x_over_reps_and_sum_over_reps_with_a_k_row() {
         let cell = |value: Option<f64>, valid: usize| AppendixCell { task: "T01".into(), value, valid_rollouts: valid };

@@ -1,5 +1,5 @@
 //! The harness versions rollouts ran, for `report` and the Results page. Each rollout's record keeps what `--version`
-//! of the CLI it launched printed (`harness_version.observed`, `crate::harness_versions::probe`); a batch recorded
+//! of the CLI it launched printed (`harness_version.observed`, the runner's `harness_versions::probe`); a batch recorded
 //! before rollouts were probed has only its own probe (`batch.json`'s `harness.version`), which then stands for each
 //! of its rollouts. Rollouts of one batch, or of one agent's row across batches, that ran different versions are
 //! flagged as mixed: their numbers pool different CLIs.
@@ -123,7 +123,7 @@ mod tests {
             "agent_exit_code": 0, "usage": null, "started_at": "x", "finished_at": "y"}))
         .unwrap();
         r.harness_version = observed.map(|o| {
-            libero_episode::batch_doc::HarnessVersion::from_value(json!({"requested": "codex", "observed": o})).unwrap()
+            libero_records::batch_doc::HarnessVersion::from_value(json!({"requested": "codex", "observed": o})).unwrap()
         });
         r
     }
@@ -131,7 +131,7 @@ mod tests {
     fn batch(name: &str, batch_observed: Option<&str>, records: Vec<RolloutRecord>) -> LoadedBatch {
         let doc = json!({"schema_version": "libero_agent.batch.v1", "settings": {"harness": "codex", "model": "m"},
             "harness": {"name": "codex", "version": {"requested": "codex", "observed": batch_observed, "probe_output": null}}});
-        LoadedBatch { dir: format!("/b/{name}").into(), batch: libero_episode::batch_doc::BatchDoc::from_value(doc).unwrap(), records }
+        LoadedBatch { dir: format!("/b/{name}").into(), batch: libero_records::batch_doc::BatchDoc::from_value(doc).unwrap(), records }
     }
 
     #[test]

@@ -18,7 +18,7 @@
 //! * Table 4+ (the extension, L3 none), 12 stage opportunities (T27 ×2 × 4 stages, T28 ×2 × 2): reached 9 (75.0%),
 //!   success 6 (50.0%); Object Manipulation: reached 3, succeeded 1; Mechanism Interaction: reached 6, succeeded 5;
 //!   failures 4: local 2 (T27 r1 stage 03, T27 r2 stage 02), interference 2 (T27 r2's drawer closed while a later
-//!   stage ran; T28 r2's door blocked by an order violation). T27 r2's record has no stage types: the catalog's are used.
+//!   stage ran; T28 r2's door blocked by an order violation). T27 r2's record has no stage types: the task facts' (the catalog's, [`facts`]) are used.
 //! * Appendix E: x/2 and sum/2 (2 rollouts per task), the long-horizon table after its K row.
 //! * Figure 3 (the main table's long-horizon rollouts; T16 and the ablation batches are not read): 6 opening
 //!   operations (T28's closing is none), all entered; T27 r2's legacy record (no direction, no handle runs) is left out;
@@ -27,11 +27,23 @@
 //!   0.66811. (The multi-agent golden test is `figure_3_pools_…` below.)
 use std::path::Path;
 
-use libero_runner::batch::{LoadedBatch, load_batch};
-use libero_runner::report::{self, tables::TableChoice};
+use libero_metrics::{StageType, TaskFacts};
+use libero_report::batch::{LoadedBatch, load_batch};
+use libero_report::{self as report, tables::TableChoice};
 use serde_json::{Value, json};
 
 const REPS: usize = 2;
+
+/// What the catalog says beside the records, as the runner and the console pass it: the paper's K of T21–T30 (Appendix
+/// E's K row) and T27's stage types (its r2 record names none).
+fn facts() -> TaskFacts {
+    use StageType::{MechanismInteraction as Mi, ObjectManipulation as Om};
+    let t27 = [("01_Open_Middle_Drawer", Mi), ("02_Place_Cookies_Middle_Drawer", Om), ("03_Place_Chocolate_Middle_Drawer", Om), ("04_Close_Middle_Drawer", Mi)];
+    TaskFacts {
+        stage_types: [(27, t27.iter().map(|(n, t)| (n.to_string(), Some(*t))).collect())].into(),
+        stage_counts: (21..=30).zip([5, 5, 8, 4, 4, 3, 4, 2, 3, 4]).collect(),
+    }
+}
 
 /// One rollout: (task, split, K, repetition, level, demo, outcome, completed stages, private evaluation if any).
 struct Rollout {
@@ -214,7 +226,7 @@ fn has(text: &str, line: &str) {
 #[test]
 fn markdown_prints_tables_1_to_4_figure_3_and_appendix_e_with_the_hand_computed_values() {
     let dir = tempfile::tempdir().unwrap();
-    let md = report::markdown(&batches(dir.path()), REPS, TableChoice::All);
+    let md = report::markdown(&batches(dir.path()), REPS, TableChoice::All, &facts());
     // Table 1: the three conditions of one agent, each from its own batch.
     assert!(md.contains("| command/fixture (L3, demo none) | — | — (0/10) | 50.0 (2/5) | 50.0 (2/5) | 25.0 (1/5) | 50.0 (1/5) |"), "{md}");
     // Table 2: L1/L2 from the observation batch, L3 from the main table.
@@ -254,7 +266,7 @@ fn markdown_prints_tables_1_to_4_figure_3_and_appendix_e_with_the_hand_computed_
     has(&md, "| command/fixture | L3, none | — | — | — | — | — | — | 0.75/2 | 1.50/2 | — | — |");
     has(&md, "| command/fixture | L3, video | — | — | — | — | — | — | 1.75/2 | 2.00/2 | — | — |");
     // One table alone.
-    let only = report::markdown(&batches(dir.path()), REPS, TableChoice::Table3);
+    let only = report::markdown(&batches(dir.path()), REPS, TableChoice::Table3, &facts());
     assert!(only.contains("Demonstration ablation") && !only.contains("Observation ablation") && !only.contains("## Stable performance"));
 }
 
@@ -262,7 +274,7 @@ fn markdown_prints_tables_1_to_4_figure_3_and_appendix_e_with_the_hand_computed_
 fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
     let dir = tempfile::tempdir().unwrap();
     let b = batches(dir.path());
-    let csv = report::csv(&b, REPS, TableChoice::All);
+    let csv = report::csv(&b, REPS, TableChoice::All, &facts());
     let blocks: Vec<&str> = csv.lines().filter(|l| l.starts_with("# ")).collect();
     assert_eq!(
         blocks,
@@ -280,7 +292,7 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
             "# appendix_e_long_horizon"
         ]
     );
-    let t2 = report::csv(&b, REPS, TableChoice::Table2);
+    let t2 = report::csv(&b, REPS, TableChoice::Table2, &facts());
     assert_eq!(
         t2,
         "agent,level,easy_percent,hard_percent,overall_percent,easy_tasks_scored,hard_tasks_scored,member_tasks,batches\n\
@@ -288,7 +300,7 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
          command/fixture,L2,100.0000,0.0000,50.0000,1,1,5,obs\n\
          command/fixture,L3,50.0000,50.0000,50.0000,2,2,5,main\n"
     );
-    let t3 = report::csv(&b, REPS, TableChoice::Table3);
+    let t3 = report::csv(&b, REPS, TableChoice::Table3, &facts());
     assert_eq!(
         t3,
         "agent,demo,easy_percent,hard_percent,overall_percent,easy_tasks_scored,hard_tasks_scored,member_tasks,batches\n\
@@ -296,26 +308,26 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
          command/fixture,video,75.0000,100.0000,87.5000,1,1,5,ctx\n\
          command/fixture,video_traj,50.0000,0.0000,25.0000,1,1,5,ctx\n"
     );
-    let t4 = report::csv(&b, REPS, TableChoice::Table4);
+    let t4 = report::csv(&b, REPS, TableChoice::Table4, &facts());
     has(&t4, "command/fixture,3,none,2,0,4,0,4,4,100.0000,3,75.0000,0,0,0,,3,4,1,100.0000,1,0,0.0000,1,100.0000,0,0,0");
     has(&t4, "command/fixture,3,video,0,2,0,0,0,0,,0,,0,0,0,,0,0,0,,0,0,,0,,0,0,0");
     has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,object_manipulation,4,3,1,33.3333,6.1492,79.2340,4,2,2");
     has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,mechanism_interaction,8,6,5,83.3333,43.6497,96.9947,4,2,2");
     has(&t4, "command/fixture,3,none,4,0,12,9,75.0000,6,50.0000,all,12,9,6,,,,4,2,2");
     has(&t4, "command/fixture,3,video,0,4,0,0,,0,,all,0,0,0,,,,0,0,0");
-    let f3 = report::csv(&b, REPS, TableChoice::Figure3);
+    let f3 = report::csv(&b, REPS, TableChoice::Figure3, &facts());
     has(&f3, "command/fixture,5,24.4000,4,80.0000,37.5535,96.3776");
     has(&f3, "\"(10,25%]\",2,2,100.0000,34.2380,100.0000,");
     has(&f3, "all,5,4,80.0000,37.5535,96.3776,0.668115");
     has(&f3, "command/fixture,T28,ep-w2_t28_level3_none,02_Open_Door,80,,0.0000,true,false,true");
-    let appendix = report::csv(&b, REPS, TableChoice::Appendix);
+    let appendix = report::csv(&b, REPS, TableChoice::Appendix, &facts());
     has(&appendix, "agent,level,demo,T11,T12,T13,T14,T15,T16,T17,T18,T19,T20");
     has(&appendix, "command/fixture,3,none,2/2,2/2,1/2,,,0/2,,,,");
     has(&appendix, "command/fixture,1,none,1/2,0/2,,,,,,,,");
     has(&appendix, "K,,,5,5,8,4,4,3,4,2,3,4");
     has(&appendix, "command/fixture,3,video_traj,,,,,,,1.00/2,0.50/2,,");
 
-    let tex = report::latex(&b, REPS, TableChoice::All);
+    let tex = report::latex(&b, REPS, TableChoice::All, &facts());
     assert_eq!(tex.matches("\\begin{tabular}").count(), 10, "Tables 1–4, Table 4+, Figure 3(a), 3(b) and its operations, two appendix tables:\n{tex}");
     assert_eq!(tex.matches("\\begin{tabular}").count(), tex.matches("\\end{tabular}").count());
     has(&tex, "command/fixture & L2 & 100.0 (1/5) & 0.0 (1/5) & 50.0 & obs \\\\");
@@ -335,7 +347,7 @@ fn csv_and_latex_hold_every_table_in_a_fixed_shape() {
 fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() {
     let dir = tempfile::tempdir().unwrap();
     let b = batches(dir.path());
-    let v = report::report_json(&b, REPS);
+    let v = report::report_json(&b, REPS, &facts());
     let obs = &v["observation_ablation"][0];
     assert_eq!(obs["agent"], "command/fixture");
     let l3 = &obs["rows"][2];
@@ -349,7 +361,7 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
     assert_eq!(t4["tasks"], json!({"T28": 2}));
     let t4 = v["stage_diagnosis_extension"].as_array().unwrap().iter().find(|l| l["demo"] == "none").unwrap();
     assert_eq!((t4["opportunities"].as_u64(), t4["failures"].as_u64(), t4["cross_stage_interference"].as_u64()), (Some(12), Some(4), Some(2)));
-    assert_eq!(t4["untyped_opportunities"], 0, "T27 r2's stage types come from the catalog");
+    assert_eq!(t4["untyped_opportunities"], 0, "T27 r2's stage types come from the task facts");
     let f3 = &v["sustained_contact"];
     assert!((f3["pooled"]["pearson_r"].as_f64().unwrap() - 24.4 / (1667.2f64 * 0.8).sqrt()).abs() < 1e-12);
     assert_eq!((f3["operations"].as_array().map(Vec::len), f3["without_handle_runs"].as_u64()), (Some(6), Some(1)));
@@ -358,21 +370,14 @@ fn json_holds_the_same_numbers_and_figures_are_written_as_svg_with_their_data() 
     let appendix = v["appendix_e"].as_array().unwrap();
     assert_eq!(appendix.iter().map(|a| a["rows"].as_array().unwrap().len()).collect::<Vec<_>>(), [0, 3, 3]);
 
-    // The CLI path: `report … --figures DIR` prints the report and writes Figure 3.
+    // What `report … --figures DIR` writes: Figure 3 and its data.
     let figures = dir.path().join("figures");
-    let args = report::ReportArgs {
-        batches: ["main", "obs", "ctx"].iter().map(|n| dir.path().join(n)).collect(),
-        store: None,
-        format: report::Format::Json,
-        reps: Some(REPS),
-        table: TableChoice::All,
-        figures: Some(figures.clone()),
-    };
-    report::run(args).unwrap();
+    let paper = report::tables::paper_tables(&b, &report::rows(&b, REPS), REPS, &facts());
+    report::tables::write_figures(&paper, &figures).unwrap();
     let svg = std::fs::read_to_string(figures.join("figure3.svg")).unwrap();
     assert!(svg.starts_with("<svg xmlns=\"http://www.w3.org/2000/svg\"") && svg.contains(">2/2<") && svg.contains(">0/1<"));
     assert!(svg.contains("24.4% (n = 5)") && svg.contains("pooled: n = 5, r = 0.67"), "{svg}");
-    let csv = report::csv(&b, REPS, TableChoice::Figure3);
+    let csv = report::csv(&b, REPS, TableChoice::Figure3, &facts());
     let block = |name: &str| csv.split(&format!("# {name}\n")).nth(1).unwrap().split("\n# ").next().unwrap().to_owned();
     for (file, name) in [("figure3_mean_scr.csv", "figure_3a_mean_scr"), ("figure3_scr_bins.csv", "figure_3b_scr_bins"), ("figure3_opening_operations.csv", "figure_3_opening_operations")] {
         assert_eq!(std::fs::read_to_string(figures.join(file)).unwrap().trim_end(), block(name).trim_end(), "{file}");
@@ -431,7 +436,7 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
 
     // JSON: the row's mean over every episode with usage, INVALID included (9000, 3000, 6000, 100000), the sources,
     // the disagreement.
-    let v = report::report_json(&b, reps);
+    let v = report::report_json(&b, reps, &facts());
     let t = &v["rows"][0]["tokens"];
     assert_eq!(t["mean_total"], 29500.0, "{t}");
     assert_eq!((t["rollouts_with_usage"].as_u64(), t["rollouts"].as_u64(), t["invalid_included"].as_u64()), (Some(4), Some(5), Some(1)));
@@ -450,7 +455,7 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
         ["model_api_gateway", "harness_stdout", "unavailable", "not_recorded", "model_api_gateway"]);
 
     // Markdown: Table 1 with the sources, per-task cells with marks, and the legend.
-    let md = report::markdown(&b, reps, TableChoice::All);
+    let md = report::markdown(&b, reps, TableChoice::All, &facts());
     part(&md, "| 1.0 min (1 INVALID incl.) | 0.03M (gateway 2, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1; 1 INVALID incl.) |");
     part(&md, "| 9,000 G |");
     part(&md, "| 3,000 S |");
@@ -459,7 +464,7 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
     part(&md, "Token sources: G the runner's model-API gateway");
 
     // CSV: every Table 1 line carries the row's tokens and sources; every rollout its figure and source.
-    let csv = report::csv(&b, reps, TableChoice::All);
+    let csv = report::csv(&b, reps, TableChoice::All, &facts());
     part(&csv, "mean_total_tokens,rollouts_with_usage,tokens_sources,stdout_disagrees");
     part(&csv, "codex/tokens,3,none,score,30,,");
     part(&csv, ",29500.0,4,model_api_gateway=2 harness_stdout=1 unavailable=1 not_recorded=1,1\n");
@@ -468,7 +473,7 @@ fn every_row_carries_its_tokens_with_their_source_in_every_format() {
     part(&csv, "codex/tokens,3,none,w1_t14_level3,T14,1,SUCCESS,6000,5900,50,100,not_recorded\n");
 
     // LaTeX: the mean and its source column.
-    let tex = report::latex(&b, reps, TableChoice::Table1);
+    let tex = report::latex(&b, reps, TableChoice::Table1, &facts());
     part(&tex, "& Tokens (M) & Token source \\\\");
     part(&tex, "& 1.0 (1 INVALID incl.) & 0.03 & gateway 2, stdout 1, source not recorded 1; 1 without usage; stdout disagrees: 1; 1 INVALID incl. \\\\");
 }
@@ -550,7 +555,7 @@ fn figure_3_pools_the_entered_handle_openings_of_every_agent_as_computed_by_hand
         write_agent_batch(&dir.path().join(name), "main_table", name, rollouts);
     }
     let batches: Vec<LoadedBatch> = ["a", "b", "c"].iter().map(|n| load_batch(&dir.path().join(n)).unwrap()).collect();
-    let v = report::report_json(&batches, REPS);
+    let v = report::report_json(&batches, REPS, &facts());
     let f = &v["sustained_contact"];
     let close = |got: &Value, want: f64, what: &str| {
         let got = got.as_f64().unwrap_or_else(|| panic!("{what}: {got}"));
@@ -596,19 +601,19 @@ fn figure_3_pools_the_entered_handle_openings_of_every_agent_as_computed_by_hand
     close(&f["pooled"]["pearson_r"], (2225.0 / 2.0) / (1_817_225.0 / 18.0 * 30.0f64).sqrt(), "Pearson r");
 
     // the same in CSV and Markdown, and the two-panel SVG
-    let csv = report::csv(&batches, REPS, TableChoice::Figure3);
+    let csv = report::csv(&batches, REPS, TableChoice::Figure3, &facts());
     has(&csv, "command/b,4,8.3333,1,25.0000,4.5587,69.9358");
     has(&csv, "\"(0,10%]\",2,1,50.0000,9.4531,90.5469,");
     has(&csv, "all,11,6,54.5455,28.0092,78.7287,0.639251");
     has(&csv, "command/a,T28,ep-w1_t28_level3_none,02_Open_Door,50,4,0.0000,true,false,true");
     has(&csv, "command/a,T21,ep-w2_t21_level3_none,Microwave_Open,1500,,0.0000,false,false,false");
-    let md = report::markdown(&batches, REPS, TableChoice::Figure3);
+    let md = report::markdown(&batches, REPS, TableChoice::Figure3, &facts());
     has(&md, "| command/c | 4 | 40.0% | 3/4 = 75.0% |");
     has(&md, "| SCR 0 | 4 | 0 | 0/4 = 0.0 [0.0, 49.0] |  |");
     has(&md, "| all | 11 | 6 | 6/11 = 54.5 [28.0, 78.7] | 0.639 |");
     assert!(md.contains("13 opening operations of 10 long-horizon rollouts"), "{md}");
     let figures = dir.path().join("figures");
-    let paper = report::tables::paper_tables(&batches, &report::rows(&batches, REPS), REPS);
+    let paper = report::tables::paper_tables(&batches, &report::rows(&batches, REPS), REPS, &facts());
     report::tables::write_figures(&paper, &figures).unwrap();
     let svg = std::fs::read_to_string(figures.join("figure3.svg")).unwrap();
     assert!(svg.contains("pooled: n = 11, r = 0.64") && svg.contains("15.8% (n = 3)") && svg.contains(">0/4<") && svg.contains(">3/3<"), "{svg}");

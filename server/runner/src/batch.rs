@@ -1,24 +1,19 @@
-//! A batch directory: `batch.json` (settings, their hash, harness version, status and counts; rewritten
+//! Writing a batch directory: `batch.json` (settings, their hash, harness version, status and counts; rewritten
 //! atomically after every change), `rollouts.jsonl` (one record per ended rollout, appended), and
-//! `rollouts/<rollout_id>/` (logs, harness manifest, usage, the agent's session home). The dashboard and
-//! `report` read batches through [`load_batch`] and [`metrics_rollouts`].
-use std::collections::BTreeMap;
+//! `rollouts/<rollout_id>/` (logs, harness manifest, usage, the agent's session home), mirrored to a store or a
+//! server as it changes. What a batch holds and how it is read (the record, [`load_batch`]) is `libero_report::batch`,
+//! which `report` and the dashboard read it through.
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, bail};
-use libero_episode::json::write_json_file;
-use libero_episode::batch_doc::{BatchDoc, BatchSettingsDoc, HarnessVersion};
-use libero_episode::records::RunResult;
-use libero_metrics::{Outcome, PoolRollout, Rollout, Split};
+use libero_metrics::Outcome;
+use libero_records::batch_doc::BatchSettingsDoc;
+use libero_records::json::write_json_file;
+use libero_report::batch::{LoadedBatch, ROLLOUT_SCHEMA, RolloutRecord, load_batch, rollouts_jsonl};
 use serde::{Deserialize, Serialize};
-use serde_json::{Value, json};
+use serde_json::Value;
 use sha2::{Digest, Sha256};
-
-use super::schedule::Demo;
-
-pub const BATCH_SCHEMA: &str = "libero_agent.batch.v1";
-pub const ROLLOUT_SCHEMA: &str = "libero_agent.rollout.v1";
 
 /// The settings a batch's rollouts must share; `--resume` refuses a batch whose hash differs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -55,64 +50,15 @@ impl BatchSettings {
     /// SHA-256 of the canonical JSON (sorted keys, compact).
     pub fn sha256(&self) -> String {
         let v = serde_json::to_value(self).unwrap_or(Value::Null);
-        let canonical = libero_episode::json::compact_sorted(&v);
+        let canonical = libero_records::json::compact_sorted(&v);
         Sha256::digest(canonical.as_bytes()).iter().map(|b| format!("{b:02x}")).collect()
     }
 }
 
-/// One ended rollout (a line of `rollouts.jsonl`). Never holds a credential or an episode token.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RolloutRecord {
-    pub schema_version: String,
-    pub rollout_id: String,
-    pub task: String,
-    pub task_number: u32,
-    /// The paper's split; `None` for a pool task that is not a release task.
-    pub split: Option<Split>,
-    /// The pool suite of a `pool` experiment's rollout; such rollouts are reported per suite, never in the
-    /// paper's tables.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub suite: Option<String>,
-    pub stage_count: u32,
-    pub repetition: u32,
-    pub level: u8,
-    pub demo: Demo,
-    pub outcome: Outcome,
-    pub episode_id: Option<String>,
-    pub workspace: Option<PathBuf>,
-    pub run_dir: Option<PathBuf>,
-    pub result_status: Option<String>,
-    pub success: Option<bool>,
-    pub termination_reason: Option<String>,
-    /// Why the rollout is INVALID/WATCHDOG_TIMEOUT (harness exit, API failure, supervision timeout, …).
-    pub infrastructure_error: Option<String>,
-    /// Episode time from `start_episode` (`result.wall_time_seconds`).
-    pub wall_time_s: Option<f64>,
-    /// The whole agent process, launch to exit.
-    pub harness_elapsed_s: Option<f64>,
-    pub accepted_agent_steps: Option<u64>,
-    pub completed_stages: Option<u32>,
-    pub judgment_correct: Option<bool>,
-    pub agent_exit_code: Option<i32>,
-    pub usage: Option<super::usage::Usage>,
-    pub started_at: String,
-    pub finished_at: String,
-    /// The `libero-agent worker` that ran a queued rollout.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub worker: Option<String>,
-    /// Where a queued rollout's run directory is in the artifact store (`<artifacts URL>/runs/<episode id>`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub artifacts: Option<String>,
-    /// `--version` of the harness CLI this rollout launched, probed just before its launch (absent for `command`,
-    /// for a rollout that ended before its launch, and in records written before rollouts were probed).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub harness_version: Option<HarnessVersion>,
-}
-
-impl RolloutRecord {
-    /// A record of `plan` with nothing known yet (INVALID until supervision says otherwise).
-    pub fn planned(plan: &super::schedule::PlannedRollout) -> Self {
-        let now = libero_episode::json::utc_now_iso();
+/// A record of `plan` with nothing known yet (INVALID until supervision says otherwise).
+impl From<&super::schedule::PlannedRollout> for RolloutRecord {
+    fn from(plan: &super::schedule::PlannedRollout) -> Self {
+        let now = libero_records::json::utc_now_iso();
         Self {
             schema_version: ROLLOUT_SCHEMA.to_owned(),
             rollout_id: plan.rollout_id.clone(),
@@ -146,84 +92,6 @@ impl RolloutRecord {
             harness_version: None,
         }
     }
-
-    /// Why the rollout did not count (INVALID, INTERRUPTED) or was stopped by the watchdog: the runner's
-    /// infrastructure error, else the episode's termination reason, else what is known. `None` for the other
-    /// outcomes.
-    pub fn reason(&self) -> Option<String> {
-        if !matches!(self.outcome, Outcome::Invalid | Outcome::Interrupted | Outcome::WatchdogTimeout) {
-            return None;
-        }
-        Some(match (&self.infrastructure_error, &self.termination_reason, &self.result_status) {
-            (Some(e), _, _) => e.clone(),
-            (None, Some(t), _) => format!("the episode ended: {t}"),
-            (None, None, Some(s)) => format!("the episode's result is {s:?}, with no reason given"),
-            (None, None, None) => "no reason recorded".to_owned(),
-        })
-    }
-
-    /// Gives an INVALID rollout that names no reason (no infrastructure error, no termination reason) one: the
-    /// reason its episode's result records (the private run directory, written by the server), else what is
-    /// missing. Every INVALID record then says why, in `rollouts.jsonl`, the store, `report` and the Results page.
-    pub fn ensure_reason(&mut self) {
-        if self.outcome != Outcome::Invalid || self.infrastructure_error.is_some() || self.termination_reason.is_some() {
-            return;
-        }
-        let recorded = self.run_dir.as_deref().and_then(result_reason);
-        self.infrastructure_error = Some(recorded.unwrap_or_else(|| match (&self.episode_id, &self.result_status) {
-            (None, _) => "no episode was prepared for this rollout".to_owned(),
-            (Some(id), None) => format!("no result was found for episode {id}"),
-            (Some(id), Some(s)) => format!("episode {id} ended {s:?} without a reason"),
-        }));
-    }
-
-    /// The rollout as the paper's metrics see it; `None` for a pool rollout.
-    pub fn to_metrics(&self) -> Option<Rollout> {
-        if self.suite.is_some() {
-            return None;
-        }
-        Some(Rollout {
-            task_number: self.task_number,
-            split: self.split?,
-            repetition: self.repetition,
-            outcome: self.outcome,
-            judgment_correct: self.judgment_correct,
-            completed_stages: self.completed_stages,
-            stage_count: self.stage_count,
-            wall_time_s: self.wall_time_s,
-            total_tokens: self.usage.as_ref().and_then(|u| u.total_tokens),
-            accepted_agent_steps: self.accepted_agent_steps,
-        })
-    }
-
-    /// The rollout as the pool summary sees it; `None` outside the pool experiment.
-    pub fn to_pool(&self) -> Option<PoolRollout> {
-        Some(PoolRollout {
-            suite: self.suite.clone()?,
-            task: self.task.clone(),
-            repetition: self.repetition,
-            outcome: self.outcome,
-            judgment_correct: self.judgment_correct,
-            completed_stages: self.completed_stages,
-            stage_count: self.stage_count,
-            wall_time_s: self.wall_time_s,
-        })
-    }
-}
-
-/// The reason an episode's `result.json` gives for not counting (its infrastructure error, its abort reason).
-fn result_reason(run_dir: &Path) -> Option<String> {
-    use std::io::Read;
-    let mut text = String::new();
-    std::fs::File::open(run_dir.join("result.json")).ok()?.take(1 << 20).read_to_string(&mut text).ok()?;
-    let result: RunResult = serde_json::from_str(&text).ok()?;
-    fn given(s: Option<&str>) -> Option<&str> {
-        s.filter(|s| !s.is_empty())
-    }
-    given(result.infrastructure_error())
-        .map(|e| format!("the episode recorded an infrastructure error: {e}"))
-        .or_else(|| given(result.reason.as_deref()).map(|r| format!("the episode ended: {r}")))
-        .or_else(|| given(result.status.as_deref()).map(|s| format!("the episode's result is {s:?}, with no reason given")))
 }
 
 /// When every rollout of `rollouts` (id, outcome, reason) is INVALID, the message saying so with the first
@@ -245,17 +113,10 @@ pub fn all_invalid_message<'a>(batch: &str, rollouts: impl IntoIterator<Item = (
     ))
 }
 
-pub fn batch_json(dir: &Path) -> PathBuf {
-    dir.join("batch.json")
-}
-pub fn rollouts_jsonl(dir: &Path) -> PathBuf {
-    dir.join("rollouts.jsonl")
-}
-
 /// Appends one record and syncs it (a killed runner loses no ended rollout).
 pub fn append_record(dir: &Path, record: &RolloutRecord) -> anyhow::Result<()> {
     // A torn last line (a runner killed mid-write) is ended first, so this record starts on its own line.
-    let (mut f, _) = libero_episode::json::open_jsonl_for_append(&rollouts_jsonl(dir))?;
+    let (mut f, _) = libero_records::json::open_jsonl_for_append(&rollouts_jsonl(dir))?;
     let mut line = serde_json::to_string(record)?;
     line.push('\n');
     f.write_all(line.as_bytes())?;
@@ -263,45 +124,9 @@ pub fn append_record(dir: &Path, record: &RolloutRecord) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Every record of `rollouts.jsonl` (a torn last line from a crash is skipped).
-pub fn read_records(dir: &Path) -> anyhow::Result<Vec<RolloutRecord>> {
-    let path = rollouts_jsonl(dir);
-    let text = match std::fs::read_to_string(&path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
-    };
-    Ok(text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect())
-}
-
 pub fn write_batch_json(dir: &Path, v: &Value) -> anyhow::Result<()> {
-    write_json_file(&batch_json(dir), v).with_context(|| format!("cannot write {}", batch_json(dir).display()))
-}
-
-/// A batch as the report and the dashboard see it.
-#[derive(Debug, Clone, Serialize)]
-pub struct LoadedBatch {
-    pub dir: PathBuf,
-    pub batch: BatchDoc,
-    pub records: Vec<RolloutRecord>,
-}
-
-impl LoadedBatch {
-    pub fn name(&self) -> String {
-        self.dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
-    }
-}
-
-/// Reads `batch.json` and `rollouts.jsonl`.
-pub fn load_batch(dir: &Path) -> anyhow::Result<LoadedBatch> {
-    let text = std::fs::read_to_string(batch_json(dir)).with_context(|| format!("{} is not a batch directory", dir.display()))?;
-    let batch: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", batch_json(dir).display()))?;
-    // JSON that is no object has no schema_version, and is refused as such.
-    let batch = BatchDoc::from_value(batch).unwrap_or_default();
-    if batch.schema_version.as_deref() != Some(BATCH_SCHEMA) {
-        bail!("{}: schema_version {}, expected {BATCH_SCHEMA}", batch_json(dir).display(), json!(batch.schema_version));
-    }
-    Ok(LoadedBatch { dir: dir.to_path_buf(), batch, records: read_records(dir)? })
+    let path = libero_report::batch::batch_json(dir);
+    write_json_file(&path, v).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// The batch in a shared store (`run --store URL`): after every change to the batch directory the runner writes
@@ -414,16 +239,6 @@ impl ServerMirror {
     }
 }
 
-/// A batch read from the store, in the shape [`load_batch`] gives.
-pub fn from_stored(b: libero_server::store::StoredBatch) -> anyhow::Result<LoadedBatch> {
-    let doc = BatchDoc::from_value(b.doc).unwrap_or_default();
-    if doc.schema_version.as_deref() != Some(BATCH_SCHEMA) {
-        bail!("batch {} in the store: schema_version {}, expected {BATCH_SCHEMA}", b.name, json!(doc.schema_version));
-    }
-    let records = b.records.into_iter().map(serde_json::from_value).collect::<Result<Vec<RolloutRecord>, _>>()?;
-    Ok(LoadedBatch { dir: b.dir, batch: doc, records })
-}
-
 /// Reads batches by name from a store (`report --store URL NAME…`), in the shape [`load_batch`] gives.
 pub fn load_batches_from_store(url: &str, names: &[String]) -> anyhow::Result<Vec<LoadedBatch>> {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
@@ -435,48 +250,11 @@ pub fn load_batches_from_store(url: &str, names: &[String]) -> anyhow::Result<Ve
                 let known = store.batch_names().await?;
                 bail!("the store {} has no batch {name:?} (it has: {})", libero_server::store::redact(url), known.join(", "));
             };
-            out.push(from_stored(b)?);
+            out.push(LoadedBatch::from_stored(&b.name, b.dir, b.doc, b.records)?);
         }
         store.close().await;
         Ok(out)
     })
-}
-
-/// A reporting condition: one observation level and demonstration condition.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
-pub struct Condition {
-    pub level: u8,
-    pub demo: Demo,
-}
-
-/// The batches' rollouts for the metrics, grouped by (agent, condition); the agent is `harness/model`.
-pub fn metrics_rollouts(batches: &[LoadedBatch]) -> BTreeMap<(String, Condition), Vec<Rollout>> {
-    let mut out: BTreeMap<(String, Condition), Vec<Rollout>> = BTreeMap::new();
-    for b in batches {
-        let agent = agent_of(b);
-        for r in &b.records {
-            if let Some(m) = r.to_metrics() {
-                out.entry((agent.clone(), Condition { level: r.level, demo: r.demo })).or_default().push(m);
-            }
-        }
-    }
-    out
-}
-
-/// The batches' pool rollouts, grouped by agent (`harness/model`).
-pub fn pool_rollouts(batches: &[LoadedBatch]) -> BTreeMap<String, Vec<PoolRollout>> {
-    let mut out: BTreeMap<String, Vec<PoolRollout>> = BTreeMap::new();
-    for b in batches {
-        for r in b.records.iter().filter_map(RolloutRecord::to_pool) {
-            out.entry(agent_of(b)).or_default().push(r);
-        }
-    }
-    out
-}
-
-/// `harness/model` of a batch.
-pub fn agent_of(b: &LoadedBatch) -> String {
-    format!("{}/{}", b.batch.harness_setting().unwrap_or("?"), b.batch.model().unwrap_or("?"))
 }
 
 #[cfg(test)]
@@ -516,19 +294,6 @@ mod tests {
         assert_ne!(s.sha256(), v.sha256());
     }
 
-    #[test]
-    fn a_record_written_before_the_pool_reads_back_as_a_release_rollout() {
-        let line = r#"{"schema_version":"libero_agent.rollout.v1","rollout_id":"w1_t14_level3","task":"T14","task_number":14,
-            "split":"short_horizon_easy","stage_count":1,"repetition":1,"level":3,"demo":"none","outcome":"SUCCESS",
-            "episode_id":null,"workspace":null,"run_dir":null,"result_status":null,"success":true,"termination_reason":null,
-            "infrastructure_error":null,"wall_time_s":1.0,"harness_elapsed_s":null,"accepted_agent_steps":4,
-            "completed_stages":1,"judgment_correct":null,"agent_exit_code":0,"usage":null,"started_at":"x","finished_at":"y"}"#;
-        let r: RolloutRecord = serde_json::from_str(line).unwrap();
-        assert_eq!((r.suite.as_ref(), r.harness_version.as_ref()), (None, None));
-        assert_eq!(r.to_metrics().unwrap().split, libero_metrics::Split::ShortHorizonEasy);
-        assert!(r.to_pool().is_none());
-    }
-
     fn t14_plan() -> super::super::schedule::PlannedRollout {
         super::super::schedule::PlannedRollout {
         rollout_id: "w1_t14_level3".into(),
@@ -540,26 +305,15 @@ mod tests {
         stage_count: 1,
         repetition: 1,
         level: 3,
-        demo: super::super::schedule::Demo::None,
+        demo: libero_report::batch::Demo::None,
     }
     }
 
     #[test]
-    fn every_invalid_rollout_names_a_reason() {
-        let plan = t14_plan();
-        let mut r = RolloutRecord::planned(&plan);
+    fn a_planned_record_is_invalid_for_a_named_reason_until_supervised() {
+        let mut r = RolloutRecord::from(&t14_plan());
         r.ensure_reason();
         assert_eq!(r.reason().as_deref(), Some("no episode was prepared for this rollout"));
-        let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("result.json"), r#"{"status": "aborted", "reason": "harness_process_exited_before_finish"}"#).unwrap();
-        let mut r = RolloutRecord::planned(&plan);
-        (r.episode_id, r.run_dir) = (Some("ep1".into()), Some(dir.path().to_path_buf()));
-        r.ensure_reason();
-        assert_eq!(r.reason().as_deref(), Some("the episode ended: harness_process_exited_before_finish"));
-        let mut ok = RolloutRecord::planned(&plan);
-        ok.outcome = Outcome::Success;
-        ok.ensure_reason();
-        assert_eq!((ok.reason(), ok.infrastructure_error), (None, None));
         let msg = all_invalid_message("b", [("a", "INVALID", Some("x".to_owned())), ("b", "INVALID", None)]).unwrap();
         assert!(msg.contains("(2 of them)") && msg.contains("a: x") && msg.contains("b: no reason recorded"), "{msg}");
         assert!(all_invalid_message("b", [("a", "INVALID", None), ("b", "FAIL", None)]).is_none());
@@ -571,8 +325,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(rollouts_jsonl(dir.path()), b"{\"rollout_id\": \"w1_t14_le").unwrap();
         let plan = t14_plan();
-        append_record(dir.path(), &RolloutRecord::planned(&plan)).unwrap();
-        let records = read_records(dir.path()).unwrap();
+        append_record(dir.path(), &RolloutRecord::from(&plan)).unwrap();
+        let records = libero_report::batch::read_records(dir.path()).unwrap();
         assert_eq!(records.len(), 1, "the torn line is skipped, the new record is whole");
         assert_eq!(records[0].rollout_id, "w1_t14_level3");
     }

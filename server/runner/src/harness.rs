@@ -77,12 +77,9 @@ impl Harness {
     }
 
     /// The stdout file name in the rollout directory (JSON lines where the CLI streams JSON).
+    /// The batch directory's layout is the report crate's, which the console reads logs through too.
     pub fn stdout_file(self) -> String {
-        let ext = match self {
-            Harness::ClaudeCode | Harness::KimiCode | Harness::QwenCode | Harness::Codex => "jsonl",
-            _ => "log",
-        };
-        format!("{}_stdout.{ext}", self.as_str())
+        libero_report::batch::stdout_file(self.as_str()).unwrap_or_else(|| format!("{}_stdout.log", self.as_str()))
     }
 
     /// Anthropic's protocol for Claude, OpenAI-compatible chat for the others (§6.7 `api_protocol`).
@@ -526,6 +523,16 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The report crate names every harness's logs (the console finds them by its names), so it knows them all.
+    #[test]
+    fn every_harness_has_its_log_names_in_the_report_crate() {
+        use clap::ValueEnum;
+        for h in Harness::value_variants() {
+            assert_eq!(libero_report::batch::stdout_file(h.as_str()), Some(h.stdout_file()), "{h:?}");
+            assert_eq!(libero_report::batch::stderr_file(h.as_str()), Some(format!("{}_stderr.log", h.as_str())), "{h:?}");
+        }
+    }
 
     fn ctx<'a>(h: Harness, creds: Option<&'a Credentials>) -> LaunchContext<'a> {
         LaunchContext {

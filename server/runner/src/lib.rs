@@ -41,7 +41,8 @@ use libero_tasks::catalog::Catalog;
 use libero_tasks::selector::{Member, Selection, Term};
 use serde_json::{Value, json};
 
-use batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord, append_record, read_records, write_batch_json};
+use batch::{BatchSettings, append_record, write_batch_json};
+use libero_report::batch::{BATCH_SCHEMA, RolloutRecord, read_records};
 use harness::{Credentials, Harness, default_credentials_file};
 use sandbox::Sandbox;
 use schedule::{Experiment, PlannedRollout, plan, plan_pool};
@@ -516,7 +517,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     // A store that cannot be opened stops the run before anything is written or launched.
     let store = args.store.as_deref().map(batch::StoreMirror::connect).transpose()?;
     let batch_dir = absolute(&args.batch.clone().unwrap_or_else(default_batch_dir))?;
-    let existing = batch::batch_json(&batch_dir);
+    let existing = libero_report::batch::batch_json(&batch_dir);
     let (created_at, done_records) = if existing.is_file() {
         if !args.resume {
             bail!("{} already holds a batch; pass --resume to continue it", batch_dir.display());
@@ -758,7 +759,7 @@ pub(crate) fn log_rollout_end(model: &str, batch: &str, rec: &RolloutRecord) {
 }
 
 fn interrupted_record(r: &PlannedRollout) -> RolloutRecord {
-    let mut rec = RolloutRecord::planned(r);
+    let mut rec = RolloutRecord::from(r);
     rec.outcome = Outcome::Interrupted;
     rec.infrastructure_error = Some("an earlier runner stopped while this rollout ran (found at --resume)".into());
     rec

@@ -12,7 +12,9 @@ use libero_metrics::Outcome;
 use libero_store::{QueueListener, Store, StoredBatch};
 use serde_json::{Value, json};
 
-use super::batch::{BATCH_SCHEMA, BatchSettings, RolloutRecord};
+use libero_report::batch::{BATCH_SCHEMA, RolloutRecord};
+
+use super::batch::BatchSettings;
 use super::schedule::PlannedRollout;
 use super::{INTERRUPTED, RunArgs};
 
@@ -24,7 +26,7 @@ pub fn worker_lost_record(plan: &Value) -> Value {
     let Ok(plan) = serde_json::from_value::<PlannedRollout>(plan.clone()) else {
         return json!({"rollout_id": plan["rollout_id"], "outcome": Outcome::Invalid.as_str(), "termination_reason": WORKER_LOST});
     };
-    let mut rec = RolloutRecord::planned(&plan);
+    let mut rec = RolloutRecord::from(&plan);
     rec.outcome = Outcome::Invalid;
     rec.termination_reason = Some(WORKER_LOST.into());
     rec.infrastructure_error = Some(format!("{WORKER_LOST}: the worker running it stopped renewing its lease (its machine or process died)"));

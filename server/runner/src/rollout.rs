@@ -15,16 +15,17 @@ use libero_episode::demo::DemoCondition;
 use libero_episode::json::{utc_now_iso, write_json_file};
 use libero_episode::records::{PrivateEvaluation, RunDir, RunResult, STATUS_ABORTED, STATUS_FINISHED};
 use libero_metrics::Outcome;
+use libero_report::batch::{Demo, RolloutRecord};
+use libero_report::usage::Usage;
 use serde_json::{Value, json};
 
-use super::batch::RolloutRecord;
 use super::harness::{Harness, Launch, LaunchContext, build_launch};
 use super::harness_versions::probe_cli;
 use super::agent_net::{NetPlan, contain};
-use super::schedule::{Demo, PlannedRollout};
+use super::schedule::PlannedRollout;
 use super::logs::{Limits, scrub_log, scrub_text};
 use super::toolbox::Toolbox;
-use super::usage::{Usage, UsageFormat, UsageScanner};
+use super::usage::{UsageFormat, UsageScanner};
 use super::{INTERRUPTED, RunContext};
 use libero_server::client::{get_json, post_json, prepare_episode};
 use libero_server::episodes::PrepareRequest;
@@ -200,7 +201,7 @@ fn copy_own_file(from: &Path, to: &Path) -> std::io::Result<u64> {
 
 /// Runs one rollout to its record.
 pub fn run_rollout(ctx: &RunContext, plan: &PlannedRollout) -> RolloutRecord {
-    let mut rec = RolloutRecord::planned(plan);
+    let mut rec = RolloutRecord::from(plan);
     if let Err(e) = supervise(ctx, plan, &mut rec) {
         rec.infrastructure_error.get_or_insert_with(|| format!("{e:#}"));
         rec.outcome = if INTERRUPTED.load(Ordering::SeqCst) { Outcome::Interrupted } else { Outcome::Invalid };

@@ -14,6 +14,7 @@
 //! implemented are left out of the schedule and named on stderr.
 use anyhow::bail;
 use libero_metrics::Split;
+use libero_report::batch::Demo;
 use libero_tasks::catalog::{Category, TaskEntry};
 use libero_tasks::pool::Pool;
 use libero_tasks::selector::{Member, Selection};
@@ -27,25 +28,6 @@ pub enum Experiment {
     ManipObservation,
     Context,
     Pool,
-}
-
-/// Demonstration condition of a rollout (protocol §7.1; paper: None / Video / Video + Traj.).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Demo {
-    None,
-    Video,
-    VideoTraj,
-}
-
-impl Demo {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Demo::None => "none",
-            Demo::Video => "video",
-            Demo::VideoTraj => "video_traj",
-        }
-    }
 }
 
 impl Experiment {

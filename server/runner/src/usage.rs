@@ -2,71 +2,28 @@
 //! with a `usage` mapping yields a record (aliases normalised across providers); when some records come from
 //! `result`-type lines only those count; consecutive identical records (the same message streamed in parts)
 //! collapse; the rest are summed. Codex (`exec --json`) reports one `turn.completed` usage per turn.
-use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use libero_episode::agent_events::Tokens;
+use libero_report::usage::{SOURCE_GATEWAY, SOURCE_NONE, SOURCE_STDOUT, StdoutFigures, Usage};
 
 use crate::lines::{Line, LineSplitter};
 
-/// A rollout's token figures (the record's `usage`, `harness_usage.json`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct Usage {
-    pub available: bool,
-    pub requests_with_usage: u64,
-    pub lines_scanned: u64,
-    pub input_tokens: Option<u64>,
-    pub output_tokens: Option<u64>,
-    pub cache_read_input_tokens: Option<u64>,
-    pub reasoning_tokens: Option<u64>,
-    pub total_tokens: Option<u64>,
-    /// Where the figures come from ([`SOURCE_GATEWAY`], [`SOURCE_STDOUT`] or [`SOURCE_NONE`]); absent in records
-    /// written before sources were recorded (those took stdout first).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub source: Option<String>,
-    /// What the harness printed on stdout when the gateway's figures were taken instead, for comparison.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub harness_stdout: Option<StdoutFigures>,
-    /// Set when the gateway saw model traffic it could not meter (bytes through a tunnel or a forward, a response
-    /// whose usage could not be read): the figures are then a lower bound. Absent: complete, or not known.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub incomplete: Option<String>,
-}
-
-/// The runner's model-API gateway records (`sandbox/model_api.jsonl`), which the agent cannot write.
-pub const SOURCE_GATEWAY: &str = "model_api_gateway";
-/// The usage the harness printed on its stdout, which the agent's own commands can write to as well.
-pub const SOURCE_STDOUT: &str = "harness_stdout";
-/// Neither reported any.
-pub const SOURCE_NONE: &str = "unavailable";
-
-/// The harness's own stdout figures beside the gateway's.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct StdoutFigures {
-    pub input_tokens: Option<u64>,
-    pub output_tokens: Option<u64>,
-    pub total_tokens: Option<u64>,
-    /// Input, output and total equal the gateway's.
-    pub agrees: bool,
-}
-
-impl Usage {
-    /// The rollout's token figures from what the gateway saw ([`crate::netgate::UsageSummary`]), for harnesses whose
-    /// stdout lacks them.
-    pub fn from_gateway(g: &crate::netgate::UsageSummary) -> Usage {
-        let available = g.responses_with_usage > 0;
-        let some = |x: u64| available.then_some(x);
-        Usage {
-            available,
-            requests_with_usage: g.responses_with_usage,
-            lines_scanned: g.requests + g.unreadable_lines,
-            input_tokens: some(g.input_tokens),
-            output_tokens: some(g.output_tokens),
-            cache_read_input_tokens: some(g.cached_input_tokens),
-            reasoning_tokens: some(g.reasoning_tokens),
-            total_tokens: some(g.total_tokens),
-            ..Usage::default()
-        }
+/// The rollout's token figures from what the gateway saw ([`crate::netgate::UsageSummary`]), for harnesses whose
+/// stdout lacks them.
+pub fn from_gateway(g: &crate::netgate::UsageSummary) -> Usage {
+    let available = g.responses_with_usage > 0;
+    let some = |x: u64| available.then_some(x);
+    Usage {
+        available,
+        requests_with_usage: g.responses_with_usage,
+        lines_scanned: g.requests + g.unreadable_lines,
+        input_tokens: some(g.input_tokens),
+        output_tokens: some(g.output_tokens),
+        cache_read_input_tokens: some(g.cached_input_tokens),
+        reasoning_tokens: some(g.reasoning_tokens),
+        total_tokens: some(g.total_tokens),
+        ..Usage::default()
     }
 }
 
@@ -88,7 +45,7 @@ pub fn choose(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> 
 fn choose_source(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> Usage {
     match gateway {
         Some(g) if g.responses_with_usage > 0 => {
-            let mut u = Usage::from_gateway(g);
+            let mut u = from_gateway(g);
             if stdout.available {
                 let agrees = (stdout.input_tokens, stdout.output_tokens, stdout.total_tokens) == (u.input_tokens, u.output_tokens, u.total_tokens);
                 u.harness_stdout = Some(StdoutFigures {
@@ -383,10 +340,10 @@ mod tests {
             total_tokens: 137,
             ..Default::default()
         };
-        let u = Usage::from_gateway(&g);
+        let u = from_gateway(&g);
         assert!(u.available);
         assert_eq!((u.requests_with_usage, u.input_tokens, u.total_tokens), (4, Some(101), Some(137)));
-        let none = Usage::from_gateway(&crate::netgate::UsageSummary { requests: 3, ..Default::default() });
+        let none = from_gateway(&crate::netgate::UsageSummary { requests: 3, ..Default::default() });
         assert!(!none.available && none.input_tokens.is_none() && none.total_tokens.is_none());
     }
 

@@ -17,7 +17,9 @@ use libero_episode::batch_doc::{BatchDoc, RolloutSummary};
 use libero_store::{QueueListener, Store};
 use serde_json::{Value, json};
 
-use super::batch::{BatchSettings, RolloutRecord};
+use libero_report::batch::RolloutRecord;
+
+use super::batch::BatchSettings;
 use super::harness::{Credentials, Harness, pinned_npm_cli_installed};
 use super::queue::{WORKER_LOST, worker_lost_record};
 use super::sandbox::Sandbox;
@@ -394,7 +396,7 @@ fn default_worker_dir(id: &str) -> anyhow::Result<PathBuf> {
 
 /// A rollout the worker could not start (INVALID, with why).
 fn failed(plan: &PlannedRollout, why: String) -> RolloutRecord {
-    let mut rec = RolloutRecord::planned(plan);
+    let mut rec = RolloutRecord::from(plan);
     rec.infrastructure_error = Some(why);
     rec
 }

@@ -228,10 +228,10 @@ fn usage_lines_the_agent_prints_do_not_count_when_the_gateway_has_records() {
     assert_eq!(stdout.input_tokens, Some(999_999_999), "stdout alone would believe it");
     let gateway = UsageSummary { requests: 1, responses_with_usage: 1, input_tokens: 800, output_tokens: 30, total_tokens: 830, ..UsageSummary::default() };
     let u = usage::choose(stdout.clone(), Some(&gateway));
-    assert_eq!((u.source.as_deref(), u.input_tokens, u.output_tokens, u.total_tokens), (Some(usage::SOURCE_GATEWAY), Some(800), Some(30), Some(830)));
+    assert_eq!((u.source.as_deref(), u.input_tokens, u.output_tokens, u.total_tokens), (Some(libero_report::usage::SOURCE_GATEWAY), Some(800), Some(30), Some(830)));
     let claimed = u.harness_stdout.expect("stdout's claim kept beside");
     assert!(!claimed.agrees && claimed.input_tokens == Some(999_999_999));
     let alone = usage::choose(stdout, None);
-    assert_eq!(alone.source.as_deref(), Some(usage::SOURCE_STDOUT), "without a gateway (--no-sandbox) stdout is all there is");
-    assert_eq!(usage::choose(Default::default(), Some(&UsageSummary::default())).source.as_deref(), Some(usage::SOURCE_NONE));
+    assert_eq!(alone.source.as_deref(), Some(libero_report::usage::SOURCE_STDOUT), "without a gateway (--no-sandbox) stdout is all there is");
+    assert_eq!(usage::choose(Default::default(), Some(&UsageSummary::default())).source.as_deref(), Some(libero_report::usage::SOURCE_NONE));
 }

@@ -19,7 +19,7 @@ pub const MAX_POST_RECORDS: usize = 500;
 pub const MAX_NAME_LEN: usize = 128;
 /// Longest `dir` (where the batch's files are on the runner's machine).
 const MAX_DIR_LEN: usize = 4096;
-/// The batch document's schema (`libero_runner::batch::BATCH_SCHEMA`; the runner depends on this crate, not back).
+/// The batch document's schema (`libero_report::batch::BATCH_SCHEMA`, which the runner writes and the report reads; this crate links neither).
 const BATCH_SCHEMA: &str = "libero_agent.batch.v1";
 
 #[derive(serde::Deserialize)]

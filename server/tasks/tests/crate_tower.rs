@@ -1,7 +1,7 @@
 //! The crate tower (docs/ARCHITECTURE.md, "The layers"): every workspace crate under `server/` depends only on the
 //! crates below it in [`TOWER`] that its line allows. Cargo already refuses a cycle; this keeps the layers it cannot
-//! see: the records, store, metrics and artifacts never link the simulator (nor MuJoCo), and neither the server nor
-//! the runner links the console. A new dependency between workspace crates is a change of architecture: change this
+//! see: the records, store, metrics, artifacts and report never link the simulator (nor MuJoCo), the report links
+//! no runner, and neither the server nor the runner links the console, nor the console the runner. A new dependency between workspace crates is a change of architecture: change this
 //! list and docs/ARCHITECTURE.md together.
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -17,26 +17,28 @@ const TOWER: &[(&str, &[&str])] = &[
     ("libero-episode", &["libero-bddl", "libero-sim", "libero-render", "libero-tasks", "libero-records"]),
     ("libero-store", &["libero-records"]),
     ("libero-artifacts", &[]),
+    // The paper's reports and the batch readers: records and metrics only (the catalog's facts come in as data).
+    ("libero-report", &["libero-records", "libero-metrics"]),
     (
         "libero-server",
         &["libero-sim", "libero-render", "libero-tasks", "libero-records", "libero-episode", "libero-store", "libero-artifacts"],
     ),
     (
         "libero-runner",
-        &["libero-tasks", "libero-metrics", "libero-episode", "libero-store", "libero-artifacts", "libero-server"],
+        &["libero-tasks", "libero-metrics", "libero-records", "libero-episode", "libero-store", "libero-artifacts", "libero-report", "libero-server"],
     ),
     (
         "libero-dashboard",
         &[
             "libero-sim", "libero-tasks", "libero-metrics", "libero-records", "libero-episode", "libero-store", "libero-artifacts",
-            "libero-server", "libero-runner",
+            "libero-report", "libero-server",
         ],
     ),
     (
         "libero-agent",
         &[
             "libero-bddl", "libero-sim", "libero-render", "libero-records", "libero-tasks", "libero-metrics", "libero-episode",
-            "libero-store", "libero-server", "libero-runner", "libero-dashboard",
+            "libero-store", "libero-report", "libero-server", "libero-runner", "libero-dashboard",
         ],
     ),
 ];
@@ -106,9 +108,26 @@ fn the_tower_itself_keeps_its_rules() {
         }
     }
     let allowed = |n: &str| TOWER[position(n)].1;
-    for reader in ["libero-records", "libero-store", "libero-metrics", "libero-artifacts", "libero-bddl"] {
-        assert!(!allowed(reader).iter().any(|d| SIMULATOR.contains(d)), "{reader} must not link the simulator");
+    // What a crate links, directly or through the crates it may depend on.
+    let links = |n: &str| {
+        let mut seen = BTreeSet::new();
+        let mut todo = vec![n];
+        while let Some(c) = todo.pop() {
+            for d in allowed(c) {
+                if seen.insert(*d) {
+                    todo.push(*d);
+                }
+            }
+        }
+        seen
+    };
+    for reader in ["libero-records", "libero-store", "libero-metrics", "libero-artifacts", "libero-bddl", "libero-report"] {
+        assert!(!links(reader).iter().any(|d| SIMULATOR.contains(d)), "{reader} must not link the simulator");
     }
+    // Reports compute from records alone: no runner, so no sandbox, gateway or harness behind them.
+    assert!(!links("libero-report").iter().any(|d| ["libero-runner", "libero-sandbox", "libero-server"].contains(d)), "libero-report must not link the runner");
+    // The console reads batches and prints tables through libero-report, and starts no agent.
+    assert!(!links("libero-dashboard").contains(&"libero-runner"), "libero-dashboard must not link the runner");
     for server_side in ["libero-server", "libero-runner"] {
         assert!(!allowed(server_side).contains(&"libero-dashboard"), "{server_side} must not link the console");
     }
