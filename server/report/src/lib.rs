@@ -25,7 +25,7 @@ use tables::TableChoice;
 use tokens::{RolloutTokens, TokenSummary};
 use versions::HarnessVersions;
 
-pub use libero_metrics::TaskFacts;
+use libero_metrics::TaskFacts;
 use libero_metrics::{PoolSummary, Proportion, Split, SuiteSummary, summarize, summarize_pool};
 use libero_records::batch_doc::ToolboxDoc;
 use serde_json::{Value, json};
