@@ -18,6 +18,12 @@ runChecks(base, async (context, report, errors) => {
   report.branch_note = await text(page, '.branch-of');
   check(report.gripper_before_input === 'closed', `a branch of a closed gripper starts closed (${report.gripper_before_input})`);
   check(/gripper closed/.test(report.branch_note), `the page says so (${report.branch_note})`);
+  // Before any input the page shows where every episode here starts: the parent's moment at the branch step.
+  const preview = page.locator('#preview img.pair');
+  await page.waitForFunction(() => document.querySelector('#preview img.pair')?.naturalWidth > 0, null, { timeout: 180000 });
+  report.preview_px = await preview.evaluate((img) => [img.naturalWidth, img.naturalHeight]);
+  check(report.preview_px[0] === 512 && report.preview_px[1] === 256, `a head | wrist picture of the branch point before any input (${report.preview_px})`);
+  await shot(page, 'branch-hold-before-input');
   await page.locator('.teleop').focus();
   await page.keyboard.down('r');
   await page.locator('#state', { hasText: 'driving' }).waitFor({ timeout: 180000 });
@@ -54,4 +60,13 @@ runChecks(base, async (context, report, errors) => {
   check(report.bundle, `saved: ${report.save_text}`);
   check(report.save_text.includes(`replayed actions of ${parent}`), `the result names the replayed prefix (${report.save_text})`);
   await shot(page, 'branch-hold-saved');
+
+  // The Demonstrations page names the bundle's parent, step and replayed prefix.
+  await page.goto(`${base}/demos`);
+  const row = page.locator(`tr[data-key="${report.bundle}"]`);
+  await row.waitFor({ timeout: 60000 });
+  report.demos_branch = await row.locator('small.branch-of').innerText();
+  check(report.demos_branch.includes(parent) && report.demos_branch.includes(`at step ${step}`) && report.demos_branch.includes(`${step} actions replayed first`),
+    `the Demonstrations page names the branch (${report.demos_branch})`);
+  await shot(page, 'branch-hold-demos');
 });

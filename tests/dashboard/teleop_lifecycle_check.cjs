@@ -115,6 +115,13 @@ runChecks(base, async (context, report, errors) => {
   report.abandoned_live_reason = await text(page, '#reason');
   check(/abandoned/.test(report.abandoned_live_reason), `the live page says why (${report.abandoned_live_reason})`);
   await shot(page, 'live-abandoned');
+  // The home list says why beside the outcome (in full on hover), on the page as served and as pushed live.
+  await page.goto(`${base}/`);
+  const reasonCell = page.locator(`tr[data-id="${left}"] small.end-reason`);
+  await reasonCell.waitFor({ timeout: 30000 });
+  report.home_reason = await reasonCell.innerText();
+  check(/abandoned/.test(report.home_reason), `the home list names the ending's reason (${report.home_reason})`);
+  await shot(page, 'home-abandoned-reason');
   await page.close();
 
   // 6. The live page of an agent's episode: Finish and judge, and Abort.

@@ -23,6 +23,15 @@ function row(b) {
     // the source episode by id; linked to its review once the store says it knows it (linkSources)
     source.append(el('br'), el('small', { class: 'muted source-episode', 'data-episode': b.episode_id, title: 'not in this server\'s store' }, b.episode_id));
   }
+  // A bundle recorded from a branch: its parent and step, and how many of the parent's actions are replayed
+  // before its own trajectory (issue 49).
+  const br = b.branch;
+  if (br && br.parent_episode_id) {
+    const note = el('small', { class: 'branch-of muted' }, 'branch of ');
+    note.append(el('a', { href: `/episodes/${encodeURIComponent(br.parent_episode_id)}/review?step=${br.parent_control_step ?? 0}` }, br.parent_episode_id),
+      ` at step ${br.parent_control_step ?? '?'}${br.replayed_actions != null ? ` (${br.replayed_actions} actions replayed first)` : ''}`);
+    source.append(el('br'), note);
+  }
   const cells = [pick, b.task ?? task, bundle, source, b.verified ? 'yes' : 'no',
     b.valid ? 'yes' : `no: ${b.first_violation}`, String(b.actions ?? '–'), checks(b.replay_checks), date];
   for (const c of cells) {

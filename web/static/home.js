@@ -4,6 +4,12 @@ import { wsUrl, el, fmtS } from './common.js';
 const tbody = document.getElementById('episodes');
 const status = document.getElementById('live-status');
 
+/** An ending's reason cut to one line (the same cut as the server-rendered page: 80 characters). */
+function shortReason(r) {
+  const chars = [...r];
+  return chars.length > 80 ? `${chars.slice(0, 79).join('')}…` : r;
+}
+
 function row(e) {
   const tr = el('tr', { 'data-id': e.id });
   // Open episodes go to the live page, ended ones straight to their review.
@@ -31,6 +37,11 @@ function row(e) {
   cells.forEach((c, i) => {
     const td = el('td', i === 6 ? { class: `outcome ${c}` } : {});
     if (c instanceof Node) td.append(c); else td.textContent = c;
+    // why an episode ended the way it did (abandoned, aborted, the runner's classification), in full on hover
+    if (i === 6 && e.reason) {
+      td.title = e.reason;
+      td.append(el('br'), el('small', { class: 'end-reason muted' }, shortReason(e.reason)));
+    }
     tr.append(td);
   });
   return tr;

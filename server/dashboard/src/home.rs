@@ -53,6 +53,24 @@ struct HomeRow {
     started_iso: String,
     /// The home page filtered on this row's batch.
     batch_href: String,
+    /// Why the episode ended as it did (abandoned, aborted, the runner's word), in full for the hover.
+    reason: String,
+    /// [`Self::reason`] cut to one line.
+    reason_short: String,
+}
+
+/// Longest reason shown under an outcome (`home.js` cuts the same way).
+const REASON_CHARS: usize = 80;
+
+/// `reason` cut to [`REASON_CHARS`] characters, an ellipsis marking the cut.
+fn short_reason(reason: &str) -> String {
+    if reason.chars().count() > REASON_CHARS {
+        let mut cut: String = reason.chars().take(REASON_CHARS - 1).collect();
+        cut.push('…');
+        cut
+    } else {
+        reason.to_owned()
+    }
 }
 
 /// `2026-12-07T14:08:28.38+00:00` → `2026-12-07 14:08 UTC` (as `home.js` writes it).
@@ -85,6 +103,8 @@ impl HomeRow {
             started: short_utc(v["started_at"].as_str().or(v["created_at"].as_str()).unwrap_or("")),
             started_iso: v["started_at"].as_str().or(v["created_at"].as_str()).unwrap_or("").to_owned(),
             batch_href: format!("/?batch={}", crate::results::percent_encode(v["batch"].as_str().unwrap_or(""))),
+            reason: text("reason"),
+            reason_short: short_reason(v["reason"].as_str().unwrap_or("")),
         }
     }
 }
@@ -200,5 +220,14 @@ mod tests {
         assert_eq!(super::short_utc("2026-12-07T14:08:28.383004+00:00"), "2026-12-07 14:08 UTC");
         assert_eq!(super::short_utc("yesterday"), "yesterday");
         assert_eq!(super::short_utc(""), "");
+    }
+
+    #[test]
+    fn a_long_end_reason_is_cut_to_one_line_at_a_character_boundary() {
+        assert_eq!(super::short_reason("abandoned"), "abandoned");
+        let long = "é".repeat(200);
+        let cut = super::short_reason(&long);
+        assert_eq!(cut.chars().count(), super::REASON_CHARS);
+        assert!(cut.ends_with('…'));
     }
 }
