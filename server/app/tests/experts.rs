@@ -17,7 +17,7 @@
 //! `libero-agent expert --tasks release --runs 3 --no-video --jobs N`.
 use std::process::Command;
 
-use libero_tasks::sample::{day_seed, seeded_pick};
+use libero_testkit::sample::{day_seed, seeded_pick};
 use serde_json::Value;
 
 mod common;
@@ -398,7 +398,7 @@ fn the_readme_pool_table_is_the_committed_sweeps() {
     let out = bin().args(["expert", "--all", "--markdown"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let table = String::from_utf8(out.stdout).unwrap();
-    let readme = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../README.md")).unwrap();
+    let readme = std::fs::read_to_string(libero_testkit::repo_root().join("README.md")).unwrap();
     assert!(table.lines().count() > 3 && readme.contains(table.trim()), "README.md lacks the sweep's table (paste `libero-agent expert --all --markdown`):\n{table}");
 }
 

@@ -39,4 +39,4 @@ pub use app::{App, AppState, Console, TeleopEpisode};
 pub use args::{ServeArgs, ServerFlags, StoreFlags, ThumbnailArgs, batch_roots, check_public_url, default_data_dir};
 pub use mcp_gate::bearer;
 pub use router::router;
-pub use serve::{Bound, DRAIN_GRACE, DataLock, SIGNAL_GRACE, run_serve, serve, serve_until, start};
+pub use serve::{Bound, DRAIN_GRACE, DataLock, InProcess, SIGNAL_GRACE, run_serve, serve, serve_until, start};

@@ -212,6 +212,21 @@ impl Bound {
         self.app.operator.token()
     }
 
+    /// The server without its listeners: the same [`router`] `serve` runs, over this server's state, with the store
+    /// writer and the release of ended episodes running on the current runtime. Requests are answered by calling
+    /// the router (`tower::ServiceExt::oneshot`: `libero-testkit`'s in-process client); they must name the bound
+    /// address as their `Host`. No thumbnails are rendered ahead. The data directory stays locked, and the
+    /// background tasks run, until the [`InProcess`] drops.
+    pub fn in_process(self) -> InProcess {
+        let Bound { app, listeners, base_url, inbox, _lock, _registration, .. } = self;
+        drop(listeners);
+        let tasks = vec![
+            tokio::spawn(store_writer::run(inbox, app.store.clone(), app.episodes.clone(), app.hubs.clone())),
+            tokio::spawn(release_ended(app.episodes.clone())),
+        ];
+        InProcess { router: router(app.clone()), app, base_url, tasks, _lock, _registration }
+    }
+
     /// Serves until `shutdown` yields a stop reason (see [`serve_until`]).
     pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = (String, Duration)> + Send + 'static) -> anyhow::Result<()> {
         let Bound { app, listeners, limits, base_url, recovered, reconciled, inbox, ahead, _lock, _registration } = self;
@@ -288,6 +303,36 @@ impl Bound {
         writer_task.abort();
         app.store.close().await;
         Ok(())
+    }
+}
+
+/// A server answering in process ([`Bound::in_process`]).
+pub struct InProcess {
+    /// The full router, the console's routes included where the server has one.
+    pub router: axum::Router,
+    pub app: Arc<App>,
+    /// The bound address's URL (`http://127.0.0.1:PORT`): requests name its host as their `Host`.
+    pub base_url: String,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    _lock: DataLock,
+    _registration: Option<credential::Registration>,
+}
+
+impl InProcess {
+    /// Stops every open episode (recorded as aborted with `reason`) and writes their rows.
+    pub async fn stop(&self, reason: &str) {
+        let episodes = self.app.episodes.clone();
+        let reason = reason.to_owned();
+        let _ = tokio::task::spawn_blocking(move || episodes.lifecycle().stop_all(&reason, SIGNAL_GRACE)).await;
+        self.app.sync_all().await;
+    }
+}
+
+impl Drop for InProcess {
+    fn drop(&mut self) {
+        for task in &self.tasks {
+            task.abort();
+        }
     }
 }
 

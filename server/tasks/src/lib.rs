@@ -13,7 +13,6 @@ pub mod families;
 pub mod judge;
 pub mod pool;
 pub mod registry;
-pub mod sample;
 pub mod selector;
 
 pub use catalog::{Catalog, TaskEntry};

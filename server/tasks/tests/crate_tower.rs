@@ -41,6 +41,8 @@ const TOWER: &[(&str, &[&str])] = &[
             "libero-store", "libero-report", "libero-server", "libero-runner", "libero-dashboard",
         ],
     ),
+    // The tests' helpers, above everything (no crate's `[dependencies]` may name it; `[dev-dependencies]` do).
+    ("libero-testkit", &["libero-store", "libero-server", "libero-dashboard"]),
 ];
 
 /// The simulator and what drives it: the crates (with MuJoCo itself) the readers of records must never link.

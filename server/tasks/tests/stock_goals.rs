@@ -11,7 +11,7 @@ use libero_sim::AssetPaths;
 use libero_sim::compose::compose_file;
 use libero_sim::simulation::SimData;
 use libero_tasks::GoalChecker;
-use libero_tasks::sample::{day_seed, seeded_pick};
+use libero_testkit::sample::{day_seed, seeded_pick};
 
 const SUITES: [&str; 5] = ["libero_10", "libero_90", "libero_goal", "libero_object", "libero_spatial"];
 /// Goals an ordinary run binds.
