@@ -13,8 +13,10 @@
 //! stays with the tests that spawn the binary.
 use std::path::Path;
 
+pub use axum::http::Method;
+
 use axum::body::Body;
-use axum::http::{HeaderMap, Method, Request, header};
+use axum::http::{HeaderMap, Request, header};
 use clap::Parser;
 use libero_server::{AppState, InProcess, ServeArgs};
 use serde_json::Value;
