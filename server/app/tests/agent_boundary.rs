@@ -12,16 +12,13 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use libero_testkit::repo_root;
 use serde_json::Value;
 
 mod common;
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
-}
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap()
 }
 
 /// Runs a one-rollout T14 batch with `agent_cmd`; fails the test if it does not end within `limit`.

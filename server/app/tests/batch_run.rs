@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use libero_testkit::{cache_dir, repo_root};
 use serde_json::Value;
 
 mod common;
@@ -16,16 +17,6 @@ use common::{Server, http_get_json};
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
-}
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap()
-}
-
-fn cache_dir() -> PathBuf {
-    std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"))
 }
 
 fn as_refs(v: &[String]) -> Vec<&str> {

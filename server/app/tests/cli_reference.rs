@@ -10,13 +10,13 @@
 //! the environment (`[env: …=value]`) or the home directory do not depend on the machine. The full binary (the
 //! default `episode-serve` feature) is the one documented.
 #![cfg(feature = "episode-serve")]
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 
 const REGENERATE: &str = "UPDATE_CLI_REFERENCE=1 cargo test -p libero-agent --test cli_reference";
 
 fn reference_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/cli.md")
+    libero_testkit::repo_root().join("docs/cli.md")
 }
 
 /// `libero-agent <path…> --help`.

@@ -27,7 +27,7 @@ fn run_ok(cmd: &mut Command) -> Output {
 fn golden_dir() -> PathBuf {
     std::env::var_os("LIBERO_GOLDEN_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/reference/golden"))
+        .unwrap_or_else(|| libero_testkit::tests_dir().join("reference/golden"))
 }
 
 fn read_json(p: &std::path::Path) -> Value {

@@ -12,6 +12,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
+use libero_testkit::{cache_dir as cache, repo_root};
 use serde_json::{Value, json};
 
 mod common;
@@ -19,16 +20,6 @@ use common::http;
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
-}
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn cache() -> PathBuf {
-    std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"))
 }
 
 const SETUP_HINT: &str = "run `python3 scripts/setup.py --test` (as root for the Debian packages)";

@@ -193,7 +193,7 @@ fn prepared_episodes_get_the_papers_demo_and_notice_without_private_data() {
     });
     assert_eq!(good["replay_checks"], serde_json::json!([]), "a fresh recording has no checks yet");
     copy_of(dir, &lib.join(dir.file_name().unwrap()));
-    let notice = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/demo_notice.txt")).unwrap();
+    let notice = fs::read_to_string(libero_testkit::tests_dir().join("fixtures/prompt/demo_notice.txt")).unwrap();
     let server = common::Server::start(data.path());
     let mut used = Vec::new();
     let mut traj_rows = None;
@@ -214,7 +214,7 @@ fn prepared_episodes_get_the_papers_demo_and_notice_without_private_data() {
         let demo = ws.join("benchmark_inputs/expert_demo");
         assert_eq!(files_under(&demo), expected_files, "{condition}");
         let prompt = fs::read_to_string(ws.join("TASK_PROMPT.txt")).unwrap();
-        let golden = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/prompt_demo.txt")).unwrap();
+        let golden = fs::read_to_string(libero_testkit::tests_dir().join("fixtures/prompt/prompt_demo.txt")).unwrap();
         assert_eq!(prompt, golden, "{condition}: the paper's prompt and notice");
         assert_eq!(prompt.lines().nth(1), Some(notice.trim_end()));
         let contract: Value = serde_json::from_str(&fs::read_to_string(ws.join(".libero/episode.json")).unwrap()).unwrap();

@@ -6,17 +6,13 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use libero_testkit::repo_root;
 use serde_json::Value;
 
 const TASK: &str = "libero_object/pick_up_the_ketchup_and_place_it_in_the_basket";
 
 mod common;
 use common::{Server, bin, http_get_json, python};
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
 
 fn prepare(server: &Server, workspace: &Path, level: u8) -> Value {
     let out = Command::new(bin())

@@ -5,13 +5,13 @@
 //! (its segmentation pixels), at the pixel where the calibration projects the object's body, in colours that differ
 //! from what surrounds it.
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Arc;
 
 use libero_sim::AssetPaths;
 use libero_sim::mujoco_rs::prelude::*;
 use libero_sim::scene_setup::PreparedScene;
+use libero_testkit::repo_root;
 use serde_json::Value;
 
 mod common;
@@ -29,10 +29,6 @@ const TASKS: &[(&str, &str)] = &[
     ("T09", "select_highest_reflectance"),
     ("T10", "select_largest_cylinder"),
 ];
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repo root")
-}
 
 #[test]
 fn perception_start_pictures_are_rendered_from_the_head_camera() {

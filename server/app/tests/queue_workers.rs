@@ -23,10 +23,7 @@ const BUCKET: &str = "artifacts";
 const ROLLOUTS: usize = 12;
 
 fn s3_server_exe() -> PathBuf {
-    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/libero-agent"));
-    let exe = cache.join("s3s-fs-0.14.1/bin/s3s-fs");
+    let exe = libero_testkit::cache_dir().join("s3s-fs-0.14.1/bin/s3s-fs");
     assert!(exe.is_file(), "{} is missing: run `python3 scripts/setup.py --test`", exe.display());
     exe
 }

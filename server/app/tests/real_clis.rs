@@ -24,10 +24,7 @@ const SETUP_HINT: &str = "run `python3 scripts/setup.py --test`, which installs 
                           Inspector with npm into ~/.cache/libero-agent/node";
 
 fn cli_dir() -> PathBuf {
-    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
-    cache.join("node/node_modules/.bin")
+    libero_testkit::cache_dir().join("node/node_modules/.bin")
 }
 
 fn require_cli(name: &str) -> PathBuf {

@@ -21,16 +21,13 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
+use libero_testkit::{cache_dir, repo_root};
 use serde_json::Value;
 
 mod common;
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_libero-agent")
-}
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap()
 }
 
 /// A host loopback service the agent must not reach: counts every connection it accepts.
@@ -114,12 +111,6 @@ fn run_batch(runner: &Runner, batch: &Path, workspaces: &Path, credentials: &Pat
     }
     let mut child = cmd.stdout(Stdio::null()).stderr(Stdio::inherit()).spawn().expect("run libero-agent run");
     common::wait_success(&mut child, Duration::from_secs(600), "the batch");
-}
-
-fn cache_dir() -> PathBuf {
-    std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"))
 }
 
 /// Root's asset cache is private to root: a copy of hard links (no data copied) in directories nobody can read.

@@ -152,7 +152,7 @@ fn card<'a>(page: &'a str, marker: &str) -> &'a str {
 #[test]
 fn the_expert_sweep_shows_on_the_task_pages_of_the_entries_it_covers_only() {
     let (tasks, data) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    copy_tasks(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tasks"), tasks.path());
+    copy_tasks(&libero_testkit::tasks_dir(), tasks.path());
     let results = tasks.path().join("results");
     std::fs::create_dir_all(&results).unwrap();
     let rows = [

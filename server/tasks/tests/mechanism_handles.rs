@@ -50,7 +50,7 @@ fn compiled(bddl: &Path) -> (SceneIndex, MjModel) {
 }
 
 fn repo(path: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(path)
+    libero_testkit::repo_root().join(path)
 }
 
 /// Every handle geom declared for `instance`'s class is in `model` on its declared body with the shape `shapes` gives.

@@ -34,7 +34,7 @@ struct Fixture {
 }
 
 fn fixture_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/predicates")
+    libero_testkit::tests_dir().join("fixtures/predicates")
 }
 
 /// `(pred a b)` → an atom.

@@ -12,9 +12,7 @@ pub mod scripted_model;
 
 /// The test venv's interpreter (`scripts/setup.py --test`): the independent Python peers of some tests.
 pub fn python() -> PathBuf {
-    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
+    let cache = libero_testkit::cache_dir();
     let py = cache.join("pyenv/bin/python");
     assert!(py.is_file(), "{} missing: run `python3 scripts/setup.py --test`", py.display());
     py
@@ -256,16 +254,14 @@ pub fn read_socket(url: &str, operator_token: &str) -> std::thread::JoinHandle<R
 /// installs them) with `args` and the operator token, and returns its last JSON line; fails saying what is missing.
 pub fn browser_script(script: &str, args: &[&str], operator_token: &str) -> Value {
     let chromium = std::env::var_os("LIBERO_AGENT_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| "/usr/bin/chromium".into());
-    let cache = std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").expect("HOME")).join(".cache/libero-agent"));
+    let cache = libero_testkit::cache_dir();
     let node_modules = cache.join("node/node_modules");
     assert!(
         chromium.is_file() && node_modules.join("playwright-core/package.json").is_file(),
         "chromium or playwright-core missing: run `python3 scripts/setup.py --test`"
     );
     let out = Command::new("node")
-        .arg(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/dashboard").join(script))
+        .arg(libero_testkit::tests_dir().join("dashboard").join(script))
         .args(args)
         .env("NODE_PATH", &node_modules)
         .env("LIBERO_AGENT_CHROMIUM", &chromium)
@@ -317,7 +313,7 @@ pub fn timeline(server: &Server, id: &str) -> (Vec<Value>, usize) {
 /// An `--agent-cmd` running `tests/clis/<script>` with `args`, inlined after the test agents' MCP client
 /// (`tests/clis/mcp_http.py`) in a heredoc: the sandbox shows the workspace, not the repository.
 pub fn inline_python_agent(script: &str, args: &str) -> String {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/clis");
+    let dir = libero_testkit::tests_dir().join("clis");
     let client = std::fs::read_to_string(dir.join("mcp_http.py")).unwrap();
     let agent = std::fs::read_to_string(dir.join(script)).unwrap();
     format!("python3 - {args} <<'PY'\n{client}\n{agent}\nPY")

@@ -1,3 +1,4 @@
-//! The throwaway PostgreSQL cluster of the store's tests (`libero_store::testing`), for the integration tests.
+//! The throwaway PostgreSQL cluster of the store's tests (`libero_store::testing`, through the testkit), for the
+//! integration tests.
 #![allow(unused_imports)]
-pub use libero_store::testing::TestPostgres;
+pub use libero_testkit::TestPostgres;

@@ -25,7 +25,7 @@ impl ScriptedModel {
     /// `tests/clis/perception_program.py`, an `osc_sequence` read from its output, finish).
     pub fn start_script(dir: &Path, script: &str) -> Self {
         let log = dir.join("model_requests.jsonl");
-        let program = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/clis/scripted_model.py");
+        let program = libero_testkit::tests_dir().join("clis/scripted_model.py");
         let mut child = Command::new(python())
             .arg(program)
             .arg("--log")

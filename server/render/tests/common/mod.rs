@@ -12,9 +12,7 @@ use mujoco_rs::prelude::{MjData, MjModel};
 pub const SIZE: u32 = 256;
 pub const CAMERAS: [&str; 2] = ["agentview", "robot0_eye_in_hand"];
 
-pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repo root")
-}
+pub use libero_testkit::repo_root;
 
 /// The compiled LIBERO reference scenes recorded from the real Python stack: the repository's
 /// `tests/reference/ref/` (provenance in `tests/reference/README.md`).
@@ -37,14 +35,9 @@ pub fn artifacts_dir() -> PathBuf {
     repo_root().join("test-artifacts/render")
 }
 
-/// The test venv's Python; fails loudly when the test set-up has not been run.
-/// `$LIBERO_AGENT_CACHE`, else `~/.cache/libero-agent` (as `libero_sim::paths::cache_dir`).
-pub fn cache_dir() -> PathBuf {
-    std::env::var_os("LIBERO_AGENT_CACHE")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap_or_default()).join(".cache/libero-agent"))
-}
+pub use libero_testkit::cache_dir;
 
+/// The test venv's Python; fails loudly when the test set-up has not been run.
 pub fn venv_python() -> PathBuf {
     let py = cache_dir().join("pyenv/bin/python");
     assert!(

@@ -1,6 +1,6 @@
 //! Shared loading of the golden trajectories in the repository's `tests/reference/golden/` (see its README).
 #![allow(dead_code)]
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use libero_sim::AssetPaths;
@@ -70,7 +70,7 @@ pub struct Sensitivity {
 /// The repository's `tests/reference/`: data recorded from the real Python stack (golden trajectories, reference
 /// scenes, the 130-task survey; provenance in its README.md).
 pub fn reference_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/reference")
+    libero_testkit::tests_dir().join("reference")
 }
 
 /// `tests/reference/golden/`, or `$LIBERO_GOLDEN_DIR` (e.g. freshly regenerated trajectories).
