@@ -202,7 +202,7 @@ fn video_cost_ms(world: &mut LiberoWorld, actions: usize) -> anyhow::Result<(f64
     let (record, video) = (dir.join("state_record.bin"), dir.join("video.mp4"));
     let queue = VideoQueue::start(head_wrist_cameras())?;
     let t = Instant::now();
-    world.record_video(&video, &record, queue.clone())?;
+    world.record_video(&video, &record, queue.clone(), None)?;
     for action in bench_actions(actions, 0) {
         world.step(&action)?;
     }

@@ -31,8 +31,18 @@ const MAX_REMEMBERED_FAILURES: usize = 1024;
 pub struct VideoJob {
     pub record: PathBuf,
     pub video: PathBuf,
+    /// The models to draw with; with [`Self::rebuild`] given, these are models held in memory (the ended
+    /// episode's own compiled model and upload).
     pub source: ModelSource,
+    /// Builds the models anew from the episode's settings: taken instead of [`Self::source`] (whose models are
+    /// then dropped) when the job queues behind [`QUEUED_WITH_MODELS`] others that still hold theirs.
+    pub rebuild: Option<ModelSource>,
 }
+
+/// Queued videos that may keep their episode's models in memory. A backlog (a loaded machine, a stream of short
+/// episodes) held every ended episode's compiled model until its video was drawn, tens of MB each; beyond these
+/// the later jobs rebuild their models when their turn comes, so a backlog costs seconds, not memory.
+pub const QUEUED_WITH_MODELS: usize = 2;
 
 /// Where one video stands.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -100,10 +110,17 @@ impl VideoQueue {
     }
 
     /// Queues a video (a job for a video already queued or rendering is ignored).
-    pub fn submit(&self, job: VideoJob) {
+    pub fn submit(&self, mut job: VideoJob) {
         let mut s = self.lock();
         if s.stopping || matches!(s.progress.get(&job.video), Some(VideoProgress::Queued | VideoProgress::Rendering { .. })) {
             return;
+        }
+        let holding = s.jobs.iter().filter(|j| j.rebuild.is_some()).count();
+        if holding >= QUEUED_WITH_MODELS
+            && let Some(rebuild) = job.rebuild.take()
+        {
+            // the held models go with the replaced source
+            job.source = rebuild;
         }
         s.progress.insert(job.video.clone(), VideoProgress::Queued);
         s.jobs.push_back(job);
@@ -246,5 +263,66 @@ fn worker(weak: std::sync::Weak<Shared>, cameras: VideoCameras) {
             }
         }
         shared.changed.notify_all();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::mpsc;
+
+    use super::*;
+
+    /// A job whose held "models" are `token` (alive while the job's source is) and whose rebuild holds nothing.
+    fn job(dir: &Path, n: usize, token: Arc<()>) -> VideoJob {
+        VideoJob {
+            record: dir.join(format!("record-{n}.bin")),
+            video: dir.join(format!("video-{n}.mp4")),
+            source: Box::new(move || {
+                drop(token);
+                Err("held models (test)".into())
+            }),
+            rebuild: Some(Box::new(|| Err("rebuilt models (test)".into()))),
+        }
+    }
+
+    /// Behind a video being drawn, only [`QUEUED_WITH_MODELS`] queued videos keep their episode's models; the
+    /// later ones let go of them at once and rebuild when their turn comes, so a backlog of ended episodes does not
+    /// hold every one's compiled model in memory. A queue that kept every job's models leaves all tokens alive.
+    #[test]
+    fn a_video_backlog_holds_the_models_of_only_the_first_queued_videos() {
+        let dir = tempfile::tempdir().unwrap();
+        let queue = VideoQueue::start(crate::world::head_wrist_cameras()).unwrap();
+        // The first job blocks the worker until released, so the others queue behind it.
+        let (release, blocked) = mpsc::channel::<()>();
+        queue.submit(VideoJob {
+            record: dir.path().join("record-0.bin"),
+            video: dir.path().join("video-0.mp4"),
+            source: Box::new(move || {
+                let _ = blocked.recv();
+                Err("first (test)".into())
+            }),
+            rebuild: None,
+        });
+        while !queue.lock().busy {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let tokens: Vec<Arc<()>> = (0..6).map(|_| Arc::new(())).collect();
+        for (n, token) in tokens.iter().enumerate() {
+            queue.submit(job(dir.path(), n + 1, token.clone()));
+        }
+        let held: Vec<bool> = tokens.iter().map(|t| Arc::strong_count(t) > 1).collect();
+        assert_eq!(held, [true, true, false, false, false, false], "which queued videos still hold their models");
+        // Each job still runs (with the models it holds or rebuilds), and every one is accounted for.
+        release.send(()).unwrap();
+        assert!(queue.wait_idle(Duration::from_secs(30)), "the queue drains");
+        for n in 1..=6 {
+            let video = dir.path().join(format!("video-{n}.mp4"));
+            let expected = if n <= QUEUED_WITH_MODELS { "held models (test)" } else { "rebuilt models (test)" };
+            match queue.progress(&video) {
+                Some(VideoProgress::Failed { error }) => assert!(error.contains(expected), "video {n}: {error}"),
+                other => panic!("video {n}: {other:?}"),
+            }
+        }
+        assert!(tokens.iter().all(|t| Arc::strong_count(t) == 1), "no job keeps models after it ran");
     }
 }

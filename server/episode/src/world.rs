@@ -275,7 +275,14 @@ impl World for LiberoWorld {
 /// which renders it from the record.
 impl LiberoWorld {
     /// Records every later control step into `record` and queues `video` on `queue` when the world ends (§6.1).
-    pub fn record_video(&mut self, video: &std::path::Path, record: &std::path::Path, queue: VideoQueue) -> Result<(), EpisodeError> {
+    /// `rebuild` builds the video's models anew when the video has to queue behind others (see [`VideoJob::rebuild`]).
+    pub fn record_video(
+        &mut self,
+        video: &std::path::Path,
+        record: &std::path::Path,
+        queue: VideoQueue,
+        rebuild: Option<crate::video_queue::ModelSource>,
+    ) -> Result<(), EpisodeError> {
         let counter = self.live.as_ref().map(WorldTap::frame_counter);
         let model = self.physics.model().clone();
         let nmocap = model.ffi().nmocap as usize;
@@ -295,7 +302,7 @@ impl LiberoWorld {
             }
         };
         self.physics.sim.set_step_observer(Some(Box::new(observe)));
-        self.video = Some(PendingVideo { video: video.to_owned(), record: record.to_owned(), queue });
+        self.video = Some(PendingVideo { video: video.to_owned(), record: record.to_owned(), queue, rebuild });
         Ok(())
     }
 
@@ -322,7 +329,7 @@ impl LiberoWorld {
         self.physics.sim.set_step_observer(None);
         let Some(p) = self.video.take() else { return };
         let models = self.video_models();
-        p.queue.submit(VideoJob { record: p.record, video: p.video, source: Box::new(move || Ok(models)) });
+        p.queue.submit(VideoJob { record: p.record, video: p.video, source: Box::new(move || Ok(models)), rebuild: p.rebuild });
     }
 }
 
@@ -331,6 +338,7 @@ struct PendingVideo {
     video: std::path::PathBuf,
     record: std::path::PathBuf,
     queue: VideoQueue,
+    rebuild: Option<crate::video_queue::ModelSource>,
 }
 
 impl Drop for LiberoWorld {

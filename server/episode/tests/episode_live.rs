@@ -53,7 +53,7 @@ fn a_live_episode_reports_calls_steps_frames_telemetry_and_its_end() {
     let handle = spawn_episode_live(cfg.clone(), Some(sink), move || {
         let mut w = LiberoWorld::new(&spec, renderer)?;
         w.set_live(world_sink, viewers, Some(&telemetry))?;
-        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(head_wrist_cameras()).expect("video worker"))?;
+        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(head_wrist_cameras()).expect("video worker"), None)?;
         Ok(w)
     })
     .expect("episode");
@@ -159,7 +159,7 @@ fn watched_episode(frame_delay: Duration) -> Watched {
     let handle = spawn_episode_live(cfg, Some(sink), move || {
         let mut w = LiberoWorld::new(&spec, renderer)?;
         w.set_live(world_sink, world_viewers, None)?;
-        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(head_wrist_cameras()).expect("video worker"))?;
+        w.record_video(&video, &video.with_file_name("state_record.bin"), VideoQueue::start(head_wrist_cameras()).expect("video worker"), None)?;
         *world_counter.lock().unwrap() = w.live_render_counter();
         Ok(w)
     })

@@ -39,7 +39,7 @@ fn video_episode(dir: &Path, name: &str, wall_s: f64, renderer: &Renderer) -> (E
     let (r, q) = (renderer.clone(), queue.clone());
     let handle = spawn_episode(cfg, move || {
         let mut w = LiberoWorld::new(&spec, r)?;
-        w.record_video(&video, &record, q)?;
+        w.record_video(&video, &record, q, None)?;
         Ok(w)
     })
     .expect("episode");

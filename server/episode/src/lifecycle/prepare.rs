@@ -160,6 +160,14 @@ impl EpisodeSet {
             views.mark_branch(&episode_id, &b.request.parent, b.request.step);
         }
         let world_live = live.clone();
+        // A video that queues behind others draws with models built anew from the same settings (the poses come
+        // from the state record), not with the ended world's.
+        let rebuild = {
+            let (spec, renderer) = (spec.clone(), renderer.clone());
+            move || -> Result<crate::video_queue::VideoModels, String> {
+                Ok(LiberoWorld::new(&spec, renderer).map_err(|e| e.to_string())?.video_models())
+            }
+        };
         let make_world = move || {
             let mut world = LiberoWorld::new(&spec, renderer)?;
             world.set_start_prefix(prefix);
@@ -167,7 +175,7 @@ impl EpisodeSet {
                 world.set_live(sink, viewers, Some(&telemetry))?;
             }
             if let Some(queue) = video_queue {
-                world.record_video(&video, &state_record, queue)?;
+                world.record_video(&video, &state_record, queue, Some(Box::new(rebuild)))?;
             }
             Ok(world)
         };

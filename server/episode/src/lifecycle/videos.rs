@@ -96,7 +96,7 @@ impl EpisodeSet {
                 let world = LiberoWorld::new(&spec, renderer).map_err(|e| e.to_string())?;
                 Ok(world.video_models())
             });
-            queue.submit(VideoJob { record: run.state_record(), video: run.continuous_video(), source });
+            queue.submit(VideoJob { record: run.state_record(), video: run.continuous_video(), source, rebuild: None });
             n += 1;
         }
         n
