@@ -1,8 +1,8 @@
 //! The console as its users live in it (issue 33): the operator token stays the same across restarts of a data
 //! directory and open browser sessions survive them, until `serve --rotate-token`; the login link `serve` prints
 //! works exactly once, also across a restart; the login page of a loopback server says where it listens and
-//! where the token is; every browser route answers errors as a page with the console's navigation while `/api/`
-//! keeps JSON; `/favicon.ico` is an icon; `expert --pace realtime` sends 20 actions per second of wall time.
+//! where the token is; `expert --pace realtime` sends 20 actions per second of wall time. (Error pages with the
+//! navigation, `/api/` keeping JSON and the icon are checked in process: `routes_in_process`.)
 //! Chromium (`tests/dashboard/console_errors.cjs`) looks at the login and error pages; screenshots go to
 //! `target/test-artifacts/console/`.
 mod common;
@@ -191,56 +191,6 @@ fn the_login_page_says_where_the_server_listens_and_where_the_token_is() {
     let (status, _, body) = get_with(&format!("{}/login", wide.local()), &[]);
     assert_eq!(status, 200);
     assert!(body.contains("beyond loopback") && body.contains("0.0.0.0:"), "{body}");
-}
-
-#[test]
-fn browser_routes_answer_errors_as_pages_with_the_navigation_and_api_routes_as_json() {
-    let tmp = tempfile::tempdir().unwrap();
-    let server = Server::start(&tmp.path().join("data"));
-    let op = format!("Bearer {}", server.token);
-    let auth: &[(&str, &str)] = &[("Authorization", &op)];
-    let base = &server.url;
-    let page_errors = [
-        ("/no/such/page", 404, "no page at this address"),
-        ("/episodes/ep-20990101T000000Z-none/review", 404, "ep-20990101T000000Z-none"),
-        ("/episodes/ep-20990101T000000Z-none", 404, "ep-20990101T000000Z-none"),
-        ("/episodes/bad..id/review", 404, "no such episode"),
-        ("/episodes/%FF/review", 400, ""),
-        ("/teleop/T999", 404, "T999"),
-    ];
-    for (path, want, words) in page_errors {
-        let (status, head, body) = get_with(&format!("{base}{path}"), auth);
-        assert_eq!(status, want, "{path}: {head}\n{body}");
-        assert!(content_type(&head).starts_with("text/html"), "{path} answers a page: {head}\n{body}");
-        assert!(body.contains("<nav>") && body.contains("href=\"/tasks\"") && body.contains("href=\"/results\""), "{path} carries the navigation: {body}");
-        assert!(body.contains("id=\"error-message\"") && body.contains(words), "{path} says what went wrong ({words}): {body}");
-    }
-    // A gzip-accepting browser gets the page too (error answers are not compressed before they become pages).
-    let (status, head, body) = get_with(&format!("{base}/episodes/ep-20990101T000000Z-none/review"), &[auth[0], ("Accept-Encoding", "gzip")]);
-    assert_eq!(status, 404);
-    assert!(content_type(&head).starts_with("text/html") && body.contains("ep-20990101T000000Z-none"), "{head}\n{body}");
-    // Without the credential an unknown address is still a page; known pages still lead to the login form.
-    let (status, head, body) = get_with(&format!("{base}/nowhere"), &[]);
-    assert!(status == 404 && content_type(&head).starts_with("text/html") && body.contains("<nav>"), "{head}\n{body}");
-    let (status, head, _) = get_with(&format!("{base}/episodes/ep-20990101T000000Z-none/review"), &[]);
-    assert!(status == 303 && head.to_ascii_lowercase().contains("location: /login"), "{head}");
-
-    for (path, want) in [("/api/episodes/ep-20990101T000000Z-none", 404), ("/api/episodes/ep-20990101T000000Z-none/review", 404), ("/api/no-such-route", 404)] {
-        let (status, head, body) = get_with(&format!("{base}{path}"), auth);
-        assert_eq!(status, want, "{path}: {body}");
-        assert!(content_type(&head).starts_with("application/json"), "{path} keeps JSON: {head}");
-        let v: Value = serde_json::from_str(&body).unwrap_or_else(|e| panic!("{path}: {body:?} is not JSON: {e}"));
-        assert_eq!(v["ok"], false, "{v}");
-        assert!(v["error"].as_str().is_some_and(|e| !e.is_empty()), "{v}");
-    }
-    let (status, head, _) = get_with(&format!("{base}/api/episodes"), &[]);
-    assert!(status == 401 && content_type(&head).starts_with("application/json"), "the API's 401 stays JSON: {head}");
-
-    let (status, head, icon) = http("GET", &format!("{base}/favicon.ico"), &[], b"");
-    assert_eq!(status, 200, "the favicon is served to anyone: {head}");
-    assert!(content_type(&head).starts_with("image/x-icon"), "{head}");
-    assert_eq!(&icon[..4], &[0, 0, 1, 0], "an ICO file");
-    assert!(icon.len() > 100);
 }
 
 fn artifacts_dir() -> PathBuf {

@@ -367,6 +367,16 @@ async fn an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes() {
     let review = assert_page(&server.get_as_operator(&format!("/episodes/{id}/review")).await, "the review page");
     assert!(review.contains(&id), "{review}");
     assert_error_page(&server.get_as_operator(&format!("/episodes/{NOBODY}/review")).await, 404, NOBODY, "an unknown review");
+    let undecodable = server.get_as_operator("/episodes/%FF/review").await;
+    assert_eq!(undecodable.status, 400, "{}", undecodable.text());
+    assert!(has_navigation(&undecodable.text()) && undecodable.text().contains("id=\"error-message\""), "{}", undecodable.text());
+    // A gzip-accepting browser gets the error page too (error answers are not compressed before they become pages).
+    let bearer = format!("Bearer {}", server.token());
+    let gzip = server.send(axum_method("GET"), &format!("/episodes/{NOBODY}/review"), &[("authorization", &bearer), ("accept-encoding", "gzip")], Vec::new()).await;
+    assert_error_page(&gzip, 404, NOBODY, "an unknown review asked with gzip");
+    // And a page that succeeds is compressed for it.
+    let gzipped = server.send(axum_method("GET"), &format!("/episodes/{id}/review"), &[("authorization", &bearer), ("accept-encoding", "gzip")], Vec::new()).await;
+    assert_eq!((gzipped.status, gzipped.header("content-encoding")), (200, Some("gzip")), "{:?}", gzipped.headers);
     let data = server.get_as_operator(&format!("/api/episodes/{id}/review")).await.json();
     assert_eq!(data["ok"], true, "{data}");
     for key in ["stage_events", "calls", "telemetry", "video", "video_status", "result"] {

@@ -3,14 +3,14 @@
 //! without `--batches` right after `run` ends; `run` names that Results URL and the `report` command; its episode
 //! carries harness, model and batch (and the home page's harness/batch filters find it), an expert's episode carries
 //! harness `expert`; `report` and the Results page use the batch's own repetitions (1) by default and agree; every
-//! row shows tokens with their source, and the Results page shows the agent toolbox each batch ran with. The
-//! registration route is operator-only: no token and an episode token get 401.
+//! row shows tokens with their source, and the Results page shows the agent toolbox each batch ran with. (That the
+//! registration route is operator-only, refusing no token and an episode token, is `routes_in_process`'s.)
 mod common;
 
 use std::path::Path;
 use std::process::Command;
 
-use common::{Server, bin, http, http_get_json, http_get_text};
+use common::{Server, bin, http_get_json, http_get_text};
 use serde_json::{Value, json};
 
 fn libero(args: &[&str]) -> std::process::Output {
@@ -128,29 +128,6 @@ fn a_batch_run_against_a_server_is_on_its_results_page_without_flags_and_its_epi
     let out = run_t14(&server.url, &other, &dir.path().join("ws2"));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("already has a batch named \"srv_batch\""), "{err}");
-}
-
-#[test]
-fn only_the_operator_registers_batches() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let server = Server::start(&data);
-    let body = json!({"name": "sneaky", "dir": "/tmp/sneaky", "doc": {"schema_version": "libero_agent.batch.v1", "settings": {}},
-        "records": []})
-    .to_string();
-    let url = format!("{}/api/batches", server.url);
-    let json_type = ("Content-Type", "application/json");
-    let (status, _, _) = http("POST", &url, &[json_type], body.as_bytes());
-    assert_eq!(status, 401, "no token");
-    let prepared = common::prepare_t14(&server.url, &dir.path().join("ws"));
-    let episode_auth = prepared["mcp_headers"]["Authorization"].as_str().expect("the episode's bearer").to_owned();
-    let (status, _, _) = http("POST", &url, &[json_type, ("Authorization", &episode_auth)], body.as_bytes());
-    assert_eq!(status, 401, "an episode token opens its MCP endpoint only");
-    let operator = format!("Bearer {}", server.token);
-    let (status, _, _) = http("POST", &url, &[json_type, ("Authorization", &operator)], body.as_bytes());
-    assert_eq!(status, 200, "the operator registers it");
-    let (_, all) = http_get_json(&format!("{}/api/results", server.url));
-    assert!(all["available"].as_array().unwrap().contains(&json!("sneaky")));
 }
 
 #[test]
