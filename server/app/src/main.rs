@@ -6,7 +6,6 @@ mod cmd_inspect;
 mod cmd_render;
 mod cmd_sim;
 mod cmd_tasks;
-mod logging;
 #[cfg(feature = "episode-serve")]
 mod bench_mcp;
 #[cfg(feature = "episode-serve")]
@@ -46,8 +45,8 @@ struct Cli {
     command: Command,
     /// Log lines on stderr as text for people or one JSON object a line for machines (filter: RUST_LOG,
     /// default `info` for libero-agent's own crates and `warn` for the rest).
-    #[arg(long, global = true, value_enum, default_value_t = logging::LogFormat::Text)]
-    log_format: logging::LogFormat,
+    #[arg(long, global = true, value_enum, default_value_t = libero_logging::LogFormat::Text)]
+    log_format: libero_logging::LogFormat,
 }
 
 #[derive(Subcommand)]
@@ -137,9 +136,9 @@ fn main() -> anyhow::Result<()> {
     #[cfg(not(feature = "episode-serve"))]
     let renders = true;
     if renders {
-        logging::ensure_runtime_dir();
+        libero_logging::ensure_runtime_dir();
     }
-    logging::init(cli.log_format);
+    libero_logging::init(cli.log_format);
     match cli.command {
         Command::Sim(c) => cmd_sim::run_sim(&c),
         Command::Render(a) => cmd_render::run(&a),

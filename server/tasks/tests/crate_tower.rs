@@ -17,6 +17,8 @@ const TOWER: &[(&str, &[&str])] = &[
     ("libero-episode", &["libero-bddl", "libero-sim", "libero-render", "libero-tasks", "libero-records"]),
     ("libero-store", &["libero-records"]),
     ("libero-artifacts", &[]),
+    // The binaries' logger, shared by libero-agent and libero-worker.
+    ("libero-logging", &[]),
     // The paper's reports and the batch readers: records and metrics only (the catalog's facts come in as data).
     ("libero-report", &["libero-records", "libero-metrics"]),
     (
@@ -25,7 +27,8 @@ const TOWER: &[(&str, &[&str])] = &[
     ),
     (
         "libero-runner",
-        &["libero-tasks", "libero-metrics", "libero-records", "libero-episode", "libero-store", "libero-artifacts", "libero-report", "libero-server"],
+        &["libero-tasks", "libero-metrics", "libero-records", "libero-episode", "libero-store", "libero-artifacts", "libero-report", "libero-server",
+            "libero-logging"],
     ),
     (
         "libero-dashboard",
@@ -38,7 +41,7 @@ const TOWER: &[(&str, &[&str])] = &[
         "libero-agent",
         &[
             "libero-bddl", "libero-sim", "libero-render", "libero-records", "libero-tasks", "libero-metrics", "libero-episode",
-            "libero-store", "libero-report", "libero-server", "libero-runner", "libero-dashboard",
+            "libero-store", "libero-report", "libero-server", "libero-runner", "libero-dashboard", "libero-logging",
         ],
     ),
     // The tests' helpers, above everything (no crate's `[dependencies]` may name it; `[dev-dependencies]` do).

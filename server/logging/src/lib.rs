@@ -1,5 +1,5 @@
-//! The process's logger and the environment the renderer needs to stay quiet: shared by the `libero-agent` binary
-//! and `libero-worker` (which includes this file by path, as it links neither the app nor its CLI).
+//! The process's logger and the environment the renderer needs to stay quiet: one crate for the `libero-agent` binary
+//! and `libero-worker` (which links neither the app nor its CLI).
 //!
 //! - Logs go to stderr through `tracing`, filtered by `RUST_LOG` (default: `info` for the project's crates,
 //!   `warn` for everything else); `--log-format json` writes one JSON object a line for machines. The `log` crate's
