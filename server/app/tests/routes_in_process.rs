@@ -29,7 +29,7 @@ const ROUTES: &[(&str, &str)] = &[
     ("/api/episodes/{id}/agent", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/api/episodes/{id}/moment", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/api/episodes/{id}/stages", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
-    ("/api/episodes/{id}/finish", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
+    ("/api/episodes/{id}/finish", "a_teleop_episode_starts_and_is_finished_and_judged"),
     ("/episodes/{id}", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/episodes/{id}/review", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/episodes/{id}/video.mp4", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
@@ -52,7 +52,7 @@ const ROUTES: &[(&str, &str)] = &[
     ("/demos", "the_console_pages_render_with_the_navigation"),
     ("/tasks/{id}/thumbnail.png", "thumbnails_refuse_unknown_tasks_and_cameras"),
     ("/tasks/{suite}/{task_id}/thumbnail.png", "thumbnails_refuse_unknown_tasks_and_cameras"),
-    ("/api/teleop", "teleop_and_demo_routes_refuse_bad_bodies_and_unknown_bundles"),
+    ("/api/teleop", "a_teleop_episode_starts_and_is_finished_and_judged"),
     ("/api/teleop/{id}/save", "teleop_and_demo_routes_refuse_bad_bodies_and_unknown_bundles"),
     ("/api/demos/export", "teleop_and_demo_routes_refuse_bad_bodies_and_unknown_bundles"),
     ("/api/demos/{task}/{bundle}/verify", "teleop_and_demo_routes_refuse_bad_bodies_and_unknown_bundles"),
@@ -408,6 +408,12 @@ async fn an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes() {
     assert_refused(&server.get_as_operator(&moment).await, 400, "step must be a control step number", "a moment without its step");
     assert_refused(&server.get_as_operator(&format!("{moment}?step=soon")).await, 400, "(got \"soon\")", "a moment at no step");
     assert_refused(&server.get_as_operator(&format!("/api/episodes/{NOBODY}/moment?step=0")).await, 404, NOBODY, "an unknown episode's moment");
+    // The state before any action, rendered from the episode's record.
+    let first = server.get_as_operator(&format!("{moment}?step=0")).await;
+    assert_eq!(first.status, 200, "{}", first.text());
+    assert_eq!((first.header("content-type"), first.header("x-control-step"), first.header("x-control-steps")), (Some("image/jpeg"), Some("0"), Some("0")));
+    assert_eq!(&first.body[..2], &[0xff, 0xd8], "a JPEG");
+    assert_refused(&server.get_as_operator(&format!("{moment}?step=7")).await, 400, "7", "a moment after the last step");
     let stages = format!("/api/episodes/{id}/stages");
     assert_refused(&server.get_as_operator(&stages).await, 404, "is no rollout of a batch", "the stages of an episode of no batch");
     assert_refused(&server.post_json_as_operator(&stages, &json!({"stage_name": "s"})).await, 400, "body must be", "an annotation without its fields");
@@ -446,6 +452,31 @@ async fn an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes() {
     assert!(stream.text().contains("must accept text/event-stream"), "{}", stream.text());
     let home = assert_page(&server.get_as_operator("/?batch=in-process").await, "the home page's batch filter");
     assert!(home.contains(&id), "the batch filter finds the episode: {home}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_teleop_episode_starts_and_is_finished_and_judged() {
+    let server = TestServer::start().await;
+    let started = server.post_json_as_operator("/api/teleop", &json!({"task": "T14", "seed": 100})).await;
+    assert_eq!(started.status, 200, "{}", started.text());
+    let started = started.json();
+    assert_eq!((started["ok"].as_bool(), started["task"].as_str(), started["seed"].as_u64()), (Some(true), Some("T14"), Some(100)), "{started}");
+    let id = started["episode_id"].as_str().expect("episode_id").to_owned();
+    let row = server.get_as_operator(&format!("/api/episodes/{id}")).await.json();
+    assert_eq!((row["harness"].as_str(), row["model"].as_str(), row["batch"].as_str()), (Some("teleop"), Some("human"), Some("teleop")), "{row}");
+    assert!(row["state"] == "active" && row["started_at"].is_string(), "started on creation: {row}");
+
+    // Finish and judge: nothing was done, so the task is not solved; a second finish answers the verdict as it stands.
+    let finish = format!("/api/episodes/{id}/finish");
+    let judged = server.post_json_as_operator(&finish, &json!({})).await;
+    assert_eq!(judged.status, 200, "{}", judged.text());
+    let judged = judged.json();
+    assert_eq!((judged["episode_id"].as_str(), judged["success"].as_bool()), (Some(id.as_str()), Some(false)), "{judged}");
+    assert!(judged["required_stage_count"].as_u64().is_some_and(|k| k >= 1), "{judged}");
+    assert_eq!(judged["outcome"], "FAIL", "{judged}");
+    let again = server.post_json_as_operator(&finish, &json!({})).await;
+    assert_eq!(again.status, 200, "{}", again.text());
+    assert_eq!(again.json()["outcome"], "FAIL");
 }
 
 /// A finished batch of one T14 rollout of the `command` harness, with its stdout log, under `dir`.
