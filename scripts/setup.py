@@ -180,7 +180,7 @@ TOOLBOX_SCHEMA = "libero-agent.toolbox.v1"
 
 def toolbox_dir_name(spec: dict) -> str:
     """`toolbox-<name>-<12 hex>`: the hash covers the interpreter and every wheel's sha256, so a changed lock is a new
-    directory (the runner computes the same name from the same lock: server/runner/src/toolbox.rs)."""
+    directory (the runner computes the same name from the same lock: server/sandbox/src/toolbox.rs)."""
     text = "\n".join([spec["interpreter"]] + [w["sha256"] for w in spec["wheels"]])
     return f"toolbox-{spec['name']}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
 

@@ -93,7 +93,7 @@ enum Command {
     /// loopback addresses to the runner's sockets, drops every privilege, then starts the agent.
     #[cfg(feature = "episode-serve")]
     #[command(hide = true)]
-    SandboxNet(libero_runner::sandbox_net::SandboxNetArgs),
+    SandboxNet(libero_sandbox::sandbox_net::SandboxNetArgs),
 }
 
 #[derive(Subcommand)]
@@ -186,6 +186,6 @@ fn main() -> anyhow::Result<()> {
         #[cfg(feature = "episode-serve")]
         Command::Agent(a) => cmd_agent::run(a),
         #[cfg(feature = "episode-serve")]
-        Command::SandboxNet(a) => std::process::exit(libero_runner::sandbox_net::run(&a)?),
+        Command::SandboxNet(a) => std::process::exit(libero_sandbox::sandbox_net::run(&a)?),
     }
 }

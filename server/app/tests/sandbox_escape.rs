@@ -117,7 +117,7 @@ fn run_batch(runner: &Runner, batch: &Path, workspaces: &Path, credentials: &Pat
 fn cache_for(dir: &Path, uid: u32, gid: u32) -> PathBuf {
     let copy = dir.join("cache");
     std::fs::create_dir(&copy).unwrap();
-    let toolbox = libero_runner::toolbox::project_dir_name().expect("toolbox name");
+    let toolbox = libero_sandbox::toolbox::project_dir_name().expect("toolbox name");
     for part in ["mujoco-3.17.0", "robosuite-1.4.0", "hf-libero-0.1.4", "libero-assets-0.1.0", toolbox.as_str()] {
         let st = Command::new("cp").arg("-al").arg(cache_dir().join(part)).arg(&copy).status().unwrap();
         assert!(st.success(), "cp -al {part}");

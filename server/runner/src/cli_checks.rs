@@ -9,10 +9,12 @@ use std::process::{Output, Stdio};
 
 use serde_json::{Value, json};
 
-use super::harness::{Credentials, Harness, Launch, LaunchContext, QWEN_PACKAGE, build_launch, claude_mcp_config, qwen_mcp_config};
-use super::agent_net::{NetPlan, contain};
+use super::harness::{
+    Credentials, Harness, Launch, LaunchContext, QWEN_PACKAGE, agent_credentials, build_launch, claude_mcp_config, net_plan, qwen_mcp_config,
+};
+use libero_sandbox::agent_net::{NetPlan, contain};
 use super::rollout::write_launch_files;
-use super::sandbox::Sandbox;
+use libero_sandbox::sandbox::Sandbox;
 use libero_server::client::{InProcessServer, prepare_episode};
 use libero_server::episodes::{PrepareRequest, Prepared};
 
@@ -73,7 +75,7 @@ impl Episode {
     /// a closed loopback port: nothing here talks to a model, and nothing waits on a name lookup.
     fn launch(&self, harness: Harness) -> Launch {
         let creds = Credentials { api_base: Some("http://127.0.0.1:9".into()), api_key: "sk-config-check-0123".into(), source: "/c".into() };
-        let creds = self.plan(harness).agent_credentials(&creds);
+        let creds = agent_credentials(&self.plan(harness), &creds);
         let prompt_file = self.prepared.prompt_file.clone();
         let ctx = LaunchContext {
             harness,
@@ -105,7 +107,7 @@ impl Episode {
     /// The agent's network as `run` plans it: the model API is the launch's closed loopback port.
     fn plan(&self, harness: Harness) -> NetPlan {
         let creds = Credentials { api_base: Some("http://127.0.0.1:9".into()), api_key: "sk-config-check-0123".into(), source: "/c".into() };
-        NetPlan::new(harness, &self.prepared.mcp_url, Some(&creds), false).unwrap()
+        net_plan(harness, &self.prepared.mcp_url, Some(&creds), false).unwrap()
     }
 
     /// Runs `argv` as `run` runs the agent: sandboxed in its own network namespace behind the runner's relays, in
@@ -116,7 +118,7 @@ impl Episode {
         let this = Launch { argv, env: launch.env.clone(), files: Vec::new() };
         let private = self._dir.path().join(format!("private-{}", harness.as_str()));
         let mut contained =
-            contain(Some(&sandbox), Some(&self.plan(harness)), &this, &self.prepared.workspace, &self.home, &libero_agent_exe(), &private).unwrap();
+            contain(Some(&sandbox), Some(&self.plan(harness)), &this.argv, &this.env, &self.prepared.workspace, &self.home, &libero_agent_exe(), &private).unwrap();
         assert!(contained.argv.iter().all(|a| !a.contains(&self.token)), "the episode token is on a command line: {:?}", contained.argv);
         let mut cmd = contained.command();
         let out = cmd.current_dir(&self.prepared.workspace).stdin(Stdio::null()).output().unwrap();
@@ -152,7 +154,7 @@ fn launch_file(launch: &Launch, name: &str) -> Value {
 #[test]
 fn the_papers_and_the_tests_cli_versions_resolve_to_executables_that_print_them() {
     use super::harness_versions::{install_dir, probe, resolve};
-    let cache = super::host_paths::cache_dir();
+    let cache = libero_sandbox::host_paths::cache_dir();
     let path = std::ffi::OsString::from(format!("{}:/usr/bin:/bin", cli_dir().display()));
     for (harness, version) in [(Harness::Codex, "0.154.0"), (Harness::ClaudeCode, "2.1.139"), (Harness::Codex, "0.169.0"), (Harness::ClaudeCode, "2.1.330")] {
         let exe = resolve(harness, version, &cache, &path).unwrap_or_else(|e| panic!("{e:#}\n({SETUP_HINT})"));

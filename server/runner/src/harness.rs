@@ -10,6 +10,7 @@ use anyhow::{Context, bail};
 use serde_json::{Value, json};
 
 use libero_episode::tools::{MCP_SERVER_KEY, ToolName};
+use libero_sandbox::agent_net::NetPlan;
 
 /// The agent CLIs the runner knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
@@ -126,6 +127,15 @@ impl Harness {
         }
         out
     }
+
+    /// Where the agent's model traffic goes when the credentials name no base URL: each CLI's own default.
+    pub fn default_api_base(self) -> Option<&'static str> {
+        match self {
+            Harness::Codex | Harness::QwenCode => Some("https://api.openai.com/v1"),
+            Harness::ClaudeCode => Some("https://api.anthropic.com"),
+            _ => None,
+        }
+    }
 }
 
 /// A model API's wire protocol, as a client calls it below its API base.
@@ -167,7 +177,7 @@ impl ModelApi {
 /// directly; otherwise `npx --yes <package>@<version>`, which downloads it into each rollout's fresh home.
 pub fn pinned_npm_cli_installed(harness: Harness) -> bool {
     let Some((package, command)) = harness.npm_cli() else { return false };
-    let Some(path) = super::sandbox::which(command) else { return false };
+    let Some(path) = libero_sandbox::host_paths::which(command) else { return false };
     let pinned = package.rsplit('@').next().unwrap_or_default();
     let out = std::process::Command::new(path).arg("--version").stdin(std::process::Stdio::null()).output();
     out.is_ok_and(|o| o.status.success() && String::from_utf8_lossy(&o.stdout).split_whitespace().any(|w| w.trim_start_matches('v') == pinned))
@@ -248,6 +258,19 @@ impl Credentials {
     pub fn anthropic_base(&self) -> Option<String> {
         self.api_base.as_ref().map(|b| b.trim_end_matches('/').trim_end_matches("/v1").to_owned())
     }
+}
+
+/// The network plan ([`NetPlan`]) of an agent of `harness` on the episode at `mcp_url`: its model traffic to the
+/// credentials' base URL (else the CLI's default), through the harness's own endpoints only; `via_npx` when the
+/// harness's CLI is fetched by `npx` at launch.
+pub fn net_plan(harness: Harness, mcp_url: &str, credentials: Option<&Credentials>, via_npx: bool) -> anyhow::Result<NetPlan> {
+    let base = credentials.and_then(|c| c.api_base.clone()).or_else(|| harness.default_api_base().map(str::to_owned));
+    NetPlan::new(mcp_url, base.as_deref(), |path| harness.model_api_endpoints(path), via_npx)
+}
+
+/// The credentials the launch is built from: the key unchanged, the base URL the gateway's.
+pub fn agent_credentials(plan: &NetPlan, c: &Credentials) -> Credentials {
+    Credentials { api_base: plan.agent_api_base().or_else(|| c.api_base.clone()), api_key: c.api_key.clone(), source: c.source.clone() }
 }
 
 /// Everything a launch depends on.
@@ -531,6 +554,35 @@ mod tests {
         for h in Harness::value_variants() {
             assert_eq!(libero_report::batch::stdout_file(h.as_str()), Some(h.stdout_file()), "{h:?}");
             assert_eq!(libero_report::batch::stderr_file(h.as_str()), Some(format!("{}_stderr.log", h.as_str())), "{h:?}");
+        }
+    }
+
+    fn creds(base: Option<&str>) -> Credentials {
+        Credentials { api_base: base.map(str::to_owned), api_key: "sk-test-000000".into(), source: "/c".into() }
+    }
+
+    /// The plan's harness-specific parts (the generic ones are `libero_sandbox::agent_net`'s tests): each CLI's
+    /// own endpoints below the base, its default base without one, and the credentials the launch gets.
+    #[test]
+    fn the_agent_sees_the_gateway_s_base_and_only_its_harness_s_endpoints() {
+        let c = creds(Some("https://api.example.com/v1/"));
+        let p = net_plan(Harness::Codex, "http://127.0.0.1:41234/mcp/ep-1", Some(&c), false).unwrap();
+        assert_eq!(agent_credentials(&p, &c).openai_base().as_deref(), Some("http://127.0.0.1:18790/v1"));
+        assert_eq!(agent_credentials(&p, &c).api_key, "sk-test-000000");
+        let routes: Vec<String> = p.routes.iter().map(ToString::to_string).collect();
+        assert_eq!(routes, ["POST /v1/responses", "GET /v1/models"], "Codex's endpoints only");
+        // Without a base: the CLI's default upstream.
+        let q = net_plan(Harness::ClaudeCode, "http://localhost:18790/mcp/x", Some(&creds(None)), true).unwrap();
+        assert_eq!(q.upstream.as_ref().map(|u| u.as_str()), Some("https://api.anthropic.com/"));
+        let routes: Vec<String> = q.routes.iter().map(ToString::to_string).collect();
+        assert_eq!(routes, ["POST /v1/messages", "POST /v1/messages/count_tokens", "GET /v1/models"]);
+        let none = net_plan(Harness::Command, "http://127.0.0.1:8080/mcp/x", None, false).unwrap();
+        assert!(none.upstream.is_none() && none.routes.is_empty() && agent_credentials(&none, &creds(None)).api_base.is_none());
+        // A command agent with credentials: every API's endpoints below its base (the escape test's `/models` too).
+        let cmd = net_plan(Harness::Command, "http://127.0.0.1:8080/mcp/x", Some(&creds(Some("http://127.0.0.1:9/v1"))), false).unwrap();
+        let routes: Vec<String> = cmd.routes.iter().map(ToString::to_string).collect();
+        for r in ["POST /v1/chat/completions", "POST /v1/responses", "POST /v1/messages", "GET /v1/models"] {
+            assert!(routes.contains(&r.to_owned()), "{r}: {routes:?}");
         }
     }
 

@@ -19,7 +19,7 @@ use libero_episode::batch_doc::HarnessVersion;
 use serde_json::Value;
 
 use super::harness::Harness;
-use super::host_paths::{cache_dir, which_in};
+use libero_sandbox::host_paths::{cache_dir, which_in};
 
 /// The command that installs the lock's versions.
 pub const SETUP_COMMAND: &str = "python3 scripts/setup.py --harnesses";
@@ -45,7 +45,7 @@ pub struct LockEntry {
 
 /// The lock's `harness_versions` entry of `harness`, if it lists one.
 pub fn lock_entry(harness: Harness) -> Option<LockEntry> {
-    let lock: Value = serde_json::from_str(super::toolbox::LOCK).ok()?;
+    let lock: Value = serde_json::from_str(libero_sandbox::toolbox::LOCK).ok()?;
     let entry = &lock["harness_versions"][harness.as_str()];
     let versions = entry["versions"].as_object()?.iter().map(|(v, why)| (v.clone(), why.as_str().unwrap_or_default().to_owned()));
     Some(LockEntry { package: entry["package"].as_str()?.to_owned(), versions: versions.collect() })

@@ -3,25 +3,16 @@
 //! bubblewrap sandbox, supervised against the episode's wall budget, classified per §4.8, with no automatic
 //! retries. Progress goes to stderr; `batch.json` and `rollouts.jsonl` in the batch directory are what the
 //! report and the dashboard read.
-pub mod agent_net;
 pub mod batch;
 #[cfg(test)]
 mod cli_checks;
 pub mod harness;
 pub mod harness_versions;
-mod host_paths;
 pub mod lines;
-pub mod logs;
-pub mod netgate;
 pub mod queue;
 pub mod report;
 pub mod rollout;
-pub mod sandbox;
-pub mod resources;
-pub mod sandbox_net;
 pub mod schedule;
-pub mod seccomp;
-pub mod toolbox;
 pub mod transcript;
 pub mod usage;
 pub mod worker;
@@ -44,10 +35,11 @@ use serde_json::{Value, json};
 use batch::{BatchSettings, append_record, write_batch_json};
 use libero_report::batch::{BATCH_SCHEMA, RolloutRecord, read_records};
 use harness::{Credentials, Harness, default_credentials_file};
-use sandbox::Sandbox;
 use schedule::{Experiment, PlannedRollout, plan, plan_pool};
-use toolbox::{Toolbox, ToolboxChoice};
 
+use libero_sandbox::resources;
+use libero_sandbox::sandbox::Sandbox;
+use libero_sandbox::toolbox::{self, Toolbox, ToolboxChoice};
 use libero_server::client::InProcessServer;
 
 /// Set by SIGINT/SIGTERM: stop scheduling, stop running agents, record them INTERRUPTED.

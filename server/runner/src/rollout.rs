@@ -19,12 +19,12 @@ use libero_report::batch::{Demo, RolloutRecord};
 use libero_report::usage::Usage;
 use serde_json::{Value, json};
 
-use super::harness::{Harness, Launch, LaunchContext, build_launch};
+use super::harness::{Harness, Launch, LaunchContext, agent_credentials, build_launch, net_plan};
 use super::harness_versions::probe_cli;
-use super::agent_net::{NetPlan, contain};
+use libero_sandbox::agent_net::{NetPlan, contain};
 use super::schedule::PlannedRollout;
-use super::logs::{Limits, scrub_log, scrub_text};
-use super::toolbox::Toolbox;
+use libero_sandbox::logs::{Limits, scrub_log, scrub_text};
+use libero_sandbox::toolbox::Toolbox;
 use super::usage::{UsageFormat, UsageScanner};
 use super::{INTERRUPTED, RunContext};
 use libero_server::client::{get_json, post_json, prepare_episode};
@@ -54,7 +54,7 @@ fn quit_cause(sandboxed: bool, sandbox_reported: bool, model_api_records: Option
     if !sandbox_reported {
         return Some("the sandbox did not start".into());
     }
-    model_api_records.and_then(super::netgate::last_model_api_failure)
+    model_api_records.and_then(libero_sandbox::netgate::last_model_api_failure)
 }
 
 /// An episode the agent left open (`what` happened): the infrastructure's failure when `cause` names one
@@ -71,7 +71,7 @@ fn end_left_episode(ctx: &RunContext, episode_id: &str, what: &str, reason: &str
 }
 
 /// Replaces the API key, `sk-…` tokens and `Bearer …` values with `<redacted>` (the same matcher as the logs'
-/// streaming scrubber, [`super::logs`]).
+/// streaming scrubber, [`libero_sandbox::logs`]).
 pub fn scrub(text: &str, secrets: &[&str]) -> String {
     scrub_text(text, secrets)
 }
@@ -257,11 +257,11 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     // The agent's addresses: its endpoint and its model API through the runner's relays, nothing else.
     let via_npx = ctx.harness.npm_cli().is_some() && !ctx.npm_cli_installed && ctx.cli_path.is_none();
     let net = match ctx.sandbox {
-        Some(_) => Some(NetPlan::new(ctx.harness, &prepared.mcp_url, ctx.credentials.as_ref(), via_npx)?),
+        Some(_) => Some(net_plan(ctx.harness, &prepared.mcp_url, ctx.credentials.as_ref(), via_npx)?),
         None => None,
     };
     let agent_credentials = ctx.credentials.as_ref().map(|c| match &net {
-        Some(p) => p.agent_credentials(c),
+        Some(p) => agent_credentials(p, c),
         None => c.clone(),
     });
     let lctx = LaunchContext {
@@ -285,7 +285,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     // The version this rollout runs: `--version` of the very executable launched next, not the batch's first look.
     rec.harness_version = probe_cli(ctx.harness, ctx.npm_cli_installed, ctx.cli_path.as_deref());
     write_launch_files(&launch)?;
-    let mut contained = contain(sandbox.as_ref(), net.as_ref(), &launch, &prepared.workspace, &home, &ctx.self_exe, &dir.join("sandbox"))?;
+    let mut contained = contain(sandbox.as_ref(), net.as_ref(), &launch.argv, &launch.env, &prepared.workspace, &home, &ctx.self_exe, &dir.join("sandbox"))?;
     let stdout_name = ctx.harness.stdout_file();
     let stderr_name = format!("{}_stderr.log", ctx.harness.as_str());
     let stdout_path = log_dir.join(&stdout_name);
@@ -465,7 +465,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     }
     // What the runner's gateway saw of the agent's model traffic (never a file the agent can write): its token
     // figures count whenever it has any, stdout's only without them (the agent can print into its CLI's stdout).
-    let model_api = model_api_records.as_deref().and_then(|p| super::netgate::summarize(p).ok());
+    let model_api = model_api_records.as_deref().and_then(|p| libero_sandbox::netgate::summarize(p).ok());
     let usage = super::usage::choose(usage, model_api.as_ref());
     let usage_source = usage.source.clone();
     rec.usage = Some(usage);

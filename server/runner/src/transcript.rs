@@ -40,7 +40,7 @@ use serde_json::{Map, Value, json};
 
 use crate::harness::Harness;
 use crate::lines::{Line, LineSplitter};
-use crate::logs::scrub_text;
+use libero_sandbox::logs::scrub_text;
 
 /// Lines longer than this are counted, not parsed (a CLI's line carrying an image is a few hundred KiB).
 pub const MAX_LINE_BYTES: usize = 1 << 20;
@@ -880,7 +880,7 @@ impl Normalizer {
     /// when the request was refused or failed; its counters line (`{"kind": "overflow", …}`: the requests past its
     /// record cap, appended when it stops) is one note of the runner's.
     fn gateway(&mut self, b: &[u8]) -> Option<Captured> {
-        let Ok(r) = serde_json::from_slice::<crate::netgate::Record>(b) else {
+        let Ok(r) = serde_json::from_slice::<libero_sandbox::netgate::Record>(b) else {
             return Some(match serde_json::from_slice::<Value>(b) {
                 Ok(Value::Object(m)) if m.get("kind").and_then(Value::as_str) == Some("overflow") => {
                     Captured { notice: true, ..Captured::new(say(Kind::Other, Source::Runner, overflow_text(&m)), Label::Name("overflow")) }
@@ -893,7 +893,7 @@ impl Normalizer {
         if let Some(u) = &r.usage {
             return Some(Captured::new(usage_event(Source::ModelApiGateway, u.counts, &format!("model request {what}")), label));
         }
-        let refused = r.mode == crate::netgate::Mode::Refused;
+        let refused = r.mode == libero_sandbox::netgate::Mode::Refused;
         (refused || r.error.is_some() || r.status >= 400).then(|| {
             let why = r.error.as_deref().map(|e| format!(": {e}")).unwrap_or_default();
             Captured::new(say(Kind::Other, Source::ModelApiGateway, format!("{} {what}{why}", if refused { "refused" } else { "failed" })), label)

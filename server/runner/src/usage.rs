@@ -9,9 +9,9 @@ use libero_report::usage::{SOURCE_GATEWAY, SOURCE_NONE, SOURCE_STDOUT, StdoutFig
 
 use crate::lines::{Line, LineSplitter};
 
-/// The rollout's token figures from what the gateway saw ([`crate::netgate::UsageSummary`]), for harnesses whose
+/// The rollout's token figures from what the gateway saw ([`libero_sandbox::netgate::UsageSummary`]), for harnesses whose
 /// stdout lacks them.
-pub fn from_gateway(g: &crate::netgate::UsageSummary) -> Usage {
+pub fn from_gateway(g: &libero_sandbox::netgate::UsageSummary) -> Usage {
     let available = g.responses_with_usage > 0;
     let some = |x: u64| available.then_some(x);
     Usage {
@@ -31,7 +31,7 @@ pub fn from_gateway(g: &crate::netgate::UsageSummary) -> Usage {
 /// agent passes the gateway, and the agent cannot write its records), else what the harness printed on stdout
 /// (runs without the sandbox), else nothing. Lines the agent prints into its CLI's stdout thus never count
 /// when the gateway saw the traffic.
-pub fn choose(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> Usage {
+pub fn choose(stdout: Usage, gateway: Option<&libero_sandbox::netgate::UsageSummary>) -> Usage {
     let mut u = choose_source(stdout, gateway);
     if let Some(g) = gateway.filter(|g| !g.complete) {
         u.incomplete = Some(format!(
@@ -42,7 +42,7 @@ pub fn choose(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> 
     u
 }
 
-fn choose_source(stdout: Usage, gateway: Option<&crate::netgate::UsageSummary>) -> Usage {
+fn choose_source(stdout: Usage, gateway: Option<&libero_sandbox::netgate::UsageSummary>) -> Usage {
     match gateway {
         Some(g) if g.responses_with_usage > 0 => {
             let mut u = from_gateway(g);
@@ -320,9 +320,9 @@ mod tests {
     /// Tokens that went through a tunnel were never counted: the chosen usage says it is a lower bound.
     #[test]
     fn usage_is_marked_incomplete_when_a_tunnel_carried_bytes() {
-        let g = crate::netgate::UsageSummary { requests: 2, responses_with_usage: 1, input_tokens: 10, output_tokens: 5, total_tokens: 15, ..Default::default() };
+        let g = libero_sandbox::netgate::UsageSummary { requests: 2, responses_with_usage: 1, input_tokens: 10, output_tokens: 5, total_tokens: 15, ..Default::default() };
         assert_eq!(choose(Usage::default(), Some(&g)).incomplete, None, "a complete summary");
-        let tunnelled = crate::netgate::UsageSummary { tunnel_bytes: 4096, complete: false, ..g };
+        let tunnelled = libero_sandbox::netgate::UsageSummary { tunnel_bytes: 4096, complete: false, ..g };
         let u = choose(Usage::default(), Some(&tunnelled));
         assert_eq!(u.total_tokens, Some(15));
         assert!(u.incomplete.as_deref().is_some_and(|w| w.contains("4096 bytes through tunnels")), "{u:?}");
@@ -332,7 +332,7 @@ mod tests {
 
     #[test]
     fn the_gateways_summary_gives_the_rollouts_figures_only_when_it_saw_usage() {
-        let g = crate::netgate::UsageSummary {
+        let g = libero_sandbox::netgate::UsageSummary {
             requests: 5,
             responses_with_usage: 4,
             input_tokens: 101,
@@ -343,7 +343,7 @@ mod tests {
         let u = from_gateway(&g);
         assert!(u.available);
         assert_eq!((u.requests_with_usage, u.input_tokens, u.total_tokens), (4, Some(101), Some(137)));
-        let none = from_gateway(&crate::netgate::UsageSummary { requests: 3, ..Default::default() });
+        let none = from_gateway(&libero_sandbox::netgate::UsageSummary { requests: 3, ..Default::default() });
         assert!(!none.available && none.input_tokens.is_none() && none.total_tokens.is_none());
     }
 

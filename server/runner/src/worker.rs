@@ -22,7 +22,7 @@ use libero_report::batch::RolloutRecord;
 use super::batch::BatchSettings;
 use super::harness::{Credentials, Harness, pinned_npm_cli_installed};
 use super::queue::{WORKER_LOST, worker_lost_record};
-use super::sandbox::Sandbox;
+use libero_sandbox::sandbox::Sandbox;
 use super::schedule::PlannedRollout;
 use super::{INTERRUPTED, RunContext};
 use libero_server::{ServeArgs, ServerFlags, StoreFlags};
@@ -47,7 +47,7 @@ pub struct WorkerArgs {
     #[command(flatten)]
     pub paths: super::LocalPaths,
     #[command(flatten)]
-    pub resources: super::resources::ResourceArgs,
+    pub resources: libero_sandbox::resources::ResourceArgs,
     /// The lease on a claimed rollout, renewed every third of it: a worker silent for this long is lost.
     #[arg(long, default_value_t = 60.0)]
     pub lease_s: f64,
@@ -70,7 +70,7 @@ struct Worker {
     workspace_root: PathBuf,
     credentials_file: PathBuf,
     /// Per-rollout caps, detected once (`None`: `--unconfined-resources` where they cannot be enforced).
-    resources: Option<super::resources::Resources>,
+    resources: Option<libero_sandbox::resources::Resources>,
     lease_ms: i64,
     /// The run context of each (batch, attempt): settings, harness, sandbox, credentials.
     contexts: Mutex<HashMap<(String, i64), Arc<RunContext>>>,
@@ -90,7 +90,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
     let store_url = args.stores.store.clone().context("a worker needs --store (or $LIBERO_AGENT_STORE)")?;
     let artifacts_url = args.stores.artifacts.as_deref().context("a worker needs --artifacts (or $LIBERO_AGENT_ARTIFACTS)")?;
     // Before anything is registered: a worker that cannot cap its agents says so and starts nothing.
-    let resources = super::resources::Resources::detect(&args.resources)?;
+    let resources = libero_sandbox::resources::Resources::detect(&args.resources)?;
     let data = match &args.server.data {
         Some(d) => super::absolute(d)?,
         None => default_worker_dir(&id)?,
@@ -300,7 +300,7 @@ impl Worker {
         let credentials = if harness.needs_credentials() { Some(Credentials::load(&self.credentials_file)?) } else { None };
         // the project's toolbox, as `run` gives its agents by default (installed on first use)
         let sandbox = match settings.sandbox {
-            true => Some(Sandbox::detect()?.with_toolbox(Some(crate::toolbox::ensure_project()?)).with_resources(self.resources.clone())),
+            true => Some(Sandbox::detect()?.with_toolbox(Some(libero_sandbox::toolbox::ensure_project()?)).with_resources(self.resources.clone())),
             false => None,
         };
         let npm_cli_installed = pinned_npm_cli_installed(harness);

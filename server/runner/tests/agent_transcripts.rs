@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use libero_episode::agent_events::{AgentEvent, Kind, Source};
 use libero_runner::harness::Harness;
-use libero_runner::netgate::UsageSummary;
+use libero_sandbox::netgate::UsageSummary;
 use libero_runner::transcript::{Normalizer, Streams, Target, Follower, normalize_logs};
 use libero_runner::usage::{self, UsageFormat, UsageScanner};
 

@@ -11,10 +11,10 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use libero_episode::demo::DemoCondition;
-use libero_runner::agent_net::{NetPlan, contain};
-use libero_runner::harness::{Harness, Launch};
-use libero_runner::sandbox::{Sandbox, SandboxSpec};
-use libero_runner::toolbox::{self, Toolbox};
+use libero_runner::harness::{Harness, Launch, net_plan};
+use libero_sandbox::agent_net::contain;
+use libero_sandbox::sandbox::{Sandbox, SandboxSpec};
+use libero_sandbox::toolbox::{self, Toolbox};
 use libero_server::client::{InProcessServer, McpClient, prepare_episode};
 use libero_server::episodes::PrepareRequest;
 use serde_json::{Value, json};
@@ -141,8 +141,8 @@ fn in_sandbox(p: &Published, sandbox: &Sandbox, name: &str, script: &str) -> Out
         env,
         files: Vec::new(),
     };
-    let plan = NetPlan::new(Harness::Command, &p.mcp_url, None, false).unwrap();
-    let mut contained = contain(Some(sandbox), Some(&plan), &launch, &p.workspace, &home, &libero_agent(), &p.dir.join(format!("private-{name}"))).unwrap();
+    let plan = net_plan(Harness::Command, &p.mcp_url, None, false).unwrap();
+    let mut contained = contain(Some(sandbox), Some(&plan), &launch.argv, &launch.env, &p.workspace, &home, &libero_agent(), &p.dir.join(format!("private-{name}"))).unwrap();
     let mut cmd = contained.command();
     cmd.current_dir(&p.workspace).stdin(Stdio::null());
     let child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();

@@ -1,6 +1,6 @@
 //! The crate tower (docs/ARCHITECTURE.md, "The layers"): every workspace crate under `server/` depends only on the
 //! crates below it in [`TOWER`] that its line allows. Cargo already refuses a cycle; this keeps the layers it cannot
-//! see: the records, store, metrics, artifacts and report never link the simulator (nor MuJoCo), the report links
+//! see: the records, store, metrics, artifacts, report and sandbox never link the simulator (nor MuJoCo), the report links
 //! no runner, and neither the server nor the runner links the console, nor the console the runner. A new dependency between workspace crates is a change of architecture: change this
 //! list and docs/ARCHITECTURE.md together.
 use std::collections::BTreeSet;
@@ -19,6 +19,9 @@ const TOWER: &[(&str, &[&str])] = &[
     ("libero-artifacts", &[]),
     // The binaries' logger, shared by libero-agent and libero-worker.
     ("libero-logging", &[]),
+    // The agent's boundary (bubblewrap, sandbox-net, seccomp, the model-API gateway, caps, log scrubbing, the
+    // toolbox): records only, so that what guards the machine builds and is tested without the simulator or a server.
+    ("libero-sandbox", &["libero-records"]),
     // The paper's reports and the batch readers: records and metrics only (the catalog's facts come in as data).
     ("libero-report", &["libero-records", "libero-metrics"]),
     (
@@ -28,7 +31,7 @@ const TOWER: &[(&str, &[&str])] = &[
     (
         "libero-runner",
         &["libero-tasks", "libero-metrics", "libero-records", "libero-episode", "libero-store", "libero-artifacts", "libero-report", "libero-server",
-            "libero-logging"],
+            "libero-sandbox", "libero-logging"],
     ),
     (
         "libero-dashboard",
@@ -41,7 +44,7 @@ const TOWER: &[(&str, &[&str])] = &[
         "libero-agent",
         &[
             "libero-bddl", "libero-sim", "libero-render", "libero-records", "libero-tasks", "libero-metrics", "libero-episode",
-            "libero-store", "libero-report", "libero-server", "libero-runner", "libero-dashboard", "libero-logging",
+            "libero-store", "libero-report", "libero-server", "libero-sandbox", "libero-runner", "libero-dashboard", "libero-logging",
         ],
     ),
     // The tests' helpers, above everything (no crate's `[dependencies]` may name it; `[dev-dependencies]` do).
@@ -126,11 +129,16 @@ fn the_tower_itself_keeps_its_rules() {
         }
         seen
     };
-    for reader in ["libero-records", "libero-store", "libero-metrics", "libero-artifacts", "libero-bddl", "libero-report"] {
+    for reader in ["libero-records", "libero-store", "libero-metrics", "libero-artifacts", "libero-bddl", "libero-report", "libero-sandbox"] {
         assert!(!links(reader).iter().any(|d| SIMULATOR.contains(d)), "{reader} must not link the simulator");
     }
     // Reports compute from records alone: no runner, so no sandbox, gateway or harness behind them.
     assert!(!links("libero-report").iter().any(|d| ["libero-runner", "libero-sandbox", "libero-server"].contains(d)), "libero-report must not link the runner");
+    // The agent's boundary stands alone: no runner, server, console or report behind it.
+    assert!(
+        !links("libero-sandbox").iter().any(|d| ["libero-runner", "libero-server", "libero-dashboard", "libero-report"].contains(d)),
+        "libero-sandbox must link none of the runner, the server, the console or the report"
+    );
     // The console reads batches and prints tables through libero-report, and starts no agent.
     assert!(!links("libero-dashboard").contains(&"libero-runner"), "libero-dashboard must not link the runner");
     for server_side in ["libero-server", "libero-runner"] {

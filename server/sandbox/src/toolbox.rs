@@ -14,15 +14,15 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 
-use super::host_paths::{SYSTEM_DIRS, cache_dir, which};
+use crate::host_paths::{SYSTEM_DIRS, cache_dir, which};
 
 /// Where the sandbox shows the toolbox: a neutral path, since the cache lies below the runner's home (`/root`
 /// when it runs as root), which the agent's user could not traverse.
 pub const INSIDE: &str = "/opt/libero-toolbox";
 
 /// The lock this runner was built with: the project's toolbox is the one it names (and the agent CLI versions,
-/// `crate::harness_versions`, the ones it lists).
-pub(crate) const LOCK: &str = include_str!("../../../assets/third_party.lock.json");
+/// the runner's `harness_versions`, the ones it lists).
+pub const LOCK: &str = include_str!("../../../assets/third_party.lock.json");
 
 /// The most bytes of a package's `METADATA` read for its name and version.
 const MAX_METADATA_BYTES: u64 = 64 * 1024;

@@ -6,8 +6,7 @@
 use std::io::{Seek, SeekFrom, Write};
 use std::os::unix::fs::MetadataExt;
 
-use libero_runner::logs::{Limits, scrub_log};
-use libero_runner::usage::{UsageFormat, UsageScanner};
+use libero_sandbox::logs::{Limits, scrub_log};
 use sha2::{Digest, Sha256};
 
 const GIB: u64 = 1 << 30;
@@ -61,10 +60,16 @@ fn a_sparse_two_gib_log_is_scrubbed_in_bounded_memory_and_disk() {
     // Peak resident memory from here on (writing 5 to clear_refs resets VmHWM).
     std::fs::write("/proc/self/clear_refs", "5").unwrap();
     let rss_before = status_kib("VmRSS:");
-    let mut usage = UsageScanner::new(UsageFormat::Jsonl);
+    // What the runner's usage scanner is fed: the raw (unscrubbed) bytes as read, `None` for a stretch left unread.
+    let (mut raw_tail, mut raw_bytes, mut gaps) = (Vec::new(), 0u64, 0);
     let rec = scrub_log(&path, &[KEY, TOKEN], &limits, |b| match b {
-        Some(b) => usage.push(b),
-        None => usage.gap(),
+        Some(b) => {
+            raw_bytes += b.len() as u64;
+            raw_tail.extend_from_slice(b);
+            let excess = raw_tail.len().saturating_sub(4096);
+            raw_tail.drain(..excess);
+        }
+        None => gaps += 1,
     })
     .unwrap();
     let peak = status_kib("VmHWM:");
@@ -121,7 +126,8 @@ fn a_sparse_two_gib_log_is_scrubbed_in_bounded_memory_and_disk() {
     assert_eq!(marker["libero_agent_log_omitted"]["size_bytes"], size);
     assert_eq!(marker["libero_agent_log_omitted"]["sha256"], expected);
 
-    // Usage from the raw stream: the result line at the end counts.
-    let u = usage.finish();
-    assert_eq!((u.input_tokens, u.output_tokens), (Some(120), Some(50)), "{u:?}");
+    // The raw stream the runner reads usage from: the middle is hashed whole (under `max_hashed`), so every byte
+    // passes in order, unscrubbed, with the result line at its end.
+    assert_eq!((raw_bytes, gaps), (size, 0));
+    assert!(raw_tail.ends_with(RESULT.as_bytes()), "the raw stream ends with the result line");
 }

@@ -63,8 +63,8 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpStream, UnixListener, UnixStream};
 use tokio::sync::oneshot;
 
-use libero_episode::agent_events::Tokens;
-use libero_episode::json::iso_from_system_time;
+use libero_records::agent_events::Tokens;
+use libero_records::json::iso_from_system_time;
 
 /// Largest request head (request line and headers) the gateway reads; beyond it, 431.
 pub const MAX_HEAD_BYTES: usize = 64 << 10;
@@ -189,7 +189,7 @@ pub enum Cause {
 /// `openai_chat` and `openai_responses` count cached tokens inside `input_tokens` and reasoning tokens inside
 /// `output_tokens`; `anthropic_messages` counts cache reads (`cached_input_tokens`) and cache writes
 /// (`cache_creation_input_tokens`) beside `input_tokens`, and its `total_tokens` is input + output (as in
-/// [`crate::usage`]).
+/// the runner's `usage`).
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct TokenUsage {
     pub api: String,

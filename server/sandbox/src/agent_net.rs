@@ -22,10 +22,9 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use serde_json::Value;
 
-use super::harness::{Credentials, Harness, Launch};
-use super::netgate;
-use super::sandbox::{RELAY_DIR, Sandbox, SandboxSpec, cli_install_paths, own_binary_files};
-use super::sandbox_net::ListenSpec;
+use crate::netgate;
+use crate::sandbox::{RELAY_DIR, Sandbox, SandboxSpec, cli_install_paths, own_binary_files};
+use crate::sandbox_net::ListenSpec;
 
 /// The model API's port on the sandbox's loopback (another one when the MCP endpoint has this port).
 pub const MODEL_API_PORT: u16 = 18790;
@@ -33,15 +32,6 @@ pub const MODEL_API_PORT: u16 = 18790;
 pub const NPM_REGISTRY: (&str, u16) = ("registry.npmjs.org", 443);
 /// The most bytes of the sandbox's report read.
 const MAX_REPORT_BYTES: u64 = 1 << 20;
-
-/// Where the agent's model traffic goes when the credentials name no base URL: each CLI's own default.
-pub fn default_api_base(harness: Harness) -> Option<&'static str> {
-    match harness {
-        Harness::Codex | Harness::QwenCode => Some("https://api.openai.com/v1"),
-        Harness::ClaudeCode => Some("https://api.anthropic.com"),
-        _ => None,
-    }
-}
 
 /// The addresses of one agent's namespace and where they lead.
 #[derive(Debug, Clone)]
@@ -56,8 +46,8 @@ pub struct NetPlan {
     pub model_port: u16,
     /// The real API base the gateway forwards to (the credentials', else the harness's default).
     pub upstream: Option<url::Url>,
-    /// The harness's model-API endpoints, the only origin-form requests the gateway passes on upstream
-    /// ([`Harness::model_api_endpoints`] below the upstream's path); empty without an upstream.
+    /// The harness's model-API endpoints, the only origin-form requests the gateway passes on upstream (the
+    /// runner's `Harness::model_api_endpoints` below the upstream's path); empty without an upstream.
     pub routes: Vec<netgate::Route>,
     /// host:port pairs the gateway's proxy tunnels to. Never the upstream: every harness reaches its model API
     /// through the gateway's base URL, and a tunnel there would pass any endpoint on, unmetered.
@@ -65,9 +55,16 @@ pub struct NetPlan {
 }
 
 impl NetPlan {
-    /// The plan for an agent of `harness` on the episode at `mcp_url`, with `credentials`; `via_npx` when the
-    /// harness's CLI is fetched by `npx` at launch.
-    pub fn new(harness: Harness, mcp_url: &str, credentials: Option<&Credentials>, via_npx: bool) -> anyhow::Result<Self> {
+    /// The plan for an agent on the episode at `mcp_url` whose model API lies at `api_base` (the credentials' base
+    /// URL, else its harness's default), where only `endpoints(<api_base's path>)` (method, path) are passed on;
+    /// `via_npx` when the harness's CLI is fetched by `npx` at launch. The harness itself is the runner's business:
+    /// the boundary only needs where the traffic may go.
+    pub fn new(
+        mcp_url: &str,
+        api_base: Option<&str>,
+        endpoints: impl FnOnce(&str) -> Vec<(&'static str, String)>,
+        via_npx: bool,
+    ) -> anyhow::Result<Self> {
         let url = url::Url::parse(mcp_url).with_context(|| format!("the episode's MCP URL {mcp_url}"))?;
         let mcp_port = url.port_or_known_default().with_context(|| format!("{mcp_url} has no port"))?;
         let (mcp_target, mcp_host_name) = match url.host() {
@@ -88,14 +85,12 @@ impl NetPlan {
             ),
         };
         let model_port = if mcp_port == MODEL_API_PORT { MODEL_API_PORT + 1 } else { MODEL_API_PORT };
-        let base = credentials.and_then(|c| c.api_base.clone()).or_else(|| default_api_base(harness).map(str::to_owned));
-        let upstream = match base {
-            Some(b) => Some(url::Url::parse(&b).with_context(|| format!("the API base URL {b}"))?),
+        let upstream = match api_base {
+            Some(b) => Some(url::Url::parse(b).with_context(|| format!("the API base URL {b}"))?),
             None => None,
         };
         let routes = match &upstream {
-            Some(u) => harness
-                .model_api_endpoints(u.path())
+            Some(u) => endpoints(u.path())
                 .into_iter()
                 .filter_map(|(method, path)| Some(netgate::Route::new(http::Method::from_bytes(method.as_bytes()).ok()?, path)))
                 .collect(),
@@ -112,11 +107,6 @@ impl NetPlan {
     pub fn agent_api_base(&self) -> Option<String> {
         let u = self.upstream.as_ref()?;
         Some(format!("http://127.0.0.1:{}{}", self.model_port, u.path().trim_end_matches('/')))
-    }
-
-    /// The credentials the launch is built from: the key unchanged, the base URL the gateway's.
-    pub fn agent_credentials(&self, c: &Credentials) -> Credentials {
-        Credentials { api_base: self.agent_api_base().or_else(|| c.api_base.clone()), api_key: c.api_key.clone(), source: c.source.clone() }
     }
 
     /// The proxy environment: every HTTP(S) client that honours it goes through the gateway's allow-list; loopback
@@ -190,14 +180,17 @@ pub struct Contained {
     relay_dir: Option<RelayDir>,
 }
 
-/// Prepares `launch` to run sandboxed (or plainly, without a sandbox): the relays and the gateway started with
-/// their sockets in a fresh short-named directory, the sandbox's files (`hosts`, the gateway's records) in `private/`, the workspace and session home handed to
-/// the agent's user when the runner is root, the sandbox's toolbox first on the agent's `PATH`, and the argv wrapped
-/// in bubblewrap and `sandbox-net`.
+/// Prepares the launch `argv`, with its whole environment `env`, to run sandboxed (or plainly, without a sandbox):
+/// the relays and the gateway started with their sockets in a fresh short-named directory, the sandbox's files
+/// (`hosts`, the gateway's records) in `private/`, the workspace and session home handed to the agent's user when
+/// the runner is root, the sandbox's toolbox first on the agent's `PATH`, and the argv wrapped in bubblewrap and
+/// `sandbox-net`.
+#[allow(clippy::too_many_arguments)] // the launch (argv, env), where it runs (workspace, home, private) and with what
 pub fn contain(
     sandbox: Option<&Sandbox>,
     plan: Option<&NetPlan>,
-    launch: &Launch,
+    argv: &[String],
+    env: &[(String, String)],
     workspace: &Path,
     home: &Path,
     agent_exe: &Path,
@@ -205,8 +198,8 @@ pub fn contain(
 ) -> anyhow::Result<Contained> {
     let (Some(sb), Some(plan)) = (sandbox, plan) else {
         return Ok(Contained {
-            argv: launch.argv.clone(),
-            env: launch.env.clone(),
+            argv: argv.to_vec(),
+            env: env.to_vec(),
             model_api_records: None,
             report_read: None,
             report_write: None,
@@ -254,7 +247,8 @@ pub fn contain(
     let hosts = private.join("hosts");
     std::fs::write(&hosts, plan.hosts_file())?;
     set_mode(&hosts, 0o644)?;
-    let mut env = launch.env.clone();
+    let launch_env = env;
+    let mut env = launch_env.to_vec();
     env.extend(plan.proxy_env());
     // The agent's own `python3` is the toolbox's.
     if let Some(tb) = &sb.toolbox {
@@ -276,11 +270,11 @@ pub fn contain(
         inner.extend(["--drop-to".into(), format!("{uid}:{gid}")]);
     }
     inner.push("--".into());
-    inner.extend(launch.argv.iter().cloned());
+    inner.extend(argv.iter().cloned());
     // The CLI is found on the runner's PATH (the launch's, before the toolbox went first).
-    let path = launch.env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
+    let path = launch_env.iter().find(|(k, _)| k == "PATH").map(|(_, v)| v.as_str()).unwrap_or_default();
     let mut readable = own_binary_files(agent_exe);
-    readable.extend(launch.argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
+    readable.extend(argv.first().map(|p| cli_install_paths(p, path.as_ref())).unwrap_or_default());
     let spec = SandboxSpec {
         writable: vec![workspace.to_path_buf(), home.to_path_buf()],
         readable,
@@ -441,47 +435,39 @@ fn give_to_agent(root: &Path, (uid, gid): (u32, u32), keep: &[&str]) -> anyhow::
 mod tests {
     use super::*;
 
-    fn creds(base: Option<&str>) -> Credentials {
-        Credentials { api_base: base.map(str::to_owned), api_key: "sk-test-000000".into(), source: "/c".into() }
+    /// Endpoints as a harness names them below the API base's path (the runner's `Harness::model_api_endpoints`).
+    fn endpoints(base: &str) -> Vec<(&'static str, String)> {
+        let base = base.trim_end_matches('/');
+        vec![("POST", format!("{base}/responses")), ("GET", format!("{base}/models"))]
     }
 
     #[test]
     fn the_agent_sees_its_server_s_port_and_the_gateway_s_base_with_the_upstream_path() {
-        let c = creds(Some("https://api.example.com/v1/"));
-        let p = NetPlan::new(Harness::Codex, "http://127.0.0.1:41234/mcp/ep-1", Some(&c), false).unwrap();
+        let p = NetPlan::new("http://127.0.0.1:41234/mcp/ep-1", Some("https://api.example.com/v1/"), endpoints, false).unwrap();
         assert_eq!((p.mcp_port, p.mcp_target.to_string().as_str(), p.mcp_host_name.as_deref()), (41234, "127.0.0.1:41234", None));
         assert_eq!(p.agent_api_base().as_deref(), Some("http://127.0.0.1:18790/v1"));
-        assert_eq!(p.agent_credentials(&c).openai_base().as_deref(), Some("http://127.0.0.1:18790/v1"));
-        assert_eq!(p.agent_credentials(&c).api_key, "sk-test-000000");
         assert!(p.allowed.is_empty(), "the model API is reached through the base URL, never a tunnel: {:?}", p.allowed);
         let routes: Vec<String> = p.routes.iter().map(ToString::to_string).collect();
-        assert_eq!(routes, ["POST /v1/responses", "GET /v1/models"], "Codex's endpoints only");
+        assert_eq!(routes, ["POST /v1/responses", "GET /v1/models"], "the endpoints below the upstream's path only");
         assert_eq!(p.describe()["model_api"]["routes"], serde_json::json!(routes));
         let env = p.proxy_env();
         assert!(env.contains(&("HTTPS_PROXY".into(), "http://127.0.0.1:18790".into())));
         assert!(env.iter().any(|(k, v)| k == "NO_PROXY" && v.contains("127.0.0.1")));
-        // Without a base: the CLI's default upstream; through npx: the registry too.
-        let q = NetPlan::new(Harness::ClaudeCode, "http://localhost:18790/mcp/x", Some(&creds(None)), true).unwrap();
+        assert!(env.contains(&("LIBERO_MODEL_API_BASE".into(), "http://127.0.0.1:18790/v1".into())));
+        // On the gateway's default port, the MCP endpoint keeps it; through npx: the registry too.
+        let q = NetPlan::new("http://localhost:18790/mcp/x", Some("https://api.anthropic.com"), endpoints, true).unwrap();
         assert_eq!(q.model_port, 18791, "never the MCP endpoint's port");
         assert_eq!(q.agent_api_base().as_deref(), Some("http://127.0.0.1:18791"));
         assert_eq!(q.allowed, vec![("registry.npmjs.org".to_owned(), 443)], "the npm registry for npx, not the model API");
-        let routes: Vec<String> = q.routes.iter().map(ToString::to_string).collect();
-        assert_eq!(routes, ["POST /v1/messages", "POST /v1/messages/count_tokens", "GET /v1/models"]);
         assert!(q.mcp_host_name.is_none(), "localhost is loopback already");
-        assert!(NetPlan::new(Harness::Command, "http://10.1.2.3:8080/mcp/x", None, false).is_err(), "a remote IP cannot be mapped");
-        let none = NetPlan::new(Harness::Command, "http://127.0.0.1:8080/mcp/x", None, false).unwrap();
+        assert!(NetPlan::new("http://10.1.2.3:8080/mcp/x", None, endpoints, false).is_err(), "a remote IP cannot be mapped");
+        let none = NetPlan::new("http://127.0.0.1:8080/mcp/x", None, endpoints, false).unwrap();
         assert!(none.upstream.is_none() && none.allowed.is_empty() && none.routes.is_empty() && none.agent_api_base().is_none());
-        // A command agent with credentials: every API's endpoints below its base (the escape test's `/models` too).
-        let cmd = NetPlan::new(Harness::Command, "http://127.0.0.1:8080/mcp/x", Some(&creds(Some("http://127.0.0.1:9/v1"))), false).unwrap();
-        let routes: Vec<String> = cmd.routes.iter().map(ToString::to_string).collect();
-        for r in ["POST /v1/chat/completions", "POST /v1/responses", "POST /v1/messages", "GET /v1/models"] {
-            assert!(routes.contains(&r.to_owned()), "{r}: {routes:?}");
-        }
     }
 
     #[test]
     fn a_server_named_by_host_name_is_loopback_inside() {
-        let p = NetPlan::new(Harness::Command, "http://localhost:8080/mcp/x", None, false).unwrap();
+        let p = NetPlan::new("http://localhost:8080/mcp/x", None, endpoints, false).unwrap();
         assert!(p.mcp_target.ip().is_loopback());
         let mut named = p.clone();
         named.mcp_host_name = Some("gpu-7.lab".into());

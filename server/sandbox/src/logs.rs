@@ -279,7 +279,7 @@ pub fn scrub_log(path: &Path, secrets: &[&str], limits: &Limits, mut raw: impl F
     }
     let size = u64::try_from(st.st_size).unwrap_or(0);
     let mut log = std::fs::File::from(log_fd);
-    let tmp = CString::new(format!(".{}.scrub-{}", name.to_string_lossy(), libero_episode::json::random_name("")?))
+    let tmp = CString::new(format!(".{}.scrub-{}", name.to_string_lossy(), libero_records::json::random_name("")?))
         .map_err(|_| bad("a NUL in the name"))?;
     let out_fd = rustix::fs::openat(
         dir.as_fd(),

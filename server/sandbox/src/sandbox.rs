@@ -20,10 +20,10 @@ use std::process::Command;
 
 use anyhow::{Context, bail};
 
-use super::host_paths::SYSTEM_DIRS;
-pub use super::host_paths::{which, which_in};
-use super::resources::{Resources, RolloutCage};
-use super::toolbox::{self, Toolbox};
+use crate::host_paths::SYSTEM_DIRS;
+pub use crate::host_paths::{which, which_in};
+use crate::resources::{Resources, RolloutCage};
+use crate::toolbox::{self, Toolbox};
 
 
 /// The host uid and gid a sandboxed agent runs as when the runner is root (`nobody`/`nogroup` on Debian).
@@ -130,7 +130,7 @@ impl Sandbox {
                     "how": "bubblewrap as root keeps CAP_SETUID/SETGID/SETPCAP for sandbox-net, which drops the bounding set, switches to the rollout's own ids, clears every capability set, joins a fresh session keyring, sets no_new_privs and the seccomp allow-list"}),
                 None => serde_json::json!({"runner": "unprivileged", "how": "a user namespace of the runner's user, every capability dropped, further user namespaces disabled, a fresh session keyring, no_new_privs and the seccomp allow-list"}),
             },
-            "seccomp": super::seccomp::describe(),
+            "seccomp": crate::seccomp::describe(),
             "resources": self.resources.as_ref().map(Resources::describe),
             "network": "own namespace with only lo; sandbox-net relays the MCP endpoint and the model API to the runner's Unix sockets",
         })
@@ -224,7 +224,7 @@ impl Sandbox {
     }
 }
 
-/// The `libero-agent` binary `agent_exe` ([`crate::agent_exe`]) and the shared libraries this process loaded from
+/// The `libero-agent` binary `agent_exe` (the runner's `agent_exe`) and the shared libraries this process loaded from
 /// outside the system directories (libmujoco from the asset cache, which every binary of the project links): what
 /// a sandboxed `libero-agent agent`/`mcp-stdio` needs to start. Only these files, not their folders, so the
 /// cache's assets stay invisible.
