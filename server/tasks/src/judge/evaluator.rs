@@ -125,6 +125,11 @@ impl StageTracker {
         }
     }
 
+    /// When stage `i` completed (`None` while it has not).
+    pub fn completed_at(&self, i: usize) -> Option<Tick> {
+        self.completed_at.get(i).copied().flatten()
+    }
+
     /// Whether stage `i` has completed.
     pub fn is_completed(&self, i: usize) -> bool {
         self.completed_at.get(i).is_some_and(Option::is_some)

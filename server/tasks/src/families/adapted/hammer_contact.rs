@@ -20,14 +20,11 @@ use serde::Deserialize;
 use serde_json::json;
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{
-    EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
-};
-use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
-use crate::judge::goal::GoalChecker;
+use crate::judge::evaluator::{EvaluationRecord, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, judge_checks, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
-use crate::judge::predicates::{SceneIndex, SubtreeContact};
+use crate::judge::predicates::SubtreeContact;
+use crate::judge::support::missing_in_model;
 
 pub const CHECKER: &str = "private_ordered_hammer_contact";
 pub const STAGES: [&str; 3] = ["01_Lift_Hammer", "02_Hammer_Contacts_Nail", "03_Drive_Nail"];
@@ -48,8 +45,7 @@ pub struct HammerParams {
 
 /// The kind's table row.
 pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<HammerParams>, |checker, scene, model| {
-    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-    Ok(Box::new(HammerContact::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+    build(checker, scene, model, |h| HammerContact::new(checker.parse()?, h, model))
 });
 
 /// What one tick reads from the simulation.
@@ -159,33 +155,20 @@ impl HammerProgress {
     }
 }
 
+/// The kind's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
 pub struct HammerContact {
     params: HammerParams,
-    index: std::sync::Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
-    task_id: Option<String>,
     hammer_body: usize,
     nail_qpos_adr: usize,
     /// Body contact(hammer, nail link).
     touching: SubtreeContact,
     progress: HammerProgress,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
-    substeps: u64,
 }
 
 impl HammerContact {
-    pub fn new(
-        params: HammerParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        model: &MjModel,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
-        let index = goal.index().clone();
-        let hammer = index.instance(&params.hammer).ok_or_else(|| missing_in_model(CHECKER, "object", &params.hammer))?;
-        let hammer_body = index.instances[hammer].body;
+    pub fn new(params: HammerParams, history: &History, model: &MjModel) -> Result<Self, TasksError> {
+        let hammer = history.index.instance(&params.hammer).ok_or_else(|| missing_in_model(CHECKER, "object", &params.hammer))?;
+        let hammer_body = history.index.instances[hammer].body;
         let nail_body = model
             .name_to_id(MjtObjBase::mjOBJ_BODY, &params.nail_body)
             .ok_or_else(|| missing_in_model(CHECKER, "body", &params.nail_body))?;
@@ -195,33 +178,15 @@ impl HammerContact {
         let nail_qpos_adr = model.jnt_qposadr()[joint] as usize;
         let touching = SubtreeContact::new(model, hammer_body, nail_body, params.contact_distance_max_m);
         let progress = HammerProgress::new(&params, 0.0, 0.0);
-        Ok(Self {
-            params,
-            index,
-            goal,
-            commitment,
-            task_id,
-            hammer_body,
-            nail_qpos_adr,
-            touching,
-            progress,
-            events: Vec::new(),
-            control_steps: 0,
-            substeps: 0,
-        })
+        Ok(Self { params, hammer_body, nail_qpos_adr, touching, progress })
     }
 
     fn nail_q(&self, data: &SimData) -> f64 {
         data.qpos()[self.nail_qpos_adr]
     }
-
-    fn sample(&mut self, data: &SimData, tick: Tick) {
-        let s = HammerSample { hammer_z_m: data.xpos()[self.hammer_body][2], nail_q_m: self.nail_q(data), contact: self.touching.holds(data) };
-        self.progress.observe(tick, s);
-    }
 }
 
-impl Evaluator for HammerContact {
+impl StagedFamily for HammerContact {
     fn checker(&self) -> &str {
         CHECKER
     }
@@ -230,54 +195,27 @@ impl Evaluator for HammerContact {
         true
     }
 
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, _history: &History, data: &SimData) {
         self.progress = HammerProgress::new(&self.params, data.xpos()[self.hammer_body][2], self.nail_q(data));
-        self.events.clear();
-        self.control_steps = 0;
-        self.substeps = 0;
-        self.commitment.reset(&self.index, data);
     }
 
-    fn observe_substep(&mut self, data: &SimData, tick: Tick) {
-        self.substeps += 1;
-        self.sample(data, tick);
+    fn sample(&mut self, _history: &mut History, data: &SimData, tick: Tick, _control: bool) {
+        let s = HammerSample { hammer_z_m: data.xpos()[self.hammer_body][2], nail_q_m: self.nail_q(data), contact: self.touching.holds(data) };
+        self.progress.observe(tick, s);
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
-        self.sample(data, tick);
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+    fn stages(&self) -> &StageTracker {
+        self.progress.stages()
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let q = self.nail_q(data);
-        let p = &self.progress;
-        let mut record = EvaluationRecord::new(CHECKER);
-        p.stages().write_into(&mut record);
-        record.task_id = self.task_id.clone();
-        record.terminal_state_checks = vec![
-            TerminalCheck { name: "hammer_nail_contact_seen".into(), passed: p.contact_seen() },
-            TerminalCheck {
-                name: format!("nail_displacement_m {:.4} >= {}", p.drive_m(q), self.params.nail_drive_m),
-                passed: p.driven(q),
-            },
+    fn judge(&self, _history: &History, data: &SimData, record: &mut EvaluationRecord) {
+        let (q, p) = (self.nail_q(data), &self.progress);
+        let checks = vec![
+            terminal_check("hammer_nail_contact_seen", p.contact_seen()),
+            terminal_check(format!("nail_displacement_m {:.4} >= {}", p.drive_m(q), self.params.nail_drive_m), p.driven(q)),
         ];
-        record.terminal_state_success = record.terminal_state_checks.iter().all(|c| c.passed);
-        record.success = p.success(q);
+        judge_checks(record, p.stages(), checks);
         record.details = Some(p.details(q));
-        let stages_done = p.stages().all_required_completed();
-        crate::judge::support::fill_history(&mut record, (self.control_steps, self.substeps), &self.events, &self.commitment, &self.goal, data);
-        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
-        record
-    }
-
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(self.progress.stages(), &self.events)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        let s = self.progress.stages();
-        (s.completed_required_count(), s.required_count())
     }
 }
 

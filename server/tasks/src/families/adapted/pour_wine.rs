@@ -8,15 +8,10 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{
-    EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
-};
-use crate::judge::goal::GoalChecker;
+use crate::judge::evaluator::{EvaluationRecord, EventKind, PrivateEvent, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, judge_history, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
 use crate::judge::pouring::{PourCounterConfig, PourTracker};
-use crate::judge::support::{fill_history, scene_goal_and_commitment};
-use crate::judge::predicates::SceneIndex;
 
 pub const CHECKER: &str = "private_ordered_physical_pour";
 pub const STAGES: [&str; 2] = ["01_Lift_Wine_Bottle", "02_Pour_Wine_Into_Mug"];
@@ -35,34 +30,21 @@ pub struct PourParams {
 
 /// The kind's table row.
 pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<PourParams>, |checker, scene, model| {
-    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-    Ok(Box::new(PourWine::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+    build(checker, scene, model, |h| PourWine::new(checker.parse()?, h, model))
 });
 
+/// The kind's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
 pub struct PourWine {
     params: PourParams,
-    index: std::sync::Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
-    task_id: Option<String>,
     bottle_body: usize,
     target_site: usize,
     tracker: PourTracker,
     stages: StageTracker,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
-    substeps: u64,
 }
 
 impl PourWine {
-    pub fn new(
-        params: PourParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        model: &MjModel,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
-        let index = goal.index().clone();
+    pub fn new(params: PourParams, history: &History, model: &MjModel) -> Result<Self, TasksError> {
+        let index = &history.index;
         let bottle = index.instance(&params.bottle).ok_or_else(|| TasksError::Scene(format!("no object {}", params.bottle)))?;
         let target_site = model
             .name_to_id(MjtObjBase::mjOBJ_SITE, &params.target_site)
@@ -70,83 +52,49 @@ impl PourWine {
         let bottle_body = index.instances[bottle].body;
         let tracker = PourTracker::new(&params.counter, bottle_body, target_site, 0.0);
         let stages = StageTracker::new(params.stages.iter().map(StageSpec::required).collect());
-        Ok(Self {
-            bottle_body,
-            params,
-            index,
-            goal,
-            commitment,
-            task_id,
-            target_site,
-            tracker,
-            stages,
-            events: Vec::new(),
-            control_steps: 0,
-            substeps: 0,
-        })
+        Ok(Self { bottle_body, params, target_site, tracker, stages })
     }
 }
 
-impl Evaluator for PourWine {
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(&self.stages, &self.events)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        (self.stages.completed_required_count(), self.stages.required_count())
-    }
-
+impl StagedFamily for PourWine {
     fn checker(&self) -> &str {
         CHECKER
     }
 
+    /// Substeps are counted but not sampled.
     fn samples_substeps(&self) -> bool {
         true
     }
 
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, _history: &History, data: &SimData) {
         let z0_m = data.xpos()[self.bottle_body][2];
         self.tracker = PourTracker::new(&self.params.counter, self.bottle_body, self.target_site, z0_m);
         self.stages = StageTracker::new(self.params.stages.iter().map(StageSpec::required).collect());
-        self.events.clear();
-        self.control_steps = 0;
-        self.substeps = 0;
-        self.commitment.reset(&self.index, data);
     }
 
-    fn observe_substep(&mut self, _data: &SimData, _tick: Tick) {
-        self.substeps += 1;
-    }
-
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, control: bool) {
+        if !control {
+            return;
+        }
         if self.tracker.update(data, tick.control_step).is_some() {
             let event = PrivateEvent { subject: Some(self.params.bottle.clone()), ..PrivateEvent::new(EventKind::PourDetected, tick) };
-            self.events.push(event);
+            h.events.push(event);
         }
         let (lift_seen, pours) = (self.tracker.lift_seen(), self.tracker.pours().len());
         self.stages.advance(tick, |i| if i == 0 { lift_seen } else { pours >= 1 });
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let mut record = EvaluationRecord::new(CHECKER);
-        self.stages.write_into(&mut record);
-        record.task_id = self.task_id.clone();
+    fn stages(&self) -> &StageTracker {
+        &self.stages
+    }
+
+    fn judge(&self, _history: &History, _data: &SimData, record: &mut EvaluationRecord) {
         let (lift, pours) = (self.tracker.lift_seen(), self.tracker.pours().len());
         // nothing beyond the latched events is checked on the final state (catalog §1.4a); reported for the trace
-        record.terminal_state_checks = vec![
-            TerminalCheck { name: "lift_observed".into(), passed: lift },
-            TerminalCheck {
-                name: format!("pour_events >= 1 (count {pours}, max tilt {:.3} rad)", self.tracker.max_tilt_rad()),
-                passed: pours >= 1,
-            },
+        let checks = vec![
+            terminal_check("lift_observed", lift),
+            terminal_check(format!("pour_events >= 1 (count {pours}, max tilt {:.3} rad)", self.tracker.max_tilt_rad()), pours >= 1),
         ];
-        record.terminal_state_success = true;
-        record.success = self.stages.all_required_completed() && lift && pours >= 1;
-        let counts = (self.control_steps, self.substeps);
-        fill_history(&mut record, counts, &self.events, &self.commitment, &self.goal, data);
-        record.failure_reason = (!record.success).then_some(FailureReason::IncompleteStage);
-        record
+        judge_history(record, self.stages.all_required_completed() && lift && pours >= 1, checks);
     }
 }

@@ -12,8 +12,8 @@
 //! Coverage (latched, independent of the stage index): at any tick where the sponge is grasped AND in body contact
 //! with the `table` body (a contact between the two body subtrees with distance ≤ 1 mm — touching the blue pad does
 //! not count), every marker whose world centre is within 0.052 m (xy) of the sponge origin becomes covered. Covered
-//! markers vanish from the agent's images ([`Evaluator::geom_rgba_overrides`]: alpha 0; uncovered markers are drawn
-//! at alpha 0.92, as the original evaluator set them at reset).
+//! markers vanish from the agent's images ([`crate::judge::evaluator::Evaluator::geom_rgba_overrides`]: alpha 0;
+//! uncovered markers are drawn at alpha 0.92, as the original evaluator set them at reset).
 //!
 //! Success at finish ⇔ all 3 stages completed AND all markers covered AND the rest predicate and Released-and-clear
 //! both hold on the final state.
@@ -22,14 +22,10 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{
-    EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
-};
-use crate::judge::goal::GoalChecker;
+use crate::judge::evaluator::{EvaluationRecord, EventKind, PrivateEvent, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, judge_checks, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
-use crate::judge::support::scene_goal_and_commitment;
-use crate::judge::predicates::{CompiledAtom, SceneIndex, SubtreeContact};
+use crate::judge::predicates::{CompiledAtom, SubtreeContact};
 
 pub const CHECKER: &str = "private_ordered_physical_wipe";
 pub const STAGES: [&str; 3] = ["01_Grasp_Sponge", "02_Wipe_All_Spill_Markers", "03_Release_Sponge_On_Blue_Rest_Area"];
@@ -56,8 +52,7 @@ pub struct WipeParams {
 
 /// The kind's table row.
 pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<WipeParams>, |checker, scene, model| {
-    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-    Ok(Box::new(SpillWipe::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+    build(checker, scene, model, |h| SpillWipe::new(checker.parse()?, h, model))
 });
 
 /// Which markers a sponge at `sponge_xy` covers: those whose centre is within `radius` (xy).
@@ -88,12 +83,9 @@ pub fn cover(
     new
 }
 
+/// The kind's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
 pub struct SpillWipe {
     params: WipeParams,
-    index: std::sync::Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
-    task_id: Option<String>,
     sponge: usize,
     /// Geom ids of the markers and their model colours.
     marker_geoms: Vec<(usize, [f32; 4])>,
@@ -103,20 +95,11 @@ pub struct SpillWipe {
     covered: Vec<bool>,
     grasp_seen: bool,
     stages: StageTracker,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
-    substeps: u64,
 }
 
 impl SpillWipe {
-    pub fn new(
-        params: WipeParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        model: &MjModel,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
-        let index = goal.index().clone();
+    pub fn new(params: WipeParams, history: &History, model: &MjModel) -> Result<Self, TasksError> {
+        let index = &history.index;
         let sponge = index.instance(&params.sponge).ok_or_else(|| TasksError::Scene(format!("no object {}", params.sponge)))?;
         let id = |kind, name: &str| {
             model.name_to_id(kind, name).ok_or_else(|| TasksError::Scene(format!("model has no {kind:?} {name:?}")))
@@ -134,47 +117,22 @@ impl SpillWipe {
         }
         let sponge_on_table = SubtreeContact::new(model, index.instances[sponge].body, table, BODY_CONTACT_MAX_DIST_M);
         let atom = libero_bddl::Atom { predicate: "On".into(), args: vec![params.sponge.clone(), params.rest_region.clone()], pos: Default::default() };
-        let rest_on = CompiledAtom::compile(&index, &atom)?;
+        let rest_on = CompiledAtom::compile(index, &atom)?;
         let stages = StageTracker::new(params.stages.iter().map(StageSpec::required).collect());
         let covered = vec![false; params.markers];
-        Ok(Self {
-            params,
-            index,
-            goal,
-            commitment,
-            task_id,
-            sponge,
-            marker_geoms,
-            sponge_on_table,
-            rest_on,
-            covered,
-            grasp_seen: false,
-            stages,
-            events: Vec::new(),
-            control_steps: 0,
-            substeps: 0,
-        })
+        Ok(Self { params, sponge, marker_geoms, sponge_on_table, rest_on, covered, grasp_seen: false, stages })
     }
 
-    fn grasped(&self, data: &SimData) -> bool {
-        self.commitment.grasped(&self.index, data, self.sponge)
+    fn grasped(&self, h: &History, data: &SimData) -> bool {
+        h.commitment.grasped(&h.index, data, self.sponge)
     }
 
-    fn sponge_pos(&self, data: &SimData) -> [f64; 3] {
-        data.xpos()[self.index.instances[self.sponge].body]
+    fn released_and_clear(&self, h: &History, data: &SimData) -> bool {
+        h.commitment.released_and_clear(&h.index, data, self.sponge, self.params.release_clear_distance_m)
     }
 
-    /// Body contact(sponge, table): some contact between the two subtrees with distance ≤ 1 mm.
-    fn touching_table(&self, data: &SimData) -> bool {
-        self.sponge_on_table.holds(data)
-    }
-
-    fn released_and_clear(&self, data: &SimData) -> bool {
-        self.commitment.released_and_clear(&self.index, data, self.sponge, self.params.release_clear_distance_m)
-    }
-
-    fn rest_holds(&self, data: &SimData) -> bool {
-        self.rest_on.evaluate(&self.index, data)
+    fn rest_holds(&self, h: &History, data: &SimData) -> bool {
+        self.rest_on.evaluate(&h.index, data)
     }
 
     fn markers_xy(&self, data: &SimData) -> Vec<[f64; 2]> {
@@ -184,45 +142,16 @@ impl SpillWipe {
         }).collect()
     }
 
-    fn stage_holds(&self, data: &SimData, i: usize) -> bool {
+    fn stage_holds(&self, h: &History, data: &SimData, i: usize) -> bool {
         match i {
-            0 => self.grasped(data),
+            0 => self.grasped(h, data),
             1 => self.covered.iter().all(|c| *c),
-            _ => self.rest_holds(data) && self.released_and_clear(data),
+            _ => self.rest_holds(h, data) && self.released_and_clear(h, data),
         }
-    }
-
-    fn sample(&mut self, data: &SimData, tick: Tick) {
-        let grasped = self.grasped(data);
-        self.grasp_seen |= grasped;
-        if self.grasp_seen && grasped {
-            let p = self.sponge_pos(data);
-            let markers = self.markers_xy(data);
-            let touching = self.touching_table(data);
-            for i in cover(&mut self.covered, grasped, touching, [p[0], p[1]], &markers, self.params.cover_radius_m) {
-                let event = PrivateEvent {
-                    subject: Some(format!("{}_spill_marker_{i}", self.params.spill_patch)),
-                    ..PrivateEvent::new(EventKind::SpillMarkerCovered, tick)
-                };
-                self.events.push(event);
-            }
-        }
-        // ordered: only the current stage is tested (the earlier stages' conditions are their prerequisites)
-        let holds: [bool; STAGES.len()] = std::array::from_fn(|i| self.stage_holds(data, i));
-        self.stages.advance(tick, |i| holds[i]);
-        self.stages.track_regressions(tick, |i| holds[i]);
     }
 }
 
-impl Evaluator for SpillWipe {
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(&self.stages, &self.events)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        (self.stages.completed_required_count(), self.stages.required_count())
-    }
-
+impl StagedFamily for SpillWipe {
     fn checker(&self) -> &str {
         CHECKER
     }
@@ -231,47 +160,47 @@ impl Evaluator for SpillWipe {
         true
     }
 
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, _history: &History, _data: &SimData) {
         self.covered.iter_mut().for_each(|c| *c = false);
         self.grasp_seen = false;
         self.stages = StageTracker::new(self.params.stages.iter().map(StageSpec::required).collect());
-        self.events.clear();
-        self.control_steps = 0;
-        self.substeps = 0;
-        self.commitment.reset(&self.index, data);
     }
 
-    fn observe_substep(&mut self, data: &SimData, tick: Tick) {
-        self.substeps += 1;
-        self.sample(data, tick);
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, _control: bool) {
+        let grasped = self.grasped(h, data);
+        self.grasp_seen |= grasped;
+        if self.grasp_seen && grasped {
+            let p = data.xpos()[h.index.instances[self.sponge].body];
+            let markers = self.markers_xy(data);
+            // Body contact(sponge, table): some contact between the two subtrees with distance ≤ 1 mm
+            let touching = self.sponge_on_table.holds(data);
+            for i in cover(&mut self.covered, grasped, touching, [p[0], p[1]], &markers, self.params.cover_radius_m) {
+                let event = PrivateEvent {
+                    subject: Some(format!("{}_spill_marker_{i}", self.params.spill_patch)),
+                    ..PrivateEvent::new(EventKind::SpillMarkerCovered, tick)
+                };
+                h.events.push(event);
+            }
+        }
+        // ordered: only the current stage is tested (the earlier stages' conditions are their prerequisites)
+        let holds: [bool; STAGES.len()] = std::array::from_fn(|i| self.stage_holds(h, data, i));
+        self.stages.advance(tick, |i| holds[i]);
+        self.stages.track_regressions(tick, |i| holds[i]);
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
-        self.sample(data, tick);
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+    fn stages(&self) -> &StageTracker {
+        &self.stages
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
+    fn judge(&self, h: &History, data: &SimData, record: &mut EvaluationRecord) {
         let all_covered = self.covered.iter().all(|c| *c);
-        let rest = self.rest_holds(data);
-        let released = self.released_and_clear(data);
-        let mut record = EvaluationRecord::new(CHECKER);
-        self.stages.write_into(&mut record);
-        record.task_id = self.task_id.clone();
         let covered_count = self.covered.iter().filter(|c| **c).count();
-        record.terminal_state_checks = vec![
-            TerminalCheck { name: format!("all_spill_markers_covered ({covered_count}/{})", self.covered.len()), passed: all_covered },
-            TerminalCheck { name: format!("(on {} {})", self.params.sponge, self.params.rest_region), passed: rest },
-            TerminalCheck { name: format!("released_and_clear {}", self.params.sponge), passed: released },
+        let checks = vec![
+            terminal_check(format!("all_spill_markers_covered ({covered_count}/{})", self.covered.len()), all_covered),
+            terminal_check(format!("(on {} {})", self.params.sponge, self.params.rest_region), self.rest_holds(h, data)),
+            terminal_check(format!("released_and_clear {}", self.params.sponge), self.released_and_clear(h, data)),
         ];
-        record.terminal_state_success = all_covered && rest && released;
-        let stages_done = self.stages.all_required_completed();
-        record.success = stages_done && record.terminal_state_success;
-        let counts = (self.control_steps, self.substeps);
-        crate::judge::support::fill_history(&mut record, counts, &self.events, &self.commitment, &self.goal, data);
-        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
-        record
+        judge_checks(record, &self.stages, checks);
     }
 
     fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {

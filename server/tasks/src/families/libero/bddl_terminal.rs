@@ -17,6 +17,7 @@ use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{
     EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
 };
+use crate::judge::family::History;
 use crate::judge::goal::GoalChecker;
 
 pub const CHECKER: &str = "bddl_terminal";
@@ -53,27 +54,15 @@ pub struct BddlTerminalParams {
 pub struct BddlTerminal {
     checker: String,
     judgment_target: Option<String>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
-    task_id: Option<String>,
-    control_steps: u64,
+    /// The shared bookkeeping ([`crate::judge::family`]); terminal judging keeps no stages during the episode.
+    history: History,
     last_goal: Option<bool>,
-    events: Vec<PrivateEvent>,
 }
 
 impl BddlTerminal {
     /// `checker` is the manifest's checker name (`bddl_terminal` or `bddl_terminal_open`; same rule).
     pub fn new(checker: impl Into<String>, goal: GoalChecker, commitment: CommitmentTracker, task_id: Option<String>) -> Self {
-        Self {
-            checker: checker.into(),
-            judgment_target: None,
-            goal,
-            commitment,
-            task_id,
-            control_steps: 0,
-            last_goal: None,
-            events: Vec::new(),
-        }
+        Self { checker: checker.into(), judgment_target: None, history: History::new(goal, commitment, task_id), last_goal: None }
     }
 
     /// Judges target identification against `target` (an instance of the scene).
@@ -83,10 +72,10 @@ impl BddlTerminal {
     }
 
     fn note_goal(&mut self, data: &SimData, tick: Tick) {
-        let now = self.goal.holds(data);
+        let now = self.history.goal.holds(data);
         if self.last_goal.is_some_and(|was| was != now) {
             let kind = if now { EventKind::GoalSatisfied } else { EventKind::GoalUnsatisfied };
-            self.events.push(PrivateEvent::new(kind, tick));
+            self.history.events.push(PrivateEvent::new(kind, tick));
         }
         self.last_goal = Some(now);
     }
@@ -98,43 +87,36 @@ impl Evaluator for BddlTerminal {
     }
 
     fn reset(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps = 0;
-        self.events.clear();
+        self.history.reset(data);
         self.last_goal = None;
-        self.commitment.reset(self.goal.index(), data);
         self.note_goal(data, tick);
     }
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
+        self.history.control_steps += 1;
         self.note_goal(data, tick);
-        self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
+        self.history.observe_commitment(data, tick);
     }
 
     fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord {
-        let report = self.goal.evaluate(data);
+        let report = self.history.goal.evaluate(data);
         let mut stages = StageTracker::new(vec![StageSpec::required(STAGE_NAME)]);
         stages.advance(tick, |_| report.success);
         let mut record = EvaluationRecord::new(self.checker.clone());
         stages.write_into(&mut record);
-        record.task_id = self.task_id.clone();
+        self.history.write_into(&mut record, data);
         record.success = report.success;
         record.terminal_state_success = report.success;
         record.terminal_state_checks =
             report.predicates.iter().map(|p| TerminalCheck { name: p.predicate.clone(), passed: p.value }).collect();
-        record.control_steps_observed = self.control_steps;
-        record.events = self.events.clone();
-        record.first_commitment = self.commitment.first().cloned();
         record.judgment_correct =
             self.judgment_target.as_deref().map(|t| crate::judge::evaluator::judged_target(record.first_commitment.as_ref(), t));
-        record.bddl_final_goal_success = Some(report.success);
-        record.bddl_goal = Some(report);
         record.failure_reason = (!record.success).then_some(FailureReason::TerminalStateInvalid);
         record
     }
 
     fn private_events(&self) -> Vec<PrivateEvent> {
-        self.events.clone()
+        self.history.events.clone()
     }
 
     /// K = 1: the goal holding now is the stage that finish would complete.

@@ -24,14 +24,11 @@ use serde::Deserialize;
 use serde_json::json;
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{
-    EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
-};
-use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{CompiledAtom, SceneIndex};
+use crate::judge::evaluator::{EvaluationRecord, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, judge_checks, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
-use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
+use crate::judge::predicates::CompiledAtom;
+use crate::judge::support::missing_in_model;
 
 pub const CHECKER: &str = "private_ordered_coffee_brewing";
 pub const STAGES: [&str; 3] =
@@ -60,8 +57,7 @@ pub struct CoffeeParams {
 
 /// The kind's table row.
 pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<CoffeeParams>, |checker, scene, model| {
-    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-    Ok(Box::new(CoffeeBrewing::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+    build(checker, scene, model, |h| CoffeeBrewing::new(checker.parse()?, h, model))
 });
 
 /// What one tick reads from the simulation.
@@ -163,35 +159,23 @@ impl CoffeeProgress {
     }
 }
 
+/// The kind's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
 pub struct CoffeeBrewing {
     params: CoffeeParams,
-    index: std::sync::Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
-    task_id: Option<String>,
     mug: usize,
     placed: CompiledAtom,
     button_qpos_adr: usize,
     /// The coffee's geoms and their model colour.
     liquid: Vec<(usize, [f32; 4])>,
     progress: CoffeeProgress,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
-    substeps: u64,
 }
 
 impl CoffeeBrewing {
-    pub fn new(
-        params: CoffeeParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        model: &MjModel,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
-        let index = goal.index().clone();
+    pub fn new(params: CoffeeParams, history: &History, model: &MjModel) -> Result<Self, TasksError> {
+        let index = &history.index;
         let mug = index.instance(&params.mug).ok_or_else(|| missing_in_model(CHECKER, "object", &params.mug))?;
         let atom = BddlAtom { predicate: "in".into(), args: vec![params.mug.clone(), params.mug_region.clone()], pos: Pos::default() };
-        let placed = CompiledAtom::compile(&index, &atom)?;
+        let placed = CompiledAtom::compile(index, &atom)?;
         let joint = model
             .name_to_id(MjtObjBase::mjOBJ_JOINT, &params.button_joint)
             .filter(|&j| model.jnt_type()[j] == MjtJoint::mjJNT_SLIDE)
@@ -205,33 +189,19 @@ impl CoffeeBrewing {
             return Err(missing_in_model(CHECKER, "geom ending in", &params.liquid_geom_suffix));
         }
         let progress = CoffeeProgress::new(&params, 0.0);
-        Ok(Self {
-            params,
-            index,
-            goal,
-            commitment,
-            task_id,
-            mug,
-            placed,
-            button_qpos_adr,
-            liquid,
-            progress,
-            events: Vec::new(),
-            control_steps: 0,
-            substeps: 0,
-        })
+        Ok(Self { params, mug, placed, button_qpos_adr, liquid, progress })
     }
 
-    fn read(&self, data: &SimData) -> CoffeeSample {
+    fn read(&self, h: &History, data: &SimData) -> CoffeeSample {
         CoffeeSample {
-            mug_placed: self.placed.evaluate(&self.index, data),
+            mug_placed: self.placed.evaluate(&h.index, data),
             button_q_m: data.qpos()[self.button_qpos_adr],
-            released: self.commitment.released_and_clear(&self.index, data, self.mug, self.params.clearance_m),
+            released: h.commitment.released_and_clear(&h.index, data, self.mug, self.params.clearance_m),
         }
     }
 }
 
-impl Evaluator for CoffeeBrewing {
+impl StagedFamily for CoffeeBrewing {
     fn checker(&self) -> &str {
         CHECKER
     }
@@ -240,60 +210,36 @@ impl Evaluator for CoffeeBrewing {
         true
     }
 
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, _history: &History, data: &SimData) {
         self.progress = CoffeeProgress::new(&self.params, data.qpos()[self.button_qpos_adr]);
-        self.events.clear();
-        self.control_steps = 0;
-        self.substeps = 0;
-        self.commitment.reset(&self.index, data);
     }
 
-    fn observe_substep(&mut self, data: &SimData, tick: Tick) {
-        self.substeps += 1;
-        let s = self.read(data);
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, control: bool) {
+        let s = self.read(h, data);
         self.progress.observe(tick, s);
+        if control {
+            self.progress.track_regressions(tick, s);
+        }
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
-        let s = self.read(data);
-        self.progress.observe(tick, s);
-        self.progress.track_regressions(tick, s);
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+    fn stages(&self) -> &StageTracker {
+        self.progress.stages()
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let last = self.read(data);
-        let p = &self.progress;
-        let mut record = EvaluationRecord::new(CHECKER);
-        p.stages().write_into(&mut record);
-        record.task_id = self.task_id.clone();
-        record.terminal_state_checks = vec![
-            TerminalCheck { name: format!("(in {} {})", self.params.mug, self.params.mug_region), passed: last.mug_placed },
-            TerminalCheck { name: "button_pressed_after_mug_placement".into(), passed: p.brewed() },
-            TerminalCheck { name: format!("released_and_clear {}", self.params.mug), passed: last.released },
+    fn judge(&self, h: &History, data: &SimData, record: &mut EvaluationRecord) {
+        let (last, p) = (self.read(h, data), &self.progress);
+        let checks = vec![
+            terminal_check(format!("(in {} {})", self.params.mug, self.params.mug_region), last.mug_placed),
+            terminal_check("button_pressed_after_mug_placement", p.brewed()),
+            terminal_check(format!("released_and_clear {}", self.params.mug), last.released),
         ];
-        record.terminal_state_success = record.terminal_state_checks.iter().all(|c| c.passed);
-        record.success = p.success(last);
+        judge_checks(record, p.stages(), checks);
         record.details = Some(p.details(last, &self.params));
-        let stages_done = p.stages().all_required_completed();
-        crate::judge::support::fill_history(&mut record, (self.control_steps, self.substeps), &self.events, &self.commitment, &self.goal, data);
-        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
-        record
     }
 
     fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {
         let alpha = if self.progress.brewed() { 1.0 } else { 0.0 };
         self.liquid.iter().map(|&(g, c)| (g, [c[0], c[1], c[2], alpha])).collect()
-    }
-
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(self.progress.stages(), &self.events)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        let s = self.progress.stages();
-        (s.completed_required_count(), s.required_count())
     }
 }
 

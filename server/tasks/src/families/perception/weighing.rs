@@ -21,14 +21,11 @@ use libero_sim::simulation::SimData;
 use serde::{Deserialize, Serialize};
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{
-    EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, TerminalCheck, Tick, score_percent,
-};
+use crate::judge::evaluator::{EvaluationRecord, FailureReason, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
-use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
-use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{EntityRef, SceneIndex, region_contains};
+use crate::judge::predicates::{EntityRef, region_contains};
+use crate::judge::support::missing_in_model;
 
 pub const CHECKER: &str = "private_physical_weighing";
 pub const PLACE_STAGE: &str = "Place_Heaviest_Mug_In_Green_Bin";
@@ -55,38 +52,26 @@ pub fn apply_mug_masses(params: &WeighingParams, model: &mut MjModel) -> Result<
 pub const EVALUATOR: EvaluatorKind = EvaluatorKind {
     model_edits: Some(|checker, model| apply_mug_masses(&checker.parse()?, model)),
     ..EvaluatorKind::plain(CHECKER, check::<WeighingParams>, |checker, scene, model| {
-        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-        Ok(Box::new(PhysicalWeighing::new(checker.parse()?, goal, commitment, checker.task_id_owned())?))
+        build(checker, scene, model, |h| PhysicalWeighing::new(checker.parse()?, h))
     })
 };
 
+/// The kind's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]). The stages are
+/// unordered latches: every one not yet completed is tested at every sample.
 pub struct PhysicalWeighing {
     params: WeighingParams,
-    task_id: Option<String>,
-    goal: GoalChecker,
-    index: std::sync::Arc<SceneIndex>,
-    commitment: CommitmentTracker,
     /// (mug name, instance) in stage order.
     mugs: Vec<(String, usize)>,
     target: usize,
     region: usize,
     z0: Vec<f64>,
-    weighed: Vec<Option<Tick>>,
-    placed: Option<Tick>,
-    stage_events: Vec<PrivateEvent>,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
-    substeps: u64,
+    /// `Weigh_<mug>` per mug, then the placement.
+    stages: StageTracker,
 }
 
 impl PhysicalWeighing {
-    pub fn new(
-        params: WeighingParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
-        let index = goal.index().clone();
+    pub fn new(params: WeighingParams, history: &History) -> Result<Self, TasksError> {
+        let index = &history.index;
         let instance = |n: &str| index.instance(n).ok_or_else(|| missing_in_model(CHECKER, "instance", n));
         let mugs = params.mugs.keys().map(|m| Ok((m.clone(), instance(m)?))).collect::<Result<Vec<_>, TasksError>>()?;
         let target = mugs
@@ -98,72 +83,32 @@ impl PhysicalWeighing {
             _ => return Err(missing_in_model(CHECKER, "region", &params.receptacle_region)),
         };
         let n = mugs.len();
-        Ok(Self {
-            params,
-            task_id,
-            goal,
-            index,
-            commitment,
-            mugs,
-            target,
-            region,
-            z0: vec![0.0; n],
-            weighed: vec![None; n],
-            placed: None,
-            stage_events: Vec::new(),
-            events: Vec::new(),
-            control_steps: 0,
-            substeps: 0,
-        })
+        let stages = Self::fresh_stages(&mugs);
+        Ok(Self { params, mugs, target, region, z0: vec![0.0; n], stages })
     }
 
-    fn stage_names(&self) -> Vec<String> {
-        self.mugs.iter().map(|(m, _)| format!("Weigh_{m}")).chain([PLACE_STAGE.to_owned()]).collect()
+    fn fresh_stages(mugs: &[(String, usize)]) -> StageTracker {
+        StageTracker::new(mugs.iter().map(|(m, _)| format!("Weigh_{m}")).chain([PLACE_STAGE.to_owned()]).map(StageSpec::required).collect())
     }
 
-    fn pos(&self, data: &SimData, m: usize) -> [f64; 3] {
-        data.xpos()[self.index.instances[self.mugs[m].1].body]
+    fn pos(&self, h: &History, data: &SimData, m: usize) -> [f64; 3] {
+        data.xpos()[h.index.instances[self.mugs[m].1].body]
     }
 
-    fn in_bin(&self, data: &SimData, m: usize) -> bool {
-        region_contains(&self.index, data, self.region, self.pos(data, m))
+    fn in_bin(&self, h: &History, data: &SimData, m: usize) -> bool {
+        region_contains(&h.index, data, self.region, self.pos(h, data, m))
     }
 
-    fn released_and_clear(&self, data: &SimData, m: usize) -> bool {
-        self.commitment.released_and_clear(&self.index, data, self.mugs[m].1, self.params.release_clear_distance_m)
+    fn released_and_clear(&self, h: &History, data: &SimData, m: usize) -> bool {
+        h.commitment.released_and_clear(&h.index, data, self.mugs[m].1, self.params.release_clear_distance_m)
     }
 
-    fn stage_event(&mut self, i: usize, tick: Tick) {
-        let names = self.stage_names();
-        self.stage_events.push(PrivateEvent {
-            stage_index: Some(i),
-            stage_name: Some(names[i].clone()),
-            ..PrivateEvent::new(EventKind::StageCompleted, tick)
-        });
-    }
-
-    fn sample(&mut self, data: &SimData, tick: Tick) {
-        for m in 0..self.mugs.len() {
-            if self.weighed[m].is_none()
-                && self.pos(data, m)[2] >= self.z0[m] + self.params.weigh_lift_m
-                && self.commitment.grasped(&self.index, data, self.mugs[m].1)
-            {
-                self.weighed[m] = Some(tick);
-                self.stage_event(m, tick);
-            }
-        }
-        if self.placed.is_none()
-            && self.weighed.iter().all(Option::is_some)
-            && self.in_bin(data, self.target)
-            && self.released_and_clear(data, self.target)
-        {
-            self.placed = Some(tick);
-            self.stage_event(self.mugs.len(), tick);
-        }
+    fn all_weighed(&self) -> bool {
+        (0..self.mugs.len()).all(|m| self.stages.is_completed(m))
     }
 }
 
-impl Evaluator for PhysicalWeighing {
+impl StagedFamily for PhysicalWeighing {
     fn checker(&self) -> &str {
         CHECKER
     }
@@ -172,81 +117,57 @@ impl Evaluator for PhysicalWeighing {
         true
     }
 
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
-        self.z0 = (0..self.mugs.len()).map(|m| self.pos(data, m)[2]).collect();
-        self.weighed = vec![None; self.mugs.len()];
-        self.placed = None;
-        self.stage_events.clear();
-        self.events.clear();
-        self.control_steps = 0;
-        self.substeps = 0;
-        self.commitment.reset(&self.index, data);
+    fn reset(&mut self, h: &History, data: &SimData) {
+        self.z0 = (0..self.mugs.len()).map(|m| self.pos(h, data, m)[2]).collect();
+        self.stages = Self::fresh_stages(&self.mugs);
     }
 
-    fn observe_substep(&mut self, data: &SimData, tick: Tick) {
-        self.substeps += 1;
-        self.sample(data, tick);
+    /// Weigh events (one per mug, latched), then the place event, which needs every mug weighed (this sample's
+    /// weighings included).
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, _control: bool) {
+        let n = self.mugs.len();
+        let weighed: Vec<bool> = (0..n)
+            .map(|m| {
+                self.stages.is_completed(m)
+                    || (self.pos(h, data, m)[2] >= self.z0[m] + self.params.weigh_lift_m
+                        && h.commitment.grasped(&h.index, data, self.mugs[m].1))
+            })
+            .collect();
+        let placed = weighed.iter().all(|&w| w)
+            && self.in_bin(h, data, self.target)
+            && self.released_and_clear(h, data, self.target);
+        self.stages.complete_where(tick, |i| if i < n { weighed[i] } else { placed });
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
-        self.sample(data, tick);
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
+    fn stages(&self) -> &StageTracker {
+        &self.stages
     }
 
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merge_events(&self.stage_events, &self.events)
-    }
-
-    /// Every weighed mug and the placement, latched as they happen (K = mugs + 1).
-    fn stage_progress(&self) -> (usize, usize) {
-        let done = self.weighed.iter().filter(|w| w.is_some()).count() + usize::from(self.placed.is_some());
-        (done, self.mugs.len() + 1)
-    }
-
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let mut record = EvaluationRecord::new(CHECKER);
-        record.task_id = self.task_id.clone();
-        let names = self.stage_names();
-        let done: Vec<bool> = self.weighed.iter().map(Option::is_some).chain([self.placed.is_some()]).collect();
-        record.required_stage_count = names.len();
-        record.completed_required_stage_count = done.iter().filter(|&&d| d).count();
-        record.stage_score_percent = score_percent(record.completed_required_stage_count, record.required_stage_count);
-        record.completed_stage_names = names.iter().zip(&done).filter(|(_, d)| **d).map(|(n, _)| n.clone()).collect();
-        record.ordered_stage_names = names;
-        record.stage_events = self.stage_events.clone();
-        let all_weighed = self.weighed.iter().all(Option::is_some);
-        let target_in = self.in_bin(data, self.target);
-        let released = self.released_and_clear(data, self.target);
+    fn judge(&self, h: &History, data: &SimData, record: &mut EvaluationRecord) {
+        let all_weighed = self.all_weighed();
+        let target_in = self.in_bin(h, data, self.target);
+        let released = self.released_and_clear(h, data, self.target);
         let target_name = &self.mugs[self.target].0;
         record.terminal_state_checks = vec![
-            TerminalCheck { name: "all_mugs_weighed".into(), passed: all_weighed },
-            TerminalCheck { name: format!("in {target_name} {}", self.params.receptacle_region), passed: target_in },
-            TerminalCheck { name: format!("released_and_clear {target_name}"), passed: released },
+            terminal_check("all_mugs_weighed", all_weighed),
+            terminal_check(format!("in {target_name} {}", self.params.receptacle_region), target_in),
+            terminal_check(format!("released_and_clear {target_name}"), released),
         ];
         record.terminal_state_success = target_in && released;
         record.success = all_weighed && target_in && released;
-        record.control_steps_observed = self.control_steps;
-        record.substeps_observed = self.substeps;
-        record.events = self.events.clone();
-        record.first_commitment = self.commitment.first().cloned();
-        let others_in = (0..self.mugs.len()).any(|m| m != self.target && self.in_bin(data, m));
+        let others_in = (0..self.mugs.len()).any(|m| m != self.target && self.in_bin(h, data, m));
         record.judgment_correct = Some(target_in && !others_in);
-        let report = self.goal.evaluate(data);
-        record.bddl_final_goal_success = Some(report.success);
-        record.bddl_goal = Some(report);
         record.failure_reason = FailureReason::of_staged(record.success, all_weighed);
         let weighing: Vec<serde_json::Value> = self
             .mugs
             .iter()
-            .zip(&self.weighed)
-            .map(|((m, _), w)| serde_json::json!({"mug": m, "weighed_at": w}))
+            .enumerate()
+            .map(|(m, (name, _))| serde_json::json!({"mug": name, "weighed_at": self.stages.completed_at(m)}))
             .collect();
         record.details = Some(serde_json::json!({
             "weighing_interactions": weighing,
             "target": target_name,
             "other_mug_in_bin": others_in,
         }));
-        record
     }
 }

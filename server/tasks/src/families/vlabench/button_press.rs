@@ -20,11 +20,10 @@ use libero_sim::simulation::SimData;
 use serde::{Deserialize, Serialize};
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, Tick};
-use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
-use crate::judge::goal::GoalChecker;
+use crate::judge::evaluator::{EvaluationRecord, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, Judged, StagedFamily, judge_history};
 use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::missing_in_model;
 
 pub const CHECKER: &str = "private_button_press";
 pub const GATED_CHECKER: &str = "private_contact_gated_button";
@@ -88,7 +87,8 @@ struct Watched {
     history: ButtonHistory,
 }
 
-pub struct ButtonPress {
+/// The kinds' stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
+pub struct Buttons {
     checker: &'static str,
     params: ButtonPressParams,
     /// All watched buttons; `target` indexes the one to press.
@@ -98,18 +98,15 @@ pub struct ButtonPress {
     gated: bool,
     wrong_press_fails: bool,
     wrong_button_pressed: bool,
-    task_id: Option<String>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
     /// `is_gripper_geom[g]`: g is a gripper collision geom.
     is_gripper_geom: Vec<bool>,
     stages: StageTracker,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
-    substeps: u64,
 }
 
-impl ButtonPress {
+/// Either kind's evaluator.
+pub type ButtonPress = Judged<Buttons>;
+
+impl Judged<Buttons> {
     /// T13: one button, `params.button`.
     pub fn new(
         params: ButtonPressParams,
@@ -119,7 +116,7 @@ impl ButtonPress {
     ) -> Result<Self, TasksError> {
         let sensor = params.touch_sensor.clone();
         let button = params.button.clone();
-        Self::build(CHECKER, params, &[(button, sensor)], 0, false, false, scene, model, task_id)
+        Buttons::build(CHECKER, params, &[(button, sensor)], 0, false, false, scene, model, task_id)
     }
 
     /// T06, T09, T10: several buttons, one target; a press of another one fails.
@@ -140,9 +137,11 @@ impl ButtonPress {
             contact_normal_force_min_n: params.contact_normal_force_min_n,
             min_press_streak_substeps: params.min_press_streak_substeps,
         };
-        Self::build(GATED_CHECKER, single, &named, target, true, params.wrong_press_fails, scene, model, task_id)
+        Buttons::build(GATED_CHECKER, single, &named, target, true, params.wrong_press_fails, scene, model, task_id)
     }
+}
 
+impl Buttons {
     #[allow(clippy::too_many_arguments)]
     fn build(
         checker: &'static str,
@@ -154,8 +153,8 @@ impl ButtonPress {
         scene: &ComposedScene,
         model: &MjModel,
         task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
-        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+    ) -> Result<ButtonPress, TasksError> {
+        let history = History::for_scene(scene, model, task_id)?;
         let missing = |kind: &str, name: &str| missing_in_model(checker, kind, name);
         let mut buttons = Vec::new();
         for (button, sensor_name) in named {
@@ -175,7 +174,7 @@ impl ButtonPress {
         if !is_gripper_geom.iter().any(|&b| b) {
             return Err(missing("gripper collision geoms", GRIPPER_GEOM_PREFIX));
         }
-        Ok(Self {
+        let family = Self {
             checker,
             buttons,
             target,
@@ -185,23 +184,8 @@ impl ButtonPress {
             is_gripper_geom,
             stages: StageTracker::new(vec![StageSpec::required(STAGE_NAME)]),
             params,
-            task_id,
-            goal,
-            commitment,
-            events: Vec::new(),
-            control_steps: 0,
-            substeps: 0,
-        })
-    }
-
-    /// The target button's touch sensor reading.
-    pub fn touch(&self, data: &SimData) -> f64 {
-        data.sensordata()[self.buttons[self.target].sensor_adr]
-    }
-
-    /// Whether a gripper collision geom pushes on the target's cap with at least the minimum normal force.
-    pub fn gripper_pushes_cap(&self, data: &SimData) -> bool {
-        self.gripper_pushes(data, self.buttons[self.target].cap_geom)
+        };
+        Ok(Judged::with(history, family))
     }
 
     fn gripper_pushes(&self, data: &SimData, cap_geom: usize) -> bool {
@@ -213,49 +197,13 @@ impl ButtonPress {
         })
     }
 
-    fn sample(&mut self, data: &SimData, tick: Tick) {
-        for b in 0..self.buttons.len() {
-            let touching = data.sensordata()[self.buttons[b].sensor_adr] >= self.params.touch_sensor_min;
-            let pressed = touching && self.gripper_pushes(data, self.buttons[b].cap_geom);
-            let h = &mut self.buttons[b].history;
-            h.touching_now = touching;
-            h.touch_observed_private |= touching;
-            if pressed {
-                h.pressed_steps_private += 1;
-                h.streak += 1;
-                h.max_pressed_streak_private = h.max_pressed_streak_private.max(h.streak);
-            } else {
-                h.streak = 0;
-            }
-            if pressed && self.gated {
-                if b != self.target {
-                    self.wrong_button_pressed = true;
-                }
-                let name = self.buttons[b].history.button.clone();
-                self.events.extend(self.commitment.commit_press_event(&name, tick));
-            }
-        }
-        let done = self.buttons[self.target].history.max_pressed_streak_private >= self.params.min_press_streak_substeps;
-        if self.stages.advance(tick, |_| done).is_some() {
-            self.events.extend(self.commitment.commit_press_event(&self.params.button, tick));
-        }
-    }
-
     /// The target button's history.
     pub fn history(&self) -> &ButtonHistory {
         &self.buttons[self.target].history
     }
 }
 
-impl Evaluator for ButtonPress {
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(&self.stages, &self.events)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        (self.stages.completed_required_count(), self.stages.required_count())
-    }
-
+impl StagedFamily for Buttons {
     fn checker(&self) -> &str {
         self.checker
     }
@@ -264,51 +212,56 @@ impl Evaluator for ButtonPress {
         true
     }
 
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, _history: &History, data: &SimData) {
         for b in &mut self.buttons {
             b.history = ButtonHistory { button: b.history.button.clone(), ..Default::default() };
             b.history.touching_now = data.sensordata()[b.sensor_adr] >= self.params.touch_sensor_min;
         }
         self.wrong_button_pressed = false;
         self.stages = StageTracker::new(vec![StageSpec::required(STAGE_NAME)]);
-        self.events.clear();
-        self.control_steps = 0;
-        self.substeps = 0;
-        self.commitment.reset(self.goal.index(), data);
     }
 
-    fn observe_substep(&mut self, data: &SimData, tick: Tick) {
-        self.substeps += 1;
-        self.sample(data, tick);
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, _control: bool) {
+        for b in 0..self.buttons.len() {
+            let touching = data.sensordata()[self.buttons[b].sensor_adr] >= self.params.touch_sensor_min;
+            let pressed = touching && self.gripper_pushes(data, self.buttons[b].cap_geom);
+            let bh = &mut self.buttons[b].history;
+            bh.touching_now = touching;
+            bh.touch_observed_private |= touching;
+            if pressed {
+                bh.pressed_steps_private += 1;
+                bh.streak += 1;
+                bh.max_pressed_streak_private = bh.max_pressed_streak_private.max(bh.streak);
+            } else {
+                bh.streak = 0;
+            }
+            if pressed && self.gated {
+                if b != self.target {
+                    self.wrong_button_pressed = true;
+                }
+                let name = self.buttons[b].history.button.clone();
+                h.events.extend(h.commitment.commit_press_event(&name, tick));
+            }
+        }
+        let done = self.buttons[self.target].history.max_pressed_streak_private >= self.params.min_press_streak_substeps;
+        if self.stages.advance(tick, |_| done).is_some() {
+            h.events.extend(h.commitment.commit_press_event(&self.params.button, tick));
+        }
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
-        self.sample(data, tick);
-        self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
+    fn stages(&self) -> &StageTracker {
+        &self.stages
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let mut record = EvaluationRecord::new(self.checker);
-        self.stages.write_into(&mut record);
-        record.task_id = self.task_id.clone();
+    /// The press history decides; nothing has to hold on the final state (catalog §1.4a).
+    fn judge(&self, _history: &History, _data: &SimData, record: &mut EvaluationRecord) {
         let target_pressed = self.stages.all_required_completed();
         let wrong_fails = self.wrong_press_fails && self.wrong_button_pressed;
-        record.success = target_pressed && !wrong_fails;
-        // the press history decides; nothing has to hold on the final state (catalog §1.4a)
-        record.terminal_state_success = true;
-        record.control_steps_observed = self.control_steps;
-        record.substeps_observed = self.substeps;
-        record.events = self.events.clone();
-        record.first_commitment = self.commitment.first().cloned();
+        judge_history(record, target_pressed && !wrong_fails, Vec::new());
         if self.gated {
             let target = &self.buttons[self.target].history.button;
             record.judgment_correct = Some(crate::judge::evaluator::judged_target(record.first_commitment.as_ref(), target));
         }
-        let report = self.goal.evaluate(data);
-        record.bddl_final_goal_success = Some(report.success);
-        record.bddl_goal = Some(report);
-        record.failure_reason = (!record.success).then_some(FailureReason::IncompleteStage);
         let histories: Vec<&ButtonHistory> = self.buttons.iter().map(|b| &b.history).collect();
         record.details = Some(serde_json::json!({
             "buttons": histories,
@@ -317,7 +270,6 @@ impl Evaluator for ButtonPress {
             "wrong_button_pressed": self.wrong_button_pressed,
             "min_press_streak_substeps": self.params.min_press_streak_substeps,
         }));
-        record
     }
 
     fn geom_rgba_overrides(&self) -> Vec<(usize, [f32; 4])> {

@@ -28,19 +28,17 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
+use crate::judge::evaluator::{EvaluationRecord, FailureReason, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, judge_checks, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
-use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
-use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::{CompiledAtom, SceneIndex, in_subtree};
+use crate::judge::predicates::{CompiledAtom, in_subtree};
+use crate::judge::support::missing_in_model;
 
 pub const CHECKER: &str = "private_ordered_physical_seesaw";
 
 /// T30's basic seesaw: the kind's row without a variant.
 pub const EVALUATOR: EvaluatorKind = EvaluatorKind::plain(CHECKER, check::<SeesawParams>, |checker, scene, model| {
-    let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-    Ok(Box::new(PhysicalSeesaw::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+    build(checker, scene, model, |h| PhysicalSeesaw::new(checker.parse()?, h, model))
 });
 pub const STAGES: [&str; 4] = [
     "01_Place_First_Counterweight",
@@ -164,10 +162,9 @@ impl SeesawProgress {
     }
 }
 
+/// T30's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
 pub struct PhysicalSeesaw {
     params: SeesawParams,
-    history: SeesawHistory,
-    task_id: Option<String>,
     target: usize,
     weights: Vec<usize>,
     rig: SeesawRig,
@@ -278,61 +275,9 @@ impl SeesawRig {
     }
 }
 
-/// What the seesaw evaluators (T30 and the pool's adaptive and comparison variants) keep of an episode besides their
-/// stages: the scene index, the BDDL goal, the first commitment, the private events and the control steps seen; and
-/// how a finished episode's record is filled from them.
-pub(crate) struct SeesawHistory {
-    pub index: std::sync::Arc<SceneIndex>,
-    pub goal: GoalChecker,
-    pub commitment: CommitmentTracker,
-    events: Vec<PrivateEvent>,
-    control_steps: u64,
-}
-
-impl SeesawHistory {
-    pub fn new(goal: GoalChecker, commitment: CommitmentTracker) -> Self {
-        Self { index: goal.index().clone(), goal, commitment, events: Vec::new(), control_steps: 0 }
-    }
-
-    pub fn reset(&mut self, data: &SimData) {
-        self.events.clear();
-        self.control_steps = 0;
-        self.commitment.reset(&self.index, data);
-    }
-
-    pub fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
-        self.events.extend(self.commitment.observe_event(&self.index, data, tick));
-    }
-
-    pub fn private_events(&self, stages: &StageTracker) -> Vec<PrivateEvent> {
-        crate::judge::evaluator::merged_events(stages, &self.events)
-    }
-
-    /// The record: the stages, the terminal checks, success when every required stage completed and every check
-    /// passed, and the history. Also says whether every required stage completed.
-    pub fn record(&self, task_id: Option<String>, stages: &StageTracker, checks: Vec<TerminalCheck>, data: &SimData) -> (EvaluationRecord, bool) {
-        let mut record = EvaluationRecord::new(CHECKER);
-        stages.write_into(&mut record);
-        record.task_id = task_id;
-        record.terminal_state_success = checks.iter().all(|c| c.passed);
-        record.terminal_state_checks = checks;
-        let stages_done = stages.all_required_completed();
-        record.success = stages_done && record.terminal_state_success;
-        crate::judge::support::fill_history(&mut record, (self.control_steps, 0), &self.events, &self.commitment, &self.goal, data);
-        (record, stages_done)
-    }
-}
-
 impl PhysicalSeesaw {
-    pub fn new(
-        params: SeesawParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        model: &MjModel,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
-        let index = goal.index().clone();
+    pub fn new(params: SeesawParams, history: &History, model: &MjModel) -> Result<Self, TasksError> {
+        let index = &history.index;
         let instance = |n: &str| index.instance(n).ok_or_else(|| missing_in_model(CHECKER, "instance", n));
         let target = instance(&params.target)?;
         let weights = params.weights.iter().map(|w| instance(w)).collect::<Result<Vec<_>, _>>()?;
@@ -351,90 +296,61 @@ impl PhysicalSeesaw {
             args: vec![params.target.clone(), params.basket_region.clone()],
             pos: Default::default(),
         };
-        let in_basket = CompiledAtom::compile(&index, &atom)?;
+        let in_basket = CompiledAtom::compile(index, &atom)?;
         let progress = SeesawProgress::new(&params.stages, params.hinge_lift_rad, params.target_lift_m);
-        Ok(Self {
-            params,
-            history: SeesawHistory::new(goal, commitment),
-            task_id,
-            target,
-            weights,
-            rig,
-            weight_geoms,
-            in_basket,
-            hinge0_rad: 0.0,
-            target_z0_m: 0.0,
-            progress,
-        })
+        Ok(Self { params, target, weights, rig, weight_geoms, in_basket, hinge0_rad: 0.0, target_z0_m: 0.0, progress })
     }
 
-    fn released(&self, data: &SimData, k: usize) -> bool {
-        self.rig.on_far_end(data, self.history.index.instances[self.weights[k]].body)
+    fn released(&self, h: &History, data: &SimData, k: usize) -> bool {
+        self.rig.on_far_end(data, h.index.instances[self.weights[k]].body)
             && self.rig.touches_board(data, &self.weight_geoms[k])
-            && !self.history.commitment.grasped(&self.history.index, data, self.weights[k])
+            && !h.commitment.grasped(&h.index, data, self.weights[k])
     }
 
-    fn sample(&self, data: &SimData) -> SeesawSample {
+    fn measure(&self, h: &History, data: &SimData) -> SeesawSample {
         SeesawSample {
-            released: (0..self.weights.len()).filter(|&k| self.released(data, k)).count(),
+            released: (0..self.weights.len()).filter(|&k| self.released(h, data, k)).count(),
             weights: self.weights.len(),
             hinge_delta_rad: self.rig.hinge_rad(data) - self.hinge0_rad,
-            target_lift_m: data.xpos()[self.history.index.instances[self.target].body][2] - self.target_z0_m,
-            target_in_basket: self.in_basket.evaluate(&self.history.index, data),
+            target_lift_m: data.xpos()[h.index.instances[self.target].body][2] - self.target_z0_m,
+            target_in_basket: self.in_basket.evaluate(&h.index, data),
         }
     }
 }
 
-impl Evaluator for PhysicalSeesaw {
+impl StagedFamily for PhysicalSeesaw {
     fn checker(&self) -> &str {
         CHECKER
     }
 
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        self.history.private_events(&self.progress.stages)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        (self.progress.stages.completed_required_count(), self.progress.stages.required_count())
-    }
-
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, h: &History, data: &SimData) {
         self.hinge0_rad = self.rig.hinge_rad(data);
-        self.target_z0_m = data.xpos()[self.history.index.instances[self.target].body][2];
+        self.target_z0_m = data.xpos()[h.index.instances[self.target].body][2];
         self.progress = SeesawProgress::new(&self.params.stages, self.params.hinge_lift_rad, self.params.target_lift_m);
-        self.history.reset(data);
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        let s = self.sample(data);
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, _control: bool) {
+        let s = self.measure(h, data);
         self.progress.observe(&s, tick);
-        self.history.observe_control_step(data, tick);
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let s = self.sample(data);
+    fn stages(&self) -> &StageTracker {
+        &self.progress.stages
+    }
+
+    fn judge(&self, h: &History, data: &SimData, record: &mut EvaluationRecord) {
+        let s = self.measure(h, data);
         let premature = self.progress.premature_lift();
-        let lift_seen = self.progress.lift_event().is_some();
-        let weights_released = s.all_released();
         let checks = vec![
-            TerminalCheck { name: format!("(in {} {})", self.params.target, self.params.basket_region), passed: s.target_in_basket },
-            TerminalCheck { name: "lift_event_seen".into(), passed: lift_seen },
-            TerminalCheck {
-                name: format!("counterweights_released_on_far_end ({}/{})", s.released, s.weights),
-                passed: weights_released,
-            },
-            TerminalCheck { name: "no_premature_lift".into(), passed: premature.is_none() },
+            terminal_check(format!("(in {} {})", self.params.target, self.params.basket_region), s.target_in_basket),
+            terminal_check("lift_event_seen", self.progress.lift_event().is_some()),
+            terminal_check(format!("counterweights_released_on_far_end ({}/{})", s.released, s.weights), s.all_released()),
+            terminal_check("no_premature_lift", premature.is_none()),
         ];
-        let (mut record, stages_done) = self.history.record(self.task_id.clone(), &self.progress.stages, checks, data);
-        record.failure_reason = if record.success {
-            None
-        } else if premature.is_some() {
-            Some(FailureReason::PrematureLiftDetected)
-        } else if !stages_done {
-            Some(FailureReason::IncompleteStage)
-        } else {
-            Some(FailureReason::TerminalStateInvalid)
-        };
+        judge_checks(record, &self.progress.stages, checks);
+        if !record.success && premature.is_some() {
+            record.failure_reason = Some(FailureReason::PrematureLiftDetected);
+        }
         record.details = Some(serde_json::json!({
             "hinge_delta_rad": s.hinge_delta_rad,
             "target_lift_m": s.target_lift_m,
@@ -444,7 +360,6 @@ impl Evaluator for PhysicalSeesaw {
             "lift_event_at": self.progress.lift_event(),
             "weights_released_at_finish": s.released,
         }));
-        record
     }
 }
 

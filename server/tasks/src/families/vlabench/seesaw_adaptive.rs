@@ -37,13 +37,12 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawHistory, SeesawRig};
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
-use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::CompiledAtom;
+use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawRig};
+use crate::judge::evaluator::{EvaluationRecord, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, judge_checks, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
-use crate::judge::support::{instance_mass, missing_in_model, scene_goal_and_commitment, set_instance_masses};
+use crate::judge::predicates::CompiledAtom;
+use crate::judge::support::{instance_mass, missing_in_model, set_instance_masses};
 
 /// The `variant` of the checker's params that selects this evaluator.
 pub const VARIANT: &str = "adaptive_mass_selection";
@@ -62,8 +61,7 @@ pub const EVALUATOR: EvaluatorKind = EvaluatorKind {
         set_instance_masses(CHECKER, &p.masses_kg, model)
     }),
     ..EvaluatorKind::plain(CHECKER, check::<AdaptiveParams>, |checker, scene, model| {
-        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-        Ok(Box::new(AdaptiveSeesaw::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+        build(checker, scene, model, |h| AdaptiveSeesaw::new(checker.parse()?, h, model))
     })
 };
 
@@ -215,10 +213,9 @@ impl AdaptiveProgress {
     }
 }
 
+/// The variant's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
 pub struct AdaptiveSeesaw {
     params: AdaptiveParams,
-    history: SeesawHistory,
-    task_id: Option<String>,
     payload: usize,
     /// Root body per weight.
     weight_bodies: Vec<usize>,
@@ -232,20 +229,14 @@ pub struct AdaptiveSeesaw {
 }
 
 impl AdaptiveSeesaw {
-    pub fn new(
-        params: AdaptiveParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        model: &MjModel,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
+    pub fn new(params: AdaptiveParams, history: &History, model: &MjModel) -> Result<Self, TasksError> {
         if params.variant != VARIANT || params.weights.len() < SELECTION || params.stages.len() != STAGES.len() {
             return Err(TasksError::Scene(format!(
                 "{CHECKER} ({VARIANT}): needs variant {VARIANT:?}, at least {SELECTION} weights and {} stages",
                 STAGES.len()
             )));
         }
-        let index = goal.index().clone();
+        let index = &history.index;
         let instance = |n: &str| index.instance(n).ok_or_else(|| missing_in_model(CHECKER, "instance", n));
         let payload = instance(&params.payload)?;
         let weight_bodies =
@@ -267,12 +258,10 @@ impl AdaptiveSeesaw {
             args: vec![params.payload.clone(), params.basket_region.clone()],
             pos: Default::default(),
         };
-        let in_basket = CompiledAtom::compile(&index, &atom)?;
+        let in_basket = CompiledAtom::compile(index, &atom)?;
         let progress = Self::fresh_progress(&params, &masses_kg);
         Ok(Self {
             params,
-            history: SeesawHistory::new(goal, commitment),
-            task_id,
             payload,
             weight_bodies,
             weight_geoms,
@@ -295,13 +284,13 @@ impl AdaptiveSeesaw {
         )
     }
 
-    fn sample(&self, data: &SimData) -> AdaptiveSample {
+    fn measure(&self, h: &History, data: &SimData) -> AdaptiveSample {
         AdaptiveSample {
             on_far_end: self.weight_bodies.iter().map(|&b| self.rig.on_far_end(data, b)).collect(),
             touching_board: self.weight_geoms.iter().map(|g| self.rig.touches_board(data, g)).collect(),
             hinge_delta_rad: self.rig.hinge_rad(data) - self.hinge0_rad,
-            payload_lift_m: data.xpos()[self.history.index.instances[self.payload].body][2] - self.payload_z0_m,
-            payload_in_basket: self.in_basket.evaluate(&self.history.index, data),
+            payload_lift_m: data.xpos()[h.index.instances[self.payload].body][2] - self.payload_z0_m,
+            payload_in_basket: self.in_basket.evaluate(&h.index, data),
         }
     }
 
@@ -310,38 +299,30 @@ impl AdaptiveSeesaw {
     }
 }
 
-impl Evaluator for AdaptiveSeesaw {
+impl StagedFamily for AdaptiveSeesaw {
     fn checker(&self) -> &str {
         CHECKER
     }
 
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        self.history.private_events(&self.progress.stages)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        (self.progress.stages.completed_required_count(), self.progress.stages.required_count())
-    }
-
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, h: &History, data: &SimData) {
         self.hinge0_rad = self.rig.hinge_rad(data);
-        self.payload_z0_m = data.xpos()[self.history.index.instances[self.payload].body][2];
+        self.payload_z0_m = data.xpos()[h.index.instances[self.payload].body][2];
         self.progress = Self::fresh_progress(&self.params, &self.masses_kg);
-        self.history.reset(data);
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        let s = self.sample(data);
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, _control: bool) {
+        let s = self.measure(h, data);
         self.progress.observe(&s, tick);
-        self.history.observe_control_step(data, tick);
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let s = self.sample(data);
-        let checks =
-            self.progress.terminal_checks(&s).into_iter().map(|(name, passed)| TerminalCheck { name: name.into(), passed }).collect();
-        let (mut record, stages_done) = self.history.record(self.task_id.clone(), &self.progress.stages, checks, data);
-        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
+    fn stages(&self) -> &StageTracker {
+        &self.progress.stages
+    }
+
+    fn judge(&self, h: &History, data: &SimData, record: &mut EvaluationRecord) {
+        let s = self.measure(h, data);
+        let checks = self.progress.terminal_checks(&s).into_iter().map(|(name, passed)| terminal_check(name, passed)).collect();
+        judge_checks(record, &self.progress.stages, checks);
         let (max_hinge, max_lift) = self.progress.maxima();
         let masses: BTreeMap<&str, f64> =
             self.params.weights.iter().map(String::as_str).zip(self.masses_kg.iter().copied()).collect();
@@ -358,7 +339,6 @@ impl Evaluator for AdaptiveSeesaw {
             "payload_lift_m": s.payload_lift_m,
             "weights_on_far_end_at_finish": self.names(&(0..s.on_far_end.len()).filter(|&k| s.on_far_end[k]).collect::<Vec<_>>()),
         }));
-        record
     }
 }
 

@@ -36,13 +36,12 @@ use libero_sim::simulation::SimData;
 use serde::Deserialize;
 
 use crate::TasksError;
-use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawHistory, SeesawRig};
-use crate::judge::commitment::CommitmentTracker;
-use crate::judge::evaluator::{EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick};
-use crate::judge::goal::GoalChecker;
-use crate::judge::predicates::CompiledAtom;
+use crate::families::vlabench::seesaw::{CHECKER, GeomMask, SeesawRig};
+use crate::judge::evaluator::{EvaluationRecord, StageSpec, StageTracker, Tick};
+use crate::judge::family::{History, StagedFamily, build, judge_checks, terminal_check};
 use crate::judge::kind::{EvaluatorKind, check};
-use crate::judge::support::{instance_mass, missing_in_model, scene_goal_and_commitment, set_instance_masses};
+use crate::judge::predicates::CompiledAtom;
+use crate::judge::support::{instance_mass, missing_in_model, set_instance_masses};
 
 /// The `variant` of the checker's params that selects this evaluator.
 pub const VARIANT: &str = "active_weight_comparison";
@@ -61,8 +60,7 @@ pub const EVALUATOR: EvaluatorKind = EvaluatorKind {
         set_instance_masses(CHECKER, &p.masses_kg, model)
     }),
     ..EvaluatorKind::plain(CHECKER, check::<ComparisonParams>, |checker, scene, model| {
-        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
-        Ok(Box::new(WeightComparison::new(checker.parse()?, goal, commitment, model, checker.task_id_owned())?))
+        build(checker, scene, model, |h| WeightComparison::new(checker.parse()?, h, model))
     })
 };
 
@@ -268,10 +266,9 @@ impl ComparisonProgress {
     }
 }
 
+/// The variant's stage logic on the simulation (the shared skeleton: [`crate::judge::family`]).
 pub struct WeightComparison {
     params: ComparisonParams,
-    history: SeesawHistory,
-    task_id: Option<String>,
     candidates: [usize; 2],
     candidate_geoms: [GeomMask; 2],
     basket: usize,
@@ -283,20 +280,14 @@ pub struct WeightComparison {
 }
 
 impl WeightComparison {
-    pub fn new(
-        params: ComparisonParams,
-        goal: GoalChecker,
-        commitment: CommitmentTracker,
-        model: &MjModel,
-        task_id: Option<String>,
-    ) -> Result<Self, TasksError> {
+    pub fn new(params: ComparisonParams, history: &History, model: &MjModel) -> Result<Self, TasksError> {
         if params.variant != VARIANT || params.candidates.len() != 2 || params.stages.len() != STAGES.len() {
             return Err(TasksError::Scene(format!(
                 "{CHECKER} ({VARIANT}): needs variant {VARIANT:?}, exactly two candidates and {} stages",
                 STAGES.len()
             )));
         }
-        let index = goal.index().clone();
+        let index = &history.index;
         let instance = |n: &str| index.instance(n).ok_or_else(|| missing_in_model(CHECKER, "instance", n));
         let candidates = [instance(&params.candidates[0])?, instance(&params.candidates[1])?];
         let basket = instance(&params.basket)?;
@@ -307,7 +298,7 @@ impl WeightComparison {
                 args: vec![name.clone(), params.basket_region.clone()],
                 pos: Default::default(),
             };
-            CompiledAtom::compile(&index, &atom)
+            CompiledAtom::compile(index, &atom)
         };
         let in_region = [in_region(&params.candidates[0])?, in_region(&params.candidates[1])?];
         // the live model's masses, as the original reads `body_mass` (the private params have been written there)
@@ -324,8 +315,6 @@ impl WeightComparison {
         let progress = ComparisonProgress::new(&params.stages, masses_kg, (&params).into());
         Ok(Self {
             params,
-            history: SeesawHistory::new(goal, commitment),
-            task_id,
             candidates,
             candidate_geoms,
             basket,
@@ -337,15 +326,15 @@ impl WeightComparison {
         })
     }
 
-    fn sample(&self, data: &SimData) -> ComparisonSample {
-        let body = |k: usize| self.history.index.instances[self.candidates[k]].body;
+    fn measure(&self, h: &History, data: &SimData) -> ComparisonSample {
+        let body = |k: usize| h.index.instances[self.candidates[k]].body;
         ComparisonSample {
             on_far_end: [0, 1].map(|k| self.rig.on_far_end(data, body(k))),
             touching_board: [0, 1].map(|k| self.rig.touches_board(data, &self.candidate_geoms[k])),
             hinge_delta_rad: self.rig.hinge_rad(data) - self.hinge0_rad,
             hinge_velocity_rad_s: self.rig.hinge_velocity(data),
             in_basket: [0, 1].map(|k| {
-                self.in_region[k].evaluate(&self.history.index, data) && self.history.index.in_contact(data, self.basket, self.candidates[k])
+                self.in_region[k].evaluate(&h.index, data) && h.index.in_contact(data, self.basket, self.candidates[k])
             }),
         }
     }
@@ -355,37 +344,29 @@ impl WeightComparison {
     }
 }
 
-impl Evaluator for WeightComparison {
+impl StagedFamily for WeightComparison {
     fn checker(&self) -> &str {
         CHECKER
     }
 
-    fn private_events(&self) -> Vec<PrivateEvent> {
-        self.history.private_events(&self.progress.stages)
-    }
-
-    fn stage_progress(&self) -> (usize, usize) {
-        (self.progress.stages.completed_required_count(), self.progress.stages.required_count())
-    }
-
-    fn reset(&mut self, data: &SimData, _tick: Tick) {
+    fn reset(&mut self, _history: &History, data: &SimData) {
         self.hinge0_rad = self.rig.hinge_rad(data);
         self.progress = ComparisonProgress::new(&self.params.stages, self.masses_kg, (&self.params).into());
-        self.history.reset(data);
     }
 
-    fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        let s = self.sample(data);
+    fn sample(&mut self, h: &mut History, data: &SimData, tick: Tick, _control: bool) {
+        let s = self.measure(h, data);
         self.progress.observe(&s, tick);
-        self.history.observe_control_step(data, tick);
     }
 
-    fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
-        let s = self.sample(data);
-        let checks =
-            self.progress.terminal_checks(&s).into_iter().map(|(name, passed)| TerminalCheck { name: name.into(), passed }).collect();
-        let (mut record, stages_done) = self.history.record(self.task_id.clone(), &self.progress.stages, checks, data);
-        record.failure_reason = FailureReason::of_staged(record.success, stages_done);
+    fn stages(&self) -> &StageTracker {
+        &self.progress.stages
+    }
+
+    fn judge(&self, h: &History, data: &SimData, record: &mut EvaluationRecord) {
+        let s = self.measure(h, data);
+        let checks = self.progress.terminal_checks(&s).into_iter().map(|(name, passed)| terminal_check(name, passed)).collect();
+        judge_checks(record, &self.progress.stages, checks);
         let names = &self.params.candidates;
         let masses: BTreeMap<&str, f64> = names.iter().map(String::as_str).zip(self.masses_kg).collect();
         let responses: BTreeMap<&str, Option<f64>> =
@@ -403,7 +384,6 @@ impl Evaluator for WeightComparison {
             "hinge_delta_rad": s.hinge_delta_rad,
             "candidates_in_basket_at_finish": names.iter().zip(s.in_basket).filter(|(_, b)| *b).map(|(n, _)| n).collect::<Vec<_>>(),
         }));
-        record
     }
 }
 

@@ -26,13 +26,12 @@ use libero_sim::simulation::SimData;
 use serde::{Deserialize, Serialize};
 
 use crate::TasksError;
-use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{
     EvaluationRecord, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
 };
-use crate::judge::support::{missing_in_model, scene_goal_and_commitment};
-use crate::judge::goal::GoalChecker;
+use crate::judge::family::History;
 use crate::judge::kind::{EvaluatorKind, check};
+use crate::judge::support::missing_in_model;
 
 pub const CHECKER: &str = "private_tube_insertion";
 
@@ -105,9 +104,8 @@ struct JudgedTube {
 
 pub struct TubeInsertion {
     params: TubeInsertionParams,
-    task_id: Option<String>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
+    /// The shared bookkeeping ([`crate::judge::family`]); terminal judging keeps no stages during the episode.
+    history: History,
     tubes: Vec<JudgedTube>,
     /// Several tubes (`tubes`): stages and check names carry the tube's name.
     several: bool,
@@ -115,11 +113,9 @@ pub struct TubeInsertion {
     /// `in_rack[b]`: body b belongs to the rack's subtree.
     in_rack: Vec<bool>,
     geom_body: Vec<usize>,
-    control_steps: u64,
     steps_all_checks_passed: u64,
     /// Tubes passing all their checks on the latest observed state: the stages finish would complete there.
     passing_now: usize,
-    events: Vec<PrivateEvent>,
 }
 
 /// `<name>`, `<name>_main`, `<name>_object`, in that order (catalog §2.4).
@@ -151,7 +147,7 @@ impl TubeInsertion {
         model: &MjModel,
         task_id: Option<String>,
     ) -> Result<Self, TasksError> {
-        let (goal, commitment) = scene_goal_and_commitment(scene, model)?;
+        let history = History::for_scene(scene, model, task_id)?;
         let missing = |kind: &str, name: &str| missing_in_model(CHECKER, kind, name);
         let pairs = params.pairs()?;
         let tubes = pairs
@@ -172,14 +168,10 @@ impl TubeInsertion {
             in_rack: subtree(model, rack_body),
             geom_body: model.geom_bodyid().iter().map(|&b| b as usize).collect(),
             params,
-            task_id,
-            goal,
-            commitment,
+            history,
             rack_body,
-            control_steps: 0,
             steps_all_checks_passed: 0,
             passing_now: 0,
-            events: Vec::new(),
         })
     }
 
@@ -249,7 +241,7 @@ impl TubeInsertion {
 
 impl Evaluator for TubeInsertion {
     fn private_events(&self) -> Vec<PrivateEvent> {
-        self.events.clone()
+        self.history.events.clone()
     }
 
     fn checker(&self) -> &str {
@@ -262,20 +254,18 @@ impl Evaluator for TubeInsertion {
     }
 
     fn reset(&mut self, data: &SimData, _tick: Tick) {
-        self.control_steps = 0;
         self.steps_all_checks_passed = 0;
-        self.events.clear();
-        self.commitment.reset(self.goal.index(), data);
+        self.history.reset(data);
         self.passing_now = self.passing(data);
     }
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
+        self.history.control_steps += 1;
         self.passing_now = self.passing(data);
         if self.passing_now == self.tubes.len() {
             self.steps_all_checks_passed += 1;
         }
-        self.events.extend(self.commitment.observe_event(self.goal.index(), data, tick));
+        self.history.observe_commitment(data, tick);
     }
 
     fn finish(&mut self, data: &SimData, tick: Tick) -> EvaluationRecord {
@@ -289,16 +279,10 @@ impl Evaluator for TubeInsertion {
         let checks: Vec<TerminalCheck> = judged.iter().flat_map(|(_, c)| c.iter().cloned()).collect();
         let mut record = EvaluationRecord::new(CHECKER);
         stages.write_into(&mut record);
-        record.task_id = self.task_id.clone();
+        self.history.write_into(&mut record, data);
         record.success = success;
         record.terminal_state_success = success;
         record.terminal_state_checks = checks;
-        record.control_steps_observed = self.control_steps;
-        record.events = self.events.clone();
-        record.first_commitment = self.commitment.first().cloned();
-        let report = self.goal.evaluate(data);
-        record.bddl_final_goal_success = Some(report.success);
-        record.bddl_goal = Some(report);
         record.failure_reason = (!success).then_some(FailureReason::TerminalStateInvalid);
         let finals: Vec<TubeMeasures> = judged.iter().map(|(m, _)| *m).collect();
         let per_tube: serde_json::Map<String, serde_json::Value> =
