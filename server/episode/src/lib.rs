@@ -14,9 +14,6 @@ pub mod expert_run;
 pub mod lifecycle;
 pub mod live;
 pub mod memory;
-/// The run directory, its records and JSON helpers live in `libero-records` (the store reads them without the simulator),
-/// with the batch's records the report reads and the demonstration bundle's manifest.
-pub use libero_records::{agent_events, batch_doc, demo_manifest, json, records};
 pub mod observation;
 pub mod physics;
 pub mod publish;
@@ -38,5 +35,5 @@ pub use live::{LiveEvent, LiveFrame, LiveSink};
 pub use call::{MicroAction, ToolCall, ToolError, validate_actions};
 pub use error::EpisodeError;
 pub use observation::{CameraFrame, Frame, Level, RgbImage, RobotReadout};
-pub use records::{Outcome, RunDir};
+pub use libero_records::records::{Outcome, RunDir};
 pub use workspace::{WorkspaceContract, WorkspaceLayout};

@@ -134,20 +134,20 @@ pub fn write_batch_json(dir: &Path, v: &Value) -> anyhow::Result<()> {
 /// machine) reads the batch without its files. The directory stays the source of truth.
 pub struct StoreMirror {
     runtime: tokio::runtime::Runtime,
-    store: libero_server::store::Store,
+    store: libero_store::Store,
 }
 
 impl StoreMirror {
     pub fn connect(url: &str) -> anyhow::Result<Self> {
         let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
-        let store = runtime.block_on(libero_server::store::Store::connect(url))?;
+        let store = runtime.block_on(libero_store::Store::connect(url))?;
         Ok(Self { runtime, store })
     }
 
     /// Writes the batch directory's current state to the store.
     pub fn sync(&self, dir: &Path) -> anyhow::Result<()> {
         let b = load_batch(dir)?;
-        let stored = libero_server::store::StoredBatch {
+        let stored = libero_store::StoredBatch {
             name: b.name(),
             dir: b.dir.clone(),
             doc: serde_json::to_value(&b.batch)?,
@@ -243,12 +243,12 @@ impl ServerMirror {
 pub fn load_batches_from_store(url: &str, names: &[String]) -> anyhow::Result<Vec<LoadedBatch>> {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     runtime.block_on(async {
-        let store = libero_server::store::Store::connect(url).await?;
+        let store = libero_store::Store::connect(url).await?;
         let mut out = Vec::with_capacity(names.len());
         for name in names {
             let Some(b) = store.batch(name).await? else {
                 let known = store.batch_names().await?;
-                bail!("the store {} has no batch {name:?} (it has: {})", libero_server::store::redact(url), known.join(", "));
+                bail!("the store {} has no batch {name:?} (it has: {})", libero_store::redact(url), known.join(", "));
             };
             out.push(LoadedBatch::from_stored(&b.name, b.dir, b.doc, b.records)?);
         }

@@ -15,7 +15,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::bail;
-use libero_episode::batch_doc::HarnessVersion;
+use libero_records::batch_doc::HarnessVersion;
 use serde_json::Value;
 
 use super::harness::Harness;

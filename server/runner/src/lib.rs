@@ -24,8 +24,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use libero_episode::batch_doc::{BatchCounts, BatchDoc, HarnessDoc, HarnessVersion, SandboxDoc, ToolboxDoc};
-use libero_episode::json::utc_now_iso;
+use libero_records::batch_doc::{BatchCounts, BatchDoc, HarnessDoc, HarnessVersion, SandboxDoc, ToolboxDoc};
+use libero_records::json::utc_now_iso;
 use libero_episode::tools::{DEFAULT_WALL_TIME_S, MAX_AGENT_STEPS_CAP};
 use libero_metrics::Outcome;
 use libero_tasks::catalog::Catalog;
@@ -316,7 +316,7 @@ pub(crate) fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
 pub(crate) fn fresh_dir(base: &Path, stem: &str) -> anyhow::Result<PathBuf> {
     std::fs::create_dir_all(base).with_context(|| format!("cannot create {}", base.display()))?;
     loop {
-        let dir = base.join(format!("{stem}-{}", &libero_episode::json::random_name("")?[..8]));
+        let dir = base.join(format!("{stem}-{}", &libero_records::json::random_name("")?[..8]));
         match std::fs::create_dir(&dir) {
             Ok(()) => return Ok(dir),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,

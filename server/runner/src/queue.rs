@@ -6,8 +6,8 @@
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use libero_episode::batch_doc::{BatchCounts, BatchDoc, HarnessDoc, QueueRef, RolloutSummary};
-use libero_episode::json::utc_now_iso;
+use libero_records::batch_doc::{BatchCounts, BatchDoc, HarnessDoc, QueueRef, RolloutSummary};
+use libero_records::json::utc_now_iso;
 use libero_metrics::Outcome;
 use libero_store::{QueueListener, Store, StoredBatch};
 use serde_json::{Value, json};

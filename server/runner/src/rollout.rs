@@ -10,10 +10,10 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use libero_episode::batch_doc::HarnessVersion;
+use libero_records::batch_doc::HarnessVersion;
 use libero_episode::demo::DemoCondition;
-use libero_episode::json::{utc_now_iso, write_json_file};
-use libero_episode::records::{PrivateEvaluation, RunDir, RunResult, STATUS_ABORTED, STATUS_FINISHED};
+use libero_records::json::{utc_now_iso, write_json_file};
+use libero_records::records::{PrivateEvaluation, RunDir, RunResult, STATUS_ABORTED, STATUS_FINISHED};
 use libero_metrics::Outcome;
 use libero_report::batch::{Demo, RolloutRecord};
 use libero_report::usage::Usage;
@@ -42,7 +42,7 @@ pub const WATCHDOG_GRACE_S: f64 = 45.0;
 const KILL_GRACE: Duration = Duration::from_secs(10);
 
 /// The rollout's outcome rule and the watchdog's error text live with the records (one home for §4.8).
-pub use libero_episode::records::{WATCHDOG_ERROR, classify_rollout as classify};
+pub use libero_records::records::{WATCHDOG_ERROR, classify_rollout as classify};
 
 /// Why an agent whose harness exited before `finish_episode` should not be judged, if anything but the agent
 /// caused it: the sandbox never started, or the model API failed it (the gateway's records, which the agent cannot
@@ -77,7 +77,7 @@ pub fn scrub(text: &str, secrets: &[&str]) -> String {
 }
 
 fn read_result(run_dir: &Path) -> Option<RunResult> {
-    libero_episode::records::read_result(&RunDir::new(run_dir))
+    libero_records::records::read_result(&RunDir::new(run_dir))
 }
 
 /// The episode's state: from its run directory when this machine sees it, else from the server's API.

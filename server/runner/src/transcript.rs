@@ -1,5 +1,5 @@
 //! The agent's transcript (docs/agent_transcript.md): what the harness's CLI prints, normalised into one event
-//! schema ([`libero_episode::agent_events`]) while the agent runs, so that a reviewer sees what the agent read,
+//! schema ([`libero_records::agent_events`]) while the agent runs, so that a reviewer sees what the agent read,
 //! thought and ran beside the robot's calls, and a person watching the live page sees it as it happens.
 //!
 //! Every byte read here is the agent's (its commands run as its CLI's user and can write to the CLI's stdout),
@@ -32,8 +32,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use libero_episode::agent_events::{AgentEvent, Kind, MAX_FIELD_BYTES, MAX_TRANSCRIPT_BYTES, Source, Tokens, TranscriptFile, Written, bound_str};
-use libero_episode::json::utc_now_iso;
+use libero_records::agent_events::{AgentEvent, Kind, MAX_FIELD_BYTES, MAX_TRANSCRIPT_BYTES, Source, Tokens, TranscriptFile, Written, bound_str};
+use libero_records::json::utc_now_iso;
 use libero_episode::tools::ToolName;
 use serde::Serialize;
 use serde_json::{Map, Value, json};
@@ -1084,7 +1084,7 @@ struct Sink {
 impl Sink {
     fn open_with(target: Target, quotas: Quotas) -> anyhow::Result<Self> {
         let (path, remote) = match target {
-            Target::RunDir(dir) => (dir.join(libero_episode::agent_events::AGENT_EVENTS_FILE), None),
+            Target::RunDir(dir) => (dir.join(libero_records::agent_events::AGENT_EVENTS_FILE), None),
             Target::Remote { server_url, episode_id, local } => (local, Some((server_url, episode_id))),
         };
         let file = TranscriptFile::open(&path).map_err(|e| anyhow::anyhow!("cannot write the transcript {}: {e}", path.display()))?;
@@ -1322,7 +1322,7 @@ pub fn follow_rollout(r: RolloutTranscript<'_>) -> Follower {
         Target::Remote {
             server_url: r.server_url.to_owned(),
             episode_id: r.episode_id.to_owned(),
-            local: r.rollout_dir.join(libero_episode::agent_events::AGENT_EVENTS_FILE),
+            local: r.rollout_dir.join(libero_records::agent_events::AGENT_EVENTS_FILE),
         }
     };
     Follower::start(Normalizer::new(r.harness, r.workspace, r.secrets), r.streams, target)
@@ -1475,7 +1475,7 @@ mod tests {
         assert!(took < Duration::from_secs(90), "the flood took {took:?}");
         assert!(summary.errors.is_empty(), "{:?}", summary.errors);
 
-        let (text, events) = read_events(&run.join(libero_episode::agent_events::AGENT_EVENTS_FILE));
+        let (text, events) = read_events(&run.join(libero_records::agent_events::AGENT_EVENTS_FILE));
         assert!((text.len() as u64) < MAX_TRANSCRIPT_BYTES && (text.len() as u64) <= QUOTAS.total(), "bounded: {} bytes", text.len());
         assert_eq!(summary.written.events, events.len() as u64);
         assert_eq!(summary.written.omitted_events, 0, "the hard limit was never reached");

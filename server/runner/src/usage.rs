@@ -4,7 +4,7 @@
 //! collapse; the rest are summed. Codex (`exec --json`) reports one `turn.completed` usage per turn.
 use serde_json::{Map, Value};
 
-use libero_episode::agent_events::Tokens;
+use libero_records::agent_events::Tokens;
 use libero_report::usage::{SOURCE_GATEWAY, SOURCE_NONE, SOURCE_STDOUT, StdoutFigures, Usage};
 
 use crate::lines::{Line, LineSplitter};

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use libero_artifacts::Artifacts;
-use libero_episode::batch_doc::{BatchDoc, RolloutSummary};
+use libero_records::batch_doc::{BatchDoc, RolloutSummary};
 use libero_store::{QueueListener, Store};
 use serde_json::{Value, json};
 
@@ -85,7 +85,7 @@ pub fn run(args: WorkerArgs) -> anyhow::Result<()> {
         bail!("--lease-s must be 2 to 3600 seconds");
     }
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_else(|_| "unknown".into());
-    let id = format!("{host}-{}-{}", std::process::id(), &libero_episode::json::random_name("")?[..6]);
+    let id = format!("{host}-{}-{}", std::process::id(), &libero_records::json::random_name("")?[..6]);
     // Both are required on the command line; a caller building the arguments itself is told the same.
     let store_url = args.stores.store.clone().context("a worker needs --store (or $LIBERO_AGENT_STORE)")?;
     let artifacts_url = args.stores.artifacts.as_deref().context("a worker needs --artifacts (or $LIBERO_AGENT_ARTIFACTS)")?;

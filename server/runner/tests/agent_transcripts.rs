@@ -4,7 +4,7 @@
 //! a hostile agent's output: huge lines, invalid UTF-8, secrets, a flood, and usage lines it prints itself.
 use std::path::{Path, PathBuf};
 
-use libero_episode::agent_events::{AgentEvent, Kind, Source};
+use libero_records::agent_events::{AgentEvent, Kind, Source};
 use libero_runner::harness::Harness;
 use libero_sandbox::netgate::UsageSummary;
 use libero_runner::transcript::{Normalizer, Streams, Target, Follower, normalize_logs};

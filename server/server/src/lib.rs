@@ -28,7 +28,6 @@ pub mod mcp;
 pub mod mcp_gate;
 pub mod router;
 pub mod serve;
-pub mod store;
 pub mod store_writer;
 pub mod thumbnails;
 pub mod transcript;
