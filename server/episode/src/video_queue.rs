@@ -291,7 +291,7 @@ mod tests {
     #[test]
     fn a_video_backlog_holds_the_models_of_only_the_first_queued_videos() {
         let dir = tempfile::tempdir().unwrap();
-        let queue = VideoQueue::start(crate::world::head_wrist_cameras()).unwrap();
+        let queue = VideoQueue::start(VideoCameras { head: "agentview".into(), wrist: "robot0_eye_in_hand".into(), size_px: 8 }).unwrap();
         // The first job blocks the worker until released, so the others queue behind it.
         let (release, blocked) = mpsc::channel::<()>();
         queue.submit(VideoJob {

@@ -70,12 +70,22 @@ impl StoreWriter {
 /// The writer task: runs until its queue closes or it is aborted (at the server's end, after a last
 /// [`StoreWriter::sync`]).
 pub async fn run(Inbox(mut inbox): Inbox, store: Store, episodes: Arc<Episodes>, hubs: Arc<LiveHubs>) {
-    let mut writer = Writer { store, episodes, hubs, synced: HashMap::new(), progressed: HashMap::new() };
+    let mut writer =
+        Writer { store, episodes, hubs, synced: HashMap::new(), progressed: HashMap::new(), reported: HashMap::new(), results: HashMap::new() };
     let mut tick = tokio::time::interval(STORE_SYNC_PERIOD);
     loop {
         tokio::select! {
             message = inbox.recv() => match message {
-                Some(Message::Event(EpisodeEvent::Called { id } | EpisodeEvent::Ended { id })) => writer.sync(&id).await,
+                Some(Message::Event(EpisodeEvent::Called { id, accepted_agent_steps, stages })) => {
+                    writer.reported.insert(id.clone(), (accepted_agent_steps, stages));
+                    writer.sync(&id).await;
+                }
+                Some(Message::Event(EpisodeEvent::Ended { id, result })) => {
+                    if let Some(result) = result {
+                        writer.results.insert(id.clone(), result);
+                    }
+                    writer.sync(&id).await;
+                }
                 Some(Message::Insert { new, done }) => {
                     let _ = done.send(writer.insert(&new).await);
                 }
@@ -101,6 +111,10 @@ struct Writer {
     synced: HashMap<String, EpisodeState>,
     /// The progress last written per open episode, so only changes cost a write.
     progressed: HashMap<String, (u64, Option<(usize, usize)>)>,
+    /// The progress each open episode's last answered call reported ([`EpisodeEvent::Called`]).
+    reported: HashMap<String, (u64, Option<(usize, usize)>)>,
+    /// Results the lifecycle handed over with an episode's end, until written.
+    results: HashMap<String, Box<libero_records::records::RunResult>>,
 }
 
 impl Writer {
@@ -128,6 +142,7 @@ impl Writer {
             EpisodeState::Active => self.sync_progress(id).await,
             EpisodeState::Finished | EpisodeState::Aborted => {
                 self.progressed.remove(id);
+                self.reported.remove(id);
             }
             EpisodeState::Prepared => {}
         }
@@ -148,7 +163,7 @@ impl Writer {
 
     /// Writes an open episode's steps and stages when they changed, for dashboards elsewhere.
     async fn sync_progress(&mut self, id: &str) {
-        let Some(now) = self.hubs.get(id).and_then(|hub| hub.progress()) else { return };
+        let Some(&now) = self.reported.get(id) else { return };
         if self.progressed.get(id) == Some(&now) {
             return;
         }
@@ -161,14 +176,19 @@ impl Writer {
         }
     }
 
-    async fn write_transition(&self, id: &str, previous: Option<EpisodeState>, status: &EpisodeStatus) -> anyhow::Result<()> {
+    async fn write_transition(&mut self, id: &str, previous: Option<EpisodeState>, status: &EpisodeStatus) -> anyhow::Result<()> {
         // The initial observation exists exactly when start_episode succeeded.
         if status.latest_observation_id.is_some() && previous != Some(EpisodeState::Active) {
             self.store.mark_started(id, &utc_now_iso()).await?;
         }
         if matches!(status.state, EpisodeState::Finished | EpisodeState::Aborted) {
-            let run = RunDir::new(self.episodes.lifecycle().runs_dir().join(id));
-            if let Some(end) = EpisodeEnd::from_run(&run) {
+            // The result the end's event carried; read from the run only for an end no event told (an episode
+            // whose thread died).
+            let end = match self.results.remove(id) {
+                Some(result) => Some(EpisodeEnd::from_result(&result)),
+                None => EpisodeEnd::from_run(&RunDir::new(self.episodes.lifecycle().runs_dir().join(id))),
+            };
+            if let Some(end) = end {
                 self.store.record_end(id, &end).await?;
             }
         }

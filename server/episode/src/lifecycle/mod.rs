@@ -48,12 +48,14 @@ pub trait LiveViews: Send + Sync {
 
 /// What the lifecycle tells its owner about an episode, so that the store is written when something happened
 /// rather than polled. Sent from the episode's thread: the receiver must not block.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum EpisodeEvent {
-    /// A tool call was answered: the state, the accepted steps or the stage progress may have changed.
-    Called { id: String },
-    /// The episode ended (finished, expired, aborted or forfeited).
-    Ended { id: String },
+    /// A tool call was answered: the accepted agent steps and the stage progress (completed, required K) after it,
+    /// so the receiver needs no other view of the episode to record them.
+    Called { id: String, accepted_agent_steps: u64, stages: Option<(usize, usize)> },
+    /// The episode ended (finished, expired, aborted or forfeited): its result as written (`None` if its
+    /// `result.json` could not be read back).
+    Ended { id: String, result: Option<Box<libero_records::records::RunResult>> },
 }
 
 /// Receives [`EpisodeEvent`]s; returns at once.
@@ -154,17 +156,31 @@ impl EpisodeSet {
         self
     }
 
-    /// The sink the episode's actor reports to: the live view's, if any, followed by the events its owner hears of.
+    /// The sink the episode's actor and its world report to: the live view's, if any, followed by the events its
+    /// owner hears of ([`EpisodeEvent`], which carry the figures, so the owner reads no view).
     fn actor_sink(&self, id: &str, view: Option<LiveSink>) -> Option<LiveSink> {
         let Some(events) = self.events.clone() else { return view };
         let id = id.to_owned();
+        let run = RunDir::new(self.runs_dir().join(&id));
+        // the newest stage progress, told with the next answered call
+        let stages: Mutex<Option<(usize, usize)>> = Mutex::new(None);
         Some(Arc::new(move |event: LiveEvent| {
             let told = match &event {
-                LiveEvent::CallAnswered { .. } => Some(EpisodeEvent::Called { id: id.clone() }),
-                LiveEvent::Finished { .. } => Some(EpisodeEvent::Ended { id: id.clone() }),
+                LiveEvent::Progress { completed, required } => {
+                    if let Ok(mut s) = stages.lock() {
+                        *s = Some((*completed, *required));
+                    }
+                    None
+                }
+                LiveEvent::CallAnswered { accepted_agent_steps, .. } => Some(EpisodeEvent::Called {
+                    id: id.clone(),
+                    accepted_agent_steps: *accepted_agent_steps,
+                    stages: stages.lock().ok().and_then(|s| *s),
+                }),
+                // the actor reports the end after writing result.json
+                LiveEvent::Finished { .. } => Some(EpisodeEvent::Ended { id: id.clone(), result: read_result(&run).map(Box::new) }),
                 _ => None,
             };
-            // the view first: whoever hears the event reads the view's progress
             if let Some(view) = &view {
                 view(event);
             }
@@ -345,36 +361,57 @@ impl Drop for EpisodeSet {
 mod tests {
     use super::*;
 
-    /// The owner hears of answered calls and the end, after the live view has them (it reads the view's
-    /// progress), and of nothing else; without an event sink the view's sink is used as it is.
+    /// The owner hears of answered calls and the end, and nothing else, each carrying what happened: the accepted
+    /// steps and the newest stage progress with a call, the written result with the end; so it needs no view of
+    /// the episode (a live hub, the run directory) to record them. The view still hears everything, first.
+    /// Without an event sink the view's sink is used as it is.
     #[test]
-    fn the_actor_sink_tells_the_view_first_then_calls_and_ends_only() {
+    fn the_owner_hears_calls_with_their_progress_and_the_end_with_its_result() {
         let dir = tempfile::tempdir().unwrap();
         let heard: Arc<Mutex<Vec<String>>> = Arc::default();
-        let (h1, h2) = (heard.clone(), heard.clone());
-        let events: EventSink = Arc::new(move |e| h1.lock().unwrap().push(format!("{e:?}")));
-        let view: LiveSink = Arc::new(move |e| h2.lock().unwrap().push(format!("view {}", serde_json::to_string(&e).unwrap_or_default())));
+        let told: Arc<Mutex<Vec<EpisodeEvent>>> = Arc::default();
+        let (h1, h2, t1) = (heard.clone(), heard.clone(), told.clone());
+        let events: EventSink = Arc::new(move |e| {
+            h1.lock().unwrap().push("owner".into());
+            t1.lock().unwrap().push(e);
+        });
+        let view: LiveSink = Arc::new(move |_| h2.lock().unwrap().push("view".into()));
         let set = EpisodeSet::new(dir.path().join("data"), "http://127.0.0.1:0".into()).unwrap();
         assert!(set.actor_sink("ep", None).is_none(), "no view, no events: no sink");
         let set = set.with_events(events);
         let sink = set.actor_sink("ep", Some(view)).unwrap();
-        sink(LiveEvent::Step { control_step: 1, sim_time_s: 0.05 });
-        sink(LiveEvent::CallAnswered {
+        let answered = |steps: u64| LiveEvent::CallAnswered {
             tool: "osc_sequence".into(),
             actions: Some(1),
             ok: true,
             error_type: None,
             error: None,
             observation_id: None,
-            accepted_agent_steps: 1,
+            accepted_agent_steps: steps,
             max_agent_steps: 10,
             wall_time_s: None,
             max_wall_time_s: 60.0,
             at_unix_s: 0.0,
-        });
-        sink(LiveEvent::Finished { state: "finished".into(), outcome: None, reason: None });
-        let heard = heard.lock().unwrap().clone();
-        let kinds: Vec<&str> = heard.iter().map(|h| if h.starts_with("view") { "view" } else { h.as_str() }).collect();
-        assert_eq!(kinds, ["view", "view", "Called { id: \"ep\" }", "view", "Ended { id: \"ep\" }"], "{heard:?}");
+        };
+        sink(answered(0));
+        sink(LiveEvent::Step { control_step: 1, sim_time_s: 0.05 });
+        sink(LiveEvent::Progress { completed: 1, required: 3 });
+        sink(answered(1));
+        let run = RunDir::new(set.runs_dir().join("ep"));
+        fs::create_dir_all(&run.root).unwrap();
+        let result = aborted_result("operator", 60.0, Some(1.5));
+        write_result(&run, &result).unwrap();
+        sink(LiveEvent::Finished { state: "aborted".into(), outcome: Some("INVALID".into()), reason: Some("operator".into()) });
+        assert_eq!(*heard.lock().unwrap(), ["view", "owner", "view", "view", "view", "owner", "view", "owner"]);
+        let told = told.lock().unwrap().clone();
+        assert_eq!(
+            told,
+            [
+                EpisodeEvent::Called { id: "ep".into(), accepted_agent_steps: 0, stages: None },
+                EpisodeEvent::Called { id: "ep".into(), accepted_agent_steps: 1, stages: Some((1, 3)) },
+                EpisodeEvent::Ended { id: "ep".into(), result: Some(Box::new(read_result(&run).unwrap())) },
+            ]
+        );
+        assert_eq!(told[2], EpisodeEvent::Ended { id: "ep".into(), result: Some(Box::new(result)) }, "the result as written");
     }
 }

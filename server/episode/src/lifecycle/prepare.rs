@@ -159,7 +159,10 @@ impl EpisodeSet {
         if let (Some(views), Some(b)) = (&self.live, &branch) {
             views.mark_branch(&episode_id, &b.request.parent, b.request.step);
         }
-        let world_live = live.clone();
+        // The world's events (steps, stages) and the actor's (calls, the end) reach the view through one sink that
+        // also tells the owner's event sink what happened (see `actor_sink`).
+        let sink = self.actor_sink(&episode_id, live.as_ref().map(|(sink, _)| sink.clone()));
+        let world_live = live.map(|(view_sink, viewers)| (sink.clone().unwrap_or(view_sink), viewers));
         // A video that queues behind others draws with models built anew from the same settings (the poses come
         // from the state record), not with the ended world's.
         let rebuild = {
@@ -179,8 +182,7 @@ impl EpisodeSet {
             }
             Ok(world)
         };
-        let actor_sink = self.actor_sink(&episode_id, live.map(|(sink, _)| sink));
-        let handle = match spawn_episode_live(config, actor_sink, make_world) {
+        let handle = match spawn_episode_live(config, sink, make_world) {
             Ok(h) => h,
             Err(e) => {
                 self.close_live(&episode_id);
