@@ -65,14 +65,13 @@ impl History {
     /// the diagnostic BDDL goal on the final state.
     pub fn write_into(&self, record: &mut EvaluationRecord, data: &SimData) {
         record.task_id = self.task_id.clone();
-        crate::judge::support::fill_history(
-            record,
-            (self.control_steps, self.substeps),
-            &self.events,
-            &self.commitment,
-            &self.goal,
-            data,
-        );
+        record.control_steps_observed = self.control_steps;
+        record.substeps_observed = self.substeps;
+        record.events = self.events.clone();
+        record.first_commitment = self.commitment.first().cloned();
+        let report = self.goal.evaluate(data);
+        record.bddl_final_goal_success = Some(report.success);
+        record.bddl_goal = Some(report);
     }
 }
 

@@ -1,6 +1,4 @@
 //! The staged evaluator: compiles the params, samples the stages in their order mode with the monitors, and judges.
-use std::sync::Arc;
-
 use libero_sim::mujoco_rs::prelude::{MjModel, MjtObjBase};
 use libero_sim::simulation::SimData;
 use serde_json::json;
@@ -10,10 +8,10 @@ use crate::judge::commitment::CommitmentTracker;
 use crate::judge::evaluator::{
     EvaluationRecord, EventKind, Evaluator, FailureReason, PrivateEvent, StageSpec, StageTracker, TerminalCheck, Tick,
 };
+use crate::judge::family::History;
 use crate::judge::goal::GoalChecker;
 use crate::judge::mechanism::{ContactMonitor, GripperContact, OperationKind, PendingOpening, Watched, Window, body_names};
 use crate::judge::pouring::PourTracker;
-use crate::judge::predicates::SceneIndex;
 use crate::judge::staged::CHECKER_UNORDERED;
 use crate::judge::staged::compile::{
     Baseline, Binding, BodySource, Ctx, Names, PourSlot, Stage, compile, instance_body, require_opening_handles, scene_err,
@@ -25,10 +23,8 @@ use crate::judge::staged::monitor::{FailureMonitor, ForbiddenContactGuard, Forbi
 pub struct StagedEvaluator {
     checker: String,
     order: OrderMode,
-    index: Arc<SceneIndex>,
-    goal: GoalChecker,
-    commitment: CommitmentTracker,
-    task_id: Option<String>,
+    /// The bookkeeping every evaluator shares ([`crate::judge::family::History`]).
+    history: History,
     /// required stages, then optional ones
     stages: Vec<Stage>,
     n_required: usize,
@@ -53,12 +49,9 @@ pub struct StagedEvaluator {
     monitor_open: Option<(usize, usize)>,
     /// unordered mode: (stage, its opening) for every stage that opens a mechanism
     pending_openings: Vec<(usize, PendingOpening)>,
-    events: Vec<PrivateEvent>,
     sample_substeps: bool,
     guards: Vec<ForbiddenContactGuard>,
     forbidden: Option<ForbiddenContactLatch>,
-    control_steps: u64,
-    substeps: u64,
 }
 
 impl StagedEvaluator {
@@ -127,10 +120,7 @@ impl StagedEvaluator {
         Ok(Self {
             checker: checker.to_owned(),
             order: if checker == CHECKER_UNORDERED { OrderMode::Unordered } else { params.order },
-            index,
-            goal,
-            commitment,
-            task_id,
+            history: History::new(goal, commitment, task_id),
             stages,
             n_required,
             terminal,
@@ -148,12 +138,9 @@ impl StagedEvaluator {
             monitors: Vec::new(),
             monitor_open: None,
             pending_openings: Vec::new(),
-            events: Vec::new(),
             sample_substeps: params.sample_substeps,
             guards,
             forbidden: None,
-            control_steps: 0,
-            substeps: 0,
         })
     }
 
@@ -214,24 +201,24 @@ impl StagedEvaluator {
             if let Some(t) = slot.tracker.as_mut()
                 && t.update(data, tick.control_step).is_some()
             {
-                self.events.push(PrivateEvent { subject: Some(slot.params.bottle.clone()), ..PrivateEvent::new(EventKind::PourDetected, tick) });
+                self.history.events.push(PrivateEvent { subject: Some(slot.params.bottle.clone()), ..PrivateEvent::new(EventKind::PourDetected, tick) });
             }
         }
     }
 
     /// Latches every armed failure monitor whose atom holds now (armed once its stage has completed).
     fn check_failures(&mut self, data: &SimData, tick: Tick) {
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        let ctx = Ctx { index: &self.history.index, commitment: &self.history.commitment, base: &self.base, pours: &self.pours, data };
         for m in &mut self.failures {
             if m.latched_at.is_none() && self.tracker.is_completed(m.after_stage) && m.when.holds(&ctx) {
                 m.latched_at = Some(tick);
-                self.events.push(PrivateEvent { subject: Some(m.name.clone()), ..PrivateEvent::new(EventKind::FailureLatched, tick) });
+                self.history.events.push(PrivateEvent { subject: Some(m.name.clone()), ..PrivateEvent::new(EventKind::FailureLatched, tick) });
             }
         }
     }
 
     fn holding_now(&self, data: &SimData) -> Vec<bool> {
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        let ctx = Ctx { index: &self.history.index, commitment: &self.history.commitment, base: &self.base, pours: &self.pours, data };
         self.stages.iter().map(|s| s.holds(&ctx)).collect()
     }
 
@@ -285,7 +272,7 @@ impl StagedEvaluator {
             let current = self.tracker.current();
             self.feed_pours(current.as_slice(), data, tick);
         }
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        let ctx = Ctx { index: &self.history.index, commitment: &self.history.commitment, base: &self.base, pours: &self.pours, data };
         let stages = &self.stages;
         let completed = match self.order {
             OrderMode::Strict => self.tracker.advance_strict(tick, |i| stages[i].holds(&ctx)),
@@ -296,7 +283,7 @@ impl StagedEvaluator {
         {
             *slot = Some(data.xpos().to_vec());
         }
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        let ctx = Ctx { index: &self.history.index, commitment: &self.history.commitment, base: &self.base, pours: &self.pours, data };
         let stages = &self.stages;
         if control {
             self.tracker.track_regressions(tick, |i| stages[i].holds(&ctx));
@@ -316,7 +303,7 @@ impl StagedEvaluator {
         else {
             return false;
         };
-        self.events.push(PrivateEvent { subject: Some(name.clone()), ..PrivateEvent::new(EventKind::ForbiddenContact, tick) });
+        self.history.events.push(PrivateEvent { subject: Some(name.clone()), ..PrivateEvent::new(EventKind::ForbiddenContact, tick) });
         self.forbidden = Some(ForbiddenContactLatch { name, object, tick });
         true
     }
@@ -357,11 +344,8 @@ impl Evaluator for StagedEvaluator {
         self.monitors.clear();
         self.monitor_open = None;
         self.operation_bodies = self.resolve_operation_bodies();
-        self.events.clear();
-        self.control_steps = 0;
-        self.substeps = 0;
         self.forbidden = None;
-        self.commitment.reset(&self.index, data);
+        self.history.reset(data);
         let now = self.holding_now(data);
         self.pending_openings = if self.order == OrderMode::Unordered {
             self.stages
@@ -382,13 +366,13 @@ impl Evaluator for StagedEvaluator {
 
     fn observe_substep(&mut self, data: &SimData, tick: Tick) {
         if self.sample_substeps {
-            self.substeps += 1;
+            self.history.substeps += 1;
             self.sample(data, tick, false);
         }
     }
 
     fn observe_control_step(&mut self, data: &SimData, tick: Tick) {
-        self.control_steps += 1;
+        self.history.control_steps += 1;
         if self.forbidden.is_none() && self.order != OrderMode::Unordered {
             self.observe_monitor(data);
         }
@@ -396,9 +380,7 @@ impl Evaluator for StagedEvaluator {
         if self.forbidden.is_none() && self.order == OrderMode::Unordered {
             self.observe_pending_openings(data);
         }
-        if let Some(e) = self.commitment.observe_event(&self.index, data, tick) {
-            self.events.push(e);
-        }
+        self.history.observe_commitment(data, tick);
     }
 
     /// The stage events of the mode's tracker (the goal set's changes, or the ordered stages' completions,
@@ -406,7 +388,7 @@ impl Evaluator for StagedEvaluator {
     /// commitment): the record's `stage_events` and `events`, as they happen.
     fn private_events(&self) -> Vec<PrivateEvent> {
         let stage_events = if self.order == OrderMode::Unordered { self.goals.events() } else { self.tracker.events() };
-        crate::judge::evaluator::merge_events(stage_events, &self.events)
+        crate::judge::evaluator::merge_events(stage_events, &self.history.events)
     }
 
     /// Unordered: the required goals holding now (they may drop again); ordered: the latched required stages.
@@ -420,9 +402,8 @@ impl Evaluator for StagedEvaluator {
 
     fn finish(&mut self, data: &SimData, _tick: Tick) -> EvaluationRecord {
         let mut record = EvaluationRecord::new(self.checker.clone());
-        record.task_id = self.task_id.clone();
         record.stages_unordered = self.order == OrderMode::Unordered;
-        let ctx = Ctx { index: &self.index, commitment: &self.commitment, base: &self.base, pours: &self.pours, data };
+        let ctx = Ctx { index: &self.history.index, commitment: &self.history.commitment, base: &self.base, pours: &self.pours, data };
         record.terminal_state_checks =
             self.terminal.iter().map(|t| TerminalCheck { name: t.name.clone(), passed: t.holds(&ctx) }).collect();
         record.terminal_state_success = record.terminal_state_checks.iter().all(|c| c.passed);
@@ -499,7 +480,7 @@ impl Evaluator for StagedEvaluator {
         } else {
             Some(FailureReason::TerminalStateInvalid)
         };
-        crate::judge::support::fill_history(&mut record, (self.control_steps, self.substeps), &self.events, &self.commitment, &self.goal, data);
+        self.history.write_into(&mut record, data);
         record
     }
 }
