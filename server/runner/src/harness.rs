@@ -12,6 +12,8 @@ use serde_json::{Value, json};
 use libero_episode::tools::{MCP_SERVER_KEY, ToolName};
 use libero_sandbox::agent_net::NetPlan;
 
+use crate::usage::UsageFormat;
+
 /// The agent CLIs the runner knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
@@ -31,16 +33,160 @@ pub const DSH_PACKAGE: &str = "@deepseek-ai/dsh@0.1.5-rc.2";
 pub const KIMI_PACKAGE: &str = "@moonshot-ai/kimi-code@0.42.0";
 pub const QWEN_PACKAGE: &str = "@qwen-code/qwen-code@0.24.0";
 
+/// Everything the runner knows of one harness, as data and functions: one row per [`Harness`] ([`Harness::spec`]).
+/// Adding a harness is a variant of [`Harness`] and its row here (with its launch functions below, and a parser in
+/// `transcript` if it prints a shape none of the others does); the report crate names its logs
+/// (`libero_report::batch::HARNESSES`), and the lock may list versions of its CLI (`harness_versions`).
+pub struct HarnessSpec {
+    /// The name in batch files, rollout directories, logs and manifests (the CLI's `--harness` value).
+    pub name: &'static str,
+    /// How its CLI is installed and started: what `--version` probes and `--harness-version` picks.
+    pub cli: Cli,
+    /// Whether it needs API credentials (a `command` agent gets them only when a credentials file is given).
+    pub needs_credentials: bool,
+    /// §6.7 `api_protocol` of its manifest.
+    pub api_protocol: &'static str,
+    /// The wire APIs its CLI calls its model with (what the gateway passes on).
+    pub model_apis: &'static [ModelApi],
+    /// Where its model traffic goes when the credentials name no base URL: its CLI's own default.
+    pub default_api_base: Option<&'static str>,
+    /// Its model APIs' endpoints are allowed below the API base as given too, not only as its CLI would make it
+    /// (a `command` agent may use the base unchanged).
+    pub endpoints_below_given_base: bool,
+    /// The configuration files its launch writes first (MCP server, model provider, settings: path, content, mode).
+    pub files: fn(&LaunchContext) -> anyhow::Result<Vec<LaunchFile>>,
+    /// Its argv (the prompt last), given the environment every launch has, to which it adds its own variables.
+    pub command: fn(&LaunchContext, &mut LaunchEnv) -> anyhow::Result<Vec<String>>,
+    /// How its stdout reads as the agent's transcript (`crate::transcript`).
+    pub transcript: TranscriptFormat,
+    /// Where the rollout's token usage is read from on its stdout (`crate::usage`).
+    pub usage: UsageFormat,
+}
+
+/// How a harness's CLI is installed and started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cli {
+    /// No CLI of its own: it runs `--agent-cmd` (the `command` harness).
+    AgentCmd,
+    /// The command its CLI installs on PATH (or a version installed apart, `run --harness-version`).
+    OnPath(&'static str),
+    /// A pinned npm package (`<package>@<version>`) and the command it installs: run by that command when exactly
+    /// the pinned version is installed, else through `npx --yes <package>@<version>`.
+    Npm { package: &'static str, command: &'static str },
+}
+
+/// How a harness's stdout reads as a transcript (docs/agent_transcript.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TranscriptFormat {
+    /// Plain text the agent prints: every line is a message.
+    Text,
+    /// JSON lines of the CLIs' shapes (Codex `exec --json`, the `stream-json` of Claude Code, Qwen Code and Kimi
+    /// Code); any other line is an `other` event.
+    JsonLines,
+    /// JSON lines, with plain text lines as the agent's answer (DeepSeek's headless profile prints it so).
+    JsonLinesOrText,
+}
+
+const CODEX: HarnessSpec = HarnessSpec {
+    name: "codex",
+    cli: Cli::OnPath("codex"),
+    needs_credentials: true,
+    api_protocol: "openai_chat",
+    model_apis: &[ModelApi::OpenaiResponses],
+    default_api_base: Some("https://api.openai.com/v1"),
+    endpoints_below_given_base: false,
+    files: no_files,
+    command: codex_command,
+    transcript: TranscriptFormat::JsonLines,
+    // `--json`: its events (token counts included) on stdout, one `turn.completed` usage per turn.
+    usage: UsageFormat::CodexExec,
+};
+
+const CLAUDE_CODE: HarnessSpec = HarnessSpec {
+    name: "claude_code",
+    cli: Cli::OnPath("claude"),
+    needs_credentials: true,
+    api_protocol: "anthropic_messages",
+    model_apis: &[ModelApi::AnthropicMessages],
+    default_api_base: Some("https://api.anthropic.com"),
+    endpoints_below_given_base: false,
+    files: claude_files,
+    command: claude_command,
+    transcript: TranscriptFormat::JsonLines,
+    usage: UsageFormat::Jsonl,
+};
+
+const KIMI_CODE: HarnessSpec = HarnessSpec {
+    name: "kimi_code",
+    cli: Cli::Npm { package: KIMI_PACKAGE, command: "kimi" },
+    needs_credentials: true,
+    api_protocol: "openai_chat",
+    model_apis: &[ModelApi::OpenaiChat],
+    default_api_base: None,
+    endpoints_below_given_base: false,
+    files: kimi_files,
+    command: kimi_command,
+    transcript: TranscriptFormat::JsonLines,
+    usage: UsageFormat::Jsonl,
+};
+
+const QWEN_CODE: HarnessSpec = HarnessSpec {
+    name: "qwen_code",
+    cli: Cli::Npm { package: QWEN_PACKAGE, command: "qwen" },
+    needs_credentials: true,
+    api_protocol: "openai_chat",
+    model_apis: &[ModelApi::OpenaiChat],
+    default_api_base: Some("https://api.openai.com/v1"),
+    endpoints_below_given_base: false,
+    files: qwen_files,
+    command: qwen_command,
+    transcript: TranscriptFormat::JsonLines,
+    usage: UsageFormat::Jsonl,
+};
+
+const DEEPSEEK: HarnessSpec = HarnessSpec {
+    name: "deepseek",
+    cli: Cli::Npm { package: DSH_PACKAGE, command: "dsh" },
+    needs_credentials: true,
+    api_protocol: "openai_chat",
+    model_apis: &[ModelApi::OpenaiChat],
+    default_api_base: None,
+    endpoints_below_given_base: false,
+    files: deepseek_files,
+    command: deepseek_command,
+    transcript: TranscriptFormat::JsonLinesOrText,
+    usage: UsageFormat::Jsonl,
+};
+
+const COMMAND: HarnessSpec = HarnessSpec {
+    name: "command",
+    cli: Cli::AgentCmd,
+    needs_credentials: false,
+    api_protocol: "none",
+    model_apis: &[ModelApi::OpenaiChat, ModelApi::OpenaiResponses, ModelApi::AnthropicMessages],
+    default_api_base: None,
+    endpoints_below_given_base: true,
+    files: no_files,
+    command: agent_cmd_command,
+    transcript: TranscriptFormat::Text,
+    usage: UsageFormat::None,
+};
+
 impl Harness {
-    pub fn as_str(self) -> &'static str {
+    /// This harness's row: how it is launched and configured, how its stdout is read, where its usage comes from.
+    pub fn spec(self) -> &'static HarnessSpec {
         match self {
-            Harness::Codex => "codex",
-            Harness::ClaudeCode => "claude_code",
-            Harness::KimiCode => "kimi_code",
-            Harness::QwenCode => "qwen_code",
-            Harness::Deepseek => "deepseek",
-            Harness::Command => "command",
+            Harness::Codex => &CODEX,
+            Harness::ClaudeCode => &CLAUDE_CODE,
+            Harness::KimiCode => &KIMI_CODE,
+            Harness::QwenCode => &QWEN_CODE,
+            Harness::Deepseek => &DEEPSEEK,
+            Harness::Command => &COMMAND,
         }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        self.spec().name
     }
 
     /// `<program> --version` argv (None for `command`): the program as [`cli_command`] starts it.
@@ -55,26 +201,27 @@ impl Harness {
 
     /// The command the harness's CLI installs (`codex`, `claude`, `qwen`, …); `None` for `command`.
     pub fn command(self) -> Option<&'static str> {
-        match self {
-            Harness::Codex => Some("codex"),
-            Harness::ClaudeCode => Some("claude"),
-            Harness::Command => None,
-            _ => self.npm_cli().map(|(_, command)| command),
+        match self.spec().cli {
+            Cli::AgentCmd => None,
+            Cli::OnPath(command) | Cli::Npm { command, .. } => Some(command),
         }
     }
 
     /// The pinned npm package and the command it installs, for the harnesses the paper ran through `npx`.
     pub fn npm_cli(self) -> Option<(&'static str, &'static str)> {
-        match self {
-            Harness::KimiCode => Some((KIMI_PACKAGE, "kimi")),
-            Harness::QwenCode => Some((QWEN_PACKAGE, "qwen")),
-            Harness::Deepseek => Some((DSH_PACKAGE, "dsh")),
+        match self.spec().cli {
+            Cli::Npm { package, command } => Some((package, command)),
             _ => None,
         }
     }
 
+    /// Whether the harness runs `--agent-cmd` (it has no CLI of its own).
+    pub fn runs_agent_cmd(self) -> bool {
+        self.spec().cli == Cli::AgentCmd
+    }
+
     pub fn needs_credentials(self) -> bool {
-        self != Harness::Command
+        self.spec().needs_credentials
     }
 
     /// The stdout file name in the rollout directory (JSON lines where the CLI streams JSON).
@@ -85,23 +232,14 @@ impl Harness {
 
     /// Anthropic's protocol for Claude, OpenAI-compatible chat for the others (§6.7 `api_protocol`).
     pub fn api_protocol(self) -> &'static str {
-        match self {
-            Harness::ClaudeCode => "anthropic_messages",
-            Harness::Command => "none",
-            _ => "openai_chat",
-        }
+        self.spec().api_protocol
     }
 
     /// The wire APIs the harness's CLI calls its model with (what the gateway passes on): Codex the Responses API,
     /// Claude Code Anthropic's Messages, the others OpenAI-compatible chat completions; a `command` agent may
     /// speak any of them.
     pub fn model_apis(self) -> &'static [ModelApi] {
-        match self {
-            Harness::Codex => &[ModelApi::OpenaiResponses],
-            Harness::ClaudeCode => &[ModelApi::AnthropicMessages],
-            Harness::KimiCode | Harness::QwenCode | Harness::Deepseek => &[ModelApi::OpenaiChat],
-            Harness::Command => &[ModelApi::OpenaiChat, ModelApi::OpenaiResponses, ModelApi::AnthropicMessages],
-        }
+        self.spec().model_apis
     }
 
     /// The model-API endpoints the harness's CLI calls, `(method, path)`, given the path of the API base URL it
@@ -113,7 +251,7 @@ impl Harness {
         let mut out: Vec<(&'static str, String)> = Vec::new();
         for api in self.model_apis() {
             let mut bases = vec![api.base_path(api_base_path)];
-            if self == Harness::Command {
+            if self.spec().endpoints_below_given_base {
                 bases.push(api_base_path.trim_end_matches('/').to_owned());
             }
             for base in bases {
@@ -130,11 +268,7 @@ impl Harness {
 
     /// Where the agent's model traffic goes when the credentials name no base URL: each CLI's own default.
     pub fn default_api_base(self) -> Option<&'static str> {
-        match self {
-            Harness::Codex | Harness::QwenCode => Some("https://api.openai.com/v1"),
-            Harness::ClaudeCode => Some("https://api.anthropic.com"),
-            _ => None,
-        }
+        self.spec().default_api_base
     }
 }
 
@@ -190,11 +324,11 @@ pub fn cli_command(harness: Harness, npm_cli_installed: bool, cli_path: Option<&
     if let (Some(path), Some(_)) = (cli_path, harness.command()) {
         return vec![path.to_string_lossy().into_owned()];
     }
-    match (harness, harness.npm_cli()) {
-        (Harness::Codex | Harness::ClaudeCode, _) => harness.command().map(str::to_owned).into_iter().collect(),
-        (_, Some((_, command))) if npm_cli_installed => vec![command.to_owned()],
-        (_, Some((package, _))) => vec!["npx".to_owned(), "--yes".to_owned(), package.to_owned()],
-        (_, None) => Vec::new(),
+    match harness.spec().cli {
+        Cli::OnPath(command) => vec![command.to_owned()],
+        Cli::Npm { command, .. } if npm_cli_installed => vec![command.to_owned()],
+        Cli::Npm { package, .. } => vec!["npx".to_owned(), "--yes".to_owned(), package.to_owned()],
+        Cli::AgentCmd => Vec::new(),
     }
 }
 
@@ -297,11 +431,17 @@ pub struct LaunchContext<'a> {
     pub cli_path: Option<&'a Path>,
 }
 
-/// A launch: argv, the child's whole environment, files to write first (path, content, mode).
+/// A launch's environment variables (the child's whole environment), in order.
+pub type LaunchEnv = Vec<(String, String)>;
+
+/// A file a launch writes first: path, content, mode (0600 where it holds a token or key).
+pub type LaunchFile = (PathBuf, String, u32);
+
+/// A launch: argv, the child's whole environment, files to write first.
 pub struct Launch {
     pub argv: Vec<String>,
-    pub env: Vec<(String, String)>,
-    pub files: Vec<(PathBuf, String, u32)>,
+    pub env: LaunchEnv,
+    pub files: Vec<LaunchFile>,
 }
 
 impl Launch {
@@ -352,14 +492,22 @@ fn s(x: &str) -> String {
     x.to_owned()
 }
 
-/// Builds the launch of `ctx.harness`.
+/// Builds the launch of `ctx.harness`: the environment every launch has, then the harness's files and command
+/// ([`HarnessSpec::files`], [`HarnessSpec::command`]).
 pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
-    let home = ctx.session_home;
-    let home_s = home.to_string_lossy().into_owned();
+    let spec = ctx.harness.spec();
+    let mut env = common_env(ctx);
+    let files = (spec.files)(ctx)?;
+    let argv = (spec.command)(ctx, &mut env)?;
+    Ok(Launch { argv, env, files })
+}
+
+/// The environment of every launch: the session home, the workspace and the episode's endpoint and token.
+fn common_env(ctx: &LaunchContext) -> LaunchEnv {
     let path = std::env::var("PATH").unwrap_or_else(|_| s("/usr/local/bin:/usr/bin:/bin"));
     let mut env = vec![
         (s("PATH"), path),
-        (s("HOME"), home_s.clone()),
+        (s("HOME"), ctx.session_home.to_string_lossy().into_owned()),
         (s("LANG"), s("C.UTF-8")),
         (s("TERM"), s("dumb")),
         (s("NO_COLOR"), s("1")),
@@ -373,174 +521,223 @@ pub fn build_launch(ctx: &LaunchContext) -> anyhow::Result<Launch> {
     if let Some(v) = std::env::var_os("LD_LIBRARY_PATH") {
         env.push((s("LD_LIBRARY_PATH"), v.to_string_lossy().into_owned()));
     }
-    let mut files = Vec::new();
-    let creds = || -> anyhow::Result<&Credentials> {
-        ctx.credentials.with_context(|| format!("the {} harness needs API credentials", ctx.harness.as_str()))
-    };
-    let prompt = s(ctx.prompt);
-    let argv: Vec<String> = match ctx.harness {
-        Harness::Codex => {
-            let c = creds()?;
-            env.push((s("CODEX_HOME"), home_s.clone()));
-            env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
-            env.push((s("CODEX_API_KEY"), c.api_key.clone()));
-            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
-            a.push(s("exec"));
-            if ctx.sandboxed {
-                // Our bubblewrap sandbox is the isolation; Codex's own (landlock/bwrap) cannot nest inside it.
-                a.push(s("--dangerously-bypass-approvals-and-sandbox"));
-            } else {
-                a.extend([s("--sandbox"), s("workspace-write"), s("--config"), s("approval_policy=\"never\"")]);
-            }
-            // `--json`: events (token counts included) on stdout, which the runner captures out of the agent's reach.
-            a.extend([s("--skip-git-repo-check"), s("--color"), s("never"), s("--json"), s("--model"), s(ctx.model)]);
-            a.extend([s("--config"), format!("model_reasoning_effort=\"{}\"", ctx.effort)]);
-            if let Some(b) = c.openai_base() {
-                a.extend([s("--config"), format!("openai_base_url=\"{b}\"")]);
-            }
-            a.extend(codex_mcp_args(ctx.mcp_url));
-            a.push(prompt);
-            a
+    env
+}
+
+/// The launch's credentials, which every CLI harness needs.
+fn credentials<'a>(ctx: &LaunchContext<'a>) -> anyhow::Result<&'a Credentials> {
+    ctx.credentials.with_context(|| format!("the {} harness needs API credentials", ctx.harness.as_str()))
+}
+
+fn home_s(ctx: &LaunchContext) -> String {
+    ctx.session_home.to_string_lossy().into_owned()
+}
+
+fn no_files(_: &LaunchContext) -> anyhow::Result<Vec<LaunchFile>> {
+    Ok(Vec::new())
+}
+
+fn codex_command(ctx: &LaunchContext, env: &mut LaunchEnv) -> anyhow::Result<Vec<String>> {
+    let c = credentials(ctx)?;
+    env.push((s("CODEX_HOME"), home_s(ctx)));
+    env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
+    env.push((s("CODEX_API_KEY"), c.api_key.clone()));
+    let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
+    a.push(s("exec"));
+    if ctx.sandboxed {
+        // Our bubblewrap sandbox is the isolation; Codex's own (landlock/bwrap) cannot nest inside it.
+        a.push(s("--dangerously-bypass-approvals-and-sandbox"));
+    } else {
+        a.extend([s("--sandbox"), s("workspace-write"), s("--config"), s("approval_policy=\"never\"")]);
+    }
+    // `--json`: events (token counts included) on stdout, which the runner captures out of the agent's reach.
+    a.extend([s("--skip-git-repo-check"), s("--color"), s("never"), s("--json"), s("--model"), s(ctx.model)]);
+    a.extend([s("--config"), format!("model_reasoning_effort=\"{}\"", ctx.effort)]);
+    if let Some(b) = c.openai_base() {
+        a.extend([s("--config"), format!("openai_base_url=\"{b}\"")]);
+    }
+    a.extend(codex_mcp_args(ctx.mcp_url));
+    a.push(s(ctx.prompt));
+    Ok(a)
+}
+
+/// Claude Code's MCP configuration (`--mcp-config`), in the session home.
+fn claude_config_file(ctx: &LaunchContext) -> PathBuf {
+    ctx.session_home.join("mcp.json")
+}
+
+fn claude_files(ctx: &LaunchContext) -> anyhow::Result<Vec<LaunchFile>> {
+    let config = serde_json::to_string_pretty(&claude_mcp_config(ctx.mcp_url, ctx.mcp_token))?;
+    Ok(vec![(claude_config_file(ctx), config, 0o600)])
+}
+
+fn claude_command(ctx: &LaunchContext, env: &mut LaunchEnv) -> anyhow::Result<Vec<String>> {
+    let c = credentials(ctx)?;
+    if let Some(b) = c.anthropic_base() {
+        env.push((s("ANTHROPIC_BASE_URL"), b));
+    }
+    env.push((s("ANTHROPIC_API_KEY"), c.api_key.clone()));
+    env.push((s("CLAUDE_CONFIG_DIR"), home_s(ctx)));
+    env.push((s("CLAUDE_CODE_DISABLE_NONESSENTIAL_TRAFFIC"), s("1")));
+    if ctx.sandboxed {
+        // Claude Code's own marker for "inside bubblewrap": without it, bypassPermissions is refused to
+        // root (the uid a CI container runs as), although our sandbox is exactly the isolation it asks for.
+        env.push((s("CLAUDE_CODE_BUBBLEWRAP"), s("1")));
+    }
+    let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
+    a.extend([
+        s("--bare"), s("--strict-mcp-config"), s("--mcp-config"), claude_config_file(ctx).to_string_lossy().into_owned(),
+        s("--print"), s("--output-format"), s("stream-json"), s("--verbose"), s("--model"), s(ctx.model),
+        s("--effort"), s(ctx.effort), s("--permission-mode"), s("bypassPermissions"), s(ctx.prompt),
+    ]);
+    Ok(a)
+}
+
+/// Kimi Code's provider and model (the key among them), its MCP server, and an empty skills directory.
+fn kimi_files(ctx: &LaunchContext) -> anyhow::Result<Vec<LaunchFile>> {
+    let c = credentials(ctx)?;
+    let home = ctx.session_home;
+    let base = c.openai_base().context("Kimi Code needs an API base URL (APIURL=…) in the credentials file")?;
+    let toml = format!(
+        "default_model = \"libero-kimi\"\ndefault_permission_mode = \"auto\"\nmerge_all_available_skills = false\n\
+         builtin_product_skills = false\ntelemetry = false\n\n[providers.libero]\ntype = \"openai\"\nbase_url = {}\n\
+         api_key = {}\n\n[models.libero-kimi]\nprovider = \"libero\"\nmodel = {}\nmax_context_size = 200000\n\
+         max_output_size = 8192\ncapabilities = [\"thinking\", \"image_in\", \"tool_use\"]\n\n[thinking]\n\
+         enabled = true\neffort = {}\nkeep = \"all\"\n\n[loop_control]\nmax_attempts_per_step = 10\n",
+        json!(base), json!(c.api_key), json!(ctx.model), json!(ctx.effort)
+    );
+    let mut mcp = claude_mcp_config(ctx.mcp_url, ctx.mcp_token);
+    mcp["mcpServers"][MCP_SERVER_KEY]["startupTimeoutMs"] = json!(600000);
+    mcp["mcpServers"][MCP_SERVER_KEY]["toolTimeoutMs"] = json!(600000);
+    mcp["mcpServers"][MCP_SERVER_KEY]["enabledTools"] = json!(tool_names());
+    Ok(vec![
+        (home.join("config.toml"), toml, 0o600),
+        (home.join("mcp.json"), serde_json::to_string_pretty(&mcp)?, 0o600),
+        (home.join("empty-skills/.keep"), String::new(), 0o600),
+    ])
+}
+
+fn kimi_command(ctx: &LaunchContext, env: &mut LaunchEnv) -> anyhow::Result<Vec<String>> {
+    credentials(ctx)?;
+    let home_s = home_s(ctx);
+    for (k, v) in [("KIMI_CODE_NO_AUTO_UPDATE", "1"), ("KIMI_CLI_NO_AUTO_UPDATE", "1"), ("KIMI_DISABLE_TELEMETRY", "1"),
+        ("KIMI_CODE_BUILTIN_PRODUCT_SKILLS", "0"), ("CHOKIDAR_USEPOLLING", "1"), ("CHOKIDAR_INTERVAL", "1000")]
+    {
+        env.push((s(k), s(v)));
+    }
+    env.push((s("KIMI_CODE_HOME"), home_s.clone()));
+    let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
+    a.extend([
+        s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
+        s("--skills-dir"), format!("{home_s}/empty-skills"), s("--prompt"), s(ctx.prompt),
+    ]);
+    Ok(a)
+}
+
+/// QWEN_HOME is Qwen's settings directory itself: `<home>/settings.json` is its user settings, so the episode's
+/// server lives there (not in `--mcp-config`), where `qwen mcp list` reads and checks it too.
+fn qwen_files(ctx: &LaunchContext) -> anyhow::Result<Vec<LaunchFile>> {
+    let settings = json!({"security": {"auth": {"selectedType": "openai"}},
+        "model": {"name": ctx.model, "reasoningEffort": ctx.effort},
+        "privacy": {"usageStatisticsEnabled": false},
+        "telemetry": {"enabled": false, "logPrompts": false, "includeSensitiveSpanAttributes": false},
+        "mcpServers": qwen_mcp_config(ctx.mcp_url, ctx.mcp_token)["mcpServers"]});
+    Ok(vec![(ctx.session_home.join("settings.json"), serde_json::to_string_pretty(&settings)?, 0o600)])
+}
+
+fn qwen_command(ctx: &LaunchContext, env: &mut LaunchEnv) -> anyhow::Result<Vec<String>> {
+    let c = credentials(ctx)?;
+    let home_s = home_s(ctx);
+    env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
+    if let Some(b) = c.openai_base() {
+        env.push((s("OPENAI_BASE_URL"), b));
+    }
+    for (k, v) in [("OPENAI_MODEL", ctx.model), ("QWEN_MODEL", ctx.model), ("QWEN_HOME", &home_s),
+        ("QWEN_RUNTIME_DIR", &home_s), ("QWEN_DISABLE_TELEMETRY", "1"), ("QWEN_DISABLE_USAGE_STATISTICS", "1")]
+    {
+        env.push((s(k), s(v)));
+    }
+    let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
+    a.extend([
+        s("--auth-type"), s("openai"), s("--model"), s(ctx.model), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
+        s("--approval-mode"), s("yolo"), s("--chat-recording"), s("--output-format"), s("stream-json"), s(ctx.prompt),
+    ]);
+    Ok(a)
+}
+
+/// DeepSeek's credentials and base URL: effort high only, a base URL required.
+fn deepseek_base<'a>(ctx: &LaunchContext<'a>) -> anyhow::Result<(&'a Credentials, String)> {
+    let c = credentials(ctx)?;
+    if ctx.effort != "high" {
+        bail!("the DeepSeek harness runs at reasoning effort high only (got {})", ctx.effort);
+    }
+    let base = c.openai_base().context("the DeepSeek harness needs an API base URL (APIURL=…)")?;
+    Ok((c, base))
+}
+
+/// dsh's `--patch`: its provider, agent loop and the episode's server through the `mcp-stdio` relay.
+fn deepseek_patch_file(ctx: &LaunchContext) -> PathBuf {
+    ctx.session_home.join("dsh_mcp.patch.yml")
+}
+
+fn deepseek_files(ctx: &LaunchContext) -> anyhow::Result<Vec<LaunchFile>> {
+    let (_, base) = deepseek_base(ctx)?;
+    let relay = [
+        s("mcp-stdio"), s("--url"), s(ctx.mcp_url), s("--bearer-env"), s("LIBERO_MCP_TOKEN"),
+    ];
+    let patch = format!(
+        "- plugin: llm-deepseek\n  config:\n    apiKeyEnv: DEEPSEEK_API_KEY\n    baseURL: {base}\n    thinking: enabled\n    \
+         reasoningEffort: high\n    maxTokens: 8192\n    models:\n      - id: {model}\n        contextWindow: 200000\n\
+         - plugin: agent-loop\n  config:\n    agents:\n      - id: main\n        provider: deepseek-official\n        \
+         model: {model}\n        cwd: {ws}\n- plugin: agent-default-model\n  config:\n    provider: deepseek-official\n    \
+         model: {model}\n- plugin: session-persistence-jsonl\n  config:\n    root: {home}/sessions\n    compression: none\n\
+         - plugin: '@deepseek-ai/dsh-mcp-client'\n  id: libero-mcp\n  config:\n    serverName: {key}\n    transport: stdio\n    \
+         command: {exe}\n    args: {args}\n    cwd: {ws}\n    toolCallTimeoutMs: 600000\n    failOnStartupError: true\n",
+        model = json!(ctx.model),
+        ws = json!(ctx.workspace),
+        home = home_s(ctx),
+        key = MCP_SERVER_KEY,
+        exe = json!(ctx.self_exe),
+        args = json!(relay),
+    );
+    Ok(vec![(deepseek_patch_file(ctx), patch, 0o600)])
+}
+
+fn deepseek_command(ctx: &LaunchContext, env: &mut LaunchEnv) -> anyhow::Result<Vec<String>> {
+    let (c, base) = deepseek_base(ctx)?;
+    let home_s = home_s(ctx);
+    env.push((s("DEEPSEEK_API_KEY"), c.api_key.clone()));
+    env.push((s("DEEPSEEK_BASE_URL"), base));
+    for (k, v) in [("DSH_HOME", home_s.as_str()), ("DSH_TELEMETRY_DISABLED", "1"), ("DSH_TELEMETRY_MODE", "DISABLED"),
+        ("DSH_TOOLS_MODE", "native"), ("DSH_PERMISSION_MODE", "workspace-write")]
+    {
+        env.push((s(k), s(v)));
+    }
+    let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
+    a.extend([s("--profile"), s("headless"), s("--patch"), deepseek_patch_file(ctx).to_string_lossy().into_owned(), s(ctx.prompt)]);
+    Ok(a)
+}
+
+/// `--agent-cmd` with its placeholders expanded to quoted words, run by `/bin/sh -c`.
+fn agent_cmd_command(ctx: &LaunchContext, env: &mut LaunchEnv) -> anyhow::Result<Vec<String>> {
+    let template = ctx.agent_cmd.context("--harness command needs --agent-cmd \"…\"")?;
+    let mcp_config = ctx.workspace.join(".libero/mcp.json");
+    let cmd = template
+        .replace("{workspace}", &shell_quote(&ctx.workspace.to_string_lossy()))
+        .replace("{prompt_file}", &shell_quote(&ctx.prompt_file.to_string_lossy()))
+        .replace("{mcp_config}", &shell_quote(&mcp_config.to_string_lossy()))
+        .replace("{mcp_url}", &shell_quote(ctx.mcp_url))
+        .replace("{model}", &shell_quote(ctx.model))
+        .replace("{libero_agent}", &shell_quote(&ctx.self_exe.to_string_lossy()));
+    if let Some(c) = ctx.credentials {
+        // Explicit credentials for a command agent: its key (the base URL is the gateway's, in the
+        // sandbox's LIBERO_MODEL_API_BASE).
+        env.push((s("LIBERO_MODEL_API_KEY"), c.api_key.clone()));
+        if let Some(b) = &c.api_base {
+            env.push((s("LIBERO_MODEL_API_BASE"), b.clone()));
         }
-        Harness::ClaudeCode => {
-            let c = creds()?;
-            let cfg = home.join("mcp.json");
-            files.push((cfg.clone(), serde_json::to_string_pretty(&claude_mcp_config(ctx.mcp_url, ctx.mcp_token))?, 0o600));
-            if let Some(b) = c.anthropic_base() {
-                env.push((s("ANTHROPIC_BASE_URL"), b));
-            }
-            env.push((s("ANTHROPIC_API_KEY"), c.api_key.clone()));
-            env.push((s("CLAUDE_CONFIG_DIR"), home_s.clone()));
-            env.push((s("CLAUDE_CODE_DISABLE_NONESSENTIAL_TRAFFIC"), s("1")));
-            if ctx.sandboxed {
-                // Claude Code's own marker for "inside bubblewrap": without it, bypassPermissions is refused to
-                // root (the uid a CI container runs as), although our sandbox is exactly the isolation it asks for.
-                env.push((s("CLAUDE_CODE_BUBBLEWRAP"), s("1")));
-            }
-            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
-            a.extend([
-                s("--bare"), s("--strict-mcp-config"), s("--mcp-config"), cfg.to_string_lossy().into_owned(),
-                s("--print"), s("--output-format"), s("stream-json"), s("--verbose"), s("--model"), s(ctx.model),
-                s("--effort"), s(ctx.effort), s("--permission-mode"), s("bypassPermissions"), prompt,
-            ]);
-            a
-        }
-        Harness::KimiCode => {
-            let c = creds()?;
-            let base = c.openai_base().context("Kimi Code needs an API base URL (APIURL=…) in the credentials file")?;
-            let toml = format!(
-                "default_model = \"libero-kimi\"\ndefault_permission_mode = \"auto\"\nmerge_all_available_skills = false\n\
-                 builtin_product_skills = false\ntelemetry = false\n\n[providers.libero]\ntype = \"openai\"\nbase_url = {}\n\
-                 api_key = {}\n\n[models.libero-kimi]\nprovider = \"libero\"\nmodel = {}\nmax_context_size = 200000\n\
-                 max_output_size = 8192\ncapabilities = [\"thinking\", \"image_in\", \"tool_use\"]\n\n[thinking]\n\
-                 enabled = true\neffort = {}\nkeep = \"all\"\n\n[loop_control]\nmax_attempts_per_step = 10\n",
-                json!(base), json!(c.api_key), json!(ctx.model), json!(ctx.effort)
-            );
-            files.push((home.join("config.toml"), toml, 0o600));
-            let mut mcp = claude_mcp_config(ctx.mcp_url, ctx.mcp_token);
-            mcp["mcpServers"][MCP_SERVER_KEY]["startupTimeoutMs"] = json!(600000);
-            mcp["mcpServers"][MCP_SERVER_KEY]["toolTimeoutMs"] = json!(600000);
-            mcp["mcpServers"][MCP_SERVER_KEY]["enabledTools"] = json!(tool_names());
-            files.push((home.join("mcp.json"), serde_json::to_string_pretty(&mcp)?, 0o600));
-            files.push((home.join("empty-skills/.keep"), String::new(), 0o600));
-            for (k, v) in [("KIMI_CODE_NO_AUTO_UPDATE", "1"), ("KIMI_CLI_NO_AUTO_UPDATE", "1"), ("KIMI_DISABLE_TELEMETRY", "1"),
-                ("KIMI_CODE_BUILTIN_PRODUCT_SKILLS", "0"), ("CHOKIDAR_USEPOLLING", "1"), ("CHOKIDAR_INTERVAL", "1000")]
-            {
-                env.push((s(k), s(v)));
-            }
-            env.push((s("KIMI_CODE_HOME"), home_s.clone()));
-            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
-            a.extend([
-                s("--model"), s("libero-kimi"), s("--output-format"), s("stream-json"),
-                s("--skills-dir"), format!("{home_s}/empty-skills"), s("--prompt"), prompt,
-            ]);
-            a
-        }
-        Harness::QwenCode => {
-            let c = creds()?;
-            // QWEN_HOME is Qwen's settings directory itself: `<home>/settings.json` is its user settings, so the
-            // episode's server lives there (not in `--mcp-config`), where `qwen mcp list` reads and checks it too.
-            let settings = json!({"security": {"auth": {"selectedType": "openai"}},
-                "model": {"name": ctx.model, "reasoningEffort": ctx.effort},
-                "privacy": {"usageStatisticsEnabled": false},
-                "telemetry": {"enabled": false, "logPrompts": false, "includeSensitiveSpanAttributes": false},
-                "mcpServers": qwen_mcp_config(ctx.mcp_url, ctx.mcp_token)["mcpServers"]});
-            files.push((home.join("settings.json"), serde_json::to_string_pretty(&settings)?, 0o600));
-            env.push((s("OPENAI_API_KEY"), c.api_key.clone()));
-            if let Some(b) = c.openai_base() {
-                env.push((s("OPENAI_BASE_URL"), b));
-            }
-            for (k, v) in [("OPENAI_MODEL", ctx.model), ("QWEN_MODEL", ctx.model), ("QWEN_HOME", &home_s),
-                ("QWEN_RUNTIME_DIR", &home_s), ("QWEN_DISABLE_TELEMETRY", "1"), ("QWEN_DISABLE_USAGE_STATISTICS", "1")]
-            {
-                env.push((s(k), s(v)));
-            }
-            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
-            a.extend([
-                s("--auth-type"), s("openai"), s("--model"), s(ctx.model), s("--allowed-mcp-server-names"), s(MCP_SERVER_KEY),
-                s("--approval-mode"), s("yolo"), s("--chat-recording"), s("--output-format"), s("stream-json"), prompt,
-            ]);
-            a
-        }
-        Harness::Deepseek => {
-            let c = creds()?;
-            if ctx.effort != "high" {
-                bail!("the DeepSeek harness runs at reasoning effort high only (got {})", ctx.effort);
-            }
-            let base = c.openai_base().context("the DeepSeek harness needs an API base URL (APIURL=…)")?;
-            let relay = [
-                s("mcp-stdio"), s("--url"), s(ctx.mcp_url), s("--bearer-env"), s("LIBERO_MCP_TOKEN"),
-            ];
-            let patch = format!(
-                "- plugin: llm-deepseek\n  config:\n    apiKeyEnv: DEEPSEEK_API_KEY\n    baseURL: {base}\n    thinking: enabled\n    \
-                 reasoningEffort: high\n    maxTokens: 8192\n    models:\n      - id: {model}\n        contextWindow: 200000\n\
-                 - plugin: agent-loop\n  config:\n    agents:\n      - id: main\n        provider: deepseek-official\n        \
-                 model: {model}\n        cwd: {ws}\n- plugin: agent-default-model\n  config:\n    provider: deepseek-official\n    \
-                 model: {model}\n- plugin: session-persistence-jsonl\n  config:\n    root: {home}/sessions\n    compression: none\n\
-                 - plugin: '@deepseek-ai/dsh-mcp-client'\n  id: libero-mcp\n  config:\n    serverName: {key}\n    transport: stdio\n    \
-                 command: {exe}\n    args: {args}\n    cwd: {ws}\n    toolCallTimeoutMs: 600000\n    failOnStartupError: true\n",
-                model = json!(ctx.model),
-                ws = json!(ctx.workspace),
-                home = home_s,
-                key = MCP_SERVER_KEY,
-                exe = json!(ctx.self_exe),
-                args = json!(relay),
-            );
-            let patch_file = home.join("dsh_mcp.patch.yml");
-            files.push((patch_file.clone(), patch, 0o600));
-            env.push((s("DEEPSEEK_API_KEY"), c.api_key.clone()));
-            env.push((s("DEEPSEEK_BASE_URL"), base));
-            for (k, v) in [("DSH_HOME", home_s.as_str()), ("DSH_TELEMETRY_DISABLED", "1"), ("DSH_TELEMETRY_MODE", "DISABLED"),
-                ("DSH_TOOLS_MODE", "native"), ("DSH_PERMISSION_MODE", "workspace-write")]
-            {
-                env.push((s(k), s(v)));
-            }
-            let mut a = cli_command(ctx.harness, ctx.npm_cli_installed, ctx.cli_path);
-            a.extend([s("--profile"), s("headless"), s("--patch"), patch_file.to_string_lossy().into_owned(), prompt]);
-            a
-        }
-        Harness::Command => {
-            let template = ctx.agent_cmd.context("--harness command needs --agent-cmd \"…\"")?;
-            let mcp_config = ctx.workspace.join(".libero/mcp.json");
-            let cmd = template
-                .replace("{workspace}", &shell_quote(&ctx.workspace.to_string_lossy()))
-                .replace("{prompt_file}", &shell_quote(&ctx.prompt_file.to_string_lossy()))
-                .replace("{mcp_config}", &shell_quote(&mcp_config.to_string_lossy()))
-                .replace("{mcp_url}", &shell_quote(ctx.mcp_url))
-                .replace("{model}", &shell_quote(ctx.model))
-                .replace("{libero_agent}", &shell_quote(&ctx.self_exe.to_string_lossy()));
-            if let Some(c) = ctx.credentials {
-                // Explicit credentials for a command agent: its key (the base URL is the gateway's, in the
-                // sandbox's LIBERO_MODEL_API_BASE).
-                env.push((s("LIBERO_MODEL_API_KEY"), c.api_key.clone()));
-                if let Some(b) = &c.api_base {
-                    env.push((s("LIBERO_MODEL_API_BASE"), b.clone()));
-                }
-            }
-            vec![s("/bin/sh"), s("-c"), cmd]
-        }
-    };
-    Ok(Launch { argv, env, files })
+    }
+    Ok(vec![s("/bin/sh"), s("-c"), cmd])
 }
 
 #[cfg(test)]
@@ -554,6 +751,20 @@ mod tests {
         for h in Harness::value_variants() {
             assert_eq!(libero_report::batch::stdout_file(h.as_str()), Some(h.stdout_file()), "{h:?}");
             assert_eq!(libero_report::batch::stderr_file(h.as_str()), Some(format!("{}_stderr.log", h.as_str())), "{h:?}");
+        }
+    }
+
+    /// A row's name is the harness's name everywhere: the CLI's `--harness` value and the batch files' (serde).
+    #[test]
+    fn each_row_is_named_as_the_cli_and_the_batch_files_name_its_harness() {
+        use clap::ValueEnum;
+        for h in Harness::value_variants() {
+            let spec = h.spec();
+            assert_eq!(h.to_possible_value().unwrap().get_name(), spec.name, "{h:?}");
+            assert_eq!(serde_json::to_value(h).unwrap(), spec.name, "{h:?}");
+            assert!(libero_report::batch::HARNESSES.contains(&spec.name), "{h:?}");
+            assert_eq!(spec.cli == Cli::AgentCmd, !spec.needs_credentials, "{h:?}: only `command` runs without credentials");
+            assert_eq!(h.runs_agent_cmd(), h.command().is_none(), "{h:?}");
         }
     }
 

@@ -465,7 +465,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.model.trim().is_empty() {
         bail!("--model must name the model");
     }
-    if (args.harness == Harness::Command) != args.agent_cmd.is_some() {
+    if args.harness.runs_agent_cmd() != args.agent_cmd.is_some() {
         bail!("--agent-cmd is required with --harness command and only allowed with it");
     }
     if args.harness_version.is_some() && args.harness.command().is_none() {

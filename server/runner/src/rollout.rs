@@ -25,7 +25,7 @@ use libero_sandbox::agent_net::{NetPlan, contain};
 use super::schedule::PlannedRollout;
 use libero_sandbox::logs::{Limits, scrub_log, scrub_text};
 use libero_sandbox::toolbox::Toolbox;
-use super::usage::{UsageFormat, UsageScanner};
+use super::usage::UsageScanner;
 use super::{INTERRUPTED, RunContext};
 use libero_server::client::{get_json, post_json, prepare_episode};
 use libero_server::episodes::PrepareRequest;
@@ -113,12 +113,7 @@ fn kill_group(child: &mut Child) {
 /// FIFOs there). Codex prints its events on stdout with `--json`, one `turn.completed` usage per turn. Returns the
 /// usage and, per log file name, what was kept (or why the log could not be scrubbed).
 fn scrub_logs(harness: Harness, stdout: &Path, stderr: &Path, secrets: &[&str]) -> (Usage, Value) {
-    let format = match harness {
-        Harness::Command => UsageFormat::None,
-        Harness::Codex => UsageFormat::CodexExec,
-        _ => UsageFormat::Jsonl,
-    };
-    let mut usage = UsageScanner::new(format);
+    let mut usage = UsageScanner::new(harness.spec().usage);
     let mut logs = serde_json::Map::new();
     for (path, is_stdout) in [(stdout, true), (stderr, false)] {
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();

@@ -38,7 +38,7 @@ use libero_episode::tools::ToolName;
 use serde::Serialize;
 use serde_json::{Map, Value, json};
 
-use crate::harness::Harness;
+use crate::harness::{Harness, TranscriptFormat};
 use crate::lines::{Line, LineSplitter};
 use libero_sandbox::logs::scrub_text;
 
@@ -351,7 +351,8 @@ struct Pending {
 
 /// Turns one harness's lines into transcript events.
 pub struct Normalizer {
-    harness: Harness,
+    /// How the harness's stdout reads ([`crate::harness::HarnessSpec::transcript`]).
+    format: TranscriptFormat,
     workspace: PathBuf,
     secrets: Vec<String>,
     seq: u64,
@@ -486,7 +487,7 @@ fn normalize(path: &Path) -> Option<PathBuf> {
 impl Normalizer {
     pub fn new(harness: Harness, workspace: &Path, secrets: &[&str]) -> Self {
         Self {
-            harness,
+            format: harness.spec().transcript,
             workspace: normalize(workspace).unwrap_or_else(|| workspace.to_path_buf()),
             secrets: secrets.iter().map(|s| (*s).to_owned()).collect(),
             seq: 0,
@@ -568,13 +569,13 @@ impl Normalizer {
     }
 
     fn stdout(&mut self, b: &[u8]) -> Vec<AgentEvent> {
-        if self.harness == Harness::Command {
+        if self.format == TranscriptFormat::Text {
             return vec![say(Kind::Message, Source::Stdout, text_of(b))];
         }
         match serde_json::from_slice::<Value>(b) {
             Ok(Value::Object(m)) => self.json_line(&m).unwrap_or_else(|| vec![say(Kind::Other, Source::Stdout, text_of(b))]),
             // DeepSeek's headless profile prints its final answer as plain text.
-            _ if self.harness == Harness::Deepseek => vec![say(Kind::Message, Source::Stdout, text_of(b))],
+            _ if self.format == TranscriptFormat::JsonLinesOrText => vec![say(Kind::Message, Source::Stdout, text_of(b))],
             _ => vec![say(Kind::Other, Source::Stdout, text_of(b))],
         }
     }
