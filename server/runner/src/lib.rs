@@ -455,22 +455,7 @@ pub fn agent_exe() -> anyhow::Result<PathBuf> {
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
-    if args.concurrency == Some(0) {
-        bail!("--concurrency must be at least 1");
-    }
-    let queue_store = args.queue_store()?;
-    if args.detach && queue_store.is_none() {
-        bail!("--detach needs a queue store (--store postgres://… without --local)");
-    }
-    if args.model.trim().is_empty() {
-        bail!("--model must name the model");
-    }
-    if args.harness.runs_agent_cmd() != args.agent_cmd.is_some() {
-        bail!("--agent-cmd is required with --harness command and only allowed with it");
-    }
-    if args.harness_version.is_some() && args.harness.command().is_none() {
-        bail!("--harness-version picks a version of an agent CLI; --harness command runs --agent-cmd, which has none");
-    }
+    let queue_store = check_args(&args)?;
     let catalog = Catalog::discover()?;
     let (schedule, skipped, only, pool_tasks) = schedule_of(&args, &catalog)?;
     if !skipped.is_empty() {
@@ -481,18 +466,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         );
     }
     if args.dry_run {
-        for r in &schedule {
-            if args.json {
-                println!("{}", serde_json::to_string(r)?);
-            } else {
-                println!("{:<30} {:<18} {:<40} level {} demo {}", r.rollout_id, r.task, r.task_name, r.level, r.demo.as_str());
-            }
-        }
-        if !args.json {
-            eprintln!("{} rollouts ({} experiment, {} × {} reps); nothing launched", schedule.len(), args.experiment.as_str(),
-                args.harness.as_str(), args.reps);
-        }
-        return Ok(());
+        return print_dry_run(&args, &schedule);
     }
     if schedule.is_empty() {
         bail!("nothing to run");
@@ -509,49 +483,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     // A store that cannot be opened stops the run before anything is written or launched.
     let store = args.store.as_deref().map(batch::StoreMirror::connect).transpose()?;
     let batch_dir = absolute(&args.batch.clone().unwrap_or_else(default_batch_dir))?;
-    let existing = libero_report::batch::batch_json(&batch_dir);
-    let (created_at, done_records) = if existing.is_file() {
-        if !args.resume {
-            bail!("{} already holds a batch; pass --resume to continue it", batch_dir.display());
-        }
-        let old: Value = serde_json::from_str(&std::fs::read_to_string(&existing)?)?;
-        let old = BatchDoc::from_value(old).unwrap_or_default();
-        if old.settings_sha256 != Some(settings.sha256()) {
-            bail!(
-                "--resume refuses changed settings: the batch was started with {}, now {}",
-                json!(old.settings),
-                serde_json::to_value(&settings)?
-            );
-        }
-        (old.created_at.unwrap_or_default(), read_records(&batch_dir)?)
-    } else {
-        std::fs::create_dir_all(&batch_dir)?;
-        (utc_now_iso(), Vec::new())
-    };
-    let credentials = if args.harness.needs_credentials() {
-        let path = args.paths.credentials_file();
-        Some(Credentials::load(&path)?)
-    } else if let Some(path) = &args.paths.credentials_file {
-        // A `command` agent that talks to a model: its API through the runner's gateway, like every harness.
-        Some(Credentials::load(path)?)
-    } else {
-        None
-    };
-    let sandbox = if args.no_sandbox {
-        eprintln!("warning: --no-sandbox: agents run without isolation and can read every file this user can");
-        if matches!(args.toolbox, Some(ToolboxChoice::Path(_))) {
-            bail!("--toolbox is shown inside the sandbox; with --no-sandbox the agent runs the host's own python3");
-        }
-        None
-    } else {
-        let sandbox = Sandbox::detect()?.with_resources(resources::Resources::detect(&args.resources)?);
-        let toolbox = toolbox::resolve(args.toolbox.as_ref())?;
-        match &toolbox {
-            Some(t) => eprintln!("the agents' toolbox: {} at {} ({})", t.name, toolbox::INSIDE, package_list(t)),
-            None => eprintln!("no toolbox: agents run the system's python3 alone"),
-        }
-        Some(sandbox.with_toolbox(toolbox))
-    };
+    let (created_at, done_records) = open_batch_dir(&args, &batch_dir, &settings)?;
+    let credentials = credentials_of(&args)?;
+    let sandbox = sandbox_of(&args)?;
     let batch_name = batch_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "batch".into());
     if let Some(c) = &credentials
         && (c.source.starts_with(args.paths.workspace_base()?) || c.source.starts_with(&batch_dir))
@@ -561,33 +495,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let self_exe = agent_exe()?;
     let npm_cli_installed = harness::pinned_npm_cli_installed(args.harness);
     let harness_version = probe_version(args.harness, npm_cli_installed, cli_path.as_deref());
-    // Rollouts with a directory but no record were running when an earlier runner died: INTERRUPTED, no retry.
-    let mut finished: BTreeSet<String> = done_records.iter().map(|r| r.rollout_id.clone()).collect();
-    for r in &schedule {
-        if !finished.contains(&r.rollout_id) && batch_dir.join("rollouts").join(&r.rollout_id).exists() {
-            let rec = interrupted_record(r);
-            append_record(&batch_dir, &rec)?;
-            finished.insert(r.rollout_id.clone());
-        }
-    }
-    let records_so_far = read_records(&batch_dir)?;
-    let mut outcomes = BTreeMap::new();
-    for r in records_so_far.iter().filter(|r| schedule.iter().any(|s| s.rollout_id == r.rollout_id)) {
-        *outcomes.entry(r.outcome).or_insert(0) += 1;
-    }
-    let todo: VecDeque<PlannedRollout> = schedule.iter().filter(|r| !finished.contains(&r.rollout_id)).cloned().collect();
+    let (todo, progress) = rollouts_to_run(&batch_dir, &schedule, &done_records)?;
     let workspace_root = run_workspace_root(&args.paths, &batch_name, &todo)?;
-    let progress = Progress { total: schedule.len(), done: schedule.len() - todo.len(), running: BTreeSet::new(), outcomes };
     // The in-process server lives as long as the batch.
-    let (server, server_url) = match &args.server {
-        Some(url) => (None, url.trim_end_matches('/').to_owned()),
-        None => {
-            let data = absolute(&args.data.clone().unwrap_or_else(|| batch_dir.join("server")))?;
-            let s = InProcessServer::start(data, "batch_runner_stopped_before_finish")?;
-            let url = s.url.clone();
-            (Some(s), url)
-        }
-    };
+    let (server, server_url) = start_server(&args, &batch_dir)?;
     let ctx = Arc::new(RunContext {
         batch_dir: batch_dir.clone(),
         workspace_root,
@@ -623,84 +534,235 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         server = ctx.server_url,
         "batch started"
     );
-    let queue = Arc::new(Mutex::new(todo));
-    let state = Arc::new(Mutex::new(progress));
-    let workers: Vec<_> = (0..args.concurrency.unwrap_or(1))
-        .map(|_| {
-            let (ctx, queue, state, skipped, created_at) =
-                (ctx.clone(), queue.clone(), state.clone(), skipped.clone(), created_at.clone());
-            let batch_name = batch_name.clone();
-            std::thread::spawn(move || -> anyhow::Result<()> {
-                loop {
-                    if INTERRUPTED.load(Ordering::SeqCst) {
-                        return Ok(());
-                    }
-                    let Some(next) = queue.lock().map_err(|_| anyhow::anyhow!("queue poisoned"))?.pop_front() else {
-                        return Ok(());
-                    };
-                    {
-                        let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
-                        p.running.insert(next.rollout_id.clone());
-                        ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
-                        eprintln!("{}: started — {}", next.rollout_id, p.line());
-                    }
-                    let mut rec = rollout::run_rollout(&ctx, &next);
-                    rec.ensure_reason();
-                    let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
-                    ctx.append(&rec)?;
-                    p.running.remove(&rec.rollout_id);
-                    p.done += 1;
-                    *p.outcomes.entry(rec.outcome).or_insert(0) += 1;
-                    ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
-                    let why = rec.reason().map(|e| format!(" ({e})")).unwrap_or_default();
-                    eprintln!("{}: {}{why} — {}", rec.rollout_id, rec.outcome.as_str(), p.line());
-                    log_rollout_end(&ctx.settings.model, &batch_name, &rec);
-                }
-            })
-        })
-        .collect();
-    let mut failure = None;
-    for w in workers {
-        match w.join() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => failure = Some(e),
-            Err(_) => failure = Some(anyhow::anyhow!("a worker panicked")),
-        }
-    }
+    let batch = Batch { ctx, created_at, skipped, state: Arc::new(Mutex::new(progress)) };
+    let failure = batch.run_workers(todo, args.concurrency.unwrap_or(1));
     if let Some(s) = server {
         // Give the store a moment to record the last transitions, then stop.
         std::thread::sleep(Duration::from_millis(200));
         // Interrupted: exit within seconds; done: wait for every episode's records and video.
         if INTERRUPTED.load(Ordering::SeqCst) { s.stop_now()? } else { s.stop()? };
     }
-    let p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
-    let stopped = INTERRUPTED.load(Ordering::SeqCst) || failure.is_some();
-    ctx.write_batch(&batch_value(&ctx, if stopped { "stopped" } else { "finished" }, &created_at, &p, &skipped))?;
-    eprintln!("batch {}: {}", if stopped { "stopped" } else { "finished" }, p.line());
-    let outcomes: Vec<String> = p.outcomes.iter().map(|(k, v)| format!("{}={v}", k.as_str())).collect();
-    tracing::info!(
-        batch = batch_name,
-        status = if stopped { "stopped" } else { "finished" },
-        done = p.done,
-        rollouts = p.total,
-        outcomes = outcomes.join(" "),
-        error = failure.as_ref().map(|e| format!("{e:#}")),
-        "batch ended"
-    );
-    if let Some(e) = failure {
-        return Err(e);
+    batch.finish(failure, &schedule)
+}
+
+/// The arguments' own checks, before anything is read; returns the queue store of a queued batch.
+fn check_args(args: &RunArgs) -> anyhow::Result<Option<&str>> {
+    if args.concurrency == Some(0) {
+        bail!("--concurrency must be at least 1");
     }
-    if stopped {
-        bail!("interrupted; `--resume` continues the batch (interrupted rollouts are not retried)");
+    let queue_store = args.queue_store()?;
+    if args.detach && queue_store.is_none() {
+        bail!("--detach needs a queue store (--store postgres://… without --local)");
     }
-    // A batch none of whose rollouts ran is a failure of the run, not a result.
-    print_where_to_look(&ctx, &batch_dir);
-    let records = read_records(&batch_dir)?;
-    let ours = records.iter().filter(|r| schedule.iter().any(|s| s.rollout_id == r.rollout_id));
-    if let Some(msg) = batch::all_invalid_message(&batch_name, ours.map(|r| (r.rollout_id.as_str(), r.outcome.as_str(), r.reason()))) {
-        bail!("{msg}");
+    if args.model.trim().is_empty() {
+        bail!("--model must name the model");
+    }
+    if args.harness.runs_agent_cmd() != args.agent_cmd.is_some() {
+        bail!("--agent-cmd is required with --harness command and only allowed with it");
+    }
+    if args.harness_version.is_some() && args.harness.command().is_none() {
+        bail!("--harness-version picks a version of an agent CLI; --harness command runs --agent-cmd, which has none");
+    }
+    Ok(queue_store)
+}
+
+/// `--dry-run`: the schedule on stdout (JSON lines with `--json`), nothing launched.
+fn print_dry_run(args: &RunArgs, schedule: &[PlannedRollout]) -> anyhow::Result<()> {
+    for r in schedule {
+        if args.json {
+            println!("{}", serde_json::to_string(r)?);
+        } else {
+            println!("{:<30} {:<18} {:<40} level {} demo {}", r.rollout_id, r.task, r.task_name, r.level, r.demo.as_str());
+        }
+    }
+    if !args.json {
+        eprintln!("{} rollouts ({} experiment, {} × {} reps); nothing launched", schedule.len(), args.experiment.as_str(),
+            args.harness.as_str(), args.reps);
     }
     Ok(())
+}
+
+/// The batch directory made, or with `--resume` the batch there continued (its settings unchanged): when the
+/// batch was created, and the records of its ended rollouts.
+fn open_batch_dir(args: &RunArgs, batch_dir: &Path, settings: &BatchSettings) -> anyhow::Result<(String, Vec<RolloutRecord>)> {
+    let existing = libero_report::batch::batch_json(batch_dir);
+    if !existing.is_file() {
+        std::fs::create_dir_all(batch_dir)?;
+        return Ok((utc_now_iso(), Vec::new()));
+    }
+    if !args.resume {
+        bail!("{} already holds a batch; pass --resume to continue it", batch_dir.display());
+    }
+    let old: Value = serde_json::from_str(&std::fs::read_to_string(&existing)?)?;
+    let old = BatchDoc::from_value(old).unwrap_or_default();
+    if old.settings_sha256 != Some(settings.sha256()) {
+        bail!(
+            "--resume refuses changed settings: the batch was started with {}, now {}",
+            json!(old.settings),
+            serde_json::to_value(settings)?
+        );
+    }
+    Ok((old.created_at.unwrap_or_default(), read_records(batch_dir)?))
+}
+
+/// The API credentials: the credentials file's for a harness that needs them, and for a `command` agent that talks
+/// to a model (its API through the runner's gateway, like every harness) when a file is given.
+fn credentials_of(args: &RunArgs) -> anyhow::Result<Option<Credentials>> {
+    if args.harness.needs_credentials() {
+        let path = args.paths.credentials_file();
+        Ok(Some(Credentials::load(&path)?))
+    } else if let Some(path) = &args.paths.credentials_file {
+        Ok(Some(Credentials::load(path)?))
+    } else {
+        Ok(None)
+    }
+}
+
+/// The agents' sandbox with its resources and toolbox (said on stderr); none with `--no-sandbox`.
+fn sandbox_of(args: &RunArgs) -> anyhow::Result<Option<Sandbox>> {
+    if args.no_sandbox {
+        eprintln!("warning: --no-sandbox: agents run without isolation and can read every file this user can");
+        if matches!(args.toolbox, Some(ToolboxChoice::Path(_))) {
+            bail!("--toolbox is shown inside the sandbox; with --no-sandbox the agent runs the host's own python3");
+        }
+        return Ok(None);
+    }
+    let sandbox = Sandbox::detect()?.with_resources(resources::Resources::detect(&args.resources)?);
+    let toolbox = toolbox::resolve(args.toolbox.as_ref())?;
+    match &toolbox {
+        Some(t) => eprintln!("the agents' toolbox: {} at {} ({})", t.name, toolbox::INSIDE, package_list(t)),
+        None => eprintln!("no toolbox: agents run the system's python3 alone"),
+    }
+    Ok(Some(sandbox.with_toolbox(toolbox)))
+}
+
+/// The rollouts of `schedule` still to run and the progress so far. Rollouts with a directory but no record were
+/// running when an earlier runner died: recorded INTERRUPTED here, never retried.
+fn rollouts_to_run(batch_dir: &Path, schedule: &[PlannedRollout], done_records: &[RolloutRecord]) -> anyhow::Result<(VecDeque<PlannedRollout>, Progress)> {
+    let mut finished: BTreeSet<String> = done_records.iter().map(|r| r.rollout_id.clone()).collect();
+    for r in schedule {
+        if !finished.contains(&r.rollout_id) && batch_dir.join("rollouts").join(&r.rollout_id).exists() {
+            let rec = interrupted_record(r);
+            append_record(batch_dir, &rec)?;
+            finished.insert(r.rollout_id.clone());
+        }
+    }
+    let records_so_far = read_records(batch_dir)?;
+    let mut outcomes = BTreeMap::new();
+    for r in records_so_far.iter().filter(|r| schedule.iter().any(|s| s.rollout_id == r.rollout_id)) {
+        *outcomes.entry(r.outcome).or_insert(0) += 1;
+    }
+    let todo: VecDeque<PlannedRollout> = schedule.iter().filter(|r| !finished.contains(&r.rollout_id)).cloned().collect();
+    let progress = Progress { total: schedule.len(), done: schedule.len() - todo.len(), running: BTreeSet::new(), outcomes };
+    Ok((todo, progress))
+}
+
+/// The server the batch's episodes run on: `--server`, else one in this process (stopped with the batch) with
+/// its data in `--data` or the batch directory.
+fn start_server(args: &RunArgs, batch_dir: &Path) -> anyhow::Result<(Option<InProcessServer>, String)> {
+    Ok(match &args.server {
+        Some(url) => (None, url.trim_end_matches('/').to_owned()),
+        None => {
+            let data = absolute(&args.data.clone().unwrap_or_else(|| batch_dir.join("server")))?;
+            let s = InProcessServer::start(data, "batch_runner_stopped_before_finish")?;
+            let url = s.url.clone();
+            (Some(s), url)
+        }
+    })
+}
+
+/// A running batch: its context, when it was created, what was left out, and its progress.
+struct Batch {
+    ctx: Arc<RunContext>,
+    created_at: String,
+    skipped: Arc<Vec<String>>,
+    state: Arc<Mutex<Progress>>,
+}
+
+impl Batch {
+    /// `concurrency` workers take rollouts off `todo` until it is empty or the runner is interrupted, each rollout's
+    /// record appended and `batch.json` rewritten as it starts and ends. Returns the first worker's failure.
+    fn run_workers(&self, todo: VecDeque<PlannedRollout>, concurrency: usize) -> Option<anyhow::Error> {
+        let queue = Arc::new(Mutex::new(todo));
+        let workers: Vec<_> = (0..concurrency)
+            .map(|_| {
+                let (ctx, queue, state, skipped, created_at) =
+                    (self.ctx.clone(), queue.clone(), self.state.clone(), self.skipped.clone(), self.created_at.clone());
+                let batch_name = self.ctx.batch_name.clone();
+                std::thread::spawn(move || -> anyhow::Result<()> {
+                    loop {
+                        if INTERRUPTED.load(Ordering::SeqCst) {
+                            return Ok(());
+                        }
+                        let Some(next) = queue.lock().map_err(|_| anyhow::anyhow!("queue poisoned"))?.pop_front() else {
+                            return Ok(());
+                        };
+                        {
+                            let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
+                            p.running.insert(next.rollout_id.clone());
+                            ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
+                            eprintln!("{}: started — {}", next.rollout_id, p.line());
+                        }
+                        let mut rec = rollout::run_rollout(&ctx, &next);
+                        rec.ensure_reason();
+                        let mut p = state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
+                        ctx.append(&rec)?;
+                        p.running.remove(&rec.rollout_id);
+                        p.done += 1;
+                        *p.outcomes.entry(rec.outcome).or_insert(0) += 1;
+                        ctx.write_batch(&batch_value(&ctx, "running", &created_at, &p, &skipped))?;
+                        let why = rec.reason().map(|e| format!(" ({e})")).unwrap_or_default();
+                        eprintln!("{}: {}{why} — {}", rec.rollout_id, rec.outcome.as_str(), p.line());
+                        log_rollout_end(&ctx.settings.model, &batch_name, &rec);
+                    }
+                })
+            })
+            .collect();
+        let mut failure = None;
+        for w in workers {
+            match w.join() {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => failure = Some(e),
+                Err(_) => failure = Some(anyhow::anyhow!("a worker panicked")),
+            }
+        }
+        failure
+    }
+
+    /// `batch.json`'s last state (stopped or finished), said on stderr and in the log; then the run's error if it
+    /// failed, was interrupted, or none of its rollouts ran (a failure of the run, not a result), else where to look.
+    fn finish(&self, failure: Option<anyhow::Error>, schedule: &[PlannedRollout]) -> anyhow::Result<()> {
+        let ctx = &self.ctx;
+        let batch_name = &ctx.batch_name;
+        let p = self.state.lock().map_err(|_| anyhow::anyhow!("progress poisoned"))?;
+        let stopped = INTERRUPTED.load(Ordering::SeqCst) || failure.is_some();
+        ctx.write_batch(&batch_value(ctx, if stopped { "stopped" } else { "finished" }, &self.created_at, &p, &self.skipped))?;
+        eprintln!("batch {}: {}", if stopped { "stopped" } else { "finished" }, p.line());
+        let outcomes: Vec<String> = p.outcomes.iter().map(|(k, v)| format!("{}={v}", k.as_str())).collect();
+        tracing::info!(
+            batch = batch_name,
+            status = if stopped { "stopped" } else { "finished" },
+            done = p.done,
+            rollouts = p.total,
+            outcomes = outcomes.join(" "),
+            error = failure.as_ref().map(|e| format!("{e:#}")),
+            "batch ended"
+        );
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        if stopped {
+            bail!("interrupted; `--resume` continues the batch (interrupted rollouts are not retried)");
+        }
+        // A batch none of whose rollouts ran is a failure of the run, not a result.
+        print_where_to_look(ctx, &ctx.batch_dir);
+        let records = read_records(&ctx.batch_dir)?;
+        let ours = records.iter().filter(|r| schedule.iter().any(|s| s.rollout_id == r.rollout_id));
+        if let Some(msg) = batch::all_invalid_message(batch_name, ours.map(|r| (r.rollout_id.as_str(), r.outcome.as_str(), r.reason()))) {
+            bail!("{msg}");
+        }
+        Ok(())
+    }
 }
 
 /// Where the ended batch can be seen: the Results page of `--server` (which has it registered), else how to

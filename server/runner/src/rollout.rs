@@ -4,7 +4,7 @@
 use std::fs;
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::process::CommandExt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
@@ -21,14 +21,17 @@ use serde_json::{Value, json};
 
 use super::harness::{Harness, Launch, LaunchContext, agent_credentials, build_launch, net_plan};
 use super::harness_versions::probe_cli;
-use libero_sandbox::agent_net::{NetPlan, contain};
+use libero_sandbox::agent_net::{Contained, NetPlan, contain};
+use libero_sandbox::resources::RolloutCage;
+use libero_sandbox::sandbox::Sandbox;
 use super::schedule::PlannedRollout;
 use libero_sandbox::logs::{Limits, scrub_log, scrub_text};
 use libero_sandbox::toolbox::Toolbox;
+use super::transcript::Follower;
 use super::usage::UsageScanner;
 use super::{INTERRUPTED, RunContext};
 use libero_server::client::{get_json, post_json, prepare_episode};
-use libero_server::episodes::PrepareRequest;
+use libero_server::episodes::{PrepareRequest, Prepared};
 
 /// Supervision poll period.
 const POLL: Duration = Duration::from_millis(250);
@@ -206,6 +209,67 @@ pub fn run_rollout(ctx: &RunContext, plan: &PlannedRollout) -> RolloutRecord {
 }
 
 fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -> anyhow::Result<()> {
+    let ready = prepare(ctx, plan, rec)?;
+    let (agent, launched) = launch(ctx, plan, &ready, rec)?;
+    let watched = watch(ctx, &ready, agent);
+    collect(ctx, ready, launched, watched, rec)
+}
+
+/// A rollout ready to launch: its directory and cage, its sandbox, the agent's session home and log directory, and
+/// the episode the server prepared for it (with its bearer token and prompt).
+struct Ready {
+    dir: PathBuf,
+    cage: Option<RolloutCage>,
+    sandbox: Option<Sandbox>,
+    home: PathBuf,
+    log_dir: PathBuf,
+    prepared: Prepared,
+    token: String,
+    prompt: String,
+}
+
+/// The agent as it runs: what [`watch`] waits on and ends (fields in the order they are dropped).
+struct Agent {
+    transcript: Follower,
+    child: Child,
+    t0: Instant,
+    contained: Contained,
+}
+
+/// What [`collect`] needs of the launch: the sandbox's own report, the manifest so far, the CLI's logs, and the
+/// launch itself (its files are scrubbed at the end).
+struct Launched {
+    sandbox_report: Option<Value>,
+    manifest: Value,
+    logs: AgentLogs,
+    launch: Launch,
+}
+
+/// The CLI's stdout and stderr: their names in the rollout directory and where the agent writes them.
+struct AgentLogs {
+    stdout_name: String,
+    stderr_name: String,
+    stdout: PathBuf,
+    stderr: PathBuf,
+}
+
+/// How the watch ended: the agent stopped, its relays gone.
+struct Watched {
+    /// The infrastructure's error so far (an interrupt).
+    infra: Option<String>,
+    exit_code: Option<i32>,
+    /// The agent exited and the episode did not end within [`AGENT_EXIT_GRACE`].
+    quit_before_finish: bool,
+    /// The wall budget and [`WATCHDOG_GRACE_S`] passed.
+    watchdog: bool,
+    elapsed_s: f64,
+    model_api_records: Option<PathBuf>,
+    transcript: super::transcript::Summary,
+}
+
+/// The rollout's directory, its cage (cgroups, its own uid, a capped disk), and the episode prepared on the server
+/// with the workspace the cage holds.
+fn prepare(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -> anyhow::Result<Ready> {
     let dir = ctx.batch_dir.join("rollouts").join(&plan.rollout_id);
     fs::create_dir_all(ctx.batch_dir.join("rollouts"))?;
     fs::create_dir(&dir).with_context(|| format!("{} already exists (an earlier attempt)", dir.display()))?;
@@ -249,42 +313,21 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     rec.run_dir = Some(prepared.run_dir.clone());
     let token = prepared.mcp_headers.get("Authorization").map(|t| t.trim_start_matches("Bearer ").to_owned()).unwrap_or_default();
     let prompt = fs::read_to_string(&prepared.prompt_file).context("cannot read the prepared prompt")?;
-    // The agent's addresses: its endpoint and its model API through the runner's relays, nothing else.
-    let via_npx = ctx.harness.npm_cli().is_some() && !ctx.npm_cli_installed && ctx.cli_path.is_none();
-    let net = match ctx.sandbox {
-        Some(_) => Some(net_plan(ctx.harness, &prepared.mcp_url, ctx.credentials.as_ref(), via_npx)?),
-        None => None,
-    };
-    let agent_credentials = ctx.credentials.as_ref().map(|c| match &net {
-        Some(p) => agent_credentials(p, c),
-        None => c.clone(),
-    });
-    let lctx = LaunchContext {
-        harness: ctx.harness,
-        model: &ctx.settings.model,
-        effort: &ctx.settings.effort,
-        workspace: &prepared.workspace,
-        session_home: &home,
-        prompt: &prompt,
-        prompt_file: &prepared.prompt_file,
-        mcp_url: &prepared.mcp_url,
-        mcp_token: &token,
-        credentials: agent_credentials.as_ref(),
-        agent_cmd: ctx.settings.agent_cmd.as_deref(),
-        self_exe: &ctx.self_exe,
-        sandboxed: ctx.sandbox.is_some(),
-        npm_cli_installed: ctx.npm_cli_installed,
-        cli_path: ctx.cli_path.as_deref(),
-    };
-    let launch = build_launch(&lctx)?;
+    Ok(Ready { dir, cage, sandbox, home, log_dir, prepared, token, prompt })
+}
+
+/// The harness's launch, contained in the sandbox with its network plan, started in its own process group in the
+/// cage, its transcript followed and its manifest written.
+fn launch(ctx: &RunContext, plan: &PlannedRollout, ready: &Ready, rec: &mut RolloutRecord) -> anyhow::Result<(Agent, Launched)> {
+    let Ready { dir, cage, sandbox, home, log_dir, prepared, token, prompt } = ready;
+    let (net, launch) = launch_of(ctx, ready)?;
     // The version this rollout runs: `--version` of the very executable launched next, not the batch's first look.
     rec.harness_version = probe_cli(ctx.harness, ctx.npm_cli_installed, ctx.cli_path.as_deref());
     write_launch_files(&launch)?;
-    let mut contained = contain(sandbox.as_ref(), net.as_ref(), &launch.argv, &launch.env, &prepared.workspace, &home, &ctx.self_exe, &dir.join("sandbox"))?;
+    let mut contained = contain(sandbox.as_ref(), net.as_ref(), &launch.argv, &launch.env, &prepared.workspace, home, &ctx.self_exe, &dir.join("sandbox"))?;
     let stdout_name = ctx.harness.stdout_file();
     let stderr_name = format!("{}_stderr.log", ctx.harness.as_str());
-    let stdout_path = log_dir.join(&stdout_name);
-    let stderr_path = log_dir.join(&stderr_name);
+    let logs = AgentLogs { stdout: log_dir.join(&stdout_name), stderr: log_dir.join(&stderr_name), stdout_name, stderr_name };
     let mut manifest = json!({
         "schema_version": "libero.multi_agent_harness_run.v1",
         "rollout_id": plan.rollout_id,
@@ -304,7 +347,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         "workspace": prepared.workspace,
         "private_run": prepared.run_dir,
         "session_home": home,
-        "command": launch.public_argv(&prompt),
+        "command": launch.public_argv(prompt),
         "task": plan.task, "level": plan.level, "demo": plan.demo, "seed": ctx.settings.seed,
         "max_wall_time_seconds": ctx.settings.wall_time_s, "max_agent_steps": ctx.settings.max_agent_steps,
     });
@@ -312,26 +355,26 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     let mut cmd = contained.command();
     cmd.current_dir(&prepared.workspace)
         .stdin(Stdio::null())
-        .stdout(fs::File::create(&stdout_path)?)
-        .stderr(fs::File::create(&stderr_path)?)
+        .stdout(fs::File::create(&logs.stdout)?)
+        .stderr(fs::File::create(&logs.stderr)?)
         .process_group(0);
-    if let Some(c) = &cage {
+    if let Some(c) = cage {
         // SAFETY: the hook makes only async-signal-safe calls (open, write, close) on paths made beforehand.
         unsafe { cmd.pre_exec(c.attach_hook()) };
     }
     let t0 = Instant::now();
-    let mut child = cmd.spawn().with_context(|| format!("cannot start {}", contained.argv[0]))?;
+    let child = cmd.spawn().with_context(|| format!("cannot start {}", contained.argv[0]))?;
     contained.spawned();
     // The agent's transcript as it prints it, beside the robot's calls (docs/agent_transcript.md).
     let transcript = super::transcript::follow_rollout(super::transcript::RolloutTranscript {
         harness: ctx.harness,
         workspace: &prepared.workspace,
         secrets: &ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect::<Vec<_>>(),
-        streams: super::transcript::Streams { stdout: stdout_path.clone(), stderr: stderr_path.clone(), gateway: contained.model_api_records.clone() },
+        streams: super::transcript::Streams { stdout: logs.stdout.clone(), stderr: logs.stderr.clone(), gateway: contained.model_api_records.clone() },
         server_url: &ctx.server_url,
         episode_id: &prepared.episode_id,
         run_dir: &prepared.run_dir,
-        rollout_dir: &dir,
+        rollout_dir: dir,
     });
     // What the sandbox is, as its first process saw it before the agent started (ids, capabilities, mounts).
     let sandbox_report = if ctx.sandbox.is_some() { contained.report(Duration::from_secs(30)) } else { None };
@@ -340,6 +383,49 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         m.insert("relay_dir".into(), json!(contained.relay_dir()));
     }
     write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
+    Ok((Agent { transcript, child, t0, contained }, Launched { sandbox_report, manifest, logs, launch }))
+}
+
+/// The agent's network plan (its endpoint and its model API through the runner's relays, nothing else; none
+/// without a sandbox) and the harness's launch, built with the credentials as the agent sees them.
+fn launch_of(ctx: &RunContext, ready: &Ready) -> anyhow::Result<(Option<NetPlan>, Launch)> {
+    let prepared = &ready.prepared;
+    let via_npx = ctx.harness.npm_cli().is_some() && !ctx.npm_cli_installed && ctx.cli_path.is_none();
+    let net = match ctx.sandbox {
+        Some(_) => Some(net_plan(ctx.harness, &prepared.mcp_url, ctx.credentials.as_ref(), via_npx)?),
+        None => None,
+    };
+    let agent_credentials = ctx.credentials.as_ref().map(|c| match &net {
+        Some(p) => agent_credentials(p, c),
+        None => c.clone(),
+    });
+    let lctx = LaunchContext {
+        harness: ctx.harness,
+        model: &ctx.settings.model,
+        effort: &ctx.settings.effort,
+        workspace: &prepared.workspace,
+        session_home: &ready.home,
+        prompt: &ready.prompt,
+        prompt_file: &prepared.prompt_file,
+        mcp_url: &prepared.mcp_url,
+        mcp_token: &ready.token,
+        credentials: agent_credentials.as_ref(),
+        agent_cmd: ctx.settings.agent_cmd.as_deref(),
+        self_exe: &ctx.self_exe,
+        sandboxed: ctx.sandbox.is_some(),
+        npm_cli_installed: ctx.npm_cli_installed,
+        cli_path: ctx.cli_path.as_deref(),
+    };
+    let launch = build_launch(&lctx)?;
+    Ok((net, launch))
+}
+
+/// Waits until the episode ended and the agent exited (or either's grace ran out), the wall budget and the
+/// watchdog's grace passed, or the runner is interrupted; then stops the agent (its process group, and whatever
+/// left it in the cage), its relays and gateway, and reads the transcript's last lines.
+fn watch(ctx: &RunContext, ready: &Ready, agent: Agent) -> Watched {
+    let Agent { transcript, mut child, t0, contained } = agent;
+    let prepared = &ready.prepared;
     let deadline = Duration::from_secs_f64(ctx.settings.wall_time_s + WATCHDOG_GRACE_S);
     let mut infra: Option<String> = None;
     let mut ended_at: Option<Instant> = None;
@@ -383,7 +469,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         exit_code = child.try_wait().ok().flatten().map(|s| s.code().unwrap_or(-1));
     }
     // Whatever left the process group (setsid, daemons) is still in the cage's cgroups.
-    if let Some(c) = &cage {
+    if let Some(c) = &ready.cage {
         c.kill_all();
     }
     let elapsed_s = t0.elapsed().as_secs_f64();
@@ -392,40 +478,17 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     drop(contained);
     // Before the logs are scrubbed in place: the last lines, and the gateway's last records.
     let transcript = transcript.finish();
-    let cause = || quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), model_api_records.as_deref());
-    if watchdog {
-        // Still open past budget + grace: an episode never started (prepared) is the agent's forfeit like any
-        // other it leaves; one the server still runs past its budget stays the watchdog's (§8.4).
-        let never_started = matches!(get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)), Ok((200, v)) if v["state"] == "prepared");
-        let reason = format!("the agent did not start its episode within the budget and {WATCHDOG_GRACE_S} s");
-        infra = match (never_started, cause()) {
-            (true, cause) => end_left_episode(ctx, &prepared.episode_id, WATCHDOG_ERROR, &reason, cause),
-            (false, Some(cause)) => Some(format!("{WATCHDOG_ERROR}: {cause}")),
-            (false, None) => Some(WATCHDOG_ERROR.into()),
-        };
-    }
-    if quit_before_finish {
-        let exited = format!("harness exited before finish_episode (exit code {})", exit_code.unwrap_or(-1));
-        infra = end_left_episode(ctx, &prepared.episode_id, &exited, &format!("the agent's {exited}"), cause());
-    }
-    if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
-        let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
-        let _ = post_json(&ctx.server_url, &format!("/api/episodes/{}/abort", prepared.episode_id), &json!({"reason": reason}));
-    }
-    let result = read_result(&prepared.run_dir).or_else(|| {
-        // A server on another machine: its row carries the verdict.
-        get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)).ok().map(|(_, v)| RunResult {
-            status: Some(if v["outcome"] == "INVALID" { STATUS_ABORTED } else { STATUS_FINISHED }.to_owned()),
-            success: v["success"].as_bool(),
-            accepted_agent_steps: v["accepted_agent_steps"].as_u64(),
-            reason: v["reason"].as_str().map(str::to_owned),
-            private_evaluation: Some(PrivateEvaluation {
-                completed_required_stage_count: v["completed_stage_count"].as_u64(),
-                ..PrivateEvaluation::default()
-            }),
-            ..RunResult::default()
-        })
-    });
+    Watched { infra, exit_code, quit_before_finish, watchdog, elapsed_s, model_api_records, transcript }
+}
+
+/// The rollout's record: the episode the agent left ended (its forfeit, or an abort), its verdict and outcome, the
+/// logs scrubbed and kept, the token usage, the launch's files scrubbed, and the manifest completed.
+fn collect(ctx: &RunContext, ready: Ready, launched: Launched, watched: Watched, rec: &mut RolloutRecord) -> anyhow::Result<()> {
+    let Ready { dir, cage, home, log_dir, prepared, token, .. } = ready;
+    let Launched { sandbox_report, mut manifest, logs, launch } = launched;
+    let cause = || quit_cause(ctx.sandbox.is_some(), sandbox_report.is_some(), watched.model_api_records.as_deref());
+    let infra = settle_episode(ctx, &prepared, &watched, cause);
+    let result = verdict(ctx, &prepared);
     if INTERRUPTED.load(Ordering::SeqCst) && infra.is_some() {
         rec.outcome = Outcome::Interrupted;
     } else {
@@ -442,17 +505,17 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
         rec.judgment_correct = pe.and_then(|pe| pe.judgment_correct);
     }
     rec.infrastructure_error = infra;
-    rec.harness_elapsed_s = Some(elapsed_s);
-    rec.agent_exit_code = exit_code;
+    rec.harness_elapsed_s = Some(watched.elapsed_s);
+    rec.agent_exit_code = watched.exit_code;
     // Scrub what the agent printed (the API key, sk-… keys, bearer tokens, ours included), bounded whatever its
     // size, and the launch's own files, which stay in the batch's session home: Kimi's config.toml holds the key,
     // the MCP configs the token.
     let secrets: Vec<&str> = ctx.credentials.iter().map(|c| c.api_key.as_str()).chain([token.as_str()]).collect();
-    let (usage, logs) = scrub_logs(ctx.harness, &stdout_path, &stderr_path, &secrets);
+    let (usage, scrubbed) = scrub_logs(ctx.harness, &logs.stdout, &logs.stderr, &secrets);
     // The scrubbed, bounded logs leave the cage's disk for the rollout directory (files the runner made and
     // the agent only wrote to); the rest of the disk goes with the cage.
     if log_dir != dir {
-        for name in [&stdout_name, &stderr_name] {
+        for name in [&logs.stdout_name, &logs.stderr_name] {
             if let Err(e) = copy_own_file(&log_dir.join(name), &dir.join(name)) {
                 eprintln!("libero-agent: cannot keep {name}: {e}");
             }
@@ -460,7 +523,7 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     }
     // What the runner's gateway saw of the agent's model traffic (never a file the agent can write): its token
     // figures count whenever it has any, stdout's only without them (the agent can print into its CLI's stdout).
-    let model_api = model_api_records.as_deref().and_then(|p| libero_sandbox::netgate::summarize(p).ok());
+    let model_api = watched.model_api_records.as_deref().and_then(|p| libero_sandbox::netgate::summarize(p).ok());
     let usage = super::usage::choose(usage, model_api.as_ref());
     let usage_source = usage.source.clone();
     rec.usage = Some(usage);
@@ -469,15 +532,15 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     }
     if let Some(m) = manifest.as_object_mut() {
         m.insert("finished_at".into(), json!(utc_now_iso()));
-        m.insert("elapsed_seconds".into(), json!(elapsed_s));
-        m.insert("agent_exit_code".into(), json!(exit_code));
+        m.insert("elapsed_seconds".into(), json!(watched.elapsed_s));
+        m.insert("agent_exit_code".into(), json!(watched.exit_code));
         m.insert("infrastructure_error".into(), json!(rec.infrastructure_error));
         m.insert("result_status".into(), json!(rec.result_status));
         m.insert("task_success".into(), json!(rec.success));
         m.insert("outcome".into(), json!(rec.outcome));
-        m.insert("logs".into(), logs);
+        m.insert("logs".into(), scrubbed);
         m.insert("usage_source".into(), json!(usage_source));
-        m.insert("agent_events".into(), json!(transcript));
+        m.insert("agent_events".into(), json!(watched.transcript));
         m.insert("model_api".into(), json!(model_api.as_ref().map(|m| serde_json::to_value(m).unwrap_or_default())));
         m.insert("resources_used".into(), json!(cage.as_ref().map(|c| c.usage())));
     }
@@ -486,6 +549,52 @@ fn supervise(ctx: &RunContext, plan: &PlannedRollout, rec: &mut RolloutRecord) -
     write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
     write_json_file(&dir.join("harness_usage.json"), &serde_json::to_value(&rec.usage)?)?;
     Ok(())
+}
+
+/// Ends the episode the agent left open, if it did: past the budget, an episode never started is the agent's
+/// forfeit like any other it leaves, one the server still runs stays the watchdog's (§8.4); an agent that exited
+/// first forfeits it, unless `cause` names the infrastructure's failure; whatever is still open is aborted.
+/// Returns the infrastructure's error, if any.
+fn settle_episode(ctx: &RunContext, prepared: &Prepared, watched: &Watched, cause: impl Fn() -> Option<String>) -> Option<String> {
+    let mut infra = watched.infra.clone();
+    if watched.watchdog {
+        // Still open past budget + grace: an episode never started (prepared) is the agent's forfeit like any
+        // other it leaves; one the server still runs past its budget stays the watchdog's (§8.4).
+        let never_started = matches!(get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)), Ok((200, v)) if v["state"] == "prepared");
+        let reason = format!("the agent did not start its episode within the budget and {WATCHDOG_GRACE_S} s");
+        infra = match (never_started, cause()) {
+            (true, cause) => end_left_episode(ctx, &prepared.episode_id, WATCHDOG_ERROR, &reason, cause),
+            (false, Some(cause)) => Some(format!("{WATCHDOG_ERROR}: {cause}")),
+            (false, None) => Some(WATCHDOG_ERROR.into()),
+        };
+    }
+    if watched.quit_before_finish {
+        let exited = format!("harness exited before finish_episode (exit code {})", watched.exit_code.unwrap_or(-1));
+        infra = end_left_episode(ctx, &prepared.episode_id, &exited, &format!("the agent's {exited}"), cause());
+    }
+    if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
+        let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
+        let _ = post_json(&ctx.server_url, &format!("/api/episodes/{}/abort", prepared.episode_id), &json!({"reason": reason}));
+    }
+    infra
+}
+
+/// The episode's result: its run directory's, else (a server on another machine) what its row on the server says.
+fn verdict(ctx: &RunContext, prepared: &Prepared) -> Option<RunResult> {
+    read_result(&prepared.run_dir).or_else(|| {
+        // A server on another machine: its row carries the verdict.
+        get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)).ok().map(|(_, v)| RunResult {
+            status: Some(if v["outcome"] == "INVALID" { STATUS_ABORTED } else { STATUS_FINISHED }.to_owned()),
+            success: v["success"].as_bool(),
+            accepted_agent_steps: v["accepted_agent_steps"].as_u64(),
+            reason: v["reason"].as_str().map(str::to_owned),
+            private_evaluation: Some(PrivateEvaluation {
+                completed_required_stage_count: v["completed_stage_count"].as_u64(),
+                ..PrivateEvaluation::default()
+            }),
+            ..RunResult::default()
+        })
+    })
 }
 
 #[cfg(test)]
