@@ -10,7 +10,9 @@
 //!
 //! What a family writes: its baselines at reset, one sample (control step or physics substep), its stage tracker,
 //! and its verdict on the final state ([`StagedFamily::judge`], usually [`judge_checks`]). Adding a task kind
-//! is that and the kind's table row ([`build`]); docs/ARCHITECTURE.md, "Adding a task kind".
+//! is that and the kind's table row ([`build`]); docs/ARCHITECTURE.md, "Where to start". The evaluators that keep
+//! no latched stages during the episode (terminal judging: `bddl_terminal`, tube insertion) and the staged
+//! evaluator, with its own order modes and monitors, implement [`Evaluator`] themselves on the same [`History`].
 use libero_sim::compose::ComposedScene;
 use libero_sim::mujoco_rs::prelude::MjModel;
 use libero_sim::simulation::SimData;
