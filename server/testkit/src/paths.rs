@@ -1,9 +1,17 @@
 //! The repository's folders as the tests see them, resolved from this crate's place in it (`server/testkit`).
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-/// The repository's root (the folder of `Cargo.toml`'s workspace, `README.md`, `docs/`), canonical.
+/// The repository's root (the folder of the workspace's `Cargo.toml`, `README.md`, `docs/`), canonical: the first
+/// folder above the running test's package (cargo and nextest set `CARGO_MANIFEST_DIR` for the test process) that
+/// holds the workspace's manifest. Read at run time, not baked in when this crate was compiled: checkouts that share
+/// one target directory share this crate's build too, and each must read its own files.
 pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("the repository root")
+    let package = std::env::var_os("CARGO_MANIFEST_DIR").map(PathBuf::from).unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")));
+    let root = package
+        .ancestors()
+        .find(|dir| std::fs::read_to_string(dir.join("Cargo.toml")).is_ok_and(|t| t.lines().any(|l| l.trim() == "[workspace]")))
+        .unwrap_or_else(|| panic!("no workspace Cargo.toml above {}", package.display()));
+    root.canonicalize().unwrap_or_else(|e| panic!("the repository root {}: {e}", root.display()))
 }
 
 /// `server/`: one folder per workspace crate.

@@ -24,7 +24,7 @@ fn names(line: &str, needle: &str) -> bool {
 fn no_file_names_a_path_outside_the_repository() {
     let root = repo_root();
     let files = repository_files(&root);
-    let this_file = root.join("server/tasks/tests/repository_layout.rs");
+    let this_file = root.join("server/testkit/tests/repository_layout.rs");
     assert!(files.len() > 100 && files.contains(&this_file), "listing the repository's files found {} files", files.len());
     let needles = outside_paths();
     let mut violations = Vec::new();

@@ -531,12 +531,12 @@ fn the_code_checker_reads_spans_paths_and_commands() {
     assert_eq!(texts, [(1, "a/b.rs c".into()), (2, "d".into()), (5, "x  --y".into()), (7, "z".into())]);
     assert_eq!(path_words("cat server/a.rs, `tests/{id}.rs` <dir>/x.rs https://a/b runs/…/x.json docs/a.md."), ["server/a.rs", "docs/a.md"]);
     let root = repo_root();
-    let files: Vec<String> = vec!["server/tasks/tests/doc_links.rs".into(), "server/app/tests/x.rs".into()];
+    let files: Vec<String> = vec!["server/testkit/tests/doc_links.rs".into(), "server/app/tests/x.rs".into()];
     let top: BTreeSet<String> = ["server", "tests", "docs"].map(String::from).into();
     let check = |word: &str| check_path(&root, "docs/a.md", word, &top, &files);
-    assert_eq!(check("server/tasks/tests/doc_links.rs"), None);
-    assert_eq!(check("server/tasks/tests/doc_links.rs::the_code_checker_reads_spans_paths_and_commands"), None);
-    assert!(check("server/tasks/tests/doc_links.rs::no_such_test").is_some());
+    assert_eq!(check("server/testkit/tests/doc_links.rs"), None);
+    assert_eq!(check("server/testkit/tests/doc_links.rs::the_code_checker_reads_spans_paths_and_commands"), None);
+    assert!(check("server/testkit/tests/doc_links.rs::no_such_test").is_some());
     assert!(check("tests/x.rs").unwrap().contains("server/app/tests/x.rs"), "a short path is named with where the file is");
     assert!(check("server/app/tests/gone.rs").is_some());
     assert_eq!(check("app/tests/x.rs"), None);

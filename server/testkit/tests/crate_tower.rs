@@ -6,6 +6,8 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+use libero_testkit::server_dir;
+
 /// Bottom to top: each crate and the workspace crates its `[dependencies]` may name.
 const TOWER: &[(&str, &[&str])] = &[
     ("libero-bddl", &[]),
@@ -53,10 +55,6 @@ const TOWER: &[(&str, &[&str])] = &[
 
 /// The simulator and what drives it: the crates (with MuJoCo itself) the readers of records must never link.
 const SIMULATOR: &[&str] = &["libero-sim", "libero-render", "libero-tasks", "libero-episode"];
-
-fn server_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").canonicalize().expect("server/")
-}
 
 /// The package name and the workspace crates named in `[dependencies]` (and target-specific dependency tables) of
 /// a manifest; dev-dependencies are the tests' business.

@@ -5,13 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
-}
-
-pub fn server_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").canonicalize().expect("server/")
-}
+#[allow(unused_imports)] // each test binary uses a part
+pub use libero_testkit::{repo_root, server_dir};
 
 /// Every `.rs` file below `dir`.
 pub fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
