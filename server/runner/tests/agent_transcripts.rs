@@ -14,7 +14,7 @@ const WORKSPACE: &str = "/work/ws/w1_t14_level3";
 const API_KEY: &str = "sk-scripted-0123456789abcdef";
 
 fn fixtures() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/agent_transcripts")
+    libero_testkit::tests_dir().join("fixtures/agent_transcripts")
 }
 
 /// The harness's captured output normalised, compared with (or, with `UPDATE_GOLDEN=1`, written to) its golden

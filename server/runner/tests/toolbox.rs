@@ -96,7 +96,7 @@ fn project_toolbox() -> Toolbox {
 /// The lock's pinned versions by PyPI name.
 fn locked_versions() -> Vec<(String, String)> {
     let lock: Value =
-        serde_json::from_str(&std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/third_party.lock.json")).unwrap())
+        serde_json::from_str(&std::fs::read_to_string(libero_testkit::assets_dir().join("third_party.lock.json")).unwrap())
             .unwrap();
     lock["toolbox"]["wheels"]
         .as_array()
