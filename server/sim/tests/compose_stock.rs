@@ -2,8 +2,6 @@
 //! (`tests/reference/ref/task_survey.json`); bad inputs fail with messages that name the problem.
 mod common;
 
-use std::path::Path;
-
 use libero_bddl::Problem;
 use libero_sim::compose::xml::parse_str;
 use libero_sim::compose::{compose, compose_file};
@@ -140,7 +138,7 @@ fn authored_scene_gets_region_sites_objects_and_fixtures_in_libero_order() {
 /// articulation joint (the latch must not make `Open` true).
 #[test]
 fn robosuite_door_scene_places_table_robot_and_door_as_robosuite_does() {
-    let bddl = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tasks/bddl/unlatch_and_open_door.bddl");
+    let bddl = libero_testkit::tasks_dir().join("bddl/unlatch_and_open_door.bddl");
     let scene = compose_file(&bddl, &AssetPaths::discover().expect("assets")).unwrap();
     assert_eq!(scene.robot_base_pos, [-0.56, 0.0, 0.912]);
     assert!(scene.robot_mounted);
