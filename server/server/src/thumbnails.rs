@@ -192,7 +192,6 @@ impl Thumbnails {
             let _one_page_render = permit;
             me.on_demand_rendering.fetch_add(1, Ordering::Relaxed);
             let done = me.ensure(&hash, &id, task);
-            release_scene();
             me.on_demand_rendering.fetch_sub(1, Ordering::Relaxed);
             done.map(|()| path)
         })
@@ -239,7 +238,11 @@ impl Thumbnails {
             self.reused.fetch_add(1, Ordering::Relaxed);
             return Ok(());
         }
-        match self.render(id, task, &head, &wrist) {
+        // Released after every render tried, not after a cached scene: a pass over cached thumbnails (each
+        // restart) would otherwise empty MuJoCo's asset cache under the episodes 240 times for nothing.
+        let rendered = self.render(id, task, &head, &wrist);
+        release_scene();
+        match rendered {
             Ok(()) => {
                 self.rendered.fetch_add(1, Ordering::Relaxed);
                 Ok(())
@@ -320,7 +323,6 @@ impl Thumbnails {
             if let Err(e) = done {
                 tracing::warn!("thumbnail of {id}: {e}");
             }
-            release_scene();
             self.ahead_pending.fetch_sub(1, Ordering::Relaxed);
         }
         self.ahead_running.fetch_sub(1, Ordering::Relaxed);
