@@ -48,27 +48,85 @@ impl ActionEvent {
         self.request_field("arguments").get("actions").and_then(Value::as_array)
     }
 
+    /// The response read as a tool's reply.
+    pub fn reply(&self) -> ToolReply {
+        ToolReply::of(self.response())
+    }
+
     /// Whether the response is `ok: true`.
     pub fn ok(&self) -> bool {
-        self.response().get("ok") == Some(&Value::Bool(true))
+        self.reply().is_ok()
     }
 
     /// Whether the call's actions ran (see [`actions_executed`]).
     pub fn actions_executed(&self) -> bool {
-        actions_executed(self.response())
+        self.reply().actions_executed()
     }
 
     /// Control steps the response says ran (`execution.control_steps`), 0 when it says none.
     pub fn control_steps(&self) -> u64 {
-        self.response().get("execution").and_then(|e| e.get("control_steps")).and_then(Value::as_u64).unwrap_or(0)
+        self.reply().control_steps()
+    }
+}
+
+record! {
+    /// What a tool of the episode answers (protocol §2.9; an event's `response` in the action log): `ok`, and for
+    /// a refusal its `error_type` and `error`, for an `osc_sequence` what ran, for `finish_episode` the verdict.
+    /// Typed here for the server's own clients (experts, replays, teleop, benches); other fields kept in `rest`.
+    pub struct ToolReply {
+        pub ok: Option<bool>,
+        /// The error's class (`ValueError`, `RuntimeError`, `EnvironmentCommandError`).
+        pub error_type: Option<String>,
+        /// The error's message, kept as JSON so that messages quote it as it came.
+        pub error: Option<Value>,
+        pub execution: Option<Execution>,
+        /// `finish_episode`'s verdict.
+        pub success: Option<bool>,
+        /// `finish_episode`'s `finished`.
+        pub status: Option<String>,
+    }
+}
+
+record! {
+    /// An `osc_sequence` reply's `execution`.
+    pub struct Execution {
+        pub control_steps: Option<u64>,
+        /// The actions ran, even where the answer is an error (the observation could not be published).
+        pub command_completed: Option<bool>,
+    }
+}
+
+impl ToolReply {
+    /// The reply in `value`; a value that is no object reads as an empty reply, one that is not `ok`.
+    pub fn of(value: &Value) -> Self {
+        <Self as serde::Deserialize>::deserialize(value).unwrap_or_default()
+    }
+
+    /// Whether it is `ok: true`.
+    pub fn is_ok(&self) -> bool {
+        self.ok == Some(true)
+    }
+
+    /// Whether the call's actions ran (see [`actions_executed`]).
+    pub fn actions_executed(&self) -> bool {
+        self.is_ok() || self.execution.as_ref().and_then(|e| e.command_completed) == Some(true)
+    }
+
+    /// Control steps it says ran (`execution.control_steps`), 0 when it says none.
+    pub fn control_steps(&self) -> u64 {
+        self.execution.as_ref().and_then(|e| e.control_steps).unwrap_or(0)
+    }
+
+    /// The error as JSON text (`null` when there is none), as messages quote it.
+    pub fn error_text(&self) -> String {
+        self.error.as_ref().unwrap_or(&Value::Null).to_string()
     }
 }
 
 /// Whether the actions of a call whose answer is `response` ran: an `ok` answer, or an error that reports its
 /// execution completed (the observation could not be published into the workspace, but the robot moved).
 pub fn actions_executed(response: &Value) -> bool {
-    response.get("ok") == Some(&Value::Bool(true))
-        || response.get("execution").and_then(|e| e.get("command_completed")) == Some(&Value::Bool(true))
+    ToolReply::of(response).actions_executed()
 }
 
 #[cfg(test)]
@@ -104,5 +162,17 @@ mod tests {
         assert!(actions_executed(&json!({"ok": false, "execution": {"command_completed": true}})));
         assert!(!actions_executed(&json!({"ok": false, "error_type": "InvalidAction"})));
         assert!(!actions_executed(&json!("ok")));
+    }
+
+    #[test]
+    fn a_reply_reads_its_fields_and_keeps_the_rest() {
+        let v = json!({"ok": false, "error_type": "ValueError", "error": "no", "observation_id": "obs_000001"});
+        let r = ToolReply::of(&v);
+        assert_eq!((r.is_ok(), r.error_type.as_deref(), r.error_text()), (false, Some("ValueError"), "\"no\"".to_owned()));
+        assert_eq!(r.to_value(), v, "written back as read");
+        let f = ToolReply::of(&json!({"ok": true, "status": "finished", "success": true}));
+        assert_eq!((f.is_ok(), f.status.as_deref(), f.success), (true, Some("finished"), Some(true)));
+        assert_eq!(ToolReply::of(&json!({"ok": "yes", "execution": 3})), ToolReply { rest: json!({"ok": "yes", "execution": 3}).as_object().cloned().unwrap(), ..ToolReply::default() }, "ill-typed values are kept, not read");
+        assert_eq!((ToolReply::of(&Value::Null).is_ok(), ToolReply::of(&Value::Null).error_text()), (false, "null".to_owned()));
     }
 }

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde_json::{Value, json};
 
-pub use crate::action_event::{ACTION_EVENT_SCHEMA, ActionEvent, actions_executed};
+pub use crate::action_event::{ACTION_EVENT_SCHEMA, ActionEvent, Execution, ToolReply, actions_executed};
 pub use crate::episode_record::{BranchRecord, EPISODE_RECORD_SCHEMA, EpisodeRecord, RecordedSuite, RecordedTask};
 use crate::json::{compact_sorted, open_jsonl_for_append, sha256_hex, utc_now_iso, write_json_file};
 pub use crate::result::{
