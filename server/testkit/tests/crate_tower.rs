@@ -21,6 +21,8 @@ const TOWER: &[(&str, &[&str])] = &[
     ("libero-artifacts", &[]),
     // The binaries' logger, shared by libero-agent and libero-worker.
     ("libero-logging", &[]),
+    // openpi's policy-server client and LIBERO contract: reads published observation files, links no simulator.
+    ("libero-policy", &[]),
     // The agent's boundary (bubblewrap, sandbox-net, seccomp, the model-API gateway, caps, log scrubbing, the
     // toolbox): records only, so that what guards the machine builds and is tested without the simulator or a server.
     ("libero-sandbox", &["libero-records"]),
