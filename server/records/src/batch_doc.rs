@@ -1,8 +1,11 @@
 //! A batch's records as their readers see them (the report, the Results page, a queued batch's follower): the
 //! batch document (`batch.json` of a batch directory, the same document in a shared store) and the fields of a
 //! rollout record (a line of `rollouts.jsonl`) that hold even for a record the queue wrote for a lost worker. The
-//! runner writes both; see [`crate::typed`] for how the fields named here and the others survive a read.
+//! runner writes both; see [`crate::typed`] for how the fields named here and the others survive a read. A
+//! rollout's `harness_manifest.json` is in [`harness_manifest`].
 use std::collections::BTreeMap;
+
+pub mod harness_manifest;
 
 use crate::typed::record;
 
