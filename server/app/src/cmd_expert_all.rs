@@ -24,8 +24,11 @@ use libero_episode::task::resolve_task;
 use libero_sim::AssetPaths;
 use libero_tasks::expert;
 use libero_tasks::pool::EntryStatus;
+use libero_records::expert_sweep::{ExpertSweepMeta, ExpertSweepRow, META_SCHEMA, SweepFailure, SweepUpdate};
+use libero_records::result::PrivateEvaluation;
 use libero_tasks::selector::{Member, Selection, Term};
-use serde_json::{Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
 
 use crate::cmd_expert::{ExpertArgs, prepare_request, run_local};
 use libero_server::default_data_dir;
@@ -98,15 +101,15 @@ fn plan(spec: &WorldSpec, task_id: &str) -> anyhow::Result<Vec<String>> {
 }
 
 /// The goal atoms a record's final state failed (or its stage names where it has no terminal checks).
-fn failed_checks(record: &Value) -> Vec<String> {
-    let checks = record["terminal_state_checks"].as_array().cloned().unwrap_or_default();
-    let failed: Vec<String> =
-        checks.iter().filter(|c| c["passed"] == false).filter_map(|c| c["name"].as_str().map(str::to_owned)).collect();
+fn failed_checks(record: &PrivateEvaluation) -> Vec<String> {
+    let checks = record.terminal_state_checks.as_deref().unwrap_or_default();
+    let failed: Vec<String> = checks.iter().filter(|c| c.passed == Some(false)).filter_map(|c| c.name.clone()).collect();
     if !failed.is_empty() || !checks.is_empty() {
         return failed;
     }
-    let done = record["completed_stage_names"].as_array().map_or(0, Vec::len);
-    vec![format!("{done} of {} stages", record["required_stage_count"])]
+    let done = record.completed_stage_names.as_ref().map_or(0, Vec::len);
+    let required = record.required_stage_count.map_or_else(|| "null".to_owned(), |n| n.to_string());
+    vec![format!("{done} of {required} stages")]
 }
 
 /// The sweep file `--all` writes by default, where the dashboard reads it.
@@ -133,27 +136,48 @@ struct Journal {
     file: std::fs::File,
 }
 
+/// The journal's first line: `{"journal": {…}}`, what was swept.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct JournalHeader {
+    journal: SweepKey,
+}
+
+/// What makes two sweeps the same one (a journal resumes only its own). Fields in key order: the line is written
+/// with sorted keys, as before it was typed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct SweepKey {
+    level: u8,
+    runs: u32,
+    seed: u64,
+    selection: String,
+}
+
 impl Journal {
     /// Opens the journal at `path` for `header`'s sweep: with `resume`, its finished rows (refused when it swept
     /// something else); without, a fresh journal replacing any old one.
-    fn open(path: &Path, header: &Value, resume: bool) -> anyhow::Result<(Self, Vec<Value>)> {
+    fn open(path: &Path, header: &JournalHeader, resume: bool) -> anyhow::Result<(Self, Vec<ExpertSweepRow>)> {
         use std::io::Write as _;
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         }
         let kept = if resume {
-            let lines = match read_rows(path) {
-                Ok(lines) => lines,
-                Err(_) if !path.exists() => bail!("--resume: no journal at {} (nothing to resume)", path.display()),
-                Err(e) => return Err(e),
+            let text = match std::fs::read_to_string(path) {
+                Ok(text) => text,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    bail!("--resume: no journal at {} (nothing to resume)", path.display())
+                }
+                Err(e) => return Err(e).with_context(|| format!("cannot read the sweep journal {}", path.display())),
             };
-            match lines.split_first() {
-                Some((first, rows)) if first == header => rows.to_vec(),
-                Some((first, _)) => bail!(
+            let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+            match lines.next() {
+                Some(first) if serde_json::from_str::<JournalHeader>(first).ok().as_ref() == Some(header) => {
+                    lines.map(|l| parse_row(path, l)).collect::<anyhow::Result<Vec<_>>>()?
+                }
+                Some(first) => bail!(
                     "--resume: the journal {} is of another sweep ({}), not this one ({}); run without --resume to start afresh",
                     path.display(),
-                    first["journal"],
-                    header["journal"]
+                    serde_json::from_str::<JournalHeader>(first).map_or_else(|_| first.to_owned(), |h| compact(&h.journal)),
+                    compact(&header.journal)
                 ),
                 None => Vec::new(),
             }
@@ -167,12 +191,12 @@ impl Journal {
         }
         .with_context(|| format!("cannot write the journal {}", path.display()))?;
         if !resume || kept.is_empty() && std::fs::metadata(path).map_or(0, |m| m.len()) == 0 {
-            writeln!(file, "{header}").with_context(|| format!("cannot write the journal {}", path.display()))?;
+            writeln!(file, "{}", compact(header)).with_context(|| format!("cannot write the journal {}", path.display()))?;
         }
         Ok((Self { file }, kept))
     }
 
-    fn append(&mut self, row: &Value) -> anyhow::Result<()> {
+    fn append(&mut self, row: &ExpertSweepRow) -> anyhow::Result<()> {
         use std::io::Write as _;
         writeln!(self.file, "{row}").context("cannot append to the sweep journal")?;
         self.file.sync_data().context("cannot sync the sweep journal")
@@ -214,7 +238,7 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
         (Some(out), true) => Some(SweepTable::read_for_update(out, args.runs)?),
         _ => None,
     };
-    let header = json!({"journal": {"selection": selection.to_string(), "runs": args.runs, "level": args.level, "seed": args.seed}});
+    let header = JournalHeader { journal: SweepKey { level: args.level, runs: args.runs, seed: args.seed, selection: selection.to_string() } };
     let (journal, kept) = match &out {
         Some(out) => {
             let (journal, kept) = Journal::open(&journal_path(out), &header, args.resume)?;
@@ -225,7 +249,8 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     };
     let episodes = Episodes::new(args.data.clone().unwrap_or_else(default_data_dir), "http://127.0.0.1:0".into())?;
     let total = tasks.len();
-    let mut done: Vec<Option<Value>> = tasks.iter().map(|t| kept.iter().rev().find(|r| r["task"] == t.task.as_str()).cloned()).collect();
+    let mut done: Vec<Option<ExpertSweepRow>> =
+        tasks.iter().map(|t| kept.iter().rev().find(|r| r.task.as_deref() == Some(t.task.as_str())).cloned()).collect();
     let resumed = done.iter().flatten().count();
     if resumed > 0 {
         eprintln!("resuming: {resumed} of {total} tasks done in the journal, {} to run", total - resumed);
@@ -236,7 +261,7 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
     let next = AtomicUsize::new(0);
     let journal = journal.map(Mutex::new);
     let tally = Mutex::new(Tally { done: resumed, failed: done.iter().flatten().filter(|r| !solved(r, args.runs)).count(), ..Tally::default() });
-    let rows: Mutex<&mut Vec<Option<Value>>> = Mutex::new(&mut done);
+    let rows: Mutex<&mut Vec<Option<ExpertSweepRow>>> = Mutex::new(&mut done);
     let ran = AtomicUsize::new(0);
     std::thread::scope(|s| {
         for _ in 0..jobs {
@@ -252,10 +277,10 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
                         Err(panic) => error_row(args, task, format!("panicked: {}", panic_text(&*panic))),
                     };
                     let seconds = t0.elapsed().as_secs_f64();
-                    row["seconds"] = json!((seconds * 10.0).round() / 10.0);
+                    row.seconds = Some(tenths(seconds));
                     if let Some(journal) = &journal {
-                        row["date_utc"] = json!(now_utc());
-                        row["commit"] = json!(git_commit());
+                        row.date_utc = Some(now_utc());
+                        row.commit = Some(git_commit());
                         let mut journal = journal.lock().unwrap_or_else(|e| e.into_inner());
                         if let Err(e) = journal.append(&row) {
                             eprintln!("warning: {e:#} (a --resume would run this task again)");
@@ -285,7 +310,7 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
         }
     });
     drop(rows);
-    let rows: Vec<Value> = done.into_iter().flatten().collect();
+    let rows: Vec<ExpertSweepRow> = done.into_iter().flatten().collect();
     for row in &rows {
         println!("{row}");
     }
@@ -316,17 +341,36 @@ pub fn run_all(args: &ExpertArgs) -> anyhow::Result<()> {
 }
 
 /// Whether a row is an expert that solved every run.
-fn solved(row: &Value, runs: u32) -> bool {
-    row["expert"] == true && row["successes"] == runs && row.get("error").is_none()
+fn solved(row: &ExpertSweepRow, runs: u32) -> bool {
+    row.solved(u64::from(runs))
+}
+
+/// Seconds rounded to 0.1 s, as the sweep's files say them.
+fn tenths(seconds: f64) -> f64 {
+    (seconds * 10.0).round() / 10.0
+}
+
+/// Compact JSON of one of the sweep's own lines.
+fn compact<T: Serialize>(line: &T) -> String {
+    serde_json::to_string(line).unwrap_or_else(|_| "null".to_owned())
+}
+
+/// The row a task's sweep starts from: nothing run yet, nothing solved.
+fn new_row(args: &ExpertArgs, task: &SweepTask) -> ExpertSweepRow {
+    ExpertSweepRow {
+        task: Some(task.task.clone()),
+        suite: Some(task.suite.clone()),
+        entry: task.entry.clone(),
+        runs: Some(u64::from(args.runs)),
+        successes: Some(0),
+        expert: Some(true),
+        ..ExpertSweepRow::default()
+    }
 }
 
 /// The row of a task whose sweep could not run (it still counts, with the reason).
-fn error_row(args: &ExpertArgs, task: &SweepTask, error: String) -> Value {
-    let mut row = json!({"task": task.task, "suite": task.suite, "runs": args.runs, "successes": 0, "expert": true, "error": error});
-    if let Some(entry) = &task.entry {
-        row["entry"] = json!(entry);
-    }
-    row
+fn error_row(args: &ExpertArgs, task: &SweepTask, error: String) -> ExpertSweepRow {
+    ExpertSweepRow { error: Some(error), ..new_row(args, task) }
 }
 
 fn panic_text(panic: &(dyn std::any::Any + Send)) -> String {
@@ -344,24 +388,21 @@ fn clock(seconds: f64) -> String {
 }
 
 /// Plans `task` and runs its solving expert `--runs` times: its row (a run that errors is a failure with the error).
-fn sweep_task(args: &ExpertArgs, episodes: &Episodes, paths: &AssetPaths, level: Level, task: &SweepTask) -> anyhow::Result<Value> {
+fn sweep_task(args: &ExpertArgs, episodes: &Episodes, paths: &AssetPaths, level: Level, task: &SweepTask) -> anyhow::Result<ExpertSweepRow> {
     let task_id = task.task.as_str();
     let spec = WorldSpec { task: resolve_task(task_id, paths)?, level, seed: args.seed, init_index: 0, paths: paths.clone() };
-    let mut row = json!({"task": task_id, "suite": task.suite, "runs": args.runs, "successes": 0, "expert": true});
-    if let Some(entry) = &task.entry {
-        row["entry"] = json!(entry);
-    }
+    let mut row = new_row(args, task);
     let steps = match plan(&spec, task_id) {
         Ok(steps) => steps,
         Err(e) => {
-            row["expert"] = json!(false);
-            row["runs"] = json!(0);
-            row["no_expert"] = json!(format!("{e:#}"));
+            row.expert = Some(false);
+            row.runs = Some(0);
+            row.no_expert = Some(format!("{e:#}"));
             return Ok(row);
         }
     };
     if !steps.is_empty() {
-        row["plan"] = json!(steps);
+        row.plan = Some(steps);
     }
     let request = prepare_request(args, task_id, expert::SOLVE);
     let (mut successes, mut failures, mut actions) = (0u32, Vec::new(), Vec::new());
@@ -372,23 +413,25 @@ fn sweep_task(args: &ExpertArgs, episodes: &Episodes, paths: &AssetPaths, level:
             }
         };
         let r = run_local(episodes, &request, &spec, task_id, expert::SOLVE, args.max_actions, args.pace, &progress)?;
+        let failure = SweepFailure { run: Some(u64::from(run_index)), episode_id: Some(r.episode_id), ..SweepFailure::default() };
         match r.outcome {
             Ok(run) => {
-                let record = r.record.unwrap_or(run.replica_record);
+                // the replica's record where the episode wrote none; a record that is no object reads as no success
+                let record = PrivateEvaluation::from_value(r.record.unwrap_or(run.replica_record)).unwrap_or_default();
                 actions.push(run.actions);
-                if record["success"] == true {
+                if record.success == Some(true) {
                     successes += 1;
                 } else {
-                    failures.push(json!({"run": run_index, "episode_id": r.episode_id, "failed": failed_checks(&record)}));
+                    failures.push(SweepFailure { failed: Some(failed_checks(&record)), ..failure });
                 }
             }
-            Err(e) => failures.push(json!({"run": run_index, "episode_id": r.episode_id, "error": e.to_string()})),
+            Err(e) => failures.push(SweepFailure { error: Some(e.to_string()), ..failure }),
         }
     }
-    row["successes"] = json!(successes);
-    row["actions"] = json!(actions);
+    row.successes = Some(u64::from(successes));
+    row.actions = Some(actions);
     if !failures.is_empty() {
-        row["failures"] = json!(failures);
+        row.failures = Some(failures);
     }
     Ok(row)
 }
@@ -419,16 +462,16 @@ fn replace_file(path: &Path, text: &str) -> anyhow::Result<()> {
 }
 
 /// The solved summary of a whole table: "N of M solved k/k".
-fn table_summary(rows: &[Value], runs: u32) -> String {
-    let entries: Vec<&Value> = rows.iter().filter(|r| r["task"].is_string()).collect();
+fn table_summary(rows: &[ExpertSweepRow], runs: u32) -> String {
+    let entries: Vec<&ExpertSweepRow> = rows.iter().filter(|r| r.is_entry()).collect();
     let solved_count = entries.iter().filter(|r| solved(r, runs)).count();
     format!("{solved_count} of {} solved {runs}/{runs}", entries.len())
 }
 
 /// A sweep file and its metadata, read to be updated (`expert --tasks … --update`).
 struct SweepTable {
-    rows: Vec<Value>,
-    meta: Value,
+    rows: Vec<ExpertSweepRow>,
+    meta: ExpertSweepMeta,
 }
 
 impl SweepTable {
@@ -438,8 +481,9 @@ impl SweepTable {
         let rows = read_rows(out).context("--update changes an existing sweep table; run the whole sweep first")?;
         let meta_file = meta_path(out);
         let text = std::fs::read_to_string(&meta_file).with_context(|| format!("cannot read {} to update it", meta_file.display()))?;
-        let meta: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", meta_file.display()))?;
-        match meta["runs"].as_u64() {
+        let meta: ExpertSweepMeta =
+            serde_json::from_str(&text).with_context(|| format!("{} is not a JSON object", meta_file.display()))?;
+        match meta.runs {
             Some(n) if n == u64::from(runs) => Ok(Self { rows, meta }),
             Some(n) => bail!("{} was run with --runs {n}; an update must use the same (got --runs {runs})", out.display()),
             None => bail!("{} says no `runs`; cannot tell whether an update's rows compare", meta_file.display()),
@@ -448,88 +492,89 @@ impl SweepTable {
 
     /// Replaces the rows of the tasks in `fresh` (appending any the table lacked), stamps each with `date_utc` and
     /// `commit`, lists the update in the metadata with the whole table's new summary, and writes both files.
-    fn update(mut self, out: &Path, fresh: &[Value], runs: u32, jobs: usize, seconds: f64, summary: &str) -> anyhow::Result<String> {
+    fn update(mut self, out: &Path, fresh: &[ExpertSweepRow], runs: u32, jobs: usize, seconds: f64, summary: &str) -> anyhow::Result<String> {
         let (date, commit) = (now_utc(), git_commit());
         for row in fresh {
-            let mut row = row.clone();
-            row["date_utc"] = json!(date);
-            row["commit"] = json!(commit);
-            match self.rows.iter_mut().find(|r| r["task"] == row["task"]) {
+            let row = ExpertSweepRow { date_utc: Some(date.clone()), commit: Some(commit.clone()), ..row.clone() };
+            match self.rows.iter_mut().find(|r| r.task == row.task) {
                 Some(old) => *old = row,
                 None => self.rows.push(row),
             }
         }
         let whole = table_summary(&self.rows, runs);
-        let update = json!({
-            "date_utc": date,
-            "commit": commit,
-            "command": std::env::args().collect::<Vec<_>>().join(" "),
-            "jobs": jobs,
-            "tasks": fresh.len(),
-            "summary": summary,
-            "seconds": (seconds * 10.0).round() / 10.0,
-        });
-        match self.meta["updates"].as_array_mut() {
-            Some(list) => list.push(update),
-            None => self.meta["updates"] = json!([update]),
-        }
-        self.meta["tasks"] = json!(self.rows.len());
-        self.meta["summary"] = json!(whole);
-        let text: String = self.rows.iter().map(|r| format!("{r}\n")).collect();
-        replace_file(out, &text)?;
-        replace_file(&meta_path(out), &format!("{:#}\n", self.meta))?;
+        let update = SweepUpdate {
+            date_utc: Some(date),
+            commit: Some(commit),
+            command: Some(std::env::args().collect::<Vec<_>>().join(" ")),
+            jobs: Some(jobs as u64),
+            tasks: Some(fresh.len() as u64),
+            summary: Some(summary.to_owned()),
+            seconds: Some(tenths(seconds)),
+            ..SweepUpdate::default()
+        };
+        self.meta.updates.get_or_insert_with(Vec::new).push(update);
+        self.meta.tasks = Some(self.rows.len() as u64);
+        self.meta.summary = Some(whole.clone());
+        replace_file(out, &rows_text(&self.rows))?;
+        replace_file(&meta_path(out), &format!("{:#}\n", self.meta.to_value()))?;
         Ok(whole)
     }
 }
 
 /// Writes the rows (one JSON line each, in task order) and the metadata beside them.
-fn write_sweep(out: &Path, rows: &[Value], args: &ExpertArgs, jobs: usize, seconds: f64, summary: &str) -> anyhow::Result<()> {
+fn write_sweep(out: &Path, rows: &[ExpertSweepRow], args: &ExpertArgs, jobs: usize, seconds: f64, summary: &str) -> anyhow::Result<()> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    let text: String = rows.iter().map(|r| format!("{r}\n")).collect();
-    replace_file(out, &text)?;
-    let meta = json!({
-        "schema_version": "libero.expert_sweep_meta.v1",
-        "date_utc": now_utc(),
-        "commit": git_commit(),
-        "command": std::env::args().collect::<Vec<_>>().join(" "),
-        "cores": std::thread::available_parallelism().map_or(1, |n| n.get()),
-        "jobs": jobs,
-        "runs": args.runs,
-        "tasks": rows.len(),
-        "summary": summary,
-        "seconds": (seconds * 10.0).round() / 10.0,
-    });
-    replace_file(&meta_path(out), &format!("{meta:#}\n"))
+    replace_file(out, &rows_text(rows))?;
+    let meta = ExpertSweepMeta {
+        schema_version: Some(META_SCHEMA.to_owned()),
+        date_utc: Some(now_utc()),
+        commit: Some(git_commit()),
+        command: Some(std::env::args().collect::<Vec<_>>().join(" ")),
+        cores: Some(std::thread::available_parallelism().map_or(1, |n| n.get()) as u64),
+        jobs: Some(jobs as u64),
+        runs: Some(u64::from(args.runs)),
+        tasks: Some(rows.len() as u64),
+        summary: Some(summary.to_owned()),
+        seconds: Some(tenths(seconds)),
+        ..ExpertSweepMeta::default()
+    };
+    replace_file(&meta_path(out), &format!("{:#}\n", meta.to_value()))
+}
+
+/// The table's text: one compact line per row (keys sorted), in order.
+fn rows_text(rows: &[ExpertSweepRow]) -> String {
+    rows.iter().map(|r| format!("{r}\n")).collect()
+}
+
+/// One line of a sweep file or journal.
+fn parse_row(path: &Path, line: &str) -> anyhow::Result<ExpertSweepRow> {
+    serde_json::from_str(line).with_context(|| format!("{}: not a JSON row: {line}", path.display()))
 }
 
 /// The rows of a sweep file.
-fn read_rows(path: &Path) -> anyhow::Result<Vec<Value>> {
+fn read_rows(path: &Path) -> anyhow::Result<Vec<ExpertSweepRow>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read the sweep file {}", path.display()))?;
-    text.lines()
-        .filter(|l| !l.trim().is_empty())
-        .map(|l| serde_json::from_str(l).with_context(|| format!("{}: not a JSON row: {l}", path.display())))
-        .collect()
+    text.lines().filter(|l| !l.trim().is_empty()).map(|l| parse_row(path, l)).collect()
 }
 
 /// The README's pool table: per suite, its entries, how many have an expert, and how many it solved every run.
-fn markdown(rows: &[Value]) -> String {
+fn markdown(rows: &[ExpertSweepRow]) -> String {
     let mut suites: BTreeMap<String, (usize, usize, usize)> = BTreeMap::new();
     let mut order = Vec::new();
     // summary lines (older tables end with one) are not entries
-    for r in rows.iter().filter(|r| r["task"].is_string()) {
-        let suite = r["suite"].as_str().unwrap_or("?").to_owned();
+    for r in rows.iter().filter(|r| r.is_entry()) {
+        let suite = r.suite.clone().unwrap_or_else(|| "?".to_owned());
         if !suites.contains_key(&suite) {
             order.push(suite.clone());
         }
         let e = suites.entry(suite).or_default();
-        let runs = r["runs"].as_u64().unwrap_or(0);
         e.0 += 1;
-        e.1 += usize::from(r["expert"] == true && r.get("error").is_none());
-        e.2 += usize::from(r["expert"] == true && runs > 0 && r["successes"].as_u64() == Some(runs));
+        e.1 += usize::from(r.has_working_expert());
+        e.2 += usize::from(r.solved_every_run());
     }
-    let runs: std::collections::BTreeSet<u64> = rows.iter().filter_map(|r| r["runs"].as_u64()).filter(|n| *n > 0).collect();
+    let runs: std::collections::BTreeSet<u64> = rows.iter().filter_map(|r| r.runs).filter(|n| *n > 0).collect();
     let solved = match runs.iter().collect::<Vec<_>>()[..] {
         [n] => format!("solved {n}/{n}"),
         _ => "solved every run".to_owned(),
@@ -546,31 +591,34 @@ fn markdown(rows: &[Value]) -> String {
 }
 
 /// `3/3`, `1/3 failed: (on a b)`, `no expert: …`.
-fn verdict(row: &Value) -> String {
-    if row["expert"] == false {
-        return format!("no expert: {}", row["no_expert"].as_str().unwrap_or(""));
+fn verdict(row: &ExpertSweepRow) -> String {
+    if row.expert == Some(false) {
+        return format!("no expert: {}", row.no_expert.as_deref().unwrap_or(""));
     }
-    if let Some(e) = row["error"].as_str() {
+    if let Some(e) = &row.error {
         return format!("error: {e}");
     }
-    let mut v = format!("{}/{}", row["successes"], row["runs"]);
-    if let Some(f) = row["failures"].as_array().and_then(|f| f.first()) {
-        let why = f["failed"].as_array().map_or_else(
-            || f["error"].as_str().unwrap_or("").to_owned(),
-            |c| format!("failed {}", c.iter().filter_map(Value::as_str).collect::<Vec<_>>().join(" ")),
-        );
+    let mut v = solved_of(row);
+    if let Some(f) = row.failures.as_ref().and_then(|f| f.first()) {
+        let why = f.failed.as_ref().map_or_else(|| f.error.clone().unwrap_or_default(), |c| format!("failed {}", c.join(" ")));
         v.push_str(&format!(" ({why})"));
     }
     v
 }
 
-fn print_table(rows: &[Value]) {
-    let width = rows.iter().filter_map(|r| r["task"].as_str()).map(str::len).max().unwrap_or(4).max(4);
+/// `2/3`: the row's successes of its runs (`null` for a count it lacks, as the untyped table printed it).
+fn solved_of(row: &ExpertSweepRow) -> String {
+    let n = |c: Option<u64>| c.map_or_else(|| "null".to_owned(), |c| c.to_string());
+    format!("{}/{}", n(row.successes), n(row.runs))
+}
+
+fn print_table(rows: &[ExpertSweepRow]) {
+    let width = rows.iter().filter_map(|r| r.task.as_deref()).map(str::len).max().unwrap_or(4).max(4);
     println!("{:<width$}  {:>7}  {:>8}  result", "task", "solved", "wall_s");
     for r in rows {
-        let solved = if r["expert"] == true { format!("{}/{}", r["successes"], r["runs"]) } else { "-".into() };
-        let task = r["task"].as_str().unwrap_or("");
-        let wall_s = r["seconds"].as_f64().unwrap_or(0.0);
+        let solved = if r.expert == Some(true) { solved_of(r) } else { "-".into() };
+        let task = r.task.as_deref().unwrap_or("");
+        let wall_s = r.seconds.unwrap_or(0.0);
         println!("{task:<width$}  {solved:>7}  {wall_s:>8.1}  {}", verdict(r));
     }
 }

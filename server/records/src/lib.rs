@@ -9,6 +9,7 @@ pub mod agent_events;
 pub mod batch_doc;
 pub mod demo_manifest;
 pub mod episode_record;
+pub mod expert_sweep;
 pub mod json;
 pub mod records;
 pub mod result;
