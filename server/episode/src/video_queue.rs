@@ -237,6 +237,11 @@ fn worker(weak: std::sync::Weak<Shared>, cameras: VideoCameras) {
                 !s.stopping
             })
         });
+        // The job's models went with it. An episode retired while its video waited here could not let go of the
+        // base model its own read from, and a rebuilt model made a base of its own: release both now, or they
+        // stay until some later episode ends (an idle server kept a scene's hundreds of MB).
+        libero_sim::shared_model::release_unused();
+        crate::memory::return_freed_memory();
         let mut s = shared.state.lock().unwrap_or_else(|p| p.into_inner());
         s.busy = false;
         match result {

@@ -30,11 +30,29 @@ fn config(dir: &Path, name: &str, level: Level, max_agent_steps: u64, wall_s: f6
     }
 }
 
-fn episode(dir: &Path, name: &str, level: Level, steps: u64, wall_s: f64, renderer: &Renderer) -> EpisodeHandle {
+fn episode(dir: &Path, name: &str, level: Level, steps: u64, wall_s: f64, renderer: &Renderer) -> Joined {
     let cfg = config(dir, name, level, steps, wall_s);
     std::fs::create_dir_all(cfg.workspace.join("benchmark_inputs")).unwrap();
     let (s, r) = (spec(level), renderer.clone());
-    spawn_episode(cfg, move || LiberoWorld::new(&s, r)).expect("episode")
+    Joined(spawn_episode(cfg, move || LiberoWorld::new(&s, r)).expect("episode"))
+}
+
+/// An episode the test waits for when it lets go of it: stopped (if still open) and its thread gone, world and
+/// renderer released. A test process that exits while an episode thread still drops its world into the
+/// software renderer can crash in the renderer's exit handlers (SIGSEGV after "test result: ok").
+struct Joined(EpisodeHandle);
+
+impl std::ops::Deref for Joined {
+    type Target = EpisodeHandle;
+    fn deref(&self) -> &EpisodeHandle {
+        &self.0
+    }
+}
+
+impl Drop for Joined {
+    fn drop(&mut self) {
+        self.0.stop("the test ended");
+    }
 }
 
 /// Compares a result record with its golden fixture, volatile fields (time stamps, durations) masked.
@@ -133,7 +151,7 @@ fn a_mujoco_fault_ends_only_its_own_episode_as_invalid() {
     let cfg = config(dir.path(), "faulty", Level::L1, 100, 600.0);
     std::fs::create_dir_all(cfg.workspace.join("benchmark_inputs")).unwrap();
     let (s, r) = (spec(Level::L1), renderer.clone());
-    let faulty = spawn_episode(cfg, move || {
+    let faulty = Joined(spawn_episode(cfg, move || {
         let mut w = LiberoWorld::new(&s, r)?;
         // An absurd joint velocity in the restored state: MuJoCo's integrator blows up during settling.
         w.edit_start_state(|row| {
@@ -142,7 +160,7 @@ fn a_mujoco_fault_ends_only_its_own_episode_as_invalid() {
         });
         Ok(w)
     })
-    .unwrap();
+    .unwrap());
     assert_eq!(healthy.call("start_episode", None)["ok"], true);
     let failed = faulty.call("start_episode", None);
     assert_eq!(failed["error_type"], "EnvironmentCommandError", "{failed}");
@@ -209,7 +227,7 @@ fn a_real_level3_episode_publishes_the_observation_files_and_nothing_private() {
     create_workspace(&WorkspaceLayout::new(&cfg.workspace), &contract).unwrap();
     let (ws, run) = (cfg.workspace.clone(), RunDir::new(&cfg.run_dir));
     let (s, r) = (spec(Level::L3), renderer.clone());
-    let h = spawn_episode(cfg, move || LiberoWorld::new(&s, r)).unwrap();
+    let h = Joined(spawn_episode(cfg, move || LiberoWorld::new(&s, r)).unwrap());
     let start = h.call("start_episode", None);
     assert_eq!(start["task_instruction"], "pick up the ketchup and place it in the basket");
     let read = |ws: &Path| -> Value {
@@ -262,7 +280,7 @@ fn first_observation(dir: &Path, task: &str, level: Level, renderer: &Renderer) 
     std::fs::create_dir_all(cfg.workspace.join("benchmark_inputs")).unwrap();
     let cur = cfg.workspace.join("benchmark_inputs/current_observation");
     let r = renderer.clone();
-    let h = spawn_episode(cfg, move || LiberoWorld::new(&s, r)).expect("episode");
+    let h = Joined(spawn_episode(cfg, move || LiberoWorld::new(&s, r)).expect("episode"));
     h.call("start_episode", None);
     let obs = serde_json::from_str(&std::fs::read_to_string(cur.join("observation.json")).unwrap()).unwrap();
     h.call("finish_episode", None);

@@ -286,6 +286,7 @@ fn the_video_is_finalised_when_the_wall_clock_expires() {
     let run = RunDir::new(&h.config().run_dir);
     wait_for_video(&queue, &run);
     check_video(&run, SETTLE_STEPS + 2);
+    h.stop("test over"); // waits until the episode thread let go of its world and renderer
 }
 
 /// Issue 19's proof: the video rendered afterwards from the state record is the video a recorder rendering
