@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use libero_records::batch_doc::HarnessVersion;
+use libero_records::batch_doc::harness_manifest::{CREDENTIAL_MATERIAL_NEVER_RECORDED, HARNESS_MANIFEST_SCHEMA, HarnessManifest};
 use libero_episode::demo::DemoCondition;
 use libero_records::json::{utc_now_iso, write_json_file};
 use libero_records::records::{PrivateEvaluation, RunDir, RunResult, STATUS_ABORTED, STATUS_FINISHED};
@@ -26,7 +27,6 @@ use libero_sandbox::resources::RolloutCage;
 use libero_sandbox::sandbox::Sandbox;
 use super::schedule::PlannedRollout;
 use libero_sandbox::logs::{Limits, scrub_log, scrub_text};
-use libero_sandbox::toolbox::Toolbox;
 use super::transcript::Follower;
 use super::usage::UsageScanner;
 use super::{INTERRUPTED, RunContext};
@@ -240,7 +240,7 @@ struct Agent {
 /// launch itself (its files are scrubbed at the end).
 struct Launched {
     sandbox_report: Option<Value>,
-    manifest: Value,
+    manifest: HarnessManifest,
     logs: AgentLogs,
     launch: Launch,
 }
@@ -328,30 +328,35 @@ fn launch(ctx: &RunContext, plan: &PlannedRollout, ready: &Ready, rec: &mut Roll
     let stdout_name = ctx.harness.stdout_file();
     let stderr_name = format!("{}_stderr.log", ctx.harness.as_str());
     let logs = AgentLogs { stdout: log_dir.join(&stdout_name), stderr: log_dir.join(&stderr_name), stdout_name, stderr_name };
-    let mut manifest = json!({
-        "schema_version": "libero.multi_agent_harness_run.v1",
-        "rollout_id": plan.rollout_id,
-        "created_at": utc_now_iso(),
-        "harness": ctx.harness.as_str(),
-        "model_requested": ctx.settings.model,
-        "effort": ctx.settings.effort,
-        "harness_version": rec.harness_version.as_ref().map_or_else(|| ctx.harness_version.clone(), HarnessVersion::to_value),
-        "api_protocol": ctx.harness.api_protocol(),
-        "credential_source": ctx.credentials.as_ref().map(|c| c.source.clone()),
-        "credential_material": "never_recorded",
-        "sandbox": sandbox.as_ref().map(|s| s.describe()),
+    let mut manifest = HarnessManifest {
+        schema_version: Some(HARNESS_MANIFEST_SCHEMA.into()),
+        rollout_id: Some(plan.rollout_id.clone()),
+        created_at: Some(utc_now_iso()),
+        harness: Some(ctx.harness.as_str().into()),
+        model_requested: Some(ctx.settings.model.clone()),
+        effort: Some(ctx.settings.effort.clone()),
+        harness_version: rec.harness_version.clone().or_else(|| HarnessVersion::from_value(ctx.harness_version.clone()).ok()),
+        api_protocol: Some(ctx.harness.api_protocol().into()),
+        credential_source: Some(ctx.credentials.as_ref().map(|c| c.source.clone())),
+        credential_material: Some(CREDENTIAL_MATERIAL_NEVER_RECORDED.into()),
+        sandbox: Some(sandbox.as_ref().map(|s| doc(s.describe()))),
         // A result is only comparable with the same toolbox: null is the system's python3 alone.
-        "toolbox": ctx.sandbox.as_ref().and_then(|s| s.toolbox.as_ref()).map(Toolbox::describe),
-        "network": net.as_ref().map(NetPlan::describe),
-        "episode_id": prepared.episode_id,
-        "workspace": prepared.workspace,
-        "private_run": prepared.run_dir,
-        "session_home": home,
-        "command": launch.public_argv(prompt),
-        "task": plan.task, "level": plan.level, "demo": plan.demo, "seed": ctx.settings.seed,
-        "max_wall_time_seconds": ctx.settings.wall_time_s, "max_agent_steps": ctx.settings.max_agent_steps,
-    });
-    write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
+        toolbox: Some(ctx.sandbox.as_ref().and_then(|s| s.toolbox.as_ref()).map(|t| doc(t.describe()))),
+        network: Some(net.as_ref().map(|n| doc(n.describe()))),
+        episode_id: Some(prepared.episode_id.clone()),
+        workspace: Some(prepared.workspace.clone()),
+        private_run: Some(prepared.run_dir.clone()),
+        session_home: Some(home.clone()),
+        command: Some(launch.public_argv(prompt)),
+        task: Some(plan.task.clone()),
+        level: Some(plan.level.into()),
+        demo: Some(plan.demo.as_str().into()),
+        seed: Some(ctx.settings.seed),
+        max_wall_time_seconds: Some(ctx.settings.wall_time_s),
+        max_agent_steps: Some(ctx.settings.max_agent_steps),
+        ..HarnessManifest::default()
+    };
+    write_manifest(dir, &manifest)?;
     let mut cmd = contained.command();
     cmd.current_dir(&prepared.workspace)
         .stdin(Stdio::null())
@@ -378,12 +383,22 @@ fn launch(ctx: &RunContext, plan: &PlannedRollout, ready: &Ready, rec: &mut Roll
     });
     // What the sandbox is, as its first process saw it before the agent started (ids, capabilities, mounts).
     let sandbox_report = if ctx.sandbox.is_some() { contained.report(Duration::from_secs(30)) } else { None };
-    if let Some(m) = manifest.as_object_mut() {
-        m.insert("sandbox_report".into(), json!(sandbox_report));
-        m.insert("relay_dir".into(), json!(contained.relay_dir()));
-    }
-    write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
+    manifest.sandbox_report = Some(sandbox_report.clone().map(doc));
+    manifest.relay_dir = Some(contained.relay_dir().map(Path::to_path_buf));
+    write_manifest(dir, &manifest)?;
     Ok((Agent { transcript, child, t0, contained }, Launched { sandbox_report, manifest, logs, launch }))
+}
+
+/// Writes the rollout's `harness_manifest.json` as it stands (each of its three writes replaces the last).
+fn write_manifest(rollout_dir: &Path, manifest: &HarnessManifest) -> anyhow::Result<()> {
+    manifest.write(rollout_dir).with_context(|| format!("cannot write the harness manifest in {}", rollout_dir.display()))
+}
+
+/// A typed manifest part from what the sandbox crate and the runner describe as JSON. Every key is kept (the
+/// records keep what they do not name); each description, and sandbox-net's report, is an object (anything else
+/// would read as an empty part).
+fn doc<T: serde::de::DeserializeOwned + Default>(described: Value) -> T {
+    serde_json::from_value(described).unwrap_or_default()
 }
 
 /// The agent's network plan (its endpoint and its model API through the runner's relays, nothing else; none
@@ -530,23 +545,21 @@ fn collect(ctx: &RunContext, ready: Ready, launched: Launched, watched: Watched,
     if cage.is_none() {
         scrub_launch_files(&home, &launch, &secrets);
     }
-    if let Some(m) = manifest.as_object_mut() {
-        m.insert("finished_at".into(), json!(utc_now_iso()));
-        m.insert("elapsed_seconds".into(), json!(watched.elapsed_s));
-        m.insert("agent_exit_code".into(), json!(watched.exit_code));
-        m.insert("infrastructure_error".into(), json!(rec.infrastructure_error));
-        m.insert("result_status".into(), json!(rec.result_status));
-        m.insert("task_success".into(), json!(rec.success));
-        m.insert("outcome".into(), json!(rec.outcome));
-        m.insert("logs".into(), scrubbed);
-        m.insert("usage_source".into(), json!(usage_source));
-        m.insert("agent_events".into(), json!(watched.transcript));
-        m.insert("model_api".into(), json!(model_api.as_ref().map(|m| serde_json::to_value(m).unwrap_or_default())));
-        m.insert("resources_used".into(), json!(cage.as_ref().map(|c| c.usage())));
-    }
+    manifest.finished_at = Some(utc_now_iso());
+    manifest.elapsed_seconds = Some(watched.elapsed_s);
+    manifest.agent_exit_code = Some(watched.exit_code);
+    manifest.infrastructure_error = Some(rec.infrastructure_error.clone());
+    manifest.result_status = Some(rec.result_status.clone());
+    manifest.task_success = Some(rec.success);
+    manifest.outcome = Some(rec.outcome);
+    manifest.logs = Some(doc(scrubbed));
+    manifest.usage_source = Some(usage_source);
+    manifest.agent_events = serde_json::to_value(&watched.transcript).ok().map(doc);
+    manifest.model_api = Some(model_api.as_ref().and_then(|m| serde_json::to_value(m).ok()).map(doc));
+    manifest.resources_used = Some(cage.as_ref().map(|c| doc(c.usage())));
     // The cage goes: its cgroups removed, its disk (workspace, home, /tmp) unmounted.
     drop(cage);
-    write_json_file(&dir.join("harness_manifest.json"), &manifest)?;
+    write_manifest(&dir, &manifest)?;
     write_json_file(&dir.join("harness_usage.json"), &serde_json::to_value(&rec.usage)?)?;
     Ok(())
 }
