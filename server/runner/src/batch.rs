@@ -177,6 +177,25 @@ const MIRROR_BYTES: usize = 1 << 20;
 /// A registration must not hold a rollout's worker for long.
 const MIRROR_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(20);
 
+/// `POST /api/batches`'s answer (the server's `batches::register`), as far as the mirror reads it: how many records
+/// the server has, or why it refused. An answer that does not read so (another server's page) has neither.
+#[derive(Deserialize, Default)]
+struct Registered {
+    have: Option<u64>,
+    error: Option<String>,
+}
+
+impl Registered {
+    fn of(v: &Value) -> Self {
+        Self::deserialize(v).unwrap_or_default()
+    }
+
+    /// The refusal of a post that would leave a gap: the server has fewer records than `from`.
+    fn gap_below(&self, from: usize) -> bool {
+        self.have.is_some_and(|n| (n as usize) < from) && self.error.as_deref().is_some_and(|e| e.starts_with("records from"))
+    }
+}
+
 impl ServerMirror {
     pub fn new(url: &str) -> Self {
         Self { url: url.trim_end_matches('/').to_owned(), posted: 0, unsupported: false, warned: false }
@@ -210,14 +229,14 @@ impl ServerMirror {
             let body = serde_json::json!({"name": name, "dir": b.dir, "doc": b.batch, "from": from, "records": &records[from..end]});
             match libero_server::client::post_json_within(&self.url, "/api/batches", &body, MIRROR_TIMEOUT) {
                 Ok((200, v)) => {
-                    self.posted = v["have"].as_u64().map_or(end, |n| n as usize);
+                    self.posted = Registered::of(&v).have.map_or(end, |n| n as usize);
                     if self.posted >= records.len() {
                         return Ok(());
                     }
                 }
                 // The server has fewer records than this runner thought (a fresh store): send them from there.
-                Ok((409, v)) if v["have"].as_u64().is_some_and(|n| (n as usize) < from) && v["error"].as_str().is_some_and(|e| e.starts_with("records from")) => {
-                    self.posted = v["have"].as_u64().map_or(0, |n| n as usize);
+                Ok((409, v)) if Registered::of(&v).gap_below(from) => {
+                    self.posted = Registered::of(&v).have.map_or(0, |n| n as usize);
                 }
                 Ok((404 | 405, _)) => {
                     eprintln!("warning: {} has no batch registration (an older server): its Results page will not list batch {name}", self.url);
@@ -225,7 +244,7 @@ impl ServerMirror {
                     return Ok(());
                 }
                 Ok((status, v)) => {
-                    bail!("{} refused to register batch {name} (HTTP {status}): {}", self.url, v["error"].as_str().map_or_else(|| v.to_string(), str::to_owned))
+                    bail!("{} refused to register batch {name} (HTTP {status}): {}", self.url, Registered::of(&v).error.unwrap_or_else(|| v.to_string()))
                 }
                 Err(e) => {
                     if !self.warned {

@@ -6,6 +6,8 @@
 use axum::body::Bytes;
 use axum::extract::State;
 use axum::response::IntoResponse;
+use libero_records::batch_doc::BatchDoc;
+use serde::Deserialize;
 use serde_json::{Value, json};
 
 use libero_store::StoredBatch;
@@ -37,6 +39,20 @@ struct Posted {
     records: Vec<Value>,
 }
 
+/// The keys every rollout record has (the runner's `RolloutRecord`): a record without them is refused.
+#[derive(serde::Deserialize)]
+struct RecordKeys {
+    #[serde(rename = "rollout_id")]
+    _rollout_id: String,
+    #[serde(rename = "schema_version")]
+    _schema_version: String,
+}
+
+/// The creation time of a batch document (null or absent: none).
+fn created_at(doc: &Value) -> Option<String> {
+    BatchDoc::deserialize(doc).ok()?.created_at
+}
+
 /// Names the Results page and URLs carry as they are: letters, digits, `-`, `_`, `.`, not starting with a dot.
 fn plain_name(name: &str) -> bool {
     !name.is_empty()
@@ -57,13 +73,15 @@ fn check(p: &Posted) -> Result<(), String> {
     if std::path::Path::new(&p.dir).file_name().and_then(|n| n.to_str()) != Some(p.name.as_str()) {
         return Err(format!("name {:?} is not the last component of dir {:?}", p.name, p.dir));
     }
-    if p.doc["schema_version"] != BATCH_SCHEMA || !p.doc["settings"].is_object() {
+    // Settings are typed only when they are an object.
+    let doc = BatchDoc::deserialize(&p.doc).unwrap_or_default();
+    if doc.schema_version.as_deref() != Some(BATCH_SCHEMA) || doc.settings.is_none() {
         return Err(format!("doc must be a batch.json of schema {BATCH_SCHEMA} with settings"));
     }
     if p.records.len() > MAX_POST_RECORDS {
         return Err(format!("at most {MAX_POST_RECORDS} records per request"));
     }
-    if let Some(i) = p.records.iter().position(|r| !r["rollout_id"].is_string() || !r["schema_version"].is_string()) {
+    if let Some(i) = p.records.iter().position(|r| RecordKeys::deserialize(r).is_err()) {
         return Err(format!("records[{i}] is not a rollout record (rollout_id, schema_version)"));
     }
     Ok(())
@@ -72,7 +90,7 @@ fn check(p: &Posted) -> Result<(), String> {
 /// The same batch as the stored one: the same directory and creation time (a `--resume` keeps both). Another
 /// batch of the same name is refused rather than mixed in.
 fn same_batch(stored: &StoredBatch, p: &Posted) -> bool {
-    stored.dir.to_str() == Some(p.dir.as_str()) && stored.doc["created_at"] == p.doc["created_at"]
+    stored.dir.to_str() == Some(p.dir.as_str()) && created_at(&stored.doc) == created_at(&p.doc)
 }
 
 pub async fn register(State(app): State<AppState>, body: Bytes) -> ApiResult {
@@ -92,7 +110,7 @@ pub async fn register(State(app): State<AppState>, body: Bytes) -> ApiResult {
             "this server already has a batch named {:?} from {} (created {}): name the new batch's directory differently",
             posted.name,
             s.dir.display(),
-            s.doc["created_at"].as_str().unwrap_or("?")
+            created_at(&s.doc).as_deref().unwrap_or("?")
         ))
         .with_field("have", have));
     }
