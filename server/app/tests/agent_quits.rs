@@ -14,6 +14,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
+use libero_records::batch_doc::harness_manifest::HarnessManifest;
 use serde_json::Value;
 
 mod common;
@@ -309,8 +310,8 @@ print("agent line after the flood", flush=True)
     let overflow: Value = text.lines().filter_map(|l| serde_json::from_str::<Value>(l).ok()).find(|v| v["kind"] == "overflow").expect("the counters line");
     let counted = text.lines().count() as u64 - 1 + overflow["overflowed"].as_u64().unwrap_or(0);
     assert!(counted >= sent, "every request counted: {counted} of {sent}; {overflow}");
-    let manifest: Value = serde_json::from_slice(&std::fs::read(rollout_dir.join("harness_manifest.json")).unwrap()).unwrap();
-    assert!(manifest["model_api"]["requests"].as_u64().is_some_and(|r| r >= sent), "{}", manifest["model_api"]);
+    let manifest = HarnessManifest::read(&rollout_dir).unwrap().expect("the rollout's harness manifest");
+    assert!(manifest.model_api().and_then(|m| m.requests).is_some_and(|r| r >= sent), "{manifest}");
     let transcript = PathBuf::from(rec["run_dir"].as_str().unwrap()).join("agent_events.jsonl");
     let events = std::fs::read_to_string(&transcript).unwrap();
     assert!(events.len() <= 16 << 20, "{} bytes", events.len());

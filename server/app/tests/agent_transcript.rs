@@ -12,6 +12,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use libero_records::agent_events::{AgentEvent, Kind, Source};
+use libero_records::batch_doc::harness_manifest::HarnessManifest;
 use libero_runner::harness::Harness;
 use libero_runner::transcript::{Follower, Normalizer, Streams, Target};
 use serde_json::{Value, json};
@@ -116,11 +117,8 @@ fn a_sandboxed_agents_printed_lines_stream_live_and_come_back_in_order_with_the_
     let u = &record["usage"];
     assert_eq!((u["source"].as_str(), u["input_tokens"].as_u64(), u["output_tokens"].as_u64()), (Some("model_api_gateway"), Some(1200), Some(30)), "{u}");
     assert_eq!(model.answered().len(), 1);
-    let manifest: Value = serde_json::from_str(
-        &std::fs::read_to_string(batch.join("rollouts").join(record["rollout_id"].as_str().unwrap()).join("harness_manifest.json")).unwrap(),
-    )
-    .unwrap();
-    assert_eq!(manifest["agent_events"]["events"].as_u64(), Some(transcript.lines().count() as u64), "{manifest}");
+    let manifest = HarnessManifest::read(&batch.join("rollouts").join(record["rollout_id"].as_str().unwrap())).unwrap().expect("the rollout's harness manifest");
+    assert_eq!(manifest.agent_events.as_ref().and_then(|e| e.events), Some(transcript.lines().count() as u64), "{manifest}");
 
     // The review page: the transcript beside the calls, and what came before the call a line led to.
     let artifacts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/dashboard");

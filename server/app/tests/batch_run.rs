@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use libero_records::batch_doc::harness_manifest::{CREDENTIAL_MATERIAL_NEVER_RECORDED, HarnessManifest};
 use libero_testkit::{cache_dir, repo_root};
 use serde_json::Value;
 
@@ -135,8 +136,8 @@ fn a_sandboxed_reference_agent_batch_runs_and_reports() {
         assert!(probe.lines().any(|l| l == format!("READABLE ls {own_libero}")), "own workspace visible:\n{probe}");
         assert!(probe.lines().any(|l| l.trim_end() == format!("siblings: {own}")), "only its own workspace:\n{probe}");
         // The token and records stay out of the public log; the manifest never holds credentials.
-        let manifest = std::fs::read_to_string(batch.join("rollouts").join(own).join("harness_manifest.json")).unwrap();
-        assert!(manifest.contains("\"credential_material\": \"never_recorded\""));
+        let manifest = HarnessManifest::read(&batch.join("rollouts").join(own)).unwrap().expect("the rollout's harness manifest");
+        assert_eq!(manifest.credential_material.as_deref(), Some(CREDENTIAL_MATERIAL_NEVER_RECORDED), "{manifest}");
     }
     assert!(!String::from_utf8_lossy(&std::fs::read(batch.join("rollouts.jsonl")).unwrap()).contains("Bearer"));
 

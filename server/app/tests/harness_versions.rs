@@ -11,6 +11,8 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use common::{Server, bin, http_get_json, http_get_text};
+use libero_records::batch_doc::HarnessVersion;
+use libero_records::batch_doc::harness_manifest::HarnessManifest;
 use serde_json::Value;
 
 /// The stand-in CLI: `codex --version` prints `codex-cli <version file>`; any other call bumps the file to 0.2.0 and
@@ -76,9 +78,9 @@ fn each_rollout_records_the_version_it_ran_and_a_mixed_batch_says_so() {
     for r in &records {
         assert_eq!(r["harness_version"]["executable"].as_str(), cli.join("codex").to_str(), "{r}");
         assert!(r["outcome"] == "SUCCESS" || r["outcome"] == "FAIL", "the stand-in played the episode: {r}");
-        let manifest = json_file(&batch.join("rollouts").join(r["rollout_id"].as_str().unwrap()).join("harness_manifest.json"));
-        assert_eq!(manifest["command"][0].as_str(), cli.join("codex").to_str(), "{manifest}");
-        assert_eq!(manifest["harness_version"], r["harness_version"], "{manifest}");
+        let manifest = HarnessManifest::read(&batch.join("rollouts").join(r["rollout_id"].as_str().unwrap())).unwrap().expect("the rollout's harness manifest");
+        assert_eq!(manifest.command.as_ref().and_then(|c| c.first()).map(String::as_str), cli.join("codex").to_str(), "{manifest}");
+        assert_eq!(manifest.harness_version.as_ref().map(HarnessVersion::to_value).as_ref(), Some(&r["harness_version"]), "the record's probe: {manifest}");
     }
     let doc = json_file(&batch.join("batch.json"));
     assert_eq!(doc["settings"]["harness_version"], "0.1.0", "{doc}");

@@ -18,6 +18,7 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{Server, bin, http_get_text};
+use libero_records::batch_doc::harness_manifest::HarnessManifest;
 use libero_runner::batch::BatchSettings;
 use libero_runner::schedule::{Experiment, plan};
 use serde_json::Value;
@@ -147,8 +148,9 @@ fn workers_on_one_machine_need_no_flags_and_a_reused_batch_name_runs() {
     let mut manifests = Vec::new();
     find_dirs(&env.join("data"), &|p| p.join("harness_manifest.json").is_file(), &mut manifests);
     assert_eq!(manifests.len(), 4, "{manifests:?}");
-    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(manifests[0].join("harness_manifest.json")).unwrap()).unwrap();
-    assert!(manifest["logs"]["command_stdout.log"]["size_bytes"].is_u64(), "the logs' record: {manifest}");
+    let manifest = HarnessManifest::read(&manifests[0]).unwrap().expect("the rollout's harness manifest");
+    let stdout_log = manifest.logs.as_ref().and_then(|l| l.get("command_stdout.log"));
+    assert!(stdout_log.and_then(|l| l.size_bytes).is_some(), "the logs' record: {manifest}");
 
     // The same name on a fresh database, run by a worker whose --data and --workspace-root hold the first batch's
     // files: it runs (attempt numbers start at 1 again; every path of this attempt is new).

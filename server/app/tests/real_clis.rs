@@ -14,6 +14,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
+use libero_records::batch_doc::harness_manifest::HarnessManifest;
 use serde_json::{Value, json};
 
 mod common;
@@ -70,6 +71,11 @@ fn contains(path: &Path, needle: &str) -> bool {
 /// One `run` of T14 by `harness` against the scripted model; the rollout's record, directory and workspace (gone
 /// with the rollout's disk where the runner caps it), and the episode's token, read from the workspace while the CLI
 /// ran.
+/// The rollout's `harness_manifest.json`.
+fn manifest_of(r: &Rollout) -> HarnessManifest {
+    HarnessManifest::read(&r.dir).unwrap().expect("the rollout's harness manifest")
+}
+
 struct Rollout {
     record: Value,
     dir: PathBuf,
@@ -162,10 +168,10 @@ fn check_rollout(r: &Rollout) {
 
     // The scripted model lives on the host's loopback, outside the agent's network namespace: every answer went
     // through the runner's gateway, which recorded it.
-    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(r.dir.join("harness_manifest.json")).unwrap()).unwrap();
-    let via_gateway = manifest["model_api"]["requests"].as_u64().unwrap_or(0) - manifest["model_api"]["refused"].as_u64().unwrap_or(0);
+    let manifest = manifest_of(r);
+    let via_gateway = manifest.model_requests_passed();
     assert!(via_gateway >= r.answers.len() as u64, "{} answers, {via_gateway} requests through the gateway: {manifest}", r.answers.len());
-    assert_eq!(manifest["sandbox_report"]["network_interfaces"], serde_json::json!(["lo"]), "{manifest}");
+    assert_eq!(manifest.sandbox_report().and_then(|s| s.network_interfaces.clone()), Some(vec!["lo".to_owned()]), "{manifest}");
 
     // The transcript the runner followed while the CLI ran (docs/agent_transcript.md): the robot calls in order,
     // each after the observation it acted on, the gateway's usage per answered request, no key.
@@ -185,7 +191,7 @@ fn check_rollout(r: &Rollout) {
     );
     let gateway_usage = events.iter().filter(|e| e["kind"] == "usage" && e["source"] == "model_api_gateway").count();
     assert_eq!(gateway_usage, r.answers.len(), "one usage event per answered request: {text}");
-    assert_eq!(manifest["agent_events"]["events"].as_u64(), Some(events.len() as u64), "{manifest}");
+    assert_eq!(manifest.agent_events.as_ref().and_then(|e| e.events), Some(events.len() as u64), "{manifest}");
 }
 
 /// The record's usage is the sum of what the endpoint reported, read under the provider's own names:
@@ -227,10 +233,10 @@ fn claude_code_plays_a_t14_episode_against_a_scripted_model() {
 /// with `run --harness-version`, launched by its path; the record and the manifest say the version it ran.
 fn check_version_ran(r: &Rollout, harness: &str, version: &str) {
     assert_eq!(r.record["harness_version"]["observed"], version, "{}", r.record);
-    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(r.dir.join("harness_manifest.json")).unwrap()).unwrap();
+    let manifest = manifest_of(r);
     let apart = cli_dir().parent().unwrap().parent().unwrap().parent().unwrap().join(format!("harnesses/{harness}-{version}"));
-    assert!(manifest["command"][0].as_str().is_some_and(|c| Path::new(c).starts_with(&apart)), "{manifest}");
-    assert_eq!(manifest["harness_version"]["observed"], version, "{manifest}");
+    assert!(manifest.command.as_ref().and_then(|c| c.first()).is_some_and(|c| Path::new(c).starts_with(&apart)), "{manifest}");
+    assert_eq!(manifest.harness_version.as_ref().and_then(|v| v.observed.as_deref()), Some(version), "{manifest}");
     let b: Value = serde_json::from_str(&std::fs::read_to_string(r.batch.join("batch.json")).unwrap()).unwrap();
     assert_eq!((b["settings"]["harness_version"].as_str(), b["harness"]["version"]["observed"].as_str()), (Some(version), Some(version)), "{b}");
 }
@@ -283,9 +289,9 @@ fn qwen_code_plays_a_t14_episode_against_a_scripted_model() {
     let r = run_t14("qwen_code", "qwen");
     check_rollout(&r);
     assert_eq!(r.answers[0]["answer"], "tool_search", "the episode's tools are found by search first");
-    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(r.dir.join("harness_manifest.json")).unwrap()).unwrap();
-    assert_eq!(manifest["command"][0], "qwen", "{manifest}");
-    assert_eq!(manifest["harness_version"]["observed"], "0.24.0", "{manifest}");
+    let manifest = manifest_of(&r);
+    assert_eq!(manifest.command.as_ref().and_then(|c| c.first()).map(String::as_str), Some("qwen"), "{manifest}");
+    assert_eq!(manifest.harness_version.as_ref().and_then(|v| v.observed.as_deref()), Some("0.24.0"), "{manifest}");
     let stdout = stdout_of(&r, "qwen_code");
     assert!(ends_in_success(&stdout), "{stdout}");
     check_usage(&r, ["/prompt_tokens", "/prompt_tokens_details/cached_tokens", "/completion_tokens"]);
@@ -302,9 +308,9 @@ fn kimi_code_plays_a_t14_episode_against_a_scripted_model() {
     let stdout = stdout_of(&r, "kimi_code");
     assert!(stdout.contains(r#""name":"mcp__libero__finish_episode""#), "its tool calls are in its stdout: {stdout}");
     check_usage(&r, ["/prompt_tokens", "/prompt_tokens_details/cached_tokens", "/completion_tokens"]);
-    let manifest: Value = serde_json::from_str(&std::fs::read_to_string(r.dir.join("harness_manifest.json")).unwrap()).unwrap();
-    assert_eq!(manifest["usage_source"], "model_api_gateway", "{manifest}");
-    assert_eq!(manifest["model_api"]["responses_with_usage"].as_u64(), Some(r.answers.len() as u64), "{manifest}");
+    let manifest = manifest_of(&r);
+    assert_eq!(manifest.usage_source.clone().flatten().as_deref(), Some("model_api_gateway"), "{manifest}");
+    assert_eq!(manifest.model_api().and_then(|m| m.responses_with_usage), Some(r.answers.len() as u64), "{manifest}");
 }
 
 /// `mcp-inspector --cli` with the workspace's `.libero/mcp.json`; stdout parsed as JSON.

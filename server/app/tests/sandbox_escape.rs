@@ -21,6 +21,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
+use libero_records::batch_doc::harness_manifest::HarnessManifest;
 use libero_testkit::{cache_dir, repo_root};
 use serde_json::Value;
 
@@ -217,29 +218,34 @@ fn escape_attempt(dir: &Path, runner: &Runner) {
     assert!(!std::fs::read_to_string(rollout.join("sandbox/model_api.jsonl")).unwrap().contains("sk-escape-test-key"), "no key in the records");
 
     // The manifest: the sandbox as the agent's first process saw it.
-    let manifest: Value = serde_json::from_slice(&std::fs::read(rollout.join("harness_manifest.json")).unwrap()).unwrap();
-    let relay_dir = manifest["relay_dir"].as_str().unwrap();
-    assert!(relay_dir.len() < 90 && !Path::new(relay_dir).exists(), "the relay sockets are removed after the rollout: {relay_dir}");
-    let sr = &manifest["sandbox_report"];
-    for set in ["inheritable", "permitted", "effective", "bounding", "ambient"] {
-        assert_eq!(sr["capabilities"][set], "0000000000000000", "{set}: {sr}");
+    let manifest = HarnessManifest::read(&rollout).unwrap().expect("the rollout's harness manifest");
+    let relay_dir = manifest.relay_dir().expect("the relay sockets' directory");
+    assert!(relay_dir.as_os_str().len() < 90 && !relay_dir.exists(), "the relay sockets are removed after the rollout: {}", relay_dir.display());
+    let sr = manifest.sandbox_report().expect("the sandbox's report");
+    let caps = sr.capabilities.clone().unwrap_or_default();
+    for (set, mask) in [("inheritable", &caps.inheritable), ("permitted", &caps.permitted), ("effective", &caps.effective), ("bounding", &caps.bounding), ("ambient", &caps.ambient)] {
+        assert_eq!(mask.clone().flatten().as_deref(), Some("0000000000000000"), "{set}: {sr}");
     }
-    assert_eq!(sr["no_new_privs"], true, "{sr}");
-    assert_eq!(sr["seccomp"], "2", "a seccomp filter: {sr}");
-    assert_eq!(sr["network_interfaces"], serde_json::json!(["lo"]), "{sr}");
-    assert!(sr["mounts"].as_array().is_some_and(|m| m.iter().any(|x| x["mountpoint"] == "/usr" && x["options"].as_str().unwrap().starts_with("ro"))), "{sr}");
+    assert_eq!(sr.no_new_privs, Some(Some(true)), "{sr}");
+    assert_eq!(sr.seccomp.clone().flatten().as_deref(), Some("2"), "a seccomp filter: {sr}");
+    assert_eq!(sr.network_interfaces.clone(), Some(vec!["lo".to_owned()]), "{sr}");
+    assert!(sr.mounts.iter().flatten().any(|x| x.mountpoint.as_deref() == Some("/usr") && x.options.as_deref().is_some_and(|o| o.starts_with("ro"))), "{sr}");
     // The model API is reached through the gateway's base URL alone (metered, its routes only), never a tunnel.
-    assert!(manifest["network"]["proxy_allow_list"].as_array().is_some_and(|a| a.is_empty()), "{manifest}");
-    assert_eq!(manifest["network"]["model_api"]["upstream"], format!("http://127.0.0.1:{model_port}/v1"), "{manifest}");
-    assert!(manifest["network"]["model_api"]["routes"].as_array().is_some_and(|r| r.iter().any(|x| x == "GET /v1/models")), "{manifest}");
-    assert!(manifest["sandbox"]["seccomp"].is_object(), "the seccomp policy is described: {manifest}");
+    let network = manifest.network().expect("the network plan");
+    assert!(network.proxy_allow_list.as_ref().is_some_and(Vec::is_empty), "{manifest}");
+    let model_api = network.model_api.clone().unwrap_or_default();
+    assert_eq!(model_api.upstream.flatten(), Some(format!("http://127.0.0.1:{model_port}/v1")), "{manifest}");
+    assert!(model_api.routes.iter().flatten().any(|x| x == "GET /v1/models"), "{manifest}");
+    let sandbox = manifest.sandbox().expect("the sandbox's description");
+    assert!(sandbox.seccomp.as_ref().is_some_and(Value::is_object), "the seccomp policy is described: {manifest}");
     let uid = report["uid"].as_u64().expect("the agent's uid");
     if runner_uid == 0 {
         // As root: the agent is a host uid of the rollout's own, one no host process runs as.
         assert!(AGENT_UIDS.contains(&uid), "the agent's uid {uid} is not one of --agent-uids' {AGENT_UIDS:?}: {report}");
-        assert_eq!(sr["uid"][0], uid.to_string(), "{sr}");
-        assert_eq!(manifest["sandbox"]["identity"]["agent_uid"], uid, "{manifest}");
-        assert_eq!(manifest["sandbox"]["identity"]["agent_gid"], report["gid"], "{manifest}");
+        assert_eq!(sr.uid.clone().flatten().and_then(|u| u.first().cloned()), Some(uid.to_string()), "{sr}");
+        let identity = sandbox.identity.clone().unwrap_or_default();
+        assert_eq!(identity.agent_uid, Some(uid), "{manifest}");
+        assert_eq!(identity.agent_gid, report["gid"].as_u64(), "{manifest}");
     } else {
         assert_eq!(uid, u64::from(runner_uid), "{report}");
     }
@@ -247,23 +253,22 @@ fn escape_attempt(dir: &Path, runner: &Runner) {
     // The caps: in the manifest and batch.json where the runner enforces them, and what the agent met of them.
     let batch_doc: Value = serde_json::from_slice(&std::fs::read(batch.join("batch.json")).unwrap()).unwrap();
     if runner.caps() {
-        let caps = &manifest["sandbox"]["resources"];
-        assert_eq!((caps["max_processes"].as_u64(), caps["memory_bytes"].as_u64(), caps["disk_bytes"].as_u64()), (Some(MAX_PROCESSES), Some(MEMORY_BYTES), Some(DISK_BYTES)), "{manifest}");
-        for cap in ["max_processes", "memory_bytes", "disk_bytes"] {
-            assert_eq!(batch_doc["sandbox"]["resources"][cap], caps[cap], "batch.json names the same caps: {batch_doc}");
-        }
-        let used = &manifest["resources_used"];
-        assert!(used["forks_refused"].as_u64().is_some_and(|n| n >= 1), "the fork flood met the cap: {used}");
+        let caps = sandbox.resources.clone().flatten().expect("the caps in force");
+        assert_eq!((caps.max_processes, caps.memory_bytes, caps.disk_bytes), (Some(MAX_PROCESSES), Some(MEMORY_BYTES), Some(DISK_BYTES)), "{manifest}");
+        let in_batch = &batch_doc["sandbox"]["resources"];
+        assert_eq!((in_batch["max_processes"].as_u64(), in_batch["memory_bytes"].as_u64(), in_batch["disk_bytes"].as_u64()), (caps.max_processes, caps.memory_bytes, caps.disk_bytes), "batch.json names the same caps: {batch_doc}");
+        let used = manifest.resources_used().expect("what the agent used of its caps");
+        assert!(used.forks_refused.flatten().is_some_and(|n| n >= 1), "the fork flood met the cap: {used}");
         assert!(
-            used["oom_kills"].as_u64().is_some_and(|n| n >= 1) || used["memory_limit_hits"].as_u64().is_some_and(|n| n >= 1),
+            used.oom_kills.flatten().is_some_and(|n| n >= 1) || used.memory_limit_hits.flatten().is_some_and(|n| n >= 1),
             "the allocation met the cap: {used}"
         );
-        assert!(used["memory_peak_bytes"].as_u64().is_some_and(|b| b <= MEMORY_BYTES), "{used}");
-        assert!(used["processes_peak"].as_u64().is_some_and(|n| n <= MAX_PROCESSES), "{used}");
+        assert!(used.memory_peak_bytes.flatten().is_some_and(|b| b <= MEMORY_BYTES), "{used}");
+        assert!(used.processes_peak.flatten().is_some_and(|n| n <= MAX_PROCESSES), "{used}");
         // The rollout's disk is gone with its workspace, session home and /tmp; its logs were kept.
         assert!(!ws.exists() && !ws.parent().unwrap().exists(), "the rollout's disk outlived it: {}", ws.display());
         assert!(!std::fs::read_to_string("/proc/self/mounts").unwrap().contains(&ws.parent().unwrap().display().to_string()), "still mounted");
     } else {
-        assert!(manifest["sandbox"]["resources"].is_null() && batch_doc["sandbox"]["resources"].is_null(), "unconfined: no caps claimed: {manifest}");
+        assert!(sandbox.resources == Some(None) && batch_doc["sandbox"]["resources"].is_null(), "unconfined: no caps claimed: {manifest}");
     }
 }

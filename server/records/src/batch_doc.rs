@@ -144,6 +144,10 @@ record! {
         /// Its Python's version.
         pub python: Option<String>,
         pub packages: Option<Vec<ToolboxPackage>>,
+        /// Where the agent sees it in the sandbox.
+        pub inside: Option<String>,
+        /// Its size on disk, bytes.
+        pub size_bytes: Option<u64>,
     }
 }
 

@@ -11,6 +11,9 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use libero_episode::demo::DemoCondition;
+use libero_records::batch_doc::BatchDoc;
+use libero_records::batch_doc::harness_manifest::HarnessManifest;
+use libero_records::typed::read_record;
 use libero_runner::harness::{Harness, Launch, net_plan};
 use libero_sandbox::agent_net::contain;
 use libero_sandbox::sandbox::{Sandbox, SandboxSpec};
@@ -350,23 +353,23 @@ fn run_records_the_toolbox_in_the_manifest_and_none_means_the_system_python3() {
         assert_eq!(rollouts.len(), 1);
         let stdout = std::fs::read_to_string(rollouts[0].join("command_stdout.log")).unwrap();
         assert!(stdout.contains(&format!("PYTHON {python}")), "{stdout}");
-        let manifest: Value = serde_json::from_str(&std::fs::read_to_string(rollouts[0].join("harness_manifest.json")).unwrap()).unwrap();
-        let batch_json: Value = serde_json::from_str(&std::fs::read_to_string(batch.join("batch.json")).unwrap()).unwrap();
+        let manifest = HarnessManifest::read(&rollouts[0]).unwrap().expect("the rollout's harness manifest");
+        let batch_json: BatchDoc = read_record(&batch.join("batch.json")).unwrap().expect("batch.json");
         if choice.is_some() {
-            assert!(manifest["toolbox"].is_null() && batch_json["toolbox"].is_null(), "{}", manifest["toolbox"]);
+            assert!(manifest.toolbox == Some(None) && batch_json.toolbox == Some(None), "{manifest}");
             continue;
         }
         assert!(stdout.contains("IMPORTS ok"), "{stdout}");
-        let tb = &manifest["toolbox"];
-        assert_eq!(tb["name"], "libero-sci");
-        assert_eq!(tb["inside"], toolbox::INSIDE);
-        assert!(tb["python"].as_str().unwrap().starts_with("3."), "{tb}");
-        assert!(tb["size_bytes"].as_u64().unwrap() > 100_000_000, "{tb}");
+        let tb = manifest.toolbox.clone().flatten().expect("the manifest names the toolbox");
+        assert_eq!(tb.name.as_deref(), Some("libero-sci"));
+        assert_eq!(tb.inside.as_deref(), Some(toolbox::INSIDE));
+        assert!(tb.python.as_deref().is_some_and(|p| p.starts_with("3.")), "{tb}");
+        assert!(tb.size_bytes.is_some_and(|b| b > 100_000_000), "{tb}");
         for (name, version) in locked_versions() {
-            let listed = tb["packages"].as_array().unwrap().iter().any(|p| p["name"] == name.as_str() && p["version"] == version.as_str());
+            let listed = tb.packages.iter().flatten().any(|p| p.name.as_deref() == Some(name.as_str()) && p.version.as_deref() == Some(version.as_str()));
             assert!(listed, "{name} {version} in {tb}");
         }
-        assert_eq!(batch_json["toolbox"]["packages"], tb["packages"], "batch.json names the same toolbox");
+        assert_eq!(batch_json.toolbox().and_then(|t| t.packages.clone()), tb.packages, "batch.json names the same toolbox");
     }
 }
 
