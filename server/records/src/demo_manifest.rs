@@ -1,7 +1,9 @@
-//! A demonstration bundle's `manifest.json` (protocol §7, the demo library), typed for the code that uses bundles:
-//! the library, the projection into a workspace, replays and the console's list. Validating a bundle reads the
-//! manifest as plain JSON instead: it reports each missing or ill-typed field. See [`crate::typed`] for how the
-//! fields not named here (integrity, artifacts, action semantics) survive a read.
+//! A demonstration bundle's `manifest.json` (protocol §7, the demo library), typed for the code that writes it (the
+//! recorder, re-verification) and the code that uses bundles: the library, the projection into a workspace,
+//! replays and the console's list. Validating a bundle reads the manifest as plain JSON instead: a bundle handed
+//! in may be malformed, and the validator reports each missing or ill-typed field. See [`crate::typed`] for how
+//! the fields not named here survive a read. The bundle's `trajectory.jsonl` rows are typed here too
+//! ([`DemoTrajectoryRow`]).
 use serde_json::Value;
 
 use crate::typed::record;
@@ -20,6 +22,59 @@ record! {
         /// Outcomes of replaying the bundle in other episodes' configurations (outside the integrity block).
         pub replay_checks: Option<Vec<ReplayCheck>>,
         pub overview: Option<DemoOverview>,
+        /// §7.3's canonical action semantics object (the validator compares it whole with the canonical one).
+        pub action_semantics: Option<Value>,
+        /// `trajectory.jsonl`, as an artifact.
+        pub trajectory: Option<DemoFile>,
+        pub video: Option<DemoVideo>,
+        /// Every file of the bundle but the manifest, sorted by path (§7.2).
+        pub integrity: Option<DemoIntegrity>,
+    }
+}
+
+record! {
+    /// A file of the bundle (§7.2): an integrity record, or with its media type an artifact record.
+    pub struct DemoFile {
+        /// Bundle-relative POSIX path.
+        pub path: Option<String>,
+        /// `video/mp4`, `image/png`, `application/x-ndjson`; absent in the integrity block.
+        pub media_type: Option<String>,
+        pub size_bytes: Option<u64>,
+        /// Lower-case hex SHA-256 of the file's bytes.
+        pub sha256: Option<String>,
+    }
+}
+
+record! {
+    /// The integrity block.
+    pub struct DemoIntegrity {
+        /// `sha256`.
+        pub algorithm: Option<String>,
+        /// Every file except `manifest.json`, sorted by path.
+        pub files: Option<Vec<DemoFile>>,
+    }
+}
+
+record! {
+    /// The bundle's videos: head | wrist side by side, and each camera alone.
+    pub struct DemoVideo {
+        /// Frames per second: one frame per 20 Hz control step.
+        pub fps_hz: Option<f64>,
+        /// Frames of each video (the bundle's actions + 1).
+        pub frame_count: Option<u64>,
+        /// `head_rgb_left__wrist_rgb_right`: how `file` places the cameras.
+        pub layout: Option<String>,
+        pub file: Option<DemoFile>,
+        pub head_rgb: Option<DemoFile>,
+        pub wrist_rgb: Option<DemoFile>,
+    }
+}
+
+record! {
+    /// One contact sheet per camera (§7.4).
+    pub struct ContactSheets {
+        pub head_rgb: Option<DemoFile>,
+        pub wrist_rgb: Option<DemoFile>,
     }
 }
 
@@ -49,6 +104,11 @@ record! {
         pub source_desc: Option<String>,
         /// Where the source episode branched from another one (absent: it started at the task's start).
         pub branch: Option<DemoBranch>,
+        /// The configuration the source episode started from (placement seed, init index, margins), what a target
+        /// episode must differ from; null where it is not known.
+        pub effective_layout: Option<Value>,
+        /// Physics steps run before the first frame.
+        pub settle_steps: Option<u64>,
     }
 }
 
@@ -69,7 +129,10 @@ record! {
     /// Whether replaying the bundle reproduced the source's success.
     pub struct DemoVerification {
         pub verified: Option<bool>,
+        /// The replay's verdict; written null when the bundle was never replayed (see [`Self::set_replay_success`]).
         pub replay_success: Option<bool>,
+        /// `replay_on_world_physics`.
+        pub method: Option<String>,
     }
 }
 
@@ -101,13 +164,85 @@ record! {
     /// The bundle's overview (contact sheets and how their frames were sampled).
     pub struct DemoOverview {
         pub sampling: Option<FrameSampling>,
+        pub contact_sheets: Option<ContactSheets>,
     }
 }
 
 record! {
     /// §7.6's frame sampling of the contact sheets.
     pub struct FrameSampling {
+        /// `uniform_endpoint_preserving_v1`.
+        pub rule: Option<String>,
+        /// Tiles per sheet at most.
+        pub maximum_frames_per_sheet: Option<u64>,
+        /// Frames sampled from (the bundle's frame count).
+        pub source_frame_count: Option<u64>,
         pub sampled_frame_indices: Option<Vec<u64>>,
+    }
+}
+
+record! {
+    /// One line of a library bundle's `trajectory.jsonl`: an action and the measured robot state around it.
+    pub struct DemoTrajectoryRow {
+        /// 0-based, in execution order (after a branch's replayed prefix).
+        pub action_index: Option<u64>,
+        /// The `event_index` of the `osc_sequence` call in the source episode's `actions.jsonl`.
+        pub call_index: Option<u64>,
+        pub action: Option<DemoAction>,
+        /// Video frame before the action (= `action_index`) and after it (+ 1).
+        pub frame_before: Option<u64>,
+        pub frame_after: Option<u64>,
+        pub state_before: Option<DemoMeasuredState>,
+        pub state_after: Option<DemoMeasuredState>,
+    }
+}
+
+record! {
+    /// One action (§7.3).
+    pub struct DemoAction {
+        /// `libero.normalized_osc_pose_action.v1`.
+        pub schema_version: Option<String>,
+        /// The 7 normalized OSC_POSE components, each within [-1, 1].
+        pub normalized_vector_7d: Option<Vec<f64>>,
+    }
+}
+
+record! {
+    /// The measured robot state (observations, not actions).
+    pub struct DemoMeasuredState {
+        /// `[x, y, z, qx, qy, qz, qw]` of the end effector in the robot base frame, metres, `qw ≥ 0`.
+        pub eef_pose_robot_base_xyzw: Option<Vec<f64>>,
+        /// The two finger joints, metres.
+        pub gripper_finger_joint_position_m: Option<Vec<f64>>,
+    }
+}
+
+/// Sets a field whose key the writer always writes: `None` is written as null (kept in `rest`, where a read puts a
+/// null), so a typed manifest has the key as the untyped writer had it.
+fn set_nullable<T>(field: &mut Option<T>, rest: &mut serde_json::Map<String, Value>, key: &str, value: Option<T>) {
+    match value {
+        Some(v) => {
+            rest.remove(key);
+            *field = Some(v);
+        }
+        None => {
+            rest.insert(key.to_owned(), Value::Null);
+            *field = None;
+        }
+    }
+}
+
+impl DemoSource {
+    /// Sets `episode_success`: null when the source episode never finished.
+    pub fn set_episode_success(&mut self, success: Option<bool>) {
+        set_nullable(&mut self.episode_success, &mut self.rest, "episode_success", success);
+    }
+}
+
+impl DemoVerification {
+    /// Sets `replay_success`: null when the bundle was not replayed.
+    pub fn set_replay_success(&mut self, success: Option<bool>) {
+        set_nullable(&mut self.replay_success, &mut self.rest, "replay_success", success);
     }
 }
 
@@ -193,6 +328,53 @@ mod tests {
         let s = m.source.as_ref().unwrap();
         assert_eq!((s.episode_id.as_deref(), s.level, s.episode_success, s.layout.clone()), (Some("ep-20260101T000000Z-0000abcd"), Some(3), Some(true), Some(Value::Null)));
         assert_eq!(m.overview.as_ref().and_then(|o| o.sampling.as_ref()).and_then(|s| s.sampled_frame_indices.clone()), Some(vec![0, 1, 2]));
+    }
+
+    /// The fields the recorder writes read back typed from the golden manifest (artifacts, integrity, videos,
+    /// sampling), and a null verdict is written as a null key, not left out.
+    #[test]
+    fn the_golden_manifest_reads_its_files_and_nullable_verdicts_stay_keys() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/demo_bundle/manifest.json");
+        let m: DemoManifest = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        let video = m.video.as_ref().unwrap();
+        assert_eq!((video.fps_hz, video.frame_count, video.layout.as_deref()), (Some(20.0), Some(3), Some("head_rgb_left__wrist_rgb_right")));
+        assert_eq!(video.file.as_ref().and_then(|f| f.media_type.as_deref()), Some("video/mp4"));
+        let integrity = m.integrity.as_ref().unwrap();
+        assert_eq!(integrity.algorithm.as_deref(), Some("sha256"));
+        let files = integrity.files.as_deref().unwrap();
+        assert!(files.iter().all(|f| f.media_type.is_none() && f.sha256.as_ref().is_some_and(|h| h.len() == 64)), "{files:?}");
+        assert_eq!(m.trajectory.as_ref().and_then(|t| t.path.as_deref()), Some("trajectory.jsonl"));
+        let sampling = m.overview.as_ref().and_then(|o| o.sampling.as_ref()).unwrap();
+        assert_eq!((sampling.rule.as_deref(), sampling.maximum_frames_per_sheet, sampling.source_frame_count), (Some("uniform_endpoint_preserving_v1"), Some(12), Some(3)));
+        let s = m.source.as_ref().unwrap();
+        assert_eq!(s.settle_steps, Some(10));
+        assert_eq!(s.effective_layout.as_ref().and_then(|l| l["placement_seed"].as_u64()), Some(100));
+        assert_eq!(m.verification.as_ref().and_then(|v| v.method.as_deref()), Some("replay_on_world_physics"));
+
+        let mut v = DemoVerification { verified: Some(false), ..DemoVerification::default() };
+        v.set_replay_success(None);
+        assert_eq!(v.to_value(), json!({"verified": false, "replay_success": null}));
+        v.set_replay_success(Some(true));
+        assert_eq!(v.to_value(), json!({"verified": false, "replay_success": true}));
+        let mut s = DemoSource::default();
+        s.set_episode_success(None);
+        assert_eq!(s.to_value(), json!({"episode_success": null}));
+    }
+
+    /// A golden trajectory row reads typed and writes back byte for byte (compact, keys sorted).
+    #[test]
+    fn golden_trajectory_rows_read_typed_and_write_back_byte_for_byte() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/demo_bundle/trajectory.jsonl");
+        let text = std::fs::read_to_string(path).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            let row: DemoTrajectoryRow = serde_json::from_str(line).unwrap();
+            assert_eq!(row.to_string(), line);
+            assert_eq!((row.action_index, row.frame_before, row.frame_after), (Some(n as u64), Some(n as u64), Some(n as u64 + 1)));
+            let action = row.action.as_ref().unwrap();
+            assert_eq!((action.schema_version.as_deref(), action.normalized_vector_7d.as_ref().map(Vec::len)), (Some("libero.normalized_osc_pose_action.v1"), Some(7)));
+            let before = row.state_before.as_ref().unwrap();
+            assert_eq!((before.eef_pose_robot_base_xyzw.as_ref().map(Vec::len), before.gripper_finger_joint_position_m.as_ref().map(Vec::len)), (Some(7), Some(2)));
+        }
     }
 
     #[test]

@@ -200,9 +200,14 @@ pub fn export_lerobot(bundles: &[PathBuf], out: &Path) -> Result<ExportSummary, 
         let text = fs::read_to_string(&path).map_err(io_err(&path))?;
         let from = index.len();
         for (i, line) in text.lines().enumerate() {
-            let row: Value = serde_json::from_str(line).map_err(|e| DemoError::Export(format!("{}: {e}", path.display())))?;
-            let a = parse_action(&row["action"]).ok_or_else(|| DemoError::Export(format!("{}: bad action", path.display())))?;
-            let s = MeasuredState::from_json(&row["state_before"])
+            let (a, row) = read_trajectory_row(line, i + 1).map_err(|e| match e {
+                DemoError::Source(why) => DemoError::Export(format!("{}: {why}", path.display())),
+                other => other,
+            })?;
+            let s = row
+                .state_before
+                .as_ref()
+                .and_then(MeasuredState::from_record)
                 .ok_or_else(|| DemoError::Export(format!("{}: bad state_before", path.display())))?;
             state.push(state_vector(&s));
             action.push(a.iter().map(|x| *x as f32).collect::<Vec<f32>>());

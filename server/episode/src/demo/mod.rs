@@ -13,7 +13,7 @@ use serde_json::{Value, json};
 use thiserror::Error;
 
 use crate::EpisodeError;
-pub use libero_records::demo_manifest::DemoManifest;
+pub use libero_records::demo_manifest::{DemoAction, DemoFile, DemoIntegrity, DemoManifest, DemoMeasuredState, DemoTrajectoryRow};
 use crate::video::VideoError;
 
 pub mod lerobot;
@@ -105,17 +105,15 @@ pub fn sample_frame_indices(n: usize, limit: usize) -> Vec<usize> {
 }
 
 /// `{path, size_bytes, sha256}` of a bundle file, the integrity record of §7.2.
-pub fn file_record(root: &Path, rel: &str) -> Result<Value, DemoError> {
+pub fn file_record(root: &Path, rel: &str) -> Result<DemoFile, DemoError> {
     let path = root.join(rel);
     let bytes = std::fs::read(&path).map_err(io_err(&path))?;
-    Ok(json!({"path": rel, "size_bytes": bytes.len(), "sha256": sha256_hex(&bytes)}))
+    Ok(DemoFile { path: Some(rel.to_owned()), size_bytes: Some(bytes.len() as u64), sha256: Some(sha256_hex(&bytes)), ..DemoFile::default() })
 }
 
 /// An artifact record (`{path, media_type, size_bytes, sha256}`).
-pub fn artifact(root: &Path, rel: &str, media_type: &str) -> Result<Value, DemoError> {
-    let mut v = file_record(root, rel)?;
-    v["media_type"] = json!(media_type);
-    Ok(v)
+pub fn artifact(root: &Path, rel: &str, media_type: &str) -> Result<DemoFile, DemoError> {
+    Ok(DemoFile { media_type: Some(media_type.to_owned()), ..file_record(root, rel)? })
 }
 
 /// Every regular file under `root` except `manifest.json`, as sorted relative POSIX paths.
@@ -142,9 +140,9 @@ pub fn bundle_files(root: &Path) -> Result<Vec<String>, DemoError> {
 }
 
 /// The `integrity` block: every file except `manifest.json`, sorted by path.
-pub fn integrity_block(root: &Path) -> Result<Value, DemoError> {
+pub fn integrity_block(root: &Path) -> Result<DemoIntegrity, DemoError> {
     let files = bundle_files(root)?.iter().map(|p| file_record(root, p)).collect::<Result<Vec<_>, _>>()?;
-    Ok(json!({"algorithm": "sha256", "files": files}))
+    Ok(DemoIntegrity { algorithm: Some("sha256".to_owned()), files: Some(files), ..DemoIntegrity::default() })
 }
 
 /// The canonical `action_semantics` object (§7.3).
@@ -174,13 +172,24 @@ pub struct MeasuredState {
 }
 
 impl MeasuredState {
-    pub fn to_json(&self) -> Value {
-        json!({
-            "eef_pose_robot_base_xyzw": self.eef_pose_robot_base_xyzw,
-            "gripper_finger_joint_position_m": self.gripper_finger_joint_position_m,
+    /// The state as a trajectory row holds it.
+    pub fn to_record(&self) -> DemoMeasuredState {
+        DemoMeasuredState {
+            eef_pose_robot_base_xyzw: Some(self.eef_pose_robot_base_xyzw.to_vec()),
+            gripper_finger_joint_position_m: Some(self.gripper_finger_joint_position_m.to_vec()),
+            ..DemoMeasuredState::default()
+        }
+    }
+
+    /// Reads a state of one of our trajectory rows (`None` unless 7 pose numbers and 2 finger positions).
+    pub fn from_record(r: &DemoMeasuredState) -> Option<Self> {
+        Some(Self {
+            eef_pose_robot_base_xyzw: r.eef_pose_robot_base_xyzw.as_deref()?.try_into().ok()?,
+            gripper_finger_joint_position_m: r.gripper_finger_joint_position_m.as_deref()?.try_into().ok()?,
         })
     }
 
+    /// Reads a state from plain JSON (the validator's reading of a bundle that may be malformed).
     pub fn from_json(v: &Value) -> Option<Self> {
         let arr = |k: &str, n: usize| -> Option<Vec<f64>> {
             let a = v.get(k)?.as_array()?;
@@ -193,22 +202,40 @@ impl MeasuredState {
 }
 
 /// The `action` object of a trajectory row.
+pub fn demo_action(action: &[f64; 7]) -> DemoAction {
+    DemoAction { schema_version: Some(ACTION_SCHEMA.to_owned()), normalized_vector_7d: Some(action.to_vec()), ..DemoAction::default() }
+}
+
+/// The `action` object of a trajectory row, as JSON (the agent-visible rows are built from it).
 pub fn action_value(action: &[f64; 7]) -> Value {
-    json!({"schema_version": ACTION_SCHEMA, "normalized_vector_7d": action})
+    demo_action(action).to_value()
 }
 
 /// One library `trajectory.jsonl` row (keys sorted on write). `call_index` is the `event_index` of the
 /// `osc_sequence` call in the source `actions.jsonl`.
-pub fn trajectory_row(action_index: usize, call_index: u64, action: &[f64; 7], before: &MeasuredState, after: &MeasuredState) -> Value {
-    json!({
-        "action_index": action_index,
-        "call_index": call_index,
-        "action": action_value(action),
-        "frame_before": action_index,
-        "frame_after": action_index + 1,
-        "state_before": before.to_json(),
-        "state_after": after.to_json(),
-    })
+pub fn trajectory_row(action_index: usize, call_index: u64, action: &[f64; 7], before: &MeasuredState, after: &MeasuredState) -> DemoTrajectoryRow {
+    DemoTrajectoryRow {
+        action_index: Some(action_index as u64),
+        call_index: Some(call_index),
+        action: Some(demo_action(action)),
+        frame_before: Some(action_index as u64),
+        frame_after: Some(action_index as u64 + 1),
+        state_before: Some(before.to_record()),
+        state_after: Some(after.to_record()),
+        ..DemoTrajectoryRow::default()
+    }
+}
+
+/// Reads one of our trajectory rows (`line` is 1-based, for the message): its action (checked as [`parse_action`]
+/// checks one) and the row.
+pub fn read_trajectory_row(text: &str, line: usize) -> Result<([f64; 7], DemoTrajectoryRow), DemoError> {
+    let row: DemoTrajectoryRow = serde_json::from_str(text).map_err(|e| DemoError::Source(format!("{TRAJECTORY} line {line}: {e}")))?;
+    let action = row
+        .action
+        .as_ref()
+        .and_then(|a| checked_action(a.normalized_vector_7d.as_deref()?))
+        .ok_or_else(|| DemoError::Source(format!("{TRAJECTORY} line {line}: not a valid 7-D action")))?;
+    Ok((action, row))
 }
 
 /// Keys of a library trajectory row, exactly.
@@ -219,6 +246,11 @@ pub const TRAJECTORY_ROW_KEYS: [&str; 7] =
 pub fn parse_action(v: &Value) -> Option<[f64; 7]> {
     let a = v.get("normalized_vector_7d")?.as_array()?;
     let xs: Vec<f64> = a.iter().map(Value::as_f64).collect::<Option<_>>()?;
+    checked_action(&xs)
+}
+
+/// `xs` as an action: 7 finite numbers within [`ACTION_LIMIT`].
+pub fn checked_action(xs: &[f64]) -> Option<[f64; 7]> {
     let xs: [f64; 7] = xs.try_into().ok()?;
     xs.iter().all(|x| x.is_finite() && x.abs() <= ACTION_LIMIT).then_some(xs)
 }

@@ -212,9 +212,7 @@ fn write_public_trajectory(source: &Path, dest: &Path) -> Result<(), DemoError> 
     let text = fs::read_to_string(&path).map_err(io_err(&path))?;
     let mut out = String::new();
     for (n, line) in text.lines().enumerate() {
-        let row: Value = serde_json::from_str(line).map_err(|e| DemoError::Source(format!("{TRAJECTORY}: {e}")))?;
-        let action = parse_action(&row["action"])
-            .ok_or_else(|| DemoError::Source(format!("{TRAJECTORY} line {}: not a valid 7-D action", n + 1)))?;
+        let (action, _) = read_trajectory_row(line, n + 1)?;
         out.push_str(&compact_sorted(&public_trajectory_row(n, &action)));
         out.push('\n');
     }
@@ -230,7 +228,9 @@ pub fn public_trajectory_row(action_index: usize, action: &[f64; 7]) -> Value {
 /// Keys of an agent-visible trajectory row, exactly (the paper's).
 pub const PUBLIC_TRAJECTORY_ROW_KEYS: [&str; 2] = ["action", "action_index"];
 
-/// Checks an agent-visible bundle: the exact file set, manifest keys and schema, artifact sizes and hashes.
+/// Checks an agent-visible bundle: the exact file set, manifest keys and schema, artifact sizes and hashes. It reads
+/// the files as plain JSON, as [`validate_bundle`] does: it checks exact key sets and reports each ill-typed value,
+/// which a typed reading would not see.
 pub fn validate_projection(dir: &Path, condition: DemoCondition) -> Vec<Violation> {
     let mk = |file: &str, rule: &'static str, detail: String| Violation { file: file.to_owned(), rule, detail };
     let mut out = Vec::new();

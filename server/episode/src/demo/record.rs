@@ -6,13 +6,14 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use libero_records::demo_manifest::{ContactSheets, DemoBranch, DemoOverview, DemoSource, DemoTask, DemoVerification, DemoVideo, FrameSampling, ReplayCheck};
 use libero_render::Renderer;
 use libero_sim::AssetPaths;
-use serde_json::{Value, json};
+use serde_json::Value;
 
 use super::*;
 use crate::actor::World;
-use libero_records::json::{compact_sorted, write_json_file};
+use libero_records::json::write_json_file;
 use crate::observation::{Frame, Level, write_png};
 use crate::physics::{SETTLE_STEPS, WorldPhysics, WorldSpec};
 use libero_records::records::{ActionEvent, EpisodeRecord, RunDir, read_result};
@@ -144,75 +145,103 @@ pub(crate) struct ManifestFields<'a> {
     pub replay_success: Option<bool>,
     /// The configuration the source episode started from (what a target episode must differ from).
     pub effective_layout: Option<EffectiveLayout>,
-    /// Replays of the trajectory in other episodes, kept across re-verification (`[]` for a new bundle).
-    pub replay_checks: Value,
+    /// Replays of the trajectory in other episodes, kept across re-verification (none for a new bundle).
+    pub replay_checks: StoredChecks,
+}
+
+/// The `replay_checks` a manifest is written with.
+pub(crate) enum StoredChecks {
+    Typed(Vec<ReplayCheck>),
+    /// A stored list the typed view cannot read (not a list of objects), written back as it was read: the
+    /// re-verification that rewrites a manifest is not where a foreign list is judged (validation says it).
+    AsRead(Value),
 }
 
 /// Writes `manifest.json` for the files already in `dir` (artifacts and integrity recomputed from disk).
-pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<Value, DemoError> {
-    let own = f.source.own_actions().len();
+pub(crate) fn write_manifest(dir: &Path, f: &ManifestFields<'_>) -> Result<DemoManifest, DemoError> {
+    let own = f.source.own_actions().len() as u64;
     let frame_count = own + 1;
-    let sampled = sample_frame_indices(frame_count, MAX_FRAMES_PER_SHEET);
+    let sampled = sample_frame_indices(frame_count as usize, MAX_FRAMES_PER_SHEET).into_iter().map(|i| i as u64).collect();
     let verified = f.source.success == Some(true) && f.replay_success == Some(true);
-    let mut manifest = json!({
-        "schema_version": BUNDLE_SCHEMA,
-        "task": {"id": f.source.task_ref, "instruction": crate::workspace::normalize_instruction(&f.source.instruction)},
-        "source": {
-            "episode_id": f.source.episode_id,
-            "source_type": f.options.source_type,
-            "source_desc": f.options.source_desc,
-            "level": f.source.level,
-            "seed": f.source.seed,
-            "init_state_index": f.source.init_state_index,
-            "layout": f.source.layout,
-            "effective_layout": f.effective_layout,
-            "settle_steps": SETTLE_STEPS,
-            "episode_success": f.source.success,
-        },
-        "verification": {
-            "verified": verified,
-            "method": "replay_on_world_physics",
-            "replay_success": f.replay_success,
-        },
-        "replay_checks": f.replay_checks,
-        "frame_count": frame_count,
-        "transition_count": own,
-        "action_semantics": action_semantics(),
-        "trajectory": artifact(dir, TRAJECTORY, "application/x-ndjson")?,
-        "video": {
-            "fps_hz": DEMO_VIDEO_FPS_HZ,
-            "frame_count": frame_count,
-            "layout": "head_rgb_left__wrist_rgb_right",
-            "file": artifact(dir, VIDEO_HEAD_WRIST, "video/mp4")?,
-            "head_rgb": artifact(dir, VIDEO_HEAD, "video/mp4")?,
-            "wrist_rgb": artifact(dir, VIDEO_WRIST, "video/mp4")?,
-        },
-        "overview": {
-            "sampling": {
-                "rule": SAMPLING_RULE,
-                "maximum_frames_per_sheet": MAX_FRAMES_PER_SHEET,
-                "source_frame_count": frame_count,
-                "sampled_frame_indices": sampled,
-            },
-            "contact_sheets": {
-                "head_rgb": artifact(dir, SHEET_HEAD, "image/png")?,
-                "wrist_rgb": artifact(dir, SHEET_WRIST, "image/png")?,
-            },
-        },
-        "integrity": integrity_block(dir)?,
-    });
-    // Only a branch's manifest has the key: every other bundle's manifest stays as it was.
-    if let Some(b) = &f.source.branch {
-        manifest["source"]["branch"] = json!({
-            "parent_episode_id": b.parent_episode_id,
-            "parent_control_step": b.parent_control_step,
-            "replayed_actions": f.source.replayed(),
-            "prefix_file": crate::branch::PREFIX_FILE,
-        });
+    let mut source = DemoSource {
+        episode_id: Some(f.source.episode_id.clone()),
+        source_type: Some(f.options.source_type.clone()),
+        source_desc: Some(f.options.source_desc.clone()),
+        level: Some(u64::from(f.source.level)),
+        seed: Some(f.source.seed),
+        init_state_index: Some(f.source.init_state_index as u64),
+        // null: the task's own configuration
+        layout: Some(json_of("layout", &f.source.layout)?),
+        effective_layout: Some(json_of("effective_layout", &f.effective_layout)?),
+        settle_steps: Some(SETTLE_STEPS as u64),
+        // Only a branch's manifest has the key: every other bundle's manifest stays as it was.
+        branch: f.source.branch.as_ref().map(|b| DemoBranch {
+            parent_episode_id: Some(b.parent_episode_id.clone()),
+            parent_control_step: Some(b.parent_control_step),
+            replayed_actions: Some(f.source.replayed() as u64),
+            prefix_file: Some(crate::branch::PREFIX_FILE.to_owned()),
+            ..DemoBranch::default()
+        }),
+        ..DemoSource::default()
+    };
+    source.set_episode_success(f.source.success);
+    let mut verification =
+        DemoVerification { verified: Some(verified), method: Some("replay_on_world_physics".to_owned()), ..DemoVerification::default() };
+    verification.set_replay_success(f.replay_success);
+    let mut manifest = DemoManifest {
+        schema_version: Some(BUNDLE_SCHEMA.to_owned()),
+        task: Some(DemoTask {
+            id: Some(f.source.task_ref.clone()),
+            instruction: Some(crate::workspace::normalize_instruction(&f.source.instruction)),
+            ..DemoTask::default()
+        }),
+        source: Some(source),
+        verification: Some(verification),
+        frame_count: Some(frame_count),
+        transition_count: Some(own),
+        action_semantics: Some(action_semantics()),
+        trajectory: Some(artifact(dir, TRAJECTORY, "application/x-ndjson")?),
+        video: Some(DemoVideo {
+            fps_hz: Some(DEMO_VIDEO_FPS_HZ),
+            frame_count: Some(frame_count),
+            layout: Some("head_rgb_left__wrist_rgb_right".to_owned()),
+            file: Some(artifact(dir, VIDEO_HEAD_WRIST, "video/mp4")?),
+            head_rgb: Some(artifact(dir, VIDEO_HEAD, "video/mp4")?),
+            wrist_rgb: Some(artifact(dir, VIDEO_WRIST, "video/mp4")?),
+            ..DemoVideo::default()
+        }),
+        overview: Some(DemoOverview {
+            sampling: Some(FrameSampling {
+                rule: Some(SAMPLING_RULE.to_owned()),
+                maximum_frames_per_sheet: Some(MAX_FRAMES_PER_SHEET as u64),
+                source_frame_count: Some(frame_count),
+                sampled_frame_indices: Some(sampled),
+                ..FrameSampling::default()
+            }),
+            contact_sheets: Some(ContactSheets {
+                head_rgb: Some(artifact(dir, SHEET_HEAD, "image/png")?),
+                wrist_rgb: Some(artifact(dir, SHEET_WRIST, "image/png")?),
+                ..ContactSheets::default()
+            }),
+            ..DemoOverview::default()
+        }),
+        integrity: Some(integrity_block(dir)?),
+        ..DemoManifest::default()
+    };
+    match &f.replay_checks {
+        StoredChecks::Typed(checks) => manifest.replay_checks = Some(checks.clone()),
+        StoredChecks::AsRead(raw) => {
+            manifest.rest.insert("replay_checks".to_owned(), raw.clone());
+        }
     }
     let path = dir.join(MANIFEST);
-    write_json_file(&path, &manifest).map_err(io_err(&path))?;
+    write_json_file(&path, &manifest.to_value()).map_err(io_err(&path))?;
     Ok(manifest)
+}
+
+/// A manifest field of the episode crate's own types (layouts) as JSON.
+fn json_of<T: serde::Serialize>(what: &str, value: &T) -> Result<Value, DemoError> {
+    serde_json::to_value(value).map_err(|e| DemoError::Source(format!("manifest {what}: {e}")))
 }
 
 /// Writes `trajectory.jsonl` (compact, keys sorted, one row per action of the episode's own) and, for a branch,
@@ -229,7 +258,7 @@ pub(crate) fn write_trajectory(dir: &Path, source: &SourceEpisode, states: &[Mea
     }
     let mut text = String::new();
     for (i, (call, a)) in own.iter().enumerate() {
-        text.push_str(&compact_sorted(&trajectory_row(i, *call, a, &states[i], &states[i + 1])));
+        text.push_str(&trajectory_row(i, *call, a, &states[i], &states[i + 1]).to_string());
         text.push('\n');
     }
     let path = dir.join(TRAJECTORY);
@@ -352,7 +381,7 @@ pub fn record_bundle_with_progress(
         options,
         replay_success: Some(replay_success),
         effective_layout: Some(spec.task.effective_layout(spec.seed, spec.init_index)?),
-        replay_checks: json!([]),
+        replay_checks: StoredChecks::Typed(Vec::new()),
     };
     let manifest = write_manifest(&partial, &fields)?;
     fs::rename(&partial, out).map_err(io_err(out))?;
@@ -362,7 +391,7 @@ pub fn record_bundle_with_progress(
         transition_count: own.len(),
         source_success: source.success,
         replay_success,
-        verified: DemoManifest::from_value(manifest).is_ok_and(|m| m.verified()),
+        verified: manifest.verified(),
     })
 }
 
@@ -398,10 +427,8 @@ pub fn bundle_source(dir: &Path) -> Result<(DemoManifest, SourceEpisode), DemoEr
     };
     let mut actions: Vec<(u64, [f64; 7])> = branch.iter().flat_map(|(_, p)| p.iter().map(|a| (0, *a))).collect();
     for (n, line) in text.lines().enumerate() {
-        let row: Value = serde_json::from_str(line).map_err(|e| DemoError::Source(format!("{TRAJECTORY} line {}: {e}", n + 1)))?;
-        let a = parse_action(&row["action"])
-            .ok_or_else(|| DemoError::Source(format!("{TRAJECTORY} line {}: not a valid 7-D action", n + 1)))?;
-        actions.push((row["call_index"].as_u64().unwrap_or(0), a));
+        let (a, row) = read_trajectory_row(line, n + 1)?;
+        actions.push((row.call_index.unwrap_or(0), a));
     }
     let missing = |k: &str| DemoError::Source(format!("{MANIFEST}: source.{k} missing"));
     let source = SourceEpisode {
@@ -436,13 +463,17 @@ pub fn verify_bundle(dir: &Path, paths: &AssetPaths) -> Result<bool, DemoError> 
         source_desc: recorded.source_desc.unwrap_or_default(),
     };
     // The stored checks go on as they are (a list the typed view could not read, too).
-    let replay_checks = manifest.replay_checks.as_ref().map(|c| json!(c)).or_else(|| manifest.rest.get("replay_checks").cloned());
+    let replay_checks = match (&manifest.replay_checks, manifest.rest.get("replay_checks")) {
+        (Some(checks), _) => StoredChecks::Typed(checks.clone()),
+        (None, Some(raw)) => StoredChecks::AsRead(raw.clone()),
+        (None, None) => StoredChecks::Typed(Vec::new()),
+    };
     let fields = ManifestFields {
         source: &source,
         options: &options,
         replay_success: Some(success),
         effective_layout: Some(spec.task.effective_layout(spec.seed, spec.init_index)?),
-        replay_checks: replay_checks.unwrap_or_else(|| json!([])),
+        replay_checks,
     };
     write_manifest(dir, &fields)?;
     Ok(success)
@@ -456,7 +487,7 @@ mod tests {
 
     fn golden_fields<'a>(source: &'a SourceEpisode, options: &'a RecordOptions, replay: Option<bool>) -> ManifestFields<'a> {
         let effective_layout = Some(EffectiveLayout { placement_seed: 100, init_index: Some(0), region_margin_m: 0.0, scene_shift_m: [0.0; 2], yaw_margin_rad: 0.0 });
-        ManifestFields { source, options, replay_success: replay, effective_layout, replay_checks: json!([]) }
+        ManifestFields { source, options, replay_success: replay, effective_layout, replay_checks: StoredChecks::Typed(Vec::new()) }
     }
 
     /// A two-action source with made-up states and placeholder media: the wire format only.
@@ -493,8 +524,8 @@ mod tests {
         let source = synthetic(dir.path());
         let options = RecordOptions { source_type: "scripted_expert".into(), source_desc: "golden".into() };
         let manifest = write_manifest(dir.path(), &golden_fields(&source, &options, Some(true))).unwrap();
-        assert_eq!(manifest["verification"]["verified"], true);
-        assert_eq!(manifest["task"]["instruction"], "close the top drawer of the cabinet", "normalized");
+        assert!(manifest.verified());
+        assert_eq!(manifest.instruction(), Some("close the top drawer of the cabinet"), "normalized");
         let golden = Path::new(GOLDEN_DIR);
         for name in [MANIFEST, TRAJECTORY] {
             let got = fs::read_to_string(dir.path().join(name)).unwrap();
@@ -506,7 +537,7 @@ mod tests {
             assert_eq!(got, want, "{name} differs from the golden file");
         }
         let (back, read) = bundle_source(dir.path()).unwrap();
-        assert_eq!(back.to_value(), manifest);
+        assert_eq!(back, manifest, "what was written reads back as the same typed manifest");
         assert_eq!(read.actions.iter().map(|a| a.1).collect::<Vec<_>>(), source.actions.iter().map(|a| a.1).collect::<Vec<_>>());
         assert_eq!(read.task_ref, "T14");
     }
@@ -524,15 +555,15 @@ mod tests {
         write_trajectory(dir.path(), &source, &[state(0.0), state(0.5), state(1.0)]).unwrap();
         let options = RecordOptions { source_type: "human_teleop".into(), source_desc: String::new() };
         let manifest = write_manifest(dir.path(), &golden_fields(&source, &options, Some(true))).unwrap();
-        assert_eq!((manifest["transition_count"].as_u64(), manifest["frame_count"].as_u64()), (Some(2), Some(3)), "only the branch's own actions");
+        assert_eq!((manifest.transition_count, manifest.frame_count), (Some(2), Some(3)), "only the branch's own actions");
         assert_eq!(
-            manifest["source"]["branch"],
-            json!({"parent_episode_id": "ep-20251231T000000Z-00000001", "parent_control_step": 1, "replayed_actions": 1, "prefix_file": "branch_prefix.jsonl"})
+            manifest.branch().map(|b| b.to_value()),
+            Some(serde_json::json!({"parent_episode_id": "ep-20251231T000000Z-00000001", "parent_control_step": 1, "replayed_actions": 1, "prefix_file": "branch_prefix.jsonl"}))
         );
         let rows = fs::read_to_string(dir.path().join(TRAJECTORY)).unwrap();
         assert_eq!(rows.lines().count(), 2);
         assert!(!rows.contains("0.375"), "the replayed action is not a trajectory row: {rows}");
-        let listed = manifest["integrity"]["files"].as_array().unwrap().iter().any(|f| f["path"] == "branch_prefix.jsonl");
+        let listed = manifest.integrity.and_then(|i| i.files).unwrap().iter().any(|f| f.path.as_deref() == Some("branch_prefix.jsonl"));
         assert!(listed, "the prefix file is under the integrity block");
         let (back, read) = bundle_source(dir.path()).unwrap();
         assert_eq!(read.actions.iter().map(|a| a.1).collect::<Vec<_>>(), source.actions.iter().map(|a| a.1).collect::<Vec<_>>(), "prefix first, then the trajectory");
@@ -547,10 +578,29 @@ mod tests {
         let mut source = synthetic(dir.path());
         let options = RecordOptions { source_type: "agent".into(), source_desc: String::new() };
         let m = write_manifest(dir.path(), &golden_fields(&source, &options, Some(false))).unwrap();
-        assert_eq!(m["verification"]["verified"], false);
+        assert_eq!(m.verification.and_then(|v| v.verified), Some(false));
         source.success = Some(false);
         let m = write_manifest(dir.path(), &golden_fields(&source, &options, Some(true))).unwrap();
-        assert_eq!(m["verification"]["verified"], false);
+        assert_eq!(m.verification.and_then(|v| v.verified), Some(false));
+    }
+
+    /// A source that never finished and a bundle never replayed keep their verdict keys, written null (the wire
+    /// format's spelling of "unknown"), and a stored replay-check list the typed view cannot read goes on as read.
+    #[test]
+    fn unknown_verdicts_are_written_null_and_an_unreadable_check_list_is_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut source = synthetic(dir.path());
+        source.success = None;
+        let options = RecordOptions { source_type: "agent".into(), source_desc: String::new() };
+        let mut fields = golden_fields(&source, &options, None);
+        fields.replay_checks = StoredChecks::AsRead(serde_json::json!(["not a check"]));
+        write_manifest(dir.path(), &fields).unwrap();
+        let written: Value = serde_json::from_str(&fs::read_to_string(dir.path().join(MANIFEST)).unwrap()).unwrap();
+        assert_eq!(written["source"]["episode_success"], Value::Null);
+        assert!(written["source"].as_object().unwrap().contains_key("episode_success"));
+        assert!(written["verification"].as_object().unwrap().contains_key("replay_success"));
+        assert_eq!((written["verification"]["replay_success"].clone(), written["verification"]["verified"].clone()), (Value::Null, Value::Bool(false)));
+        assert_eq!(written["replay_checks"], serde_json::json!(["not a check"]));
     }
 
     #[test]

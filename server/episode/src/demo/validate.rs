@@ -1,5 +1,9 @@
 //! §7.7 validation of a library bundle. Every violation names the file and the rule it breaks, so a person can
 //! tell a tampered action from a missing video without reading code.
+//!
+//! The bundle is read as plain JSON here, not through the typed [`DemoManifest`] and [`DemoTrajectoryRow`]: a
+//! bundle handed in may be malformed, and the rules are about its exact keys and the type of each value (a typed
+//! reading keeps an ill-typed value aside as if it were absent, and cannot say which key was unexpected).
 use std::collections::BTreeSet;
 use std::fs;
 use std::path::Path;
