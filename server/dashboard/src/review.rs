@@ -238,6 +238,27 @@ pub(crate) struct AgentQuery {
     claimed: bool,
 }
 
+/// What the merge reads of a transcript event (a line the runner wrote as `AgentEvent`); the event itself is
+/// passed on as it is. A line that does not read so has none of them.
+#[derive(serde::Deserialize, Default)]
+struct EventKeys {
+    t: Option<String>,
+    kind: Option<String>,
+    robot_tool: Option<String>,
+    observation_file: Option<String>,
+}
+
+impl EventKeys {
+    fn of(event: &Value) -> Self {
+        <Self as serde::Deserialize>::deserialize(event).unwrap_or_default()
+    }
+
+    /// A tool call the runner tied to one of the episode's robot tools.
+    fn robot_call(&self) -> bool {
+        self.kind.as_deref() == Some("tool_call") && self.robot_tool.is_some()
+    }
+}
+
 /// The served copy of an image or file the agent looked at: only a published observation file, from the
 /// episode's private copy of the observation current at that moment; anything else stays a path.
 fn observation_copy(run: &RunDir, id: &str, observation: Option<&str>, file: Option<&str>) -> Option<(String, String)> {
@@ -270,18 +291,20 @@ fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
             (Some(_), None) => true,
             (None, Some(_)) => false,
             (Some((_, e)), Some(c)) => {
-                let before = e["t"].as_str().unwrap_or("") <= c.recorded_at.as_deref().unwrap_or("");
-                let its_call = e["kind"] == "tool_call" && !e["robot_tool"].is_null() && e["robot_tool"] == json!(c.tool) && !cursor.claimed;
+                let k = EventKeys::of(e);
+                let before = k.t.as_deref().unwrap_or("") <= c.recorded_at.as_deref().unwrap_or("");
+                let its_call = k.robot_call() && k.robot_tool == c.tool && !cursor.claimed;
                 before || its_call
             }
         };
         if take_event {
             let (line, mut e) = events[i].clone();
-            if e["kind"] == "tool_call" && !e["robot_tool"].is_null() {
+            let k = EventKeys::of(&e);
+            if k.robot_call() {
                 cursor.claimed = true;
             }
-            if matches!(e["kind"].as_str(), Some("image_view" | "file_read"))
-                && let Some((obs, url)) = observation_copy(run, id, cursor.observation.as_deref(), e["observation_file"].as_str())
+            if matches!(k.kind.as_deref(), Some("image_view" | "file_read"))
+                && let Some((obs, url)) = observation_copy(run, id, cursor.observation.as_deref(), k.observation_file.as_deref())
                 && let Some(obj) = e.as_object_mut()
             {
                 obj.insert("observation_id".into(), json!(obs));

@@ -24,6 +24,7 @@ use libero_episode::demo::lerobot::export_lerobot;
 use libero_episode::demo::record::RecordOptions;
 use libero_episode::demo::{MANIFEST, TRAJECTORY, VIDEO_HEAD_WRIST, library, read_manifest, validate_bundle};
 use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
+use libero_records::records::ToolReply;
 use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
@@ -224,10 +225,10 @@ async fn create(State(app): State<AppState>, body: Bytes) -> ApiResult {
     let id = prepared.episode_id.clone();
     let started = tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
         let handle = eps.lifecycle().handle(&id).ok_or_else(|| anyhow::anyhow!("the episode vanished"))?;
-        let answer = handle.call("start_episode", None);
-        if answer["ok"] != true {
+        let answer = ToolReply::of(&handle.call("start_episode", None));
+        if !answer.is_ok() {
             handle.stop("teleop start failed");
-            anyhow::bail!("start_episode failed: {}", answer["error"]);
+            anyhow::bail!("start_episode failed: {}", answer.error_text());
         }
         Ok(())
     })
@@ -390,9 +391,12 @@ async fn run_batch(handle: &EpisodeHandle, batch: ActionBatch) -> Value {
     let answer = tokio::task::spawn_blocking(move || h.call("osc_sequence", Some(args))).await;
     let exec_ms = started.elapsed().as_secs_f64() * 1000.0;
     match answer {
-        Ok(a) => json!({"type": "ack", "seq": batch.seq, "ok": a["ok"] == true, "actions": n, "exec_ms": exec_ms,
-            "error_type": a["error_type"], "error": a["error"],
-            "accepted_agent_steps": handle.status().accepted_agent_steps}),
+        Ok(a) => {
+            let a = ToolReply::of(&a);
+            json!({"type": "ack", "seq": batch.seq, "ok": a.is_ok(), "actions": n, "exec_ms": exec_ms,
+            "error_type": a.error_type, "error": a.error,
+            "accepted_agent_steps": handle.status().accepted_agent_steps})
+        }
         Err(e) => json!({"type": "ack", "seq": batch.seq, "ok": false, "error": format!("episode call: {e}")}),
     }
 }
@@ -522,7 +526,7 @@ async fn finish(State(app): State<AppState>, Path(id): Path<String>) -> ApiResul
     let result = run.as_ref().and_then(libero_records::records::read_result);
     let evaluation = result.as_ref().and_then(|r| r.private_evaluation.clone()).unwrap_or_default();
     Ok(ok_json(json!({
-        "ok": answer["ok"] == true, "episode_id": id, "answer": answer,
+        "ok": ToolReply::of(&answer).is_ok(), "episode_id": id, "answer": answer,
         "state": status.as_ref().map(|s| json!(s.state)), "outcome": status.as_ref().and_then(|s| s.outcome),
         "reason": status.and_then(|s| s.reason),
         "success": result.as_ref().and_then(|r| r.success),
@@ -553,13 +557,22 @@ fn bundle_path(app: &libero_server::App, task: &str, bundle: &str) -> Option<Pat
 
 /// Every bundle of the library with what the table shows (newest first).
 fn list_bundles(root: &FsPath) -> Vec<Value> {
-    let mut rows: Vec<Value> = std::fs::read_dir(root).into_iter().flatten().flatten().flat_map(|d| task_bundles(&d.path())).collect();
-    newest_first(&mut rows);
-    rows
+    newest_first(std::fs::read_dir(root).into_iter().flatten().flatten().flat_map(|d| bundle_rows(&d.path())).collect())
 }
 
 /// The bundles of one task's library folder (`<library>/<task>`), as [`list_bundles`] shows them, newest first.
 pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
+    newest_first(bundle_rows(task_dir))
+}
+
+/// A bundle's row of the table, and when the bundle was recorded (what the rows are ordered by).
+struct BundleRow {
+    modified_unix_s: Option<f64>,
+    row: Value,
+}
+
+/// The rows of one task's library folder, in directory order.
+fn bundle_rows(task_dir: &FsPath) -> Vec<BundleRow> {
     let mut rows = Vec::new();
     let task_name = task_dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     for b in std::fs::read_dir(task_dir).into_iter().flatten().flatten() {
@@ -578,7 +591,7 @@ pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
             .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
             .map(|d| d.as_secs_f64());
         let violations = validate_bundle(&dir);
-        rows.push(json!({
+        rows.push(BundleRow { modified_unix_s: modified, row: json!({
             "key": format!("{task_name}/{name}"),
             "task": m.task_id(), "instruction": m.instruction(),
             "verified": m.verification.as_ref().and_then(|v| v.verified),
@@ -588,14 +601,15 @@ pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
             "branch": m.branch(),
             "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
             "replay_checks": m.replay_checks.iter().flatten().map(|c| c.summary()).collect::<Vec<_>>(),
-        }));
+        })});
     }
-    newest_first(&mut rows);
     rows
 }
 
-fn newest_first(rows: &mut [Value]) {
-    rows.sort_by(|a, b| b["modified_unix_s"].as_f64().partial_cmp(&a["modified_unix_s"].as_f64()).unwrap_or(std::cmp::Ordering::Equal));
+/// The rows, the most recently recorded first.
+fn newest_first(mut rows: Vec<BundleRow>) -> Vec<Value> {
+    rows.sort_by(|a, b| b.modified_unix_s.partial_cmp(&a.modified_unix_s).unwrap_or(std::cmp::Ordering::Equal));
+    rows.into_iter().map(|r| r.row).collect()
 }
 
 async fn demos_json(State(app): State<AppState>) -> Response {
