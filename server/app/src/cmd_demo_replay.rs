@@ -9,9 +9,11 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use libero_episode::demo::{DemoCondition, parse_action, read_json};
-use libero_records::records::{PrivateEvaluation, RunDir, RunResult};
+use libero_records::demo_manifest::{DemoManifest, ReplayCheck};
+use libero_records::records::{PrivateEvaluation, RunDir, RunResult, ToolReply};
 use libero_episode::expert_run::ToolPort;
 use libero_episode::tools::MAX_MICRO_ACTIONS_PER_CALL;
+use serde::Deserialize;
 use serde_json::{Value, json};
 
 use libero_server::client::{McpClient, prepare_episode};
@@ -37,6 +39,33 @@ pub struct ReplayAttackArgs {
     pub init_index: usize,
 }
 
+/// A line of the trajectory the projection places in the workspace: only its action is read here.
+#[derive(serde::Deserialize)]
+struct TrajectoryRow {
+    /// Null when the line has none (refused by [`parse_action`]).
+    #[serde(default)]
+    action: Value,
+}
+
+/// The projection receipt's bundle (the receipt is written by `libero_episode::demo::ProjectionReceipt`).
+#[derive(serde::Deserialize)]
+struct Receipt {
+    source_bundle: PathBuf,
+}
+
+/// A stored replay check's target: the configuration it was replayed in.
+#[derive(serde::Deserialize, Default)]
+struct CheckTarget {
+    #[serde(default)]
+    effective_layout: Value,
+}
+
+impl CheckTarget {
+    fn of(check: &ReplayCheck) -> Self {
+        check.target.as_ref().and_then(|t| Self::deserialize(t).ok()).unwrap_or_default()
+    }
+}
+
 /// The actions of an agent-visible trajectory, in order.
 pub fn workspace_trajectory(workspace: &Path) -> anyhow::Result<Vec<[f64; 7]>> {
     let path = workspace.join("benchmark_inputs/expert_demo/trajectory.jsonl");
@@ -44,8 +73,8 @@ pub fn workspace_trajectory(workspace: &Path) -> anyhow::Result<Vec<[f64; 7]>> {
     text.lines()
         .enumerate()
         .map(|(n, line)| {
-            let row: Value = serde_json::from_str(line).with_context(|| format!("{} line {}", path.display(), n + 1))?;
-            parse_action(&row["action"]).with_context(|| format!("{} line {}: no 7-D action", path.display(), n + 1))
+            let row: TrajectoryRow = serde_json::from_str(line).with_context(|| format!("{} line {}", path.display(), n + 1))?;
+            parse_action(&row.action).with_context(|| format!("{} line {}: no 7-D action", path.display(), n + 1))
         })
         .collect()
 }
@@ -53,17 +82,19 @@ pub fn workspace_trajectory(workspace: &Path) -> anyhow::Result<Vec<[f64; 7]>> {
 /// Starts, sends `actions` in calls of at most 50, finishes; returns the finish payload.
 pub fn replay(port: &mut dyn ToolPort, actions: &[[f64; 7]]) -> anyhow::Result<Value> {
     let start = port.call_tool("start_episode", json!({}))?;
-    if start["ok"] != true {
+    if !ToolReply::of(&start).is_ok() {
         bail!("start_episode refused: {start}");
     }
     for chunk in actions.chunks(MAX_MICRO_ACTIONS_PER_CALL) {
         let r = port.call_tool("osc_sequence", json!({"actions": chunk}))?;
-        if r["ok"] != true && r.get("execution").is_none() {
+        let reply = ToolReply::of(&r);
+        // A refusal after the actions ran (no observation published) still says what ran: the replay goes on.
+        if !reply.is_ok() && reply.execution.is_none() {
             bail!("osc_sequence refused: {r}");
         }
     }
     let finish = port.call_tool("finish_episode", json!({}))?;
-    if finish["ok"] != true {
+    if !ToolReply::of(&finish).is_ok() {
         bail!("finish_episode refused: {finish}");
     }
     Ok(finish)
@@ -150,7 +181,7 @@ fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyh
         (None, None) => unreachable!("either local or remote"),
     };
     let finish = finish.with_context(|| format!("replay in {episode_id}"))?;
-    let success = finish["success"].as_bool().context("finish_episode reported no success")?;
+    let success = ToolReply::of(&finish).success.context("finish_episode reported no success")?;
     let run = RunDir::new(&run_dir);
     let result = RunResult::from_value(read_json(&run.result_json())?).map_err(|e| anyhow::anyhow!("result.json: {e}"))?;
     let evaluation = result.private_evaluation.context("result.json has no private_evaluation")?;
@@ -161,12 +192,12 @@ fn attack(args: &ReplayAttackArgs, local: Option<&Episodes>, task: &str) -> anyh
 /// The bundle the episode was shown (its projection receipt) and the replay check stored in it for the episode's
 /// configuration.
 fn shown_bundle(run_dir: &Path, task: &str, args: &ReplayAttackArgs) -> Option<(Option<String>, Option<Value>)> {
-    let receipt = read_json(&run_dir.join("icl_projection_receipt.json")).ok()?;
-    let bundle = PathBuf::from(receipt["source_bundle"].as_str()?);
-    let manifest = read_json(&bundle.join("manifest.json")).ok()?;
+    let receipt: Receipt = serde_json::from_value(read_json(&run_dir.join("icl_projection_receipt.json")).ok()?).ok()?;
+    let bundle = receipt.source_bundle;
+    let manifest = DemoManifest::from_value(read_json(&bundle.join("manifest.json")).ok()?).ok()?;
     let paths = libero_sim::AssetPaths::discover().ok()?;
     let layout = libero_episode::task::resolve_task(task, &paths).ok()?.effective_layout(args.seed, args.init_index).ok()?;
     let layout = serde_json::to_value(layout).ok()?;
-    let check = manifest["replay_checks"].as_array()?.iter().find(|c| c["target"]["effective_layout"] == layout).cloned();
+    let check = manifest.replay_checks?.iter().find(|c| CheckTarget::of(c).effective_layout == layout).map(ReplayCheck::to_value);
     Some((Some(bundle.display().to_string()), check))
 }

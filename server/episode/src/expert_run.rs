@@ -4,6 +4,7 @@
 //! most 50 actions, `finish_episode`. Whether the tools are served in-process or over MCP is the caller's port.
 use serde_json::{Value, json};
 
+use libero_records::records::ToolReply;
 use libero_tasks::expert::Expert;
 
 use crate::EpisodeError;
@@ -47,11 +48,13 @@ fn quantize(a: [f64; 7]) -> [f64; 7] {
     a.map(|x| ((x * 1e6).round() / 1e6).clamp(-1.0, 1.0))
 }
 
+/// The payload of an `ok` answer; a refusal as an error quoting the reply's `error` (the whole reply without one).
 fn tool_ok(tool: &str, payload: Value) -> Result<Value, EpisodeError> {
-    if payload.get("ok").and_then(Value::as_bool) == Some(true) {
+    let reply = ToolReply::of(&payload);
+    if reply.is_ok() {
         Ok(payload)
     } else {
-        let message = payload.get("error").map_or_else(|| payload.to_string(), Value::to_string);
+        let message = reply.error.as_ref().map_or_else(|| payload.to_string(), Value::to_string);
         Err(EpisodeError::Task(format!("{tool} failed: {message}")))
     }
 }
@@ -101,10 +104,11 @@ pub fn run_expert(
     let finish = tool_ok("finish_episode", port.call_tool("finish_episode", json!({}))?)?;
     let record = replica.evaluate();
     let replica_success = record.success;
-    if finish.get("success").and_then(Value::as_bool) != Some(replica_success) {
+    let verdict = ToolReply::of(&finish).success;
+    if verdict != Some(replica_success) {
         return Err(EpisodeError::Task(format!(
             "the expert's replica diverged from the episode: replica success {replica_success}, episode {}",
-            finish.get("success").map_or("missing".into(), Value::to_string)
+            verdict.map_or("missing".into(), |s| s.to_string())
         )));
     }
     let replica_record = serde_json::to_value(&record).map_err(|e| EpisodeError::Evaluator(e.to_string()))?;
