@@ -12,12 +12,28 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
+use libero_records::batch_doc::BatchDoc;
+use libero_records::records::Outcome;
 use libero_store::Store;
+use serde::Serialize;
 use serde_json::{Value, json};
 
 use libero_runner::batch::BatchSettings;
 use libero_runner::queue::enqueue;
 use libero_runner::schedule::{Experiment, plan};
+
+/// One worker count's real batch, as the output's `rollouts` lists it.
+#[derive(Serialize)]
+struct Rate {
+    workers: usize,
+    rollouts: u32,
+    elapsed_s: f64,
+    rollouts_per_hour: f64,
+    /// The batch document's `outcomes` (ended rollouts per class).
+    outcomes: Value,
+    /// `rollouts_per_hour` over the first count's.
+    speedup: f64,
+}
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct BenchQueueArgs {
@@ -78,23 +94,24 @@ pub fn run(args: &BenchQueueArgs) -> anyhow::Result<()> {
         drain_with_workers(&url, &tmp.path().join(&name), n)?;
         let elapsed_s = t.elapsed().as_secs_f64();
         let b = runtime.block_on(store.batch(&name))?.context("the bench batch left the store")?;
-        if b.doc["status"] != "finished" {
-            bail!("the workers exited before batch {name} finished: {}", b.doc["counts"]);
+        let doc = BatchDoc::from_value(b.doc).context("the bench batch's document is no object")?;
+        if doc.status.as_deref() != Some("finished") {
+            bail!("the workers exited before batch {name} finished: {}", json!(doc.counts));
         }
-        if b.doc["outcomes"]["INVALID"].as_u64().is_some_and(|n| n > 0) {
+        let outcomes = json!(doc.outcomes);
+        if doc.outcomes.as_ref().and_then(|o| o.get(Outcome::Invalid.as_str())).is_some_and(|&n| n > 0) {
             // A measurement of failing rollouts is no measurement: say why they failed (the workers name it).
             let log = std::fs::read_to_string(tmp.path().join(&name).join("worker0.log")).unwrap_or_default();
             let why: Vec<&str> = log.lines().filter(|l| l.contains("INVALID")).take(3).collect();
             eprintln!("{n} worker(s): INVALID rollouts; the first worker says:\n{}", why.join("\n"));
         }
         let per_hour = f64::from(args.rollouts) * 3600.0 / elapsed_s;
-        eprintln!("{n} worker(s): {} rollouts in {elapsed_s:.1} s ({per_hour:.0} per hour), outcomes {}", args.rollouts, b.doc["outcomes"]);
-        rates.push(json!({"workers": n, "rollouts": args.rollouts, "elapsed_s": elapsed_s, "rollouts_per_hour": per_hour, "outcomes": b.doc["outcomes"]}));
+        eprintln!("{n} worker(s): {} rollouts in {elapsed_s:.1} s ({per_hour:.0} per hour), outcomes {outcomes}", args.rollouts);
+        rates.push(Rate { workers: n, rollouts: args.rollouts, elapsed_s, rollouts_per_hour: per_hour, outcomes, speedup: f64::NAN });
     }
-    let first = rates[0]["rollouts_per_hour"].as_f64().unwrap_or(f64::NAN);
+    let first = rates.first().map_or(f64::NAN, |r| r.rollouts_per_hour);
     for r in &mut rates {
-        let speedup = r["rollouts_per_hour"].as_f64().unwrap_or(f64::NAN) / first;
-        r["speedup"] = json!(speedup);
+        r.speedup = r.rollouts_per_hour / first;
     }
     let out = json!({
         "bench": "queue",

@@ -19,7 +19,8 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use serde::Serialize;
+use libero_records::records::{STATUS_FINISHED, ToolReply};
+use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 use crate::bench_mcp::percentile_ms;
@@ -105,6 +106,12 @@ impl ProcSample {
     }
 }
 
+/// The line `serve` announces itself with (`"event": "listening"`), as far as the bench reads it.
+#[derive(Deserialize)]
+struct Listening {
+    url: Option<String>,
+}
+
 /// A `libero-agent serve` child on a free loopback port; stopped (SIGTERM, then killed) on drop.
 pub(crate) struct ServeProcess {
     child: Child,
@@ -134,7 +141,7 @@ impl ServeProcess {
             .context("starting libero-agent serve")?;
         let mut line = String::new();
         let read = BufReader::new(child.stdout.take().context("serve's stdout")?).read_line(&mut line);
-        let url = serde_json::from_str::<Value>(&line).ok().and_then(|v| v["url"].as_str().map(str::to_owned));
+        let url = serde_json::from_str::<Listening>(&line).ok().and_then(|l| l.url);
         let mut serve = Self { child, url: url.unwrap_or_default(), log };
         if read.is_err() || serve.url.is_empty() {
             bail!("serve did not announce its URL ({line:?}): {}", serve.log_tail());
@@ -189,7 +196,33 @@ impl Drop for ServeProcess {
 /// An episode held open by this bench: its MCP session, its scene and what opening it cost.
 struct OpenEpisode {
     client: McpClient,
-    record: Value,
+    record: OpenRecord,
+}
+
+/// What opening one episode cost (the output's `per_episode`).
+#[derive(Debug, Clone, Serialize)]
+struct OpenRecord {
+    index: usize,
+    task: String,
+    episode_id: String,
+    first_of_scene: bool,
+    prepare_ms: f64,
+    start_episode_ms: f64,
+    open_ms: f64,
+    rss_mb: f64,
+    threads: u64,
+    rss_increment_mb: f64,
+    thread_increment: i64,
+}
+
+/// Count, mean, median, min and max of a measure over some episodes.
+#[derive(Debug, Clone, Copy, Serialize)]
+struct Summary {
+    count: usize,
+    mean: f64,
+    p50: f64,
+    min: f64,
+    max: f64,
 }
 
 fn ms(d: Duration) -> f64 {
@@ -236,12 +269,19 @@ impl Bench<'_> {
         let start_ms = ms(t.elapsed());
         client.call_tool("osc_sequence", json!({"actions": actions(5, 0)}))?;
         let after = self.settled()?;
-        let record = json!({
-            "index": index, "task": task, "episode_id": prepared.episode_id, "first_of_scene": first_of_scene,
-            "prepare_ms": prepare_ms, "start_episode_ms": start_ms, "open_ms": prepare_ms + start_ms,
-            "rss_mb": after.rss_mb, "threads": after.threads,
-            "rss_increment_mb": after.rss_mb - before.rss_mb, "thread_increment": after.threads as i64 - before.threads as i64,
-        });
+        let record = OpenRecord {
+            index,
+            task: task.to_owned(),
+            episode_id: prepared.episode_id,
+            first_of_scene,
+            prepare_ms,
+            start_episode_ms: start_ms,
+            open_ms: prepare_ms + start_ms,
+            rss_mb: after.rss_mb,
+            threads: after.threads,
+            rss_increment_mb: after.rss_mb - before.rss_mb,
+            thread_increment: after.threads as i64 - before.threads as i64,
+        };
         if !self.args.json {
             eprintln!(
                 "episode {} ({task}, {}): open {:.0} ms, +{:.0} MB, +{} threads -> {:.0} MB, {} threads",
@@ -284,34 +324,48 @@ impl Bench<'_> {
     }
 }
 
-/// Count, mean, min and max of `key` over the episode records that pass `pick` (null when none does).
-fn summary(records: &[Value], pick: &dyn Fn(&Value) -> bool, key: &str) -> Value {
-    let mut v: Vec<f64> = records.iter().filter(|r| pick(r)).filter_map(|r| r[key].as_f64()).collect();
+/// Count, mean, min and max of `measure` over the episode records that pass `pick` (`None`, printed null, when
+/// none does). A value JSON cannot hold (NaN) is left out, as it is printed null in the records.
+fn summary(records: &[OpenRecord], pick: &dyn Fn(&OpenRecord) -> bool, measure: &dyn Fn(&OpenRecord) -> f64) -> Option<Summary> {
+    let mut v: Vec<f64> = records.iter().filter(|r| pick(r)).map(measure).filter(|x| x.is_finite()).collect();
     if v.is_empty() {
-        return Value::Null;
+        return None;
     }
     let mean = v.iter().sum::<f64>() / v.len() as f64;
-    json!({"count": v.len(), "mean": mean, "p50": percentile_ms(&mut v, 50.0), "min": v[0], "max": v[v.len() - 1]})
+    let p50 = percentile_ms(&mut v, 50.0);
+    Some(Summary { count: v.len(), mean, p50, min: v[0], max: v[v.len() - 1] })
+}
+
+/// A main-table batch held open at once, as [`sizing`] estimates it (the output's `sizing`).
+#[derive(Debug, Clone, Serialize)]
+struct Sizing {
+    main_table_rollouts: usize,
+    main_table_scenes: usize,
+    main_table_all_open_rss_gb: f64,
+    episodes_per_gb: f64,
+    later_first_of_scene_measured: bool,
+    additional_measured: bool,
 }
 
 /// A main-table batch (90 rollouts over 30 scenes) held open at once, from the measured increments over the idle
 /// server: the server's first episode (it also opens the renderer), 29 more first episodes of a scene (the
 /// first episode's increment where no later scene was measured) and 60 additional episodes of a loaded scene
 /// (the first-of-scene figure where none was measured).
-fn sizing(idle_mb: f64, first_episode_mb: f64, later_first_mb: Option<f64>, additional_mb: Option<f64>) -> Value {
+fn sizing(idle_mb: f64, first_episode_mb: f64, later_first_mb: Option<f64>, additional_mb: Option<f64>) -> Sizing {
     let later_first = later_first_mb.unwrap_or(first_episode_mb);
     let additional = additional_mb.unwrap_or(later_first);
     let batch_mb = idle_mb
         + first_episode_mb
         + (MAIN_TABLE_TASKS - 1) as f64 * later_first
         + (MAIN_TABLE_ROLLOUTS - MAIN_TABLE_TASKS) as f64 * additional;
-    json!({
-        "main_table_rollouts": MAIN_TABLE_ROLLOUTS, "main_table_scenes": MAIN_TABLE_TASKS,
-        "main_table_all_open_rss_gb": batch_mb / 1024.0,
-        "episodes_per_gb": MAIN_TABLE_ROLLOUTS as f64 / (batch_mb / 1024.0),
-        "later_first_of_scene_measured": later_first_mb.is_some(),
-        "additional_measured": additional_mb.is_some(),
-    })
+    Sizing {
+        main_table_rollouts: MAIN_TABLE_ROLLOUTS,
+        main_table_scenes: MAIN_TABLE_TASKS,
+        main_table_all_open_rss_gb: batch_mb / 1024.0,
+        episodes_per_gb: MAIN_TABLE_ROLLOUTS as f64 / (batch_mb / 1024.0),
+        later_first_of_scene_measured: later_first_mb.is_some(),
+        additional_measured: additional_mb.is_some(),
+    }
 }
 
 /// Waits until `serve` has no episode thread left (at most [`THREAD_EXIT_TIMEOUT`]); returns how long it took.
@@ -349,37 +403,32 @@ fn measure(bench: &Bench, tasks: &[String]) -> anyhow::Result<Value> {
     let n_open = bench.settled()?;
     let n_idle_cpu = bench.idle_cpu_percent()?;
     let drive_n = bench.drive(&mut open[0], args.episodes)?;
-    let records: Vec<Value> = open.iter().map(|e| e.record.clone()).collect();
+    let records: Vec<OpenRecord> = open.iter().map(|e| e.record.clone()).collect();
     for mut e in open {
         let finished = e.client.call_tool("finish_episode", json!({}))?;
-        if finished["status"] != "finished" {
-            bail!("episode {}: finish_episode answered {finished}", e.record["episode_id"]);
+        if ToolReply::of(&finished).status.as_deref() != Some(STATUS_FINISHED) {
+            bail!("episode {:?}: finish_episode answered {finished}", e.record.episode_id);
         }
     }
     let threads_gone_s = wait_episode_threads_gone(bench.serve.pid())?;
     std::thread::sleep(RELEASE_WAIT);
     let after_finish = bench.settled()?;
-    let first = |r: &Value| r["first_of_scene"] == true;
-    let later_first = |r: &Value| r["first_of_scene"] == true && r["index"] != 0;
-    let additional = |r: &Value| r["first_of_scene"] == false;
-    let both = |pick: &dyn Fn(&Value) -> bool| {
-        json!({"rss_mb": summary(&records, pick, "rss_increment_mb"), "threads": summary(&records, pick, "thread_increment")})
-    };
+    let first = |r: &OpenRecord| r.first_of_scene;
+    let later_first = |r: &OpenRecord| r.first_of_scene && r.index != 0;
+    let additional = |r: &OpenRecord| !r.first_of_scene;
+    let rss = |r: &OpenRecord| r.rss_increment_mb;
+    let threads = |r: &OpenRecord| r.thread_increment as f64;
+    let both = |pick: &dyn Fn(&OpenRecord) -> bool| json!({"rss_mb": summary(&records, pick, &rss), "threads": summary(&records, pick, &threads)});
     let increments = json!({
         "what": "resident memory (MB) and threads an episode adds to serve, each sampled settled before and after it opens",
         "first_of_scene": both(&first),
         "first_of_scene_after_the_first": both(&later_first),
         "additional": both(&additional),
-        "first_episode_of_the_server": {"rss_mb": records[0]["rss_increment_mb"], "threads": records[0]["thread_increment"],
+        "first_episode_of_the_server": {"rss_mb": records[0].rss_increment_mb, "threads": records[0].thread_increment,
             "note": "includes opening the process's renderer (one GPU device for all episodes)"},
     });
-    let mean_of = |v: &Value| v["mean"].as_f64();
-    let sizing = sizing(
-        idle.rss_mb,
-        records[0]["rss_increment_mb"].as_f64().unwrap_or_default(),
-        mean_of(&increments["first_of_scene_after_the_first"]["rss_mb"]),
-        mean_of(&increments["additional"]["rss_mb"]),
-    );
+    let mean_rss = |pick: &dyn Fn(&OpenRecord) -> bool| summary(&records, pick, &rss).map(|s| s.mean);
+    let sizing = sizing(idle.rss_mb, records[0].rss_increment_mb, mean_rss(&later_first), mean_rss(&additional));
     Ok(json!({
         "idle": idle,
         "one_open": one_open,
@@ -389,10 +438,10 @@ fn measure(bench: &Bench, tasks: &[String]) -> anyhow::Result<Value> {
         "increments": increments,
         "open_ms": {
             "what": "prepare (POST /api/episodes) + start_episode, as a client waits for them",
-            "cold": summary(&records, &first, "open_ms"),
-            "warm": summary(&records, &additional, "open_ms"),
-            "cold_prepare": summary(&records, &first, "prepare_ms"),
-            "warm_prepare": summary(&records, &additional, "prepare_ms"),
+            "cold": summary(&records, &first, &|r| r.open_ms),
+            "warm": summary(&records, &additional, &|r| r.open_ms),
+            "cold_prepare": summary(&records, &first, &|r| r.prepare_ms),
+            "warm_prepare": summary(&records, &additional, &|r| r.prepare_ms),
         },
         "osc_sequence": {"actions_per_call": args.actions, "one_open": drive_one, "n_open": drive_n},
         "server_cpu_idle_percent": {"no_episode": idle_cpu, "n_open": n_idle_cpu,
@@ -486,15 +535,28 @@ mod tests {
 
     #[test]
     fn summaries_pick_their_records_and_say_null_when_none() {
-        let r = vec![json!({"first": true, "x": 3.0}), json!({"first": false, "x": 1.0}), json!({"first": true, "x": 1.0})];
-        let s = summary(&r, &|r| r["first"] == true, "x");
-        assert_eq!((s["count"].as_u64(), s["mean"].as_f64(), s["min"].as_f64(), s["max"].as_f64()), (Some(2), Some(2.0), Some(1.0), Some(3.0)));
-        assert!(summary(&r, &|_| false, "x").is_null());
+        let record = |first_of_scene, open_ms| OpenRecord {
+            index: 0,
+            task: "T14".into(),
+            episode_id: "e".into(),
+            first_of_scene,
+            prepare_ms: 0.0,
+            start_episode_ms: 0.0,
+            open_ms,
+            rss_mb: 0.0,
+            threads: 0,
+            rss_increment_mb: 0.0,
+            thread_increment: 0,
+        };
+        let r = vec![record(true, 3.0), record(false, 1.0), record(true, 1.0), record(true, f64::NAN)];
+        let s = summary(&r, &|r| r.first_of_scene, &|r| r.open_ms).unwrap();
+        assert_eq!((s.count, s.mean, s.min, s.max), (2, 2.0, 1.0, 3.0), "NaN, printed null, is left out");
+        assert_eq!(serde_json::to_value(summary(&r, &|_| false, &|r| r.open_ms)).unwrap(), Value::Null);
     }
 
     #[test]
     fn a_main_table_batch_is_thirty_first_and_sixty_additional_episodes() {
-        let gb = |s: Value| s["main_table_all_open_rss_gb"].as_f64().unwrap();
+        let gb = |s: Sizing| s.main_table_all_open_rss_gb;
         let mb = 24.0 + 500.0 + 29.0 * 400.0 + 60.0 * 100.0;
         assert!((gb(sizing(24.0, 500.0, Some(400.0), Some(100.0))) - mb / 1024.0).abs() < 1e-9);
         // Unmeasured kinds take the nearest measured figure.

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use futures_util::{SinkExt, StreamExt};
+use serde::Deserialize;
 use serde_json::{Value, json};
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
@@ -106,7 +107,8 @@ pub(crate) fn with_console_server(name: &str, data: Option<&PathBuf>, json: bool
 /// Creates the operator episode and drives it; the JSON report.
 fn drive(base_url: &str, args: &BenchTeleopArgs) -> anyhow::Result<Value> {
     let (status, created) = post_json(base_url, "/api/teleop", &json!({"task": args.task}))?;
-    let Some(id) = created["episode_id"].as_str().filter(|_| status == 200) else {
+    let episode = TeleopCreated::deserialize(&created).ok().and_then(|c| c.episode_id).filter(|_| status == 200);
+    let Some(id) = episode.as_deref() else {
         bail!("POST /api/teleop answered HTTP {status}: {created}");
     };
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
@@ -160,11 +162,33 @@ pub(crate) async fn open_socket(base_url: &str, path: &str) -> anyhow::Result<So
     Ok(socket)
 }
 
+/// `POST /api/teleop`'s answer, as far as the bench reads it.
+#[derive(Deserialize)]
+struct TeleopCreated {
+    episode_id: Option<String>,
+}
+
+/// The JSON header of a live frame (the dashboard's live socket): its control step, null for a settle step.
+#[derive(Deserialize)]
+struct FrameHeader {
+    #[serde(default)]
+    control_step: Option<u64>,
+}
+
+/// The teleop socket's `ack` of an action batch, as far as the bench reads it.
+#[derive(Deserialize, Default)]
+struct Ack {
+    seq: Option<u64>,
+    ok: Option<bool>,
+    /// Actions the batch held.
+    actions: Option<u64>,
+}
+
 /// The control step of a binary frame message (4-byte LE header length, JSON header, JPEG).
 pub(crate) fn frame_step(bytes: &[u8]) -> Option<Option<u64>> {
     let len = u32::from_le_bytes(bytes.get(..4)?.try_into().ok()?) as usize;
-    let header: Value = serde_json::from_slice(bytes.get(4..4 + len)?).ok()?;
-    Some(header["control_step"].as_u64())
+    let header: FrameHeader = serde_json::from_slice(bytes.get(4..4 + len)?).ok()?;
+    Some(header.control_step)
 }
 
 /// The action of tick `tick`: back and forth along x once a second, gripper open.
@@ -187,14 +211,14 @@ async fn drive_sockets(base_url: &str, id: &str, args: &BenchTeleopArgs) -> anyh
         tokio::spawn(async move {
             while let Some(Ok(Message::Text(text))) = control_rx.next().await {
                 let at = Instant::now();
-                let ack: Value = serde_json::from_str(&text).unwrap_or(Value::Null);
-                if let (Some(seq), Ok(mut a)) = (ack["seq"].as_u64(), answers.lock()) {
+                let ack: Ack = serde_json::from_str(&text).unwrap_or_default();
+                if let (Some(seq), Ok(mut a)) = (ack.seq, answers.lock()) {
                     a.push((seq, at));
                 }
-                if ack["ok"] == true {
-                    acked.fetch_add(ack["actions"].as_u64().unwrap_or(0) as usize, Ordering::AcqRel);
+                if ack.ok == Some(true) {
+                    acked.fetch_add(ack.actions.unwrap_or(0) as usize, Ordering::AcqRel);
                 } else {
-                    log::warn!("teleop batch refused: {ack}");
+                    log::warn!("teleop batch refused: {text}");
                 }
                 in_flight.fetch_sub(1, Ordering::AcqRel);
             }

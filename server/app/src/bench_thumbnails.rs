@@ -16,6 +16,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
+use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 use crate::bench_scale::{ProcSample, ServeProcess, wait_episode_threads_gone};
@@ -73,6 +74,32 @@ struct Pass {
     done: bool,
 }
 
+/// `GET /api/thumbnails`'s answer (the server's `ThumbnailStats`), as far as the bench reads it; a count the
+/// server leaves out reads 0.
+#[derive(Deserialize)]
+struct ThumbnailsReply {
+    #[serde(default)]
+    thumbnails: ThumbnailCounts,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default)]
+struct ThumbnailCounts {
+    rendered: u64,
+    reused: u64,
+    failed: u64,
+    ahead_done: bool,
+}
+
+/// Memory after a soak episode, and where the pass was then.
+#[derive(Serialize)]
+struct Reading {
+    episodes: usize,
+    rss_mb: f64,
+    pass_scenes: Option<u64>,
+    pass_done: Option<bool>,
+}
+
 /// How long `/api/thumbnails` may fail to answer (a server busy building a scene on a loaded machine) before the
 /// bench gives up.
 const API_PATIENCE: Duration = Duration::from_secs(60);
@@ -97,14 +124,8 @@ impl Pass {
         if status != 200 {
             bail!("GET /api/thumbnails answered HTTP {status}: {v}");
         }
-        let t = &v["thumbnails"];
-        let n = |k: &str| t[k].as_u64().unwrap_or(0);
-        Ok(Self {
-            scenes: n("rendered") + n("reused") + n("failed"),
-            rendered: n("rendered"),
-            failed: n("failed"),
-            done: t["ahead_done"] == true,
-        })
+        let t = ThumbnailsReply::deserialize(&v).with_context(|| format!("GET /api/thumbnails answered {v}"))?.thumbnails;
+        Ok(Self { scenes: t.rendered + t.reused + t.failed, rendered: t.rendered, failed: t.failed, done: t.ahead_done })
     }
 }
 
@@ -211,11 +232,11 @@ fn soak(args: &BenchThumbnailsArgs, data: &std::path::Path, ahead: &str) -> anyh
             std::thread::sleep(settle);
             let (rss, pass) = if ahead == "off" { (ProcSample::of(serve.pid())?.rss_mb, None) } else { between_scenes(&serve).map(|(r, p)| (r, Some(p)))? };
             progress(args, format!("  pass {ahead}: after episode {}: {rss:.0} MB (pass: {pass:?})", i + 1));
-            readings.push(json!({"episodes": i + 1, "rss_mb": rss, "pass_scenes": pass.map(|p| p.scenes), "pass_done": pass.map(|p| p.done)}));
+            readings.push(Reading { episodes: i + 1, rss_mb: rss, pass_scenes: pass.map(|p| p.scenes), pass_done: pass.map(|p| p.done) });
         }
     }
-    let first = readings.first().and_then(|r| r["rss_mb"].as_f64()).unwrap_or_default();
-    let last = readings.last().and_then(|r| r["rss_mb"].as_f64()).unwrap_or_default();
+    let first = readings.first().map(|r| r.rss_mb).unwrap_or_default();
+    let last = readings.last().map(|r| r.rss_mb).unwrap_or_default();
     Ok(json!({
         "pass": ahead, "episodes": args.soak_episodes, "task": args.soak_task, "video": !args.no_video,
         "fresh_server_rss_mb": fresh.rss_mb, "readings": readings,
