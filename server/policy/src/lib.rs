@@ -4,6 +4,7 @@
 //! the tests against that package itself.
 pub mod client;
 pub mod codec;
+pub mod episode;
 pub mod libero;
 pub mod resize;
 
