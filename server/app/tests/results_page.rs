@@ -1,14 +1,17 @@
 //! The dashboard's Results page over real batches: `libero-agent run` plays two T14 rollouts with the built-in
-//! reference agent into `<data>/batches/main`, a hand-written observation-ablation batch is registered with
-//! `serve --batches`, and `libero-agent serve` must show the same numbers as `libero-agent report --format
-//! json`, per-task cells that link every rollout to its episode's review page (which opens, although the
-//! episodes ran on the batch's own in-process server), the ablation table, progress, and batch selection.
+//! reference agent, a hand-written observation-ablation batch and a pool batch are registered with `serve
+//! --batches`, and the served Results must show the same numbers as `libero-agent report --format json`, per-task
+//! cells that link every rollout to its episode's review page (which opens, although the episodes ran on the batch's
+//! own in-process server), the ablation table, progress, and batch selection. The pages and APIs are asked of the
+//! full router in process (`libero_testkit::server::TestServer`); only Chromium's click through a cell needs a real
+//! `serve`.
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{Server, bin, http_get_json, http_get_text};
+use common::{Server, bin};
+use libero_testkit::server::TestServer;
 use serde_json::Value;
 
 fn libero(args: &[&str]) -> std::process::Output {
@@ -72,19 +75,23 @@ fn write_pool_batch(dir: &Path) {
     std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
 }
 
-/// A reference-agent T14 batch (2 rollouts) in `<data>/batches/main`, the ablation fixture under `extra/`, and a
-/// server that sees both.
-fn setup() -> (tempfile::TempDir, Server, PathBuf) {
-    let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let batch = data.join("batches/main");
-    let workspaces = dir.path().join("workspaces");
+/// Two T14 rollouts of the built-in reference agent, played by `libero-agent run` into `batch`.
+fn run_reference_batch(batch: &Path, workspaces: &Path) {
     let out = libero(&[
         "run", "--experiment", "main_table", "--harness", "command", "--model", "reference", "--tasks", "T14", "--reps",
         "2", "--concurrency", "2", "--agent-cmd", "exec {libero_agent} agent --workspace {workspace}", "--wall-time-s",
         "300", "--no-sandbox", "--batch", batch.to_str().unwrap(), "--workspace-root", workspaces.to_str().unwrap(),
     ]);
     assert!(out.status.success(), "run failed");
+}
+
+/// A reference-agent T14 batch (2 rollouts) in `<data>/batches/main`, the ablation fixture under `extra/`, and a
+/// real `serve` that sees both (for Chromium).
+fn setup() -> (tempfile::TempDir, Server, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let batch = data.join("batches/main");
+    run_reference_batch(&batch, &dir.path().join("workspaces"));
     let extra = dir.path().join("extra");
     write_ablation_batch(&extra.join("abl"));
     write_pool_batch(&extra.join("pool"));
@@ -93,12 +100,34 @@ fn setup() -> (tempfile::TempDir, Server, PathBuf) {
     (dir, server, batch)
 }
 
-#[test]
-fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
-    let (_dir, server, batch) = setup();
+/// A page or file of the in-process server, asked with the operator token: (status, text).
+async fn text(server: &TestServer, path: &str) -> (u16, String) {
+    let a = server.get_as_operator(path).await;
+    (a.status, a.text())
+}
+
+/// A JSON answer of the in-process server, asked with the operator token: (status, JSON).
+async fn json(server: &TestServer, path: &str) -> (u16, Value) {
+    let a = server.get_as_operator(path).await;
+    (a.status, a.json())
+}
+
+/// The reference batch (as `main`), the ablation (`abl`) and pool (`pool`) fixtures in one `--batches` folder, read by
+/// the full router in process: the JSON carries exactly `report`'s rows, the page links every rollout to a review
+/// that opens, downloads are exactly what `report --format csv|markdown|latex` prints, selections pick batches, and
+/// a bad `reps`, download format, batch or home-page outcome filter is an error that says what is wrong.
+#[tokio::test(flavor = "multi_thread")]
+async fn results_show_the_report_numbers_link_every_rollout_to_its_review_and_download_as_the_report_prints() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = dir.path().join("extra");
+    let batch = extra.join("main");
+    run_reference_batch(&batch, &dir.path().join("workspaces"));
+    write_ablation_batch(&extra.join("abl"));
+    write_pool_batch(&extra.join("pool"));
+    let server = TestServer::start_with(&["--batches", extra.to_str().unwrap()]).await;
 
     // The JSON: both batches, the main one with exactly the report's rows.
-    let (status, all) = http_get_json(&format!("{}/api/results", server.url));
+    let (status, all) = json(&server, "/api/results").await;
     assert_eq!(status, 200, "{all}");
     assert_eq!(all["available"], serde_json::json!(["abl", "main", "pool"]));
     let main = all["batches"].as_array().unwrap().iter().find(|b| b["name"] == "main").expect("main batch").clone();
@@ -115,7 +144,7 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     assert_eq!(main["progress"]["counts"]["done"], 2);
 
     // The page: main table (Score marked as a lower bound), Wilson intervals, per-task cells with review links.
-    let (status, html) = http_get_text(&format!("{}/results", server.url));
+    let (status, html) = text(&server, "/results").await;
     assert_eq!(status, 200, "{html}");
     assert!(html.contains("id=\"main-table\"") && html.contains("command + reference") && html.contains("≥ "), "{html}");
     assert!(html.contains("id=\"ordinary\"") && html.contains(" = ") && html.contains("["), "Wilson intervals");
@@ -127,9 +156,9 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
         let href = format!("href=\"/episodes/{id}/review\"");
         assert!(html.contains(&href), "no review link {href}");
         // The episode ran on the batch's in-process server; this server finds it through the batch.
-        let (status, page) = http_get_text(&format!("{}/episodes/{id}/review", server.url));
+        let (status, page) = text(&server, &format!("/episodes/{id}/review")).await;
         assert!(status == 200 && page.contains(id), "{page}");
-        let (status, review) = http_get_json(&format!("{}/api/episodes/{id}/review", server.url));
+        let (status, review) = json(&server, &format!("/api/episodes/{id}/review")).await;
         assert_eq!(status, 200);
         assert!(review["result"].is_object() && review["calls"].as_array().is_some_and(|c| !c.is_empty()), "{review}");
     }
@@ -139,26 +168,72 @@ fn results_show_the_report_numbers_and_link_every_rollout_to_its_review() {
     assert!(html.contains("id=\"progress\"") && html.contains("http-equiv=\"refresh\""), "a running batch refreshes");
 
     // Selection: one batch, two side by side, an unknown one.
-    let (_, one) = http_get_json(&format!("{}/api/results?batch=abl", server.url));
+    let (_, one) = json(&server, "/api/results?batch=abl").await;
     assert_eq!(one["batches"].as_array().map(Vec::len), Some(1));
     assert_eq!(one["batches"][0]["progress"]["counts"]["running"], 1);
-    let (_, two) = http_get_json(&format!("{}/api/results?batch=main&batch=abl&reps=3", server.url));
+    let (_, two) = json(&server, "/api/results?batch=main&batch=abl&reps=3").await;
     let names: Vec<&str> = two["batches"].as_array().unwrap().iter().filter_map(|b| b["name"].as_str()).collect();
     assert_eq!(names, ["main", "abl"]);
     assert_eq!(two["batches"][0]["reps"], 3);
-    let (_, html) = http_get_text(&format!("{}/results?batch=main", server.url));
+    let (_, html) = text(&server, "/results?batch=main").await;
     assert!(html.contains(&task_cell("T14")) && !html.contains(&task_cell("T11")) && !html.contains("http-equiv=\"refresh\""));
-    let (status, _) = http_get_json(&format!("{}/api/results?batch=nope", server.url));
+    let (status, _) = json(&server, "/api/results?batch=nope").await;
     assert_eq!(status, 404);
+
+    // Issue 49 (links and downloads, bad input): the downloads are what `report` prints for the selection, the batch
+    // name links to the batch's own Results, the review names its batch.
+    for (format, cli) in [("csv", "csv"), ("markdown", "markdown"), ("latex", "latex")] {
+        let (status, body) = text(&server, &format!("/results/report/{format}?batch=main&reps=2")).await;
+        assert_eq!(status, 200, "{format}: {body}");
+        let out = libero(&["report", batch.to_str().unwrap(), "--format", cli, "--reps", "2"]);
+        assert!(out.status.success());
+        assert_eq!(body, String::from_utf8_lossy(&out.stdout), "{format}: the download is the report");
+    }
+    let (_, page) = text(&server, "/results?batch=main&reps=2").await;
+    for link in [
+        r#"id="download-csv" href="/results/report/csv?batch=main&#38;reps=2""#,
+        r#"id="download-latex" href="/results/report/latex?batch=main&#38;reps=2""#,
+        r#"class="batch-link" href="/results?batch=main">main</a>"#,
+    ] {
+        assert!(page.contains(link), "{link} in the Results page");
+    }
+    let (_, all) = json(&server, "/api/results?batch=main").await;
+    let episode = all["batches"][0]["episodes"][0]["episode_id"].as_str().expect("an episode").to_owned();
+    let (status, review) = text(&server, &format!("/episodes/{episode}/review")).await;
+    assert_eq!(status, 200);
+    assert!(review.contains(r#"<a id="batch-link" href="/results?batch=main">main</a>"#), "the review names its batch");
+    // A bad value is an error page (or JSON error) that says what is wrong, never a silent default.
+    for (query, says) in [
+        ("/results?reps=abc", "reps must be a whole number from 1 to 100"),
+        ("/results?reps=0", "reps must be a whole number from 1 to 100"),
+        ("/api/results?reps=1000", "reps must be a whole number from 1 to 100"),
+        ("/results/report/pdf", "csv, markdown or latex, not"),
+        ("/results/report/csv?batch=nope", "no batch"),
+        ("/?outcome=bogus", "outcome must be one of RUNNING, SUCCESS, FAIL, SIM_TIMEOUT, WATCHDOG_TIMEOUT, INVALID, INTERRUPTED"),
+    ] {
+        let (status, body) = text(&server, query).await;
+        assert!((400..500).contains(&status), "{query}: {status}");
+        assert!(body.contains(says), "{query}: {body}");
+    }
+    let (status, home) = text(&server, "/?outcome=fail").await;
+    assert_eq!(status, 200, "an outcome in any case filters");
+    assert!(home.contains(r#"<option value="FAIL" selected>"#), "the filter shows what it filters on");
+    assert!(home.contains(r#"<option value="WATCHDOG_TIMEOUT">"#), "every outcome is a choice");
+    // A filter that matches nothing says so (not "no episodes yet"), and an unknown task group is named.
+    let (status, home) = text(&server, "/?batch=no-such-batch").await;
+    assert_eq!(status, 200);
+    assert!(home.contains("No episode matches batch “no-such-batch”") && !home.contains("No episodes yet"), "{home}");
+    let (_, tasks) = text(&server, "/tasks?group=nope").await;
+    assert!(tasks.contains("group must be one of perception, short_horizon, long_horizon, not &#34;nope&#34;"), "{tasks}");
 }
 
-#[test]
-fn pool_batches_are_shown_per_suite_beside_and_never_inside_the_paper_table() {
+#[tokio::test(flavor = "multi_thread")]
+async fn pool_batches_are_shown_per_suite_beside_and_never_inside_the_paper_table() {
     let dir = tempfile::tempdir().unwrap();
     let pool_dir = dir.path().join("extra/pool");
     write_pool_batch(&pool_dir);
-    let server = Server::start_with(&dir.path().join("data"), &["--batches", dir.path().join("extra").to_str().unwrap()]);
-    let (status, one) = http_get_json(&format!("{}/api/results?batch=pool", server.url));
+    let server = TestServer::start_with(&["--batches", dir.path().join("extra").to_str().unwrap()]).await;
+    let (status, one) = json(&server, "/api/results?batch=pool").await;
     assert_eq!(status, 200, "{one}");
     let b = &one["batches"][0];
     let out = libero(&["report", pool_dir.to_str().unwrap(), "--format", "json", "--reps", "2"]);
@@ -172,7 +247,7 @@ fn pool_batches_are_shown_per_suite_beside_and_never_inside_the_paper_table() {
     let rma = suites.iter().find(|s| s["suite"] == "robomemarena").unwrap();
     assert_eq!((rma["stable_stage_completion"].as_f64(), rma["mean_stage_completion"].as_f64()), (Some(0.5), Some(0.75)));
 
-    let (status, html) = http_get_text(&format!("{}/results?batch=pool", server.url));
+    let (status, html) = text(&server, "/results?batch=pool").await;
     assert_eq!(status, 200, "{html}");
     assert!(html.contains("id=\"pool-suites\"") && html.contains("<td>robomemarena</td>") && html.contains("<td>libero_90</td>"), "{html}");
     assert!(!html.contains("id=\"main-table\""), "a pool-only selection has no paper table");
@@ -223,8 +298,8 @@ fn write_fixture_batch(dir: &Path, experiment: &str, rollouts: &[(u32, u8, &str,
 /// observation batch's L1/L2 rows beside the main table's L3 row, the context batch's Video row beside the main
 /// table's None row, the stage diagnosis and the opening operations read from the rollouts' records, and Figure 3 as
 /// inline SVG drawn by the server; `/api/results` carries the same numbers as `report` over the same batches.
-#[test]
-fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() {
+#[tokio::test(flavor = "multi_thread")]
+async fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() {
     let dir = tempfile::tempdir().unwrap();
     let extra = dir.path().join("extra");
     write_ablation_batch(&extra.join("abl"));
@@ -267,8 +342,8 @@ fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() 
         "context",
         &[(28, 3, "video", 1, "SUCCESS", (2, 2), None), (28, 3, "video", 2, "SUCCESS", (2, 2), None)],
     );
-    let server = Server::start_with(&dir.path().join("data"), &["--batches", extra.to_str().unwrap()]);
-    let (status, html) = http_get_text(&format!("{}/results?batch=abl&batch=main&batch=ctx", server.url));
+    let server = TestServer::start_with(&["--batches", extra.to_str().unwrap()]).await;
+    let (status, html) = text(&server, "/results?batch=abl&batch=main&batch=ctx").await;
     assert_eq!(status, 200, "{html}");
     let table = |id: &str| {
         let start = html.find(&format!("id=\"{id}\"")).unwrap_or_else(|| panic!("no table {id}: {html}"));
@@ -302,7 +377,7 @@ fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_agent() 
     assert!(html.contains("id=\"appendix-e-short-horizon\"") && html.contains("id=\"appendix-e-long-horizon\""));
 
     // The API: the same numbers as `report` over the same three batches.
-    let (_, api) = http_get_json(&format!("{}/api/results?batch=abl&batch=main&batch=ctx", server.url));
+    let (_, api) = json(&server, "/api/results?batch=abl&batch=main&batch=ctx").await;
     let dirs: Vec<String> = ["abl", "main", "ctx"].iter().map(|n| extra.join(n).to_string_lossy().into_owned()).collect();
     let mut args: Vec<&str> = vec!["report", "--format", "json", "--reps", "2"];
     args.extend(dirs.iter().map(String::as_str));
@@ -321,55 +396,4 @@ fn chromium_clicks_a_results_cell_through_to_the_review() {
     std::fs::create_dir_all(&artifacts).unwrap();
     let last = common::browser_script("results_click.cjs", &[server.url.as_str(), "T14", &artifacts.to_string_lossy()], &server.token);
     assert_eq!(last["ok"], true, "{last}");
-}
-
-/// Issue 49 (links and downloads, bad input): the Results page downloads exactly what `report --format
-/// csv|markdown|latex` prints for the selection, the batch name links to the batch's own Results, the review names
-/// its batch, and a bad `reps`, download format or home-page outcome filter is an error page that says what is
-/// wrong, never a silent default.
-#[test]
-fn results_download_as_the_report_prints_and_bad_values_are_refused_visibly() {
-    let (_dir, server, batch) = setup();
-    for (format, cli) in [("csv", "csv"), ("markdown", "markdown"), ("latex", "latex")] {
-        let (status, body) = http_get_text(&format!("{}/results/report/{format}?batch=main&reps=2", server.url));
-        assert_eq!(status, 200, "{format}: {body}");
-        let out = libero(&["report", batch.to_str().unwrap(), "--format", cli, "--reps", "2"]);
-        assert!(out.status.success());
-        assert_eq!(body, String::from_utf8_lossy(&out.stdout), "{format}: the download is the report");
-    }
-    let (_, page) = http_get_text(&format!("{}/results?batch=main&reps=2", server.url));
-    for link in [
-        r#"id="download-csv" href="/results/report/csv?batch=main&#38;reps=2""#,
-        r#"id="download-latex" href="/results/report/latex?batch=main&#38;reps=2""#,
-        r#"class="batch-link" href="/results?batch=main">main</a>"#,
-    ] {
-        assert!(page.contains(link), "{link} in the Results page");
-    }
-    let (_, all) = http_get_json(&format!("{}/api/results?batch=main", server.url));
-    let episode = all["batches"][0]["episodes"][0]["episode_id"].as_str().expect("an episode").to_owned();
-    let (status, review) = http_get_text(&format!("{}/episodes/{episode}/review", server.url));
-    assert_eq!(status, 200);
-    assert!(review.contains(r#"<a id="batch-link" href="/results?batch=main">main</a>"#), "the review names its batch");
-    for (query, says) in [
-        ("/results?reps=abc", "reps must be a whole number from 1 to 100"),
-        ("/results?reps=0", "reps must be a whole number from 1 to 100"),
-        ("/api/results?reps=1000", "reps must be a whole number from 1 to 100"),
-        ("/results/report/pdf", "csv, markdown or latex, not"),
-        ("/results/report/csv?batch=nope", "no batch"),
-        ("/?outcome=bogus", "outcome must be one of RUNNING, SUCCESS, FAIL, SIM_TIMEOUT, WATCHDOG_TIMEOUT, INVALID, INTERRUPTED"),
-    ] {
-        let (status, body) = http_get_text(&format!("{}{query}", server.url));
-        assert!((400..500).contains(&status), "{query}: {status}");
-        assert!(body.contains(says), "{query}: {body}");
-    }
-    let (status, home) = http_get_text(&format!("{}/?outcome=fail", server.url));
-    assert_eq!(status, 200, "an outcome in any case filters");
-    assert!(home.contains(r#"<option value="FAIL" selected>"#), "the filter shows what it filters on");
-    assert!(home.contains(r#"<option value="WATCHDOG_TIMEOUT">"#), "every outcome is a choice");
-    // A filter that matches nothing says so (not "no episodes yet"), and an unknown task group is named.
-    let (status, home) = http_get_text(&format!("{}/?batch=no-such-batch", server.url));
-    assert_eq!(status, 200);
-    assert!(home.contains("No episode matches batch “no-such-batch”") && !home.contains("No episodes yet"), "{home}");
-    let (_, tasks) = http_get_text(&format!("{}/tasks?group=nope", server.url));
-    assert!(tasks.contains("group must be one of perception, short_horizon, long_horizon, not &#34;nope&#34;"), "{tasks}");
 }
