@@ -1,7 +1,7 @@
 //! The console as its users live in it (issue 33): the operator token stays the same across restarts of a data
 //! directory and open browser sessions survive them, until `serve --rotate-token`; the login link `serve` prints
 //! works exactly once, also across a restart; the login page of a loopback server says where it listens and
-//! where the token is; `expert --pace realtime` sends 20 actions per second of wall time. (Error pages with the
+//! where the token is (asked in process); `expert --pace realtime` sends 20 actions per second of wall time. (Error pages with the
 //! navigation, `/api/` keeping JSON and the icon are checked in process: `routes_in_process`.)
 //! Chromium (`tests/dashboard/console_errors.cjs`) looks at the login and error pages; screenshots go to
 //! `target/test-artifacts/console/`.
@@ -14,6 +14,7 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use common::{Server, bin, browser_script, first_json_line, http};
+use libero_testkit::server::{Method, TestServer};
 use serde_json::Value;
 
 /// The session cookie (`libero_session=…`) a login answer sets.
@@ -32,10 +33,6 @@ fn sign_in(base: &str, token: &str) -> String {
 fn get_with(url: &str, headers: &[(&str, &str)]) -> (u16, String, String) {
     let (status, head, body) = http("GET", url, headers, b"");
     (status, head, String::from_utf8_lossy(&body).into_owned())
-}
-
-fn content_type(head: &str) -> String {
-    head.lines().find_map(|l| l.to_ascii_lowercase().strip_prefix("content-type:").map(|v| v.trim().to_owned())).unwrap_or_default()
 }
 
 /// A `serve` whose stderr is read: its URL and the one-time login link it printed. Stderr keeps being drained.
@@ -68,11 +65,6 @@ impl LinkServer {
         let url = first_json_line(&mut child)["url"].as_str().expect("url").to_owned();
         let link = rx.recv_timeout(Duration::from_secs(60)).expect("the login link on stderr");
         Self { child, url, link }
-    }
-
-    /// The server's URL as this machine reaches it (a server on 0.0.0.0 through 127.0.0.1).
-    fn local(&self) -> String {
-        self.url.replace("0.0.0.0", "127.0.0.1")
     }
 }
 
@@ -171,25 +163,28 @@ fn the_printed_login_link_works_once_even_across_a_restart() {
     assert_eq!(status, 303, "this start's own link");
 }
 
-#[test]
-fn the_login_page_says_where_the_server_listens_and_where_the_token_is() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    let server = Server::start(&data);
-    let token_file = std::path::absolute(data.join("operator_token")).unwrap();
-    let (status, head, body) = get_with(&format!("{}/login", server.url), &[]);
-    assert_eq!(status, 200);
-    assert!(content_type(&head).starts_with("text/html"), "{head}");
+/// Asked of the full router in process: a loopback server's login page names its address and the token file, and
+/// claims nothing beyond loopback; one bound to 0.0.0.0 says it listens beyond loopback.
+#[tokio::test(flavor = "multi_thread")]
+async fn the_login_page_says_where_the_server_listens_and_where_the_token_is() {
+    let server = TestServer::start().await;
+    let token_file = std::path::absolute(server.data().join("operator_token")).unwrap();
+    let login = server.get("/login").await;
+    let body = login.text();
+    assert_eq!(login.status, 200, "{body}");
+    assert!(login.header("content-type").is_some_and(|t| t.starts_with("text/html")), "{:?}", login.headers);
     assert!(body.contains(&token_file.display().to_string()), "the login page names {}: {body}", token_file.display());
     assert!(!body.contains("beyond loopback"), "a loopback server does not claim to listen beyond loopback: {body}");
-    let addr = server.url.trim_start_matches("http://");
+    let addr = server.url().trim_start_matches("http://");
     assert!(body.contains(addr) && body.contains("loopback address"), "it says where it listens: {body}");
     drop(server);
 
     // Beyond loopback, it says so.
-    let wide = LinkServer::start(&tmp.path().join("wide"), "0.0.0.0:0");
-    let (status, _, body) = get_with(&format!("{}/login", wide.local()), &[]);
-    assert_eq!(status, 200);
+    let wide = TestServer::start_at("0.0.0.0:0", &[]).await;
+    let port = wide.url().rsplit(':').next().unwrap().to_owned();
+    let login = wide.send(Method::GET, "/login", &[("host", &format!("127.0.0.1:{port}"))], Vec::new()).await;
+    let body = login.text();
+    assert_eq!(login.status, 200, "{body}");
     assert!(body.contains("beyond loopback") && body.contains("0.0.0.0:"), "{body}");
 }
 

@@ -71,8 +71,15 @@ impl TestServer {
 
     /// With more `serve` arguments (e.g. `--batches DIR`).
     pub async fn start_with(extra: &[&str]) -> Self {
+        Self::start_at("127.0.0.1:0", extra).await
+    }
+
+    /// Bound to `addr` (`0.0.0.0:0`: a server reachable beyond loopback, as its pages say), with more `serve`
+    /// arguments. Requests name [`url`](Self::url)'s authority as their `Host`, which a server bound to an
+    /// unspecified address does not answer to: send those with a `host` header of `127.0.0.1:PORT`.
+    pub async fn start_at(addr: &str, extra: &[&str]) -> Self {
         let data = tempfile::tempdir().expect("a temporary data directory");
-        let mut argv = vec!["serve", "--addr", "127.0.0.1:0", "--thumbnails-ahead", "off", "--data"];
+        let mut argv = vec!["serve", "--addr", addr, "--thumbnails-ahead", "off", "--data"];
         let dir = data.path().to_str().expect("a UTF-8 temporary path").to_owned();
         argv.push(&dir);
         argv.extend_from_slice(extra);
