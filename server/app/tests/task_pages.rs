@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime};
 
 use common::{Server, http_get_json, http_get_text};
+use libero_testkit::server::TestServer;
 use serde_json::Value;
 
 /// The pool entry whose page is checked besides T14's (a stock LIBERO scene, K = 1).
@@ -137,12 +138,20 @@ fn card<'a>(page: &'a str, marker: &str) -> &'a str {
     page.split("<article").find(|a| a.split('>').next().is_some_and(|tag| tag.contains(marker))).unwrap_or_else(|| panic!("no card {marker}"))
 }
 
+/// A page of the in-process server, asked with the operator token: (status, HTML).
+async fn operator_page(server: &TestServer, path: &str) -> (u16, String) {
+    let a = server.get_as_operator(path).await;
+    (a.status, a.text())
+}
+
 /// The last expert sweep of the tasks folder (`results/expert_sweep.jsonl` and its `.meta.json`, as `libero-agent
 /// expert --all` writes them) shows on the Tasks page's cards and on the task pages of the entries it
-/// has, release tasks and pool entries alike, as "solved k/n on DATE at COMMIT"; an entry it lacks shows none.
+/// has, release tasks and pool entries alike, as "solved k/n on DATE at COMMIT"; an entry it lacks shows none. Asked of
+/// the full router in process, with `LIBERO_AGENT_TASKS_DIR` naming a copy of the tasks folder (set before any thread
+/// starts; nextest runs each test in a process of its own).
 #[test]
 fn the_expert_sweep_shows_on_the_task_pages_of_the_entries_it_covers_only() {
-    let (tasks, data) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let tasks = tempfile::tempdir().unwrap();
     copy_tasks(&libero_testkit::tasks_dir(), tasks.path());
     let results = tasks.path().join("results");
     std::fs::create_dir_all(&results).unwrap();
@@ -152,24 +161,29 @@ fn the_expert_sweep_shows_on_the_task_pages_of_the_entries_it_covers_only() {
     ];
     std::fs::write(results.join("expert_sweep.jsonl"), rows.join("\n") + "\n").unwrap();
     std::fs::write(results.join("expert_sweep.meta.json"), r#"{"date_utc":"2026-11-27T10:00:00Z","commit":"abc1234"}"#).unwrap();
-    let server = Server::start_with_env(data.path(), &[], &[("LIBERO_AGENT_TASKS_DIR", tasks.path().as_os_str())]);
+    // SAFETY: the test's only thread so far; nothing reads the environment concurrently.
+    unsafe { std::env::set_var("LIBERO_AGENT_TASKS_DIR", tasks.path()) };
+    let runtime = tokio::runtime::Builder::new_multi_thread().enable_all().build().unwrap();
+    runtime.block_on(async {
+        let server = TestServer::start().await;
 
-    let (status, page) = http_get_text(&format!("{}/tasks", server.url));
-    assert_eq!(status, 200, "{page}");
-    assert!(card(&page, "id=\"T14\"").contains("solved 3/3 on 2026-11-27 at abc1234"), "{}", card(&page, "id=\"T14\""));
-    assert!(!card(&page, "id=\"T01\"").contains("expert-sweep"), "T01 is not in the sweep: {}", card(&page, "id=\"T01\""));
-    let (status, page) = http_get_text(&format!("{}/tasks?suite=libero_90", server.url));
-    assert_eq!(status, 200, "{page}");
-    assert!(card(&page, &format!("data-id=\"{POOL_TASK}\"")).contains("solved 2/3 on 2026-11-27 at abc1234"), "{page}");
+        let (status, page) = operator_page(&server, "/tasks").await;
+        assert_eq!(status, 200, "{page}");
+        assert!(card(&page, "id=\"T14\"").contains("solved 3/3 on 2026-11-27 at abc1234"), "{}", card(&page, "id=\"T14\""));
+        assert!(!card(&page, "id=\"T01\"").contains("expert-sweep"), "T01 is not in the sweep: {}", card(&page, "id=\"T01\""));
+        let (status, page) = operator_page(&server, "/tasks?suite=libero_90").await;
+        assert_eq!(status, 200, "{page}");
+        assert!(card(&page, &format!("data-id=\"{POOL_TASK}\"")).contains("solved 2/3 on 2026-11-27 at abc1234"), "{page}");
 
-    let (status, page) = http_get_text(&format!("{}/tasks/T14", server.url));
-    assert_eq!(status, 200, "{page}");
-    assert!(page.contains(r#"<dd id="expert-sweep">solved 3/3 on 2026-11-27 at abc1234</dd>"#), "{page}");
-    let (_, page) = http_get_text(&format!("{}/tasks/{POOL_TASK}", server.url));
-    assert!(page.contains(r#"<dd id="expert-sweep">solved 2/3 on 2026-11-27 at abc1234</dd>"#), "{page}");
-    let (status, page) = http_get_text(&format!("{}/tasks/T01", server.url));
-    assert_eq!(status, 200, "{page}");
-    assert!(!page.contains("expert-sweep"), "T01 is not in the sweep: {page}");
+        let (status, page) = operator_page(&server, "/tasks/T14").await;
+        assert_eq!(status, 200, "{page}");
+        assert!(page.contains(r#"<dd id="expert-sweep">solved 3/3 on 2026-11-27 at abc1234</dd>"#), "{page}");
+        let (_, page) = operator_page(&server, &format!("/tasks/{POOL_TASK}")).await;
+        assert!(page.contains(r#"<dd id="expert-sweep">solved 2/3 on 2026-11-27 at abc1234</dd>"#), "{page}");
+        let (status, page) = operator_page(&server, "/tasks/T01").await;
+        assert_eq!(status, 200, "{page}");
+        assert!(!page.contains("expert-sweep"), "T01 is not in the sweep: {page}");
+    });
 }
 
 /// Page renders are served one at a time, and a thumbnail request whose page went away (the browser closed its
