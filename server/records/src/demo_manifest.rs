@@ -157,6 +157,24 @@ record! {
         /// Stages the target's idle start earns, and the most a replay may earn.
         pub idle_completed_stage_count: Option<u64>,
         pub allowed_stage_count: Option<u64>,
+        /// The replays after moving the end effector by an object's start displacement.
+        pub offset_replays: Option<Vec<OffsetReplayCheck>>,
+        /// When the check was made (ISO-8601 UTC).
+        pub checked_at: Option<String>,
+    }
+}
+
+record! {
+    /// One offset replay of a [`ReplayCheck`].
+    pub struct OffsetReplayCheck {
+        /// The object whose start displacement the end effector was moved by.
+        pub instance: Option<String>,
+        /// The displacement, metres (x, y, z).
+        pub offset_m: Option<Vec<f64>>,
+        /// Whether the replay solved the target.
+        pub success: Option<bool>,
+        /// Stages it earned.
+        pub completed_required_stage_count: Option<u64>,
     }
 }
 
@@ -294,7 +312,7 @@ impl ReplayCheck {
             };
             return format!("seed {seed}{init}: direct replay {solves} (stages not checked, older rule)");
         }
-        let offsets = self.rest.get("offset_replays").and_then(|v| v.as_array()).map_or(0, Vec::len);
+        let offsets = self.offset_replays.as_ref().map_or(0, Vec::len);
         let verdict = match (self.accepted, self.direct_accepted) {
             (Some(true), _) => "shown",
             (_, Some(true)) => "shown, direct rule (an offset replay earns more)",

@@ -12,7 +12,7 @@ use serde_json::{Value, json};
 use super::*;
 use super::record::bundle_source;
 use super::replay_attack::{REPLAY_CHECK_METHOD, ReplayAttack, ReplayRule};
-use libero_records::demo_manifest::ReplayCheck;
+use libero_records::demo_manifest::{OffsetReplayCheck, ReplayCheck};
 use libero_records::json::{utc_now_iso, write_json_file};
 use crate::physics::WorldSpec;
 use crate::task::{EffectiveLayout, TaskSource};
@@ -134,21 +134,7 @@ pub fn store_replay_check(dir: &Path, target: &TargetEpisode, attack: &ReplayAtt
     let key = target.key()?;
     let manifest_path = dir.join(MANIFEST);
     let mut manifest = read_manifest(&manifest_path)?;
-    let check = json!({
-        "target": key,
-        "replay_solves": attack.any_success(),
-        "accepted": attack.accepted(),
-        "direct_accepted": attack.direct_accepted(),
-        "completed_required_stage_count": attack.direct.completed_required_stage_count,
-        "required_stage_count": attack.required_stage_count,
-        "best_completed_stage_count": attack.best_completed_stage_count(),
-        "idle_completed_stage_count": attack.idle_completed_stage_count,
-        "allowed_stage_count": attack.allowed_stage_count(),
-        "offset_replays": attack.offsets,
-        "method": REPLAY_CHECK_METHOD,
-        "checked_at": utc_now_iso(),
-    });
-    let check = ReplayCheck::from_value(check).map_err(|e| DemoError::Source(format!("replay check: {e}")))?;
+    let check = replay_check(key.clone(), attack, utc_now_iso());
     let mut checks = manifest.replay_checks.take().unwrap_or_default();
     checks.retain(|c| c.target.as_ref() != Some(&key));
     checks.push(check);
@@ -156,6 +142,37 @@ pub fn store_replay_check(dir: &Path, target: &TargetEpisode, attack: &ReplayAtt
     // A list the typed view could not read is replaced, as any list was.
     manifest.rest.remove("replay_checks");
     write_json_file(&manifest_path, &manifest.to_value()).map_err(io_err(&manifest_path))
+}
+
+/// The check stored for replaying a bundle in the target `key` at `checked_at`.
+fn replay_check(key: Value, attack: &ReplayAttack, checked_at: String) -> ReplayCheck {
+    let count = |n: usize| Some(n as u64);
+    let offsets = attack
+        .offsets
+        .iter()
+        .map(|r| OffsetReplayCheck {
+            instance: Some(r.instance.clone()),
+            offset_m: Some(r.offset_m.to_vec()),
+            success: Some(r.outcome.success),
+            completed_required_stage_count: count(r.outcome.completed_required_stage_count),
+            ..OffsetReplayCheck::default()
+        })
+        .collect();
+    ReplayCheck {
+        target: Some(key),
+        replay_solves: Some(attack.any_success()),
+        accepted: Some(attack.accepted()),
+        direct_accepted: Some(attack.direct_accepted()),
+        completed_required_stage_count: count(attack.direct.completed_required_stage_count),
+        required_stage_count: count(attack.required_stage_count),
+        best_completed_stage_count: count(attack.best_completed_stage_count()),
+        idle_completed_stage_count: count(attack.idle_completed_stage_count),
+        allowed_stage_count: count(attack.allowed_stage_count()),
+        offset_replays: Some(offsets),
+        method: Some(REPLAY_CHECK_METHOD.to_owned()),
+        checked_at: Some(checked_at),
+        ..ReplayCheck::default()
+    }
 }
 
 /// Marks `dir`'s stored check for `target` as chosen under the direct replay rule (after no source passed the
@@ -266,6 +283,43 @@ mod tests {
         // older checks: a success stands, a failure is checked again under today's rule
         assert!(stored_verdict(&check(json!({"replay_solves": true})), ReplayRule::DirectOnly).unwrap().is_err());
         assert_eq!(stored_verdict(&check(json!({"replay_solves": false, "method": "direct_replay_on_world_physics"})), ReplayRule::WithOffsets), None);
+    }
+
+    /// A stored replay check is what the untyped writer wrote, key for key and byte for byte (sorted compact),
+    /// and reads back as itself.
+    #[test]
+    fn a_stored_replay_check_keeps_the_untyped_writers_wire_format() {
+        use super::replay_attack::{OffsetReplay, ReplayOutcome};
+        let attack = ReplayAttack {
+            direct: ReplayOutcome { success: false, completed_required_stage_count: 0 },
+            offsets: vec![OffsetReplay {
+                instance: "latched_door_1".into(),
+                offset_m: [0.01, 0.0, -0.02],
+                outcome: ReplayOutcome { success: true, completed_required_stage_count: 2 },
+            }],
+            required_stage_count: 2,
+            idle_completed_stage_count: 0,
+        };
+        let key = json!({"task": "T28", "effective_layout": {"placement_seed": 100, "init_index": null}});
+        let at = "2026-12-01T00:00:00.000000Z".to_owned();
+        let untyped = json!({
+            "target": key,
+            "replay_solves": attack.any_success(),
+            "accepted": attack.accepted(),
+            "direct_accepted": attack.direct_accepted(),
+            "completed_required_stage_count": attack.direct.completed_required_stage_count,
+            "required_stage_count": attack.required_stage_count,
+            "best_completed_stage_count": attack.best_completed_stage_count(),
+            "idle_completed_stage_count": attack.idle_completed_stage_count,
+            "allowed_stage_count": attack.allowed_stage_count(),
+            "offset_replays": attack.offsets,
+            "method": REPLAY_CHECK_METHOD,
+            "checked_at": at,
+        });
+        let typed = replay_check(key, &attack, at);
+        assert_eq!(typed.to_string(), libero_records::json::compact_sorted(&untyped));
+        assert_eq!(ReplayCheck::from_value(untyped).unwrap(), typed);
+        assert!(typed.summary().contains("best of 1 offsets 2/2 (solves)"), "{}", typed.summary());
     }
 
     #[test]
