@@ -213,6 +213,8 @@ pub fn policy_image(published: &Image8, contract: &LiberoContract) -> Image8 {
 
 type Quat = [f64; 4]; // w, x, y, z
 
+const H: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
 fn quat_mul(a: Quat, b: Quat) -> Quat {
     [
         a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
@@ -233,21 +235,22 @@ fn rotate(q: Quat, v: [f64; 3]) -> [f64; 3] {
 }
 
 /// The body quaternions (`quat` attributes, w x y z) from `robot0_base` to `robot0_right_hand` in robosuite's
-/// Panda MJCF (robosuite 1.4 `robots/panda/robot.xml`); every joint turns about its body's z.
+/// Panda MJCF (robosuite 1.4 `robots/panda/robot.xml`, whose `0.707107` MuJoCo normalizes to 1/√2); every joint
+/// turns about its body's z.
 const PANDA_LINK_QUATS: [Quat; 8] = [
-    [1.0, 0.0, 0.0, 0.0],                 // link0
-    [1.0, 0.0, 0.0, 0.0],                 // link1 (joint1)
-    [0.707107, -0.707107, 0.0, 0.0],      // link2 (joint2)
-    [0.707107, 0.707107, 0.0, 0.0],       // link3 (joint3)
-    [0.707107, 0.707107, 0.0, 0.0],       // link4 (joint4)
-    [0.707107, -0.707107, 0.0, 0.0],      // link5 (joint5)
-    [0.707107, 0.707107, 0.0, 0.0],       // link6 (joint6)
-    [0.707107, 0.707107, 0.0, 0.0],       // link7 (joint7)
+    [1.0, 0.0, 0.0, 0.0], // link0
+    [1.0, 0.0, 0.0, 0.0], // link1 (joint1)
+    [H, -H, 0.0, 0.0], // link2 (joint2)
+    [H, H, 0.0, 0.0], // link3 (joint3)
+    [H, H, 0.0, 0.0], // link4 (joint4)
+    [H, -H, 0.0, 0.0], // link5 (joint5)
+    [H, H, 0.0, 0.0], // link6 (joint6)
+    [H, H, 0.0, 0.0], // link7 (joint7)
 ];
 /// `robot0_right_hand` in `robot0_link7`.
 const PANDA_HAND_QUAT: Quat = [0.924, 0.0, 0.0, -0.383];
 /// The grip site's frame in the hand's: `gripper0_right_gripper`'s `quat="0.707107 0 0 -0.707107"`
-/// (the eef body and the site add no rotation), so `q_hand = q_site · SITE_TO_HAND`.
+/// (the eef body and the site add no rotation), so `q_hand = q_site · HAND_IN_SITE`.
 const HAND_IN_SITE: Quat = [std::f64::consts::FRAC_1_SQRT_2, 0.0, 0.0, std::f64::consts::FRAC_1_SQRT_2];
 
 /// `robot0_right_hand`'s world quaternion as MuJoCo's forward kinematics composes it (sign included).
