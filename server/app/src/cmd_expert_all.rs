@@ -623,18 +623,82 @@ fn print_table(rows: &[ExpertSweepRow]) {
     }
 }
 
+/// One line of `expert --list`; fields in key order, as the line was written before it was typed.
+#[derive(Serialize)]
+struct ListLine<'a> {
+    /// `solve` and `idle` first, then the task's own.
+    behaviours: Vec<&'a str>,
+    /// The pool address (absent for a release task).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    entry: Option<&'a str>,
+    suite: &'a str,
+    task: &'a str,
+}
+
 /// Every entry with an expert and its behaviours, one JSON line each: the release tasks first, then the stock
 /// LIBERO tasks and the pool's own definitions, in the order `expert --all` runs them.
 pub fn list() -> anyhow::Result<()> {
     for t in selected_tasks(&Selection::all())? {
         if let Some(b) = libero_tasks::expert_behaviours(&t.task) {
             let all: Vec<&str> = [expert::SOLVE, libero_episode::expert_run::IDLE].into_iter().chain(b.iter().copied()).collect();
-            let mut line = json!({"task": t.task, "suite": t.suite, "behaviours": all});
-            if let Some(entry) = &t.entry {
-                line["entry"] = json!(entry);
-            }
-            println!("{line}");
+            let line = ListLine { behaviours: all, entry: t.entry.as_deref(), suite: &t.suite, task: &t.task };
+            println!("{}", compact(&line));
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The journal's header and `--list`'s lines are what the untyped writer wrote (sorted keys, `entry` only for a
+    /// pool entry), so a journal left by an older build still resumes.
+    #[test]
+    fn the_journal_header_and_list_lines_keep_their_wire_format() {
+        let header = JournalHeader { journal: SweepKey { level: 3, runs: 3, seed: 7, selection: "T01,T02".into() } };
+        let old = json!({"journal": {"selection": "T01,T02", "runs": 3, "level": 3, "seed": 7}});
+        assert_eq!(compact(&header), old.to_string());
+        assert_eq!(serde_json::from_str::<JournalHeader>(&old.to_string()).unwrap(), header);
+        let line = ListLine { behaviours: vec!["solve", "idle"], entry: None, suite: "release", task: "T01" };
+        assert_eq!(compact(&line), json!({"task": "T01", "suite": "release", "behaviours": ["solve", "idle"]}).to_string());
+        let line = ListLine { entry: Some("libero_90/1"), ..line };
+        assert_eq!(
+            compact(&line),
+            json!({"task": "T01", "suite": "release", "behaviours": ["solve", "idle"], "entry": "libero_90/1"}).to_string()
+        );
+    }
+
+    /// A failed run names the goal atoms its final state failed, or, without terminal checks, the stages it reached.
+    #[test]
+    fn a_failed_run_names_its_failed_atoms_or_the_stages_it_reached() {
+        let record = |v| PrivateEvaluation::from_value(v).unwrap();
+        let checks = json!({"terminal_state_checks": [{"name": "(on a b)", "passed": false}, {"name": "(open c)", "passed": true}]});
+        assert_eq!(failed_checks(&record(checks)), ["(on a b)"]);
+        assert_eq!(failed_checks(&record(json!({"completed_stage_names": ["grasp"], "required_stage_count": 3}))), ["1 of 3 stages"]);
+        assert_eq!(failed_checks(&record(json!({}))), ["0 of null stages"], "as the untyped reader printed a missing count");
+    }
+
+    /// The verdict column and the README's table read typed rows as they read the untyped ones.
+    #[test]
+    fn verdicts_and_the_markdown_table_read_every_row_shape() {
+        let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/expert_sweep/expert_sweep.jsonl")).unwrap();
+        let rows: Vec<ExpertSweepRow> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        let verdicts: Vec<String> = rows.iter().map(verdict).collect();
+        assert_eq!(
+            verdicts[..5],
+            [
+                "3/3".to_owned(),
+                "0/1 (failed (in yellow_book_1 wooden_two_layer_shelf_1_bottom_region))".to_owned(),
+                "1/2 (episode timed out)".to_owned(),
+                "no expert: cannot plan (open microwave_1)".to_owned(),
+                "error: panicked: boom".to_owned(),
+            ]
+        );
+        let table = markdown(&rows);
+        assert!(table.starts_with("| suite | entries | with expert | solved every run |"), "runs 3, 1 and 2: {table}");
+        assert!(table.contains("| release | 3 | 2 | 1 |") && table.contains("| libero_90 | 2 | 1 | 0 |"), "{table}");
+        assert!(table.contains("| long_horizon_v2 | 1 | 1 | 1 |") && table.contains("| **all** | **6** | **4** | **2** |"), "{table}");
+        assert_eq!(table_summary(&rows, 3), "2 of 6 solved 3/3", "the summary line is no entry");
+    }
 }

@@ -145,16 +145,19 @@ pub fn integrity_block(root: &Path) -> Result<DemoIntegrity, DemoError> {
     Ok(DemoIntegrity { algorithm: Some("sha256".to_owned()), files: Some(files), ..DemoIntegrity::default() })
 }
 
+/// The 7 components of an action vector, in order (§7.3).
+pub const ACTION_COMPONENTS: [&str; 7] = [
+    "normalized_delta_position_x", "normalized_delta_position_y", "normalized_delta_position_z",
+    "normalized_delta_rotation_vector_x", "normalized_delta_rotation_vector_y", "normalized_delta_rotation_vector_z",
+    "normalized_gripper_command",
+];
+
 /// The canonical `action_semantics` object (§7.3).
 pub fn action_semantics() -> Value {
     json!({
         "schema_version": ACTION_SCHEMA,
         "representation": "normalized_libero_osc_pose_7d",
-        "component_order": [
-            "normalized_delta_position_x", "normalized_delta_position_y", "normalized_delta_position_z",
-            "normalized_delta_rotation_vector_x", "normalized_delta_rotation_vector_y",
-            "normalized_delta_rotation_vector_z", "normalized_gripper_command"
-        ],
+        "component_order": ACTION_COMPONENTS,
         "normalized_range": [-1.0, 1.0],
         "controller_output_scale": {"translation_m_per_unit": 0.05, "rotation_vector_rad_per_unit": 0.5},
         "gripper_command": {"minus_one": "open", "plus_one": "close", "metric_width_semantics": false},
@@ -242,7 +245,8 @@ pub fn read_trajectory_row(text: &str, line: usize) -> Result<([f64; 7], DemoTra
 pub const TRAJECTORY_ROW_KEYS: [&str; 7] =
     ["action", "action_index", "call_index", "frame_after", "frame_before", "state_after", "state_before"];
 
-/// Reads a 7-D action vector back (`None` unless 7 finite numbers within [`ACTION_LIMIT`]).
+/// Reads a 7-D action vector back (`None` unless 7 finite numbers within [`ACTION_LIMIT`]) from plain JSON: the
+/// validators' reading of a bundle handed in, which may be malformed (our own rows: [`read_trajectory_row`]).
 pub fn parse_action(v: &Value) -> Option<[f64; 7]> {
     let a = v.get("normalized_vector_7d")?.as_array()?;
     let xs: Vec<f64> = a.iter().map(Value::as_f64).collect::<Option<_>>()?;
