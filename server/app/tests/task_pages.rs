@@ -6,7 +6,8 @@
 //! card to `/tasks/T14` (instruction, K, stages, both images loaded, teleop and back links, the episode, its batch
 //! cell), opens a pool entry's page, the review page's task link and Stages table at 1400 px, the Results page's
 //! task link, and times the warm Tasks page. (Unknown tasks' 404 is routes_in_process's.) Screenshots go to
-//! `target/test-artifacts/task_pages/`.
+//! `target/test-artifacts/task_pages/`. The expert sweep's notes and a thumbnail asked while its scene renders are
+//! checked in process (`TestServer`); a thumbnail request whose connection closes needs a real socket.
 mod common;
 
 use std::collections::BTreeMap;
@@ -240,4 +241,34 @@ fn thumbnail_requests_whose_page_went_away_are_never_rendered() {
     assert!(png.starts_with(b"\x89PNG"));
     let s = stats();
     assert_eq!((s["rendered"].as_u64(), s["on_demand_cancelled"].as_u64()), (Some(2), Some(3)), "{s}");
+}
+
+/// Issue 49, item 9: a page asking for a thumbnail whose scene is being rendered right now gets it with that render,
+/// not after the renders queued before it. Three page requests on a fresh data directory (no pass ahead), asked of
+/// the full router in process at once: the head view of libero_90/35, then T14's, then libero_90/35's wrist view
+/// while its scene still renders. The wrist view comes with the first render, before T14's (which waits for its turn
+/// and renders after); the scene of libero_90/35 is rendered once.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_thumbnail_of_a_scene_rendering_now_comes_with_that_render_not_after_the_queue() {
+    let server = std::sync::Arc::new(TestServer::start().await);
+    let t0 = Instant::now();
+    let ask = |path: &'static str, after_ms: u64| {
+        let server = server.clone();
+        tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_millis(after_ms)).await;
+            let a = server.get_as_operator(path).await;
+            (a.status, a.body.len(), t0.elapsed())
+        })
+    };
+    let head = ask("/tasks/libero_90/35/thumbnail.png", 0);
+    let other = ask("/tasks/T14/thumbnail.png", 300);
+    let wrist = ask("/tasks/libero_90/35/thumbnail.png?camera=wrist", 600);
+    let (head, other, wrist) = (head.await.unwrap(), other.await.unwrap(), wrist.await.unwrap());
+    for (what, (status, len, _)) in [("head", head), ("T14", other), ("wrist", wrist)] {
+        assert!(status == 200 && len > 1000, "{what}: {status}, {len} bytes");
+    }
+    // T14's scene takes seconds to set up and render; the wrist view must not wait for any of it.
+    assert!(wrist.2 + Duration::from_millis(500) < other.2, "the wrist view ({:?}) waited behind T14's render ({:?})", wrist.2, other.2);
+    let stats = server.get_as_operator("/api/thumbnails").await.json();
+    assert_eq!(stats["thumbnails"]["rendered"], 2, "two scenes rendered, libero_90/35 once: {stats}");
 }
