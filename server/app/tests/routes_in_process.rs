@@ -22,6 +22,7 @@ const ROUTES: &[(&str, &str)] = &[
     ("/api/episodes", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/api/episodes/{id}", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/api/episodes/{id}/video", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
+    ("/api/episodes/{id}/result", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/api/episodes/{id}/abort", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/api/episodes/{id}/forfeit", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
     ("/api/episodes/{id}/agent/events", "an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes"),
@@ -91,6 +92,7 @@ const OPERATOR_ONLY: &[(&str, &str)] = &[
     ("POST", "/api/episodes"),
     ("GET", "/api/episodes/ep-20990101T000000Z-none"),
     ("GET", "/api/episodes/ep-20990101T000000Z-none/video"),
+    ("GET", "/api/episodes/ep-20990101T000000Z-none/result"),
     ("POST", "/api/episodes/ep-20990101T000000Z-none/abort"),
     ("POST", "/api/episodes/ep-20990101T000000Z-none/forfeit"),
     ("POST", "/api/episodes/ep-20990101T000000Z-none/finish"),
@@ -358,6 +360,10 @@ async fn an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes() {
     let video = server.get_as_operator(&format!("/api/episodes/{id}/video")).await.json();
     assert_eq!(video, json!({"video": false, "video_status": null}), "an episode without a video");
     assert_refused(&server.get_as_operator(&format!("/api/episodes/{NOBODY}/video")).await, 404, NOBODY, "an unknown episode's video");
+    // The result a runner on another machine classifies: none while the episode is open.
+    let result = server.get_as_operator(&format!("/api/episodes/{id}/result")).await.json();
+    assert_eq!(result, json!({"ok": true, "result": null}), "an open episode has no result");
+    assert_refused(&server.get_as_operator(&format!("/api/episodes/{NOBODY}/result")).await, 404, NOBODY, "an unknown episode's result");
 
     // The live and review pages, and the review's data.
     let live = assert_page(&server.get_as_operator(&format!("/episodes/{id}")).await, "the live page");
@@ -438,6 +444,8 @@ async fn an_episode_is_prepared_read_reviewed_and_aborted_through_its_routes() {
     assert_eq!(aborted.status, 200, "{}", aborted.text());
     let aborted = aborted.json();
     assert_eq!(aborted["outcome"], "INVALID", "{aborted}");
+    let result = server.get_as_operator(&format!("/api/episodes/{id}/result")).await.json();
+    assert_eq!((result["result"]["status"].as_str(), result["result"]["reason"].as_str()), (Some("aborted"), Some("the in-process route test")), "{result}");
     let forfeit = format!("/api/episodes/{id}/forfeit");
     assert_refused(&server.post_json_as_operator(&forfeit, &json!({})).await, 400, "body must be {\"reason\"", "a forfeit without a reason");
     let late = server.post_json_as_operator(&forfeit, &json!({"reason": "late"})).await;

@@ -6,8 +6,10 @@ use axum::extract::{Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use libero_store::EpisodeFilter;
+use libero_episode::Outcome;
+use libero_records::episode_view::EpisodeView;
 use libero_server::{ApiError, App, AppState, episode_json};
-use serde_json::{Value, json};
+use serde_json::json;
 
 use crate::common::page;
 use crate::rows::{Wake, next_wake};
@@ -82,60 +84,51 @@ pub(crate) fn short_utc(iso: &str) -> String {
 }
 
 impl HomeRow {
-    fn of(v: &Value) -> Self {
-        let text = |k: &str| v[k].as_str().unwrap_or("").to_owned();
-        let progress = match (v["completed_stage_count"].as_i64(), v["required_stage_count"].as_i64()) {
+    fn of(v: &EpisodeView) -> Self {
+        let text = |t: &Option<String>| t.clone().unwrap_or_default();
+        let progress = match (v.completed_stage_count, v.required_stage_count) {
             (Some(c), Some(k)) => format!("{c}/{k}"),
             _ => "–".into(),
         };
+        let started = v.started_at.as_deref().unwrap_or(&v.created_at);
+        let reason = text(&v.reason);
         Self {
-            id: text("id"),
-            task: text("task_ref"),
-            harness: text("harness"),
-            model: text("model"),
-            batch: text("batch"),
-            level: v["level"].as_i64().unwrap_or(0),
-            outcome: v["outcome"].as_str().unwrap_or("RUNNING").to_owned(),
+            id: v.id.clone(),
+            task: v.task_ref.clone(),
+            harness: text(&v.harness),
+            model: text(&v.model),
+            batch: text(&v.batch),
+            level: v.level,
+            outcome: v.outcome.map_or(RUNNING, Outcome::as_str).to_owned(),
             progress,
-            wall_time: v["wall_time_s"].as_f64().map(|s| format!("{s:.1} s")).unwrap_or_else(|| "–".into()),
-            submissions: v["accepted_agent_steps"].as_i64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
-            branch: branch_of(v),
-            started: short_utc(v["started_at"].as_str().or(v["created_at"].as_str()).unwrap_or("")),
-            started_iso: v["started_at"].as_str().or(v["created_at"].as_str()).unwrap_or("").to_owned(),
-            batch_href: format!("/?batch={}", crate::results::percent_encode(v["batch"].as_str().unwrap_or(""))),
-            reason: text("reason"),
-            reason_short: short_reason(v["reason"].as_str().unwrap_or("")),
+            wall_time: v.wall_time_s.map(|s| format!("{s:.1} s")).unwrap_or_else(|| "–".into()),
+            submissions: v.accepted_agent_steps.map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
+            branch: v.branch_parent.clone().zip(v.branch_step),
+            started: short_utc(started),
+            started_iso: started.to_owned(),
+            batch_href: format!("/?batch={}", crate::results::percent_encode(v.batch.as_deref().unwrap_or(""))),
+            reason_short: short_reason(&reason),
+            reason,
         }
     }
 }
 
-/// The parent episode and control step of a stored row that is a branch.
-fn branch_of(v: &Value) -> Option<(String, i64)> {
-    Some((v["branch_parent"].as_str()?.to_owned(), v["branch_step"].as_i64()?))
-}
+/// The outcome column of an open episode (`home.js` shows a null outcome the same way).
+const RUNNING: &str = "RUNNING";
 
-/// The stored rows with the live figures of episodes this process is running.
-async fn episode_list(app: &App, filter: &EpisodeFilter) -> anyhow::Result<Vec<Value>> {
+/// The stored rows with the live figures of episodes this process is running (an open episode's outcome is null,
+/// as in the operator API).
+async fn episode_list(app: &App, filter: &EpisodeFilter) -> anyhow::Result<Vec<EpisodeView>> {
     app.sync_all().await;
     let rows = app.store.list_filtered(filter, HOME_LIST_LIMIT).await?;
     Ok(rows
         .iter()
         .map(|r| {
             let mut v = episode_json(app, r);
-            if let (Some(hub), Some(obj)) = (app.hubs.get(&r.episode.id), v.as_object_mut()) {
-                let live = hub.summary();
-                for k in ["completed_stage_count", "required_stage_count", "wall_time_s"] {
-                    if obj.get(k).is_none_or(Value::is_null) && !live[k].is_null() {
-                        obj.insert(k.into(), live[k].clone());
-                    }
-                }
-            }
-            if let Some(obj) = v.as_object_mut() {
-                obj.entry("outcome").and_modify(|o| {
-                    if o.is_null() {
-                        *o = json!("RUNNING");
-                    }
-                });
+            if let Some(live) = app.hubs.get(&r.episode.id).and_then(|hub| hub.summary()) {
+                v.completed_stage_count = v.completed_stage_count.or(live.completed_stage_count);
+                v.required_stage_count = v.required_stage_count.or(live.required_stage_count);
+                v.wall_time_s = v.wall_time_s.or(live.wall_time_s);
             }
             v
         })
@@ -144,7 +137,7 @@ async fn episode_list(app: &App, filter: &EpisodeFilter) -> anyhow::Result<Vec<V
 
 /// The outcome filter's choices: open episodes and every outcome an episode can end with.
 fn outcome_choices() -> Vec<String> {
-    std::iter::once("RUNNING").chain(libero_episode::Outcome::ALL.map(libero_episode::Outcome::as_str)).map(String::from).collect()
+    std::iter::once(RUNNING).chain(libero_episode::Outcome::ALL.map(libero_episode::Outcome::as_str)).map(String::from).collect()
 }
 
 /// A filter on an outcome no episode can have would show an empty table under "any": refused, naming the choices.

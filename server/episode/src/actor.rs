@@ -76,15 +76,9 @@ impl EpisodeConfig {
     }
 }
 
-/// Lifecycle state visible to the server (never to the agent beyond the tool results).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum EpisodeState {
-    Prepared,
-    Active,
-    Finished,
-    Aborted,
-}
+/// Lifecycle state visible to the server (never to the agent beyond the tool results): one definition with the
+/// operator API's episode view, which carries it.
+pub use libero_records::episode_view::EpisodeState;
 
 /// A snapshot for the server's API and store.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]

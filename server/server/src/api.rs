@@ -7,6 +7,8 @@ use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use libero_episode::RunDir;
 use libero_episode::lifecycle::EpisodeSet;
+use libero_episode::video_queue::VideoProgress;
+use libero_records::episode_view::{EpisodeList, EpisodeResultReply, EpisodeVideo, EpisodeView, VideoState, VideoStatus};
 use serde_json::{Value, json};
 
 use crate::api_error::{ApiError, ApiResult};
@@ -21,6 +23,7 @@ pub(crate) fn operator_routes() -> Router<AppState> {
         .route("/api/episodes", post(prepare).get(list_episodes))
         .route("/api/episodes/{id}", get(episode_status))
         .route("/api/episodes/{id}/video", get(episode_video))
+        .route("/api/episodes/{id}/result", get(episode_result))
         .route("/api/episodes/{id}/abort", post(abort_episode))
         .route("/api/episodes/{id}/forfeit", post(forfeit_episode))
         .route("/api/thumbnails", get(thumbnail_stats))
@@ -45,14 +48,14 @@ async fn prepare(State(app): State<AppState>, body: axum::body::Bytes) -> ApiRes
 }
 
 /// A stored row for the API: no paths, plus the live state while this process serves the episode.
-pub fn episode_json(app: &App, row: &libero_store::EpisodeRow) -> Value {
-    let mut v = row.public();
-    if let (Some(live), Some(obj)) = (app.episodes.lifecycle().status(&row.episode.id), v.as_object_mut()) {
-        obj.insert("state".into(), json!(live.state));
-        obj.insert("accepted_agent_steps".into(), json!(live.accepted_agent_steps));
-        obj.insert("latest_observation_id".into(), json!(live.latest_observation_id));
+pub fn episode_json(app: &App, row: &libero_store::EpisodeRow) -> EpisodeView {
+    let mut view = row.view();
+    if let Some(live) = app.episodes.lifecycle().status(&row.episode.id) {
+        view.state = Some(live.state);
+        view.accepted_agent_steps = Some(live.accepted_agent_steps);
+        view.latest_observation_id = Some(live.latest_observation_id);
     }
-    v
+    view
 }
 
 #[derive(serde::Deserialize)]
@@ -67,8 +70,8 @@ async fn list_episodes(State(app): State<AppState>, Query(q): Query<ListQuery>) 
     app.sync_all().await;
     let limit = q.limit.unwrap_or(1000).clamp(1, MAX_LIST_LIMIT);
     let rows = app.store.list(limit).await?;
-    let episodes: Vec<Value> = rows.iter().map(|r| episode_json(&app, r)).collect();
-    Ok(axum::Json(json!({"ok": true, "episodes": episodes})).into_response())
+    let episodes = rows.iter().map(|r| episode_json(&app, r)).collect();
+    Ok(axum::Json(EpisodeList::new(episodes)).into_response())
 }
 
 async fn episode_status(State(app): State<AppState>, Path(id): Path<String>) -> ApiResult {
@@ -79,24 +82,49 @@ async fn episode_status(State(app): State<AppState>, Path(id): Path<String>) -> 
 
 /// Whether the private video is there (`video`), and where its rendering stands (`video_status`: `state`
 /// queued, rendering, ready or failed, `percent`, frames); `video_status` is null for an episode without one.
-pub fn video_part(episodes: &EpisodeSet, run: &RunDir) -> Value {
-    let status = episodes.video_progress(run);
-    let mut st = serde_json::to_value(&status).unwrap_or(Value::Null);
-    if let (Some(obj), Some(p)) = (st.as_object_mut(), status.as_ref()) {
-        obj.insert("percent".into(), json!(p.percent()));
-    }
-    json!({"video": status == Some(libero_episode::video_queue::VideoProgress::Ready), "video_status": st})
+pub fn episode_video_view(episodes: &EpisodeSet, run: &RunDir) -> EpisodeVideo {
+    let progress = episodes.video_progress(run);
+    EpisodeVideo { video: progress == Some(VideoProgress::Ready), video_status: progress.as_ref().map(video_status) }
 }
 
-/// `GET /api/episodes/{id}/video`: [`video_part`] of a stored episode (what a worker waits on before uploading).
+/// [`episode_video_view`] as JSON, for replies that merge it with other parts (the review page's data).
+pub fn video_part(episodes: &EpisodeSet, run: &RunDir) -> Value {
+    serde_json::to_value(episode_video_view(episodes, run)).unwrap_or(Value::Null)
+}
+
+/// The video queue's progress as the API shows it.
+fn video_status(p: &VideoProgress) -> VideoStatus {
+    let (state, frames, error) = match p {
+        VideoProgress::Queued => (VideoState::Queued, None, None),
+        VideoProgress::Rendering { frames_done, frames_total } => (VideoState::Rendering, Some((*frames_done, *frames_total)), None),
+        VideoProgress::Ready => (VideoState::Ready, None, None),
+        VideoProgress::Failed { error } => (VideoState::Failed, None, Some(error.clone())),
+    };
+    VideoStatus { error, frames_done: frames.map(|f| f.0), frames_total: frames.map(|f| f.1), percent: p.percent(), state }
+}
+
+/// `GET /api/episodes/{id}/video`: [`episode_video_view`] of a stored episode (what a worker waits on before
+/// uploading).
 async fn episode_video(State(app): State<AppState>, Path(id): Path<String>) -> ApiResult {
     let row = app.store.get(&id).await?.ok_or_else(|| ApiError::not_found(format!("no episode {id}")))?;
     let run = RunDir::new(row.episode.run_dir);
     let episodes = app.episodes.clone();
-    let v = tokio::task::spawn_blocking(move || video_part(episodes.lifecycle(), &run))
+    let v = tokio::task::spawn_blocking(move || episode_video_view(episodes.lifecycle(), &run))
         .await
         .map_err(|e| ApiError::internal(format!("video: {e}")))?;
     Ok(axum::Json(v).into_response())
+}
+
+/// `GET /api/episodes/{id}/result`: the episode's `result.json` from this server's run directory (null while the
+/// episode is open): the verdict a runner on another machine classifies (§4.8) without reading that directory.
+async fn episode_result(State(app): State<AppState>, Path(id): Path<String>) -> ApiResult {
+    let row = app.store.get(&id).await?.ok_or_else(|| ApiError::not_found(format!("no episode {id}")))?;
+    let run = RunDir::new(row.episode.run_dir);
+    let result = tokio::task::spawn_blocking(move || libero_records::records::try_read_result(&run))
+        .await
+        .map_err(|e| ApiError::internal(format!("result: {e}")))?
+        .map_err(|e| ApiError::internal(format!("episode {id}: {e}")))?;
+    Ok(axum::Json(EpisodeResultReply { ok: true, result }).into_response())
 }
 
 #[derive(serde::Deserialize)]
@@ -135,4 +163,28 @@ async fn end_episode(app: AppState, id: String, body: axum::body::Bytes, forfeit
     }
     app.sync(&id).await;
     episode_status(State(app), Path(id)).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The typed video status is the reply as it was before it was typed: the queue's progress with its percent,
+    /// keys sorted.
+    #[test]
+    fn a_typed_video_status_is_the_queue_s_progress_with_its_percent() {
+        let progress = [
+            VideoProgress::Queued,
+            VideoProgress::Rendering { frames_done: 30, frames_total: 120 },
+            VideoProgress::Ready,
+            VideoProgress::Failed { error: "ffmpeg exited 1".into() },
+        ];
+        for p in progress {
+            let mut old = serde_json::to_value(&p).unwrap();
+            old.as_object_mut().unwrap().insert("percent".into(), json!(p.percent()));
+            let typed = video_status(&p);
+            assert_eq!(serde_json::to_value(&typed).unwrap(), old, "{p:?}");
+            assert_eq!(serde_json::to_string(&typed).unwrap(), old.to_string(), "{p:?}: the keys in the old order");
+        }
+    }
 }

@@ -9,6 +9,8 @@ use anyhow::{Context, bail};
 use serde_json::{Value, json};
 
 use crate::episodes::{PrepareRequest, Prepared};
+use libero_records::episode_view::{EpisodeList, EpisodeResultReply, EpisodeVideo, EpisodeView};
+use libero_records::records::RunResult;
 use crate::http_client::{HttpUrl, request};
 use crate::{ServeArgs, credential, start};
 use crate::http_client::messages_of;
@@ -139,17 +141,49 @@ pub fn post_json_within(base: &str, path: &str, body: &Value, timeout: Duration)
     Ok((resp.status, serde_json::from_slice(&resp.body).unwrap_or(Value::Null)))
 }
 
+/// `GET <base><path>` of the operator API, its reply typed: a non-2xx status is an error with the server's
+/// message.
+fn get_typed<T: serde::de::DeserializeOwned>(base: &str, path: &str) -> anyhow::Result<T> {
+    let resp = operator_request("GET", base, path, b"", Duration::from_secs(30))?;
+    if !(200..300).contains(&resp.status) {
+        let v: Value = serde_json::from_slice(&resp.body).unwrap_or(Value::Null);
+        let msg = v.get("error").and_then(Value::as_str).map(str::to_owned).unwrap_or_else(|| String::from_utf8_lossy(&resp.body).into_owned());
+        bail!("GET {path}: HTTP {}: {msg}", resp.status);
+    }
+    serde_json::from_slice(&resp.body).with_context(|| format!("GET {path}: the reply is not what the API sends"))
+}
+
+/// `GET /api/episodes/{id}`: the episode as the server at `base` shows it.
+pub fn episode(base: &str, episode_id: &str) -> anyhow::Result<EpisodeView> {
+    get_typed(base, &format!("/api/episodes/{episode_id}"))
+}
+
+/// `GET /api/episodes?limit=…`: the stored episodes, newest first.
+pub fn episodes(base: &str, limit: u32) -> anyhow::Result<Vec<EpisodeView>> {
+    Ok(get_typed::<EpisodeList>(base, &format!("/api/episodes?limit={limit}"))?.episodes)
+}
+
+/// `GET /api/episodes/{id}/result`: the episode's `result.json` as its server holds it (None while it is open).
+pub fn episode_result(base: &str, episode_id: &str) -> anyhow::Result<Option<RunResult>> {
+    Ok(get_typed::<EpisodeResultReply>(base, &format!("/api/episodes/{episode_id}/result"))?.result)
+}
+
+/// `GET /api/episodes/{id}/video`: whether the episode's private video is written, and its rendering.
+pub fn episode_video(base: &str, episode_id: &str) -> anyhow::Result<EpisodeVideo> {
+    get_typed(base, &format!("/api/episodes/{episode_id}/video"))
+}
+
 /// Waits until the operator API says the private video of `episode_id` is written (an episode's video is rendered
 /// after it ends), at most `timeout`.
 pub fn wait_for_video(base: &str, episode_id: &str, timeout: Duration) -> anyhow::Result<()> {
     let t = std::time::Instant::now();
     loop {
-        let (status, v) = get_json(base, &format!("/api/episodes/{episode_id}/video"))?;
-        if status == 200 && v["video"] == true {
+        let v = episode_video(base, episode_id)?;
+        if v.video {
             return Ok(());
         }
-        if v["video_status"]["state"] == "failed" || v["video_status"].is_null() || t.elapsed() > timeout {
-            bail!("episode {episode_id}: the video did not complete: {v}");
+        if v.will_not_come() || t.elapsed() > timeout {
+            bail!("episode {episode_id}: the video did not complete: {}", serde_json::to_string(&v).unwrap_or_default());
         }
         std::thread::sleep(Duration::from_millis(200));
     }
@@ -264,6 +298,7 @@ impl Drop for InProcessServer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use libero_records::episode_view::EpisodeState;
 
     fn get(base: &str, path: &str, with_operator_token: bool) -> (u16, String) {
         let headers = if with_operator_token { credential::operator_headers(base).unwrap() } else { vec![] };
@@ -290,7 +325,7 @@ mod tests {
     }
 
     #[test]
-    fn an_open_episode_s_steps_reach_the_store_for_dashboards_elsewhere() {
+    fn an_episode_s_steps_and_end_reach_the_store_and_the_typed_api_for_machines_elsewhere() {
         let dir = tempfile::tempdir().unwrap();
         let data = dir.path().join("data");
         let server = InProcessServer::start(data.clone(), "test_finished").unwrap();
@@ -316,7 +351,19 @@ mod tests {
         assert_eq!((row.outcome.as_deref(), row.accepted_agent_steps), (None, Some(2)), "{row:?}");
         assert_eq!(row.episode.server_url, None, "a server without a console has no live view for other dashboards to link to");
         assert!(row.required_stage_count.is_some_and(|r| r > 0), "the evaluator's stage count is stored while open: {row:?}");
+        // What a runner on another machine reads: the typed view and, once ended, the result over the API.
+        let open = episode(&server.url, &prepared.episode_id).unwrap();
+        assert_eq!((open.state, open.accepted_agent_steps, open.outcome), (Some(EpisodeState::Active), Some(2), None), "{open:?}");
+        assert!(!open.has_ended());
+        assert_eq!(episode_result(&server.url, &prepared.episode_id).unwrap(), None, "no result while open");
         client.call_tool("finish_episode", json!({})).unwrap();
+        let ended = episode(&server.url, &prepared.episode_id).unwrap();
+        assert!(ended.has_ended() && ended.state == Some(EpisodeState::Finished), "{ended:?}");
+        let result = episode_result(&server.url, &prepared.episode_id).unwrap().expect("the result once ended");
+        assert!(result.is_finished(), "{result:?}");
+        assert_eq!(ended.outcome, Some(libero_records::records::classify(Some(&result))), "the row's outcome is the result's");
+        assert!(episodes(&server.url, 10).unwrap().iter().any(|e| e.id == prepared.episode_id));
+        assert!(episode(&server.url, "ep-none").is_err_and(|e| e.to_string().contains("HTTP 404")));
         server.stop_now().unwrap();
     }
 

@@ -32,7 +32,7 @@ pub mod store_writer;
 pub mod thumbnails;
 pub mod transcript;
 
-pub use api::{episode_json, video_part};
+pub use api::{episode_json, episode_video_view, video_part};
 pub use api_error::{ApiError, ApiResult};
 pub use app::{App, AppState, Console, TeleopEpisode};
 pub use args::{ServeArgs, ServerFlags, StoreFlags, ThumbnailArgs, batch_roots, check_public_url, default_data_dir};

@@ -11,7 +11,7 @@ use axum::body::Bytes;
 use libero_episode::lifecycle::LiveViews;
 use libero_episode::live::{LiveViewers, ViewerGuard};
 use libero_episode::{LiveEvent, LiveFrame, LiveSink};
-use serde_json::{Value, json};
+use serde_json::json;
 use tokio::sync::{broadcast, watch};
 
 /// Events buffered per viewer before it counts as lagging (then it gets the history again).
@@ -30,6 +30,20 @@ pub struct CatchUp {
     pub progress: Option<(usize, usize)>,
     pub accepted_agent_steps: u64,
     pub wall_time_s: Option<f64>,
+    pub finished: bool,
+}
+
+/// A live episode's figures for the episode table, before its store row has them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LiveSummary {
+    /// Required stages completed and required, once the evaluator reported them.
+    pub completed_stage_count: Option<u64>,
+    pub required_stage_count: Option<u64>,
+    /// Agent steps accepted so far.
+    pub accepted_agent_steps: u64,
+    /// Seconds since `start_episode`, as of the last answered call.
+    pub wall_time_s: Option<f64>,
+    /// The episode has ended.
     pub finished: bool,
 }
 
@@ -129,15 +143,16 @@ impl Hub {
         Some((s.accepted_agent_steps, s.progress))
     }
 
-    /// Live figures for the episode table: progress, submissions, wall time, ended.
-    pub fn summary(&self) -> Value {
-        let Ok(s) = self.state.lock() else { return Value::Null };
-        json!({
-            "completed_stage_count": s.progress.map(|p| p.0),
-            "required_stage_count": s.progress.map(|p| p.1),
-            "accepted_agent_steps": s.accepted_agent_steps,
-            "wall_time_s": s.wall_time_s,
-            "finished": s.finished,
+    /// Live figures for the episode table: progress, submissions, wall time, ended (None if the hub's lock is
+    /// poisoned).
+    pub fn summary(&self) -> Option<LiveSummary> {
+        let s = self.state.lock().ok()?;
+        Some(LiveSummary {
+            completed_stage_count: s.progress.map(|p| p.0 as u64),
+            required_stage_count: s.progress.map(|p| p.1 as u64),
+            accepted_agent_steps: s.accepted_agent_steps,
+            wall_time_s: s.wall_time_s,
+            finished: s.finished,
         })
     }
 }
@@ -243,6 +258,8 @@ impl LiveViews for LiveHubs {
 #[cfg(test)]
 mod tests {
     use std::sync::Arc as StdArc;
+
+    use serde_json::Value;
 
     use super::*;
 

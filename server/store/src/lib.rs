@@ -9,6 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use libero_records::batch_doc::RolloutSummary;
+use libero_records::episode_view::EpisodeView;
 use libero_records::json::utc_now_iso;
 use libero_records::records::{Outcome, RunDir, RunResult, classify, read_episode_record, read_result};
 use serde::Serialize;
@@ -151,7 +152,7 @@ impl EpisodeFilter {
     }
 }
 
-/// One stored episode. The run directory is private: the HTTP API leaves it out (see [`EpisodeRow::public`]).
+/// One stored episode. The run directory is private: the HTTP API leaves it out (see [`EpisodeRow::view`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EpisodeRow {
     #[serde(flatten)]
@@ -170,13 +171,37 @@ pub struct EpisodeRow {
 }
 
 impl EpisodeRow {
-    /// The row as the operator API shows it: everything but filesystem paths.
-    pub fn public(&self) -> Value {
-        let mut v = serde_json::to_value(self).unwrap_or(Value::Null);
-        if let Some(o) = v.as_object_mut() {
-            o.remove("run_dir");
+    /// The row as the operator API shows it: everything but filesystem paths, without the live fields (the
+    /// server adds those for an episode it runs).
+    pub fn view(&self) -> EpisodeView {
+        let e = &self.episode;
+        let count = |n: Option<i64>| n.and_then(|n| u64::try_from(n).ok());
+        EpisodeView {
+            accepted_agent_steps: count(self.accepted_agent_steps),
+            batch: e.batch.clone(),
+            branch_parent: e.branch_parent.clone(),
+            branch_step: e.branch_step,
+            completed_stage_count: count(self.completed_stage_count),
+            created_at: e.created_at.clone(),
+            finished_at: self.finished_at.clone(),
+            harness: e.harness.clone(),
+            id: e.id.clone(),
+            init_index: e.init_index,
+            latest_observation_id: None,
+            level: e.level,
+            model: e.model.clone(),
+            // Written by `Outcome::as_str` only.
+            outcome: self.outcome.as_deref().and_then(|o| o.parse().ok()),
+            reason: self.reason.clone(),
+            required_stage_count: count(self.required_stage_count),
+            seed: e.seed,
+            server_url: e.server_url.clone(),
+            started_at: self.started_at.clone(),
+            state: None,
+            success: self.success,
+            task_ref: e.task_ref.clone(),
+            wall_time_s: self.wall_time_s,
         }
-        v
     }
 
     fn from_row(r: &AnyRow) -> Result<Self, sqlx::Error> {
@@ -715,6 +740,17 @@ mod tests {
     use super::*;
     use serde_json::json;
 
+    /// The typed view is the wire format the API had when it sent the row's JSON minus `run_dir`: the same keys
+    /// and values, in the same (sorted) order.
+    fn assert_view_is_the_row_without_its_run_dir(row: &EpisodeRow) {
+        let mut old = serde_json::to_value(row).unwrap();
+        assert!(old.as_object_mut().unwrap().remove("run_dir").is_some());
+        let view = serde_json::to_value(row.view()).unwrap();
+        assert!(view.get("run_dir").is_none(), "paths stay out of the API");
+        assert_eq!(view, old);
+        assert_eq!(serde_json::to_string(&row.view()).unwrap(), old.to_string(), "the keys in the old order");
+    }
+
     fn new_episode(id: &str, run_dir: &Path) -> NewEpisode {
         NewEpisode {
             id: id.into(),
@@ -890,7 +926,9 @@ mod tests {
         let other = dir.path().join("other-server/runs/ep-elsewhere");
         store.insert_prepared(&new_episode("ep-elsewhere", &other)).await.unwrap();
         reconcile_restores_and_closes_orphans(store.clone(), dir.path()).await;
-        assert_eq!(store.get("ep-elsewhere").await.unwrap().unwrap().outcome, None, "another server's episode stays open");
+        let open = store.get("ep-elsewhere").await.unwrap().unwrap();
+        assert_eq!(open.outcome, None, "another server's episode stays open");
+        assert_view_is_the_row_without_its_run_dir(&open);
         store.close().await;
     }
 
@@ -944,7 +982,7 @@ mod tests {
         assert_eq!((row.success, row.accepted_agent_steps), (Some(false), Some(7)));
         assert_eq!((row.completed_stage_count, row.required_stage_count), (Some(1), Some(3)));
         assert_eq!(row.started_at.as_deref(), Some("2026-01-01T00:00:00+00:00"));
-        assert!(row.public().get("run_dir").is_none(), "paths stay out of the API");
+        assert_view_is_the_row_without_its_run_dir(&row);
         assert_eq!(store.list(10).await.unwrap(), vec![row.clone()]);
         let filter = |task: &str, outcome: &str, batch: &str| {
             EpisodeFilter { task: Some(task.into()), outcome: Some(outcome.into()), batch: Some(batch.into()), harness: None }.normalized()
