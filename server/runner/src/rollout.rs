@@ -14,7 +14,8 @@ use libero_records::batch_doc::HarnessVersion;
 use libero_records::batch_doc::harness_manifest::{CREDENTIAL_MATERIAL_NEVER_RECORDED, HARNESS_MANIFEST_SCHEMA, HarnessManifest};
 use libero_episode::demo::DemoCondition;
 use libero_records::json::{utc_now_iso, write_json_file};
-use libero_records::records::{PrivateEvaluation, RunDir, RunResult, STATUS_ABORTED, STATUS_FINISHED};
+use libero_records::episode_view::{EpisodeState, EpisodeView};
+use libero_records::records::RunResult;
 use libero_metrics::Outcome;
 use libero_report::batch::{Demo, RolloutRecord};
 use libero_report::usage::Usage;
@@ -30,7 +31,7 @@ use libero_sandbox::logs::{Limits, scrub_log, scrub_text};
 use super::transcript::Follower;
 use super::usage::UsageScanner;
 use super::{INTERRUPTED, RunContext};
-use libero_server::client::{get_json, post_json, prepare_episode};
+use libero_server::client::{episode, episode_result, post_json, prepare_episode};
 use libero_server::episodes::{PrepareRequest, Prepared};
 
 /// Supervision poll period.
@@ -79,16 +80,16 @@ pub fn scrub(text: &str, secrets: &[&str]) -> String {
     scrub_text(text, secrets)
 }
 
-fn read_result(run_dir: &Path) -> Option<RunResult> {
-    libero_records::records::read_result(&RunDir::new(run_dir))
+/// The episode as the server's API shows it; None when the server cannot be asked. The runner learns about its
+/// episode only here and from [`verdict`], never from the server's run directory: a queue's worker and the server
+/// may be on different machines.
+fn episode_view(ctx: &RunContext, episode_id: &str) -> Option<EpisodeView> {
+    episode(&ctx.server_url, episode_id).ok()
 }
 
-/// The episode's state: from its run directory when this machine sees it, else from the server's API.
-fn episode_ended(ctx: &RunContext, episode_id: &str, run_dir: &Path) -> bool {
-    if run_dir.is_dir() {
-        return run_dir.join("result.json").is_file();
-    }
-    matches!(get_json(&ctx.server_url, &format!("/api/episodes/{episode_id}")), Ok((200, v)) if v["state"] == "finished" || v["state"] == "aborted" || !v["outcome"].is_null())
+/// Whether the episode has ended, as the server says (it writes `result.json` before it says so).
+fn episode_ended(ctx: &RunContext, episode_id: &str) -> bool {
+    episode_view(ctx, episode_id).is_some_and(|v| v.has_ended())
 }
 
 fn kill_group(child: &mut Child) {
@@ -455,7 +456,7 @@ fn watch(ctx: &RunContext, ready: &Ready, agent: Agent) -> Watched {
             exit_code = Some(st.code().unwrap_or(-1));
             exited_at = Some(Instant::now());
         }
-        if ended_at.is_none() && episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
+        if ended_at.is_none() && episode_ended(ctx, &prepared.episode_id) {
             ended_at = Some(Instant::now());
         }
         if INTERRUPTED.load(Ordering::SeqCst) {
@@ -573,7 +574,7 @@ fn settle_episode(ctx: &RunContext, prepared: &Prepared, watched: &Watched, caus
     if watched.watchdog {
         // Still open past budget + grace: an episode never started (prepared) is the agent's forfeit like any
         // other it leaves; one the server still runs past its budget stays the watchdog's (§8.4).
-        let never_started = matches!(get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)), Ok((200, v)) if v["state"] == "prepared");
+        let never_started = episode_view(ctx, &prepared.episode_id).is_some_and(|v| v.state == Some(EpisodeState::Prepared));
         let reason = format!("the agent did not start its episode within the budget and {WATCHDOG_GRACE_S} s");
         infra = match (never_started, cause()) {
             (true, cause) => end_left_episode(ctx, &prepared.episode_id, WATCHDOG_ERROR, &reason, cause),
@@ -585,29 +586,24 @@ fn settle_episode(ctx: &RunContext, prepared: &Prepared, watched: &Watched, caus
         let exited = format!("harness exited before finish_episode (exit code {})", watched.exit_code.unwrap_or(-1));
         infra = end_left_episode(ctx, &prepared.episode_id, &exited, &format!("the agent's {exited}"), cause());
     }
-    if !episode_ended(ctx, &prepared.episode_id, &prepared.run_dir) {
+    if !episode_ended(ctx, &prepared.episode_id) {
         let reason = infra.clone().unwrap_or_else(|| "harness_process_exited_before_finish".into());
         let _ = post_json(&ctx.server_url, &format!("/api/episodes/{}/abort", prepared.episode_id), &json!({"reason": reason}));
     }
     infra
 }
 
-/// The episode's result: its run directory's, else (a server on another machine) what its row on the server says.
+/// The episode's result as the server's API gives it: its `result.json`, else (a server that cannot read the run
+/// directory) what its row tells.
 fn verdict(ctx: &RunContext, prepared: &Prepared) -> Option<RunResult> {
-    read_result(&prepared.run_dir).or_else(|| {
-        // A server on another machine: its row carries the verdict.
-        get_json(&ctx.server_url, &format!("/api/episodes/{}", prepared.episode_id)).ok().map(|(_, v)| RunResult {
-            status: Some(if v["outcome"] == "INVALID" { STATUS_ABORTED } else { STATUS_FINISHED }.to_owned()),
-            success: v["success"].as_bool(),
-            accepted_agent_steps: v["accepted_agent_steps"].as_u64(),
-            reason: v["reason"].as_str().map(str::to_owned),
-            private_evaluation: Some(PrivateEvaluation {
-                completed_required_stage_count: v["completed_stage_count"].as_u64(),
-                ..PrivateEvaluation::default()
-            }),
-            ..RunResult::default()
-        })
-    })
+    let result = episode_result(&ctx.server_url, &prepared.episode_id).ok().flatten();
+    verdict_of(result, || episode_view(ctx, &prepared.episode_id))
+}
+
+/// The result itself when the server sent it, else the row's summary of it (None while the episode is open: an
+/// episode the runner could not end is no verdict of the agent).
+fn verdict_of(result: Option<RunResult>, view: impl FnOnce() -> Option<EpisodeView>) -> Option<RunResult> {
+    result.or_else(|| view().and_then(|v| v.result_summary()))
 }
 
 #[cfg(test)]
@@ -658,6 +654,34 @@ mod tests {
         assert_eq!(classify(Some(&aborted(30.0)), Some(WATCHDOG_ERROR), 1800.0), Outcome::Invalid);
         assert_eq!(classify(Some(&fin(true)), Some("harness exited before finish_episode"), 1800.0), Outcome::Invalid);
         assert_eq!(classify(None, None, 1800.0), Outcome::Invalid);
+    }
+
+    /// A row as `GET /api/episodes/{id}` sends it, for an episode the answering server no longer runs.
+    fn row(outcome: Option<&str>, reason: Option<&str>) -> EpisodeView {
+        serde_json::from_value(json!({"accepted_agent_steps": 40, "batch": null, "branch_parent": null, "branch_step": null,
+            "completed_stage_count": 1, "created_at": "2026-12-07T13:00:00+00:00", "finished_at": null, "harness": null,
+            "id": "ep-1", "init_index": 0, "level": 1, "model": null, "outcome": outcome, "reason": reason,
+            "required_stage_count": 2, "seed": 1, "server_url": null, "started_at": null, "success": outcome.map(|o| o == "SUCCESS"),
+            "task_ref": "T03", "wall_time_s": 1800.2}))
+        .unwrap()
+    }
+
+    #[test]
+    fn the_verdict_is_the_server_s_result_else_its_row_s_summary_else_none() {
+        let result = RunResult::from_value(json!({"status": "finished", "success": true, "wall_time_seconds": 12.0})).unwrap();
+        let asked = std::cell::Cell::new(false);
+        let from_result = verdict_of(Some(result.clone()), || {
+            asked.set(true);
+            None
+        });
+        assert_eq!((from_result, asked.get()), (Some(result), false), "the result itself wins, the row is not asked");
+        let timed_out = verdict_of(None, || Some(row(Some("SIM_TIMEOUT"), Some("episode_wall_time_budget_exhausted")))).unwrap();
+        assert_eq!(classify(Some(&timed_out), None, 1800.0), Outcome::SimTimeout, "{timed_out:?}");
+        assert_eq!(classify(Some(&timed_out), Some(WATCHDOG_ERROR), 1800.0), Outcome::WatchdogTimeout, "the row's wall time counts");
+        let aborted = verdict_of(None, || Some(row(Some("INVALID"), Some("harness exited")))).unwrap();
+        assert_eq!((aborted.status.as_deref(), aborted.reason.as_deref()), (Some("aborted"), Some("harness exited")));
+        assert_eq!(verdict_of(None, || Some(row(None, None))), None, "an open episode has no verdict");
+        assert_eq!(verdict_of(None, || None), None);
     }
 
     #[test]
