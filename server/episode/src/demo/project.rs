@@ -132,55 +132,11 @@ pub fn project_bundle(
     for rel in [VIDEO_HEAD_WRIST, SHEET_HEAD, SHEET_WRIST] {
         fs::copy(source.join(rel), partial.join(rel)).map_err(io_err(&source.join(rel)))?;
     }
-    let sampling = json!({
-        "rule": SAMPLING_RULE,
-        "maximum_frames_per_sheet": MAX_FRAMES_PER_SHEET,
-        "source_frame_count": frame_count,
-        "sampled_frame_indices": manifest.overview.as_ref().and_then(|o| o.sampling.as_ref()).and_then(|s| s.sampled_frame_indices.as_ref()),
-    });
-    let video = json!({
-        "file": artifact(&partial, VIDEO_HEAD_WRIST, "video/mp4")?,
-        "fps_hz": DEMO_VIDEO_FPS_HZ,
-        "frame_count": frame_count,
-        "layout": "head_rgb_left__wrist_rgb_right",
-        "contact_sheets": {
-            "head_rgb": artifact(&partial, SHEET_HEAD, "image/png")?,
-            "wrist_rgb": artifact(&partial, SHEET_WRIST, "image/png")?,
-        },
-        "sampling": sampling,
-    });
-    let public = match condition {
-        DemoCondition::Video => {
-            let mut d = demonstration(&["head_rgb", "wrist_rgb"]);
-            d.insert("video".into(), video); // §7.4 keeps the frame count inside `video`
-            json!({
-                "schema_version": VIDEO_ONLY_SCHEMA,
-                "task_instruction": instruction,
-                "icl_condition": condition.icl_condition(),
-                "demonstration": d,
-            })
-        }
-        _ => {
-            write_public_trajectory(source, &partial)?;
-            let mut d = demonstration(&["head_rgb", "wrist_rgb", "actions"]);
-            d.insert("frame_count".into(), json!(frame_count));
-            d.insert("transition_count".into(), json!(frame_count.saturating_sub(1)));
-            d.insert("actions_present".into(), json!(true));
-            d.insert("action_representation".into(), json!(ACTION_SCHEMA));
-            d.insert("measured_eef_states_present".into(), json!(false));
-            d.insert("stepwise_success_present".into(), json!(false));
-            d.insert("video".into(), video);
-            json!({
-                "schema_version": VIDEO_TRAJECTORY_SCHEMA,
-                "task_instruction": instruction,
-                "icl_condition": condition.icl_condition(),
-                "demonstration": d,
-                "action_semantics": action_semantics(),
-                "trajectory": artifact(&partial, TRAJECTORY, "application/x-ndjson")?,
-                "integrity": integrity_block(&partial)?,
-            })
-        }
-    };
+    if condition == DemoCondition::VideoTraj {
+        write_public_trajectory(source, &partial)?;
+    }
+    let sampled = manifest.overview.as_ref().and_then(|o| o.sampling.as_ref()).and_then(|s| s.sampled_frame_indices.as_ref());
+    let public = public_manifest(&partial, condition, &instruction, frame_count, sampled)?;
     let manifest_path = partial.join(MANIFEST);
     write_json_file(&manifest_path, &public).map_err(io_err(&manifest_path))?;
     let problems = validate_projection(&partial, condition);
@@ -201,6 +157,58 @@ pub fn project_bundle(
         agent_bundle: dest.to_owned(),
         manifest_sha256: sha256_hex(&bytes),
         frame_count,
+    })
+}
+
+/// The agent-visible manifest of the files already in `dir` (artifacts and integrity computed from disk).
+fn public_manifest(dir: &Path, condition: DemoCondition, instruction: &str, frame_count: u64, sampled: Option<&Vec<u64>>) -> Result<Value, DemoError> {
+    let sampling = json!({
+        "rule": SAMPLING_RULE,
+        "maximum_frames_per_sheet": MAX_FRAMES_PER_SHEET,
+        "source_frame_count": frame_count,
+        "sampled_frame_indices": sampled,
+    });
+    let video = json!({
+        "file": artifact(dir, VIDEO_HEAD_WRIST, "video/mp4")?,
+        "fps_hz": DEMO_VIDEO_FPS_HZ,
+        "frame_count": frame_count,
+        "layout": "head_rgb_left__wrist_rgb_right",
+        "contact_sheets": {
+            "head_rgb": artifact(dir, SHEET_HEAD, "image/png")?,
+            "wrist_rgb": artifact(dir, SHEET_WRIST, "image/png")?,
+        },
+        "sampling": sampling,
+    });
+    Ok(match condition {
+        DemoCondition::Video | DemoCondition::None => {
+            let mut d = demonstration(&["head_rgb", "wrist_rgb"]);
+            d.insert("video".into(), video); // §7.4 keeps the frame count inside `video`
+            json!({
+                "schema_version": VIDEO_ONLY_SCHEMA,
+                "task_instruction": instruction,
+                "icl_condition": condition.icl_condition(),
+                "demonstration": d,
+            })
+        }
+        DemoCondition::VideoTraj => {
+            let mut d = demonstration(&["head_rgb", "wrist_rgb", "actions"]);
+            d.insert("frame_count".into(), json!(frame_count));
+            d.insert("transition_count".into(), json!(frame_count.saturating_sub(1)));
+            d.insert("actions_present".into(), json!(true));
+            d.insert("action_representation".into(), json!(ACTION_SCHEMA));
+            d.insert("measured_eef_states_present".into(), json!(false));
+            d.insert("stepwise_success_present".into(), json!(false));
+            d.insert("video".into(), video);
+            json!({
+                "schema_version": VIDEO_TRAJECTORY_SCHEMA,
+                "task_instruction": instruction,
+                "icl_condition": condition.icl_condition(),
+                "demonstration": d,
+                "action_semantics": action_semantics(),
+                "trajectory": artifact(dir, TRAJECTORY, "application/x-ndjson")?,
+                "integrity": integrity_block(dir)?,
+            })
+        }
     })
 }
 
@@ -331,6 +339,36 @@ mod tests {
         let golden = fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/prompt/trajectory_row.jsonl"))
             .expect("tests/fixtures/prompt/trajectory_row.jsonl");
         assert_eq!(format!("{}\n", compact_sorted(&row)), golden);
+    }
+
+    /// The agent-visible manifests (video only, video + trajectory) are a wire format the agents read: byte for
+    /// byte the golden files (placeholder media; `UPDATE_GOLDEN=1` rewrites them after a deliberate change).
+    #[test]
+    fn public_manifests_match_the_golden_files() {
+        let golden = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/fixtures/demo_projection"));
+        for (condition, name) in [(DemoCondition::Video, "video_manifest.json"), (DemoCondition::VideoTraj, "video_traj_manifest.json")] {
+            let dir = tempfile::tempdir().unwrap();
+            let d = dir.path();
+            fs::create_dir_all(d.join("video/contact_sheets")).unwrap();
+            for rel in [VIDEO_HEAD_WRIST, SHEET_HEAD, SHEET_WRIST] {
+                fs::write(d.join(rel), rel).unwrap();
+            }
+            if condition == DemoCondition::VideoTraj {
+                let row = compact_sorted(&public_trajectory_row(0, &[0.5, -0.25, 0.0, 0.0, 0.0, 0.125, -1.0]));
+                fs::write(d.join(TRAJECTORY), format!("{row}\n")).unwrap();
+            }
+            let sampled = vec![0, 1];
+            let m = public_manifest(d, condition, "open the top drawer of the cabinet", 2, Some(&sampled)).unwrap();
+            write_json_file(&d.join(MANIFEST), &m).unwrap();
+            let got = fs::read_to_string(d.join(MANIFEST)).unwrap();
+            if std::env::var_os("UPDATE_GOLDEN").is_some() {
+                fs::create_dir_all(golden).unwrap();
+                fs::write(golden.join(name), &got).unwrap();
+            }
+            let want = fs::read_to_string(golden.join(name)).unwrap_or_else(|e| panic!("{name}: {e} (UPDATE_GOLDEN=1 writes it)"));
+            assert_eq!(got, want, "{name} differs from the golden file");
+            assert_eq!(validate_projection(d, condition), vec![], "{name} is a valid projection");
+        }
     }
 
     #[test]
