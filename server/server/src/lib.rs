@@ -1,8 +1,9 @@
 //! The episode server (`libero-agent serve`, and the in-process server of `run` and `worker`): every prepared
 //! episode at its own MCP endpoint `/mcp/<episode_id>` (rmcp streamable HTTP), guarded by a per-episode bearer
 //! token checked before anything reaches rmcp; `GET /api/health`; `POST /api/episodes` to prepare an episode
-//! (the CLI's `episode prepare` and the dashboard use it); `GET /api/episodes[/{id}[/video]]` from the episode
-//! store (operator-facing; no tokens, no paths), behind the operator guard (`auth`). The browser console is not
+//! (the CLI's `episode prepare` and the dashboard use it); `GET /api/episodes[/{id}[/video|/result]]` from the
+//! episode store, typed as `libero_records::episode_view` (operator-facing; no tokens, no paths), behind the
+//! operator guard (`auth`). The browser console is not
 //! here: a [`Console`] (the `libero-dashboard` crate's) adds its pages, so a worker's server can run without it.
 //! Every listener (the address asked for and its loopback twin) serves through [`listener`]: connection caps per
 //! peer address and in total, header, idle and body timeouts, and a file-descriptor reserve for the episodes.
