@@ -81,6 +81,8 @@ fn each_rollout_records_the_version_it_ran_and_a_mixed_batch_says_so() {
         let manifest = HarnessManifest::read(&batch.join("rollouts").join(r["rollout_id"].as_str().unwrap())).unwrap().expect("the rollout's harness manifest");
         assert_eq!(manifest.command.as_ref().and_then(|c| c.first()).map(String::as_str), cli.join("codex").to_str(), "{manifest}");
         assert_eq!(manifest.harness_version.as_ref().map(HarnessVersion::to_value).as_ref(), Some(&r["harness_version"]), "the record's probe: {manifest}");
+        assert!(manifest.rest.is_empty(), "every key the runner writes is a typed field of HarnessManifest: {:?}", manifest.rest.keys());
+        assert!(manifest.outcome.is_some() && manifest.finished_at.is_some() && manifest.agent_events.is_some(), "the end's write: {manifest}");
     }
     let doc = json_file(&batch.join("batch.json"));
     assert_eq!(doc["settings"]["harness_version"], "0.1.0", "{doc}");
