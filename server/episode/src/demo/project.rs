@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Value, json};
 
 use super::*;
+use libero_records::demo_manifest::ContactSheets;
 use libero_records::json::{compact_sorted, write_json_file};
 use crate::workspace::normalize_instruction;
 
@@ -82,14 +83,99 @@ pub struct ProjectionReceipt {
     pub frame_count: u64,
 }
 
+/// The agent-visible `manifest.json` (§7.4; the paper's Appendix C for video + trajectory). Written with sorted
+/// keys; nothing in it names the source episode. Agents read it: `Deserialize` is for our tests and tools.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PublicManifest {
+    /// [`VIDEO_ONLY_SCHEMA`] or [`VIDEO_TRAJECTORY_SCHEMA`].
+    pub schema_version: String,
+    /// The target task's instruction, whitespace-normalised.
+    pub task_instruction: String,
+    /// `video_only`, `video_plus_trajectory` ([`DemoCondition::icl_condition`]).
+    pub icl_condition: String,
+    pub demonstration: PublicDemonstration,
+    /// Video + trajectory only: §7.3's canonical action semantics.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub action_semantics: Option<Value>,
+    /// Video + trajectory only: `trajectory.jsonl`, as an artifact.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trajectory: Option<DemoFile>,
+    /// Video + trajectory only: every file but the manifest, sorted by path.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub integrity: Option<DemoIntegrity>,
+}
+
+/// What the demonstration is and holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PublicDemonstration {
+    /// `verified successful demonstration`.
+    pub episode_outcome: String,
+    /// `same_task_separate_episode`.
+    pub relation_to_target: String,
+    /// Always true: the target's configuration differs from the source's.
+    pub scene_or_object_poses_may_differ: bool,
+    /// `head_rgb`, `wrist_rgb`, and `actions` with the trajectory.
+    pub modalities: Vec<String>,
+    /// Video + trajectory only: frames (actions + 1) and transitions (actions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_count: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transition_count: Option<u64>,
+    /// Video + trajectory only: true.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub actions_present: Option<bool>,
+    /// Video + trajectory only: [`ACTION_SCHEMA`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub action_representation: Option<String>,
+    /// Video + trajectory only: false (no measured end-effector stream travels).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_eef_states_present: Option<bool>,
+    /// Video + trajectory only: false.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stepwise_success_present: Option<bool>,
+    /// §7.4 keeps the frame count inside `video`.
+    pub video: PublicVideo,
+}
+
+/// The head | wrist video and its contact sheets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PublicVideo {
+    pub file: DemoFile,
+    /// Frames per second (one per 20 Hz control step).
+    pub fps_hz: f64,
+    pub frame_count: u64,
+    /// `head_rgb_left__wrist_rgb_right`.
+    pub layout: String,
+    pub contact_sheets: ContactSheets,
+    pub sampling: PublicSampling,
+}
+
+/// §7.6's sampling of the contact sheets' frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PublicSampling {
+    /// [`SAMPLING_RULE`].
+    pub rule: String,
+    pub maximum_frames_per_sheet: u64,
+    pub source_frame_count: u64,
+    /// Null where the library bundle had none (a valid bundle has them).
+    pub sampled_frame_indices: Option<Vec<u64>>,
+}
+
 /// The `demonstration` fields every agent-visible manifest shares.
-fn demonstration(modalities: &[&str]) -> serde_json::Map<String, Value> {
-    let mut d = serde_json::Map::new();
-    d.insert("episode_outcome".into(), json!("verified successful demonstration"));
-    d.insert("relation_to_target".into(), json!("same_task_separate_episode"));
-    d.insert("scene_or_object_poses_may_differ".into(), json!(true));
-    d.insert("modalities".into(), json!(modalities));
-    d
+fn demonstration(modalities: &[&str], video: PublicVideo) -> PublicDemonstration {
+    PublicDemonstration {
+        episode_outcome: "verified successful demonstration".to_owned(),
+        relation_to_target: "same_task_separate_episode".to_owned(),
+        scene_or_object_poses_may_differ: true,
+        modalities: modalities.iter().map(|m| (*m).to_owned()).collect(),
+        frame_count: None,
+        transition_count: None,
+        actions_present: None,
+        action_representation: None,
+        measured_eef_states_present: None,
+        stepwise_success_present: None,
+        video,
+    }
 }
 
 /// Projects the valid, verified library bundle `source` to `dest` (which must not exist) for `condition`. The
@@ -138,6 +224,7 @@ pub fn project_bundle(
     let sampled = manifest.overview.as_ref().and_then(|o| o.sampling.as_ref()).and_then(|s| s.sampled_frame_indices.as_ref());
     let public = public_manifest(&partial, condition, &instruction, frame_count, sampled)?;
     let manifest_path = partial.join(MANIFEST);
+    let public = serde_json::to_value(&public).map_err(|e| DemoError::Source(format!("agent-visible manifest: {e}")))?;
     write_json_file(&manifest_path, &public).map_err(io_err(&manifest_path))?;
     let problems = validate_projection(&partial, condition);
     if !problems.is_empty() {
@@ -161,54 +248,56 @@ pub fn project_bundle(
 }
 
 /// The agent-visible manifest of the files already in `dir` (artifacts and integrity computed from disk).
-fn public_manifest(dir: &Path, condition: DemoCondition, instruction: &str, frame_count: u64, sampled: Option<&Vec<u64>>) -> Result<Value, DemoError> {
-    let sampling = json!({
-        "rule": SAMPLING_RULE,
-        "maximum_frames_per_sheet": MAX_FRAMES_PER_SHEET,
-        "source_frame_count": frame_count,
-        "sampled_frame_indices": sampled,
-    });
-    let video = json!({
-        "file": artifact(dir, VIDEO_HEAD_WRIST, "video/mp4")?,
-        "fps_hz": DEMO_VIDEO_FPS_HZ,
-        "frame_count": frame_count,
-        "layout": "head_rgb_left__wrist_rgb_right",
-        "contact_sheets": {
-            "head_rgb": artifact(dir, SHEET_HEAD, "image/png")?,
-            "wrist_rgb": artifact(dir, SHEET_WRIST, "image/png")?,
+fn public_manifest(
+    dir: &Path,
+    condition: DemoCondition,
+    instruction: &str,
+    frame_count: u64,
+    sampled: Option<&Vec<u64>>,
+) -> Result<PublicManifest, DemoError> {
+    let video = PublicVideo {
+        file: artifact(dir, VIDEO_HEAD_WRIST, "video/mp4")?,
+        fps_hz: DEMO_VIDEO_FPS_HZ,
+        frame_count,
+        layout: "head_rgb_left__wrist_rgb_right".to_owned(),
+        contact_sheets: ContactSheets {
+            head_rgb: Some(artifact(dir, SHEET_HEAD, "image/png")?),
+            wrist_rgb: Some(artifact(dir, SHEET_WRIST, "image/png")?),
+            ..ContactSheets::default()
         },
-        "sampling": sampling,
-    });
-    Ok(match condition {
-        DemoCondition::Video | DemoCondition::None => {
-            let mut d = demonstration(&["head_rgb", "wrist_rgb"]);
-            d.insert("video".into(), video); // §7.4 keeps the frame count inside `video`
-            json!({
-                "schema_version": VIDEO_ONLY_SCHEMA,
-                "task_instruction": instruction,
-                "icl_condition": condition.icl_condition(),
-                "demonstration": d,
-            })
-        }
-        DemoCondition::VideoTraj => {
-            let mut d = demonstration(&["head_rgb", "wrist_rgb", "actions"]);
-            d.insert("frame_count".into(), json!(frame_count));
-            d.insert("transition_count".into(), json!(frame_count.saturating_sub(1)));
-            d.insert("actions_present".into(), json!(true));
-            d.insert("action_representation".into(), json!(ACTION_SCHEMA));
-            d.insert("measured_eef_states_present".into(), json!(false));
-            d.insert("stepwise_success_present".into(), json!(false));
-            d.insert("video".into(), video);
-            json!({
-                "schema_version": VIDEO_TRAJECTORY_SCHEMA,
-                "task_instruction": instruction,
-                "icl_condition": condition.icl_condition(),
-                "demonstration": d,
-                "action_semantics": action_semantics(),
-                "trajectory": artifact(dir, TRAJECTORY, "application/x-ndjson")?,
-                "integrity": integrity_block(dir)?,
-            })
-        }
+        sampling: PublicSampling {
+            rule: SAMPLING_RULE.to_owned(),
+            maximum_frames_per_sheet: MAX_FRAMES_PER_SHEET as u64,
+            source_frame_count: frame_count,
+            sampled_frame_indices: sampled.cloned(),
+        },
+    };
+    let (schema, demonstration, action_semantics, trajectory, integrity) = match condition {
+        DemoCondition::Video | DemoCondition::None => (VIDEO_ONLY_SCHEMA, demonstration(&["head_rgb", "wrist_rgb"], video), None, None, None),
+        DemoCondition::VideoTraj => (
+            VIDEO_TRAJECTORY_SCHEMA,
+            PublicDemonstration {
+                frame_count: Some(frame_count),
+                transition_count: Some(frame_count.saturating_sub(1)),
+                actions_present: Some(true),
+                action_representation: Some(ACTION_SCHEMA.to_owned()),
+                measured_eef_states_present: Some(false),
+                stepwise_success_present: Some(false),
+                ..demonstration(&["head_rgb", "wrist_rgb", "actions"], video)
+            },
+            Some(action_semantics()),
+            Some(artifact(dir, TRAJECTORY, "application/x-ndjson")?),
+            Some(integrity_block(dir)?),
+        ),
+    };
+    Ok(PublicManifest {
+        schema_version: schema.to_owned(),
+        task_instruction: instruction.to_owned(),
+        icl_condition: condition.icl_condition().to_owned(),
+        demonstration,
+        action_semantics,
+        trajectory,
+        integrity,
     })
 }
 
@@ -359,7 +448,7 @@ mod tests {
             }
             let sampled = vec![0, 1];
             let m = public_manifest(d, condition, "open the top drawer of the cabinet", 2, Some(&sampled)).unwrap();
-            write_json_file(&d.join(MANIFEST), &m).unwrap();
+            write_json_file(&d.join(MANIFEST), &serde_json::to_value(&m).unwrap()).unwrap();
             let got = fs::read_to_string(d.join(MANIFEST)).unwrap();
             if std::env::var_os("UPDATE_GOLDEN").is_some() {
                 fs::create_dir_all(golden).unwrap();
@@ -368,6 +457,7 @@ mod tests {
             let want = fs::read_to_string(golden.join(name)).unwrap_or_else(|e| panic!("{name}: {e} (UPDATE_GOLDEN=1 writes it)"));
             assert_eq!(got, want, "{name} differs from the golden file");
             assert_eq!(validate_projection(d, condition), vec![], "{name} is a valid projection");
+            assert_eq!(serde_json::from_str::<PublicManifest>(&got).unwrap(), m, "{name} reads back as written");
         }
     }
 
@@ -379,14 +469,8 @@ mod tests {
         for rel in [VIDEO_HEAD_WRIST, SHEET_HEAD, SHEET_WRIST] {
             fs::write(d.join(rel), rel).unwrap();
         }
-        let video = json!({
-            "file": artifact(d, VIDEO_HEAD_WRIST, "video/mp4").unwrap(),
-            "contact_sheets": {"head_rgb": artifact(d, SHEET_HEAD, "image/png").unwrap(), "wrist_rgb": artifact(d, SHEET_WRIST, "image/png").unwrap()},
-        });
-        let mut demo = demonstration(&["head_rgb", "wrist_rgb"]);
-        demo.insert("video".into(), video);
-        let m = json!({"schema_version": VIDEO_ONLY_SCHEMA, "task_instruction": "x", "icl_condition": "video_only", "demonstration": demo});
-        write_json_file(&d.join(MANIFEST), &m).unwrap();
+        let m = public_manifest(d, DemoCondition::Video, "x", 1, None).unwrap();
+        write_json_file(&d.join(MANIFEST), &serde_json::to_value(&m).unwrap()).unwrap();
         assert_eq!(validate_projection(d, DemoCondition::Video), vec![]);
         fs::write(d.join(SHEET_HEAD), "changed").unwrap();
         fs::write(d.join("extra.txt"), "x").unwrap();
