@@ -289,3 +289,36 @@ fn a_long_call_is_watched_as_motion_at_the_control_rate() {
     assert!(took >= Duration::from_millis(2000), "the call's motion was shown in {took:?}");
     ep.handle.stop("test over");
 }
+
+/// Minor page faults of this process so far.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn minor_faults() -> u64 {
+    // SAFETY: getrusage writes only into the struct it is given.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    assert_eq!(unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) }, 0);
+    usage.ru_minflt as u64
+}
+
+/// Frames rendered one after another (a watched or teleoperated episode) fault in no fresh pages: the renderer's
+/// per-frame buffers stay with the allocator between frames (`libero_episode::memory`'s trim threshold). With
+/// glibc's default trim threshold every frame gave them back and faulted them in again, about 14,000 pages a frame.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[test]
+fn frames_rendered_one_after_another_do_not_fault_their_buffers_in_again() {
+    use libero_episode::World;
+    libero_episode::memory::tune_for_long_runs();
+    let paths = AssetPaths::discover().expect("assets: run scripts/setup.py");
+    let spec = WorldSpec { task: resolve_task("T14", &paths).unwrap(), level: Level::L1, seed: 100, init_index: 0, paths };
+    let mut world = LiberoWorld::new(&spec, Renderer::new().unwrap()).unwrap();
+    world.start().unwrap();
+    for i in 0..5 {
+        world.frame(i).unwrap();
+    }
+    const FRAMES: u64 = 20;
+    let before = minor_faults();
+    for i in 0..FRAMES {
+        world.frame(5 + i).unwrap();
+    }
+    let per_frame = (minor_faults() - before) / FRAMES;
+    assert!(per_frame < 1_000, "{per_frame} minor page faults per rendered frame");
+}
