@@ -76,29 +76,28 @@ fn write_pool_batch(dir: &Path) {
     std::fs::write(dir.join("rollouts.jsonl"), lines).unwrap();
 }
 
-/// Two T14 rollouts of the built-in reference agent, played by `libero-agent run` into `batch`.
-fn run_reference_batch(batch: &Path, workspaces: &Path) {
+/// `reps` T14 rollouts of the built-in reference agent, played by `libero-agent run` into `batch`.
+fn run_reference_batch(batch: &Path, workspaces: &Path, reps: &str) {
     let out = libero(&[
         "run", "--experiment", "main_table", "--harness", "command", "--model", "reference", "--tasks", "T14", "--reps",
-        "2", "--concurrency", "2", "--agent-cmd", "exec {libero_agent} agent --workspace {workspace}", "--wall-time-s",
+        reps, "--concurrency", "2", "--agent-cmd", "exec {libero_agent} agent --workspace {workspace}", "--wall-time-s",
         "300", "--no-sandbox", "--batch", batch.to_str().unwrap(), "--workspace-root", workspaces.to_str().unwrap(),
     ]);
     assert!(out.status.success(), "run failed");
 }
 
-/// A reference-agent T14 batch (2 rollouts) in `<data>/batches/main`, the ablation fixture under `extra/`, and a
-/// real `serve` that sees both (for Chromium).
-fn setup() -> (tempfile::TempDir, Server, PathBuf) {
+/// A reference-agent T14 batch of one rollout (all a click through to a review needs) in `<data>/batches/main`, the
+/// ablation and pool fixtures under `extra/`, and a real `serve` that sees them (for Chromium).
+fn setup() -> (tempfile::TempDir, Server) {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let batch = data.join("batches/main");
-    run_reference_batch(&batch, &dir.path().join("workspaces"));
+    run_reference_batch(&data.join("batches/main"), &dir.path().join("workspaces"), "1");
     let extra = dir.path().join("extra");
     write_ablation_batch(&extra.join("abl"));
     write_pool_batch(&extra.join("pool"));
 
     let server = Server::start_with(&data, &["--batches", extra.to_str().unwrap()]);
-    (dir, server, batch)
+    (dir, server)
 }
 
 /// A page or file of the in-process server, asked with the operator token: (status, text).
@@ -122,7 +121,7 @@ async fn results_show_the_report_numbers_link_every_rollout_to_its_review_and_do
     let dir = tempfile::tempdir().unwrap();
     let extra = dir.path().join("extra");
     let batch = extra.join("main");
-    run_reference_batch(&batch, &dir.path().join("workspaces"));
+    run_reference_batch(&batch, &dir.path().join("workspaces"), "2");
     write_ablation_batch(&extra.join("abl"));
     write_pool_batch(&extra.join("pool"));
     let server = TestServer::start_with(&["--batches", extra.to_str().unwrap()]).await;
@@ -392,7 +391,7 @@ async fn the_paper_tables_and_figure_3_are_computed_across_the_batches_of_one_ag
 /// scripts/setup.py --test` (chromium, node, playwright-core); fails saying so otherwise.
 #[test]
 fn chromium_clicks_a_results_cell_through_to_the_review() {
-    let (_dir, server, _batch) = setup();
+    let (_dir, server) = setup();
     let artifacts = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("../test-artifacts/dashboard");
     std::fs::create_dir_all(&artifacts).unwrap();
     let last = common::browser_script("results_click.cjs", &[server.url.as_str(), "T14", &artifacts.to_string_lossy()], &server.token);
