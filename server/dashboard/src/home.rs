@@ -2,13 +2,13 @@
 //! the getting-started commands, kept current by the episode-list WebSocket `/ws/episodes`.
 use askama::Template;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use libero_store::EpisodeFilter;
 use libero_episode::Outcome;
 use libero_records::episode_view::EpisodeView;
-use libero_server::{ApiError, App, AppState, episode_json};
+use libero_server::{ApiError, ApiQuery, App, AppState, episode_json};
 use serde_json::json;
 
 use crate::common::page;
@@ -148,7 +148,7 @@ fn known_outcome(filter: &EpisodeFilter) -> Result<(), String> {
     }
 }
 
-pub(crate) async fn home(State(app): State<AppState>, headers: axum::http::HeaderMap, Query(filter): Query<EpisodeFilter>) -> Response {
+pub(crate) async fn home(State(app): State<AppState>, headers: axum::http::HeaderMap, ApiQuery(filter): ApiQuery<EpisodeFilter>) -> Response {
     let filter = filter.normalized();
     if let Err(why) = known_outcome(&filter) {
         return ApiError::bad_request(why).into_response();
@@ -181,7 +181,7 @@ pub(crate) async fn home(State(app): State<AppState>, headers: axum::http::Heade
     })
 }
 
-pub(crate) async fn list_socket(ws: WebSocketUpgrade, State(app): State<AppState>, Query(filter): Query<EpisodeFilter>) -> Response {
+pub(crate) async fn list_socket(ws: WebSocketUpgrade, State(app): State<AppState>, ApiQuery(filter): ApiQuery<EpisodeFilter>) -> Response {
     let filter = filter.normalized();
     if let Err(why) = known_outcome(&filter) {
         return ApiError::bad_request(why).into_response();

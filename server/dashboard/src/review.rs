@@ -7,13 +7,13 @@ use std::path::{Component, Path as FsPath};
 
 use askama::Template;
 use axum::body::Body;
-use axum::extract::{Path, Query, Request, State};
+use axum::extract::{Path, Request, State};
 use axum::response::{IntoResponse, Response};
 use libero_episode::RunDir;
 use libero_episode::lifecycle::MomentError;
 use libero_records::records::{ActionEvent, PrivateEvent, read_result};
 use libero_episode::video_queue::VideoProgress;
-use libero_server::{ApiError, ApiResult, AppState};
+use libero_server::{ApiError, ApiQuery, ApiResult, AppState};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use serde_json::{Value, json};
@@ -181,7 +181,7 @@ fn telemetry_page(run: &RunDir, from: u64) -> Value {
 
 /// Everything the review page shows, from the private run directory, with the long parts (calls, telemetry)
 /// in pages the page follows through `calls_next` / `telemetry_next`. Operator-only.
-pub(crate) async fn review_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ReviewQuery>) -> ApiResult {
+pub(crate) async fn review_data(State(app): State<AppState>, Path(id): Path<String>, ApiQuery(q): ApiQuery<ReviewQuery>) -> ApiResult {
     let run = RunDir::new(stored_row(&app, &id).await?.episode.run_dir);
     let episodes = app.episodes.clone();
     let data = tokio::task::spawn_blocking(move || match q.part.as_deref() {
@@ -340,7 +340,7 @@ fn agent_timeline(run: &RunDir, id: &str, q: &AgentQuery) -> Value {
 
 /// `GET /api/episodes/{id}/agent`: the agent's transcript on the robot's timeline, in pages the caller follows
 /// through `timeline_next` (its fields are the next request's query). Operator-only, as the review.
-pub(crate) async fn agent_data(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<AgentQuery>) -> ApiResult {
+pub(crate) async fn agent_data(State(app): State<AppState>, Path(id): Path<String>, ApiQuery(q): ApiQuery<AgentQuery>) -> ApiResult {
     let run = RunDir::new(stored_row(&app, &id).await?.episode.run_dir);
     let v = tokio::task::spawn_blocking(move || agent_timeline(&run, &id, &q))
         .await
@@ -374,7 +374,7 @@ pub(crate) struct MomentQuery {
 /// `GET /api/episodes/{id}/moment?step=N`: head | wrist of the state after control step N as a JPEG, rendered from
 /// the episode's recorded actions (the review of an episode without its video). Operator-only, as the review.
 /// The answer names its control step and the episode's count in `X-Control-Step` / `X-Control-Steps`.
-pub(crate) async fn moment(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<MomentQuery>) -> Response {
+pub(crate) async fn moment(State(app): State<AppState>, Path(id): Path<String>, ApiQuery(q): ApiQuery<MomentQuery>) -> Response {
     let Some(step) = q.step.as_deref().and_then(|s| s.trim().parse::<u64>().ok()) else {
         let got = q.step.as_deref().map_or("nothing".to_owned(), |s| format!("{:?}", s.chars().take(40).collect::<String>()));
         return ApiError::bad_request(format!("step must be a control step number: 0, 1, 2, … (got {got})")).into_response();

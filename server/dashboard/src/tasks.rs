@@ -3,9 +3,9 @@
 //! (`/tasks/{id}/thumbnail.png`, `/tasks/{suite}/{task_id}/thumbnail.png`), which the task and teleop pages show too.
 use askama::Template;
 use axum::body::Body;
-use axum::extract::{Path, Query, Request, State};
+use axum::extract::{Path, Request, State};
 use axum::response::{IntoResponse, Response};
-use libero_server::{ApiError, AppState};
+use libero_server::{ApiError, ApiQuery, AppState};
 use serde_json::json;
 
 use crate::common::{page, serve_file};
@@ -214,7 +214,7 @@ fn tasks_view(query: &TasksQuery) -> anyhow::Result<TasksPage> {
     Ok(TasksPage { tasks, pool: pool_cards, selection, suites, groups, q: query.q.clone().unwrap_or_default(), summary, error })
 }
 
-pub(crate) async fn tasks_page(Query(query): Query<TasksQuery>) -> Response {
+pub(crate) async fn tasks_page(ApiQuery(query): ApiQuery<TasksQuery>) -> Response {
     match tasks_view(&query) {
         // a selection that cannot be read still gets the page, with the reason and the field to fix it
         Ok(view) if !view.error.is_empty() => (axum::http::StatusCode::BAD_REQUEST, page(view)).into_response(),
@@ -238,7 +238,7 @@ pub(crate) struct ThumbnailQuery {
 
 /// `/tasks/{id}/thumbnail.png[?camera=wrist]`: from the thumbnail cache, which the server fills ahead at start;
 /// one not rendered yet renders now (seconds).
-pub(crate) async fn thumbnail(State(app): State<AppState>, Path(id): Path<String>, Query(q): Query<ThumbnailQuery>, req: Request<Body>) -> Response {
+pub(crate) async fn thumbnail(State(app): State<AppState>, Path(id): Path<String>, ApiQuery(q): ApiQuery<ThumbnailQuery>, req: Request<Body>) -> Response {
     thumbnail_of(app, id, q, req).await
 }
 
@@ -246,7 +246,7 @@ pub(crate) async fn thumbnail(State(app): State<AppState>, Path(id): Path<String
 pub(crate) async fn pool_thumbnail(
     State(app): State<AppState>,
     Path((suite, task_id)): Path<(String, String)>,
-    Query(q): Query<ThumbnailQuery>,
+    ApiQuery(q): ApiQuery<ThumbnailQuery>,
     req: Request<Body>,
 ) -> Response {
     thumbnail_of(app, format!("{suite}/{task_id}"), q, req).await

@@ -16,7 +16,7 @@ use askama::Template;
 use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path, Query, Request, State};
+use axum::extract::{Path, Request, State};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use libero_episode::EpisodeHandle;
@@ -30,7 +30,7 @@ use serde_json::{Map, Value, json};
 
 use crate::common::{page, serve_file, valid_id};
 use libero_server::episodes::{BranchRequest, PrepareRequest, random_hex};
-use libero_server::{ApiError, ApiResult, AppState, TeleopEpisode};
+use libero_server::{ApiError, ApiQuery, ApiResult, AppState, TeleopEpisode};
 use tokio::sync::mpsc;
 
 /// Wall-clock budget of an operator episode: long enough for unhurried driving.
@@ -120,12 +120,12 @@ impl BranchQuery {
     }
 }
 
-async fn teleop_page(State(app): State<AppState>, Path(task): Path<String>, Query(q): Query<BranchQuery>) -> Response {
+async fn teleop_page(State(app): State<AppState>, Path(task): Path<String>, ApiQuery(q): ApiQuery<BranchQuery>) -> Response {
     teleop_page_of(&app, &task, q).await
 }
 
 /// `/teleop/{suite}/{task_id}`: a pool entry.
-async fn pool_teleop_page(State(app): State<AppState>, Path((suite, task_id)): Path<(String, String)>, Query(q): Query<BranchQuery>) -> Response {
+async fn pool_teleop_page(State(app): State<AppState>, Path((suite, task_id)): Path<(String, String)>, ApiQuery(q): ApiQuery<BranchQuery>) -> Response {
     teleop_page_of(&app, &format!("{suite}/{task_id}"), q).await
 }
 

@@ -2,7 +2,7 @@
 //! aborting and forfeiting episodes, their videos, health and thumbnails. Reads never write the store: they ask
 //! the store writer to catch up first ([`App::sync`]).
 use axum::Router;
-use axum::extract::{Path, Query, State};
+use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use libero_episode::RunDir;
@@ -11,7 +11,7 @@ use libero_episode::video_queue::VideoProgress;
 use libero_records::episode_view::{EpisodeList, EpisodeResultReply, EpisodeVideo, EpisodeView, VideoState, VideoStatus};
 use serde_json::{Value, json};
 
-use crate::api_error::{ApiError, ApiResult};
+use crate::api_error::{ApiError, ApiQuery, ApiResult};
 use crate::app::{App, AppState};
 use crate::episodes::PrepareRequest;
 use crate::{batches, transcript};
@@ -66,7 +66,7 @@ struct ListQuery {
 /// Largest page of `GET /api/episodes`.
 const MAX_LIST_LIMIT: i64 = 10_000;
 
-async fn list_episodes(State(app): State<AppState>, Query(q): Query<ListQuery>) -> ApiResult {
+async fn list_episodes(State(app): State<AppState>, ApiQuery(q): ApiQuery<ListQuery>) -> ApiResult {
     app.sync_all().await;
     let limit = q.limit.unwrap_or(1000).clamp(1, MAX_LIST_LIMIT);
     let rows = app.store.list(limit).await?;

@@ -92,6 +92,27 @@ impl From<libero_store::StoreError> for ApiError {
     }
 }
 
+/// `Query<T>` whose rejection is an [`ApiError`]: a query string the route cannot read (`?limit=many`) is answered
+/// `{"ok": false, "error": "…"}` with axum's words naming the field, as every other bad request, instead of axum's
+/// plain-text 400 (which a script reading `error`, and the console's error pages, could not read).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ApiQuery<T>(pub T);
+
+impl<T, S> axum::extract::FromRequestParts<S> for ApiQuery<T>
+where
+    T: serde::de::DeserializeOwned,
+    S: Send + Sync,
+{
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, state: &S) -> Result<Self, ApiError> {
+        match axum::extract::Query::<T>::from_request_parts(parts, state).await {
+            Ok(axum::extract::Query(query)) => Ok(Self(query)),
+            Err(rejection) => Err(ApiError::new(rejection.status(), rejection.body_text())),
+        }
+    }
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let mut body = Map::new();

@@ -34,7 +34,7 @@ pub mod thumbnails;
 pub mod transcript;
 
 pub use api::{episode_json, episode_video_view, video_part};
-pub use api_error::{ApiError, ApiResult};
+pub use api_error::{ApiError, ApiQuery, ApiResult};
 pub use app::{App, AppState, Console, TeleopEpisode};
 pub use args::{ServeArgs, ServerFlags, StoreFlags, ThumbnailArgs, batch_roots, check_public_url, default_data_dir};
 pub use mcp_gate::bearer;
