@@ -69,6 +69,9 @@ pub struct Sample {
     /// What the allocator has handed out and what it holds free (all arenas): tells a leak from fragmentation.
     pub malloc_in_use_mb: f64,
     pub malloc_free_mb: f64,
+    /// Compiled scene models alive in the process (shared between episodes while any holds one; none once all
+    /// ended and their videos are drawn).
+    pub models_alive: usize,
 }
 
 impl Sample {
@@ -90,6 +93,7 @@ impl Sample {
             open_files,
             malloc_in_use_mb: mb(m.uordblks + m.hblkhd),
             malloc_free_mb: mb(m.fordblks),
+            models_alive: libero_sim::shared_model::alive(),
         })
     }
 
@@ -100,6 +104,7 @@ impl Sample {
             open_files: self.open_files.max(other.open_files),
             malloc_in_use_mb: self.malloc_in_use_mb.max(other.malloc_in_use_mb),
             malloc_free_mb: self.malloc_free_mb.max(other.malloc_free_mb),
+            models_alive: self.models_alive.max(other.models_alive),
         }
     }
 }
