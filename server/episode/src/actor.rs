@@ -9,6 +9,7 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::{Arc, Condvar, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
+use serde::Deserialize;
 use serde_json::{Map, Value, json};
 
 use crate::EpisodeError;
@@ -17,9 +18,18 @@ use libero_records::json::{compact_sorted, utc_now_iso};
 use crate::live::{LiveEvent, LiveSink, unix_now_s};
 use crate::observation::{EncodedObservation, Frame, Level, encode_observation};
 use crate::publish::{ObservationPublisher, write_private_copy};
-use libero_records::records::{ActionLog, Outcome, RESULT_SCHEMA, RunDir, RunResult, aborted_result, classify, write_result};
+use libero_records::records::{
+    ActionLog, Outcome, RESULT_SCHEMA, RunDir, RunResult, ToolReply, aborted_result, classify, write_result,
+};
 use crate::tools::{MAX_AGENT_STEPS_CAP, ToolName};
 use crate::workspace::OBSERVATION_FILE;
+
+/// The part of an answer the live view shows beyond [`ToolReply`]: the observation a call published.
+#[derive(Deserialize, Default)]
+struct Answered {
+    #[serde(default)]
+    observation_id: Option<String>,
+}
 
 /// How often an idle active episode checks its wall clock (the original polled every 0.5 s).
 pub const IDLE_POLL: Duration = Duration::from_millis(500);
@@ -515,17 +525,20 @@ impl<W: World> Actor<W> {
         }
         let payload = self.handle_call_logged(name, arguments);
         if let Some(live) = &self.live {
-            let text = |k: &str| payload.get(k).and_then(Value::as_str).map(str::to_owned);
+            // The payload was built here: read back through its types (a reply, and a finish's result fields).
+            let reply = ToolReply::of(&payload);
+            let answered = Answered::deserialize(&payload).unwrap_or_default();
+            let finished_wall = || RunResult::deserialize(&payload).ok().and_then(|r| r.wall_time_seconds.flatten());
             live(LiveEvent::CallAnswered {
                 tool: name.to_owned(),
                 actions,
-                ok: payload.get("ok") == Some(&Value::Bool(true)),
-                error_type: text("error_type"),
-                error: text("error"),
-                observation_id: text("observation_id"),
+                ok: reply.is_ok(),
+                error_type: reply.error_type,
+                error: reply.error.as_ref().and_then(Value::as_str).map(str::to_owned),
+                observation_id: answered.observation_id,
                 accepted_agent_steps: self.accepted,
                 max_agent_steps: self.config.agent_step_limit(),
-                wall_time_s: self.wall_time_s().or_else(|| payload.get("wall_time_seconds").and_then(Value::as_f64)),
+                wall_time_s: self.wall_time_s().or_else(finished_wall),
                 max_wall_time_s: self.config.max_wall_time_s,
                 at_unix_s: unix_now_s(),
             });

@@ -2,6 +2,7 @@
 //! episode actor, results wrapped in the original envelope (§2.6).
 use libero_episode::EpisodeHandle;
 use libero_records::json::pretty_sorted;
+use libero_records::records::ToolReply;
 use libero_episode::tools::{PROTOCOL_VERSION, SERVER_INSTRUCTIONS, SERVER_NAME, SERVER_VERSION, tools_list};
 use rmcp::model::{
     CallToolRequestParams, CallToolResponse, CallToolResult, ContentBlock, ErrorCode, Implementation, ListPromptsResult,
@@ -21,7 +22,7 @@ pub struct EpisodeMcp {
 /// The tool result envelope: sorted pretty JSON text, the payload as `structuredContent`, and `isError`
 /// unless `ok` is exactly `true`.
 pub fn envelope(payload: Value) -> CallToolResult {
-    let ok = payload.get("ok") == Some(&Value::Bool(true));
+    let ok = ToolReply::of(&payload).is_ok();
     let mut result = CallToolResult::success(vec![ContentBlock::text(pretty_sorted(&payload))]);
     result.structured_content = Some(payload);
     result.is_error = Some(!ok);
