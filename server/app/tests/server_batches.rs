@@ -3,14 +3,16 @@
 //! without `--batches` right after `run` ends; `run` names that Results URL and the `report` command; its episode
 //! carries harness, model and batch (and the home page's harness/batch filters find it), an expert's episode carries
 //! harness `expert`; `report` and the Results page use the batch's own repetitions (1) by default and agree; every
-//! row shows tokens with their source, and the Results page shows the agent toolbox each batch ran with. (That the
-//! registration route is operator-only, refusing no token and an episode token, is `routes_in_process`'s.)
+//! row shows tokens with their source, and the Results page shows the agent toolbox each batch ran with (asked in
+//! process over a fixture batch). (That the registration route is operator-only, refusing no token and an episode
+//! token, is `routes_in_process`'s.)
 mod common;
 
 use std::path::Path;
 use std::process::Command;
 
 use common::{Server, bin, http_get_json, http_get_text};
+use libero_testkit::server::TestServer;
 use serde_json::{Value, json};
 
 fn libero(args: &[&str]) -> std::process::Output {
@@ -66,9 +68,7 @@ fn write_toolbox_batch(dir: &Path) {
 fn a_batch_run_against_a_server_is_on_its_results_page_without_flags_and_its_episodes_carry_their_agent() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let extra = dir.path().join("extra");
-    write_toolbox_batch(&extra.join("toolboxed"));
-    let server = Server::start_with(&data, &["--batches", extra.to_str().unwrap()]);
+    let server = Server::start(&data);
 
     // The batch directory is nowhere the server looks: not under <data>/batches, not under --batches.
     let batch = dir.path().join("elsewhere/srv_batch");
@@ -111,18 +111,6 @@ fn a_batch_run_against_a_server_is_on_its_results_page_without_flags_and_its_epi
     let (_, home) = http_get_text(&format!("{}/?harness=expert", server.url));
     assert!(!home.contains(&episode_id), "another harness does not");
 
-    // The toolbox each batch ran with, and tokens with their source on every row.
-    let (_, html) = http_get_text(&format!("{}/results", server.url));
-    assert!(html.contains("id=\"toolboxes\"") && html.contains("libero-toolbox") && html.contains("numpy 1.26.4, scipy 1.14.1"), "{html}");
-    assert!(html.contains("4,805 (gateway 1, stdout 1; stdout disagrees: 1)"), "main row tokens with sources: {html}");
-    assert!(html.contains("8,610 G · 1,000 S"), "per-task tokens with source marks: {html}");
-    let (_, tb) = http_get_json(&format!("{}/api/results?batch=toolboxed", server.url));
-    assert_eq!(tb["batches"][0]["toolbox"]["packages"][0]["name"], "numpy");
-    let tokens = &tb["batches"][0]["report"]["rows"][0]["tokens"];
-    assert_eq!(tokens["sources"], json!({"model_api_gateway": 1, "harness_stdout": 1, "unavailable": 0, "not_recorded": 0}));
-    assert_eq!(tokens["stdout_disagrees"][0]["rollout_id"], "w1_t14_level3");
-    assert_eq!(tokens["stdout_disagrees"][0]["harness_stdout"]["total"], 9610);
-
     // Another batch of the same name elsewhere is refused before anything runs, saying why.
     let other = dir.path().join("other/srv_batch");
     let out = run_t14(&server.url, &other, &dir.path().join("ws2"));
@@ -144,4 +132,26 @@ fn an_expert_episode_carries_harness_expert() {
     let id = ep["id"].as_str().unwrap();
     let (_, home) = http_get_text(&format!("{}/?harness=expert&batch={batch}", server.url));
     assert!(home.contains(id), "the home page's harness + batch filter finds the expert's episode");
+}
+
+/// The Results page shows the agent toolbox each batch ran with, and tokens with their source on every row (gateway,
+/// stdout, and where the harness's stdout disagrees with the gateway): a fixture batch, asked of the full router in
+/// process.
+#[tokio::test(flavor = "multi_thread")]
+async fn the_results_show_each_batchs_toolbox_and_every_rows_tokens_with_their_source() {
+    let extra = tempfile::tempdir().unwrap();
+    write_toolbox_batch(&extra.path().join("toolboxed"));
+    let server = TestServer::start_with(&["--batches", extra.path().to_str().unwrap()]).await;
+    let page = server.get_as_operator("/results").await;
+    let html = page.text();
+    assert_eq!(page.status, 200, "{html}");
+    assert!(html.contains("id=\"toolboxes\"") && html.contains("libero-toolbox") && html.contains("numpy 1.26.4, scipy 1.14.1"), "{html}");
+    assert!(html.contains("4,805 (gateway 1, stdout 1; stdout disagrees: 1)"), "main row tokens with sources: {html}");
+    assert!(html.contains("8,610 G · 1,000 S"), "per-task tokens with source marks: {html}");
+    let tb = server.get_as_operator("/api/results?batch=toolboxed").await.json();
+    assert_eq!(tb["batches"][0]["toolbox"]["packages"][0]["name"], "numpy");
+    let tokens = &tb["batches"][0]["report"]["rows"][0]["tokens"];
+    assert_eq!(tokens["sources"], json!({"model_api_gateway": 1, "harness_stdout": 1, "unavailable": 0, "not_recorded": 0}));
+    assert_eq!(tokens["stdout_disagrees"][0]["rollout_id"], "w1_t14_level3");
+    assert_eq!(tokens["stdout_disagrees"][0]["harness_stdout"]["total"], 9610);
 }
