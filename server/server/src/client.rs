@@ -326,6 +326,7 @@ mod tests {
 
     #[test]
     fn an_episode_s_steps_and_end_reach_the_store_and_the_typed_api_for_machines_elsewhere() {
+        let _alone = crate::PROCESS_WIDE_TEST_LOCK.lock().unwrap_or_else(|p| p.into_inner());
         let dir = tempfile::tempdir().unwrap();
         let data = dir.path().join("data");
         let server = InProcessServer::start(data.clone(), "test_finished").unwrap();

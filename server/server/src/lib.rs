@@ -40,3 +40,9 @@ pub use args::{ServeArgs, ServerFlags, StoreFlags, ThumbnailArgs, batch_roots, c
 pub use mcp_gate::bearer;
 pub use router::router;
 pub use serve::{Bound, DRAIN_GRACE, DataLock, InProcess, SIGNAL_GRACE, run_serve, serve, serve_until, start};
+
+/// Held by this crate's tests that build worlds or read process-wide figures (MuJoCo's asset cache, the shared
+/// models): under `cargo test` the tests are threads of one process, and one test's episode showed in the
+/// thumbnail pass's before/after counts (under nextest each test is a process of its own).
+#[cfg(test)]
+pub(crate) static PROCESS_WIDE_TEST_LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());

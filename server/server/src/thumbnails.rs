@@ -463,6 +463,7 @@ mod tests {
     /// a base model another read from, its device, its decoded assets) leaves it counted here.
     #[test]
     fn the_background_pass_leaves_no_model_or_upload_of_its_scenes_behind() {
+        let _alone = crate::PROCESS_WIDE_TEST_LOCK.lock().unwrap_or_else(|p| p.into_inner());
         let dir = tempfile::tempdir().unwrap();
         let episodes = Arc::new(Episodes::new(dir.path().join("data"), "http://127.0.0.1:9".into()).unwrap());
         let cache = libero_sim::mujoco_rs::prelude::MjCache::current();
@@ -479,7 +480,8 @@ mod tests {
         assert!(!episodes.lifecycle().renderer_is_open(), "the pass opened the episodes' shared GPU device and left it open");
         assert_eq!(libero_sim::shared_model::alive(), models, "models of rendered scenes are still alive");
         assert_eq!(libero_sim::shared_model::compiled_scenes_alive(), 0);
-        assert_eq!(cache.size(), cached, "MuJoCo's compiler still caches the rendered scenes' assets");
+        // (the pass empties the whole cache after each scene, so it may end below where it began)
+        assert!(cache.size() <= cached, "MuJoCo's compiler still caches the rendered scenes' assets: {} > {cached} bytes", cache.size());
     }
 
     #[test]
