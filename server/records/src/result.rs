@@ -187,6 +187,8 @@ record! {
     pub struct EvaluationDetails {
         /// Monitored mechanism operations (Figure 3's sustained-contact ratio).
         pub opening_operations: Option<Vec<MechanismOperation>>,
+        /// The stage order the checker enforced (`ordered`, `unordered`), where its parameters name one.
+        pub order: Option<String>,
     }
 }
 

@@ -27,7 +27,7 @@ pub(crate) fn opportunities(r: &RolloutRecord, pe: &PrivateEvaluation, facts: &T
     let declared = facts.stage_types.get(&r.task_number);
     let stages: Vec<&StageDiagnostic> = pe.stage_diagnostics.iter().flatten().filter(|d| d.required == Some(true)).collect();
     let name = |d: &StageDiagnostic| d.stage_name.clone().unwrap_or_default();
-    let order = pe.details.as_ref().and_then(|d| d.rest.get("order")).and_then(serde_json::Value::as_str);
+    let order = pe.details.as_ref().and_then(|d| d.order.as_deref());
     let unordered = pe.checker.as_deref() == Some(UNORDERED_CHECKER) || order == Some("unordered");
     let events: Vec<&PrivateEvent> = pe.stage_events.iter().flatten().chain(pe.events.iter().flatten()).collect();
     let of_kind = |kind: &'static str| events.iter().copied().filter(move |e| e.kind.as_deref() == Some(kind));
