@@ -16,7 +16,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::bail;
 use libero_records::batch_doc::HarnessVersion;
-use serde_json::Value;
 
 use super::harness::Harness;
 use libero_sandbox::host_paths::{cache_dir, which_in};
@@ -45,10 +44,9 @@ pub struct LockEntry {
 
 /// The lock's `harness_versions` entry of `harness`, if it lists one.
 pub fn lock_entry(harness: Harness) -> Option<LockEntry> {
-    let lock: Value = serde_json::from_str(libero_sandbox::toolbox::LOCK).ok()?;
-    let entry = &lock["harness_versions"][harness.as_str()];
-    let versions = entry["versions"].as_object()?.iter().map(|(v, why)| (v.clone(), why.as_str().unwrap_or_default().to_owned()));
-    Some(LockEntry { package: entry["package"].as_str()?.to_owned(), versions: versions.collect() })
+    let entry = libero_sandbox::toolbox::ThirdPartyLock::built_in().ok()?.harness(harness.as_str())?;
+    let versions = entry.versions?.into_iter().map(|(v, why)| (v, why.as_str().unwrap_or_default().to_owned()));
+    Some(LockEntry { package: entry.package?, versions: versions.collect() })
 }
 
 /// Where an installed copy was found.

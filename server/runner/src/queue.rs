@@ -10,6 +10,7 @@ use libero_records::batch_doc::{BatchCounts, BatchDoc, HarnessDoc, QueueRef, Rol
 use libero_records::json::utc_now_iso;
 use libero_metrics::Outcome;
 use libero_store::{QueueListener, Store, StoredBatch};
+use serde::Deserialize;
 use serde_json::{Value, json};
 
 use libero_report::batch::{BATCH_SCHEMA, RolloutRecord};
@@ -21,10 +22,18 @@ use super::{INTERRUPTED, RunArgs};
 /// Why a rollout whose worker stopped renewing its lease ended (its record's `termination_reason`).
 pub const WORKER_LOST: &str = "worker_lost";
 
+/// A queue row that is no [`PlannedRollout`] as far as its record can still name it (null where it cannot).
+#[derive(Deserialize)]
+struct PlanId {
+    #[serde(default)]
+    rollout_id: Value,
+}
+
 /// The record of a rollout whose worker was lost (its lease ran out): INVALID, `worker_lost`.
 pub fn worker_lost_record(plan: &Value) -> Value {
     let Ok(plan) = serde_json::from_value::<PlannedRollout>(plan.clone()) else {
-        return json!({"rollout_id": plan["rollout_id"], "outcome": Outcome::Invalid.as_str(), "termination_reason": WORKER_LOST});
+        let rollout_id = PlanId::deserialize(plan).map(|p| p.rollout_id).unwrap_or_default();
+        return json!({"rollout_id": rollout_id, "outcome": Outcome::Invalid.as_str(), "termination_reason": WORKER_LOST});
     };
     let mut rec = RolloutRecord::from(&plan);
     rec.outcome = Outcome::Invalid;

@@ -10,8 +10,8 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use serde::Serialize;
-use serde_json::{Value, json};
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value, json};
 use sha2::{Digest, Sha256};
 
 use crate::host_paths::{SYSTEM_DIRS, cache_dir, which};
@@ -23,6 +23,49 @@ pub const INSIDE: &str = "/opt/libero-toolbox";
 /// The lock this runner was built with: the project's toolbox is the one it names (and the agent CLI versions,
 /// the runner's `harness_versions`, the ones it lists).
 pub const LOCK: &str = include_str!("../../../assets/third_party.lock.json");
+
+/// [`LOCK`] as far as the runner reads it (the rest is `scripts/setup.py`'s).
+#[derive(Debug, Deserialize)]
+pub struct ThirdPartyLock {
+    pub toolbox: Option<LockedToolbox>,
+    /// Each agent CLI's entry beside a `why` text: read one with [`ThirdPartyLock::harness`].
+    #[serde(default)]
+    pub harness_versions: Map<String, Value>,
+}
+
+/// The lock's `toolbox`: the venv `scripts/setup.py --toolbox` builds.
+#[derive(Debug, Default, Deserialize)]
+pub struct LockedToolbox {
+    pub name: Option<String>,
+    pub interpreter: Option<String>,
+    pub wheels: Option<Vec<LockedWheel>>,
+}
+
+/// One wheel of the lock's toolbox, as far as the toolbox's directory name hashes it.
+#[derive(Debug, Deserialize)]
+pub struct LockedWheel {
+    pub sha256: Option<String>,
+}
+
+/// One agent CLI of the lock's `harness_versions`: its npm package and each version with why it is there.
+#[derive(Debug, Deserialize)]
+pub struct LockedHarness {
+    pub package: Option<String>,
+    /// Version → why (a text; kept as JSON so that an entry of another shape still lists its version).
+    pub versions: Option<Map<String, Value>>,
+}
+
+impl ThirdPartyLock {
+    /// The lock this runner was built with.
+    pub fn built_in() -> Result<Self, ToolboxError> {
+        serde_json::from_str(LOCK).map_err(|e| ToolboxError::Lock(e.to_string()))
+    }
+
+    /// The `harness_versions` entry of `harness` (`codex`, `claude_code`, …), if the lock lists one.
+    pub fn harness(&self, harness: &str) -> Option<LockedHarness> {
+        self.harness_versions.get(harness).and_then(|entry| LockedHarness::deserialize(entry).ok())
+    }
+}
 
 /// The most bytes of a package's `METADATA` read for its name and version.
 const MAX_METADATA_BYTES: u64 = 64 * 1024;
@@ -83,14 +126,13 @@ pub struct Toolbox {
 /// `toolbox-<name>-<12 hex>`, the hash over the interpreter and every wheel's sha256, as `scripts/setup.py`'s
 /// `toolbox_dir_name` computes it: a changed lock is a new directory, never a half-replaced one.
 pub fn project_dir_name() -> Result<String, ToolboxError> {
-    let lock: Value = serde_json::from_str(LOCK).map_err(|e| ToolboxError::Lock(e.to_string()))?;
-    let spec = &lock["toolbox"];
-    let field = |v: &Value, k: &str| v[k].as_str().map(str::to_owned).ok_or_else(|| ToolboxError::Lock(format!("no `{k}`")));
-    let (name, interpreter) = (field(spec, "name")?, field(spec, "interpreter")?);
-    let wheels = spec["wheels"].as_array().ok_or_else(|| ToolboxError::Lock("no `wheels`".into()))?;
+    let spec = ThirdPartyLock::built_in()?.toolbox.unwrap_or_default();
+    let field = |v: Option<String>, k: &str| v.ok_or_else(|| ToolboxError::Lock(format!("no `{k}`")));
+    let (name, interpreter) = (field(spec.name, "name")?, field(spec.interpreter, "interpreter")?);
+    let wheels = spec.wheels.ok_or_else(|| ToolboxError::Lock("no `wheels`".into()))?;
     let mut lines = vec![interpreter];
     for w in wheels {
-        lines.push(field(w, "sha256")?);
+        lines.push(field(w.sha256, "sha256")?);
     }
     let digest = Sha256::digest(lines.join("\n").as_bytes());
     let hex: String = digest.iter().take(6).map(|b| format!("{b:02x}")).collect();
@@ -152,6 +194,23 @@ fn install_project(dir: &Path) -> Result<(), ToolboxError> {
     Ok(())
 }
 
+/// `toolbox.json`, what `scripts/setup.py --toolbox` writes beside the venv (each field read leniently: one of
+/// another type is as good as absent, as the directory itself can tell).
+#[derive(Debug, Default, Deserialize)]
+struct RecordedToolbox {
+    #[serde(default, deserialize_with = "lenient")]
+    name: Option<String>,
+    #[serde(default, deserialize_with = "lenient")]
+    python: Option<String>,
+    #[serde(default, deserialize_with = "lenient")]
+    size_bytes: Option<u64>,
+}
+
+/// A field of the type asked for, else none (as `Value::as_str` and `as_u64` read it).
+fn lenient<'de, D: serde::Deserializer<'de>, T: serde::de::DeserializeOwned>(d: D) -> Result<Option<T>, D::Error> {
+    Ok(serde_json::from_value(Value::deserialize(d)?).ok())
+}
+
 impl Toolbox {
     /// Reads the toolbox at `root`: its interpreter must be one the sandbox shows (in the system directories or in
     /// the toolbox itself), its packages are what its `site-packages` holds. `toolbox.json` (written by
@@ -172,16 +231,16 @@ impl Toolbox {
         }
         let site = site_packages(&root).ok_or_else(|| invalid("no lib/python3.*/site-packages".into()))?;
         let packages = installed_packages(&site);
-        let recorded: Value = std::fs::read_to_string(root.join("toolbox.json"))
+        let recorded: RecordedToolbox = std::fs::read_to_string(root.join("toolbox.json"))
             .ok()
             .and_then(|t| serde_json::from_str(&t).ok())
-            .unwrap_or(Value::Null);
-        let name = match recorded["name"].as_str() {
-            Some(n) => n.to_owned(),
+            .unwrap_or_default();
+        let name = match recorded.name {
+            Some(n) => n,
             None => root.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "toolbox".into()),
         };
-        let python = recorded["python"].as_str().map(str::to_owned).or_else(|| pyvenv_version(&root));
-        let size_bytes = recorded["size_bytes"].as_u64().or_else(|| Some(tree_size(&root)));
+        let python = recorded.python.or_else(|| pyvenv_version(&root));
+        let size_bytes = recorded.size_bytes.or_else(|| Some(tree_size(&root)));
         Ok(Self { name, root, interpreter, python, packages, size_bytes, project: false })
     }
 
