@@ -15,6 +15,7 @@
 //! * **operation** — for a stage with a monitored mechanism operation, which way it moves the mechanism, with the
 //!   operation's sustained-contact ratio (see [`crate::judge::mechanism`]).
 use libero_metrics::StageEvidence;
+use serde::Deserialize;
 use serde_json::Value;
 
 pub use crate::judge::evaluator::StageDiagnostic;
@@ -27,6 +28,37 @@ impl EvaluationRecord {
         self.stage_diagnostics = stage_diagnostics(&self);
         self
     }
+}
+
+/// The part of an evaluator's `details` the diagnostics read: its monitored mechanism operations.
+#[derive(Deserialize)]
+struct MonitoredDetails {
+    #[serde(default)]
+    opening_operations: Option<Vec<MonitoredOperation>>,
+}
+
+/// One entry of `details.opening_operations`, as [`crate::judge::mechanism`] writes it (fields of another type
+/// read as absent, as before it was typed).
+#[derive(Deserialize)]
+struct MonitoredOperation {
+    #[serde(default, deserialize_with = "lenient")]
+    stage_name: Option<String>,
+    #[serde(default, deserialize_with = "lenient")]
+    operation: Option<String>,
+    #[serde(default, deserialize_with = "lenient")]
+    exec_steps: Option<u64>,
+    /// Only whether it holds any run matters here.
+    #[serde(default, deserialize_with = "lenient")]
+    contact_runs: Option<Vec<Value>>,
+    #[serde(default, deserialize_with = "lenient")]
+    sustained_steps: Option<u64>,
+    #[serde(default, deserialize_with = "lenient")]
+    sustained_contact_ratio_percent: Option<f64>,
+}
+
+/// A field of the type asked for, else none.
+fn lenient<'de, D: serde::Deserializer<'de>, T: serde::de::DeserializeOwned>(d: D) -> Result<Option<T>, D::Error> {
+    Ok(serde_json::from_value(Value::deserialize(d)?).ok())
 }
 
 /// The diagnostics of every stage (required ones first, then optional), empty for records without named stages.
@@ -46,11 +78,12 @@ pub fn stage_diagnostics(record: &EvaluationRecord) -> Vec<StageDiagnostic> {
             .find(|e| e.kind == kind && e.stage_name.as_deref() == Some(n))
             .map(|e| e.tick.control_step)
     };
-    let operations = record.details.as_ref().and_then(|d| d["opening_operations"].as_array());
+    let details = record.details.as_ref().and_then(|d| MonitoredDetails::deserialize(d).ok());
+    let operations = details.as_ref().and_then(|d| d.opening_operations.as_deref());
     // The gripper touched the stage's mechanism during its operation: a contact run of its monitored operation.
     let touched = |n: &str| {
-        operations.into_iter().flatten().filter(|o| o["stage_name"].as_str() == Some(n)).any(|o| {
-            o["contact_runs"].as_array().is_some_and(|runs| !runs.is_empty()) || o["sustained_steps"].as_u64().is_some_and(|s| s > 0)
+        operations.into_iter().flatten().filter(|o| o.stage_name.as_deref() == Some(n)).any(|o| {
+            o.contact_runs.as_ref().is_some_and(|runs| !runs.is_empty()) || o.sustained_steps.is_some_and(|s| s > 0)
         })
     };
     // Ordered stages: the required stage current at a control step (the first not completed by then).
@@ -90,7 +123,7 @@ pub fn stage_diagnostics(record: &EvaluationRecord) -> Vec<StageDiagnostic> {
             blocked_by_other_stage: blocked,
         };
         let reached = evidence.reached();
-        let op = operations.and_then(|ops| ops.iter().rev().find(|o| o["stage_name"].as_str() == Some(name.as_str())));
+        let op = operations.and_then(|ops| ops.iter().rev().find(|o| o.stage_name.as_deref() == Some(name.as_str())));
         let failure_reason = if !done && required && !failure_given {
             failure_given = true;
             failure.clone()
@@ -105,9 +138,9 @@ pub fn stage_diagnostics(record: &EvaluationRecord) -> Vec<StageDiagnostic> {
             completed_control_step: first_step(name, EventKind::StageCompleted),
             regressions,
             regressed_during_later_stage,
-            sustained_contact_ratio_percent: op.and_then(|o| o["sustained_contact_ratio_percent"].as_f64()),
-            contact_exec_steps: op.and_then(|o| o["exec_steps"].as_u64()),
-            operation: op.and_then(|o| operation_kind(&o["operation"])),
+            sustained_contact_ratio_percent: op.and_then(|o| o.sustained_contact_ratio_percent),
+            contact_exec_steps: op.and_then(|o| o.exec_steps),
+            operation: op.and_then(|o| operation_kind(o.operation.as_deref()?)),
             stage_type: record.stage_types.iter().find(|(n, _)| n == name).map(|&(_, t)| t),
             failure_reason,
         });
@@ -115,8 +148,8 @@ pub fn stage_diagnostics(record: &EvaluationRecord) -> Vec<StageDiagnostic> {
     out
 }
 
-fn operation_kind(v: &Value) -> Option<OperationKind> {
-    match v.as_str()? {
+fn operation_kind(v: &str) -> Option<OperationKind> {
+    match v {
         "open" => Some(OperationKind::Open),
         "close" => Some(OperationKind::Close),
         "operate" => Some(OperationKind::Operate),

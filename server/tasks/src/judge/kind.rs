@@ -3,6 +3,7 @@
 //! list of kinds a build can judge lives in one place.
 use libero_sim::compose::ComposedScene;
 use libero_sim::mujoco_rs::prelude::MjModel;
+use serde::Deserialize;
 use serde::de::DeserializeOwned;
 
 use crate::TasksError;
@@ -29,7 +30,7 @@ impl<'a> CheckerParams<'a> {
     }
 }
 
-impl CheckerParams<'_> {
+impl<'a> CheckerParams<'a> {
     /// The params as the kind's typed struct. Every field comes from the manifest (the structs have no defaults and
     /// refuse unknown fields), so the error names the field.
     pub fn parse<T: DeserializeOwned>(&self) -> Result<T, TasksError> {
@@ -37,8 +38,14 @@ impl CheckerParams<'_> {
     }
 
     /// `params.variant`: which form of a kind with several (the seesaw's).
-    pub fn variant(&self) -> Option<&str> {
-        self.params.get("variant").and_then(|v| v.as_str())
+    pub fn variant(&self) -> Option<&'a str> {
+        /// The one param every kind may read before its own struct: which form of it.
+        #[derive(serde::Deserialize)]
+        struct Variant<'v> {
+            #[serde(borrow, default)]
+            variant: Option<&'v str>,
+        }
+        Variant::deserialize(self.params).ok()?.variant
     }
 
     /// A catalog error about this task's checker.

@@ -8,23 +8,27 @@ fn tasks_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tasks"))
 }
 
-fn read(file: &str) -> serde_json::Value {
+fn read<T: serde::de::DeserializeOwned>(file: &str) -> T {
     let path = tasks_dir().join(file);
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("read {}: {e}", path.display()));
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("parse {}: {e}", path.display()))
 }
 
+/// `pool.json`'s entries (the pool's other keys are [`crate::pool::Pool::load`]'s).
+#[derive(serde::Deserialize)]
+struct PoolEntries {
+    entries: Vec<crate::pool::PoolEntry>,
+}
+
 /// `checker.params` of release task `task` (`T20`), or `definition.checker_params` of pool entry `suite/name`.
 pub(crate) fn checker_params(task: &str) -> serde_json::Value {
     let found = match task.split_once('/') {
-        None => read("manifest.json")["tasks"]
-            .as_array()
-            .and_then(|tasks| tasks.iter().find(|t| t["id"] == task))
-            .map(|t| t["checker"]["params"].clone()),
-        Some((suite, name)) => read("pool.json")["entries"]
-            .as_array()
-            .and_then(|entries| entries.iter().find(|e| e["suite"] == suite && e["name"] == name))
-            .map(|e| e["definition"]["checker_params"].clone()),
+        None => read::<crate::catalog::Manifest>("manifest.json").tasks.into_iter().find(|t| t.id == task).map(|t| t.checker.params),
+        Some((suite, name)) => read::<PoolEntries>("pool.json")
+            .entries
+            .into_iter()
+            .find(|e| e.suite == suite && e.name == name)
+            .map(|e| e.definition.map(|d| d.checker_params).unwrap_or_default()),
     };
     found.unwrap_or_else(|| panic!("no checker params for {task}"))
 }
