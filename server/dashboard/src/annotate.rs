@@ -91,11 +91,12 @@ async fn stages(State(app): State<AppState>, Path(id): Path<String>) -> ApiResul
     let annotations = annotations_of(&app, &id, &found).await?;
     let position = found.long_horizon.iter().position(|e| *e == id);
     let neighbour = |d: isize| position.and_then(|p| p.checked_add_signed(d)).and_then(|p| found.long_horizon.get(p)).cloned();
+    let annotation_of = |s: &StageOpportunity| annotations.get(&StageKey { episode_id: id.clone(), stage_name: s.stage_name.clone() });
     let rows: Vec<Value> = stages
         .iter()
         .map(|s| {
             let auto = s.automatic();
-            let annotation = annotations.get(&StageKey { episode_id: id.clone(), stage_name: s.stage_name.clone() });
+            let annotation = annotation_of(s);
             json!({
                 "stage_name": s.stage_name,
                 "stage_type": s.stage_type,
@@ -112,7 +113,7 @@ async fn stages(State(app): State<AppState>, Path(id): Path<String>) -> ApiResul
         "batch": found.batch,
         "in_table4": in_paper_table4(found.record.task_number),
         "stages": rows,
-        "annotated": rows.iter().filter(|r| !r["annotation"].is_null()).count(),
+        "annotated": stages.iter().filter(|s| annotation_of(s).is_some()).count(),
         "position": position.map(|p| p + 1),
         "episodes": found.long_horizon.len(),
         "previous": neighbour(-1),

@@ -13,7 +13,10 @@ use axum::routing::get;
 use libero_store::EpisodeFilter;
 use libero_server::{App, AppState};
 use libero_tasks::catalog::CheckerSpec;
+use serde::Deserialize;
 use serde_json::Value;
+
+use crate::teleop::BundleSummary;
 
 use crate::common::page;
 use crate::error_page;
@@ -242,6 +245,22 @@ fn text_of<T: serde::Serialize>(v: &T) -> String {
     serde_json::to_value(v).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default()
 }
 
+/// The checker parameters the page describes (never shows): its stage order and how many stages it requires.
+/// Kept as JSON values so that any other shape reads as absent, as each kind's own parameters decide.
+#[derive(Deserialize, Default)]
+struct DescribedParams {
+    #[serde(default)]
+    order: Value,
+    #[serde(default)]
+    stages: Value,
+}
+
+impl DescribedParams {
+    fn of(checker: &CheckerSpec) -> Self {
+        Self::deserialize(&checker.params).unwrap_or_default()
+    }
+}
+
 /// What the checker judges, in public words: its kind and K, never its parameters.
 fn judged_words(checker: &CheckerSpec, k: usize) -> String {
     let plural = if k == 1 { "" } else { "s" };
@@ -250,12 +269,13 @@ fn judged_words(checker: &CheckerSpec, k: usize) -> String {
             .into();
     }
     let kind = checker.kind.trim_start_matches("private_").replace('_', " ");
-    if checker.params["order"] == "unordered" {
+    let params = DescribedParams::of(checker);
+    if params.order == "unordered" {
         return format!(
             "{k} goal{plural} in any order ({kind}), judged by a private evaluator: success needs all of them to hold at the end."
         );
     }
-    if checker.kind.starts_with("private_ordered") || checker.params["order"] == "ordered" {
+    if checker.kind.starts_with("private_ordered") || params.order == "ordered" {
         return format!(
             "{k} ordered stage{plural} ({kind}), judged by a private evaluator: a stage counts only after the ones before it; \
              success needs all {k}."
@@ -266,7 +286,7 @@ fn judged_words(checker: &CheckerSpec, k: usize) -> String {
 
 /// The catalog's stage names and declared types; a BDDL-terminal task has its goal as its one stage.
 fn stage_lines(checker: &CheckerSpec) -> Vec<StageLine> {
-    let required = checker.params.get("stages").and_then(Value::as_array).map_or(0, Vec::len);
+    let required = DescribedParams::of(checker).stages.as_array().map_or(0, Vec::len);
     let listed = checker.stage_types().unwrap_or_default();
     if listed.is_empty() {
         return vec![StageLine { number: 1, name: "goal".into(), kind: "the BDDL goal on the final state".into(), required: true }];
@@ -353,21 +373,21 @@ fn episode_line(r: &libero_store::EpisodeRow) -> EpisodeLine {
     }
 }
 
-fn demo_line(b: &Value) -> DemoLine {
-    let key = b["key"].as_str().unwrap_or_default().to_owned();
-    let verified = match (b["verified"].as_bool(), b["valid"].as_bool()) {
-        (_, Some(false)) => format!("invalid: {}", b["first_violation"].as_str().unwrap_or("?")),
+fn demo_line(b: &BundleSummary) -> DemoLine {
+    let key = b.key.clone();
+    let verified = match (b.verified, b.valid) {
+        (_, false) => format!("invalid: {}", b.first_violation.as_deref().unwrap_or("?")),
         (Some(true), _) => "verified".into(),
         (Some(false), _) => "not verified".into(),
         (None, _) => "–".into(),
     };
     DemoLine {
         video: format!("/demos/{key}/video.mp4"),
-        source: b["source_type"].as_str().unwrap_or("?").to_owned(),
-        actions: b["actions"].as_u64().map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
+        source: b.source_type.as_deref().unwrap_or("?").to_owned(),
+        actions: b.actions.map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
         verified,
-        replay_checks: b["replay_checks"].as_array().into_iter().flatten().filter_map(|c| c.as_str().map(str::to_owned)).collect(),
-        episode: b["episode_id"].as_str().unwrap_or_default().to_owned(),
+        replay_checks: b.replay_checks.clone(),
+        episode: b.episode_id.clone().unwrap_or_default(),
         review: String::new(),
         key,
     }

@@ -556,19 +556,39 @@ fn bundle_path(app: &libero_server::App, task: &str, bundle: &str) -> Option<Pat
 }
 
 /// Every bundle of the library with what the table shows (newest first).
-fn list_bundles(root: &FsPath) -> Vec<Value> {
+fn list_bundles(root: &FsPath) -> Vec<BundleSummary> {
     newest_first(std::fs::read_dir(root).into_iter().flatten().flatten().flat_map(|d| bundle_rows(&d.path())).collect())
 }
 
 /// The bundles of one task's library folder (`<library>/<task>`), as [`list_bundles`] shows them, newest first.
-pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<Value> {
+pub(crate) fn task_bundles(task_dir: &FsPath) -> Vec<BundleSummary> {
     newest_first(bundle_rows(task_dir))
 }
 
 /// A bundle's row of the table, and when the bundle was recorded (what the rows are ordered by).
 struct BundleRow {
     modified_unix_s: Option<f64>,
-    row: Value,
+    row: BundleSummary,
+}
+
+/// One bundle as `/api/demos` lists it and the task page shows it (typed, so the page reads what the list writes).
+#[derive(Debug, serde::Serialize)]
+pub(crate) struct BundleSummary {
+    /// `<task folder>/<bundle folder>`.
+    pub key: String,
+    pub task: Option<String>,
+    pub instruction: Option<String>,
+    pub verified: Option<bool>,
+    pub replay_success: Option<bool>,
+    pub actions: Option<u64>,
+    pub source_type: Option<String>,
+    pub episode_id: Option<String>,
+    pub modified_unix_s: Option<f64>,
+    pub branch: Option<libero_records::demo_manifest::DemoBranch>,
+    /// Whether the bundle passes [`validate_bundle`], and its first violation if not.
+    pub valid: bool,
+    pub first_violation: Option<String>,
+    pub replay_checks: Vec<String>,
 }
 
 /// The rows of one task's library folder, in directory order.
@@ -591,23 +611,23 @@ fn bundle_rows(task_dir: &FsPath) -> Vec<BundleRow> {
             .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
             .map(|d| d.as_secs_f64());
         let violations = validate_bundle(&dir);
-        rows.push(BundleRow { modified_unix_s: modified, row: json!({
-            "key": format!("{task_name}/{name}"),
-            "task": m.task_id(), "instruction": m.instruction(),
-            "verified": m.verification.as_ref().and_then(|v| v.verified),
-            "replay_success": m.verification.as_ref().and_then(|v| v.replay_success),
-            "actions": m.transition_count, "source_type": m.source.as_ref().and_then(|s| s.source_type.as_deref()),
-            "episode_id": m.source.as_ref().and_then(|s| s.episode_id.as_deref()), "modified_unix_s": modified,
-            "branch": m.branch(),
-            "valid": violations.is_empty(), "first_violation": violations.first().map(ToString::to_string),
-            "replay_checks": m.replay_checks.iter().flatten().map(|c| c.summary()).collect::<Vec<_>>(),
-        })});
+        rows.push(BundleRow { modified_unix_s: modified, row: BundleSummary {
+            key: format!("{task_name}/{name}"),
+            task: m.task_id().map(str::to_owned), instruction: m.instruction().map(str::to_owned),
+            verified: m.verification.as_ref().and_then(|v| v.verified),
+            replay_success: m.verification.as_ref().and_then(|v| v.replay_success),
+            actions: m.transition_count, source_type: m.source.as_ref().and_then(|s| s.source_type.clone()),
+            episode_id: m.source.as_ref().and_then(|s| s.episode_id.clone()), modified_unix_s: modified,
+            branch: m.branch().cloned(),
+            valid: violations.is_empty(), first_violation: violations.first().map(ToString::to_string),
+            replay_checks: m.replay_checks.iter().flatten().map(|c| c.summary()).collect(),
+        }});
     }
     rows
 }
 
 /// The rows, the most recently recorded first.
-fn newest_first(mut rows: Vec<BundleRow>) -> Vec<Value> {
+fn newest_first(mut rows: Vec<BundleRow>) -> Vec<BundleSummary> {
     rows.sort_by(|a, b| b.modified_unix_s.partial_cmp(&a.modified_unix_s).unwrap_or(std::cmp::Ordering::Equal));
     rows.into_iter().map(|r| r.row).collect()
 }
