@@ -13,6 +13,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
+use serde::Deserialize;
 use serde_json::{Value, json};
 
 /// Connections relayed at once per listener; more wait in the listen backlog.
@@ -269,11 +270,37 @@ pub fn sandbox_report(listens: &[ListenSpec]) -> Value {
 
 /// Whether a report says the agent holds no capability and cannot gain one.
 pub fn report_holds_no_capability(report: &Value) -> bool {
-    let caps = &report["capabilities"];
-    ["inheritable", "permitted", "effective", "bounding", "ambient"]
+    let view = PrivilegeView::deserialize(report).unwrap_or_default();
+    let c = &view.capabilities;
+    [&c.inheritable, &c.permitted, &c.effective, &c.bounding, &c.ambient]
         .iter()
-        .all(|k| caps[k].as_str().is_some_and(|v| v.trim_start_matches('0').is_empty()))
-        && report["no_new_privs"] == true
+        .all(|set| set.as_str().is_some_and(|v| v.trim_start_matches('0').is_empty()))
+        && view.no_new_privs == true
+}
+
+/// The part of a [`sandbox_report`] that tells whether the agent holds or can gain a capability (values kept as
+/// JSON: a report of another shape holds no proof, read as "it may").
+#[derive(Deserialize, Default)]
+struct PrivilegeView {
+    #[serde(default)]
+    capabilities: CapabilitySets,
+    #[serde(default)]
+    no_new_privs: Value,
+}
+
+/// The report's `capabilities`: each set as `/proc/self/status` prints it (hex).
+#[derive(Deserialize, Default)]
+struct CapabilitySets {
+    #[serde(default)]
+    inheritable: Value,
+    #[serde(default)]
+    permitted: Value,
+    #[serde(default)]
+    effective: Value,
+    #[serde(default)]
+    bounding: Value,
+    #[serde(default)]
+    ambient: Value,
 }
 
 #[cfg(test)]
