@@ -21,7 +21,7 @@ use libero_episode::video_queue::{VideoProgress, VideoQueue};
 use libero_episode::world::{LiberoWorld, WorldSpec, head_wrist_cameras};
 use libero_episode::{Level, MicroAction};
 use libero_render::Renderer;
-use serde_json::{Value, json};
+use serde_json::json;
 
 use libero_episode::tools::MAX_AGENT_STEPS_CAP;
 
@@ -173,7 +173,19 @@ fn concurrent_peer(args: &BenchMcpArgs, renderer: &Renderer, episodes: usize) ->
 }
 
 /// The same calls without the server: 50 simulator steps, then one observation frame (both cameras).
-fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Value> {
+/// The in-process peer's figures (no MCP, no server): what each served call is compared with.
+#[derive(serde::Serialize)]
+struct Baseline {
+    calls: usize,
+    sim_steps_with_state_record_ms: f64,
+    video_render_encode_ms_per_call: f64,
+    sim_steps_ms_p50: f64,
+    render_ms_p50: f64,
+    sim_plus_render_ms_p50: f64,
+    sim_plus_render_ms_p95: f64,
+}
+
+fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Baseline> {
     let mut world = peer_world(args, renderer, 100)?;
     let (mut sim_ms, mut render_ms, mut total_ms) = (Vec::new(), Vec::new(), Vec::new());
     for (sim, render, total) in peer_calls(&mut world, args)? {
@@ -182,15 +194,15 @@ fn baseline(args: &BenchMcpArgs, renderer: &Renderer) -> anyhow::Result<Value> {
         total_ms.push(total);
     }
     let (record_ms, video_ms) = video_cost_ms(&mut world, args.actions)?;
-    Ok(json!({
-        "calls": total_ms.len(),
-        "sim_steps_with_state_record_ms": record_ms,
-        "video_render_encode_ms_per_call": video_ms,
-        "sim_steps_ms_p50": percentile_ms(&mut sim_ms, 50.0),
-        "render_ms_p50": percentile_ms(&mut render_ms, 50.0),
-        "sim_plus_render_ms_p50": percentile_ms(&mut total_ms.clone(), 50.0),
-        "sim_plus_render_ms_p95": percentile_ms(&mut total_ms, 95.0),
-    }))
+    Ok(Baseline {
+        calls: total_ms.len(),
+        sim_steps_with_state_record_ms: record_ms,
+        video_render_encode_ms_per_call: video_ms,
+        sim_steps_ms_p50: percentile_ms(&mut sim_ms, 50.0),
+        render_ms_p50: percentile_ms(&mut render_ms, 50.0),
+        sim_plus_render_ms_p50: percentile_ms(&mut total_ms.clone(), 50.0),
+        sim_plus_render_ms_p95: percentile_ms(&mut total_ms, 95.0),
+    })
 }
 
 /// What the private video costs per call off the reply path: `actions` control steps recorded as state by
@@ -229,7 +241,7 @@ pub fn run(args: &BenchMcpArgs) -> anyhow::Result<()> {
     };
     let renderer = Renderer::new().context("cannot open a GPU for rendering")?;
     let base = baseline(args, &renderer)?;
-    let reference_ms = base["sim_plus_render_ms_p50"].as_f64().unwrap_or(f64::NAN);
+    let reference_ms = base.sim_plus_render_ms_p50;
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
     let server = InProcessServer::start(data.clone(), "bench_finished_before_finish")?;
     let url = server.url.clone();

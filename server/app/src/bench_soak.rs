@@ -14,6 +14,7 @@ use serde::Serialize;
 use serde_json::{Value, json};
 
 use crate::bench_mcp::percentile_ms;
+use libero_records::records::ToolReply;
 use libero_server::client::{InProcessServer, McpClient, prepare_episode, wait_for_video};
 
 /// The longest one episode's video may take (a software renderer behind several episodes).
@@ -119,10 +120,13 @@ pub fn threads_by_kind() -> BTreeMap<String, u64> {
     kinds
 }
 
+/// The kinds of an episode's own threads (`episode-…`, `video-…`): each ended episode must let go of them.
+const EPISODE_THREAD_KINDS: [&str; 2] = ["episode", "video"];
+
 fn thread_kind(name: &str) -> String {
-    for prefix in ["episode-", "video-"] {
-        if name.starts_with(prefix) {
-            return prefix.trim_end_matches('-').to_owned();
+    for kind in EPISODE_THREAD_KINDS {
+        if name.strip_prefix(kind).is_some_and(|rest| rest.starts_with('-')) {
+            return kind.to_owned();
         }
     }
     name.trim_end_matches(|c: char| c.is_ascii_digit() || c == '-' || c == ':').to_owned()
@@ -157,7 +161,7 @@ fn file_kind(target: &str) -> String {
 /// Episode and video threads still alive (each ended episode must let go of both).
 fn episode_threads() -> u64 {
     let kinds = threads_by_kind();
-    kinds.get("episode").copied().unwrap_or(0) + kinds.get("video").copied().unwrap_or(0)
+    EPISODE_THREAD_KINDS.iter().map(|k| kinds.get(*k).copied().unwrap_or(0)).sum()
 }
 
 /// Samples continuously on a thread of its own and keeps the maximum of each figure.
@@ -210,7 +214,7 @@ pub(crate) fn one_episode(base: &str, args: &BenchSoakArgs, index: usize) -> any
         client.call_tool("osc_sequence", json!({"actions": actions}))?;
     }
     let finished = client.call_tool("finish_episode", json!({}))?;
-    if finished["status"] != "finished" {
+    if ToolReply::of(&finished).status.as_deref() != Some("finished") {
         bail!("episode {}: finish_episode answered {finished}", prepared.episode_id);
     }
     if req.video {

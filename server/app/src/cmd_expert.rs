@@ -23,6 +23,7 @@ use libero_episode::video_queue::VideoProgress;
 use libero_episode::{EpisodeError, Level, RunDir};
 use libero_sim::AssetPaths;
 use libero_tasks::expert;
+use serde::Deserialize;
 use serde_json::{Value, json};
 
 use libero_server::default_data_dir;
@@ -180,10 +181,18 @@ impl<'a> Paced<'a> {
     }
 }
 
+/// The `osc_sequence` arguments an expert builds (`{"actions": [[7 numbers], …]}`), as far as pacing counts them;
+/// the episode validates them (kept as JSON, so that what it refuses still paces as before).
+#[derive(serde::Deserialize, Default)]
+struct OscArguments {
+    #[serde(default)]
+    actions: Value,
+}
+
 impl ToolPort for Paced<'_> {
     fn call_tool(&mut self, tool: &str, arguments: Value) -> Result<Value, EpisodeError> {
         let actions = match (self.pace, tool) {
-            (Pace::Realtime, "osc_sequence") => arguments["actions"].as_array().map_or(0, Vec::len),
+            (Pace::Realtime, "osc_sequence") => OscArguments::deserialize(&arguments).unwrap_or_default().actions.as_array().map_or(0, Vec::len),
             _ => 0,
         };
         let started = Instant::now();

@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use serde::Deserialize;
 use anyhow::{Context, bail};
 use libero_sim::model_overrides::{RuntimeOverrides, compile_with_overrides};
 use libero_sim::mujoco_rs::prelude::MjModel;
@@ -90,8 +91,18 @@ pub fn load_scene(xml_path: &Path, overrides: Option<&RuntimeOverrides>) -> anyh
     Ok(Arc::new(compile_with_overrides(&xml, overrides).with_context(|| format!("compiling {}", xml_path.display()))?))
 }
 
+/// A golden file of `tests/reference` as far as a replay reads it: the recording's model overrides and start state
+/// (kept as JSON here, so that each is parsed with its own error; a file of another shape has neither).
+#[derive(serde::Deserialize, Default)]
+struct Golden {
+    #[serde(default)]
+    runtime_model_overrides: Option<serde_json::Value>,
+    #[serde(default)]
+    init_state: Option<serde_json::Value>,
+}
+
 /// The model and start row of a replay, from `--bddl` or from `--xml` (+ `--golden`).
-fn replay_scene(args: &ReplayArgs, golden: Option<&serde_json::Value>) -> anyhow::Result<(Arc<MjModel>, Vec<f64>)> {
+fn replay_scene(args: &ReplayArgs, golden: Option<&Golden>) -> anyhow::Result<(Arc<MjModel>, Vec<f64>)> {
     if let Some(bddl) = &args.bddl {
         if args.golden.is_some() && args.init_file.is_none() {
             bail!("with --bddl give the init state as --init-file (a golden file is only read for --actions)");
@@ -103,14 +114,14 @@ fn replay_scene(args: &ReplayArgs, golden: Option<&serde_json::Value>) -> anyhow
         return Ok((Arc::new(prepared.model), prepared.start_row));
     }
     let xml = args.xml.as_deref().context("give --bddl FILE or --xml FILE")?;
-    let overrides: Option<RuntimeOverrides> = match golden.and_then(|g| g.get("runtime_model_overrides")) {
+    let overrides: Option<RuntimeOverrides> = match golden.and_then(|g| g.runtime_model_overrides.as_ref()) {
         Some(o) => Some(serde_json::from_value(o.clone()).context("golden runtime_model_overrides")?),
         None => None,
     };
     let model = load_scene(xml, overrides.as_ref())?;
     let init_row: Vec<f64> = match (&args.init_file, golden) {
         (Some(f), _) => InitStates::read(f)?.get(args.init_index)?.to_vec(),
-        (None, Some(g)) => serde_json::from_value(g.get("init_state").cloned().context("golden has no init_state")?)
+        (None, Some(g)) => serde_json::from_value(g.init_state.clone().context("golden has no init_state")?)
             .context("golden init_state")?,
         (None, None) => bail!("give --init-file (or --golden with an init_state)"),
     };
@@ -118,7 +129,7 @@ fn replay_scene(args: &ReplayArgs, golden: Option<&serde_json::Value>) -> anyhow
 }
 
 pub fn run_replay(args: &ReplayArgs) -> anyhow::Result<()> {
-    let golden = args.golden.as_deref().map(read_json).transpose()?;
+    let golden = args.golden.as_deref().map(read_json).transpose()?.map(|g| Golden::deserialize(g).unwrap_or_default());
     // Parse the actions before the (slow) scene set-up so a bad file fails at once.
     let actions = parse_actions(&read_json(&args.actions)?)?;
     let (model, init_row) = replay_scene(args, golden.as_ref())?;
