@@ -32,6 +32,21 @@ pub fn stage_names<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<String>, D::Er
         .collect())
 }
 
+/// A stage object of a checker's parameters as far as its type goes (values kept as JSON, so that a declared type
+/// of any shape, `null` included, is refused with the stage's name).
+#[derive(Deserialize, Default)]
+struct DeclaredStage {
+    #[serde(default)]
+    name: Value,
+    #[serde(rename = "type", default, deserialize_with = "present")]
+    stage_type: Option<Value>,
+}
+
+/// A key that is there, whatever its value (`null` too): `Some`.
+fn present<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Value>, D::Error> {
+    Value::deserialize(d).map(Some)
+}
+
 /// Every stage of a checker's parameters (`stages`, then `optional_stages`) with its declared type, in order;
 /// `None` where a stage declares none. An unknown type is an error naming the stage.
 pub fn declared_stage_types(params: &Value) -> Result<Vec<(String, Option<StageType>)>, String> {
@@ -40,7 +55,11 @@ pub fn declared_stage_types(params: &Value) -> Result<Vec<(String, Option<StageT
         for stage in params.get(key).and_then(Value::as_array).into_iter().flatten() {
             let (name, declared) = match stage {
                 Value::String(name) => (name.clone(), None),
-                other => (other["name"].as_str().unwrap_or_default().to_owned(), other.get("type")),
+                Value::Object(_) => {
+                    let d = DeclaredStage::deserialize(stage).unwrap_or_default();
+                    (d.name.as_str().unwrap_or_default().to_owned(), d.stage_type)
+                }
+                _ => (String::new(), None),
             };
             let stage_type = declared
                 .map(|t| serde_json::from_value::<StageType>(t.clone()).map_err(|e| format!("stage {name:?}: type {t}: {e}")))
