@@ -99,8 +99,8 @@ async fn html_errors(req: Request, next: Next) -> Response {
 
 /// The message of an error body: `{"error": "…"}` or plain text.
 fn message_of(body: &[u8]) -> Option<String> {
-    if let Ok(v) = serde_json::from_slice::<serde_json::Value>(body) {
-        return v.get("error").and_then(|e| e.as_str()).map(str::to_owned);
+    if serde_json::from_slice::<serde_json::Value>(body).is_ok() {
+        return ApiError::message_in(body);
     }
     let text = String::from_utf8_lossy(body).trim().to_owned();
     (!text.is_empty()).then_some(text)

@@ -240,11 +240,12 @@ pub fn results_json(names: &[String], batches: &[LoadedBatch], sel: &Selection) 
         })
         .collect();
     let reps = selection_reps(batches, sel);
-    let across = report_json(batches, reps, task_facts());
+    // the paper's tables across the selection, as `report` computes them (not the rest of its report)
+    let across = libero_report::tables::paper_tables(batches, &rows(batches, reps), reps, task_facts());
     json!({"ok": true, "schema_version": "libero_agent.results.v1", "available": names, "batches": list,
-        "across_batches": {"reps": reps, "observation_ablation": across["observation_ablation"],
-            "demonstration_ablation": across["demonstration_ablation"], "stage_diagnosis": across["stage_diagnosis"],
-            "stage_diagnosis_extension": across["stage_diagnosis_extension"], "sustained_contact": across["sustained_contact"], "appendix_e": across["appendix_e"]}})
+        "across_batches": {"reps": reps, "observation_ablation": across.observation_ablation,
+            "demonstration_ablation": across.demonstration_ablation, "stage_diagnosis": across.stage_diagnosis,
+            "stage_diagnosis_extension": across.stage_diagnosis_extension, "sustained_contact": across.sustained_contact, "appendix_e": across.appendix_e}})
 }
 
 // ------------------------------------------------------------------------------------------- page view

@@ -4,6 +4,7 @@
 //! in may be malformed, and the validator reports each missing or ill-typed field. See [`crate::typed`] for how
 //! the fields not named here survive a read. The bundle's `trajectory.jsonl` rows are typed here too
 //! ([`DemoTrajectoryRow`]).
+use serde::Deserialize;
 use serde_json::Value;
 
 use crate::typed::record;
@@ -289,6 +290,19 @@ impl DemoManifest {
     }
 }
 
+/// What a replay check's summary reads of its target: the configuration the target episode started from.
+#[derive(serde::Deserialize)]
+struct TargetLayout {
+    effective_layout: Option<LayoutSeed>,
+}
+
+/// The placement seed and init row of an episode configuration (its other keys are not read here).
+#[derive(serde::Deserialize, Default)]
+struct LayoutSeed {
+    placement_seed: Option<u64>,
+    init_index: Option<u64>,
+}
+
 /// The rule a replay check is made under today (issue 48: direct and offset replays, stages counted); a stored
 /// acceptance under another rule is checked again.
 pub const REPLAY_CHECK_METHOD: &str = "direct_and_offset_replay_v2";
@@ -298,10 +312,9 @@ impl ReplayCheck {
     /// target's stages, and whether the bundle may be shown there (`direct 0/2 · offset 2/2 (solves) · idle 0 ·
     /// at most 1 → shown, direct rule`).
     pub fn summary(&self) -> String {
-        let target = self.target.as_ref();
-        let layout = target.map(|t| &t["effective_layout"]);
-        let seed = layout.and_then(|l| l["placement_seed"].as_u64()).map_or_else(|| "?".to_owned(), |s| s.to_string());
-        let init = layout.and_then(|l| l["init_index"].as_u64()).map(|i| format!(", init {i}")).unwrap_or_default();
+        let layout = self.target.as_ref().and_then(|t| TargetLayout::deserialize(t).ok()).and_then(|t| t.effective_layout).unwrap_or_default();
+        let seed = layout.placement_seed.map_or_else(|| "?".to_owned(), |s| s.to_string());
+        let init = layout.init_index.map(|i| format!(", init {i}")).unwrap_or_default();
         let k = self.required_stage_count.map_or_else(|| "?".to_owned(), |k| k.to_string());
         let c = |n: Option<u64>| n.map_or_else(|| "?".to_owned(), |n| n.to_string());
         if self.method.as_deref() != Some(REPLAY_CHECK_METHOD) {

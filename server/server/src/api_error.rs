@@ -76,6 +76,16 @@ impl ApiError {
         self
     }
 
+    /// The message of an error answer's body (`{"ok": false, "error": "…"}`), for this server's own clients and
+    /// error pages; `None` for any other body.
+    pub fn message_in(body: &[u8]) -> Option<String> {
+        #[derive(serde::Deserialize)]
+        struct Body {
+            error: String,
+        }
+        serde_json::from_slice::<Body>(body).ok().map(|b| b.error)
+    }
+
     pub fn status(&self) -> StatusCode {
         self.status
     }

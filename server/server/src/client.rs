@@ -12,7 +12,7 @@ use crate::episodes::{PrepareRequest, Prepared};
 use libero_records::episode_view::{EpisodeList, EpisodeResultReply, EpisodeVideo, EpisodeView};
 use libero_records::records::RunResult;
 use crate::http_client::{HttpUrl, request};
-use crate::{ServeArgs, credential, start};
+use crate::{ApiError, ServeArgs, credential, start};
 use crate::http_client::messages_of;
 
 /// Per-request timeout (a debug build under load can take seconds per call; a call never outlives an episode).
@@ -90,7 +90,7 @@ impl McpClient {
     /// `tools/call`; the tool's payload, which must say `ok: true`.
     pub fn call_tool(&mut self, name: &str, arguments: Value) -> anyhow::Result<Value> {
         let payload = self.call_tool_payload(name, arguments)?;
-        if payload["ok"] != true {
+        if libero_records::action_event::ToolReply::of(&payload).ok != Some(true) {
             bail!("{name} failed: {payload}");
         }
         Ok(payload)
@@ -118,7 +118,7 @@ pub fn prepare_episode(base: &str, req: &PrepareRequest) -> anyhow::Result<Prepa
     let resp = operator_request("POST", base, "/api/episodes", &serde_json::to_vec(req)?, CALL_TIMEOUT)?;
     let v: Value = serde_json::from_slice(&resp.body).context("prepare reply is not JSON")?;
     if resp.status != 201 {
-        let msg = v["error"].as_str().map(str::to_owned).unwrap_or_else(|| v.to_string());
+        let msg = ApiError::message_in(&resp.body).unwrap_or_else(|| v.to_string());
         bail!("the server refused to prepare the episode (HTTP {}): {msg}", resp.status);
     }
     serde_json::from_value(v).context("prepare reply does not describe an episode")
@@ -146,8 +146,7 @@ pub fn post_json_within(base: &str, path: &str, body: &Value, timeout: Duration)
 fn get_typed<T: serde::de::DeserializeOwned>(base: &str, path: &str) -> anyhow::Result<T> {
     let resp = operator_request("GET", base, path, b"", Duration::from_secs(30))?;
     if !(200..300).contains(&resp.status) {
-        let v: Value = serde_json::from_slice(&resp.body).unwrap_or(Value::Null);
-        let msg = v.get("error").and_then(Value::as_str).map(str::to_owned).unwrap_or_else(|| String::from_utf8_lossy(&resp.body).into_owned());
+        let msg = ApiError::message_in(&resp.body).unwrap_or_else(|| String::from_utf8_lossy(&resp.body).into_owned());
         bail!("GET {path}: HTTP {}: {msg}", resp.status);
     }
     serde_json::from_slice(&resp.body).with_context(|| format!("GET {path}: the reply is not what the API sends"))
@@ -249,8 +248,8 @@ impl InProcessServer {
                     let grace = tokio::task::spawn_blocking(move || stop_rx.recv()).await.ok().and_then(Result::ok);
                     (stop_reason, grace.unwrap_or(crate::SIGNAL_GRACE))
                 };
-                let listening = move |v: Value| {
-                    let _ = url_tx.send(Ok(v["url"].as_str().unwrap_or_default().to_owned()));
+                let listening = move |l: crate::serve::Listening| {
+                    let _ = url_tx.send(Ok(l.url));
                 };
                 bound.serve(listening, stop).await
             });

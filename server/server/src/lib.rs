@@ -39,7 +39,7 @@ pub use app::{App, AppState, Console, TeleopEpisode};
 pub use args::{ServeArgs, ServerFlags, StoreFlags, ThumbnailArgs, batch_roots, check_public_url, default_data_dir};
 pub use mcp_gate::bearer;
 pub use router::router;
-pub use serve::{Bound, DRAIN_GRACE, DataLock, InProcess, SIGNAL_GRACE, run_serve, serve, serve_until, start};
+pub use serve::{Bound, DRAIN_GRACE, DataLock, InProcess, Listening, SIGNAL_GRACE, run_serve, serve, serve_until, start};
 
 /// Held by this crate's tests that build worlds or read process-wide figures (MuJoCo's asset cache, the shared
 /// models): under `cargo test` the tests are threads of one process, and one test's episode showed in the

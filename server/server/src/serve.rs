@@ -2,12 +2,12 @@
 //! store writer and the housekeeping tasks, serving until a stop, and the drain that records every open episode.
 use std::collections::HashMap;
 use std::future::Future;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
 use libero_episode::lifecycle::EpisodeSet;
-use serde_json::{Value, json};
 
 use crate::app::App;
 use crate::args::{ServeArgs, batch_roots, check_public_url, default_data_dir};
@@ -37,7 +37,7 @@ pub fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
 
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let shutdown = async { (shutdown_signal().await, SIGNAL_GRACE) };
-    serve_until(args, |listening| println!("{listening}"), shutdown).await
+    serve_until(args, |listening| println!("{}", serde_json::to_string(&listening).unwrap_or_default()), shutdown).await
 }
 
 /// An exclusive lock on a data directory, held while a server uses it: a second `serve` on the same
@@ -77,12 +77,29 @@ impl DataLock {
     }
 }
 
+/// The line `serve` prints once it listens (a JSON object; the keys in the order it always printed them), what
+/// scripts and benches wait for and read the server's URL and data directory from.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Listening {
+    pub batch_roots: Vec<PathBuf>,
+    pub dashboard: String,
+    pub data: PathBuf,
+    /// Always `listening`.
+    pub event: String,
+    pub operator_token_file: PathBuf,
+    /// Episodes found open in the run directories at start, recorded as aborted (INVALID).
+    pub recovered_invalid_episodes: usize,
+    /// Store rows still open at start, closed from their run directories.
+    pub store_rows_closed_at_start: u64,
+    pub url: String,
+}
+
 /// The server: locks the data directory, binds, recovers interrupted episodes (files, then the store),
 /// reports `listening` (the JSON line `serve` prints), serves until `shutdown` yields a stop reason and how long
 /// to wait for the episodes, then records every open episode as aborted with it.
 pub async fn serve_until(
     args: ServeArgs,
-    listening: impl FnOnce(Value),
+    listening: impl FnOnce(Listening),
     shutdown: impl Future<Output = (String, Duration)> + Send + 'static,
 ) -> anyhow::Result<()> {
     let running = start(&args).await?;
@@ -228,7 +245,7 @@ impl Bound {
     }
 
     /// Serves until `shutdown` yields a stop reason (see [`serve_until`]).
-    pub async fn serve(self, listening: impl FnOnce(Value), shutdown: impl Future<Output = (String, Duration)> + Send + 'static) -> anyhow::Result<()> {
+    pub async fn serve(self, listening: impl FnOnce(Listening), shutdown: impl Future<Output = (String, Duration)> + Send + 'static) -> anyhow::Result<()> {
         let Bound { app, listeners, limits, base_url, recovered, reconciled, inbox, ahead, _lock, _registration } = self;
         let writer_task = tokio::spawn(store_writer::run(inbox, app.store.clone(), app.episodes.clone(), app.hubs.clone()));
         let release_task = tokio::spawn(release_ended(app.episodes.clone()));
@@ -239,12 +256,16 @@ impl Bound {
             app.thumbnails.render_ahead(ahead_ids, ahead_threads);
         }
         let data = app.episodes.lifecycle().data_dir().to_path_buf();
-        listening(json!({
-            "event": "listening", "url": base_url, "data": data,
-            "recovered_invalid_episodes": recovered, "store_rows_closed_at_start": reconciled,
-            "dashboard": format!("{base_url}/"), "batch_roots": app.batch_roots,
-            "operator_token_file": data.join(credential::TOKEN_FILE),
-        }));
+        listening(Listening {
+            batch_roots: app.batch_roots.clone(),
+            dashboard: format!("{base_url}/"),
+            operator_token_file: data.join(credential::TOKEN_FILE),
+            data: data.clone(),
+            event: "listening".into(),
+            recovered_invalid_episodes: recovered,
+            store_rows_closed_at_start: reconciled,
+            url: base_url.clone(),
+        });
         let token_file = std::path::absolute(data.join(credential::TOKEN_FILE)).unwrap_or_else(|_| data.join(credential::TOKEN_FILE));
         match app.operator.new_login_code() {
             Ok(code) => eprintln!(

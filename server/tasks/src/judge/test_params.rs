@@ -14,16 +14,48 @@ fn read<T: serde::de::DeserializeOwned>(file: &str) -> T {
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("parse {}: {e}", path.display()))
 }
 
-/// `pool.json`'s entries (the pool's other keys are [`crate::pool::Pool::load`]'s).
+/// What these fixtures read of `manifest.json` and `pool.json`: the few keys of their own (the crate's full types live
+/// in `catalog` and `pool`, which the checkers this module serves are below: reading through them closed an import
+/// circle).
+#[derive(serde::Deserialize)]
+struct Manifest {
+    tasks: Vec<ManifestTask>,
+}
+
+#[derive(serde::Deserialize)]
+struct ManifestTask {
+    id: String,
+    checker: Checker,
+}
+
+#[derive(serde::Deserialize)]
+struct Checker {
+    #[serde(default)]
+    params: serde_json::Value,
+}
+
 #[derive(serde::Deserialize)]
 struct PoolEntries {
-    entries: Vec<crate::pool::PoolEntry>,
+    entries: Vec<PoolEntry>,
+}
+
+#[derive(serde::Deserialize)]
+struct PoolEntry {
+    suite: String,
+    name: String,
+    definition: Option<Definition>,
+}
+
+#[derive(serde::Deserialize)]
+struct Definition {
+    #[serde(default)]
+    checker_params: serde_json::Value,
 }
 
 /// `checker.params` of release task `task` (`T20`), or `definition.checker_params` of pool entry `suite/name`.
 pub(crate) fn checker_params(task: &str) -> serde_json::Value {
     let found = match task.split_once('/') {
-        None => read::<crate::catalog::Manifest>("manifest.json").tasks.into_iter().find(|t| t.id == task).map(|t| t.checker.params),
+        None => read::<Manifest>("manifest.json").tasks.into_iter().find(|t| t.id == task).map(|t| t.checker.params),
         Some((suite, name)) => read::<PoolEntries>("pool.json")
             .entries
             .into_iter()
