@@ -14,4 +14,4 @@ pub mod server;
 #[cfg(feature = "postgres")]
 pub use libero_store::testing::TestPostgres;
 
-pub use paths::{assets_dir, cache_dir, repo_root, server_dir, tasks_dir, tests_dir};
+pub use paths::{assets_dir, cache_dir, repo_root, server_dir, tasks_dir, tests_dir, venv_python};

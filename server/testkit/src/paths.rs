@@ -56,3 +56,11 @@ mod tests {
         assert!(assets_dir().is_dir());
     }
 }
+
+/// The test venv's interpreter (`scripts/setup.py --test`: MuJoCo's Python package, numpy, Pillow, the MCP SDK,
+/// openpi-client): the independent Python peers of the tests. Fails loudly when the set-up has not been run.
+pub fn venv_python() -> PathBuf {
+    let py = cache_dir().join("pyenv/bin/python");
+    assert!(py.is_file(), "{} is missing: run `python3 scripts/setup.py --test`", py.display());
+    py
+}

@@ -12,10 +12,7 @@ pub mod scripted_model;
 
 /// The test venv's interpreter (`scripts/setup.py --test`): the independent Python peers of some tests.
 pub fn python() -> PathBuf {
-    let cache = libero_testkit::cache_dir();
-    let py = cache.join("pyenv/bin/python");
-    assert!(py.is_file(), "{} missing: run `python3 scripts/setup.py --test`", py.display());
-    py
+    libero_testkit::venv_python()
 }
 
 pub fn bin() -> &'static str {

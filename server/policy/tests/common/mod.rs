@@ -5,14 +5,9 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
-use libero_testkit::cache_dir;
 
-/// The test venv's Python (openpi-client, numpy, Pillow); fails loudly when the set-up has not been run.
-pub fn venv_python() -> PathBuf {
-    let py = cache_dir().join("pyenv/bin/python");
-    assert!(py.exists(), "{} is missing: run `python3 scripts/setup.py --test` (openpi-client in the test venv)", py.display());
-    py
-}
+/// The test venv's Python (openpi-client, numpy, Pillow).
+pub use libero_testkit::venv_python;
 
 pub fn fixture_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/policy_server.py")

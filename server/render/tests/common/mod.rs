@@ -37,16 +37,8 @@ pub fn artifacts_dir() -> PathBuf {
 
 pub use libero_testkit::cache_dir;
 
-/// The test venv's Python; fails loudly when the test set-up has not been run.
-pub fn venv_python() -> PathBuf {
-    let py = cache_dir().join("pyenv/bin/python");
-    assert!(
-        py.exists(),
-        "{} is missing: the render validation needs the Python `mujoco` package; run `python3 scripts/setup.py --test`",
-        py.display()
-    );
-    py
-}
+/// The test venv's Python (the render validation needs its `mujoco` package).
+pub use libero_testkit::venv_python;
 
 pub fn load_model(xml: &Path) -> Arc<MjModel> {
     let cache = cache_dir();
