@@ -36,7 +36,7 @@ fn filled() -> HarnessManifest {
         harness_version: Some(doc(json!({"requested": "codex", "observed": "0.154.0", "probe_output": "codex-cli 0.154.0",
             "executable": "/usr/local/bin/codex"}))),
         api_protocol: Some("openai_chat".into()),
-        credential_source: Some(Some("/root/.config/libero/credentials.json".into())),
+        credential_source: Some(Some("/home/researcher/.config/libero/credentials.json".into())),
         credential_material: Some(CREDENTIAL_MATERIAL_NEVER_RECORDED.into()),
         sandbox: Some(Some(doc(json!({
             "bubblewrap": "0.9.0", "namespaces": ["mount", "pid", "ipc", "uts", "net", "cgroup"],
